@@ -1,0 +1,50 @@
+"""The contact parameters tactiled estimates, in user units (mm, N, degrees)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A paraboloid indentor pressed on the finger.
+
+    ``r1 <= r2`` are the principal radii in mm (``r2 = inf`` for a cylinder, ``r1 == r2`` for
+    a sphere); ``psi_deg`` is the direction of the R2 axis (a cylinder's axis) from +x toward +y
+    in degrees; ``force`` is the normal force in N; ``(x0, y0)`` the contact centre in mm in
+    array coordinates (tactel ``[0, 0]`` at the origin).
+    """
+
+    r1: float
+    r2: float = math.inf
+    psi_deg: float = 90.0
+    force: float = 1.0
+    x0: float = 0.0
+    y0: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.r1) and self.r1 > 0):
+            raise ValueError(f"r1 must be a positive finite radius in mm, got {self.r1!r}")
+        if not (self.r2 > 0) or math.isnan(self.r2):
+            raise ValueError(f"r2 must be a positive radius in mm or inf, got {self.r2!r}")
+        if not (math.isfinite(self.force) and self.force > 0):
+            raise ValueError(f"force must be positive and finite in N, got {self.force!r}")
+        for name in ("psi_deg", "x0", "y0"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+
+    @property
+    def kappa_a(self) -> float:
+        """Curvature across the R2 axis, ``1/r1``, in 1/mm."""
+        return 1.0 / self.r1
+
+    @property
+    def kappa_b(self) -> float:
+        """Curvature along the R2 axis, ``1/r2`` (0 for a cylinder), in 1/mm."""
+        return 0.0 if math.isinf(self.r2) else 1.0 / self.r2
+
+    @property
+    def psi(self) -> float:
+        """``psi_deg`` in radians."""
+        return math.radians(self.psi_deg)

@@ -1,0 +1,194 @@
+"""Predicted tactel strains: the impulse response convolved with the Hertz pressure (eq. 13).
+
+    strain[m, n] = (1/E) * integral h_x(X_m - x) h_y(Y_n - y) p(x, y) dx dy
+
+Mapping the contact ellipse onto the unit disk, ``x = x0 + a u cos(theta) - b v sin(theta)``,
+``y = y0 + a u sin(theta) + b v cos(theta)``, the Jacobian ``a b`` cancels the pressure's
+``3F/(2 pi a b)``, so
+
+    strain = 3F/(2 pi E) * integral over the unit disk sqrt(1 - u^2 - v^2) h_x(...) h_y(...).
+
+With ``v = sqrt(1 - u^2) s`` that is ``integral (1 - u^2) du integral sqrt(1 - s^2) ds``: a
+Gauss-Jacobi(1, 1) rule in u times a Gauss-Chebyshev (second kind) rule in s integrates the
+square-root edge of the pressure exactly and converges geometrically for the smooth kernel.
+The node counts follow from the kernel's pole at distance ``d`` (the rubber depth) from the real
+axis: ``n = ln(1/tol) / (2 ln rho)``, ``rho = d/a + sqrt(1 + (d/a)^2)``, so knife edges use a few
+nodes and near-plane contacts many.  Node positions depend smoothly on (a, b, theta, x0, y0), so
+derivatives are exact chain rules through ``h'`` (no finite differences).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+from scipy.special import roots_chebyu, roots_jacobi
+
+from tactiled.config import SensorModel
+from tactiled.physics.contact import Contact
+from tactiled.physics.hertz import Ellipse, contact_ellipse
+from tactiled.physics.impulse import line_response, line_response_and_slope
+from tactiled.physics.kernels import quadrature, strain_with_jacobian
+
+DEFAULT_TOL = 1e-9
+MIN_NODES = 3
+MAX_NODES = 400  # a contact ~100x the rubber depth; beyond that the planar model is moot anyway
+
+
+@lru_cache(maxsize=512)
+def disk_rule(n_u: int, n_s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes ``(u, v)`` and weights of the unit-disk rule for weight ``sqrt(1 - u^2 - v^2)``.
+
+    The weights sum to ``2 pi / 3``.  Arrays are read-only (cached and shared).
+    """
+    u, wu = roots_jacobi(n_u, 1.0, 1.0)
+    s, ws = roots_chebyu(n_s)
+    uu = np.repeat(u, n_s)
+    ss = np.tile(s, n_u)
+    v = np.sqrt(1.0 - uu * uu) * ss
+    w = np.repeat(wu, n_s) * np.tile(ws, n_u)
+    for arr in (uu, v, w):
+        arr.setflags(write=False)
+    return uu, v, w
+
+
+def nodes_for(extent: float, depth: float, tol: float = DEFAULT_TOL) -> int:
+    """Gauss nodes needed along a semi-axis of ``extent`` mm for a kernel of ``depth`` mm."""
+    r = depth / max(extent, 1e-12)
+    log_rho = math.asinh(r)  # ln(r + sqrt(1 + r^2))
+    n = math.ceil(0.5 * math.log(1.0 / tol) / log_rho)
+    return min(max(n, MIN_NODES), MAX_NODES)
+
+
+class StrainModel:
+    """Forward model for one sensor: contact -> predicted strains at chosen tactels.
+
+    ``tol`` is the quadrature's relative accuracy target (the forward model's accuracy knob).
+    """
+
+    def __init__(self, sensor: SensorModel | None = None, tol: float = DEFAULT_TOL) -> None:
+        self.sensor = sensor or SensorModel()
+        self.tol = tol
+        imp = self.sensor.impulse
+        self._dx, self._nux = imp.depth_x, imp.nu_x
+        self._dy, self._nuy = imp.depth_y, imp.nu_y
+        self._dmin = min(imp.depth_x, imp.depth_y)
+        self._imp = np.array((imp.depth_x, imp.nu_x, imp.depth_y, imp.nu_y))
+        self._scale = 3.0 / (2.0 * math.pi * self.sensor.material.modulus)
+        self._rf = self.sensor.geometry.finger_radius
+        self._k = self.sensor.material.compliance
+        g = self.sensor.geometry
+        self.xs_full = np.arange(g.rows) * g.dx
+        self.ys_full = np.arange(g.cols) * g.dy
+
+    # -- geometry ---------------------------------------------------------------------------
+    def ellipse(
+        self, kappa_a: float, kappa_b: float, psi: float, force: float, jac: bool = False
+    ) -> tuple[Ellipse, list[list[float]] | None]:
+        """Hertz ellipse on this finger (see :func:`tactiled.physics.hertz.contact_ellipse`)."""
+        return contact_ellipse(kappa_a, kappa_b, psi, force, self._rf, self._k, jac)
+
+    def _rule(self, ell: Ellipse) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return disk_rule(nodes_for(ell.a, self._dmin, self.tol), nodes_for(ell.b, self._dmin, self.tol))
+
+    # -- strains ----------------------------------------------------------------------------
+    def strain_from_ellipse(
+        self, ell: Ellipse, force: float, x0: float, y0: float, xs: np.ndarray, ys: np.ndarray
+    ) -> np.ndarray:
+        """Strains ``(len(xs), len(ys))`` at tactel coordinates ``xs`` (mm along x), ``ys``."""
+        u, v, w = self._rule(ell)
+        val = quadrature(
+            x0, y0, ell.a, ell.b, ell.theta, u, v, w, xs, ys,
+            self._dx, self._nux, self._dy, self._nuy,
+        )
+        return (self._scale * force) * val
+
+    def strain_from_ellipse_numpy(
+        self, ell: Ellipse, force: float, x0: float, y0: float, xs: np.ndarray, ys: np.ndarray
+    ) -> np.ndarray:
+        """numpy expression of :meth:`strain_from_ellipse` (reference for the compiled loop)."""
+        u, v, w = self._rule(ell)
+        c, s = math.cos(ell.theta), math.sin(ell.theta)
+        au, bv = ell.a * u, ell.b * v
+        xq = x0 + au * c - bv * s
+        yq = y0 + au * s + bv * c
+        hx = line_response(xs[:, None] - xq, self._dx, self._nux)
+        hy = line_response(ys[:, None] - yq, self._dy, self._nuy)
+        return (self._scale * force) * ((hx * w) @ hy.T)
+
+    def strain_and_jacobian(
+        self,
+        kappa_a: float,
+        kappa_b: float,
+        psi: float,
+        force: float,
+        x0: float,
+        y0: float,
+        xs: np.ndarray,
+        ys: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, Ellipse]:
+        """Strains ``(Mx, Ny)`` and their Jacobian ``(Mx, Ny, 6)`` with respect to
+        ``(kappa_a [1/mm], kappa_b [1/mm], psi [rad], F [N], x0 [mm], y0 [mm])``."""
+        ell, hj = self.ellipse(kappa_a, kappa_b, psi, force, jac=True)
+        u, v, w = self._rule(ell)
+        geo = np.array((x0, y0, ell.a, ell.b, ell.theta, force, self._scale))
+        value, jac = strain_with_jacobian(geo, np.array(hj), u, v, w, xs, ys, self._imp)
+        return value, jac, ell
+
+    def _chain(
+        self, value: np.ndarray, d_geo: np.ndarray, hj: list[list[float]], force: float,
+        ell: Ellipse,
+    ) -> tuple[np.ndarray, np.ndarray, Ellipse]:
+        """Chain ``d/d(x0, y0, a, b, theta)`` through the Hertz Jacobian to the 6 inputs."""
+        kf = self._scale * force
+        h = np.asarray(hj)  # (3, 4): d(a, b, theta)/d(kappa_a, kappa_b, psi, F)
+        jac = np.empty(value.shape + (6,))
+        jac[..., :4] = kf * np.tensordot(d_geo[2:5], h, axes=(0, 0))
+        jac[..., 3] += self._scale * value
+        jac[..., 4] = kf * d_geo[0]
+        jac[..., 5] = kf * d_geo[1]
+        return kf * value, jac, ell
+
+    def strain_and_jacobian_numpy(
+        self,
+        kappa_a: float,
+        kappa_b: float,
+        psi: float,
+        force: float,
+        x0: float,
+        y0: float,
+        xs: np.ndarray,
+        ys: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, Ellipse]:
+        """numpy expression of :meth:`strain_and_jacobian` (reference for the compiled loop)."""
+        ell, hj = self.ellipse(kappa_a, kappa_b, psi, force, jac=True)
+        u, v, w = self._rule(ell)
+        c, s = math.cos(ell.theta), math.sin(ell.theta)
+        au, bv = ell.a * u, ell.b * v
+        dxq = au * c - bv * s  # xq - x0
+        dyq = au * s + bv * c  # yq - y0
+        hx, dhx = line_response_and_slope(xs[:, None] - (x0 + dxq), self._dx, self._nux)
+        hy, dhy = line_response_and_slope(ys[:, None] - (y0 + dyq), self._dy, self._nuy)
+        gy = hx * w  # pairs with hy (value) and dhy (y-motion of nodes)
+        gx = dhx * w  # pairs with hy (x-motion of nodes)
+        value = gy @ hy.T
+        # Node motion per unit change of (x0, y0, a, b, theta): (d xq, d yq).
+        ones, zeros = np.ones_like(u), np.zeros_like(u)
+        alpha = np.stack([ones, zeros, u * c, -v * s, -dyq])
+        beta = np.stack([zeros, ones, u * s, v * c, dxq])
+        # d value / d node-x = -h_x' (argument is X - xq); likewise for y.
+        d_geo = -((gx * alpha[:, None, :]) @ hy.T + (gy * beta[:, None, :]) @ dhy.T)
+        return self._chain(value, d_geo, hj, force, ell)
+
+    def predict(self, contact: Contact, xs: np.ndarray | None = None, ys: np.ndarray | None = None) -> np.ndarray:
+        """Predicted strain for a :class:`Contact`, on the whole array by default."""
+        xs = self.xs_full if xs is None else np.ascontiguousarray(xs, dtype=float)
+        ys = self.ys_full if ys is None else np.ascontiguousarray(ys, dtype=float)
+        ell, _ = self.ellipse(contact.kappa_a, contact.kappa_b, contact.psi, contact.force)
+        return self.strain_from_ellipse(ell, contact.force, contact.x0, contact.y0, xs, ys)
+
+
+def predict_strain(contact: Contact, sensor: SensorModel | None = None) -> np.ndarray:
+    """Predicted strain frame ``(rows, cols)`` for ``contact`` on ``sensor`` (default MODEL.md)."""
+    return StrainModel(sensor).predict(contact)
