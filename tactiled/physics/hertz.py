@@ -11,7 +11,7 @@ has eigenvalues ``A' >= C'``; the major semi-axis ``a`` lies along the eigenvect
 
     a^3 = 3 F k (K(m) - E(m)) / (2 pi m C'),    k = (1 - nu_f^2)/E.
 
-Everything is scalar Python (``math``): the fitter calls this once per iteration and numpy's
+The core is compiled scalar code (numba): the fitter calls it once per iteration, and numpy's
 per-call overhead on scalars would cost more than the algebra.  With ``jac=True`` the analytic
 derivatives of ``(a, b, theta)`` with respect to ``(kappa_a, kappa_b, psi, F)`` come too.
 """
@@ -20,6 +20,9 @@ from __future__ import annotations
 
 import math
 from typing import NamedTuple
+
+import numpy as np
+from numba import njit
 
 from tactiled.physics.eccentricity import solve_log_scalar
 
@@ -34,27 +37,20 @@ class Ellipse(NamedTuple):
     m: float
 
 
-def contact_ellipse(
+@njit(cache=True, nogil=True)
+def ellipse_core(
     kappa_a: float,
     kappa_b: float,
     psi: float,
     force: float,
     finger_radius: float,
     compliance: float,
-    jac: bool = False,
-) -> tuple[Ellipse, list[list[float]] | None]:
-    """Contact ellipse for curvatures in 1/mm, ``psi`` in radians, ``force`` in N.
-
-    ``finger_radius`` in mm; ``compliance`` is ``k = (1 - nu_f^2)/E`` in mm^2/N.  Returns the
-    ellipse and, if ``jac``, the 3x4 matrix ``d(a, b, theta) / d(kappa_a, kappa_b, psi, F)``
-    (``theta`` derivative in rad/rad).  ``kappa_b > kappa_a`` is allowed (the fitter's general
-    model may cross over); curvatures must be >= 0 and not both 0 for a cylindrical finger.
-    """
-    if not (kappa_a >= 0.0 and kappa_b >= 0.0 and force > 0.0):
-        raise ValueError(
-            f"need curvatures >= 0 and force > 0, got kappa_a={kappa_a!r}, "
-            f"kappa_b={kappa_b!r}, force={force!r}"
-        )
+    jac: np.ndarray,
+) -> tuple[float, float, float, float]:
+    """Compiled core of :func:`contact_ellipse`: returns ``(a, b, theta, m)`` and, when ``jac``
+    has shape (3, 4), fills it with ``d(a, b, theta)/d(kappa_a, kappa_b, psi, F)``.  Returns
+    ``a = -1`` for an infinite line contact (``C' <= 0``) instead of raising (no exceptions in
+    compiled code)."""
     s2, c2 = math.sin(2.0 * psi), math.cos(2.0 * psi)
     kf = 1.0 / finger_radius
     # M = [[p, q], [q, s]]; with cos^2 = (1 + c2)/2, sin^2 = (1 - c2)/2.
@@ -66,50 +62,83 @@ def contact_ellipse(
     half = 0.5 * (p - s)
     delta = math.hypot(half, q)
     c_prime = mu - delta  # C'
-    if c_prime <= 0.0:
-        # Only for kappa along the finger axis exactly 0 (cylinder parallel to the finger):
-        # an infinitely long contact.  Callers guard psi/R so this is a genuine misuse.
-        raise ValueError(
-            "contact is an infinite line (indentor axis parallel to the finger axis): "
-            f"kappa_a={kappa_a!r}, kappa_b={kappa_b!r}, psi={psi!r} rad"
-        )
+    if not c_prime > 0.0:
+        return -1.0, -1.0, 0.0, 1.0
     phi = 0.5 * math.atan2(q, half)  # direction of the A' eigenvector
     theta = (phi + 0.5 * math.pi) % math.pi
     if delta > 0.0:
         x = math.log(2.0 * delta / c_prime)  # log(lambda - 1), no cancellation
-        m, m1, log_f, dlogf_dx, dlogm1_dx = solve_log_scalar(x)
+        m, m1, log_f, dlogf_dx, dlogm1_dx = solve_log_scalar(x, 1)
     else:  # circular contact: sphere-like limit m = 0, f = pi/4
         m, m1, log_f, dlogf_dx, dlogm1_dx = 0.0, 1.0, math.log(math.pi / 4.0), 0.0, 0.0
     log_a = (math.log(3.0 * compliance / (2.0 * math.pi)) + math.log(force) + log_f
              - math.log(c_prime)) / 3.0
     a = math.exp(log_a)
     b = a * math.sqrt(m1)
-    ell = Ellipse(a, b, theta, m)
-    if not jac:
-        return ell, None
+    if jac.shape[0] == 3:
+        # d(p, s, q) / d(kappa_a, kappa_b, psi)
+        for i in range(3):
+            if i == 0:
+                dp, ds, dq = 0.25 * (1.0 - c2), 0.25 * (1.0 + c2), -0.25 * s2
+            elif i == 1:
+                dp, ds, dq = 0.25 * (1.0 + c2), 0.25 * (1.0 - c2), 0.25 * s2
+            else:
+                dp, ds, dq = -0.5 * kdif * s2, 0.5 * kdif * s2, 0.5 * kdif * c2
+            dmu = 0.5 * (dp + ds)
+            dhalf = 0.5 * (dp - ds)
+            if delta > 0.0:
+                ddelta = (half * dhalf + q * dq) / delta
+                jac[2, i] = 0.5 * (half * dq - q * dhalf) / (delta * delta)
+                dc = dmu - ddelta
+                dx = ddelta / delta - dc / c_prime
+            else:
+                ddelta = 0.0
+                jac[2, i] = 0.0
+                dc = dmu
+                dx = 0.0
+            dlog_a = (dlogf_dx * dx - dc / c_prime) / 3.0
+            jac[0, i] = a * dlog_a
+            jac[1, i] = b * (dlog_a + 0.5 * dlogm1_dx * dx)
+        jac[0, 3] = a / (3.0 * force)
+        jac[1, 3] = b / (3.0 * force)
+        jac[2, 3] = 0.0
+    return a, b, theta, m
 
-    # Derivatives of p, s, q with respect to (kappa_a, kappa_b, psi).
-    dp = (0.25 * (1.0 - c2), 0.25 * (1.0 + c2), -0.5 * kdif * s2)
-    ds = (0.25 * (1.0 + c2), 0.25 * (1.0 - c2), 0.5 * kdif * s2)
-    dq = (-0.25 * s2, 0.25 * s2, 0.5 * kdif * c2)
-    row_a, row_b, row_t = [0.0] * 4, [0.0] * 4, [0.0] * 4
-    for i in range(3):
-        dmu = 0.5 * (dp[i] + ds[i])
-        dhalf = 0.5 * (dp[i] - ds[i])
-        if delta > 0.0:
-            ddelta = (half * dhalf + q * dq[i]) / delta
-            row_t[i] = 0.5 * (half * dq[i] - q * dhalf) / (delta * delta)
-        else:
-            ddelta = 0.0
-        dc = dmu - ddelta
-        dx = (ddelta / delta - dc / c_prime) if delta > 0.0 else 0.0
-        dlog_a = (dlogf_dx * dx - dc / c_prime) / 3.0
-        dlog_b = dlog_a + 0.5 * dlogm1_dx * dx
-        row_a[i] = a * dlog_a
-        row_b[i] = b * dlog_b
-    row_a[3] = a / (3.0 * force)
-    row_b[3] = b / (3.0 * force)
-    return ell, [row_a, row_b, row_t]
+
+_NO_JAC = np.zeros((0, 0))
+
+
+def contact_ellipse(
+    kappa_a: float,
+    kappa_b: float,
+    psi: float,
+    force: float,
+    finger_radius: float,
+    compliance: float,
+    jac: bool = False,
+) -> tuple[Ellipse, np.ndarray | None]:
+    """Contact ellipse for curvatures in 1/mm, ``psi`` in radians, ``force`` in N.
+
+    ``finger_radius`` in mm; ``compliance`` is ``k = (1 - nu_f^2)/E`` in mm^2/N.  Returns the
+    ellipse and, if ``jac``, the 3x4 matrix ``d(a, b, theta) / d(kappa_a, kappa_b, psi, F)``
+    (``theta`` derivative in rad/rad).  ``kappa_b > kappa_a`` is allowed (the fitter's general
+    model may cross over); curvatures must be >= 0, and an indentor whose flat direction lies
+    exactly along the finger axis (an infinite line contact) is a ``ValueError``.
+    """
+    if not (kappa_a >= 0.0 and kappa_b >= 0.0 and force > 0.0 and math.isfinite(force)
+            and math.isfinite(kappa_a) and math.isfinite(kappa_b) and math.isfinite(psi)):
+        raise ValueError(
+            f"need finite curvatures >= 0 and force > 0, got kappa_a={kappa_a!r}, "
+            f"kappa_b={kappa_b!r}, psi={psi!r}, force={force!r}"
+        )
+    out = np.empty((3, 4)) if jac else _NO_JAC
+    a, b, theta, m = ellipse_core(kappa_a, kappa_b, psi, force, finger_radius, compliance, out)
+    if a < 0.0:
+        raise ValueError(
+            "contact is an infinite line (indentor axis parallel to the finger axis): "
+            f"kappa_a={kappa_a!r}, kappa_b={kappa_b!r}, psi={psi!r} rad"
+        )
+    return Ellipse(a, b, theta, m), (out if jac else None)
 
 
 def contact_ellipse_radii(

@@ -143,3 +143,76 @@ def quadrature(
             for i in range(mx):
                 val[i, j] += hx[i] * hyj
     return val
+
+
+@njit(cache=True, nogil=True)
+def window_residual(
+    geo: np.ndarray,
+    hj: np.ndarray,
+    dphys: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    w: np.ndarray,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    imp: np.ndarray,
+    target: np.ndarray,
+    valid: np.ndarray,
+    inv_peak: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised residuals ``(model - target)/peak`` over the valid tactels of a window and
+    their Jacobian with respect to a model's own parameters.
+
+    ``target`` and ``valid`` are the window's strains and usable-tactel flags, flattened
+    row-major; ``dphys`` is ``d(kappa_a, kappa_b, psi, F, x0, y0)/d(params)``, shape (6, k).
+    """
+    val, jac6 = strain_with_jacobian(geo, hj, u, v, w, xs, ys, imp)
+    ny = ys.shape[0]
+    k = dphys.shape[1]
+    n = 0
+    for idx in range(valid.shape[0]):
+        if valid[idx]:
+            n += 1
+    r = np.empty(n)
+    jac = np.zeros((n, k))
+    row = 0
+    for idx in range(valid.shape[0]):
+        if not valid[idx]:
+            continue
+        i, j = idx // ny, idx % ny
+        r[row] = (val[i, j] - target[idx]) * inv_peak
+        for c in range(k):
+            acc = 0.0
+            for e in range(6):
+                acc += jac6[i, j, e] * dphys[e, c]
+            jac[row, c] = acc * inv_peak
+        row += 1
+    return r, jac
+
+
+@njit(cache=True, nogil=True)
+def normal_equations(jac: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``J^T J`` and ``J^T r`` (compiled: numpy's overhead on 5x5 products dominates)."""
+    return jac.T @ jac, jac.T @ r
+
+
+@njit(cache=True, nogil=True)
+def damped_step(
+    jtj: np.ndarray, g: np.ndarray, diag: np.ndarray, lam: float, scale: np.ndarray
+) -> tuple[np.ndarray, float, float]:
+    """Solve ``(J^T J + lam diag) step = -J^T r``, cap the step so no component exceeds its
+    ``scale``, and return ``(step, max |step|/scale, predicted cost decrease)``; the cost model
+    is ``|r + J s|^2 = cost + 2 g.s + s.JTJ.s``."""
+    a = jtj.copy()
+    n = a.shape[0]
+    for i in range(n):
+        a[i, i] += lam * diag[i]
+    step = -np.linalg.solve(a, g)
+    over = 0.0
+    for i in range(n):
+        over = max(over, abs(step[i]) / scale[i])
+    if over > 1.0:
+        step /= over
+        over = 1.0
+    predicted = -(2.0 * (g @ step) + step @ (jtj @ step))
+    return step, over, predicted

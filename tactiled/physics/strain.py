@@ -27,9 +27,9 @@ from scipy.special import roots_chebyu, roots_jacobi
 
 from tactiled.config import SensorModel
 from tactiled.physics.contact import Contact
-from tactiled.physics.hertz import Ellipse, contact_ellipse
+from tactiled.physics.hertz import Ellipse, contact_ellipse, ellipse_core
 from tactiled.physics.impulse import line_response, line_response_and_slope
-from tactiled.physics.kernels import quadrature, strain_with_jacobian
+from tactiled.physics.kernels import quadrature, strain_with_jacobian, window_residual
 
 DEFAULT_TOL = 1e-9
 MIN_NODES = 3
@@ -133,8 +133,36 @@ class StrainModel:
         ell, hj = self.ellipse(kappa_a, kappa_b, psi, force, jac=True)
         u, v, w = self._rule(ell)
         geo = np.array((x0, y0, ell.a, ell.b, ell.theta, force, self._scale))
-        value, jac = strain_with_jacobian(geo, np.array(hj), u, v, w, xs, ys, self._imp)
+        value, jac = strain_with_jacobian(geo, hj, u, v, w, xs, ys, self._imp)
         return value, jac, ell
+
+    def residual_function(
+        self,
+        physical,
+        xs: np.ndarray,
+        ys: np.ndarray,
+        target: np.ndarray,
+        valid: np.ndarray,
+        inv_peak: float,
+    ):
+        """A closure ``p -> (r, J)`` for the solver: normalised residuals over the valid
+        tactels of a window and their Jacobian in a model's parameters.  ``physical(p)`` maps
+        the parameters to ``(kappa_a, kappa_b, psi, F, x0, y0)`` and its (6, k) Jacobian."""
+        ellipse_core_, rf, comp, imp, scale = ellipse_core, self._rf, self._k, self._imp, self._scale
+        rule, tol, dmin = disk_rule, self.tol, self._dmin
+        valid = np.ascontiguousarray(valid, dtype=np.bool_)
+
+        def residual(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            (ka, kb, psi, force, x0, y0), dphys = physical(p)
+            hj = np.empty((3, 4))
+            a, b, theta, _ = ellipse_core_(ka, kb, psi, force, rf, comp, hj)
+            if a < 0.0:
+                raise ValueError("infinite line contact")
+            u, v, w = rule(nodes_for(a, dmin, tol), nodes_for(b, dmin, tol))
+            geo = np.array((x0, y0, a, b, theta, force, scale))
+            return window_residual(geo, hj, dphys, u, v, w, xs, ys, imp, target, valid, inv_peak)
+
+        return residual
 
     def _chain(
         self, value: np.ndarray, d_geo: np.ndarray, hj: list[list[float]], force: float,
@@ -142,7 +170,7 @@ class StrainModel:
     ) -> tuple[np.ndarray, np.ndarray, Ellipse]:
         """Chain ``d/d(x0, y0, a, b, theta)`` through the Hertz Jacobian to the 6 inputs."""
         kf = self._scale * force
-        h = np.asarray(hj)  # (3, 4): d(a, b, theta)/d(kappa_a, kappa_b, psi, F)
+        h = hj  # (3, 4): d(a, b, theta)/d(kappa_a, kappa_b, psi, F)
         jac = np.empty(value.shape + (6,))
         jac[..., :4] = kf * np.tensordot(d_geo[2:5], h, axes=(0, 0))
         jac[..., 3] += self._scale * value

@@ -1,0 +1,270 @@
+"""The curvature fitter: a strain frame in, a FitResult out (paper secs. 6-7).
+
+Residuals are taken over a window around the peak (4x4 by default), normalised by the peak
+strain; the damped least-squares solver works on each model's unconstrained parameters with the
+forward model's exact Jacobian.  Uncertainties are the Cramer-Rao bound ``sigma^2 (J^T J)^-1``
+with J the Jacobian of the window strains and sigma the sensor's noise, carried to user units by
+the delta method.  No I/O here, and nothing raises on bad data: every outcome is a FitResult.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactiled.config import SensorModel
+from tactiled.fit.models import VALUE_KEYS, Model, get_model
+from tactiled.fit.result import FitResult
+from tactiled.fit.solver import SolveResult, levenberg_marquardt
+from tactiled.fit.start import features, force_estimate, start_table
+from tactiled.fit.window import choose_window, interpolated_peak
+from tactiled.physics.strain import StrainModel
+
+#: Singular values below this fraction of the largest make J^T J numerically singular.
+SINGULAR_CONDITION = 1e12
+#: Above this the fit is reported but flagged as ill-conditioned.
+ILL_CONDITION = 1e7
+
+_STEP = {"ln_r": 1.0, "ln_ra": 1.0, "beta": 0.5, "psi": 0.5, "ln_f": 0.7, "x0": 2.0, "y0": 2.0}
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Knobs of a fit.  ``window`` is the side of the square window (clipped to the array);
+    ``tol`` the forward model's quadrature accuracy; ``max_starts`` caps cold starts."""
+
+    window: int = 4
+    tol: float = 1e-6
+    max_iter: int = 60
+    max_starts: int = 3
+
+
+class Fitter:
+    """Fits contact models to strain frames of one sensor."""
+
+    def __init__(self, sensor: SensorModel | None = None, options: FitOptions | None = None) -> None:
+        self.sensor = sensor or SensorModel()
+        self.options = options or FitOptions()
+        if self.options.window < 2:
+            raise ValueError(f"window must be at least 2 tactels, got {self.options.window}")
+        self.model = StrainModel(self.sensor, tol=self.options.tol)
+        self.sigma = self.sensor.noise.effective_sigma
+        g = self.sensor.geometry
+        self._span = max(g.span_x, g.span_y)
+
+    # ------------------------------------------------------------------------------------
+    def fit(
+        self,
+        strain: np.ndarray,
+        model: str = "cylinder",
+        start: np.ndarray | None = None,
+        mask: np.ndarray | None = None,
+    ) -> FitResult:
+        """Fit ``model`` ('cylinder', 'sphere', 'general' or 'auto') to a zeroed strain frame.
+
+        ``start`` is an internal parameter vector of that model (a warm start); ``mask`` marks
+        usable tactels (False for dead, saturated or non-finite ones; non-finite entries are
+        masked automatically).
+        """
+        t0 = time.perf_counter()
+        if model == "auto":
+            res = self._fit_auto(strain, mask)
+        else:
+            res = self._fit_model(strain, get_model(model), start, mask)
+        res.fit_ms = (time.perf_counter() - t0) * 1e3
+        return res
+
+    # ------------------------------------------------------------------------------------
+    def _prepare(self, strain: np.ndarray, mask: np.ndarray | None):
+        s = np.asarray(strain, dtype=float)
+        ok = np.isfinite(s)
+        if mask is not None:
+            ok &= np.asarray(mask, dtype=bool)
+        clean = np.where(ok, s, 0.0)
+        return clean, ok
+
+    def _fit_model(
+        self,
+        strain: np.ndarray,
+        model: Model,
+        start: np.ndarray | None,
+        mask: np.ndarray | None,
+    ) -> FitResult:
+        clean, ok = self._prepare(strain, mask)
+        g = self.sensor.geometry
+        if clean.shape != (g.rows, g.cols):
+            raise ValueError(f"frame shape {clean.shape} does not match the sensor's {(g.rows, g.cols)}")
+        if not ok.any():
+            return FitResult(contact=False, message="no usable tactels", reasons={"frame": "all tactels masked"})
+        peak_idx = np.unravel_index(int(np.argmax(np.where(ok, clean, -np.inf))), clean.shape)
+        peak = float(clean[peak_idx])
+        if not peak > 0.0:
+            return FitResult(contact=False, peak=peak, message="no positive strain")
+        win = choose_window(clean, peak_idx, self.options.window)
+        r0, c0, nr, nc = win
+        xs = np.ascontiguousarray((r0 + np.arange(nr)) * g.dx, dtype=float)
+        ys = np.ascontiguousarray((c0 + np.arange(nc)) * g.dy, dtype=float)
+        data = clean[r0:r0 + nr, c0:c0 + nc]
+        valid = ok[r0:r0 + nr, c0:c0 + nc].ravel()
+        n_points = int(valid.sum())
+        if n_points <= model.size:
+            return FitResult(
+                contact=True, model=model.name, peak=peak, window=win, n_points=n_points,
+                message=f"only {n_points} usable tactels in the window for {model.size} parameters",
+                reasons={k: "too few usable tactels in the window" for k in VALUE_KEYS},
+            )
+        target = np.ascontiguousarray(data.ravel())
+        inv_peak = 1.0 / peak
+        residual = self.model.residual_function(model.physical, xs, ys, target, valid, inv_peak)
+
+        steps = np.array([_STEP[name] for name in model.params])
+        starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
+        best: SolveResult | None = None
+        tried = 0
+        for p0 in starts:
+            tried += 1
+            sol = levenberg_marquardt(
+                residual, p0, max_step=steps, max_iter=self.options.max_iter,
+                # stop once the next step would lower chi^2 by less than 1e-6
+                atol=1e-6 * (self.sigma * inv_peak) ** 2,
+            )
+            if best is None or sol.cost < best.cost:
+                best = sol
+            if self._good_enough(best, peak, n_points):
+                break
+        assert best is not None
+        return self._result(model, best, peak, win, n_points, tried)
+
+    def _good_enough(self, sol: SolveResult, peak: float, n_points: int) -> bool:
+        """Residual consistent with sensor noise (chi^2 per point under ~4 with slack for
+        model error), so further starts cannot be expected to help."""
+        if not math.isfinite(sol.cost):
+            return False
+        chi2 = sol.cost * peak * peak / (self.sigma * self.sigma)
+        return chi2 <= 4.0 * n_points + 1e-4 * n_points * (peak / self.sigma) ** 2
+
+    def _cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
+        g = self.sensor.geometry
+        x0, y0 = interpolated_peak(strain, peak_idx, g.dx, g.dy)
+        f0 = force_estimate(strain, self.sensor)
+        cands = start_table(self.sensor).candidates(
+            features(strain, peak_idx, f0), count=self.options.max_starts
+        )
+        out = []
+        for c in cands:
+            if model.name == "general":
+                out.append(model.from_values(c.radius, c.radius / 0.04, c.psi_deg, f0, x0, y0))
+            else:
+                out.append(model.from_values(c.radius, math.inf, c.psi_deg, f0, x0, y0))
+            if model.name == "sphere":
+                break  # orientation plays no part
+        return out
+
+    def _result(self, model: Model, sol: SolveResult, peak: float, win, n_points: int, starts: int) -> FitResult:
+        reasons: dict[str, str] = {}
+        values, grad = model.report(sol.p)
+        std: dict[str, float | None] = dict.fromkeys(VALUE_KEYS)
+        jraw = sol.jacobian * peak  # d strain / d p, unnormalised
+        col = np.sqrt(np.einsum("ij,ij->j", jraw, jraw))
+        condition = None
+        if np.all(col > 0):
+            jn = jraw / col
+            # Eigen-decomposition of the column-scaled normal matrix gives the condition number
+            # (of J: the square root) and the inverse in one factorisation.
+            ev, vec = np.linalg.eigh(jn.T @ jn)
+            condition = math.sqrt(ev[-1] / ev[0]) if ev[0] > 0 else math.inf
+        if condition is None or not math.isfinite(condition) or condition > SINGULAR_CONDITION:
+            for k in VALUE_KEYS:
+                reasons[k] = "Jacobian singular: parameter not identifiable from this window"
+        else:
+            cov = self.sigma**2 * ((vec / ev) @ vec.T) / np.outer(col, col)
+            var = np.einsum("ij,jk,ik->i", grad, cov, grad)
+            for i, k in enumerate(VALUE_KEYS):
+                if values.get(k) is not None and var[i] >= 0.0:  # NaN rows fail the test
+                    std[k] = math.sqrt(var[i])
+            if condition > ILL_CONDITION:
+                reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
+        if model.name == "cylinder":
+            reasons.setdefault("r2_mm", "infinite: cylinder model")
+        if model.name == "sphere":
+            reasons.setdefault("angle_deg", "undefined: sphere model")
+        if model.name == "general" and values.get("r2_mm") is None:
+            reasons.setdefault("r2_mm", "infinite: fitted as a cylinder")
+        phys, _ = model.physical(sol.p)
+        ell, _ = self.model.ellipse(*phys[:4])
+        if 2.0 * ell.a > self._span:
+            reasons["model"] = (
+                f"contact ellipse {2 * ell.a:.1f} mm long exceeds the array "
+                f"({self._span:.1f} mm): outside the planar model"
+            )
+        if not sol.converged:
+            reasons.setdefault("fit", sol.message)
+        rms = math.sqrt(sol.cost / max(n_points, 1))
+        return FitResult(
+            contact=True,
+            model=model.name,
+            label=self._label(values, model.name),
+            values=values,
+            std=std,
+            rms=rms,
+            chi2=sol.cost * peak * peak / self.sigma**2,
+            iterations=sol.iterations,
+            evaluations=sol.evaluations,
+            converged=sol.converged,
+            condition=condition,
+            peak=peak,
+            n_points=n_points,
+            window=win,
+            starts=starts,
+            message=sol.message,
+            reasons=reasons,
+        )
+
+    def _label(self, values: dict[str, float | None], model_name: str) -> str:
+        """Paper Table 2 vocabulary: 'edge' (R1 < 1 mm), 'plane' (both radii beyond the
+        array's span), else the model name."""
+        r1, r2 = values.get("r1_mm"), values.get("r2_mm")
+        if r1 is not None and r1 < 1.0:
+            return "edge"
+        if r1 is not None and r1 > self._span and (r2 is None or r2 > self._span):
+            return "plane"
+        return model_name
+
+    # ------------------------------------------------------------------------------------
+    def _fit_auto(self, strain: np.ndarray, mask: np.ndarray | None) -> FitResult:
+        """Fit all three models and keep the lowest BIC with known noise,
+        ``chi^2 + k ln n`` (Schwarz): a parameter must buy more than ``ln n`` of chi^2."""
+        cyl = self._fit_model(strain, get_model("cylinder"), None, mask)
+        if not cyl.contact or cyl.chi2 is None:
+            return cyl
+        fits = [cyl]
+        v = cyl.values
+        sph_model = get_model("sphere")
+        sph = self._fit_model(
+            strain, sph_model,
+            sph_model.from_values(v["r1_mm"], v["r1_mm"], 0.0, v["force_n"], v["x_mm"], v["y_mm"]),
+            mask,
+        )
+        fits.append(sph)
+        gen_model = get_model("general")
+        gen_starts = [
+            gen_model.from_values(v["r1_mm"], v["r1_mm"] / 0.04, v["angle_deg"], v["force_n"], v["x_mm"], v["y_mm"]),
+        ]
+        sv = sph.values
+        if sph.chi2 is not None:
+            gen_starts.append(
+                gen_model.from_values(sv["r1_mm"], sv["r1_mm"] * 1.1, 90.0, sv["force_n"], sv["x_mm"], sv["y_mm"])
+            )
+        gens = [self._fit_model(strain, gen_model, p0, mask) for p0 in gen_starts]
+        fits.append(min(gens, key=lambda r: r.chi2 if r.chi2 is not None else math.inf))
+        crit = {}
+        for r in fits:
+            k = get_model(r.model).size
+            crit[r.model] = (r.chi2 if r.chi2 is not None else math.inf) + k * math.log(max(r.n_points, 2))
+        best = min(fits, key=lambda r: crit[r.model])
+        best.criterion = {k: float(v) for k, v in crit.items() if math.isfinite(v)}
+        best.iterations = sum(r.iterations for r in fits)
+        return best

@@ -1,0 +1,184 @@
+"""Contact models: how each model's free parameters map onto the physics' six inputs.
+
+The physics takes ``(kappa_a, kappa_b, psi, F, x0, y0)`` (curvatures in 1/mm, radians, N, mm).
+Each model fits an unconstrained vector whose every value is a valid contact, so the solver
+needs no clipping (lmfit's habit of bounded parameters, done by reparameterisation):
+
+- ``cylinder`` ``[ln R, psi, ln F, x0, y0]``: ``kappa_a = 1/R``, ``kappa_b = 0``.
+- ``sphere`` ``[ln R, ln F, x0, y0]``: ``kappa_a = kappa_b = 1/R``, ``psi = 0``.
+- ``general`` ``[ln R_a, beta, psi, ln F, x0, y0]``: ``kappa_a = 1/R_a``,
+  ``kappa_b = beta^2 kappa_a``.  ``beta^2 > 1`` means the axes swapped roles; reporting swaps
+  them back so that ``r1 <= r2`` and psi is the R2 axis.  ``beta = 0`` is a cylinder.
+
+``psi`` is periodic: it is reported modulo 180 degrees.  Positive R and F hold by construction.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Keys of a fit's values, in the order of ``tactiled fit``'s JSON.
+VALUE_KEYS = ("x_mm", "y_mm", "force_n", "r1_mm", "r2_mm", "angle_deg")
+
+
+@dataclass(frozen=True)
+class Model:
+    """A contact model: its name, parameter names, and the map to physics inputs."""
+
+    name: str
+    params: tuple[str, ...]
+
+    @property
+    def size(self) -> int:
+        return len(self.params)
+
+    def physical(self, p: np.ndarray) -> tuple[tuple[float, ...], np.ndarray]:
+        """``(kappa_a, kappa_b, psi, F, x0, y0)`` and ``d(those)/d(p)`` of shape (6, size)."""
+        raise NotImplementedError
+
+    def from_values(
+        self, r1: float, r2: float, psi_deg: float, force: float, x0: float, y0: float
+    ) -> np.ndarray:
+        """Internal vector for a contact given in user units (a start or a truth)."""
+        raise NotImplementedError
+
+    def report(self, p: np.ndarray) -> tuple[dict[str, float | None], np.ndarray]:
+        """User-unit values (``VALUE_KEYS``) and the gradient matrix (6 keys x size) for the
+        delta method; a row of NaN marks a value that does not exist in this model."""
+        raise NotImplementedError
+
+
+def _wrap_deg(psi: float) -> float:
+    d = math.degrees(psi) % 180.0
+    return 0.0 if d >= 180.0 else d
+
+
+class Cylinder(Model):
+    def __init__(self) -> None:
+        super().__init__("cylinder", ("ln_r", "psi", "ln_f", "x0", "y0"))
+
+    def physical(self, p):
+        ka, f = math.exp(-p[0]), math.exp(p[2])
+        d = np.zeros((6, 5))
+        d[0, 0] = -ka
+        d[2, 1] = 1.0
+        d[3, 2] = f
+        d[4, 3] = 1.0
+        d[5, 4] = 1.0
+        return (ka, 0.0, float(p[1]), f, float(p[3]), float(p[4])), d
+
+    def from_values(self, r1, r2, psi_deg, force, x0, y0):
+        return np.array([math.log(r1), math.radians(psi_deg), math.log(force), x0, y0])
+
+    def report(self, p):
+        r, f = math.exp(p[0]), math.exp(p[2])
+        vals = {"x_mm": float(p[3]), "y_mm": float(p[4]), "force_n": f, "r1_mm": r,
+                "r2_mm": None, "angle_deg": _wrap_deg(p[1])}
+        g = np.full((6, 5), np.nan)
+        g[:, :] = 0.0
+        g[0, 3] = 1.0
+        g[1, 4] = 1.0
+        g[2, 2] = f
+        g[3, 0] = r
+        g[4, :] = np.nan
+        g[5, 1] = 180.0 / math.pi
+        return vals, g
+
+
+class Sphere(Model):
+    def __init__(self) -> None:
+        super().__init__("sphere", ("ln_r", "ln_f", "x0", "y0"))
+
+    def physical(self, p):
+        k, f = math.exp(-p[0]), math.exp(p[1])
+        d = np.zeros((6, 4))
+        d[0, 0] = -k
+        d[1, 0] = -k
+        d[3, 1] = f
+        d[4, 2] = 1.0
+        d[5, 3] = 1.0
+        return (k, k, 0.0, f, float(p[2]), float(p[3])), d
+
+    def from_values(self, r1, r2, psi_deg, force, x0, y0):
+        return np.array([math.log(r1), math.log(force), x0, y0])
+
+    def report(self, p):
+        r, f = math.exp(p[0]), math.exp(p[1])
+        vals = {"x_mm": float(p[2]), "y_mm": float(p[3]), "force_n": f, "r1_mm": r,
+                "r2_mm": r, "angle_deg": None}
+        g = np.zeros((6, 4))
+        g[0, 2] = 1.0
+        g[1, 3] = 1.0
+        g[2, 1] = f
+        g[3, 0] = r
+        g[4, 0] = r
+        g[5, :] = np.nan
+        return vals, g
+
+
+class General(Model):
+    def __init__(self) -> None:
+        super().__init__("general", ("ln_ra", "beta", "psi", "ln_f", "x0", "y0"))
+
+    def physical(self, p):
+        ka, beta, f = math.exp(-p[0]), float(p[1]), math.exp(p[3])
+        kb = beta * beta * ka
+        d = np.zeros((6, 6))
+        d[0, 0] = -ka
+        d[1, 0] = -kb
+        d[1, 1] = 2.0 * beta * ka
+        d[2, 2] = 1.0
+        d[3, 3] = f
+        d[4, 4] = 1.0
+        d[5, 5] = 1.0
+        return (ka, kb, float(p[2]), f, float(p[4]), float(p[5])), d
+
+    def from_values(self, r1, r2, psi_deg, force, x0, y0):
+        beta = 0.0 if math.isinf(r2) else math.sqrt(r1 / r2)
+        return np.array([math.log(r1), beta, math.radians(psi_deg), math.log(force), x0, y0])
+
+    def report(self, p):
+        ra, beta, f = math.exp(p[0]), float(p[1]), math.exp(p[3])
+        b2 = beta * beta
+        g = np.zeros((6, 6))
+        g[0, 4] = 1.0
+        g[1, 5] = 1.0
+        g[2, 3] = f
+        psi = float(p[2])
+        if b2 <= 1.0:
+            # r1 = R_a, r2 = R_a / beta^2 (inf for beta = 0)
+            r1 = ra
+            r2 = ra / b2 if b2 > 0.0 else None
+            g[3, 0] = ra
+            if r2 is not None:
+                g[4, 0] = r2
+                g[4, 1] = -2.0 * r2 / beta
+            else:
+                g[4, :] = np.nan
+        else:
+            # axes swapped: r1 = R_a / beta^2 along psi + 90 deg... i.e. the R2 axis is now
+            # perpendicular to the fitted psi.
+            r1 = ra / b2
+            r2 = ra
+            g[3, 0] = r1
+            g[3, 1] = -2.0 * r1 / beta
+            g[4, 0] = ra
+            psi += 0.5 * math.pi
+        g[5, 2] = 180.0 / math.pi
+        vals = {"x_mm": float(p[4]), "y_mm": float(p[5]), "force_n": f, "r1_mm": r1,
+                "r2_mm": r2, "angle_deg": _wrap_deg(psi)}
+        return vals, g
+
+
+MODELS: dict[str, Model] = {m.name: m for m in (Cylinder(), Sphere(), General())}
+
+
+def get_model(name: str) -> Model:
+    """Model by name; ``ValueError`` naming the choices otherwise."""
+    try:
+        return MODELS[name]
+    except KeyError:
+        raise ValueError(f"unknown model {name!r}; choose one of {sorted(MODELS)}") from None

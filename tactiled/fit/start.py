@@ -1,0 +1,119 @@
+"""Cold-start estimates: centre, force, and candidate (radius, orientation) pairs.
+
+Position comes from the interpolated peak and force from the total strain (the impulse
+response integrates to ``(1 - nu_x)(1 - nu_y)``).  Radius and orientation have no closed form
+(the rubber's low-pass blurs them; the paper's Fig. 10), so a table of predicted patterns is
+built once per sensor: the 3x3 neighbourhood of the peak, normalised by the peak, plus the
+peak-to-force ratio, for a grid of cylinders (radius x orientation x force x sub-tactel offset).
+The nearest entries in that feature space are the starts; the fitter tries a second one only
+where the first fit is poor or the two nearest orientations fit the features about equally.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from tactiled.config import SensorModel
+from tactiled.physics.contact import Contact
+from tactiled.physics.impulse import line_response_integral
+from tactiled.physics.strain import StrainModel
+
+_RADII = np.geomspace(0.3, 150.0, 12)
+_ANGLES = np.arange(7.5, 180.0, 15.0)  # psi = 0 is an infinite line for a cylinder
+_FORCES = (0.15, 0.6, 2.0)
+_OFFSETS = (-0.3, 0.0, 0.3)
+_PEAK_WEIGHT = 1.0
+
+
+def force_estimate(strain: np.ndarray, sensor: SensorModel) -> float:
+    """Force in N from the summed strain of a contact inside the array (rough: an edge
+    contact loses the part of its response that falls off the array)."""
+    g, imp, mat = sensor.geometry, sensor.impulse, sensor.material
+    gain = line_response_integral(imp.nu_x) * line_response_integral(imp.nu_y)
+    total = float(np.sum(strain)) * g.dx * g.dy * mat.modulus / gain
+    return min(max(total, 1e-3), 50.0)
+
+
+def features(strain: np.ndarray, peak: tuple[int, int], force: float) -> np.ndarray:
+    """The 3x3 neighbourhood of the peak / the peak (NaN where off the array), and
+    ``log(peak / force)``; 9 numbers."""
+    rows, cols = strain.shape
+    m, n = peak
+    c = float(strain[m, n])
+    out = np.full(9, np.nan)
+    k = 0
+    for i in (-1, 0, 1):
+        for j in (-1, 0, 1):
+            if i == 0 and j == 0:
+                continue
+            if 0 <= m + i < rows and 0 <= n + j < cols:
+                out[k] = strain[m + i, n + j] / c
+            k += 1
+    out[8] = _PEAK_WEIGHT * math.log(max(c, 1e-12) / force)
+    return out
+
+
+@dataclass(frozen=True)
+class Candidate:
+    radius: float
+    psi_deg: float
+    distance: float
+
+
+class StartTable:
+    """Nearest-pattern lookup of (radius, psi) for a sensor."""
+
+    def __init__(self, sensor: SensorModel) -> None:
+        self.sensor = sensor
+        model = StrainModel(sensor, tol=1e-6)
+        g = sensor.geometry
+        cm, cn = g.rows // 2 - 1, g.cols // 2 - 1
+        feats, params = [], []
+        for r in _RADII:
+            for psi in _ANGLES:
+                for f in _FORCES:
+                    for ox in _OFFSETS:
+                        for oy in _OFFSETS:
+                            c = Contact(float(r), math.inf, float(psi), f,
+                                        (cm + ox) * g.dx, (cn + oy) * g.dy)
+                            s = model.predict(c)
+                            pk = np.unravel_index(int(np.argmax(s)), s.shape)
+                            feats.append(features(s, pk, force_estimate(s, sensor)))
+                            params.append((float(r), float(psi)))
+        self.features = np.array(feats)
+        self.params = np.array(params)
+        self._tree = cKDTree(self.features)
+
+    def candidates(self, feat: np.ndarray, count: int = 2, min_separation: float = 35.0) -> list[Candidate]:
+        """The best ``count`` candidates whose orientations differ by ``min_separation`` deg."""
+        ok = np.isfinite(feat)
+        if ok.all():
+            dist, near = self._tree.query(feat, k=48)
+        else:  # an edge peak: compare the neighbours that exist, by brute force
+            diff = self.features[:, ok] - feat[ok]
+            d = np.einsum("ij,ij->i", diff, diff)
+            near = np.argpartition(d, 48)[:48]
+            near = near[np.argsort(d[near])]
+            dist = np.sqrt(d[near])
+        radii, angles = self.params[near, 0], self.params[near, 1]
+        chosen = [0]
+        sep = np.full(near.size, 180.0)
+        while len(chosen) < count:
+            last = angles[chosen[-1]]
+            sep = np.minimum(sep, np.abs((angles - last + 90.0) % 180.0 - 90.0))
+            ok = np.flatnonzero(sep >= min_separation)
+            if ok.size == 0:
+                break
+            chosen.append(int(ok[0]))
+        return [Candidate(float(radii[i]), float(angles[i]), float(dist[i])) for i in chosen]
+
+
+@lru_cache(maxsize=8)
+def start_table(sensor: SensorModel) -> StartTable:
+    """The table for ``sensor``, built once per process (~0.1 s)."""
+    return StartTable(sensor)
