@@ -21,12 +21,22 @@ from tactiled.fit.result import FitResult
 from tactiled.fit.solver import SolveResult, levenberg_marquardt
 from tactiled.fit.start import features, force_estimate, start_table
 from tactiled.fit.window import choose_window, interpolated_peak
+from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 
 #: Singular values below this fraction of the largest make J^T J numerically singular.
 SINGULAR_CONDITION = 1e12
 #: Above this the fit is reported but flagged as ill-conditioned.
 ILL_CONDITION = 1e7
+
+#: A radius or force whose 1-sigma bound exceeds this fraction of its value is flagged.
+POOR_RELATIVE_SIGMA = 0.5
+#: ... and withheld beyond this (the solver has run off to a degenerate limit), as is a radius
+#: outside ``RADIUS_LIMITS``: a value there is an artefact, not a measurement.
+UNOBSERVABLE_RELATIVE_SIGMA = 10.0
+RADIUS_LIMITS = (0.01, 1e5)  # mm
+#: An orientation whose 1-sigma bound exceeds this (degrees) is withheld.
+MAX_ANGLE_SIGMA = 45.0
 
 _STEP = {"ln_r": 1.0, "ln_ra": 1.0, "beta": 0.5, "psi": 0.5, "ln_f": 0.7, "x0": 2.0, "y0": 2.0}
 
@@ -40,12 +50,18 @@ class FitOptions:
     tol: float = 1e-6
     max_iter: int = 60
     max_starts: int = 3
+    #: Withhold (null, with the reason "force too low for curvature") a radius whose Cramer-Rao
+    #: sigma exceeds this fraction of it.  None: report it, flagged, down to the degenerate
+    #: limit.  The daemon sets 0.5 (the paper: radius unusable below ~0.5 N).
+    withhold_relative_sigma: float | None = None
 
 
 class Fitter:
     """Fits contact models to strain frames of one sensor."""
 
-    def __init__(self, sensor: SensorModel | None = None, options: FitOptions | None = None) -> None:
+    def __init__(
+        self, sensor: SensorModel | None = None, options: FitOptions | None = None, warm: bool = True
+    ) -> None:
         self.sensor = sensor or SensorModel()
         self.options = options or FitOptions()
         if self.options.window < 2:
@@ -54,6 +70,17 @@ class Fitter:
         self.sigma = self.sensor.noise.effective_sigma
         g = self.sensor.geometry
         self._span = max(g.span_x, g.span_y)
+        if warm:
+            self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Build the start table and load the compiled kernels now, so the first frame's
+        fit time is a fit's and not a start-up's."""
+        start_table(self.sensor)
+        g = self.sensor.geometry
+        frame = self.model.predict(Contact(8.0, math.inf, 80.0, 1.0, g.span_x / 2, g.span_y / 2))
+        for name in ("cylinder", "sphere", "general"):
+            self._fit_model(frame, get_model(name), None, None)
 
     # ------------------------------------------------------------------------------------
     def fit(
@@ -187,6 +214,7 @@ class Fitter:
                     std[k] = math.sqrt(var[i])
             if condition > ILL_CONDITION:
                 reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
+        self._unobservable(values, std, reasons)
         if model.name == "cylinder":
             reasons.setdefault("r2_mm", "infinite: cylinder model")
         if model.name == "sphere":
@@ -221,7 +249,49 @@ class Fitter:
             starts=starts,
             message=sol.message,
             reasons=reasons,
+            params=tuple(float(x) for x in sol.p),
         )
+
+    def _unobservable(self, values: dict, std: dict, reasons: dict[str, str]) -> None:
+        """Withhold what the data cannot pin down rather than report confident nonsense.
+
+        A radius or force whose Cramer-Rao sigma exceeds ``POOR_RELATIVE_SIGMA`` of it is
+        flagged; beyond ``UNOBSERVABLE_RELATIVE_SIGMA`` (or beyond the options' withholding
+        threshold, for a radius), or an orientation uncertain by more than ``MAX_ANGLE_SIGMA``,
+        it becomes None with the reason.  (A vanishing radius can look "certain" in absolute
+        terms: its sigma shrinks with it; relative sigma is the honest test.)
+        """
+        g = self.sensor.geometry
+        x, y = values.get("x_mm"), values.get("y_mm")
+        inside = (
+            x is not None and y is not None
+            and -g.dx <= x <= g.span_x + g.dx and -g.dy <= y <= g.span_y + g.dy
+        )
+        if not inside:
+            reasons["model"] = "contact centre outside the array: only the tail of the response is seen"
+        withhold = self.options.withhold_relative_sigma
+        for k in ("r1_mm", "r2_mm", "force_n"):
+            v, sd = values.get(k), std.get(k)
+            if v is None:
+                continue
+            rel = (sd / v) if (sd is not None and v > 0) else math.inf
+            is_radius = k != "force_n"
+            what = "radius" if is_radius else "force"
+            pct = "unbounded" if math.isinf(rel) else f"{100 * rel:.0f} %"
+            cause = "force too low for curvature" if inside and is_radius else "not observable from this window"
+            degenerate = rel > UNOBSERVABLE_RELATIVE_SIGMA or (
+                is_radius and not RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1])
+            if degenerate or (is_radius and withhold is not None and rel > withhold):
+                values[k] = None
+                std[k] = None
+                reasons[k] = f"{cause}: the Cramer-Rao sigma of the {what} is {pct} of it"
+            elif rel > POOR_RELATIVE_SIGMA:
+                reasons[k] = f"poorly determined ({cause}): the Cramer-Rao sigma is {pct} of it"
+        a, sa = values.get("angle_deg"), std.get("angle_deg")
+        if a is not None and (sa is None or sa > MAX_ANGLE_SIGMA):
+            values["angle_deg"] = None
+            std["angle_deg"] = None
+            reasons["angle_deg"] = "orientation not observable: Cramer-Rao sigma above 45 deg"
 
     def _label(self, values: dict[str, float | None], model_name: str) -> str:
         """Paper Table 2 vocabulary: 'edge' (R1 < 1 mm), 'plane' (both radii beyond the
@@ -238,26 +308,17 @@ class Fitter:
         """Fit all three models and keep the lowest BIC with known noise,
         ``chi^2 + k ln n`` (Schwarz): a parameter must buy more than ``ln n`` of chi^2."""
         cyl = self._fit_model(strain, get_model("cylinder"), None, mask)
-        if not cyl.contact or cyl.chi2 is None:
+        if not cyl.contact or cyl.chi2 is None or cyl.params is None:
             return cyl
         fits = [cyl]
-        v = cyl.values
-        sph_model = get_model("sphere")
-        sph = self._fit_model(
-            strain, sph_model,
-            sph_model.from_values(v["r1_mm"], v["r1_mm"], 0.0, v["force_n"], v["x_mm"], v["y_mm"]),
-            mask,
-        )
+        ln_r, psi, ln_f, x0, y0 = cyl.params
+        sph = self._fit_model(strain, get_model("sphere"), np.array([ln_r, ln_f, x0, y0]), mask)
         fits.append(sph)
         gen_model = get_model("general")
-        gen_starts = [
-            gen_model.from_values(v["r1_mm"], v["r1_mm"] / 0.04, v["angle_deg"], v["force_n"], v["x_mm"], v["y_mm"]),
-        ]
-        sv = sph.values
-        if sph.chi2 is not None:
-            gen_starts.append(
-                gen_model.from_values(sv["r1_mm"], sv["r1_mm"] * 1.1, 90.0, sv["force_n"], sv["x_mm"], sv["y_mm"])
-            )
+        gen_starts = [np.array([ln_r, 0.2, psi, ln_f, x0, y0])]
+        if sph.params is not None:
+            s_ln_r, s_ln_f, sx, sy = sph.params
+            gen_starts.append(np.array([s_ln_r, 0.95, 0.5 * math.pi, s_ln_f, sx, sy]))
         gens = [self._fit_model(strain, gen_model, p0, mask) for p0 in gen_starts]
         fits.append(min(gens, key=lambda r: r.chi2 if r.chi2 is not None else math.inf))
         crit = {}

@@ -50,6 +50,8 @@ class FitResult:
     message: str = ""
     reasons: dict[str, str] = field(default_factory=dict)
     criterion: dict[str, float] | None = None  # model -> information criterion (auto)
+    #: the model's internal parameter vector at the solution (a warm start for the next frame)
+    params: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         self.sanitise()

@@ -85,21 +85,14 @@ class StartTable:
                             pk = np.unravel_index(int(np.argmax(s)), s.shape)
                             feats.append(features(s, pk, force_estimate(s, sensor)))
                             params.append((float(r), float(psi)))
-        self.features = np.array(feats)
+        # A neighbour off the array reads as zero strain, in the table and in queries alike.
+        self.features = np.nan_to_num(np.array(feats), nan=0.0)
         self.params = np.array(params)
         self._tree = cKDTree(self.features)
 
     def candidates(self, feat: np.ndarray, count: int = 2, min_separation: float = 35.0) -> list[Candidate]:
         """The best ``count`` candidates whose orientations differ by ``min_separation`` deg."""
-        ok = np.isfinite(feat)
-        if ok.all():
-            dist, near = self._tree.query(feat, k=48)
-        else:  # an edge peak: compare the neighbours that exist, by brute force
-            diff = self.features[:, ok] - feat[ok]
-            d = np.einsum("ij,ij->i", diff, diff)
-            near = np.argpartition(d, 48)[:48]
-            near = near[np.argsort(d[near])]
-            dist = np.sqrt(d[near])
+        dist, near = self._tree.query(np.nan_to_num(feat, nan=0.0), k=48)
         radii, angles = self.params[near, 0], self.params[near, 1]
         chosen = [0]
         sep = np.full(near.size, 180.0)

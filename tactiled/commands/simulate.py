@@ -1,0 +1,321 @@
+"""Write simulated strain frames with known contact parameters to an .npz file, or act as a
+simulated fingertip on a serial device.
+
+File mode (OUTPUT.npz): each parameter takes a value or a range LO:HI drawn uniformly per frame
+(radius ranges are drawn log-uniformly).  The frames come from the same forward model the fitter
+inverts, plus Gaussian noise and quantisation; the true parameters are stored beside 'strain'
+(true_r1, true_r2, true_angle, true_force, true_x, true_y), so a fit can be checked against them.
+
+Device mode (--pty or --serial): a simulated finger plays a scripted scene (--scene) and streams
+wire-format frames in real time at --rate Hz until SIGINT/SIGTERM, exactly as the hardware would
+(see docs/simulator.md).  --pty makes a pseudo-terminal and prints its path as the first line
+on stdout ("pty: /dev/pts/N"); --link PATH also points a symlink at it, a stable path for a
+daemon config.  Frames the reader does not take are dropped (and counted), never queued
+without bound.
+
+examples:
+  tactiled simulate cyl.npz --r1 10 --angle 45 --force 1 --x 11 --y 13 --frames 20
+  tactiled simulate mix.npz --r1 2:40 --angle 30:150 --force 0.5:2 --frames 200 --seed 7
+  tactiled fit cyl.npz
+  tactiled simulate --pty --link /tmp/ttyTACT --scene demo --rate 1000   (read serial:///tmp/ttyTACT)
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import signal
+import sys
+import time
+import tty
+from pathlib import Path
+
+import numpy as np
+
+from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.framefile import save_frame_file
+from tactiled.frames import encode_frame
+from tactiled.physics.contact import Contact
+from tactiled.sim import (
+    DEFAULT_DRIFT,
+    DEFAULT_HYSTERESIS,
+    SCENES,
+    DriftModel,
+    FingerSimulator,
+    FrameSchedule,
+    HysteresisModel,
+    simulate_frames,
+)
+
+log = logging.getLogger(__name__)
+
+FILE_SIGMA = 0.0003  # default --sigma of the .npz mode (the device mode uses the sensor's 0.0005)
+PENDING_LIMIT = 4096  # bytes held back when the device's buffer is full; beyond, frames drop
+MAX_BATCH = 32  # frames written per wake-up when behind schedule
+MAX_LAG_S = 1.0  # behind schedule by more than this (process starved): skip the stale frames
+
+
+def _range(text: str) -> tuple[float, float]:
+    try:
+        if ":" in text:
+            lo, hi = (float(t) for t in text.split(":", 1))
+        else:
+            lo = hi = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or LO:HI, got {text!r}") from None
+    if math.isnan(lo) or math.isnan(hi) or lo > hi:
+        raise argparse.ArgumentTypeError(f"bad range {text!r}")
+    return lo, hi
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("output", nargs="?", help="the .npz file to write (omit with --pty / --serial)")
+    p.add_argument("--r1", type=_range, default=(10.0, 10.0), help="smaller principal radius, mm (default 10)")
+    p.add_argument("--r2", type=_range, default=(math.inf, math.inf),
+                   help="larger principal radius, mm; 'inf' for a cylinder (default), equal to r1 for a sphere")
+    p.add_argument("--sphere", action="store_true", help="make r2 equal to r1 in every frame")
+    p.add_argument("--angle", type=_range, default=(90.0, 90.0),
+                   help="direction of the R2 axis (a cylinder's axis) from +x toward +y, degrees (default 90)")
+    p.add_argument("--force", type=_range, default=(1.0, 1.0), help="normal force, N (default 1)")
+    p.add_argument("--x", type=_range, default=None, help="contact centre along the finger, mm (default: array centre)")
+    p.add_argument("--y", type=_range, default=None, help="contact centre around the finger, mm (default: array centre)")
+    p.add_argument("--frames", type=int, default=10, help="number of frames (default 10)")
+    p.add_argument("--sigma", type=float, default=None,
+                   help=f"Gaussian strain noise (default {FILE_SIGMA} for a file, 0.0005 as a device)")
+    p.add_argument("--quantum", type=float, default=0.001, help="quantisation step of strain, 0 for none (default 0.001)")
+    p.add_argument("--empty", type=float, default=0.0, help="fraction of frames with no contact (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    dev = p.add_argument_group("device mode: stream a scene's wire frames in real time")
+    where = dev.add_mutually_exclusive_group()
+    where.add_argument("--pty", action="store_true",
+                       help="create a pseudo-terminal, print 'pty: PATH' and stream to it")
+    where.add_argument("--serial", metavar="PORT", help="stream to an existing serial device or pty")
+    dev.add_argument("--link", metavar="PATH", help="with --pty: make PATH a symlink to the pty")
+    dev.add_argument("--scene", default="demo", help=f"scene to play, looped: {', '.join(SCENES)} (default demo)")
+    dev.add_argument("--rate", type=float, default=1000.0, help="frames per second (default 1000)")
+    dev.add_argument("--sensor-id", type=int, default=0, help="sensor id in the frames, 0..65535 (default 0)")
+    dev.add_argument("--drift", type=float, default=DEFAULT_DRIFT.amplitude,
+                     help=f"peak baseline drift, strain; 0 for none (default {DEFAULT_DRIFT.amplitude})")
+    dev.add_argument("--hysteresis", type=float, default=DEFAULT_HYSTERESIS.fraction,
+                     help="fraction of a released strain kept by the rubber, decaying with tau "
+                     f"{DEFAULT_HYSTERESIS.tau_s} s; 0 for none (default {DEFAULT_HYSTERESIS.fraction})")
+    dev.add_argument("--baud", type=int, default=1_000_000,
+                     help="with --serial: baud rate (default 1000000; a 1 kHz 8x8 stream needs ~1.6 Mbaud)")
+
+
+def _draw(rng: np.random.Generator, lo_hi: tuple[float, float], log: bool = False) -> float:
+    lo, hi = lo_hi
+    if lo == hi:
+        return lo
+    if log and lo > 0:
+        return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+    return float(rng.uniform(lo, hi))
+
+
+def _error(message: str) -> int:
+    print(f"tactiled simulate: error: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.pty or args.serial:
+        if args.output:
+            return _error(f"give either an output file ({args.output}) or --pty/--serial, not both")
+        return _run_device(args)
+    if args.link:
+        return _error("--link needs --pty")
+    if not args.output:
+        return _error("give an output .npz file, or --pty / --serial to act as a device")
+    if args.sigma is None:
+        args.sigma = FILE_SIGMA
+    if args.frames < 1:
+        print("tactiled simulate: error: --frames must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        noise = NoiseModel(sigma=args.sigma, quantum=args.quantum)
+    except ValueError as err:
+        print(f"tactiled simulate: error: {err}", file=sys.stderr)
+        return 2
+    geo = Geometry()
+    sensor = SensorModel(geometry=geo, noise=noise)
+    x_rng = args.x or (geo.span_x / 2, geo.span_x / 2)
+    y_rng = args.y or (geo.span_y / 2, geo.span_y / 2)
+    rng = np.random.default_rng(args.seed)
+    contacts: list[Contact | None] = []
+    truth = {k: np.full(args.frames, np.nan) for k in ("true_r1", "true_r2", "true_angle", "true_force", "true_x", "true_y")}
+    for i in range(args.frames):
+        if rng.uniform() < args.empty:
+            contacts.append(None)
+            continue
+        r1 = _draw(rng, args.r1, log=True)
+        r2 = r1 if args.sphere else _draw(rng, args.r2, log=True)
+        if r2 < r1:
+            r1, r2 = r2, r1
+        try:
+            c = Contact(r1, r2, _draw(rng, args.angle) % 180.0, _draw(rng, args.force), _draw(rng, x_rng), _draw(rng, y_rng))
+        except ValueError as err:
+            print(f"tactiled simulate: error: {err}", file=sys.stderr)
+            return 2
+        contacts.append(c)
+        for k, v in zip(truth, (c.r1, c.r2, c.psi_deg, c.force, c.x0, c.y0)):
+            truth[k][i] = v
+    try:
+        strain = simulate_frames(contacts, sensor, noise, seed=args.seed)
+    except ValueError as err:
+        print(f"tactiled simulate: error: {err}", file=sys.stderr)
+        return 2
+    save_frame_file(args.output, strain, geo.dx, geo.dy, **truth,
+                    noise_sigma=np.float64(noise.sigma), noise_quantum=np.float64(noise.quantum))
+    print(f"wrote {args.frames} frame(s) of {geo.rows}x{geo.cols} to {args.output}", file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+# Device mode
+
+
+class FrameWriter:
+    """Writes encoded frames to a non-blocking device descriptor without ever waiting on it.
+
+    A pty master with no reader, or a serial port slower than the stream, fills up; then up to
+    :data:`PENDING_LIMIT` bytes are held back (so a frame cut by a partial write is finished,
+    not garbled) and further frames are dropped and counted.  Write errors (EIO when a USB
+    adapter is unplugged) are logged once and ride out the same way: the stream keeps its clock.
+    """
+
+    def __init__(self, fd: int, name: str) -> None:
+        self.fd = fd
+        self.name = name
+        self.pending = bytearray()
+        self.sent = 0  # frames queued for the device
+        self.dropped = 0  # frames refused because the device was not taking them
+        self.error = ""
+
+    def send(self, data: bytes) -> None:
+        if len(self.pending) >= PENDING_LIMIT:
+            self.dropped += 1
+            return
+        self.pending += data
+        self.sent += 1
+
+    def flush(self) -> None:
+        while self.pending:
+            try:
+                n = os.write(self.fd, self.pending)
+            except BlockingIOError:  # device buffer full: try again next tick
+                return
+            except InterruptedError:
+                continue
+            except OSError as err:
+                if not self.error:
+                    log.warning("writing to %s failed: %s; dropping frames until it recovers",
+                                self.name, err)
+                    print(f"tactiled simulate: {self.name}: {err}; dropping frames", file=sys.stderr)
+                self.error = str(err)
+                return
+            if self.error:
+                log.warning("%s is taking frames again", self.name)
+                self.error = ""
+            del self.pending[:n]
+
+
+def _make_pty(link: str | None) -> tuple[int, str]:
+    """A pseudo-terminal in raw mode: ``(master fd, slave path)``; ``link`` points at it."""
+    master, slave = os.openpty()
+    try:
+        tty.setraw(slave)  # no echo, no newline translation: binary frames pass untouched
+        name = os.ttyname(slave)
+    finally:
+        os.close(slave)  # the reader opens its own; a master write with no reader just buffers
+    os.set_blocking(master, False)
+    if link:
+        path = Path(link)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.unlink(missing_ok=True)
+        tmp.symlink_to(name)
+        tmp.replace(path)  # atomic: a reader never sees the link missing or half-made
+    return master, name
+
+
+def _remove_link(link: str | None, target: str) -> None:
+    """Remove ``link`` if it still points at ``target`` (another process may have re-pointed it)."""
+    if link and os.path.islink(link) and os.readlink(link) == target:
+        os.unlink(link)
+
+
+def _run_device(args: argparse.Namespace) -> int:
+    if args.link and not args.pty:
+        return _error("--link needs --pty")
+    if not (math.isfinite(args.rate) and 0 < args.rate <= 100_000):
+        return _error(f"--rate must be a frame rate in Hz in (0, 100000], got {args.rate!r}")
+    if args.seed < 0:
+        return _error(f"--seed must be >= 0, got {args.seed}")
+    try:
+        sim = FingerSimulator(
+            scene=args.scene,
+            seed=args.seed,
+            rate_hz=args.rate,
+            noise=args.sigma,
+            drift=DriftModel(amplitude=args.drift) if args.drift else None,
+            hysteresis=HysteresisModel(fraction=args.hysteresis) if args.hysteresis else None,
+            sensor_id=args.sensor_id,
+            loop=True,
+        )
+    except ValueError as err:
+        return _error(str(err))
+
+    port = None
+    if args.pty:
+        try:
+            fd, name = _make_pty(args.link)
+        except OSError as err:
+            return _error(f"cannot create the pty{' link ' + args.link if args.link else ''}: {err}")
+        print(f"pty: {name}", flush=True)
+        if args.link:
+            print(f"link: {args.link}", flush=True)
+    else:
+        import serial  # only this mode needs pyserial
+
+        name = args.serial
+        try:
+            # pyserial opens the device O_NONBLOCK; we write to its descriptor directly because
+            # Serial.write with write_timeout=0 spins on EAGAIN instead of returning.
+            port = serial.Serial(name, baudrate=args.baud, timeout=0)
+        except (serial.SerialException, OSError, ValueError) as err:
+            return _error(f"cannot open serial port {name}: {err}")
+        fd = port.fileno()
+
+    stop: list[int] = []
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.append(signum)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    writer = FrameWriter(fd, name)
+    print(f"tactiled simulate: streaming scene {sim.scene.name!r} at {args.rate:g} Hz to {name}; "
+          "stop with Ctrl-C or SIGTERM", file=sys.stderr)
+    try:
+        schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
+        while not stop:
+            skip, send = schedule.take(time.monotonic(), MAX_BATCH)
+            if skip:
+                sim.skip(skip)
+            for _ in range(send):
+                writer.send(encode_frame(sim.next_frame()))
+            writer.flush()
+            delay = schedule.next_due() - time.monotonic()
+            if delay > 0:
+                time.sleep(min(delay, 0.05))  # short: a signal is noticed within 50 ms
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if port is not None:
+            port.close()
+        else:
+            os.close(fd)
+            _remove_link(args.link, name)
+    print(f"tactiled simulate: sent {writer.sent} frame(s), dropped {writer.dropped} "
+          f"(device full), skipped {schedule.skipped} (behind schedule)", file=sys.stderr)
+    return 0

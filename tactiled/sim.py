@@ -1,0 +1,692 @@
+"""Scene simulator: contacts -> physics-true strain frames with the sensor's noise.
+
+Used by ``tactiled simulate``, the benchmarks, the tests and the simulated-finger driver
+(``sim://``).  The strain comes from the same forward model the fitter inverts (``StrainModel``).
+
+Two levels:
+
+* :func:`simulate_frames` (with :func:`add_noise`, :func:`render`): a list of contacts -> noisy
+  strain frames, Gaussian noise plus quantisation as in the paper (sec. 7: strain quantised in
+  steps of 0.1 %).  This is what ``tactiled simulate OUT.npz`` writes.
+* A **simulated finger**: a :class:`Scene` scripts an indentor over time (approach, press, roll,
+  rotate, hold, release, idle; see :data:`SCENES` for the built-in ones) and a
+  :class:`FingerSimulator` turns it, tick by tick, into what the hardware would send: the true
+  contact, the strain the tactels feel (physics + slow baseline drift + rubber hysteresis +
+  Gaussian noise) and the raw ``uint16`` counts through a calibration table's inverse, packed in
+  a :class:`~tactiled.frames.Frame`.  ``docs/simulator.md`` documents the model and its numbers.
+
+Units: mm, N, degrees, seconds; strain is dimensionless and positive under compression.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from tactiled.calibration.lut import LookupTable
+from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.frames import Frame
+from tactiled.physics.contact import Contact
+from tactiled.physics.strain import StrainModel
+
+
+def add_noise(strain: np.ndarray, noise: NoiseModel, rng: np.random.Generator) -> np.ndarray:
+    """``strain`` plus i.i.d. Gaussian noise of ``noise.sigma``, then rounded to multiples of
+    ``noise.quantum`` (if non-zero).  Returns a new array."""
+    out = strain + rng.normal(0.0, noise.sigma, size=np.shape(strain)) if noise.sigma > 0 else np.array(strain, dtype=float)
+    if noise.quantum > 0:
+        out = np.round(out / noise.quantum) * noise.quantum
+    return out
+
+
+def render(contact: Contact | None, model: StrainModel) -> np.ndarray:
+    """Noise-free strain frame ``(rows, cols)`` for ``contact`` (zeros for ``None``)."""
+    g = model.sensor.geometry
+    if contact is None:
+        return np.zeros((g.rows, g.cols))
+    return model.predict(contact)
+
+
+def simulate_frames(
+    contacts: list[Contact | None],
+    sensor: SensorModel | None = None,
+    noise: NoiseModel | None = None,
+    seed: int = 0,
+) -> np.ndarray:
+    """Noisy frames ``(N, rows, cols)`` for a list of contacts (``None`` = no contact)."""
+    model = StrainModel(sensor or SensorModel())
+    noise = noise or model.sensor.noise
+    rng = np.random.default_rng(seed)
+    return np.stack([add_noise(render(c, model), noise, rng) for c in contacts])
+
+
+# ============================================================================================
+# Scenes: scripted indentor motions
+# ============================================================================================
+
+#: Segment kinds.  ``approach`` and ``idle`` never touch (force 0 throughout); the others are
+#: labels for what changes: ``press`` (force up), ``roll`` (x0, y0), ``rotate`` (psi),
+#: ``hold`` (nothing), ``release`` (force down to 0).
+SEGMENT_KINDS = ("approach", "press", "roll", "rotate", "hold", "release", "idle")
+EASINGS = ("linear", "smooth")
+
+
+@dataclass(frozen=True)
+class Pose:
+    """The indentor's state: a :class:`Contact`'s parameters, but ``force`` may be 0 (not
+    touching).  Radii ``r1 <= r2`` in mm (``r2 = inf``: cylinder; ``r1 == r2``: sphere),
+    ``psi_deg`` in degrees, ``force`` in N, contact centre ``(x0, y0)`` in mm."""
+
+    r1: float = 10.0
+    r2: float = math.inf
+    psi_deg: float = 90.0
+    force: float = 0.0
+    x0: float = 0.0
+    y0: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.force) and self.force >= 0):
+            raise ValueError(f"force must be a finite non-negative force in N, got {self.force!r}")
+        if not (math.isfinite(self.r1) and self.r1 > 0):
+            raise ValueError(f"r1 must be a positive finite radius in mm, got {self.r1!r}")
+        if math.isnan(self.r2) or self.r2 < self.r1:
+            raise ValueError(f"r2 must be a radius >= r1 = {self.r1!r} mm (or inf), got {self.r2!r}")
+        for name in ("psi_deg", "x0", "y0"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+
+    def contact(self) -> Contact | None:
+        """The contact this pose makes (``psi`` folded into [0, 180)), or ``None`` at zero force."""
+        if self.force <= 0.0:
+            return None
+        return Contact(self.r1, self.r2, self.psi_deg % 180.0, self.force, self.x0, self.y0)
+
+
+def _lerp_pose(a: Pose, b: Pose, s: float) -> Pose:
+    """Pose a fraction ``s`` (0..1) of the way from ``a`` to ``b``.
+
+    Radii are interpolated as curvatures (1/r), which handles ``r2 = inf`` (curvature 0) and
+    keeps ``r1 <= r2`` (a convex combination keeps ``1/r1 >= 1/r2``).  ``psi`` is interpolated
+    as given, so 30 -> 150 turns through 90 (write 150 -> 210 to turn the other way).
+    """
+    def lerp(p: float, q: float) -> float:
+        return p + (q - p) * s  # exact p when p == q: a hold repeats one contact exactly
+
+    ka = lerp(1.0 / a.r1, 1.0 / b.r1)
+    kb = lerp(0.0 if math.isinf(a.r2) else 1.0 / a.r2, 0.0 if math.isinf(b.r2) else 1.0 / b.r2)
+    r1 = 1.0 / ka
+    r2 = math.inf if kb <= 0.0 else max(1.0 / kb, r1)  # max: rounding on a sphere
+    return Pose(r1, r2, lerp(a.psi_deg, b.psi_deg), max(lerp(a.force, b.force), 0.0),
+                lerp(a.x0, b.x0), lerp(a.y0, b.y0))
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One piece of a scene: ``duration`` seconds from pose ``start`` to pose ``end``.
+
+    ``ease`` shapes the progress ``s`` of the interpolation over the segment's time fraction
+    ``u``: ``"linear"`` (``s = u``, constant speed) or ``"smooth"`` (``s = 3u^2 - 2u^3``, zero
+    speed at both ends, as a hand or a robot accelerates and stops).
+    """
+
+    kind: str
+    duration: float
+    start: Pose
+    end: Pose
+    ease: str = "smooth"
+
+    def __post_init__(self) -> None:
+        if self.kind not in SEGMENT_KINDS:
+            raise ValueError(f"segment kind must be one of {', '.join(SEGMENT_KINDS)}, got {self.kind!r}")
+        if not (math.isfinite(self.duration) and self.duration > 0):
+            raise ValueError(f"{self.kind}: duration must be a positive time in s, got {self.duration!r}")
+        if self.ease not in EASINGS:
+            raise ValueError(f"{self.kind}: ease must be one of {', '.join(EASINGS)}, got {self.ease!r}")
+        if self.kind in ("approach", "idle") and (self.start.force > 0 or self.end.force > 0):
+            raise ValueError(f"{self.kind}: the indentor must not touch (force 0), got "
+                             f"{self.start.force!r} -> {self.end.force!r} N")
+
+    def pose_at(self, t: float) -> Pose:
+        """Pose ``t`` seconds into the segment (clamped to ``[0, duration]``)."""
+        if self.start == self.end:
+            return self.start
+        u = min(max(t / self.duration, 0.0), 1.0)
+        s = u if self.ease == "linear" else u * u * (3.0 - 2.0 * u)
+        return _lerp_pose(self.start, self.end, s)
+
+
+class Scene:
+    """A script of segments played back to back; ``contact_at(t)`` is the true contact.
+
+    Times before 0 give the first pose, times after :attr:`duration` the last (looping is the
+    player's business: :class:`FingerSimulator` wraps time when asked to).
+    """
+
+    def __init__(self, segments: Sequence[Segment], name: str = "") -> None:
+        if not segments:
+            raise ValueError("a scene needs at least one segment")
+        self.segments: tuple[Segment, ...] = tuple(segments)
+        self.name = name
+        ends = np.cumsum([seg.duration for seg in self.segments])
+        self._starts = [0.0] + [float(e) for e in ends[:-1]]
+        self.duration: float = float(ends[-1])
+        """Total length in seconds."""
+
+    def segment_index(self, t: float) -> int:
+        """Index of the segment playing at ``t`` seconds (the first/last outside the scene)."""
+        return max(bisect.bisect_right(self._starts, t) - 1, 0)
+
+    def pose_at(self, t: float) -> Pose:
+        """The indentor's pose at ``t`` seconds."""
+        i = self.segment_index(t)
+        return self.segments[i].pose_at(t - self._starts[i])
+
+    def contact_at(self, t: float) -> Contact | None:
+        """The true contact at ``t`` seconds, ``None`` when nothing touches."""
+        return self.pose_at(t).contact()
+
+    def segment_start(self, index: int) -> float:
+        """Start time in seconds of segment ``index``."""
+        return self._starts[index]
+
+    def __repr__(self) -> str:
+        kinds = ", ".join(seg.kind for seg in self.segments)
+        return f"Scene({self.name!r}, {self.duration:g} s: {kinds})"
+
+
+class SceneBuilder:
+    """Writes a scene as a sequence of moves, each starting where the previous one ended::
+
+        scene = (SceneBuilder(Pose(r1=10, x0=6, y0=13.65))
+                 .idle(0.5).press(0.5, force=1.0).roll(2.0, x0=17).hold(1.0).release(0.5)
+                 .build("mine"))
+
+    Each method takes a duration in seconds and the pose fields that change (``r1``, ``r2``,
+    ``psi_deg``, ``force``, ``x0``, ``y0``), plus optional ``ease``.
+    """
+
+    def __init__(self, start: Pose | None = None) -> None:
+        self.pose = start or Pose()
+        self.segments: list[Segment] = []
+
+    def _move(self, kind: str, duration: float, ease: str, **changes: float) -> SceneBuilder:
+        end = replace(self.pose, **changes)
+        self.segments.append(Segment(kind, duration, self.pose, end, ease))
+        self.pose = end
+        return self
+
+    def idle(self, duration: float) -> SceneBuilder:
+        """Nothing touches; nothing moves."""
+        return self._move("idle", duration, "linear")
+
+    def approach(self, duration: float, ease: str = "smooth", **changes: float) -> SceneBuilder:
+        """Move or change the indentor without touching (e.g. bring a sphere over a new spot)."""
+        return self._move("approach", duration, ease, **changes)
+
+    def press(self, duration: float, force: float, ease: str = "smooth", **changes: float) -> SceneBuilder:
+        """Push to ``force`` N."""
+        return self._move("press", duration, ease, force=force, **changes)
+
+    def roll(self, duration: float, ease: str = "linear", **changes: float) -> SceneBuilder:
+        """Move the contact centre (``x0``/``y0``, mm) at constant force."""
+        return self._move("roll", duration, ease, **changes)
+
+    def rotate(self, duration: float, psi_deg: float, ease: str = "linear", **changes: float) -> SceneBuilder:
+        """Turn the indentor's axis to ``psi_deg`` degrees."""
+        return self._move("rotate", duration, ease, psi_deg=psi_deg, **changes)
+
+    def hold(self, duration: float) -> SceneBuilder:
+        """Keep everything still."""
+        return self._move("hold", duration, "linear")
+
+    def release(self, duration: float, ease: str = "smooth") -> SceneBuilder:
+        """Lift off: force down to 0."""
+        return self._move("release", duration, ease, force=0.0)
+
+    def build(self, name: str = "") -> Scene:
+        return Scene(self.segments, name)
+
+
+# -- built-in scenes (positions relative to the array, so they fit any geometry) -------------
+
+def _centre(g: Geometry) -> tuple[float, float]:
+    return g.span_x / 2.0, g.span_y / 2.0
+
+
+def _demo(g: Geometry) -> Scene:
+    """~20 s: a 10 mm cylinder pressed, rolled along x, turned, held and released; a sphere
+    press; a knife edge (r1 = 0.5 mm) press.  Made to loop: it starts and ends untouched."""
+    xc, yc = _centre(g)
+    return (
+        SceneBuilder(Pose(r1=10.0, psi_deg=90.0, x0=0.25 * g.span_x, y0=yc))
+        .idle(0.5)
+        .approach(0.5)
+        .press(0.5, force=1.0)
+        .roll(2.0, x0=0.75 * g.span_x)
+        .roll(1.0, x0=xc)
+        .rotate(1.0, psi_deg=30.0)
+        .rotate(2.0, psi_deg=150.0)
+        .rotate(1.0, psi_deg=90.0)
+        .hold(2.0)
+        .release(0.5)
+        .idle(0.5)
+        .approach(0.5, r1=8.0, r2=8.0)  # a sphere, same spot
+        .press(0.5, force=1.5)
+        .hold(1.0)
+        .release(0.5)
+        .idle(0.5)
+        .approach(0.5, r1=0.5, r2=math.inf, psi_deg=60.0)  # a knife edge across the finger
+        .press(0.5, force=0.8)
+        .hold(1.0)
+        .release(0.5)
+        .idle(1.0)
+        .approach(0.5, r1=10.0, psi_deg=90.0, x0=0.25 * g.span_x)  # back to the start pose
+        .build("demo")
+    )
+
+
+def _press(g: Geometry) -> Scene:
+    """3 s: a 10 mm cylinder at 90 deg pressed to 1 N at the array centre, held 1 s, released."""
+    xc, yc = _centre(g)
+    return (SceneBuilder(Pose(r1=10.0, psi_deg=90.0, x0=xc, y0=yc))
+            .idle(0.5).press(0.5, force=1.0).hold(1.0).release(0.5).idle(0.5).build("press"))
+
+
+def _hold(g: Geometry) -> Scene:
+    """~5 min: the press scene's contact held for 300 s (60 zeroing time constants: a zeroer
+    that tracked a held contact as drift would erase it well within that)."""
+    xc, yc = _centre(g)
+    return (SceneBuilder(Pose(r1=10.0, psi_deg=90.0, x0=xc, y0=yc))
+            .idle(1.0).press(0.5, force=1.0).hold(300.0).release(0.5).idle(2.0).build("hold"))
+
+
+def _empty(g: Geometry) -> Scene:
+    """1 s of nothing (loops): drift, noise and zeroing only."""
+    xc, yc = _centre(g)
+    return SceneBuilder(Pose(x0=xc, y0=yc)).idle(1.0).build("empty")
+
+
+def _sphere(g: Geometry) -> Scene:
+    """3 s: an 8 mm sphere pressed to 1.5 N at the array centre."""
+    xc, yc = _centre(g)
+    return (SceneBuilder(Pose(r1=8.0, r2=8.0, x0=xc, y0=yc))
+            .idle(0.5).press(0.5, force=1.5).hold(1.0).release(0.5).idle(0.5).build("sphere"))
+
+
+def _edge(g: Geometry) -> Scene:
+    """3 s: a knife edge (cylinder r1 = 0.5 mm) at 60 deg pressed to 0.8 N at the centre."""
+    xc, yc = _centre(g)
+    return (SceneBuilder(Pose(r1=0.5, psi_deg=60.0, x0=xc, y0=yc))
+            .idle(0.5).press(0.5, force=0.8).hold(1.0).release(0.5).idle(0.5).build("edge"))
+
+
+#: Built-in scenes by name (``sim://?scene=NAME``, ``tactiled simulate --scene NAME``).
+SCENES: dict[str, Callable[[Geometry], Scene]] = {
+    "demo": _demo,
+    "press": _press,
+    "hold": _hold,
+    "empty": _empty,
+    "sphere": _sphere,
+    "edge": _edge,
+}
+
+
+def named_scene(name: str, geometry: Geometry | None = None) -> Scene:
+    """The built-in scene ``name`` laid out on ``geometry`` (default: the 8x8 array).
+
+    ``ValueError`` names the known scenes if ``name`` is not one of them.
+    """
+    key = name.strip().lower()
+    if key not in SCENES:
+        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(SCENES)}")
+    return SCENES[key](geometry or Geometry())
+
+
+def scene_from_spec(spec: str, geometry: Geometry | None = None) -> Scene:
+    """The scene a URL or command line names (``sim://?scene=demo``, ``--scene demo``).
+
+    A spec is a built-in scene name (see :data:`SCENES`), case-insensitive.
+    """
+    return named_scene(spec, geometry)
+
+
+# ============================================================================================
+# The simulated finger
+# ============================================================================================
+
+#: Default raw-counts mapping: the same as :meth:`LookupTable.linear`'s defaults, so a daemon
+#: with no calibration file reads simulated counts back as the simulator's strain.
+#: 20000 counts per unit strain = 20 counts per 0.001 strain (one count = 5e-5 strain, a tenth
+#: of the default noise sigma); zero strain at 10000 counts, so 0 .. 65535 spans strain
+#: -0.5 .. +2.78, ample room for tension, drift and the hardest press.
+COUNTS_PER_STRAIN = 20000.0
+ZERO_STRAIN_COUNTS = 10000.0
+
+
+@dataclass(frozen=True)
+class DriftModel:
+    """Slow baseline drift of each tactel's zero (temperature, rubber creep), in strain.
+
+    ``drift[k](t) = amplitude * g[k] * sin(2 pi t / period_s) + w[k](t)``
+
+    * a common slow wave (temperature) of peak ``amplitude`` = 0.002 strain and period
+      ``period_s`` = 300 s, scaled per tactel by ``g[k]`` drawn uniformly from [0.5, 1]
+      (tactels do not drift identically);
+    * ``w[k]``: an independent random walk per tactel, pulled back to zero with time constant
+      ``walk_tau_s`` = 60 s (Ornstein-Uhlenbeck), of long-run standard deviation
+      ``walk_sigma`` = 0.0003 strain.
+
+    Both parts start at 0 at ``t = 0``, so ``|drift| <= amplitude + ~4 walk_sigma`` (0.0032).
+    The fastest change, ``2 pi amplitude / period_s`` ~ 4e-5 strain/s, is what a zeroer must
+    follow while idle.
+    """
+
+    amplitude: float = 0.002
+    period_s: float = 300.0
+    walk_sigma: float = 0.0003
+    walk_tau_s: float = 60.0
+
+    def __post_init__(self) -> None:
+        for name in ("amplitude", "walk_sigma"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be a finite non-negative strain, got {getattr(self, name)!r}")
+        for name in ("period_s", "walk_tau_s"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"{name} must be a positive time in s, got {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class HysteresisModel:
+    """The rubber's memory of compression: it springs back a little late after unloading.
+
+    Each tactel keeps a peak-hold ``P`` of its (compressive) physics strain ``s+ = max(s, 0)``
+    that decays with time constant ``tau_s``: ``P = max(s+, P * exp(-dt / tau_s))``.  The residual
+    added to the strain is ``fraction * (P - s+)``: 0 while loading or holding, and after a
+    release from strain ``s_r`` it is ``fraction * s_r * exp(-t / tau_s)``: by default 5 % of the
+    released strain, decaying with ``tau_s`` = 0.5 s (gone to 1 % of that within 2.3 s).
+    """
+
+    fraction: float = 0.05
+    tau_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.fraction) and 0 <= self.fraction <= 1):
+            raise ValueError(f"fraction must lie in [0, 1], got {self.fraction!r}")
+        if not (math.isfinite(self.tau_s) and self.tau_s > 0):
+            raise ValueError(f"tau_s must be a positive time in s, got {self.tau_s!r}")
+
+
+DEFAULT_DRIFT = DriftModel()
+DEFAULT_HYSTERESIS = HysteresisModel()
+#: Drift is a process of minutes: recomputing it every 10 ms changes it by < 1e-5 strain per
+#: update (a fifth of a count), so per-tick updates would be work for nothing.
+DRIFT_UPDATE_S = 0.01
+#: A hysteresis residual below this (strain; 1/50 count) counts as gone.
+SETTLED_RESIDUAL = 1e-6
+
+
+@dataclass(slots=True)
+class Tick:
+    """One reading of the simulated finger, with everything that went into it.
+
+    ``physics``: the noise-free strain of :attr:`contact` from ``StrainModel.predict`` (a
+    cached read-only array, zeros without contact); ``drift``, ``residual`` (hysteresis),
+    ``strain`` (their sum plus Gaussian noise: what the tactels feel) and ``counts`` (``uint16``
+    through the calibration's inverse) are ``(rows, cols)`` arrays.
+    """
+
+    index: int  # tick number, from 0
+    time_s: float  # device time, s (index / rate_hz)
+    scene_time_s: float  # time into the scene, s (wraps when looping)
+    contact: Contact | None
+    physics: np.ndarray = field(repr=False)
+    drift: np.ndarray = field(repr=False)
+    residual: np.ndarray = field(repr=False)
+    strain: np.ndarray = field(repr=False)
+    counts: np.ndarray = field(repr=False)
+    sensor_id: int = 0
+    device_time_us: int = 0
+
+    @property
+    def seq(self) -> int:
+        """Frame sequence number: the tick index wrapped to uint32."""
+        return self.index & 0xFFFFFFFF
+
+    def frame(self) -> Frame:
+        """The frame the device sends for this tick (raw counts only; host time unset)."""
+        return Frame(seq=self.seq, device_time_us=self.device_time_us, raw=self.counts,
+                     sensor_id=self.sensor_id)
+
+
+class FingerSimulator:
+    """A simulated fingertip playing a scene at ``rate_hz`` ticks per second of device time.
+
+    Per tick ``k`` (device time ``t = k / rate_hz`` s): the scene's true contact at ``t``
+    (``t`` modulo the scene's duration when ``loop``), its noise-free strain, plus
+    :class:`DriftModel` drift, plus :class:`HysteresisModel` residual, plus Gaussian noise of
+    ``noise`` (strain sigma; default the sensor's ``noise.sigma``, 0.0005; 0 for none), turned
+    into counts by ``calibration.to_counts`` (default: :meth:`LookupTable.linear` with
+    :data:`COUNTS_PER_STRAIN` and :data:`ZERO_STRAIN_COUNTS`).  ``drift=None`` /
+    ``hysteresis=None`` switch those off.
+
+    Deterministic given ``seed``: noise, drift and the per-tactel drift gains use independent
+    streams, so switching one off leaves the others' numbers unchanged.
+
+    Cheap enough for 1 kHz per sensor on a shared machine (~50 us per tick while the contact is
+    still, plus ~30 us per strain prediction while it moves): the strain model runs only when
+    the contact changes (never during a hold or idle), the drift (a minutes-long process) is
+    updated every :data:`DRIFT_UPDATE_S`, the hysteresis state is left alone once settled, and
+    the default linear table is inverted with its closed form (identical to ``to_counts``).
+    """
+
+    def __init__(
+        self,
+        sensor: SensorModel | None = None,
+        scene: Scene | str = "demo",
+        seed: int = 0,
+        rate_hz: float = 1000.0,
+        noise: float | None = None,
+        drift: DriftModel | None = DEFAULT_DRIFT,
+        hysteresis: HysteresisModel | None = DEFAULT_HYSTERESIS,
+        calibration: LookupTable | None = None,
+        *,
+        sensor_id: int = 0,
+        loop: bool = True,
+    ) -> None:
+        self.sensor = sensor or SensorModel()
+        g = self.sensor.geometry
+        self.shape = (g.rows, g.cols)
+        self.scene = named_scene(scene, g) if isinstance(scene, str) else scene
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"rate_hz must be a positive rate in Hz, got {rate_hz!r}")
+        self.rate_hz = float(rate_hz)
+        self.noise = self.sensor.noise.sigma if noise is None else float(noise)
+        if not (math.isfinite(self.noise) and self.noise >= 0):
+            raise ValueError(f"noise must be a finite non-negative strain sigma, got {noise!r}")
+        if not (isinstance(sensor_id, int) and 0 <= sensor_id <= 0xFFFF):
+            raise ValueError(f"sensor_id must be an integer 0..65535, got {sensor_id!r}")
+        self.sensor_id = sensor_id
+        self.drift_model = drift
+        self.hysteresis_model = None if hysteresis is None or hysteresis.fraction == 0 else hysteresis
+        # The default table's inverse is affine: computed directly it costs ~5 us, not ~50.
+        self._affine = calibration is None
+        self.calibration = calibration or LookupTable.linear(
+            g.rows, g.cols, COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, sensor_id=sensor_id)
+        if self.calibration.shape != self.shape:
+            raise ValueError(f"calibration shape {self.calibration.shape} != sensor shape {self.shape}")
+        self.loop = loop
+        self.seed = seed
+        self.model = StrainModel(self.sensor)
+        noise_seq, drift_seq, gain_seq = np.random.SeedSequence(seed).spawn(3)
+        self._noise_rng = np.random.default_rng(noise_seq)
+        self._drift_rng = np.random.default_rng(drift_seq)
+        self._drift_gain = np.random.default_rng(gain_seq).uniform(0.5, 1.0, self.shape)
+        self._zeros = np.zeros(self.shape)
+        self._zeros.setflags(write=False)
+        self._walk = np.zeros(self.shape)
+        self._drift = self._zeros
+        self._drift_time = -math.inf  # device time of the last drift update, s
+        self._peak = np.zeros(self.shape)  # hysteresis peak-hold P
+        self._settled = True  # P equals the current load: no residual until the load changes
+        self._cached: tuple[Contact | None, np.ndarray] = (None, self._zeros)
+        self._last_phys = self._zeros
+        self.next_index = 0
+        """Index of the tick :meth:`step` produces next."""
+        self._last_index: int | None = None
+        self.predictions = 0
+        """How many times the strain model ran (cache misses), for tests and benchmarks."""
+
+    @property
+    def ticks_per_pass(self) -> int:
+        """Ticks in one pass through the scene (at least 1)."""
+        return max(1, round(self.scene.duration * self.rate_hz))
+
+    def scene_time(self, index: int) -> float:
+        """Scene time in seconds of tick ``index``."""
+        if self.loop:
+            return (index % self.ticks_per_pass) / self.rate_hz
+        return index / self.rate_hz
+
+    def physics(self, contact: Contact | None) -> np.ndarray:
+        """Noise-free strain of ``contact`` (read-only; the last prediction is reused while the
+        contact stays the same)."""
+        if contact is None:
+            return self._zeros
+        last, strain = self._cached
+        if contact != last:
+            strain = self.model.predict(contact)
+            strain.setflags(write=False)
+            self._cached = (contact, strain)
+            self.predictions += 1
+        return strain
+
+    def to_counts(self, strain: np.ndarray) -> np.ndarray:
+        """Raw ``uint16`` counts the tactels report for ``strain`` (the calibration's inverse)."""
+        if not self._affine:
+            return self.calibration.to_counts(strain)
+        c = strain * COUNTS_PER_STRAIN
+        c += ZERO_STRAIN_COUNTS
+        np.rint(c, out=c)
+        np.maximum(c, 0.0, out=c)  # two ufuncs: np.clip's wrapper costs more than the work
+        np.minimum(c, 65535.0, out=c)
+        return c.astype(np.uint16)
+
+    def skip(self, n: int) -> None:
+        """Let ``n`` ticks pass unseen (a device whose frames were lost): no frames, seq jumps.
+        Drift and hysteresis are integrated over the gap at the next :meth:`step`."""
+        if n < 0:
+            raise ValueError(f"cannot skip a negative number of ticks, got {n!r}")
+        self.next_index += n
+
+    def step(self) -> Tick:
+        """Produce the next tick."""
+        k = self.next_index
+        dt = 0.0 if self._last_index is None else (k - self._last_index) / self.rate_hz
+        self._last_index = k
+        self.next_index = k + 1
+        t = k / self.rate_hz
+        t_scene = self.scene_time(k)
+        contact = self.scene.contact_at(t_scene)
+        phys = self.physics(contact)
+        drift = self._update_drift(t)
+        residual = self._update_hysteresis(phys, dt)
+        strain = phys + drift
+        if residual is not self._zeros:
+            strain += residual
+        if self.noise > 0:
+            strain += self._noise_rng.normal(0.0, self.noise, self.shape)
+        return Tick(k, t, t_scene, contact, phys, drift, residual, strain, self.to_counts(strain),
+                    self.sensor_id, round(k * 1e6 / self.rate_hz))
+
+    def next_frame(self) -> Frame:
+        """The next tick as the frame the device sends."""
+        return self.step().frame()
+
+    def frames(self, n: int) -> list[Frame]:
+        """The next ``n`` frames."""
+        return [self.next_frame() for _ in range(n)]
+
+    def _update_drift(self, t: float) -> np.ndarray:
+        """Drift at device time ``t``, recomputed every ``DRIFT_UPDATE_S`` (read-only array)."""
+        d = self.drift_model
+        if d is None or t - self._drift_time < DRIFT_UPDATE_S:
+            return self._drift if d is not None else self._zeros
+        dt = t - self._drift_time if math.isfinite(self._drift_time) else 0.0
+        self._drift_time = t
+        if dt > 0 and d.walk_sigma > 0:
+            # Exact Ornstein-Uhlenbeck update for any step: variance tends to walk_sigma^2.
+            a = math.exp(-dt / d.walk_tau_s)
+            self._walk *= a
+            self._walk += (d.walk_sigma * math.sqrt(1.0 - a * a)) * self._drift_rng.standard_normal(self.shape)
+        drift = (d.amplitude * math.sin(2.0 * math.pi * t / d.period_s)) * self._drift_gain
+        drift += self._walk
+        drift.setflags(write=False)
+        self._drift = drift
+        return drift
+
+    def _update_hysteresis(self, phys: np.ndarray, dt: float) -> np.ndarray:
+        """Residual strain of the rubber's memory (:class:`HysteresisModel`) for this tick."""
+        h = self.hysteresis_model
+        unchanged = phys is self._last_phys
+        self._last_phys = phys
+        if h is None or (self._settled and unchanged):
+            return self._zeros
+        loaded = np.maximum(phys, 0.0)  # only compression is remembered
+        self._peak *= math.exp(-dt / h.tau_s)
+        np.maximum(self._peak, loaded, out=self._peak)
+        residual = h.fraction * (self._peak - loaded)
+        if float(residual.max()) < SETTLED_RESIDUAL:
+            # Below a fiftieth of a count: drop the memory so a still contact costs nothing.
+            self._peak = loaded
+            self._settled = True
+            return self._zeros
+        self._settled = False
+        residual.setflags(write=False)
+        return residual
+
+
+# ============================================================================================
+# Pacing a frame stream in real time
+# ============================================================================================
+
+
+class FrameSchedule:
+    """Frame ``k`` of a stream is due at ``start + k / rate_hz`` seconds, whatever happened
+    before, so the stream never drifts from its clock.
+
+    :meth:`take` says how many frames to send now.  When the sender has fallen more than
+    ``max_lag_s`` seconds behind (the process was starved or suspended), the stale frames are
+    skipped (a seq gap, as a real device's overflowing buffer loses frames) instead of being
+    sent in a burst of old data.
+    """
+
+    def __init__(self, rate_hz: float, start: float, max_lag_s: float = 1.0) -> None:
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise ValueError(f"rate_hz must be a positive rate in Hz, got {rate_hz!r}")
+        self.rate_hz = float(rate_hz)
+        self.start = float(start)
+        self.max_lag_frames = max(1, int(max_lag_s * rate_hz))
+        self.sent = 0  # frames sent or skipped so far
+        self.skipped = 0
+
+    def due(self, now: float) -> int:
+        """Frames due by ``now`` (seconds on the ``start`` clock) and not yet taken."""
+        return max(0, math.floor((now - self.start) * self.rate_hz) + 1 - self.sent)
+
+    def next_due(self) -> float:
+        """Clock time at which the next frame is due."""
+        return self.start + self.sent / self.rate_hz
+
+    def take(self, now: float, limit: int) -> tuple[int, int]:
+        """``(skip, send)``: frames to drop as lost and frames to send now (at most ``limit``),
+        both counted as taken."""
+        due = self.due(now)
+        skip = due - 1 if due > self.max_lag_frames else 0
+        send = min(due - skip, limit)
+        self.sent += skip + send
+        self.skipped += skip
+        return skip, send
