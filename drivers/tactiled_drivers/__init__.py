@@ -1,0 +1,9 @@
+"""Frame-source drivers behind one interface, :class:`tactiled.sources.FrameSource`.
+
+- ``serial_source.SerialSource``: ``serial:///dev/ttyACM0?baud=...`` (pyserial);
+- ``sim.SimSource``: ``sim://?seed=...&scene=...`` (scene simulator -> encoder -> bytes);
+- ``replay_source.ReplaySource``: ``replay://FILE?speed=1.0&loop=0``.
+
+This package imports none of them: :func:`tactiled.sources.open_source` imports a driver's
+module only when its scheme is used, so a missing optional library breaks only that driver.
+"""

@@ -1,0 +1,212 @@
+"""The fingertip on a serial port: ``serial:///dev/ttyACM0?baud=1000000``.
+
+URL parameters: ``baud`` (bits/s, default 1000000; ignored by USB CDC-ACM devices and ptys),
+``exclusive`` (default 1: take an ``flock`` on the port so a second daemon cannot interleave
+reads with ours).
+
+**Non-blocking reads: ``loop.add_reader`` on the port's file descriptor, no thread.**
+pyserial's POSIX ``Serial`` already opens the device ``O_NONBLOCK`` and, with ``timeout=0``,
+``read(n)`` returns at once with what is there (``b""`` if nothing).  So each read waits for
+readiness in the event loop (``add_reader``) and then calls ``read`` once.  Compared with a
+reader thread feeding an ``asyncio.Queue`` this needs no thread to start, stop or join, no
+queue to bound, no cross-thread hand-off latency, and cancellation (read timeouts, shutdown)
+is an ordinary ``CancelledError`` at the ``await``.  It also gives back-pressure for free: when
+nobody reads, nothing is read, and the kernel's tty buffer holds (or, as on the wire, drops)
+bytes.  The price is POSIX only (asyncio cannot watch a Windows COM handle), which suits a
+daemon deployed with systemd and udev.
+
+**A vanishing device** shows in two ways, both handled: pyserial raises ``SerialException``
+for ``EIO`` ("read failed"), and for a descriptor that polls readable but reads ``b""`` (what a
+Linux pty gives once its master is closed, and a USB serial adapter once unplugged).  ``OSError``
+(e.g. ``EIO`` from the ``TIOCINQ`` ioctl behind ``in_waiting``) is treated the same.  The driver
+then closes the port (releasing its descriptor and pyserial's two abort pipes, so nothing leaks),
+sets ``connected = False`` and ``last_error``, counts a disconnect, logs one warning, and retries
+opening the same path with backoff: 0.1 s, doubling, capped at 2 s.  A successful re-open logs,
+counts a reconnect and resumes reading; the decoder's half-received frame is dropped.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import logging
+from typing import ClassVar
+
+import serial
+
+from tactiled.errors import DeviceConnectionError
+from tactiled.frames import FrameDecoder
+from tactiled.sources import FrameSource, SourceURL
+
+log = logging.getLogger(__name__)
+
+DEFAULT_BAUD = 1_000_000
+READ_CHUNK = 4096  # bytes per read(); one tty buffer's worth
+
+
+def _describe_open_error(path: str, err: serial.SerialException) -> str:
+    """One clear line for a port that will not open."""
+    code = err.errno
+    if code in (errno.EAGAIN, errno.EWOULDBLOCK):
+        return (f"serial port {path} is in use by another process "
+                "(exclusive lock held; is another tactiled running?)")
+    if code == errno.ENOENT:
+        return f"serial port {path} does not exist (device unplugged?)"
+    if code == errno.EACCES:
+        return (f"permission denied opening serial port {path} "
+                "(add the user to the dialout group or install the udev rule)")
+    return f"cannot open serial port {path}: {err}"
+
+
+class SerialSource(FrameSource):
+    """Wire bytes from a serial device, surviving unplug/replug of the same path."""
+
+    PARAMS: ClassVar[frozenset[str]] = frozenset({"baud", "exclusive"})
+
+    #: Reconnect backoff, seconds: first retry after ``RETRY_MIN``, doubling to ``RETRY_MAX``.
+    RETRY_MIN: ClassVar[float] = 0.1
+    RETRY_MAX: ClassVar[float] = 2.0
+
+    def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
+        super().__init__(url, decoder=decoder)
+        if not self.url.location:
+            raise ValueError(f"{self.url.url!r}: no device path; write e.g. "
+                             "serial:///dev/ttyACM0")
+        self.path: str = self.url.location
+        self.baud: int = self.url.get_int("baud", DEFAULT_BAUD, minimum=1)
+        self.exclusive: bool = self.url.get_bool("exclusive", True)
+        self._port: serial.Serial | None = None
+        self._retry_delay = self.RETRY_MIN
+        self._waiter: asyncio.Future[None] | None = None
+        self._watched_fd: int | None = None
+
+    # -- open / close -----------------------------------------------------------------------
+
+    def _open_port(self) -> serial.Serial:
+        # timeout=0: read() returns at once with whatever is buffered (the loop does the
+        # waiting); exclusive: flock(LOCK_EX | LOCK_NB), refused while another open file
+        # description holds it, even in this process.
+        try:
+            return serial.Serial(self.path, baudrate=self.baud, timeout=0,
+                                 exclusive=self.exclusive)
+        except serial.SerialException as err:
+            raise DeviceConnectionError(_describe_open_error(self.path, err)) from err
+        except (OSError, ValueError) as err:  # e.g. termios on a non-tty, bad baud rate
+            raise DeviceConnectionError(f"cannot open serial port {self.path}: {err}") from err
+
+    async def _open_internal(self) -> None:
+        self._port = self._open_port()
+        self._retry_delay = self.RETRY_MIN
+        log.info("opened serial port %s at %d baud", self.path, self.baud)
+
+    async def _close_internal(self) -> None:
+        self._release_port()
+
+    def _release_port(self) -> None:
+        """Stop watching the descriptor, wake a pending read, and close the port."""
+        self._unwatch()
+        waiter, self._waiter = self._waiter, None
+        if waiter is not None:  # a read waiting for data or for the next retry: end it
+            _resolve(waiter)
+        port, self._port = self._port, None
+        if port is not None:
+            try:
+                port.close()
+            except (OSError, serial.SerialException) as err:  # already gone: nothing to free
+                log.debug("closing %s: %s", self.path, err)
+
+    # -- reading ----------------------------------------------------------------------------
+
+    async def _read_internal(self) -> bytes:
+        while self.is_open:
+            port = self._port
+            if port is None:
+                await self._reconnect()
+                continue
+            try:
+                await self._wait_readable(port)
+                if not self._is_current(port):  # closed (or lost) while we waited
+                    continue
+                data = port.read(READ_CHUNK)
+            except (serial.SerialException, OSError) as err:
+                self._lost(err)
+                continue
+            if data:  # b"" is a spurious wake-up (another reader, EAGAIN): wait again
+                return data
+        return b""
+
+    def _is_current(self, port: serial.Serial) -> bool:
+        return self._port is port
+
+    async def _wait_readable(self, port: serial.Serial) -> None:
+        loop = asyncio.get_running_loop()
+        fd = port.fileno()
+        waiter: asyncio.Future[None] = loop.create_future()
+
+        self._waiter = waiter
+        loop.add_reader(fd, _resolve, waiter)
+        self._watched_fd = fd
+        try:
+            await waiter
+        finally:
+            # Always unregister before the descriptor can be closed: epoll keeps stale
+            # registrations otherwise, and the number may be reused by the next open().
+            self._unwatch()
+            if self._waiter is waiter:
+                self._waiter = None
+
+    async def _sleep(self, delay: float) -> None:
+        """Sleep ``delay`` seconds, or less if :meth:`close` wakes us (via ``_waiter``)."""
+        loop = asyncio.get_running_loop()
+        waiter: asyncio.Future[None] = loop.create_future()
+        handle = loop.call_later(delay, _resolve, waiter)
+        self._waiter = waiter
+        try:
+            await waiter
+        finally:
+            handle.cancel()
+            if self._waiter is waiter:
+                self._waiter = None
+
+    def _unwatch(self) -> None:
+        fd, self._watched_fd = self._watched_fd, None
+        if fd is not None:
+            asyncio.get_running_loop().remove_reader(fd)
+
+    def _lost(self, err: BaseException) -> None:
+        """The device vanished: report it once, free the port, start retrying."""
+        self._release_port()
+        self.connected = False
+        self.disconnects += 1
+        self.last_error = f"serial port {self.path} lost: {err}"
+        self._retry_delay = self.RETRY_MIN
+        log.warning("%s; retrying every %.1f..%.1f s", self.last_error,
+                    self.RETRY_MIN, self.RETRY_MAX)
+
+    async def _reconnect(self) -> None:
+        """Wait one backoff step and try to re-open the same path once."""
+        delay = self._retry_delay
+        await self._sleep(delay)
+        if not self.is_open or self._port is not None:
+            return
+        try:
+            port = self._open_port()
+        except DeviceConnectionError as err:
+            self._retry_delay = min(delay * 2.0, self.RETRY_MAX)
+            if str(err) != self.last_error:
+                log.info("%s", err)
+            self.last_error = str(err)
+            return
+        self._port = port
+        self._retry_delay = self.RETRY_MIN
+        self.connected = True
+        self.reconnects += 1
+        # Bytes of a frame cut by the unplug must not be glued to the first bytes of the new
+        # connection, and a replugged device may have restarted its sequence count.
+        self.decoder.reset()
+        log.warning("serial port %s is back (reconnect %d)", self.path, self.reconnects)
+
+
+def _resolve(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)

@@ -1,0 +1,158 @@
+"""The simulated finger: ``sim://?seed=3&scene=demo&rate=1000&sensor_id=0&loop=1``.
+
+A :class:`~tactiled.sim.FingerSimulator` plays a scripted scene; every frame is encoded with
+:func:`~tactiled.frames.encode_frame` and handed over as wire bytes, so the shared decoder (and
+everything after it) runs exactly as for the hardware.
+
+URL parameters (all optional):
+
+- ``scene``: a built-in scene name (default ``demo``; see ``tactiled.sim.SCENES``);
+- ``seed``: integer seed of the noise and drift (default 0): the same seed gives the same bytes;
+- ``rate``: frames per second of device time, Hz (default 1000);
+- ``sensor_id``: the id the frames carry, 0..65535 (default 0);
+- ``loop``: 1 (default) plays the scene over and over; 0 plays it once, then the stream ends;
+- ``speed``: pace multiplier (default 1: real time; 2: twice as fast; 0: as fast as possible,
+  yielding to the event loop between reads);
+- ``noise``: Gaussian strain noise sigma (default 0.0005; 0 for none);
+- ``drift``: peak of the slow baseline drift wave, strain (default 0.002; 0 turns drift off);
+- ``hysteresis``: fraction of a released strain the rubber keeps, decaying with tau 0.5 s
+  (default 0.05; 0 for none).
+
+Pacing: frame ``k`` is due at ``start + k / (rate * speed)`` on the event loop's clock, with
+``start`` the first read, so the stream never drifts; each read returns every frame already due
+(up to :data:`MAX_BATCH`, ~1 ms of work, so the loop is never held long), or sleeps until the
+next one is due.  Fallen more than ``MAX_LAG_S`` behind (the loop was starved), the stale frames
+are skipped as a real device would lose them: the seq numbers jump and the decoder counts them
+in ``stats.lost``; :attr:`SimSource.frames_skipped` counts them too.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import ClassVar
+
+from tactiled.frames import FrameDecoder, encode_frame
+from tactiled.sim import (
+    DEFAULT_DRIFT,
+    DEFAULT_HYSTERESIS,
+    DriftModel,
+    FingerSimulator,
+    FrameSchedule,
+    HysteresisModel,
+    scene_from_spec,
+)
+from tactiled.sources import FrameSource, SourceURL
+
+log = logging.getLogger(__name__)
+
+MAX_BATCH = 8  # frames rendered per read: ~0.1 ms each, so a read holds the loop <~1 ms
+MAX_LAG_S = 1.0  # seconds behind schedule beyond which stale frames are skipped
+
+
+class SimSource(FrameSource):
+    """Wire bytes of a simulated fingertip playing a scene (see the module docstring)."""
+
+    PARAMS: ClassVar[frozenset[str]] = frozenset(
+        {"seed", "scene", "rate", "sensor_id", "loop", "speed", "noise", "drift", "hysteresis"})
+
+    def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
+        super().__init__(url, decoder=decoder)
+        u = self.url
+        self.seed: int = u.get_int("seed", 0, minimum=0)
+        self.rate: float = u.get_float("rate", 1000.0, minimum=0.1, maximum=100_000.0)
+        self.sensor_id: int = u.get_int("sensor_id", 0, minimum=0, maximum=0xFFFF)
+        self.loop: bool = u.get_bool("loop", True)
+        self.speed: float = u.get_float("speed", 1.0, minimum=0.0)
+        noise = u.get_float("noise", 0.0, minimum=0.0) if "noise" in u.params else None
+        drift = u.get_float("drift", DEFAULT_DRIFT.amplitude, minimum=0.0)
+        fraction = u.get_float("hysteresis", DEFAULT_HYSTERESIS.fraction, minimum=0.0, maximum=1.0)
+        try:
+            scene = scene_from_spec(u.get_str("scene", "demo"))
+        except ValueError as err:
+            raise ValueError(f"{u.url!r}: {err}") from None
+        self.simulator = FingerSimulator(
+            scene=scene,
+            seed=self.seed,
+            rate_hz=self.rate,
+            noise=noise,
+            drift=DriftModel(amplitude=drift) if drift > 0 else None,
+            hysteresis=HysteresisModel(fraction=fraction) if fraction > 0 else None,
+            sensor_id=self.sensor_id,
+            loop=self.loop,
+        )
+        self.frames_sent = 0
+        self.frames_skipped = 0
+        self._schedule: FrameSchedule | None = None
+        self._waker: asyncio.Future[None] | None = None
+
+    async def _open_internal(self) -> None:
+        self._schedule = None  # the device starts on the first read
+
+    async def _close_internal(self) -> None:
+        if self._waker is not None and not self._waker.done():  # wake a paced read
+            self._waker.set_result(None)
+
+    async def _read_internal(self) -> bytes:
+        loop = asyncio.get_running_loop()
+        while self.is_open:
+            limit = self._batch_limit()
+            if limit == 0:
+                log.info("%s: scene played once (%d frames sent); end of stream",
+                         self.url.url, self.frames_sent)
+                self.connected = False
+                return b""
+            if self.speed == 0:
+                await asyncio.sleep(0)  # as fast as possible, but let other tasks run
+                if not self.is_open:
+                    break
+                return self._render(limit)
+            if self._schedule is None:
+                self._schedule = FrameSchedule(self.rate * self.speed, loop.time(), MAX_LAG_S)
+            now = loop.time()
+            if self._schedule.due(now) == 0:
+                await self._sleep(self._schedule.next_due() - now)
+                continue
+            # Nothing is awaited from here to the return: a cancelled read loses no frame.
+            skip, send = self._schedule.take(now, limit)
+            if skip:
+                self._skip(skip)
+            send = min(send, self._batch_limit())  # a skip may have run past a single pass
+            if send:
+                return self._render(send)
+        return b""
+
+    def _batch_limit(self) -> int:
+        """Frames one read may render: MAX_BATCH, or fewer near the end of a single pass."""
+        if self.loop:
+            return MAX_BATCH
+        return max(0, min(MAX_BATCH, self.simulator.ticks_per_pass - self.simulator.next_index))
+
+    def _render(self, n: int) -> bytes:
+        sim = self.simulator
+        data = b"".join([encode_frame(sim.next_frame()) for _ in range(n)])
+        self.frames_sent += n
+        return data
+
+    def _skip(self, n: int) -> None:
+        self.simulator.skip(n)
+        self.frames_skipped += n
+        self.last_error = f"simulator fell behind schedule: skipped {self.frames_skipped} frame(s)"
+        log.warning("%s: %d frame(s) behind schedule, skipped (seq gap)", self.url.url, n)
+
+    async def _sleep(self, delay: float) -> None:
+        """Sleep ``delay`` seconds, or less if :meth:`close` wakes us."""
+        loop = asyncio.get_running_loop()
+        waker: asyncio.Future[None] = loop.create_future()
+        handle = loop.call_later(max(delay, 0.0), _resolve, waker)
+        self._waker = waker
+        try:
+            await waker
+        finally:
+            handle.cancel()
+            self._waker = None
+
+
+def _resolve(future: asyncio.Future[None]) -> None:
+    if not future.done():
+        future.set_result(None)

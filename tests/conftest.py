@@ -1,0 +1,243 @@
+"""Shared fixtures: synthetic frames, a real pseudo-terminal that can be unplugged, a polling
+wait, and a file descriptor leak check.
+
+Helpers are handed out as fixtures (``frame_factory``, ``same_frame``, ``wait_until``,
+``open_fd_count``) so test modules need not import this file.  Tests run coroutines with
+``asyncio.run`` inside plain test functions (no asyncio plug-in).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+import tty
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tactiled.frames import Frame
+
+
+# --------------------------------------------------------------------------------------------
+# Frames
+
+
+def make_frames(count: int, *, seed: int = 0, start_seq: int = 0, sensor_id: int = 0,
+                shape: tuple[int, int] = (8, 8), period_us: int = 1000) -> list[Frame]:
+    """``count`` frames with random uint16 counts, consecutive seq and a steady device clock."""
+    rng = np.random.default_rng(seed)
+    return [
+        Frame(
+            seq=start_seq + k,
+            device_time_us=(start_seq + k) * period_us,
+            raw=rng.integers(0, 1 << 16, size=shape, dtype=np.uint16),
+            sensor_id=sensor_id,
+        )
+        for k in range(count)
+    ]
+
+
+def same_frame(a: Frame, b: Frame) -> bool:
+    """Equal in everything the wire carries (seq, device time, sensor id, counts)."""
+    return (a.seq == b.seq and a.device_time_us == b.device_time_us
+            and a.sensor_id == b.sensor_id and a.raw.dtype == b.raw.dtype
+            and np.array_equal(a.raw, b.raw))
+
+
+@pytest.fixture
+def frame_factory() -> Callable[..., list[Frame]]:
+    """:func:`make_frames`: ``frame_factory(count, seed=0, start_seq=0, ...)``."""
+    return make_frames
+
+
+@pytest.fixture(name="same_frame")
+def same_frame_fixture() -> Callable[[Frame, Frame], bool]:
+    """:func:`same_frame`: equality of everything the wire carries."""
+    return same_frame
+
+
+# --------------------------------------------------------------------------------------------
+# Waiting without long sleeps
+
+
+async def wait_until(condition: Callable[[], bool], timeout: float,
+                     poll: float = 0.002) -> float:
+    """Poll ``condition`` every ``poll`` s; return the seconds it took, or fail after
+    ``timeout`` s."""
+    start = time.monotonic()
+    while not condition():
+        elapsed = time.monotonic() - start
+        if elapsed > timeout:
+            pytest.fail(f"condition not met within {timeout} s")
+        await asyncio.sleep(poll)
+    return time.monotonic() - start
+
+
+@pytest.fixture(name="wait_until")
+def wait_until_fixture() -> Callable[..., object]:
+    """:func:`wait_until`: ``await wait_until(condition, timeout_s)`` -> seconds taken."""
+    return wait_until
+
+
+# --------------------------------------------------------------------------------------------
+# File descriptors
+
+
+def open_fd_count() -> int:
+    """Number of open file descriptors of this process (Linux ``/proc``)."""
+    return len(os.listdir("/proc/self/fd"))
+
+
+@pytest.fixture(name="open_fd_count")
+def open_fd_count_fixture() -> Callable[[], int]:
+    """:func:`open_fd_count`."""
+    return open_fd_count
+
+
+@pytest.fixture
+def fd_leak_check() -> Iterator[None]:
+    """Fail the test if it ends with more open file descriptors than it started with."""
+    before = open_fd_count()
+    yield
+    after = open_fd_count()
+    assert after <= before, f"file descriptor leak: {before} open before, {after} after"
+
+
+# --------------------------------------------------------------------------------------------
+# A pseudo-terminal standing in for a USB serial device
+
+
+class PtyDevice:
+    """A real pty whose slave is reachable at a *stable* path (a symlink), like a udev name.
+
+    The test plays the device on the master side: :meth:`write` sends bytes, :meth:`unplug`
+    closes the master (the slave reader sees EOF/EIO and the ``/dev/pts/N`` node vanishes) and
+    removes the symlink; :meth:`replug` makes a new pty and points the symlink at it.
+    """
+
+    def __init__(self, link: Path) -> None:
+        self.link = link
+        self.master: int | None = None
+        self.slave_name = ""
+        self.plug()
+
+    @property
+    def path(self) -> str:
+        """The stable device path to put in a ``serial://`` URL."""
+        return str(self.link)
+
+    @property
+    def plugged(self) -> bool:
+        return self.master is not None
+
+    def plug(self) -> None:
+        if self.master is not None:
+            raise RuntimeError("pty device already plugged")
+        master, slave = os.openpty()
+        # Raw mode before anyone opens the slave, so no byte is echoed or translated even
+        # before the driver configures the port; the slave fd itself is not kept.
+        tty.setraw(slave)
+        self.slave_name = os.ttyname(slave)
+        os.close(slave)
+        # The master must not block the test's event loop if the reader falls behind.
+        os.set_blocking(master, False)
+        self.master = master
+        tmp = self.link.with_name(self.link.name + ".new")
+        tmp.unlink(missing_ok=True)
+        tmp.symlink_to(self.slave_name)
+        tmp.replace(self.link)  # atomic re-point, as udev does
+
+    replug = plug
+
+    def unplug(self) -> None:
+        if self.master is None:
+            return
+        os.close(self.master)
+        self.master = None
+        self.link.unlink(missing_ok=True)
+
+    def write(self, data: bytes) -> None:
+        """Write all of ``data`` to the master (raises BlockingIOError if the pty is full)."""
+        if self.master is None:
+            raise RuntimeError("pty device is unplugged")
+        view = memoryview(data)
+        while view:
+            sent = os.write(self.master, view)
+            view = view[sent:]
+
+    async def send(self, data: bytes, chunk: int = 512) -> None:
+        """Write ``data`` in ``chunk``-byte pieces, waiting whenever the pty buffer is full."""
+        for start in range(0, len(data), chunk):
+            piece = memoryview(data)[start : start + chunk]
+            while piece:
+                try:
+                    sent = os.write(self.master, piece)  # type: ignore[arg-type]
+                except BlockingIOError:
+                    await asyncio.sleep(0.001)
+                    continue
+                piece = piece[sent:]
+            await asyncio.sleep(0)
+
+    def close(self) -> None:
+        self.unplug()
+
+
+@pytest.fixture
+def pty_device(tmp_path: Path) -> Iterator[PtyDevice]:
+    """A plugged :class:`PtyDevice` at ``tmp_path/'ttyTACT'``; closed after the test."""
+    device = PtyDevice(tmp_path / "ttyTACT")
+    try:
+        yield device
+    finally:
+        device.close()
+
+
+# --------------------------------------------------------------------------------------------
+# One suite, every source that can be made to deliver given frames
+
+
+class FeedableSource:
+    """How to make one kind of frame source deliver given frames.
+
+    ``url_for(frames)`` returns the source URL (preparing files as needed); after the source
+    is opened, ``await feed(frames)`` makes the device send them (a no-op for replay, whose
+    file already holds them).  ``ends`` says whether ``frames()`` ends by itself.
+    """
+
+    def __init__(self, kind: str, tmp_path: Path, device: PtyDevice | None = None) -> None:
+        self.kind = kind
+        self.tmp_path = tmp_path
+        self.device = device
+        self.ends = kind == "replay"
+
+    def url_for(self, frames: list[Frame]) -> str:
+        from urllib.parse import quote
+
+        if self.kind == "replay":
+            from tactiled.recording import Recorder
+
+            path = self.tmp_path / "feed.tact"
+            path.unlink(missing_ok=True)
+            with Recorder(path) as recorder:
+                for k, frame in enumerate(frames):
+                    recorder.record(frame, host_time=1.0 + 0.001 * k)
+            return f"replay://{quote(str(path))}?speed=0"
+        assert self.device is not None
+        return f"serial://{quote(self.device.path)}"
+
+    async def feed(self, frames: list[Frame]) -> None:
+        if self.device is not None:
+            from tactiled.frames import encode_frame
+
+            await self.device.send(b"".join(encode_frame(f) for f in frames))
+
+
+@pytest.fixture(params=["replay", "serial"])
+def feedable_source(request: pytest.FixtureRequest, tmp_path: Path) -> FeedableSource:
+    """Parametrised over the frame sources that can be fed known frames (the simulator has
+    its own scenes, so it is not one of them)."""
+    device = request.getfixturevalue("pty_device") if request.param == "serial" else None
+    return FeedableSource(request.param, tmp_path, device)
