@@ -1,0 +1,99 @@
+"""Build per-tactel lookup tables (raw counts -> strain) from recorded presses with known loads.
+
+PRESSES.npz holds the lab's recording (docs/calibration.md, "Procedure"):
+  counts      (N, rows, cols) integer raw counts, 0..65535
+  strain_ref  (N, rows, cols) float, the strain each tactel should read for that press
+  sensor_id   integer scalar (optional here if --sensor-id is given)
+
+Per tactel, a least-squares piecewise-linear response counts(strain) is fitted on up to --knots
+knots, made monotone by pool-adjacent-violators and inverted into the table.  Printed: the RMS
+residual per tactel as a rows x cols grid (units of 1e-4 strain) with flags D (dead: gain below
+--dead-fraction of the median), N (non-monotone: more than --nonmonotone-fraction of the response
+runs backwards) and U (unexercised: reference strain spans < --min-strain-span), then a summary.
+The calibration file (JSON, format in docs/calibration.md) is written to -o even when tactels are
+flagged; the flags are stored in it.  --strict makes flagged tactels exit 1.
+
+Exit status: 0 success, 1 flagged tactels with --strict, 2 unusable input (one error line).
+
+Example:
+  tactiled calibrate presses.npz -o sensor3.json --knots 8
+  tactiled calibrate --bench          # per-frame cost of linearisation, zeroing, detection
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tactiled.errors import CalibrationError
+
+HELP = "build per-tactel lookup tables from recorded presses with known loads"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    # Defaults are repeated literally (not imported) so --help never imports numpy.
+    parser.add_argument("presses", nargs="?", metavar="PRESSES.npz",
+                        help="recorded presses: counts, strain_ref[, sensor_id]")
+    parser.add_argument("-o", "--output", metavar="CAL.json",
+                        help="calibration file to write (required unless --bench)")
+    parser.add_argument("--sensor-id", type=int, metavar="ID",
+                        help="the sensor's id (0..65535); must match the press file's, "
+                        "if it has one")
+    parser.add_argument("--knots", type=int, default=8, metavar="N",
+                        help="maximum knots per tactel, >= 2 (default 8)")
+    parser.add_argument("--dead-fraction", type=float, default=0.1, metavar="F",
+                        help="dead if gain < F * median gain (default 0.1)")
+    parser.add_argument("--nonmonotone-fraction", type=float, default=0.1, metavar="F",
+                        help="non-monotone if more than F of the response runs backwards "
+                        "(default 0.1)")
+    parser.add_argument("--min-strain-span", type=float, default=0.005, metavar="S",
+                        help="unexercised if the reference strain spans less than S "
+                        "(default 0.005)")
+    parser.add_argument("--strict", action="store_true", help="exit 1 if any tactel is flagged")
+    parser.add_argument("--bench", action="store_true",
+                        help="print the per-frame cost of the calibration stage and exit")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.bench:
+        from tactiled.calibration.bench import main as bench_main
+
+        return bench_main()
+    if not args.presses or not args.output:
+        raise CalibrationError("need PRESSES.npz and -o CAL.json (see tactiled calibrate -h)")
+    if args.knots < 2:
+        raise CalibrationError(f"--knots must be >= 2, got {args.knots}")
+    for name in ("dead_fraction", "nonmonotone_fraction"):
+        value = getattr(args, name)
+        if not 0.0 <= value <= 1.0:
+            raise CalibrationError(f"--{name.replace('_', '-')} must lie in [0, 1], got {value}")
+    if not args.min_strain_span >= 0.0:
+        raise CalibrationError(f"--min-strain-span must be >= 0, got {args.min_strain_span}")
+    if args.sensor_id is not None and not 0 <= args.sensor_id <= 0xFFFF:
+        raise CalibrationError(f"--sensor-id must lie in 0..65535, got {args.sensor_id}")
+
+    from tactiled import __version__
+    from tactiled.calibration.builder import build_table
+    from tactiled.calibration.fileformat import save_calibration
+    from tactiled.calibration.presses import load_presses
+
+    presses = load_presses(args.presses)
+    report = build_table(
+        presses,
+        knots=args.knots,
+        sensor_id=args.sensor_id,
+        dead_fraction=args.dead_fraction,
+        nonmonotone_fraction=args.nonmonotone_fraction,
+        min_strain_span=args.min_strain_span,
+    )
+    build = {"tool": f"tactiled {__version__} calibrate", "presses": report.presses,
+             "source": str(args.presses), **report.options}
+    path = save_calibration(report.table, args.output, build=build)
+    print(report.format())
+    print(f"wrote {path}")
+    if report.flagged.any():
+        print(f"tactiled calibrate: warning: {int(report.flagged.sum())} tactel(s) flagged; "
+              "see the flags above (they are recorded in the file)", file=sys.stderr)
+        if args.strict:
+            return 1
+    return 0
