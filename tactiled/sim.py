@@ -422,8 +422,8 @@ class HysteresisModel:
 
 DEFAULT_DRIFT = DriftModel()
 DEFAULT_HYSTERESIS = HysteresisModel()
-#: Drift is a process of minutes: recomputing it every 10 ms changes it by < 1e-5 strain per
-#: update (a fifth of a count), so per-tick updates would be work for nothing.
+#: Drift is a process of minutes: between updates 10 ms apart it moves by ~5e-6 strain (a tenth
+#: of a count), so recomputing it every tick would be work for nothing.
 DRIFT_UPDATE_S = 0.01
 #: A hysteresis residual below this (strain; 1/50 count) counts as gone.
 SETTLED_RESIDUAL = 1e-6

@@ -20,10 +20,11 @@ URL parameters (all optional):
 
 Pacing: frame ``k`` is due at ``start + k / (rate * speed)`` on the event loop's clock, with
 ``start`` the first read, so the stream never drifts; each read returns every frame already due
-(up to :data:`MAX_BATCH`, ~1 ms of work, so the loop is never held long), or sleeps until the
-next one is due.  Fallen more than ``MAX_LAG_S`` behind (the loop was starved), the stale frames
-are skipped as a real device would lose them: the seq numbers jump and the decoder counts them
-in ``stats.lost``; :attr:`SimSource.frames_skipped` counts them too.
+(up to :data:`MAX_BATCH`, ~1 ms of work, so the loop is never held long; every read yields to
+the loop at least once, even when behind), or sleeps until the next one is due.  Fallen more
+than ``MAX_LAG_S`` behind (the loop was starved), the stale frames are skipped as a real device
+would lose them: the seq numbers jump and the decoder counts them in ``stats.lost``;
+:attr:`SimSource.frames_skipped` counts them too.
 """
 
 from __future__ import annotations
@@ -95,6 +96,7 @@ class SimSource(FrameSource):
 
     async def _read_internal(self) -> bytes:
         loop = asyncio.get_running_loop()
+        yielded = False
         while self.is_open:
             limit = self._batch_limit()
             if limit == 0:
@@ -112,6 +114,13 @@ class SimSource(FrameSource):
             now = loop.time()
             if self._schedule.due(now) == 0:
                 await self._sleep(self._schedule.next_due() - now)
+                yielded = True
+                continue
+            if not yielded:
+                # Behind schedule (frames already due): still let other tasks run between
+                # batches, or a source that cannot keep up would starve the whole loop.
+                await asyncio.sleep(0)
+                yielded = True
                 continue
             # Nothing is awaited from here to the return: a cancelled read loses no frame.
             skip, send = self._schedule.take(now, limit)

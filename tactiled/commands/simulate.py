@@ -266,6 +266,22 @@ def _run_device(args: argparse.Namespace) -> int:
     except ValueError as err:
         return _error(str(err))
 
+    # Signals first: whoever waits for the "pty:" line may stop us right after it.
+    stop: list[int] = []
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.append(signum)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        return _serve(args, sim, stop)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def _serve(args: argparse.Namespace, sim: FingerSimulator, stop: list[int]) -> int:
+    """Open the device, stream until ``stop`` is non-empty, close the device."""
     port = None
     if args.pty:
         try:
@@ -287,17 +303,11 @@ def _run_device(args: argparse.Namespace) -> int:
             return _error(f"cannot open serial port {name}: {err}")
         fd = port.fileno()
 
-    stop: list[int] = []
-
-    def on_signal(signum: int, _frame: object) -> None:
-        stop.append(signum)
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     writer = FrameWriter(fd, name)
+    schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
     print(f"tactiled simulate: streaming scene {sim.scene.name!r} at {args.rate:g} Hz to {name}; "
           "stop with Ctrl-C or SIGTERM", file=sys.stderr)
     try:
-        schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
         while not stop:
             skip, send = schedule.take(time.monotonic(), MAX_BATCH)
             if skip:
@@ -309,8 +319,6 @@ def _run_device(args: argparse.Namespace) -> int:
             if delay > 0:
                 time.sleep(min(delay, 0.05))  # short: a signal is noticed within 50 ms
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
         if port is not None:
             port.close()
         else:
