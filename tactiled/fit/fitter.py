@@ -22,6 +22,7 @@ from tactiled.fit.solver import SolveResult, levenberg_marquardt
 from tactiled.fit.start import features, force_estimate, start_table
 from tactiled.fit.window import choose_window, interpolated_peak
 from tactiled.physics.contact import Contact
+from tactiled.physics.kernels import cramer_rao as crb_kernel
 from tactiled.physics.strain import StrainModel
 
 #: Singular values below this fraction of the largest make J^T J numerically singular.
@@ -54,6 +55,35 @@ class FitOptions:
     #: sigma exceeds this fraction of it.  None: report it, flagged, down to the degenerate
     #: limit.  The daemon sets 0.5 (the paper: radius unusable below ~0.5 N).
     withhold_relative_sigma: float | None = None
+    #: "exact" (analytic chain rule through the quadrature) or "fd" (forward differences of
+    #: the residual; for benchmarking what the exact Jacobian buys).
+    jacobian: str = "exact"
+
+    def __post_init__(self) -> None:
+        if self.window < 2:
+            raise ValueError(f"window must be at least 2 tactels, got {self.window}")
+        if not (0 < self.tol < 1):
+            raise ValueError(f"tol must lie in (0, 1), got {self.tol!r}")
+        if self.jacobian not in ("exact", "fd"):
+            raise ValueError(f"jacobian must be 'exact' or 'fd', got {self.jacobian!r}")
+
+
+def _forward_difference(residual):
+    """Wrap a residual function so its Jacobian comes from forward differences (k extra
+    evaluations per call, step ``sqrt(eps) * max(1, |p|)``)."""
+    h0 = math.sqrt(np.finfo(float).eps)
+
+    def fd(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r, _ = residual(p)
+        jac = np.empty((r.size, p.size))
+        for i in range(p.size):
+            q = p.copy()
+            h = h0 * max(1.0, abs(p[i]))
+            q[i] += h
+            jac[:, i] = (residual(q)[0] - r) / h
+        return r, jac
+
+    return fd
 
 
 class Fitter:
@@ -64,12 +94,12 @@ class Fitter:
     ) -> None:
         self.sensor = sensor or SensorModel()
         self.options = options or FitOptions()
-        if self.options.window < 2:
-            raise ValueError(f"window must be at least 2 tactels, got {self.options.window}")
         self.model = StrainModel(self.sensor, tol=self.options.tol)
         self.sigma = self.sensor.noise.effective_sigma
         g = self.sensor.geometry
         self._span = max(g.span_x, g.span_y)
+        self._all_ok = np.ones((g.rows, g.cols), bool)
+        self._all_ok.setflags(write=False)
         if warm:
             self._warm_up()
 
@@ -106,12 +136,14 @@ class Fitter:
 
     # ------------------------------------------------------------------------------------
     def _prepare(self, strain: np.ndarray, mask: np.ndarray | None):
+        """``(frame with unusable tactels zeroed, usable mask)``."""
         s = np.asarray(strain, dtype=float)
+        if mask is None and math.isfinite(float(s.sum())):  # the common case, one reduction
+            return s, self._all_ok if s.shape == self._all_ok.shape else np.ones(s.shape, bool)
         ok = np.isfinite(s)
         if mask is not None:
             ok &= np.asarray(mask, dtype=bool)
-        clean = np.where(ok, s, 0.0)
-        return clean, ok
+        return np.where(ok, s, 0.0), ok
 
     def _fit_model(
         self,
@@ -120,20 +152,46 @@ class Fitter:
         start: np.ndarray | None,
         mask: np.ndarray | None,
     ) -> FitResult:
+        prob = self._problem(strain, model, mask)
+        if isinstance(prob, FitResult):
+            return prob
+        residual, clean, peak, peak_idx, win, n_points = prob
+        steps = np.array([_STEP[name] for name in model.params])
+        starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
+        best: SolveResult | None = None
+        tried = 0
+        for p0 in starts:
+            tried += 1
+            sol = levenberg_marquardt(
+                residual, p0, max_step=steps, max_iter=self.options.max_iter,
+                # stop once the next step would lower chi^2 by less than 1e-6
+                atol=1e-6 * (self.sigma / peak) ** 2,
+            )
+            if best is None or sol.cost < best.cost:
+                best = sol
+            if self._good_enough(best, peak, n_points):
+                break
+        assert best is not None
+        return self._result(model, best, peak, win, n_points, tried)
+
+    def _problem(self, strain: np.ndarray, model: Model, mask: np.ndarray | None):
+        """The least-squares problem on this frame: ``(residual, clean frame, peak, peak index,
+        window, usable points)``, or a FitResult saying why there is none."""
         clean, ok = self._prepare(strain, mask)
         g = self.sensor.geometry
         if clean.shape != (g.rows, g.cols):
             raise ValueError(f"frame shape {clean.shape} does not match the sensor's {(g.rows, g.cols)}")
         if not ok.any():
             return FitResult(contact=False, message="no usable tactels", reasons={"frame": "all tactels masked"})
-        peak_idx = np.unravel_index(int(np.argmax(np.where(ok, clean, -np.inf))), clean.shape)
+        flat = int(np.argmax(clean if ok is self._all_ok else np.where(ok, clean, -np.inf)))
+        peak_idx = divmod(flat, clean.shape[1])
         peak = float(clean[peak_idx])
         if not peak > 0.0:
             return FitResult(contact=False, peak=peak, message="no positive strain")
         win = choose_window(clean, peak_idx, self.options.window)
         r0, c0, nr, nc = win
-        xs = np.ascontiguousarray((r0 + np.arange(nr)) * g.dx, dtype=float)
-        ys = np.ascontiguousarray((c0 + np.arange(nc)) * g.dy, dtype=float)
+        xs = self.model.xs_full[r0:r0 + nr]
+        ys = self.model.ys_full[c0:c0 + nc]
         data = clean[r0:r0 + nr, c0:c0 + nc]
         valid = ok[r0:r0 + nr, c0:c0 + nc].ravel()
         n_points = int(valid.sum())
@@ -146,24 +204,10 @@ class Fitter:
         target = np.ascontiguousarray(data.ravel())
         inv_peak = 1.0 / peak
         residual = self.model.residual_function(model.physical, xs, ys, target, valid, inv_peak)
+        if self.options.jacobian == "fd":
+            residual = _forward_difference(residual)
 
-        steps = np.array([_STEP[name] for name in model.params])
-        starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
-        best: SolveResult | None = None
-        tried = 0
-        for p0 in starts:
-            tried += 1
-            sol = levenberg_marquardt(
-                residual, p0, max_step=steps, max_iter=self.options.max_iter,
-                # stop once the next step would lower chi^2 by less than 1e-6
-                atol=1e-6 * (self.sigma * inv_peak) ** 2,
-            )
-            if best is None or sol.cost < best.cost:
-                best = sol
-            if self._good_enough(best, peak, n_points):
-                break
-        assert best is not None
-        return self._result(model, best, peak, win, n_points, tried)
+        return residual, clean, peak, peak_idx, win, n_points
 
     def _good_enough(self, sol: SolveResult, peak: float, n_points: int) -> bool:
         """Residual consistent with sensor noise (chi^2 per point under ~4 with slack for
@@ -192,28 +236,7 @@ class Fitter:
 
     def _result(self, model: Model, sol: SolveResult, peak: float, win, n_points: int, starts: int) -> FitResult:
         reasons: dict[str, str] = {}
-        values, grad = model.report(sol.p)
-        std: dict[str, float | None] = dict.fromkeys(VALUE_KEYS)
-        jraw = sol.jacobian * peak  # d strain / d p, unnormalised
-        col = np.sqrt(np.einsum("ij,ij->j", jraw, jraw))
-        condition = None
-        if np.all(col > 0):
-            jn = jraw / col
-            # Eigen-decomposition of the column-scaled normal matrix gives the condition number
-            # (of J: the square root) and the inverse in one factorisation.
-            ev, vec = np.linalg.eigh(jn.T @ jn)
-            condition = math.sqrt(ev[-1] / ev[0]) if ev[0] > 0 else math.inf
-        if condition is None or not math.isfinite(condition) or condition > SINGULAR_CONDITION:
-            for k in VALUE_KEYS:
-                reasons[k] = "Jacobian singular: parameter not identifiable from this window"
-        else:
-            cov = self.sigma**2 * ((vec / ev) @ vec.T) / np.outer(col, col)
-            var = np.einsum("ij,jk,ik->i", grad, cov, grad)
-            for i, k in enumerate(VALUE_KEYS):
-                if values.get(k) is not None and var[i] >= 0.0:  # NaN rows fail the test
-                    std[k] = math.sqrt(var[i])
-            if condition > ILL_CONDITION:
-                reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
+        values, std, condition = self._uncertainty(model, sol.p, sol.jacobian * peak, reasons)
         self._unobservable(values, std, reasons)
         if model.name == "cylinder":
             reasons.setdefault("r2_mm", "infinite: cylinder model")
@@ -251,6 +274,36 @@ class Fitter:
             reasons=reasons,
             params=tuple(float(x) for x in sol.p),
         )
+
+    def _uncertainty(
+        self, model: Model, p: np.ndarray, jraw: np.ndarray, reasons: dict[str, str]
+    ) -> tuple[dict[str, float | None], dict[str, float | None], float | None]:
+        """User-unit values at ``p``, their Cramer-Rao 1-sigma bounds from ``jraw`` (the
+        Jacobian of the window strains, unnormalised) and the condition number of J."""
+        values, grad = model.report(p)
+        std: dict[str, float | None] = dict.fromkeys(VALUE_KEYS)
+        sd, condition = crb_kernel(np.ascontiguousarray(jraw), grad, self.sigma)
+        if not math.isfinite(condition) or condition > SINGULAR_CONDITION:
+            for k in VALUE_KEYS:
+                reasons[k] = "Jacobian singular: parameter not identifiable from this window"
+            return values, std, (condition if math.isfinite(condition) else None)
+        for i, k in enumerate(VALUE_KEYS):
+            if values.get(k) is not None and sd[i] >= 0.0:  # NaN (no such quantity) fails
+                std[k] = float(sd[i])
+        if condition > ILL_CONDITION:
+            reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
+        return values, std, condition
+
+    def cramer_rao(self, strain: np.ndarray, model: str, params: np.ndarray) -> dict[str, float | None]:
+        """1-sigma Cramer-Rao bounds (user units) at the parameter vector ``params`` of
+        ``model``, for the window this fitter would choose on ``strain`` (e.g. at the truth of
+        a simulated frame: what an efficient estimator could achieve)."""
+        prob = self._problem(strain, get_model(model), None)
+        if isinstance(prob, FitResult):
+            return dict.fromkeys(VALUE_KEYS)
+        residual, peak = prob[0], prob[2]
+        _, jac = residual(np.asarray(params, dtype=float))
+        return self._uncertainty(get_model(model), np.asarray(params, dtype=float), jac * peak, {})[1]
 
     def _unobservable(self, values: dict, std: dict, reasons: dict[str, str]) -> None:
         """Withhold what the data cannot pin down rather than report confident nonsense.

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactiled.physics.kernels import damped_step, normal_equations
+from tactiled.physics.kernels import damped_step, finite_cost, normal_equations
 
 ResidualFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -66,9 +66,7 @@ def levenberg_marquardt(
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
-        jtj, g = normal_equations(jac, r)
-        d = np.diagonal(jtj)
-        diag = np.maximum(d, 1e-12 * max(float(d.max()), 1e-300))
+        jtj, g, diag = normal_equations(jac, r)
         accepted = False
         while lam < 1e12:
             try:
@@ -85,13 +83,11 @@ def levenberg_marquardt(
             trial = p + step
             try:
                 r_new, jac_new = fun(trial)
-                # one reduction instead of two elementwise checks (NaN/inf propagate into sums)
-                finite = math.isfinite(float(r_new.sum()) + float(jac_new.sum()))
+                cost_new = finite_cost(r_new, jac_new)
             except ValueError:
-                finite = False
+                cost_new = math.inf
             evals += 1
-            if finite:
-                cost_new = float(r_new @ r_new)
+            if cost_new < math.inf:
                 if cost_new < cost:
                     rho = (cost - cost_new) / predicted
                     lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12)

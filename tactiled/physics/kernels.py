@@ -191,9 +191,32 @@ def window_residual(
 
 
 @njit(cache=True, nogil=True)
-def normal_equations(jac: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``J^T J`` and ``J^T r`` (compiled: numpy's overhead on 5x5 products dominates)."""
-    return jac.T @ jac, jac.T @ r
+def normal_equations(jac: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``J^T J``, ``J^T r`` and the Marquardt scaling ``diag(J^T J)`` (floored at 1e-12 of its
+    largest entry so a dead parameter still gets damped), compiled: numpy's per-call overhead
+    on 5x5 products dominates."""
+    jtj = jac.T @ jac
+    g = jac.T @ r
+    k = jtj.shape[0]
+    diag = np.empty(k)
+    top = 0.0
+    for i in range(k):
+        top = max(top, jtj[i, i])
+    floor = 1e-12 * max(top, 1e-300)
+    for i in range(k):
+        diag[i] = max(jtj[i, i], floor)
+    return jtj, g, diag
+
+
+@njit(cache=True, nogil=True)
+def finite_cost(r: np.ndarray, jac: np.ndarray) -> float:
+    """``sum(r^2)``, or inf if any residual or Jacobian entry is not finite."""
+    if not np.isfinite(np.sum(jac)):
+        return np.inf
+    c = 0.0
+    for x in r:
+        c += x * x
+    return c if np.isfinite(c) else np.inf
 
 
 @njit(cache=True, nogil=True)
@@ -216,3 +239,36 @@ def damped_step(
         over = 1.0
     predicted = -(2.0 * (g @ step) + step @ (jtj @ step))
     return step, over, predicted
+
+
+@njit(cache=True, nogil=True)
+def cramer_rao(jraw: np.ndarray, grad: np.ndarray, sigma: float) -> tuple[np.ndarray, float]:
+    """1-sigma bounds of the quantities whose gradients are the rows of ``grad`` (NaN rows give
+    NaN), from ``cov = sigma^2 (J^T J)^-1``; and the condition number of J (inf if singular).
+
+    J's columns are scaled to unit norm first, so the condition number measures how nearly
+    parameters trade off against each other, not their units.
+    """
+    k = jraw.shape[1]
+    col = np.empty(k)
+    for j in range(k):
+        col[j] = math.sqrt(np.sum(jraw[:, j] ** 2))
+    nq = grad.shape[0]
+    std = np.full(nq, np.nan)
+    if np.min(col) <= 0.0:
+        return std, np.inf
+    jn = jraw / col
+    ev, vec = np.linalg.eigh(jn.T @ jn)
+    if ev[0] <= 0.0:
+        return std, np.inf
+    cond = math.sqrt(ev[-1] / ev[0])
+    cov = (vec / ev) @ vec.T
+    for i in range(k):
+        for j in range(k):
+            cov[i, j] *= sigma * sigma / (col[i] * col[j])
+    for q in range(nq):
+        g = grad[q]
+        var = g @ (cov @ g)
+        if var >= 0.0:
+            std[q] = math.sqrt(var)
+    return std, cond

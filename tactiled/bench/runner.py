@@ -1,0 +1,219 @@
+"""Run estimators over a suite and summarise run time against error."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tactiled.bench.estimators import Estimator
+from tactiled.bench.suite import BenchFrame
+from tactiled.fit.fitter import Fitter
+from tactiled.fit.models import get_model
+
+PARAMS = ("r1_mm", "angle_deg", "force_n", "x_mm", "y_mm")
+
+
+class Progress:
+    """A plain progress bar on stderr (no dependency); silent when stderr is not a terminal
+    unless forced, so logs stay clean."""
+
+    def __init__(self, total: int, label: str, enabled: bool | None = None) -> None:
+        self.total, self.label, self.done = max(total, 1), label, 0
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self._last = 0.0
+        self._t0 = time.monotonic()
+
+    def step(self, n: int = 1) -> None:
+        self.done += n
+        now = time.monotonic()
+        if self.enabled and (now - self._last > 0.2 or self.done >= self.total):
+            self._last = now
+            frac = self.done / self.total
+            eta = (now - self._t0) / frac * (1 - frac) if frac > 0 else 0.0
+            bar = "#" * int(30 * frac)
+            sys.stderr.write(f"\r{self.label:<40.40} [{bar:<30}] {100 * frac:5.1f} % eta {eta:5.0f} s")
+            if self.done >= self.total:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+@dataclass
+class Truth:
+    """Ground truth of a frame in user units and its Cramer-Rao bounds (at the truth)."""
+
+    values: dict[str, float | None]
+    crb: dict[str, float | None]
+
+
+def truth_of(frame: BenchFrame, fitter: Fitter) -> Truth:
+    c = frame.contact
+    model = "sphere" if frame.kind == "sphere" else ("general" if frame.kind == "general" else "cylinder")
+    p = get_model(model).from_values(c.r1, c.r2, c.psi_deg, c.force, c.x0, c.y0)
+    crb = fitter.cramer_rao(frame.strain, model, p)
+    values = {"r1_mm": c.r1, "angle_deg": c.psi_deg if frame.kind in ("cylinder", "edge", "general") else None,
+              "force_n": c.force, "x_mm": c.x0, "y_mm": c.y0}
+    return Truth(values, crb)
+
+
+def error(key: str, est: float | None, true: float | None) -> float | None:
+    """Signed error in reporting units: % for radius and force, degrees, micrometres."""
+    if est is None or true is None:
+        return None
+    if key in ("r1_mm", "force_n"):
+        return 100.0 * (est / true - 1.0)
+    if key == "angle_deg":
+        return (est - true + 90.0) % 180.0 - 90.0
+    return 1000.0 * (est - true)
+
+
+def crb_in_units(key: str, crb: float | None, true: float | None) -> float | None:
+    if crb is None or true is None:
+        return None
+    if key in ("r1_mm", "force_n"):
+        return 100.0 * crb / true
+    if key == "angle_deg":
+        return crb
+    return 1000.0 * crb
+
+
+#: Where the truth's own bound says a quantity is not measurable, its error says nothing about
+#: an estimator; such frames are left out of that quantity's statistics (and counted).
+OBSERVABLE_RELATIVE = 0.5  # radius: bound below 50 % of the radius
+OBSERVABLE_ANGLE = 20.0  # degrees
+
+
+@dataclass
+class Row:
+    name: str
+    description: str
+    times_ms: list[float] = field(default_factory=list)
+    errors: dict[str, list[float]] = field(default_factory=lambda: {k: [] for k in PARAMS})
+    ratios: dict[str, list[float]] = field(default_factory=lambda: {k: [] for k in PARAMS})
+    missing: dict[str, int] = field(default_factory=lambda: dict.fromkeys(PARAMS, 0))
+
+    def time_stats(self) -> tuple[float, float]:
+        t = np.array(self.times_ms)
+        return float(np.median(t)), float(np.percentile(t, 99))
+
+    def err_stats(self, key: str) -> tuple[float, float] | None:
+        e = np.abs(np.array(self.errors[key]))
+        if e.size == 0:
+            return None
+        return float(np.median(e)), float(np.percentile(e, 90))
+
+    def rms_over_crb(self) -> float:
+        """Root-mean-square of error / Cramer-Rao bound over all parameters and frames."""
+        r = np.concatenate([np.array(v) for v in self.ratios.values() if v])
+        return float(math.sqrt(np.mean(r * r))) if r.size else math.inf
+
+
+def observable(key: str, truth: Truth) -> bool:
+    t, b = truth.values.get(key), truth.crb.get(key)
+    if t is None or b is None:
+        return False
+    if key == "r1_mm":
+        return b / t < OBSERVABLE_RELATIVE
+    if key == "angle_deg":
+        return b < OBSERVABLE_ANGLE
+    return True
+
+
+def run_estimators(
+    estimators: list[Estimator], frames: list[BenchFrame], truths: list[Truth], progress: bool | None = None
+) -> list[Row]:
+    rows = []
+    for est in estimators:
+        row = Row(est.name, est.description)
+        bar = Progress(len(frames), est.name, progress)
+        scene = None
+        est.estimate(frames[0].strain)  # warm caches outside the timing
+        for bf, truth in zip(frames, truths):
+            if bf.scene != scene:
+                est.reset()
+                scene = bf.scene
+            t0 = time.perf_counter()
+            vals = est.estimate(bf.strain)
+            row.times_ms.append((time.perf_counter() - t0) * 1e3)
+            for k in PARAMS:
+                if not observable(k, truth):
+                    continue
+                e = error(k, vals.get(k), truth.values[k])
+                if e is None:
+                    row.missing[k] += 1
+                    continue
+                row.errors[k].append(e)
+                b = crb_in_units(k, truth.crb[k], truth.values[k])
+                if b:
+                    row.ratios[k].append(e / b)
+            bar.step()
+        rows.append(row)
+    return rows
+
+
+def pareto_front(rows: list[Row]) -> list[bool]:
+    """True where no other row is both at least as fast (median) and at least as accurate
+    (RMS error / CRB), and strictly better in one."""
+    pts = [(r.time_stats()[0], r.rms_over_crb()) for r in rows]
+    out = []
+    for i, (t, a) in enumerate(pts):
+        dominated = any(
+            (t2 <= t and a2 <= a) and (t2 < t or a2 < a) for j, (t2, a2) in enumerate(pts) if j != i
+        )
+        out.append(not dominated)
+    return out
+
+
+def markdown_table(rows: list[Row]) -> str:
+    front = pareto_front(rows)
+    head = ("| configuration | median ms | p99 ms | radius % med / p90 | angle deg med / p90 | "
+            "force % med / p90 | x um med / p90 | y um med / p90 | RMS err / CRB | Pareto |")
+    lines = [head, "|" + "---|" * 10]
+
+    def cell(row: Row, k: str) -> str:
+        st = row.err_stats(k)
+        miss = f" ({row.missing[k]} n/a)" if row.missing[k] else ""
+        if st is None:
+            return "n/a" + miss
+        fmt = "{:.2f} / {:.2f}" if k in ("angle_deg", "force_n") else "{:.1f} / {:.1f}"
+        return fmt.format(*st) + miss
+
+    for row, on in zip(rows, front):
+        t50, t99 = row.time_stats()
+        lines.append(
+            f"| {row.name} | {t50:.3f} | {t99:.3f} | {cell(row, 'r1_mm')} | {cell(row, 'angle_deg')} | "
+            f"{cell(row, 'force_n')} | {cell(row, 'x_mm')} | {cell(row, 'y_mm')} | "
+            f"{row.rms_over_crb():.2f} | {'yes' if on else 'no'} |"
+        )
+    return "\n".join(lines)
+
+
+def pareto_plot(rows: list[Row], path: str) -> None:
+    """Scatter of median time against RMS error / CRB, the front joined (needs matplotlib:
+    ``pip install 'tactiled[plot]'``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    front = pareto_front(rows)
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for row, on in zip(rows, front):
+        t, a = row.time_stats()[0], row.rms_over_crb()
+        ax.scatter([t], [a], color="tab:red" if on else "tab:gray", zorder=3)
+        ax.annotate(row.name, (t, a), fontsize=7, xytext=(4, 4), textcoords="offset points")
+    pts = sorted((r.time_stats()[0], r.rms_over_crb()) for r, on in zip(rows, front) if on)
+    if pts:
+        ax.plot(*zip(*pts), color="tab:red", lw=1)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("median time per frame (ms)")
+    ax.set_ylabel("RMS error / Cramer-Rao bound")
+    ax.set_title("tactiled bench: run time against error")
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,117 @@
+"""Benchmark run time against error over a seeded suite of simulated scenes with ground truth.
+
+Suites (default: all):
+  configs     each way of estimating (window size, cold/warm start, exact vs finite-difference
+              Jacobian, forward-model accuracy, the cheap estimators) on cylinders and edges:
+              median/p99 time per frame, median/90th-percentile errors, RMS error over the
+              Cramer-Rao bound, and whether the row is on the Pareto front
+  models      model order: cylinder-only against auto on cylinders, spheres, ellipsoids, edges
+  foundation  the fitter against its bars: noise-free recovery from the reference integration,
+              noisy efficiency (RMS/CRB, 2-sigma coverage), the paper's Table 1, speed
+
+Output is Markdown on stdout; progress goes to stderr.  --quick runs in about a minute.
+
+examples:
+  tactiled bench --quick
+  tactiled bench --suite configs --plot pareto.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import time
+
+SUITES = ("configs", "models", "foundation")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--suite", choices=SUITES + ("all",), default="all", help="which benchmark (default all)")
+    p.add_argument("--quick", action="store_true", help="a small suite that runs in about a minute")
+    p.add_argument("--scenes", type=int, default=None, help="scenes in the configs suite (default 240, quick 40)")
+    p.add_argument("--seed", type=int, default=1, help="suite seed (default 1)")
+    p.add_argument("--plot", metavar="FILE.png", default=None,
+                   help="write a Pareto chart of time against error (needs matplotlib: pip install 'tactiled[plot]')")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar on stderr (default: when stderr is a terminal)")
+
+
+def _header(args: argparse.Namespace) -> str:
+    cmd = "tactiled bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "tactiled bench"
+    return (f"<!-- {cmd} | {time.strftime('%Y-%m-%d %H:%M')} | python {platform.python_version()} | "
+            f"{platform.machine()} -->")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tactiled.bench import foundation, runner
+    from tactiled.bench.estimators import FitEstimator, default_configurations
+    from tactiled.bench.suite import BENCH_NOISE, build_suite
+    from tactiled.config import SensorModel
+    from tactiled.fit.fitter import FitOptions, Fitter
+
+    if args.plot:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            print("tactiled bench: error: --plot needs matplotlib: pip install 'tactiled[plot]'", file=sys.stderr)
+            return 2
+    suites = SUITES if args.suite == "all" else (args.suite,)
+    sensor = SensorModel(noise=BENCH_NOISE)
+    out = [_header(args)]
+    if "configs" in suites:
+        scenes = args.scenes or (40 if args.quick else 240)
+        frames = build_suite(scenes, 4, kinds=("cylinder", "cylinder", "edge"), seed=args.seed, sensor=sensor)
+        reference = Fitter(sensor)
+        truths = [runner.truth_of(f, reference) for f in frames]
+        rows = runner.run_estimators(default_configurations(sensor, args.quick), frames, truths, args.progress)
+        out += ["", f"## Configurations ({scenes} scenes x 4 frames: cylinders psi 30-150 and edges r1 < 1 mm, "
+                "0.1-3 N, centres over the whole array)", "",
+                runner.markdown_table(rows), "",
+                f"Radius statistics over frames whose radius bound is under {100 * runner.OBSERVABLE_RELATIVE:.0f} % "
+                f"of the radius, angle over bounds under {runner.OBSERVABLE_ANGLE:g} deg; 'n/a' counts frames "
+                "where an observable quantity was not returned.  RMS err / CRB pools error / Cramer-Rao bound "
+                "(at the truth) over all five parameters."]
+        front = runner.pareto_front(rows)
+        out.append("")
+        out.append(f"Default configuration on the Pareto front: {'yes' if front[0] else 'NO'}")
+        if args.plot:
+            runner.pareto_plot(rows, args.plot)
+            out.append(f"Pareto chart written to {args.plot}")
+    if "models" in suites:
+        scenes = (args.scenes or (40 if args.quick else 160))
+        frames = build_suite(scenes, 2, seed=args.seed + 1, sensor=sensor)
+        reference = Fitter(sensor)
+        truths = [runner.truth_of(f, reference) for f in frames]
+        out += ["", f"## Model order ({scenes} scenes x 2 frames over cylinders, edges, spheres, ellipsoids)", "",
+                "| estimator | kind | frames | median ms | radius % med | model picked (share) |", "|---|---|---|---|---|---|"]
+        for name, model in (("fit cylinder", "cylinder"), ("fit auto (BIC)", "auto")):
+            fitter = Fitter(sensor, FitOptions())
+            by_kind: dict[str, list] = {}
+            bar = runner.Progress(len(frames), name, args.progress)
+            for bf, truth in zip(frames, truths):
+                t0 = time.perf_counter()
+                res = fitter.fit(bf.strain, model)
+                dt = (time.perf_counter() - t0) * 1e3
+                e = runner.error("r1_mm", res.values["r1_mm"], bf.contact.r1) if runner.observable("r1_mm", truth) else None
+                by_kind.setdefault(bf.kind, []).append((dt, e, res.model))
+                bar.step()
+            for kind, items in by_kind.items():
+                import numpy as np
+
+                times = [i[0] for i in items]
+                errs = [abs(i[1]) for i in items if i[1] is not None]
+                picks: dict[str, int] = {}
+                for i in items:
+                    picks[str(i[2])] = picks.get(str(i[2]), 0) + 1
+                share = ", ".join(f"{m} {100 * c / len(items):.0f} %" for m, c in sorted(picks.items(), key=lambda t: -t[1]))
+                out.append(f"| {name} | {kind} | {len(items)} | {np.median(times):.3f} | "
+                           f"{np.median(errs) if errs else float('nan'):.1f} | {share} |")
+    if "foundation" in suites:
+        out += ["", "## Foundation: noise-free recovery", "", foundation.noise_free_recovery(args.quick, args.progress)]
+        text, _ = foundation.noisy_efficiency(args.quick, args.progress)
+        out += ["", "## Foundation: noisy frames against the Cramer-Rao bound", "", text]
+        out += ["", "## Foundation: the paper's Table 1 in simulation", "", foundation.paper_table1(args.quick, args.progress)]
+        out += ["", "## Foundation: speed", "", foundation.speed(args.quick, args.progress)]
+    print("\n".join(out))
+    return 0
