@@ -36,8 +36,18 @@ POOR_RELATIVE_SIGMA = 0.5
 #: outside ``RADIUS_LIMITS``: a value there is an artefact, not a measurement.
 UNOBSERVABLE_RELATIVE_SIGMA = 10.0
 RADIUS_LIMITS = (0.01, 1e5)  # mm
+#: A peak below this is no contact at all (far below any sensor's noise).
+MIN_PEAK = 1e-9
+#: Strain magnitudes above this are broken readings, not contact (1000 % compression).
+MAX_STRAIN = 10.0
 #: An orientation whose 1-sigma bound exceeds this (degrees) is withheld.
 MAX_ANGLE_SIGMA = 45.0
+#: A contact whose major axis lies within this angle (degrees) of the finger axis and which is
+#: longer than LINE_CONTACT_LENGTH times the array along it is a line contact (see
+#: Fitter._line_contact).  The rubber runs on past the array, so a contact somewhat longer than
+#: the array still lies on the finger (flagged, not withheld); 1.5x is where it runs off it.
+LINE_CONTACT_ANGLE = 30.0
+LINE_CONTACT_LENGTH = 1.5
 
 _STEP = {"ln_r": 1.0, "ln_ra": 1.0, "beta": 0.5, "psi": 0.5, "ln_f": 0.7, "x0": 2.0, "y0": 2.0}
 
@@ -136,11 +146,14 @@ class Fitter:
 
     # ------------------------------------------------------------------------------------
     def _prepare(self, strain: np.ndarray, mask: np.ndarray | None):
-        """``(frame with unusable tactels zeroed, usable mask)``."""
+        """``(frame with unusable tactels zeroed, usable mask)``.  Non-finite entries and
+        strains beyond ``MAX_STRAIN`` (no rubber survives them: a broken reading) are unusable."""
         s = np.asarray(strain, dtype=float)
-        if mask is None and math.isfinite(float(s.sum())):  # the common case, one reduction
+        total = float(np.abs(s).max()) if s.size else 0.0
+        if mask is None and total <= MAX_STRAIN:  # the common case (NaN fails the test too)
             return s, self._all_ok if s.shape == self._all_ok.shape else np.ones(s.shape, bool)
-        ok = np.isfinite(s)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(s) & (np.abs(s) <= MAX_STRAIN)
         if mask is not None:
             ok &= np.asarray(mask, dtype=bool)
         return np.where(ok, s, 0.0), ok
@@ -186,8 +199,8 @@ class Fitter:
         flat = int(np.argmax(clean if ok is self._all_ok else np.where(ok, clean, -np.inf)))
         peak_idx = divmod(flat, clean.shape[1])
         peak = float(clean[peak_idx])
-        if not peak > 0.0:
-            return FitResult(contact=False, peak=peak, message="no positive strain")
+        if not peak > MIN_PEAK:
+            return FitResult(contact=False, peak=peak, message=f"no strain above {MIN_PEAK:g}")
         win = choose_window(clean, peak_idx, self.options.window)
         r0, c0, nr, nc = win
         xs = self.model.xs_full[r0:r0 + nr]
@@ -220,7 +233,7 @@ class Fitter:
     def _cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
         g = self.sensor.geometry
         x0, y0 = interpolated_peak(strain, peak_idx, g.dx, g.dy)
-        f0 = force_estimate(strain, self.sensor)
+        f0 = force_estimate(strain, self.sensor, x0, y0)
         cands = start_table(self.sensor).candidates(
             features(strain, peak_idx, f0), count=self.options.max_starts
         )
@@ -246,18 +259,14 @@ class Fitter:
             reasons.setdefault("r2_mm", "infinite: fitted as a cylinder")
         phys, _ = model.physical(sol.p)
         ell, _ = self.model.ellipse(*phys[:4])
-        if 2.0 * ell.a > self._span:
-            reasons["model"] = (
-                f"contact ellipse {2 * ell.a:.1f} mm long exceeds the array "
-                f"({self._span:.1f} mm): outside the planar model"
-            )
+        line = self._line_contact(ell, values, std, reasons)
         if not sol.converged:
             reasons.setdefault("fit", sol.message)
         rms = math.sqrt(sol.cost / max(n_points, 1))
         return FitResult(
             contact=True,
             model=model.name,
-            label=self._label(values, model.name),
+            label="line" if line else self._label(values, model.name),
             values=values,
             std=std,
             rms=rms,
@@ -345,6 +354,41 @@ class Fitter:
             values["angle_deg"] = None
             std["angle_deg"] = None
             reasons["angle_deg"] = "orientation not observable: Cramer-Rao sigma above 45 deg"
+
+    def _line_contact(self, ell, values: dict, std: dict, reasons: dict[str, str]) -> bool:
+        """The paper's stated failure case (secs. 5, 8.2): an indentor nearly parallel to the
+        finger axis (or nearly flat) makes a Hertz ellipse longer than the finger.  The planar model assumes the
+        contact lies on an infinite plane; the real finger ends, and in the window the contact
+        is a ridge of constant section, so its radius, its total force and its centre along the
+        ridge are not measurable.  Those become None with the reason; the ridge's direction
+        and its position across the finger stay.  Returns True for such a line contact.
+
+        Any other contact longer than the array is kept but flagged (``reasons["model"]``).
+        """
+        g = self.sensor.geometry
+        c, s = abs(math.cos(ell.theta)), abs(math.sin(ell.theta))
+        extent = c * g.span_x + s * g.span_y  # the array's length along the major axis
+        if 2.0 * ell.a <= extent:
+            return False
+        along_finger = c >= math.cos(math.radians(LINE_CONTACT_ANGLE))
+        if not (along_finger and 2.0 * ell.a > LINE_CONTACT_LENGTH * extent):
+            reasons["model"] = (
+                f"contact ellipse {2 * ell.a:.1f} mm long exceeds the array ({extent:.1f} mm along "
+                "it): outside the planar model"
+            )
+            return False
+        why = (f"line contact along the finger axis (an indentor nearly parallel to it, or nearly "
+               f"flat): the Hertz ellipse ({2 * ell.a:.1f} mm) runs off the array ({extent:.1f} mm), "
+               "where the planar model does not hold (paper secs. 5, 8.2)")
+        reasons["model"] = why
+        for k, what in (("r1_mm", "radius not observable"), ("r2_mm", "radius not observable"),
+                        ("force_n", "part of the contact lies beyond the array"),
+                        ("x_mm", "the centre along the line is not defined")):
+            if values.get(k) is not None or k == "r1_mm":
+                values[k] = None
+                std[k] = None
+                reasons[k] = f"{what}: {why}"
+        return True
 
     def _label(self, values: dict[str, float | None], model_name: str) -> str:
         """Paper Table 2 vocabulary: 'edge' (R1 < 1 mm), 'plane' (both radii beyond the

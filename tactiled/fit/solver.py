@@ -53,12 +53,12 @@ def levenberg_marquardt(
     p = np.array(p0, dtype=float)
     try:
         r, jac = fun(p)
-    except ValueError as err:
+    except (ValueError, OverflowError) as err:
         return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), float("inf"), 0, 1, False,
                            f"invalid start: {err}")
-    if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
+    if not math.isfinite(finite_cost(r, jac)):
         return SolveResult(p, r, jac, float("inf"), 0, 1, False, "non-finite residual at start")
-    cost = float(r @ r)
+    cost = finite_cost(r, jac)
     lam, nu = lam0, 2.0
     evals = 1
     scale = np.ones_like(p) if max_step is None else np.asarray(max_step, dtype=float)
@@ -84,7 +84,7 @@ def levenberg_marquardt(
             try:
                 r_new, jac_new = fun(trial)
                 cost_new = finite_cost(r_new, jac_new)
-            except ValueError:
+            except (ValueError, OverflowError):  # an invalid trial point: reject the step
                 cost_new = math.inf
             evals += 1
             if cost_new < math.inf:

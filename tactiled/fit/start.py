@@ -1,7 +1,7 @@
 """Cold-start estimates: centre, force, and candidate (radius, orientation) pairs.
 
-Position comes from the interpolated peak and force from the total strain (the impulse
-response integrates to ``(1 - nu_x)(1 - nu_y)``).  Radius and orientation have no closed form
+Position comes from the interpolated peak and force from the total strain over the impulse
+response summed on the array (see :func:`force_estimate`).  Radius and orientation have no closed form
 (the rubber's low-pass blurs them; the paper's Fig. 10), so a table of predicted patterns is
 built once per sensor: the 3x3 neighbourhood of the peak, normalised by the peak, plus the
 peak-to-force ratio, for a grid of cylinders (radius x orientation x force x sub-tactel offset).
@@ -20,7 +20,8 @@ from scipy.spatial import cKDTree
 
 from tactiled.config import SensorModel
 from tactiled.physics.contact import Contact
-from tactiled.physics.impulse import line_response_integral
+from tactiled.fit.window import interpolated_peak
+from tactiled.physics.impulse import line_response
 from tactiled.physics.strain import StrainModel
 
 _RADII = np.geomspace(0.3, 150.0, 12)
@@ -30,12 +31,23 @@ _OFFSETS = (-0.3, 0.0, 0.3)
 _PEAK_WEIGHT = 1.0
 
 
-def force_estimate(strain: np.ndarray, sensor: SensorModel) -> float:
-    """Force in N from the summed strain of a contact inside the array (rough: an edge
-    contact loses the part of its response that falls off the array)."""
+def force_estimate(strain: np.ndarray, sensor: SensorModel, x0: float | None = None, y0: float | None = None) -> float:
+    """Force in N from the summed strain, treating the contact as a point load at
+    ``(x0, y0)`` (mm; default: the interpolated peak).
+
+    A point load F gives ``strain[m, n] = (F/E) h_x(X_m - x0) h_y(Y_n - y0)``, so
+    ``F = E sum(strain) / (sum_m h_x(X_m - x0) sum_n h_y(Y_n - y0))``.  Summing the kernels over
+    the actual tactels (not their infinite integrals ``1 - nu``) matters: their ``-nu/u^2``
+    tails make an 8x8 array's sums 1.5-2.3x the integrals, and an edge contact loses part of
+    its response.  A contact wider than the rubber depth reads a few per cent low.
+    """
     g, imp, mat = sensor.geometry, sensor.impulse, sensor.material
-    gain = line_response_integral(imp.nu_x) * line_response_integral(imp.nu_y)
-    total = float(np.sum(strain)) * g.dx * g.dy * mat.modulus / gain
+    if x0 is None or y0 is None:
+        pk = np.unravel_index(int(np.argmax(strain)), strain.shape)
+        x0, y0 = interpolated_peak(strain, pk, g.dx, g.dy)
+    sx = float(np.sum(line_response(np.arange(g.rows) * g.dx - x0, imp.depth_x, imp.nu_x)))
+    sy = float(np.sum(line_response(np.arange(g.cols) * g.dy - y0, imp.depth_y, imp.nu_y)))
+    total = float(np.sum(strain)) * mat.modulus / max(sx * sy, 1e-12)
     return min(max(total, 1e-3), 50.0)
 
 
@@ -92,7 +104,8 @@ class StartTable:
 
     def candidates(self, feat: np.ndarray, count: int = 2, min_separation: float = 35.0) -> list[Candidate]:
         """The best ``count`` candidates whose orientations differ by ``min_separation`` deg."""
-        dist, near = self._tree.query(np.nan_to_num(feat, nan=0.0), k=48)
+        q = np.clip(np.nan_to_num(feat, nan=0.0, posinf=1e6, neginf=-1e6), -1e6, 1e6)
+        dist, near = self._tree.query(q, k=48)
         radii, angles = self.params[near, 0], self.params[near, 1]
         chosen = [0]
         sep = np.full(near.size, 180.0)

@@ -61,7 +61,11 @@ def ellipse_core(
     mu = 0.5 * (p + s)
     half = 0.5 * (p - s)
     delta = math.hypot(half, q)
-    c_prime = mu - delta  # C'
+    # C' = det(M) / A', not mu - delta: near a line contact (a cylinder almost along the
+    # finger axis) mu - delta cancels to nothing.  det(2M) = ka kb + kf (kb cos^2 + ka sin^2).
+    sin2, cos2 = math.sin(psi) ** 2, math.cos(psi) ** 2
+    det = 0.25 * (kappa_a * kappa_b + kf * (kappa_b * cos2 + kappa_a * sin2))
+    c_prime = det / (mu + delta)  # C'
     if not c_prime > 0.0:
         return -1.0, -1.0, 0.0, 1.0
     phi = 0.5 * math.atan2(q, half)  # direction of the A' eigenvector

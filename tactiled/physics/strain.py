@@ -33,7 +33,10 @@ from tactiled.physics.kernels import quadrature, strain_with_jacobian, window_re
 
 DEFAULT_TOL = 1e-9
 MIN_NODES = 3
-MAX_NODES = 400  # a contact ~100x the rubber depth; beyond that the planar model is moot anyway
+#: Nodes per axis at most.  A contact needing more (longer than ~150x the rubber depth, some
+#: 600 mm at tol 1e-6: 25 times the array) is refused with a ValueError rather than
+#: integrated inaccurately; the planar model means nothing there anyway.
+MAX_NODES = 1024
 
 
 @lru_cache(maxsize=512)
@@ -54,11 +57,17 @@ def disk_rule(n_u: int, n_s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def nodes_for(extent: float, depth: float, tol: float = DEFAULT_TOL) -> int:
-    """Gauss nodes needed along a semi-axis of ``extent`` mm for a kernel of ``depth`` mm."""
+    """Gauss nodes needed along a semi-axis of ``extent`` mm for a kernel of ``depth`` mm;
+    ``ValueError`` when that exceeds ``MAX_NODES`` (a contact too long to integrate)."""
     r = depth / max(extent, 1e-12)
     log_rho = math.asinh(r)  # ln(r + sqrt(1 + r^2))
-    n = math.ceil(0.5 * math.log(1.0 / tol) / log_rho)
-    return min(max(n, MIN_NODES), MAX_NODES)
+    n = math.ceil(0.5 * math.log(1.0 / tol) / log_rho) if log_rho > 0 else MAX_NODES + 1
+    if n > MAX_NODES:
+        raise ValueError(
+            f"contact ellipse semi-axis {extent:.4g} mm is too long for the planar model "
+            f"(over {MAX_NODES} quadrature nodes at tol {tol:g})"
+        )
+    return max(n, MIN_NODES)
 
 
 class StrainModel:
