@@ -135,11 +135,16 @@ class ContactDetector:
         reach: float = DEFAULT_REACH,
         enter_threshold: float | None = None,
         exit_threshold: float | None = None,
+        average: int = 1,
     ) -> None:
         self.sigma = float(sensor.noise.effective_sigma if sigma is None else sigma)
+        if not (isinstance(average, int) and 1 <= average <= 64):
+            raise ValueError(f"average must be an integer from 1 to 64 frames, got {average!r}")
+        self.average = average
         if enter_threshold is None:
-            enter_threshold = detection_threshold(self.sigma, false_rate, sensor=sensor,
-                                                  subdivide=subdivide, reach=reach)
+            # the mean of `average` frames has noise sigma / sqrt(average)
+            enter_threshold = detection_threshold(self.sigma / math.sqrt(average), false_rate,
+                                                  sensor=sensor, subdivide=subdivide, reach=reach)
         if exit_threshold is None:
             if not 0.0 < exit_fraction <= 1.0:
                 raise ValueError(f"exit_fraction must lie in (0, 1], got {exit_fraction!r}")
@@ -160,9 +165,10 @@ class ContactDetector:
         self.in_contact = False
         self.last_statistic = 0.0
         self.nonfinite_frames = 0
+        self._recent: list[np.ndarray] = []  # the last `average` filter maps (update only)
 
-    def _map(self, zeroed: ArrayLike) -> tuple[float, bool]:
-        """(max T, whether the frame had non-finite entries) for one frame."""
+    def _filter(self, zeroed: ArrayLike) -> tuple[np.ndarray, bool]:
+        """(filter map T of one frame, whether it had non-finite entries)."""
         z = np.asarray(zeroed, dtype=np.float64)
         if z.shape != self.shape:
             raise ValueError(f"zeroed frame must have shape {self.shape}, got {z.shape}")
@@ -171,7 +177,11 @@ class ContactDetector:
         bad = not (math.isfinite(flat[flat.argmax()]) and math.isfinite(flat[flat.argmin()]))
         if bad:
             z = np.where(np.isfinite(z), z, 0.0)
-        t = np.dot(np.dot(self._ax, z), self._ay_t).reshape(-1)
+        return np.dot(np.dot(self._ax, z), self._ay_t).reshape(-1), bad
+
+    def _map(self, zeroed: ArrayLike) -> tuple[float, bool]:
+        """(max T, whether the frame had non-finite entries) for one frame."""
+        t, bad = self._filter(zeroed)
         return float(t[t.argmax()]), bad
 
     def statistic(self, zeroed: ArrayLike) -> float:
@@ -190,9 +200,22 @@ class ContactDetector:
         """Decide one frame; returns (and stores in :attr:`in_contact`) the contact state.
 
         Frames with NaN/inf entries are decided with those entries as 0 and counted in
-        :attr:`nonfinite_frames`.
+        :attr:`nonfinite_frames`.  With ``average > 1`` the statistic is taken on the mean of
+        the last ``average`` frames (the filter is linear, so on the mean of their maps): at
+        1 kHz, ``average=2`` costs 1 ms of latency and gains sqrt(2) in signal to noise.
         """
-        stat, bad = self._map(zeroed)
+        t, bad = self._filter(zeroed)
+        if self.average > 1:
+            self._recent.append(t)
+            if len(self._recent) > self.average:
+                del self._recent[0]
+            if len(self._recent) > 1:
+                t = np.mean(self._recent, axis=0)
+            if len(self._recent) < self.average:
+                # too few frames for the threshold's noise level: decide on the full-noise
+                # threshold scaled up, i.e. the statistic scaled down by sqrt(n/average)
+                t = t * math.sqrt(len(self._recent) / self.average)
+        stat = float(t[t.argmax()])
         if bad:
             self.nonfinite_frames += 1
         self.last_statistic = stat
@@ -203,6 +226,7 @@ class ContactDetector:
         return self.in_contact
 
     def reset(self) -> None:
-        """Forget the contact state (after a tare)."""
+        """Forget the contact state and the averaging history (after a tare)."""
         self.in_contact = False
         self.last_statistic = 0.0
+        self._recent.clear()
