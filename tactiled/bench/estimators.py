@@ -66,7 +66,7 @@ class TableEstimator(Estimator):
         g = self.sensor.geometry
         pk = np.unravel_index(int(np.argmax(strain)), strain.shape)
         x, y = interpolated_peak(strain, pk, g.dx, g.dy)
-        f = force_estimate(strain, self.sensor)
+        f = force_estimate(strain, self.sensor, x, y)
         c = self.table.candidates(features(strain, pk, f), count=1)[0]
         return {"x_mm": x, "y_mm": y, "force_n": f, "r1_mm": c.radius, "r2_mm": None, "angle_deg": c.psi_deg}
 
@@ -115,7 +115,7 @@ class MomentsEstimator(Estimator):
         # curvature of the profile across the cylinder (perpendicular to its axis)
         phi = math.radians(psi + 90.0)
         across = dxx * math.cos(phi) ** 2 + dyy * math.sin(phi) ** 2
-        f = force_estimate(strain, self.sensor)
+        f = force_estimate(strain, self.sensor, x, y)
         feature = -across / peak if peak > 0 else float("nan")
         return {"x_mm": x, "y_mm": y, "force_n": f, "r1_mm": None, "r2_mm": None, "angle_deg": psi}, feature
 

@@ -125,16 +125,19 @@ def observable(key: str, truth: Truth) -> bool:
 def run_estimators(
     estimators: list[Estimator], frames: list[BenchFrame], truths: list[Truth], progress: bool | None = None
 ) -> list[Row]:
-    rows = []
+    """Run every estimator on every frame.  Estimators take turns frame by frame, so a busy
+    spell on the (shared) machine slows all of them alike and their time ratios stay fair."""
+    rows = [Row(est.name, est.description) for est in estimators]
     for est in estimators:
-        row = Row(est.name, est.description)
-        bar = Progress(len(frames), est.name, progress)
-        scene = None
         est.estimate(frames[0].strain)  # warm caches outside the timing
-        for bf, truth in zip(frames, truths):
-            if bf.scene != scene:
+    bar = Progress(len(frames), "configurations", progress)
+    scene = None
+    for bf, truth in zip(frames, truths):
+        if bf.scene != scene:
+            for est in estimators:
                 est.reset()
-                scene = bf.scene
+            scene = bf.scene
+        for est, row in zip(estimators, rows):
             t0 = time.perf_counter()
             vals = est.estimate(bf.strain)
             row.times_ms.append((time.perf_counter() - t0) * 1e3)
@@ -149,8 +152,7 @@ def run_estimators(
                 b = crb_in_units(k, truth.crb[k], truth.values[k])
                 if b:
                     row.ratios[k].append(e / b)
-            bar.step()
-        rows.append(row)
+        bar.step()
     return rows
 
 
@@ -186,7 +188,7 @@ def markdown_table(rows: list[Row]) -> str:
         lines.append(
             f"| {row.name} | {t50:.3f} | {t99:.3f} | {cell(row, 'r1_mm')} | {cell(row, 'angle_deg')} | "
             f"{cell(row, 'force_n')} | {cell(row, 'x_mm')} | {cell(row, 'y_mm')} | "
-            f"{row.rms_over_crb():.2f} | {'yes' if on else 'no'} |"
+            f"{row.rms_over_crb():.3f} | {'yes' if on else 'no'} |"
         )
     return "\n".join(lines)
 

@@ -166,6 +166,7 @@ class ContactDetector:
         self.last_statistic = 0.0
         self.nonfinite_frames = 0
         self._recent: list[np.ndarray] = []  # the last `average` filter maps (update only)
+        self._sum: np.ndarray | None = None
 
     def _filter(self, zeroed: ArrayLike) -> tuple[np.ndarray, bool]:
         """(filter map T of one frame, whether it had non-finite entries)."""
@@ -206,15 +207,16 @@ class ContactDetector:
         """
         t, bad = self._filter(zeroed)
         if self.average > 1:
-            self._recent.append(t)
-            if len(self._recent) > self.average:
-                del self._recent[0]
-            if len(self._recent) > 1:
-                t = np.mean(self._recent, axis=0)
-            if len(self._recent) < self.average:
-                # too few frames for the threshold's noise level: decide on the full-noise
-                # threshold scaled up, i.e. the statistic scaled down by sqrt(n/average)
-                t = t * math.sqrt(len(self._recent) / self.average)
+            # running sum of the last `average` maps: two vector operations a frame
+            recent = self._recent
+            recent.append(t)
+            self._sum = t.copy() if self._sum is None else self._sum + t
+            if len(recent) > self.average:
+                self._sum -= recent.pop(0)
+            # until the window has filled, the mean has more noise than the threshold assumes:
+            # scale it down by sqrt(n / average) (the same false-contact rate)
+            n = len(recent)
+            t = self._sum * (1.0 / n if n == self.average else 1.0 / math.sqrt(n * self.average))
         stat = float(t[t.argmax()])
         if bad:
             self.nonfinite_frames += 1
@@ -230,3 +232,4 @@ class ContactDetector:
         self.in_contact = False
         self.last_statistic = 0.0
         self._recent.clear()
+        self._sum = None

@@ -6,6 +6,9 @@ Suites (default: all):
               median/p99 time per frame, median/90th-percentile errors, RMS error over the
               Cramer-Rao bound, and whether the row is on the Pareto front
   models      model order: cylinder-only against auto on cylinders, spheres, ellipsoids, edges
+  skip        the daemon's per-frame skips: no contact (false/missed rates, cost of an empty
+              frame), unchanged frames, too light for curvature, and a scripted scene at 1 kHz
+              with all skipping on and off (frames/s, errors)
   foundation  the fitter against its bars: noise-free recovery from the reference integration,
               noisy efficiency (RMS/CRB, 2-sigma coverage), the paper's Table 1, speed
 
@@ -23,7 +26,7 @@ import platform
 import sys
 import time
 
-SUITES = ("configs", "models", "foundation")
+SUITES = ("configs", "models", "skip", "foundation")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -107,6 +110,15 @@ def run(args: argparse.Namespace) -> int:
                 share = ", ".join(f"{m} {100 * c / len(items):.0f} %" for m, c in sorted(picks.items(), key=lambda t: -t[1]))
                 out.append(f"| {name} | {kind} | {len(items)} | {np.median(times):.3f} | "
                            f"{np.median(errs) if errs else float('nan'):.1f} | {share} |")
+    if "skip" in suites:
+        from tactiled.bench import skipping
+
+        out += ["", "## Skipping: no contact", "", skipping.no_contact(args.quick, args.progress)]
+        out += ["", "## Skipping: unchanged frames (chi-square test against the last fitted frame)", "",
+                skipping.unchanged(args.quick, args.progress)]
+        out += ["", "## Skipping: too light for curvature (radius withheld when its bound exceeds 50 %)", "",
+                skipping.too_light(args.quick, args.progress)]
+        out += ["", "## Skipping: a scripted scene", "", skipping.scene_throughput(args.quick, args.progress)]
     if "foundation" in suites:
         out += ["", "## Foundation: noise-free recovery", "", foundation.noise_free_recovery(args.quick, args.progress)]
         text, _ = foundation.noisy_efficiency(args.quick, args.progress)
