@@ -141,13 +141,14 @@ def default_configurations(sensor: SensorModel, quick: bool = False) -> list[Est
     """The benchmark's rows.  The first is the daemon's default."""
     base = FitOptions()
     rows: list[Estimator] = [
-        FitEstimator("fit 4x4, warm (default)", "daemon default: cylinder, 4x4 window, tol 1e-6, warm start", sensor, base, warm=True),
+        FitEstimator("fit 4x4, warm (default)", "daemon default: cylinder, 4x4 window, quadrature tol 1e-9, warm start", sensor, base, warm=True),
         FitEstimator("fit 4x4, cold", "same, every frame from the start table", sensor, base),
         FitEstimator("fit 6x6, warm", "6x6 window", sensor, FitOptions(window=6), warm=True),
         FitEstimator("fit 8x8 (whole), warm", "whole array", sensor, FitOptions(window=8), warm=True),
         FitEstimator("fit 4x4, warm, FD Jacobian", "forward-difference Jacobian instead of the exact one", sensor, FitOptions(jacobian="fd"), warm=True),
         FitEstimator("fit 4x4, warm, quadrature tol 1e-3", "coarse forward model (fewer Gauss nodes)", sensor, FitOptions(tol=1e-3), warm=True),
-        FitEstimator("fit 4x4, warm, quadrature tol 1e-9", "fine forward model", sensor, FitOptions(tol=1e-9), warm=True),
+        FitEstimator("fit 4x4, warm, quadrature tol 1e-4", "coarser forward model", sensor, FitOptions(tol=1e-4), warm=True),
+        FitEstimator("fit 4x4, warm, quadrature tol 1e-6", "coarser forward model", sensor, FitOptions(tol=1e-6), warm=True),
         TableEstimator(sensor),
         MomentsEstimator(sensor),
     ]

@@ -58,7 +58,7 @@ class FitOptions:
     ``tol`` the forward model's quadrature accuracy; ``max_starts`` caps cold starts."""
 
     window: int = 4
-    tol: float = 1e-6
+    tol: float = 1e-9  # chosen by `tactiled bench --suite configs` (docs/benchmarks.md)
     max_iter: int = 60
     max_starts: int = 3
     #: Withhold (null, with the reason "force too low for curvature") a radius whose Cramer-Rao
