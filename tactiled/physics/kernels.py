@@ -17,7 +17,11 @@ from numba import njit
 _INV_PI = 1.0 / math.pi
 
 
-@njit(cache=True, fastmath=False, nogil=True)
+# reassociation lets LLVM vectorise the sums over nodes; NaN/inf semantics are kept
+_FAST = {"reassoc", "contract"}
+
+
+@njit(cache=True, fastmath=_FAST, nogil=True)
 def strain_with_jacobian(
     geo: np.ndarray,
     hj: np.ndarray,
@@ -34,70 +38,77 @@ def strain_with_jacobian(
     3x4 Hertz Jacobian ``d(a, b, theta)/d(kappa_a, kappa_b, psi, F)``, ``(u, v, w)`` the unit-disk
     rule, ``imp = [d_x, nu_x, d_y, nu_y]``.  Scalars travel packed in two arrays because numba's
     dispatch cost grows with the argument count.  Returns ``(M, N)`` and ``(M, N, 6)`` arrays.
+
+    The kernel is separable, so the per-axis responses at every node are tabulated first
+    (``HX[i, q]``, ``HY[j, q]`` and their slopes) and each tactel's value and derivatives are then
+    sums over the nodes, which vectorise.
     """
     x0, y0, a, b, theta, force, scale = geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6]
     dep_x, nu_x, dep_y, nu_y = imp[0], imp[1], imp[2], imp[3]
     mx, ny, nq = xs.shape[0], ys.shape[0], u.shape[0]
-    val = np.zeros((mx, ny))
-    der = np.zeros((5, mx, ny))  # d S / d(x0, y0, a, b, theta)
-    hx = np.empty(mx)
-    dhx = np.empty(mx)
-    hy = np.empty(ny)
-    dhy = np.empty(ny)
     c, s = math.cos(theta), math.sin(theta)
     cx = 2.0 * dep_x * _INV_PI
     cy = 2.0 * dep_y * _INV_PI
     dx2 = dep_x * dep_x
     dy2 = dep_y * dep_y
+    # node offsets from the centre and their motion per unit (a, b): (u c, u s), (-v s, v c)
+    ex = np.empty(nq)
+    ey = np.empty(nq)
+    uc = np.empty(nq)
+    us = np.empty(nq)
+    vs = np.empty(nq)
+    vc = np.empty(nq)
     for q in range(nq):
         au = a * u[q]
         bv = b * v[q]
-        ex = au * c - bv * s  # x_q - x0
-        ey = au * s + bv * c  # y_q - y0
-        xq = x0 + ex
-        yq = y0 + ey
-        wq = w[q]
-        for i in range(mx):
-            t = xs[i] - xq
+        ex[q] = au * c - bv * s
+        ey[q] = au * s + bv * c
+        uc[q] = u[q] * c
+        us[q] = u[q] * s
+        vs[q] = -v[q] * s
+        vc[q] = v[q] * c
+    hx = np.empty((mx, nq))
+    dhx = np.empty((mx, nq))
+    hy = np.empty((ny, nq))
+    dhy = np.empty((ny, nq))
+    for i in range(mx):
+        for q in range(nq):
+            t = xs[i] - x0 - ex[q]
             t2 = t * t
             sx = t2 + dx2
-            inv = wq / (sx * sx)
-            hx[i] = cx * (dx2 - nu_x * t2) * inv
-            dhx[i] = 2.0 * cx * t * (nu_x * t2 - (nu_x + 2.0) * dx2) * inv / sx
-        for j in range(ny):
-            t = ys[j] - yq
+            inv = w[q] / (sx * sx)
+            hx[i, q] = cx * (dx2 - nu_x * t2) * inv
+            dhx[i, q] = 2.0 * cx * t * (nu_x * t2 - (nu_x + 2.0) * dx2) * inv / sx
+    for j in range(ny):
+        for q in range(nq):
+            t = ys[j] - y0 - ey[q]
             t2 = t * t
             sy = t2 + dy2
             inv = 1.0 / (sy * sy)
-            hy[j] = cy * (dy2 - nu_y * t2) * inv
-            dhy[j] = 2.0 * cy * t * (nu_y * t2 - (nu_y + 2.0) * dy2) * inv / sy
-        # Node motion per unit (x0, y0, a, b, theta): (1,0), (0,1), (u c, u s), (-v s, v c),
-        # (-ey, ex).  The kernel's argument is X - x_q, hence the minus signs.
-        uc, us_ = u[q] * c, u[q] * s
-        vs, vc = -v[q] * s, v[q] * c
-        for i in range(mx):
-            gx = dhx[i]
-            gy = hx[i]
-            for j in range(ny):
-                a_term = gx * hy[j]
-                b_term = gy * dhy[j]
-                val[i, j] += gy * hy[j]
-                der[0, i, j] -= a_term
-                der[1, i, j] -= b_term
-                der[2, i, j] -= a_term * uc + b_term * us_
-                der[3, i, j] -= a_term * vs + b_term * vc
-                der[4, i, j] += a_term * ey - b_term * ex
+            hy[j, q] = cy * (dy2 - nu_y * t2) * inv
+            dhy[j, q] = 2.0 * cy * t * (nu_y * t2 - (nu_y + 2.0) * dy2) * inv / sy
     kf = scale * force
+    val = np.empty((mx, ny))
     jac = np.empty((mx, ny, 6))
     for i in range(mx):
         for j in range(ny):
+            sv = d0 = d1 = d2 = d3 = d4 = 0.0
+            for q in range(nq):
+                # the kernel's argument is X - x_q, hence the minus signs on node motion
+                ax_ = dhx[i, q] * hy[j, q]  # d/d(node x) is minus this
+                by_ = hx[i, q] * dhy[j, q]  # d/d(node y) is minus this
+                sv += hx[i, q] * hy[j, q]
+                d0 -= ax_
+                d1 -= by_
+                d2 -= ax_ * uc[q] + by_ * us[q]
+                d3 -= ax_ * vs[q] + by_ * vc[q]
+                d4 += ax_ * ey[q] - by_ * ex[q]  # theta: node motion (-ey, ex)
             for k in range(4):
-                jac[i, j, k] = kf * (der[2, i, j] * hj[0, k] + der[3, i, j] * hj[1, k]
-                                     + der[4, i, j] * hj[2, k])
-            jac[i, j, 3] += scale * val[i, j]
-            jac[i, j, 4] = kf * der[0, i, j]
-            jac[i, j, 5] = kf * der[1, i, j]
-            val[i, j] *= kf
+                jac[i, j, k] = kf * (d2 * hj[0, k] + d3 * hj[1, k] + d4 * hj[2, k])
+            jac[i, j, 3] += scale * sv
+            jac[i, j, 4] = kf * d0
+            jac[i, j, 5] = kf * d1
+            val[i, j] = kf * sv
     return val, jac
 
 
