@@ -1,0 +1,148 @@
+"""What the pipeline publishes: contact estimates and zeroed frames.
+
+Both are immutable records with a ``kind`` (the hub's routing key) and a ``to_json_dict()``
+that is strict JSON (no NaN or inf: ``json.dumps(..., allow_nan=False)`` never fails), in the
+style of gpsd's reports: a ``class`` field says what the object is.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: Keys of :meth:`Estimate.to_json_dict` that depend on timing, not on the data; dropping them
+#: makes a replay's output reproducible byte for byte (``tactiled replay --no-timing``).
+TIMING_KEYS = ("host_time", "time", "latency_ms", "worker_ms", "fit_ms")
+
+#: Why an estimate was published without a fit of its own frame (the gate's decisions).
+GATE_FIT = "fit"
+GATE_NO_CONTACT = "no_contact"
+GATE_UNCHANGED = "unchanged"
+
+
+def plain(value: Any) -> Any:
+    """``value`` as plain JSON data: numpy scalars to Python, non-finite floats to None."""
+    if isinstance(value, dict):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if value is None or isinstance(value, str):
+        return value
+    return str(value)
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One contact estimate of one sensor, for one frame.
+
+    ``seq`` / ``device_time_us`` / ``host_time`` are those of the frame this estimate answers
+    (host time: ``time.monotonic()`` seconds when its bytes arrived).  ``fitted_seq`` is the
+    frame the values were fitted on: ``seq`` itself when ``gate == "fit"``, an earlier frame
+    when the gate found this one unchanged, None for no contact.  ``worker_ms`` is the fit
+    request's round trip to the worker process (0 when not fitted), ``latency_ms`` the time from
+    host receive to publication.  ``fit`` is the ``tactiled fit`` JSON line of the result
+    (``FitResult.to_json_dict()``: mm, N, degrees) and must be treated as read-only.
+    """
+
+    sensor: str
+    sensor_id: int
+    seq: int
+    device_time_us: int
+    host_time: float  # s, monotonic
+    published_time: float  # s, monotonic
+    wall_time: float  # s since the Unix epoch, at publication
+    gate: str
+    fitted_seq: int | None
+    worker_ms: float
+    fit: dict[str, Any]
+
+    kind = "estimate"
+
+    @property
+    def latency_ms(self) -> float:
+        """Host receive -> published, in milliseconds."""
+        return (self.published_time - self.host_time) * 1e3
+
+    @property
+    def contact(self) -> bool:
+        return bool(self.fit.get("contact"))
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The envelope keys, then the fit line's keys (contact, model, x_mm, ... message)."""
+        out: dict[str, Any] = {
+            "class": "estimate",
+            "sensor": self.sensor,
+            "sensor_id": self.sensor_id,
+            "seq": self.seq,
+            "device_time_us": self.device_time_us,
+            "host_time": _finite(self.host_time),
+            "time": _finite(self.wall_time),
+            "latency_ms": _finite(round(self.latency_ms, 4)),
+            "worker_ms": _finite(round(self.worker_ms, 4)),
+            "gate": self.gate,
+            "fitted_seq": self.fitted_seq,
+        }
+        out.update(self.fit)
+        return out
+
+
+@dataclass(frozen=True)
+class ZeroedFrame:
+    """A linearised, zeroed strain frame (dimensionless, positive under compression).
+
+    ``strain`` is a read-only ``(rows, cols)`` float64 array with no NaN (the zeroer outputs 0
+    for a non-finite tactel); ``contact`` is the detector's decision and ``statistic`` its
+    matched-filter statistic (strain).
+    """
+
+    sensor: str
+    sensor_id: int
+    seq: int
+    device_time_us: int
+    host_time: float  # s, monotonic
+    contact: bool
+    statistic: float
+    strain: np.ndarray
+
+    kind = "frame"
+
+    def to_json_dict(self, digits: int = 6) -> dict[str, Any]:
+        """The frame with strain rounded to ``digits`` decimals, rows first."""
+        strain = np.round(np.nan_to_num(self.strain, nan=0.0, posinf=0.0, neginf=0.0), digits)
+        return {
+            "class": "frame",
+            "sensor": self.sensor,
+            "sensor_id": self.sensor_id,
+            "seq": self.seq,
+            "device_time_us": self.device_time_us,
+            "host_time": _finite(self.host_time),
+            "contact": self.contact,
+            "statistic": _finite(round(self.statistic, 9)),
+            "strain": strain.tolist(),
+        }
+
+
+def make_estimate(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
+                  host_time: float, gate: str, fitted_seq: int | None, worker_ms: float,
+                  fit: dict[str, Any]) -> Estimate:
+    """An :class:`Estimate` stamped as published now."""
+    return Estimate(
+        sensor=sensor, sensor_id=sensor_id, seq=seq, device_time_us=device_time_us,
+        host_time=host_time, published_time=time.monotonic(), wall_time=time.time(),
+        gate=gate, fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit,
+    )

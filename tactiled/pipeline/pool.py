@@ -1,0 +1,517 @@
+"""The pool of fit worker processes, seen from the event loop: dispatch, health, restarts.
+
+One pool serves every sensor of the daemon (``fit.workers`` processes, by default
+``min(sensors, CPUs)``); docs/pipeline.md gives the reasons.  Nothing here blocks the loop:
+
+* results arrive through ``loop.add_reader`` on each worker's Connection, and a death through
+  ``add_reader`` on the process sentinel, so a SIGKILLed worker is noticed at once;
+* process starts run in a one-thread executor (the first one waits for the forkserver to
+  import and warm up, about 2 s);
+* every request has a deadline, counted from when the worker could start on it (it answers in
+  order), and a supervisor task ticking every 50 ms kills (SIGKILL) a worker that misses one:
+  a fit must answer within ``fit.timeout``, an idle worker is pinged every
+  ``fit.ping_interval`` and must answer within ``fit.ping_timeout`` (as uvicorn's supervisor
+  pings its workers), a new one must be ready within ``fit.startup_timeout``;
+* a lost worker is replaced at once; one that keeps dying before it answers a single fit is
+  restarted with backoff (0.1 s doubling to 5 s), so a crash loop cannot eat the CPU the other
+  workers need.
+
+A sensor (a :class:`JobOwner`) holds at most one fit in flight, so its results come back in
+order; the pool hands a free worker to the sensor whose waiting frame is oldest.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import logging
+import multiprocessing
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
+from typing import Any, Protocol
+
+import numpy as np
+
+from tactiled.config import SensorModel
+from tactiled.settings import FitSettings
+
+log = logging.getLogger(__name__)
+
+PRELOAD_MODULE = "tactiled.pipeline.preload"
+TICK = 0.05  # s, supervisor period: the resolution of hang detection
+BACKOFF_MIN, BACKOFF_MAX = 0.1, 5.0  # s, restart delays of a worker that keeps dying young
+YOUNG = 2.0  # s, a worker lost this soon after being ready, before any fit, counts as failing
+
+#: pid of every worker process any pool started (for tests that check none is left alive).
+SPAWNED_PIDS: list[int] = []
+
+
+class JobOwner(Protocol):
+    """What the pool needs of a sensor pipeline."""
+
+    name: str
+
+    def job_waiting_since(self) -> float | None:
+        """Monotonic time its waiting frame became ready to fit, or None if nothing waits."""
+
+    def take_job(self) -> FitJob:
+        """Hand over the waiting frame as a job (now in flight)."""
+
+    def on_fit_result(self, job: FitJob, fit: dict[str, Any] | None, worker_ms: float,
+                      error: str | None) -> None:
+        """The worker answered (``fit`` is None and ``error`` says why if the fitter raised)."""
+
+    def on_fit_failed(self, job: FitJob, reason: str) -> None:
+        """The job is lost: its worker died, hung, or the pool stopped."""
+
+
+@dataclass
+class FitJob:
+    """One frame to fit: ``ordinal`` is the sensor's own arrival count (never wraps)."""
+
+    owner: JobOwner
+    ordinal: int
+    seq: int
+    strain: np.ndarray
+    model: str
+    spec: int
+    mask: np.ndarray | None = None  # usable tactels (None: all)
+    sent_at: float = 0.0
+
+
+@dataclass
+class _Request:
+    kind: str
+    rid: int
+    timeout: float
+    job: FitJob | None = None
+
+
+@dataclass
+class _Worker:
+    slot: int
+    state: str = "spawning"  # spawning -> starting -> ready -> stopping | dead
+    process: BaseProcess | None = None
+    conn: Connection | None = None
+    pid: int | None = None
+    exited: asyncio.Future[int | None] | None = None
+    outstanding: deque[_Request] = field(default_factory=deque)
+    head_since: float = 0.0  # when the oldest outstanding request became the worker's to do
+    last_answer: float = 0.0
+    started_at: float = 0.0
+    ready_at: float | None = None
+    known_specs: set[int] = field(default_factory=set)
+    job: FitJob | None = None
+    fits: int = 0
+
+    @property
+    def busy(self) -> bool:
+        return self.job is not None
+
+
+class WorkerPool:
+    """``size`` fit worker processes shared by the sensors ``attach``-ed to it."""
+
+    def __init__(self, size: int, settings: FitSettings | None = None) -> None:
+        if size < 1:
+            raise ValueError(f"a worker pool needs at least one worker, got {size}")
+        self.size = size
+        self.settings = settings or FitSettings()
+        self._ctx = multiprocessing.get_context(self.settings.start_method)
+        if self.settings.start_method == "forkserver":
+            # Only effective before the forkserver first starts (it is one per process).
+            # '__main__' first, as multiprocessing does by default: a child re-imports the main
+            # module unless the forkserver already has (so it must be import-safe, guarded by
+            # ``if __name__ == "__main__"``); imported once there, no restart pays for it.
+            self._ctx.set_forkserver_preload(["__main__", PRELOAD_MODULE])
+        self.specs: dict[int, tuple[SensorModel, Any]] = {}
+        self._spec_ids: dict[tuple[SensorModel, Any], int] = {}
+        self._owners: list[JobOwner] = []
+        self._workers: list[_Worker] = [_Worker(slot) for slot in range(size)]
+        self._failures = [0] * size  # consecutive young deaths per slot
+        self._rid = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._executor: concurrent.futures.ThreadPoolExecutor | None = None
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._supervisor: asyncio.Task[None] | None = None
+        self._dispatch_pending = False
+        self._ready = asyncio.Event()
+        self._started = False
+        self._stopping = False
+        self.fits = 0
+        self.restarts = 0
+        self.restarts_by_reason: dict[str, int] = {}
+        self.last_restart: dict[str, Any] | None = None
+
+    # -- set-up -------------------------------------------------------------------------------
+
+    def register_spec(self, sensor: SensorModel, options: tuple[tuple[str, Any], ...]) -> int:
+        """An id for a SensorModel and ``FitOptions`` keyword arguments (``(("window", 4),)``),
+        which the workers turn into a Fitter."""
+        key = (sensor, options)
+        spec = self._spec_ids.get(key)
+        if spec is None:
+            spec = len(self._spec_ids)
+            self._spec_ids[key] = spec
+            self.specs[spec] = key
+        return spec
+
+    def attach(self, owner: JobOwner) -> None:
+        """Serve ``owner``'s fit jobs from now on."""
+        self._owners.append(owner)
+
+    async def start(self, wait_ready: bool = True) -> None:
+        """Start the workers; with ``wait_ready``, return once all are ready to fit (or after
+        ``fit.startup_timeout``, logging the ones that are not)."""
+        if self._started:
+            raise RuntimeError("worker pool already started")
+        self._started = True
+        self._loop = asyncio.get_running_loop()
+        self._executor = concurrent.futures.ThreadPoolExecutor(
+            max_workers=1, thread_name_prefix="tactiled-spawn")
+        for w in self._workers:
+            self._spawn_task(w.slot, 0.0, None)
+        self._supervisor = asyncio.create_task(self._supervise(), name="tactiled-pool-supervisor")
+        if wait_ready:
+            await self.wait_ready(self.settings.startup_timeout)
+
+    async def wait_ready(self, timeout: float) -> bool:
+        """Wait until every worker is ready (True) or ``timeout`` seconds pass (False)."""
+        deadline = time.monotonic() + timeout
+        while not all(w.state == "ready" for w in self._workers):
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or self._stopping:
+                log.warning("fit workers not ready after %.1f s: %s", timeout,
+                            [w.state for w in self._workers])
+                return False
+            self._ready.clear()
+            try:
+                await asyncio.wait_for(self._ready.wait(), remaining)
+            except TimeoutError:
+                pass
+        return True
+
+    # -- process lifecycle ----------------------------------------------------------------------
+
+    def _spawn_task(self, slot: int, delay: float, old: _Worker | None) -> None:
+        task = asyncio.create_task(self._respawn(slot, delay, old), name=f"tactiled-spawn-{slot}")
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _respawn(self, slot: int, delay: float, old: _Worker | None) -> None:
+        if old is not None:
+            await self._reap(old, 1.0)
+        if delay > 0:
+            await asyncio.sleep(delay)
+        if self._stopping:
+            return
+        w = _Worker(slot)
+        self._workers[slot] = w
+        parent_conn, child_conn = self._ctx.Pipe(duplex=True)
+        from tactiled.pipeline.worker import worker_main
+
+        process = self._ctx.Process(target=worker_main, args=(child_conn, dict(self.specs)),
+                                    name=f"tactiled-fit-{slot}", daemon=True)
+        known = set(self.specs)
+        assert self._loop is not None and self._executor is not None
+        try:
+            # Never cancelled half-way: a cancelled await would lose the handle of a process
+            # the executor thread still starts.
+            await asyncio.shield(self._loop.run_in_executor(self._executor, process.start))
+        except Exception as err:  # e.g. the forkserver could not start
+            log.error("cannot start fit worker %d: %s", slot, err)
+            parent_conn.close()
+            w.state = "dead"
+            self._failures[slot] += 1
+            if not self._stopping:
+                self._spawn_task(slot, self._backoff(slot), None)
+            return
+        finally:
+            child_conn.close()  # the child has its own copy; ours would hide its EOF
+        SPAWNED_PIDS.append(process.pid or 0)
+        w.process, w.conn, w.pid = process, parent_conn, process.pid
+        w.exited = self._loop.create_future()
+        now = time.monotonic()
+        w.started_at = w.last_answer = w.head_since = now
+        w.known_specs = known
+        w.state = "starting"
+        self._loop.add_reader(parent_conn.fileno(), self._on_readable, w)
+        self._loop.add_reader(process.sentinel, self._on_sentinel, w)
+        if self.last_restart is not None and self.last_restart.get("slot") == slot \
+                and self.last_restart.get("spawned_s") is None:
+            self.last_restart["spawned_s"] = now - self.last_restart["lost_at"]
+        log.info("fit worker %d started (pid %s)", slot, process.pid)
+        if self._stopping:
+            self._lose(w, "stopped", "pool stopping", count=False)
+
+    def _backoff(self, slot: int) -> float:
+        n = self._failures[slot]
+        return 0.0 if n <= 1 else min(BACKOFF_MIN * 2 ** (n - 2), BACKOFF_MAX)
+
+    def _detach(self, w: _Worker) -> None:
+        """Stop watching the worker's connection and close it (the sentinel stays watched
+        until the process has exited, so the exit is still noticed)."""
+        if w.conn is not None:
+            assert self._loop is not None
+            try:
+                self._loop.remove_reader(w.conn.fileno())
+            except (OSError, ValueError):
+                pass
+            w.conn.close()
+            w.conn = None
+
+    def _on_sentinel(self, w: _Worker) -> None:
+        assert self._loop is not None and w.process is not None
+        self._loop.remove_reader(w.process.sentinel)
+        # The process has exited; exitcode reads its status without blocking.
+        code = w.process.exitcode
+        if w.exited is not None and not w.exited.done():
+            w.exited.set_result(code)
+        if w.state in ("starting", "ready"):
+            self._lose(w, "died", f"exit code {code}")
+
+    def _lose(self, w: _Worker, reason: str, detail: str, count: bool = True) -> None:
+        """The worker is gone or unusable: kill it, fail its job, schedule a replacement."""
+        if w.state in ("dead", "stopping"):
+            return
+        was_ready_at = w.ready_at
+        w.state = "dead"
+        self._detach(w)
+        if w.process is not None and w.exited is not None and not w.exited.done():
+            w.process.kill()  # SIGKILL: a hung worker may be stuck where SIGTERM can't reach
+        job, w.job = w.job, None
+        w.outstanding.clear()
+        now = time.monotonic()
+        if count:
+            self.restarts += 1
+            self.restarts_by_reason[reason] = self.restarts_by_reason.get(reason, 0) + 1
+            self.last_restart = {"slot": w.slot, "pid": w.pid, "reason": reason,
+                                 "detail": detail, "lost_at": now, "spawned_s": None,
+                                 "ready_s": None}
+            log.warning("fit worker %d (pid %s) %s: %s; restarting", w.slot, w.pid, reason,
+                        detail)
+        if job is not None:
+            job.owner.on_fit_failed(job, reason)
+        # A worker lost before it ever answered a fit is a crash loop in the making (a bad
+        # environment, a frame that kills the fitter): back off.  One that has been doing its
+        # job (killed by the OOM killer, by hand) is replaced at once.
+        young = was_ready_at is None or (w.fits == 0 and now - was_ready_at < YOUNG)
+        self._failures[w.slot] = self._failures[w.slot] + 1 if young else 1
+        if not self._stopping:
+            self._spawn_task(w.slot, self._backoff(w.slot), w)
+        self.wake()
+
+    async def _reap(self, w: _Worker, timeout: float) -> None:
+        """Wait (up to ``timeout`` s) for the process to exit, then release its resources."""
+        if w.process is None:
+            return
+        if w.exited is not None and not w.exited.done():
+            try:
+                await asyncio.wait_for(asyncio.shield(w.exited), timeout)
+            except TimeoutError:
+                log.error("fit worker %d (pid %s) did not exit after SIGKILL", w.slot, w.pid)
+                return
+        try:
+            w.process.close()
+        except ValueError:  # still running by multiprocessing's books; leave it be
+            pass
+
+    # -- talking to workers -----------------------------------------------------------------------
+
+    def _send(self, w: _Worker, message: tuple[Any, ...], kind: str, timeout: float,
+              job: FitJob | None = None) -> bool:
+        assert w.conn is not None
+        now = time.monotonic()
+        if not w.outstanding:
+            w.head_since = now
+        self._rid += 1
+        w.outstanding.append(_Request(kind, self._rid, timeout, job))
+        try:
+            # Small messages on a socketpair, at most a few outstanding: never blocks.
+            w.conn.send((message[0], self._rid, *message[1:]))
+        except (OSError, ValueError) as err:
+            w.outstanding.pop()
+            self._lose(w, "died", f"send failed: {err}")
+            return False
+        return True
+
+    def _on_readable(self, w: _Worker) -> None:
+        try:
+            while w.conn is not None and w.conn.poll():
+                self._handle(w, w.conn.recv())
+        except (EOFError, OSError) as err:
+            self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")
+
+    def _handle(self, w: _Worker, msg: tuple[Any, ...]) -> None:
+        now = time.monotonic()
+        w.last_answer = now
+        kind = msg[0]
+        if kind == "ready":
+            w.state, w.ready_at, w.head_since = "ready", now, now
+            w.pid = msg[1]
+            if self.last_restart is not None and self.last_restart.get("slot") == w.slot \
+                    and self.last_restart.get("ready_s") is None:
+                self.last_restart["ready_s"] = now - self.last_restart["lost_at"]
+            log.info("fit worker %d ready (pid %s, warm-up %.3f s)", w.slot, msg[1], msg[2])
+            self._ready.set()
+            self.wake()
+            return
+        if not w.outstanding or w.outstanding[0].rid != msg[1]:
+            self._lose(w, "protocol", f"unexpected answer {kind!r}")
+            return
+        req = w.outstanding.popleft()
+        w.head_since = now
+        if kind == "result":
+            job, w.job = req.job, None
+            assert job is not None
+            w.fits += 1
+            self.fits += 1
+            _, _, fit, _compute_s, error = msg
+            job.owner.on_fit_result(job, fit, (now - job.sent_at) * 1e3, error)
+            self.wake()
+        elif kind == "setup_done" and msg[3] is not None:
+            log.error("fit worker %d: fitter setup failed: %s", w.slot, msg[3])
+
+    def wake(self) -> None:
+        """Hand waiting jobs to free workers soon (once per loop iteration, so a burst of
+        frames from one read is dispatched once, newest first)."""
+        if not self._dispatch_pending and self._loop is not None and not self._stopping:
+            self._dispatch_pending = True
+            self._loop.call_soon(self._dispatch)
+
+    def _dispatch(self) -> None:
+        self._dispatch_pending = False
+        for w in self._workers:
+            if w.state != "ready" or w.job is not None:
+                continue
+            waiting = [(t, i) for i, o in enumerate(self._owners)
+                       if (t := o.job_waiting_since()) is not None]
+            if not waiting:
+                return
+            owner = self._owners[min(waiting)[1]]  # the longest-waiting frame first: fairness
+            job = owner.take_job()
+            if job.spec not in w.known_specs:
+                sensor, options = self.specs[job.spec]
+                w.known_specs.add(job.spec)
+                if not self._send(w, ("setup", job.spec, sensor, options), "setup",
+                                  self.settings.startup_timeout):
+                    job.owner.on_fit_failed(job, "died")
+                    continue
+            job.sent_at = time.monotonic()
+            w.job = job
+            if not self._send(w, ("fit", job.spec, job.strain, job.model, job.mask), "fit",
+                              self.settings.timeout, job):
+                continue  # _lose has failed the job already
+
+    # -- supervision ------------------------------------------------------------------------------
+
+    async def _supervise(self) -> None:
+        s = self.settings
+        while True:
+            await asyncio.sleep(TICK)
+            now = time.monotonic()
+            for w in list(self._workers):
+                if w.state == "starting":
+                    if now - w.started_at > s.startup_timeout:
+                        self._lose(w, "startup", f"not ready within {s.startup_timeout:g} s")
+                elif w.state == "ready":
+                    if w.outstanding:
+                        head = w.outstanding[0]
+                        if now - w.head_since > head.timeout:
+                            self._lose(w, "hung", f"no answer to {head.kind!r} within "
+                                                  f"{head.timeout:g} s")
+                    elif now - w.last_answer >= s.ping_interval:
+                        self._send(w, ("ping",), "ping", s.ping_timeout)
+
+    # -- test hook -----------------------------------------------------------------------------
+
+    def debug_sleep(self, slot: int, seconds: float) -> int | None:
+        """Make worker ``slot`` unresponsive for ``seconds`` (test hook for hang handling).
+
+        The request has the fit deadline, so a sleep longer than ``fit.timeout`` gets the
+        worker killed and replaced.  Returns the worker's pid, or None if it is not ready.
+        """
+        w = self._workers[slot]
+        if w.state != "ready":
+            return None
+        self._send(w, ("sleep", float(seconds)), "sleep", self.settings.timeout)
+        return w.pid
+
+    # -- stopping ---------------------------------------------------------------------------------
+
+    async def stop(self, timeout: float | None = None) -> None:
+        """Let in-flight fits finish (up to ``timeout`` s, default ``fit.stop_timeout``), ask the
+        workers to exit, SIGKILL those that do not, and reap them all.  Idempotent."""
+        if not self._started or self._stopping:
+            return
+        timeout = self.settings.stop_timeout if timeout is None else timeout
+        deadline = time.monotonic() + timeout
+        while any(w.busy for w in self._workers) and time.monotonic() < deadline:
+            await asyncio.sleep(0.005)
+        self._stopping = True
+        if self._supervisor is not None:
+            self._supervisor.cancel()
+            await asyncio.gather(self._supervisor, return_exceptions=True)
+        # Spawns under way finish (and see _stopping); they are never cancelled mid-start.
+        if self._tasks:
+            await asyncio.gather(*list(self._tasks), return_exceptions=True)
+        for w in self._workers:
+            job, w.job = w.job, None
+            if job is not None:
+                job.owner.on_fit_failed(job, "stopped")
+            if w.conn is not None and w.state in ("starting", "ready"):
+                try:
+                    w.conn.send(("stop",))
+                except (OSError, ValueError):
+                    pass
+            if w.state != "dead":
+                w.state = "stopping"
+            self._detach(w)
+        pending = [w.exited for w in self._workers if w.exited is not None and not w.exited.done()]
+        if pending:
+            await asyncio.wait(pending, timeout=max(0.0, deadline - time.monotonic()))
+        for w in self._workers:
+            if w.process is not None and w.exited is not None and not w.exited.done():
+                log.warning("fit worker %d (pid %s) did not stop in time; killing it", w.slot,
+                            w.pid)
+                w.process.kill()
+        for w in self._workers:
+            await self._reap(w, 2.0)
+            if w.process is not None and self._loop is not None:
+                try:
+                    self._loop.remove_reader(w.process.sentinel)
+                except (OSError, ValueError):
+                    pass
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)
+
+    # -- reporting --------------------------------------------------------------------------------
+
+    def pids(self) -> list[int | None]:
+        """The current worker processes' pids, by slot (None while one is being started)."""
+        return [w.pid if w.state in ("starting", "ready") else None for w in self._workers]
+
+    def busy_pids(self) -> list[int]:
+        """Pids of workers fitting right now."""
+        return [w.pid for w in self._workers if w.busy and w.pid is not None]
+
+    def stats(self) -> dict[str, Any]:
+        """Worker states and counters, JSON-ready (times in seconds)."""
+        now = time.monotonic()
+        return {
+            "size": self.size,
+            "start_method": self.settings.start_method,
+            "fits": self.fits,
+            "restarts": self.restarts,
+            "restarts_by_reason": dict(self.restarts_by_reason),
+            "last_restart": None if self.last_restart is None else {
+                k: v for k, v in self.last_restart.items() if k != "lost_at"},
+            "workers": [
+                {"slot": w.slot, "pid": w.pid, "state": w.state, "busy": w.busy,
+                 "fits": w.fits, "uptime_s": None if w.ready_at is None else now - w.ready_at}
+                for w in self._workers
+            ],
+        }

@@ -1,0 +1,487 @@
+"""One sensor's loop: read -> (decode, in the source) -> linearise -> zero -> gate -> fit -> publish.
+
+Each frame is handled synchronously as it arrives (:meth:`SensorPipeline.on_frame`); only the
+fit leaves the loop, to a worker process.  The queueing rule is **latest frame wins**: a frame
+to fit waits in a one-frame slot; a newer frame to fit replaces it (counted ``superseded``), so
+reading never waits for fitting and nothing queues up.  At most one fit per sensor is in
+flight, so results come back in order.  A frame the gate publishes at once (no contact,
+unchanged) also supersedes a waiting one; a fit result older than the last estimate published
+is dropped (``stale_dropped``), so no estimate ever appears under a newer seq than the frame it
+describes.  Order is judged by the pipeline's own arrival count (``ordinal``), not by ``seq``,
+which wraps at 2^32 and restarts when the device does.
+
+In ``lossless`` mode (replay, regression tests) the loop instead waits for each fit before
+reading the next frame: every frame gets its estimate and the output is deterministic.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactiled.calibration.contact import (
+    DEFAULT_EXIT_FRACTION,
+    ContactDetector,
+    detection_threshold,
+)
+from tactiled.calibration.fileformat import load_calibration
+from tactiled.calibration.lut import LookupTable
+from tactiled.calibration.stage import CalibrationStage
+from tactiled.calibration.zeroing import Zeroer
+from tactiled.config import NoiseModel, SensorModel
+from tactiled.errors import CalibrationError, DriverError, FrameError
+from tactiled.fit.result import FitResult
+from tactiled.frames import Frame
+from tactiled.pipeline.estimate import (
+    GATE_FIT,
+    GATE_NO_CONTACT,
+    GATE_UNCHANGED,
+    Estimate,
+    ZeroedFrame,
+    make_estimate,
+    plain,
+)
+from tactiled.pipeline.gate import Gate
+from tactiled.pipeline.hub import Hub
+from tactiled.pipeline.meters import RateMeter, WindowMean
+from tactiled.pipeline.pool import FitJob, WorkerPool
+from tactiled.recording import Recorder
+from tactiled.settings import SensorSettings
+from tactiled.sources import FrameSource, open_source
+
+log = logging.getLogger(__name__)
+
+RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing source
+
+
+def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
+    """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
+    so this process never imports the fitter (numba, scipy: 1.3 s and ~100 MB)."""
+    return (("window", window),)
+
+
+@dataclass
+class _Waiting:
+    """A frame waiting for (or in) a fit."""
+
+    ordinal: int
+    seq: int
+    sensor_id: int
+    device_time_us: int
+    host_time: float
+    strain: np.ndarray
+    since: float  # monotonic s it started waiting
+
+
+class SensorPipeline:
+    """The acquisition loop of one sensor, publishing to ``hub`` and fitting on ``pool``.
+
+    Construction loads the calibration file (``CalibrationError``) and builds the source from
+    its URL (``ValueError``), without any I/O on the device.
+    """
+
+    def __init__(self, settings: SensorSettings, *, pool: WorkerPool, hub: Hub,
+                 record_path: Path | None = None, lossless: bool = False,
+                 source: FrameSource | None = None) -> None:
+        self.settings = settings
+        self.name = settings.name
+        self.pool = pool
+        self.hub = hub
+        self.lossless = lossless
+        self.record_path = record_path
+        self.table: LookupTable | None = None
+        self.expected_id = settings.wire_id
+        if settings.calibration is not None:
+            self.table = load_calibration(settings.calibration)
+            if self.expected_id is not None and self.table.sensor_id != self.expected_id:
+                raise CalibrationError(
+                    f"{settings.calibration}: calibration of sensor {self.table.sensor_id}, "
+                    f"but wire_id is {self.expected_id}")
+            self.expected_id = self.table.sensor_id
+        # Tactels the calibration found dead or never exercised are left out of every fit.
+        self.mask = (None if self.table is None or not self.table.dead_mask.any()
+                     else ~self.table.dead_mask)
+        self.sensor_model = SensorModel(noise=NoiseModel(sigma=settings.noise_sigma))
+        g = self.sensor_model.geometry
+        if self.table is not None and self.table.shape != (g.rows, g.cols):
+            raise CalibrationError(f"{settings.calibration}: table shape {self.table.shape} is "
+                                   f"not the sensor's {(g.rows, g.cols)}")
+        self.spec = pool.register_spec(self.sensor_model, _fit_options(settings.window))
+        self.model = settings.model
+        self.gate = Gate(settings.noise_sigma, settings.unchanged_z, settings.reuse_unchanged)
+        self.source: FrameSource = source if source is not None else open_source(settings.url)
+        self.stage: CalibrationStage | None = None
+        self.sensor_id: int | None = self.expected_id
+        self._no_contact_fit = plain(FitResult(
+            contact=False, message="no contact: below the detection threshold").to_json_dict())
+        # -- state
+        self._ordinal = 0
+        self._last_published = 0  # ordinal of the last estimate published
+        self._waiting: _Waiting | None = None
+        self._in_flight: _Waiting | None = None
+        self._last_fit: Estimate | None = None
+        self._settled = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+        self._recorder: Recorder | None = None
+        self._record_failed = False
+        self.finished = False
+        self.last_error = ""
+        # -- counters
+        self.frames = 0
+        self.superseded = 0
+        self.fitted = 0
+        self.published = 0
+        self.skipped = {GATE_NO_CONTACT: 0, GATE_UNCHANGED: 0}
+        self.stale_dropped = 0
+        self.fit_failed = 0
+        self.fit_errors = 0
+        self.wrong_sensor = 0
+        self.bad_shape = 0
+        self.errors = 0
+        self.source_errors = 0
+        self.record_errors = 0
+        self.last_frame_at: float | None = None
+        self.frame_rate = RateMeter()
+        self.fit_rate = RateMeter()
+        self.latency_ms = WindowMean()
+        self.worker_ms = WindowMean()
+
+    # -- running --------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start reading (a task on the running loop)."""
+        if self._task is None:
+            self._task = asyncio.create_task(self._run(), name=f"tactiled-sensor-{self.name}")
+
+    async def stop_reading(self) -> None:
+        """Stop the read loop (frames already handed to the pool still get their fits)."""
+        task, self._task = self._task, None
+        if task is not None:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    async def _close_source(self) -> None:
+        try:
+            await self.source.close()
+        except Exception as err:  # closing must not stop the shutdown of everything else
+            log.warning("%s: closing %s: %s", self.name, self.source.url.url, err)
+
+    async def close(self) -> None:
+        """Close the source and flush and close the recording."""
+        await self.stop_reading()
+        await self._close_source()
+        if self._recorder is not None:
+            try:
+                self._recorder.close()  # flush + fsync; kept for its frames_written count
+            except OSError as err:
+                log.error("%s: closing recording %s: %s", self.name, self.record_path, err)
+            self._record_failed = True  # nothing more is written after close
+
+    async def _run(self) -> None:
+        delay = RETRY_MIN
+        while True:
+            try:
+                if not self.source.is_open:
+                    await self.source.open()
+                delay = RETRY_MIN
+                async with contextlib.aclosing(self.source.frames()) as frames:
+                    async for frame in frames:
+                        self.on_frame(frame)
+                        if self.lossless:
+                            await self.wait_settled()
+                break  # the stream ended (a replay finished)
+            except DriverError as err:
+                # A device that failed to open or vanished: it may come back, so retry.
+                self.source_errors += 1
+                if str(err) != self.last_error:
+                    log.warning("%s: %s (retrying)", self.name, err)
+                self.last_error = str(err)
+                await self._close_source()
+                await asyncio.sleep(delay)
+                delay = min(delay * 2.0, RETRY_MAX)
+            except Exception as err:
+                # Anything else (a corrupt recording, a driver bug) would fail again the same
+                # way, and re-reading a replay from the start would repeat its frames: give up
+                # on this sensor, say why, and keep the others running.
+                self.source_errors += 1
+                self.last_error = f"source failed: {type(err).__name__}: {err}"
+                log.error("%s: %s; this sensor stops", self.name, self.last_error)
+                await self._close_source()
+                break
+        self.finished = True
+        log.info("%s: source %s ended after %d frames", self.name, self.source.url.url,
+                 self.frames)
+
+    async def wait_settled(self) -> None:
+        """Wait until no frame of this sensor waits for, or is in, a fit."""
+        while self._waiting is not None or self._in_flight is not None:
+            self._settled.clear()
+            await self._settled.wait()
+
+    @property
+    def settled(self) -> bool:
+        return self._waiting is None and self._in_flight is None
+
+    def _check_settled(self) -> None:
+        if self._waiting is None and self._in_flight is None:
+            self._settled.set()
+
+    # -- the frame's path -----------------------------------------------------------------------
+
+    def on_frame(self, frame: Frame) -> None:
+        """Handle one decoded frame; never raises (problems are counted)."""
+        now = time.monotonic()
+        self.frames += 1
+        self.frame_rate.tick(now)
+        self.last_frame_at = now
+        try:
+            self._record(frame)
+            self._process(frame, now)
+        except Exception as err:  # a bug must cost one frame, not the sensor's loop
+            self.errors += 1
+            self.last_error = f"{type(err).__name__}: {err}"
+            log.exception("%s: frame seq %d failed", self.name, frame.seq)
+
+    def _record(self, frame: Frame) -> None:
+        if self.record_path is None or self._record_failed:
+            return
+        try:
+            if self._recorder is None:
+                self._recorder = Recorder(self.record_path, sensor_id=frame.sensor_id,
+                                          append=True)
+            self._recorder.record(frame)
+        except ValueError as err:  # this frame cannot be encoded (not wire counts): skip it
+            self.record_errors += 1
+            self.last_error = f"frame seq {frame.seq} not recorded: {err}"
+        except (OSError, FrameError) as err:  # disk full, a file of another sensor: stop
+            self._record_failed = True
+            self.record_errors += 1
+            self.last_error = f"recording to {self.record_path} stopped: {err}"
+            log.error("%s: %s", self.name, self.last_error)
+
+    def _process(self, frame: Frame, now: float) -> None:
+        if self.expected_id is not None and frame.sensor_id != self.expected_id:
+            self.wrong_sensor += 1
+            if self.wrong_sensor == 1:
+                log.warning("%s: frame from sensor id %d, expected %d: dropped (miswired?)",
+                            self.name, frame.sensor_id, self.expected_id)
+            return
+        g = self.sensor_model.geometry
+        if frame.shape != (g.rows, g.cols):
+            self.bad_shape += 1
+            return
+        if self.stage is None:
+            self._build_stage(frame.sensor_id)
+        assert self.stage is not None
+        contact = self.stage.process(frame)
+        strain = frame.strain
+        assert strain is not None
+        if not np.isfinite(strain).all():  # the zeroer never lets NaN out; belt and braces
+            strain = np.nan_to_num(strain, nan=0.0, posinf=0.0, neginf=0.0)
+        strain.flags.writeable = False
+        self._ordinal += 1
+        ordinal = self._ordinal
+        detector = self.stage.zeroer.detector
+        self.hub.publish(ZeroedFrame(
+            sensor=self.name, sensor_id=frame.sensor_id, seq=frame.seq,
+            device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
+            statistic=detector.last_statistic, strain=strain))
+        waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
+                           frame.host_time, strain, now)
+        if self._waiting is not None or self._in_flight is not None:
+            # A fit is outstanding for a frame that had changed: its result will be fresher
+            # than the reference, so reusing the old estimate now would only make that result
+            # stale.  Only the contact flag matters here; the waiting frame is gated again
+            # against the new reference when the result arrives (_regate_waiting).
+            action = GATE_NO_CONTACT if not contact else GATE_FIT
+        else:
+            action = self.gate.decide(strain, contact).action
+        if action == GATE_NO_CONTACT:
+            self.gate.reset()
+            self._last_fit = None
+            self.skipped[GATE_NO_CONTACT] += 1
+            self._supersede_waiting()
+            self._publish(waiting, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
+        elif action == GATE_UNCHANGED and self._last_fit is not None:
+            self.skipped[GATE_UNCHANGED] += 1
+            self._publish(waiting, GATE_UNCHANGED, self._last_fit.fitted_seq, 0.0,
+                          self._last_fit.fit)
+        else:
+            if self._waiting is not None:
+                self.superseded += 1
+            self._waiting = waiting
+            self.pool.wake()
+
+    def _regate_waiting(self) -> None:
+        """After a new fit is published, a waiting frame unchanged since is answered with it."""
+        w = self._waiting
+        if w is None or self._last_fit is None:
+            return
+        if self.gate.decide(w.strain, True).action == GATE_UNCHANGED:
+            self._waiting = None
+            self.skipped[GATE_UNCHANGED] += 1
+            self._publish(w, GATE_UNCHANGED, self._last_fit.fitted_seq, 0.0, self._last_fit.fit)
+
+    def _build_stage(self, sensor_id: int) -> None:
+        g = self.sensor_model.geometry
+        table = self.table or LookupTable.linear(g.rows, g.cols, sensor_id=sensor_id)
+        s = self.settings
+        detector = ContactDetector(s.noise_sigma, sensor=self.sensor_model,
+                                   false_rate=s.false_rate)
+        self.stage = CalibrationStage(table, Zeroer(table.shape, detector=detector))
+        self.sensor_id = sensor_id
+
+    def _supersede_waiting(self) -> None:
+        if self._waiting is not None:
+            self._waiting = None
+            self.superseded += 1
+            self._check_settled()
+
+    def _publish(self, w: _Waiting, gate: str, fitted_seq: int | None, worker_ms: float,
+                 fit: dict[str, Any]) -> Estimate:
+        est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
+                            device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
+                            fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)
+        self._last_published = w.ordinal
+        self.published += 1
+        if math.isfinite(est.latency_ms):
+            self.latency_ms.add(est.published_time, est.latency_ms)
+        self.hub.publish(est)
+        return est
+
+    # -- the pool's side (JobOwner) -------------------------------------------------------------
+
+    def job_waiting_since(self) -> float | None:
+        if self._waiting is None or self._in_flight is not None:
+            return None
+        return self._waiting.since
+
+    def take_job(self) -> FitJob:
+        w = self._waiting
+        assert w is not None and self._in_flight is None
+        self._waiting, self._in_flight = None, w
+        return FitJob(owner=self, ordinal=w.ordinal, seq=w.seq, strain=w.strain,
+                      model=self.model, spec=self.spec, mask=self.mask)
+
+    def on_fit_result(self, job: FitJob, fit: dict[str, Any] | None, worker_ms: float,
+                      error: str | None) -> None:
+        w, self._in_flight = self._in_flight, None
+        try:
+            if w is None or w.ordinal != job.ordinal:  # cannot happen: one job in flight
+                log.error("%s: result for an unknown job (ordinal %d)", self.name, job.ordinal)
+                return
+            self.fitted += 1
+            if error is not None or fit is None:
+                self.fit_errors += 1
+                self.last_error = f"fit of seq {w.seq} failed: {error}"
+                log.error("%s: %s", self.name, self.last_error)
+                return
+            now = time.monotonic()
+            self.fit_rate.tick(now)
+            self.worker_ms.add(now, worker_ms)
+            if w.ordinal <= self._last_published:
+                self.stale_dropped += 1  # a newer frame's estimate is out already
+                return
+            est = self._publish(w, GATE_FIT, w.seq, worker_ms, fit)
+            if est.contact and all(fit.get(k) is not None for k in ("x_mm", "y_mm")):
+                self._last_fit = est
+                self.gate.fitted(w.strain)
+                self._regate_waiting()
+            else:
+                self._last_fit = None
+                self.gate.reset()
+        finally:
+            self._check_settled()
+
+    def on_fit_failed(self, job: FitJob, reason: str) -> None:
+        w, self._in_flight = self._in_flight, None
+        self.fit_failed += 1
+        if w is not None:
+            self.last_error = f"fit of seq {w.seq} lost: worker {reason}"
+        self._check_settled()
+
+    # -- control --------------------------------------------------------------------------------
+
+    def tare(self) -> None:
+        """Re-zero on the next frame (nothing may touch the finger) and refit from scratch."""
+        if self.stage is not None:
+            self.stage.tare()
+        self.gate.reset()
+        self._last_fit = None
+
+    def runtime_config(self) -> dict[str, Any]:
+        from tactiled.settings import RUNTIME_SENSOR_KEYS
+
+        return {k: getattr(self.settings, k) for k in RUNTIME_SENSOR_KEYS}
+
+    def configure(self, changes: dict[str, Any]) -> None:
+        """Apply already validated runtime changes (see ``settings.RUNTIME_SENSOR_KEYS``)."""
+        s = replace(self.settings, **changes)
+        self.settings = s
+        self.model = s.model
+        if s.noise_sigma != self.sensor_model.noise.sigma:
+            self.sensor_model = replace(self.sensor_model, noise=NoiseModel(sigma=s.noise_sigma))
+        self.spec = self.pool.register_spec(self.sensor_model, _fit_options(s.window))
+        self.gate.configure(sigma=s.noise_sigma, z=s.unchanged_z,
+                            reuse_unchanged=s.reuse_unchanged)
+        if self.stage is not None:
+            det = self.stage.zeroer.detector
+            enter = detection_threshold(s.noise_sigma, s.false_rate, sensor=self.sensor_model)
+            det.sigma = s.noise_sigma
+            det.enter_threshold, det.exit_threshold = enter, DEFAULT_EXIT_FRACTION * enter
+        # A fit made under other settings must not be reused for new frames.
+        self.gate.reset()
+        self._last_fit = None
+
+    # -- reporting ------------------------------------------------------------------------------
+
+    def stats(self) -> dict[str, Any]:
+        """Counters and rates of this sensor, JSON-ready (rates in Hz, times in s / ms)."""
+        now = time.monotonic()
+        src = self.source.status()
+        zeroer = self.stage.zeroer if self.stage is not None else None
+        return {
+            "sensor": self.name,
+            "sensor_id": self.sensor_id,
+            "url": src.url,
+            "connected": bool(src.connected),
+            "finished": self.finished,
+            "last_error": self.last_error or src.last_error,
+            "reconnects": src.reconnects,
+            "disconnects": src.disconnects,
+            "source_errors": self.source_errors,
+            "frames": self.frames,
+            "frame_rate_hz": self.frame_rate.rate(now),
+            "fit_rate_hz": self.fit_rate.rate(now),
+            "last_frame_age_s": None if self.last_frame_at is None else now - self.last_frame_at,
+            "decoder": dict(src.decoder),
+            "superseded": self.superseded,
+            "fitted": self.fitted,
+            "published": self.published,
+            "skipped": dict(self.skipped),
+            "stale_dropped": self.stale_dropped,
+            "fit_failed": self.fit_failed,
+            "fit_errors": self.fit_errors,
+            "wrong_sensor": self.wrong_sensor,
+            "bad_shape": self.bad_shape,
+            "errors": self.errors,
+            "nonfinite_frames": 0 if zeroer is None else zeroer.nonfinite_frames,
+            "in_contact": bool(zeroer is not None and zeroer.in_contact),
+            "waiting": self._waiting is not None,
+            "in_flight": self._in_flight is not None,
+            "latency_ms": self.latency_ms.summary(now),
+            "worker_ms": self.worker_ms.summary(now),
+            "worker_restarts": self.pool.restarts,
+            "recorded": 0 if self._recorder is None else self._recorder.frames_written,
+            "record_errors": self.record_errors,
+            "model": self.model,
+        }
+

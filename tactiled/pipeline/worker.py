@@ -1,0 +1,88 @@
+"""The fit worker process: builds its fitters once, then answers requests over a Connection.
+
+Runs in a child started with the ``forkserver`` (or ``spawn``) method, never ``fork``: the
+parent runs an asyncio loop, and forking a process with a running loop and threads is unsafe.
+The protocol is tuples pickled over one duplex ``multiprocessing`` Connection, answered strictly
+in order (which is what lets the parent give every outstanding request a deadline):
+
+- started with its initial specs, it answers ``("ready", pid, warm_up_s)``;
+- ``("fit", rid, spec, strain, model, mask)`` -> ``("result", rid, fit_json_dict | None,
+  compute_s, error | None)`` (the fitter raising costs one frame, never the worker);
+- ``("setup", rid, spec, SensorModel, options)`` -> ``("setup_done", rid, build_s, error)``;
+- ``("ping", rid)`` -> ``("pong", rid)``;
+- ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
+- ``("stop",)``: exit.
+
+``spec`` is a small integer naming a (SensorModel, FitOptions arguments) pair the parent
+registered.
+The worker exits when told to, or when the parent's end of the pipe closes (EOF): a daemon
+killed with SIGKILL leaves no orphaned workers behind.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from multiprocessing.connection import Connection
+from typing import Any
+
+from tactiled.config import SensorModel
+from tactiled.pipeline.estimate import plain
+
+#: (SensorModel, FitOptions keyword arguments as ``((name, value), ...)``)
+Spec = tuple[SensorModel, tuple[tuple[str, Any], ...]]
+
+
+def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
+    """Entry point of a worker process (the ``target`` of its ``Process``)."""
+    # Ctrl-C in a terminal signals the whole process group; the parent decides when a worker
+    # stops (so in-flight fits can finish), so the worker ignores it.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # Here, not at module level: the parent never needs the fitter.
+    from tactiled.fit.fitter import FitOptions, Fitter
+
+    t0 = time.perf_counter()
+    fitters: dict[int, Any] = {key: Fitter(sensor, FitOptions(**dict(options)))
+                               for key, (sensor, options) in specs.items()}
+    try:
+        conn.send(("ready", os.getpid(), time.perf_counter() - t0))
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                return  # the parent is gone
+            kind = msg[0]
+            if kind == "fit":
+                _, rid, spec, strain, model, mask = msg
+                t = time.perf_counter()
+                try:
+                    fitter = fitters.get(spec)
+                    if fitter is None:
+                        raise LookupError(f"no fitter for spec {spec} (its setup failed)")
+                    result = fitter.fit(strain, model, mask=mask)
+                    out, error = plain(result.to_json_dict()), None
+                except Exception as err:  # a fitter bug must cost one frame, not the worker
+                    out, error = None, f"{type(err).__name__}: {err}"
+                conn.send(("result", rid, out, time.perf_counter() - t, error))
+            elif kind == "ping":
+                conn.send(("pong", msg[1]))
+            elif kind == "setup":
+                _, rid, spec, sensor, options = msg
+                t = time.perf_counter()
+                try:
+                    fitters[spec] = Fitter(sensor, FitOptions(**dict(options)))
+                except Exception as err:  # its fits will then answer with an error
+                    conn.send(("setup_done", rid, time.perf_counter() - t,
+                               f"{type(err).__name__}: {err}"))
+                    continue
+                conn.send(("setup_done", rid, time.perf_counter() - t, None))
+            elif kind == "sleep":
+                time.sleep(msg[2])  # deliberately unresponsive: the parent must notice
+                conn.send(("slept", msg[1]))
+            elif kind == "stop":
+                return
+    except (BrokenPipeError, ConnectionResetError, EOFError):
+        return  # the parent went away while we answered
+    finally:
+        conn.close()

@@ -1,0 +1,516 @@
+"""Daemon configuration: a TOML file, ``TACTILED_*`` environment variables, explicit overrides.
+
+Precedence, lowest first: built-in defaults < the file < the environment < ``overrides`` (the
+command line).  Everything is validated once, here, and every problem is a
+:class:`~tactiled.errors.ConfigError` whose message starts with the offending key, e.g.
+``sensor[1].url: unknown scheme 'foo' (known: replay, serial, sim)``.
+
+Keys (the documented example is ``deploy/tactiled.toml``)::
+
+    [server]   host = "127.0.0.1", port = 8765, token = (none)
+    [[sensor]] name, url, wire_id, calibration, model, window, noise_sigma, false_rate,
+               reuse_unchanged, unchanged_z
+    [fit]      workers, start_method, timeout, ping_interval, ping_timeout, startup_timeout,
+               stop_timeout
+    [record]   path
+
+With no file and no sensor keys anywhere there is one sensor, ``finger0`` on
+``sim://?scene=demo&seed=1``.
+
+Environment: ``TACTILED_CONFIG`` names the file when ``path`` is None;
+``TACTILED_<SECTION>_<KEY>`` sets ``<section>.<key>`` (``TACTILED_SERVER_PORT``,
+``TACTILED_FIT_TIMEOUT``, ``TACTILED_RECORD_PATH``); ``TACTILED_SENSOR_<i>_<KEY>`` sets
+``sensor[i].<key>`` (``TACTILED_SENSOR_0_URL``; ``i`` may be one past the last sensor to add
+one).  An unknown name under those four prefixes is an error (a typo must not be ignored);
+other ``TACTILED_*`` names belong to other parts of tactiled and are left alone.  Overrides are
+a flat dict of the same dotted keys: ``{"server.port": 9000, "sensor[0].url": "..."}``.
+String values from the environment or overrides are parsed as the key's type (``""`` means
+"none" for optional keys).  Relative ``calibration`` and ``record.path`` values in the file are
+relative to the file's directory; elsewhere to the working directory.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from tactiled.errors import ConfigError
+
+DEFAULT_HOST = "127.0.0.1"
+#: The REST/WebSocket port.  8765 is unassigned by IANA and easy to remember.
+DEFAULT_PORT = 8765
+DEFAULT_URL = "sim://?scene=demo&seed=1"
+MODELS = ("auto", "cylinder", "sphere", "general")
+START_METHODS = ("forkserver", "spawn")
+ENV_PREFIX = "TACTILED_"
+ENV_CONFIG = "TACTILED_CONFIG"
+
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+
+
+@dataclass(frozen=True)
+class ServerSettings:
+    """Where the REST/WebSocket service listens (used by ``tactiled run``)."""
+
+    host: str = DEFAULT_HOST
+    port: int = DEFAULT_PORT  # 0: any free port
+    token: str | None = None  # bearer token for the API; None: no authentication
+
+
+@dataclass(frozen=True)
+class SensorSettings:
+    """One fingertip: where its frames come from and how they are turned into estimates."""
+
+    name: str = "finger0"  # how the API names the sensor
+    url: str = DEFAULT_URL  # frame source URL (serial://, sim://, replay://)
+    wire_id: int | None = None  # sensor_id in the frames; None: the calibration's, else any
+    calibration: str | None = None  # lookup-table file; None: the nominal linear table
+    model: str = "auto"  # contact model: auto (BIC choice), cylinder, sphere, general
+    window: int = 4  # side of the square fit window, tactels
+    noise_sigma: float = 0.0005  # strain noise of a zeroed tactel, 1 sigma (dimensionless)
+    false_rate: float = 1e-4  # false contacts per noise-only frame (contact threshold)
+    reuse_unchanged: bool = True  # gate: reuse the last fit for a frame unchanged within noise
+    unchanged_z: float = 3.0  # gate: "unchanged" means chi^2 <= n + z sqrt(2n), see gate.py
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """The fit worker processes (times in seconds)."""
+
+    workers: int = 0  # worker processes; 0: min(number of sensors, CPUs)
+    start_method: str = "forkserver"  # multiprocessing start method (never fork)
+    timeout: float = 1.0  # a fit with no answer within this is a hung worker: restarted
+    ping_interval: float = 0.5  # an idle worker is pinged this often
+    ping_timeout: float = 1.0  # ... and restarted if it does not answer within this
+    startup_timeout: float = 30.0  # a new worker must be ready (fitters warmed) within this
+    stop_timeout: float = 2.0  # graceful stop: in-flight fits get this long, then SIGKILL
+
+
+@dataclass(frozen=True)
+class RecordSettings:
+    """Recording of raw frames (tactiled/recording.py format), appended across restarts."""
+
+    path: str | None = None  # file path; must contain "{sensor}" with several sensors
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The daemon's whole configuration."""
+
+    server: ServerSettings = field(default_factory=ServerSettings)
+    sensors: tuple[SensorSettings, ...] = (SensorSettings(),)
+    fit: FitSettings = field(default_factory=FitSettings)
+    record: RecordSettings = field(default_factory=RecordSettings)
+    source: str | None = None  # the config file read, if any
+
+    def sensor(self, name: str) -> SensorSettings:
+        """The settings of sensor ``name`` (``KeyError`` if there is none)."""
+        for s in self.sensors:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+    def worker_count(self) -> int:
+        """Worker processes to start: ``fit.workers``, or min(sensors, CPUs) when 0."""
+        if self.fit.workers > 0:
+            return self.fit.workers
+        return max(1, min(len(self.sensors), os.cpu_count() or 1))
+
+    def record_path(self, sensor: str) -> Path | None:
+        """The recording file of ``sensor`` ("{sensor}" filled in), or None."""
+        if self.record.path is None:
+            return None
+        return Path(self.record.path.replace("{sensor}", sensor))
+
+
+# --------------------------------------------------------------------------------------------
+# Field checks: (value, key) -> checked value, or ConfigError naming the key.
+# Shared with the daemon's runtime update_config so both speak the same language.
+
+
+def _fail(key: str, message: str) -> ConfigError:
+    return ConfigError(f"{key}: {message}")
+
+
+class _Text(str):
+    """A value given as text (environment, overrides): parsed as the key's type.  Plain
+    ``str`` values come from the TOML file, which has types of its own: ``port = "80"`` there
+    is an error, not 80."""
+
+
+def _as_int(value: Any, key: str) -> int:
+    if isinstance(value, _Text):
+        try:
+            return int(value.strip(), 10)
+        except ValueError:
+            raise _fail(key, f"expected an integer, got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise _fail(key, f"expected an integer, got {value!r}")
+    return value
+
+
+def _as_float(value: Any, key: str) -> float:
+    if isinstance(value, _Text):
+        try:
+            value = float(value.strip())
+        except ValueError:
+            raise _fail(key, f"expected a number, got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _fail(key, f"expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise _fail(key, f"expected a finite number, got {value!r}")
+    return value
+
+
+def _as_bool(value: Any, key: str) -> bool:
+    if isinstance(value, _Text):
+        lowered = value.strip().lower()
+        if lowered in ("1", "true", "yes", "on"):
+            return True
+        if lowered in ("0", "false", "no", "off"):
+            return False
+        raise _fail(key, f"expected a boolean (true/false, 1/0, yes/no, on/off), got {value!r}")
+    if not isinstance(value, bool):
+        raise _fail(key, f"expected a boolean, got {value!r}")
+    return value
+
+
+def _as_str(value: Any, key: str) -> str:
+    if not isinstance(value, str):
+        raise _fail(key, f"expected a string, got {value!r}")
+    return str(value)
+
+
+def _optional(check: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
+    def checked(value: Any, key: str) -> Any:
+        if value is None or (isinstance(value, _Text) and value.strip() == ""):
+            return None
+        return check(value, key)
+
+    return checked
+
+
+def _positive(check: Callable[[Any, str], Any], what: str) -> Callable[[Any, str], Any]:
+    def checked(value: Any, key: str) -> Any:
+        v = check(value, key)
+        if not v > 0:
+            raise _fail(key, f"must be a positive {what}, got {v!r}")
+        return v
+
+    return checked
+
+
+def _in_range(check: Callable[[Any, str], Any], lo: float, hi: float,
+              what: str) -> Callable[[Any, str], Any]:
+    def checked(value: Any, key: str) -> Any:
+        v = check(value, key)
+        if not lo <= v <= hi:
+            raise _fail(key, f"must be {what} in {lo:g}..{hi:g}, got {v!r}")
+        return v
+
+    return checked
+
+
+def _choice(choices: tuple[str, ...]) -> Callable[[Any, str], str]:
+    def checked(value: Any, key: str) -> str:
+        v = _as_str(value, key).strip()
+        if v not in choices:
+            raise _fail(key, f"must be one of {', '.join(choices)}, got {v!r}")
+        return v
+
+    return checked
+
+
+def _name(value: Any, key: str) -> str:
+    v = _as_str(value, key)
+    if not _NAME_RE.match(v):
+        raise _fail(key, f"must be 1-64 letters, digits, '_', '.', '-' (starting with a letter "
+                         f"or digit), got {v!r}")
+    return v
+
+
+def _host(value: Any, key: str) -> str:
+    v = _as_str(value, key).strip()
+    if not v:
+        raise _fail(key, "must not be empty")
+    return v
+
+
+def _window(value: Any, key: str) -> int:
+    v = _as_int(value, key)
+    if not 2 <= v <= 255:
+        raise _fail(key, f"must be at least 2 tactels (and at most 255), got {v}")
+    return v
+
+
+def _false_rate(value: Any, key: str) -> float:
+    v = _as_float(value, key)
+    if not 0.0 < v < 1.0:
+        raise _fail(key, f"must be a probability in (0, 1), got {v!r}")
+    return v
+
+
+def _url(value: Any, key: str) -> str:
+    """A source URL whose scheme has a driver and whose parameters that driver accepts."""
+    from tactiled.errors import DriverError
+    from tactiled.sources import known_schemes, open_source, parse_source_url
+
+    text = _as_str(value, key).strip()
+    try:
+        parsed = parse_source_url(text)
+    except ValueError as err:
+        raise _fail(key, str(err)) from None
+    schemes = known_schemes()
+    if parsed.scheme not in schemes:
+        raise _fail(key, f"unknown scheme {parsed.scheme!r} (known: {', '.join(schemes)})")
+    try:
+        # Builds the driver object without any I/O: it checks the URL's parameters.
+        open_source(text)
+    except DriverError as err:
+        raise _fail(key, str(err)) from None
+    except ValueError as err:
+        raise _fail(key, str(err)) from None
+    return text
+
+
+_SERVER_FIELDS: dict[str, Callable[[Any, str], Any]] = {
+    "host": _host,
+    "port": _in_range(_as_int, 0, 65535, "a TCP port"),
+    "token": _optional(_as_str),
+}
+SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
+    "name": _name,
+    "url": _url,
+    "wire_id": _optional(_in_range(_as_int, 0, 65535, "a wire sensor id")),
+    "calibration": _optional(_as_str),
+    "model": _choice(MODELS),
+    "window": _window,
+    "noise_sigma": _positive(_as_float, "strain"),
+    "false_rate": _false_rate,
+    "reuse_unchanged": _as_bool,
+    "unchanged_z": _in_range(_as_float, 0.0, 1e6, "a z-score"),
+}
+FIT_FIELDS: dict[str, Callable[[Any, str], Any]] = {
+    "workers": _in_range(_as_int, 0, 256, "a worker count (0: automatic)"),
+    "start_method": _choice(START_METHODS),
+    "timeout": _positive(_as_float, "time in s"),
+    "ping_interval": _positive(_as_float, "time in s"),
+    "ping_timeout": _positive(_as_float, "time in s"),
+    "startup_timeout": _positive(_as_float, "time in s"),
+    "stop_timeout": _positive(_as_float, "time in s"),
+}
+_RECORD_FIELDS: dict[str, Callable[[Any, str], Any]] = {
+    "path": _optional(_as_str),
+}
+_SECTIONS: dict[str, dict[str, Callable[[Any, str], Any]]] = {
+    "server": _SERVER_FIELDS,
+    "fit": FIT_FIELDS,
+    "record": _RECORD_FIELDS,
+}
+#: Keys whose relative paths are taken relative to the config file.
+_PATH_KEYS = {("sensor", "calibration"), ("record", "path")}
+
+#: Sensor keys the daemon can change while running (Daemon.update_config).
+RUNTIME_SENSOR_KEYS = ("model", "window", "noise_sigma", "false_rate", "reuse_unchanged",
+                       "unchanged_z")
+
+
+def check_sensor_value(key: str, value: Any, where: str) -> Any:
+    """Check one sensor key's value; ``where`` names it in errors (``sensor[0].model``)."""
+    check = SENSOR_FIELDS.get(key)
+    if check is None:
+        raise _fail(where, f"unknown key (known: {', '.join(SENSOR_FIELDS)})")
+    return check(value, where)
+
+
+# --------------------------------------------------------------------------------------------
+# Loading and merging
+
+
+_KEY_RE = re.compile(r"^(?:(server|fit|record)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
+
+
+@dataclass
+class _Raw:
+    """The merged, not yet typed configuration, with where each value came from."""
+
+    sections: dict[str, dict[str, Any]] = field(
+        default_factory=lambda: {"server": {}, "fit": {}, "record": {}})
+    sensors: list[dict[str, Any]] = field(default_factory=list)
+    origin: dict[str, str] = field(default_factory=dict)  # dotted key -> where it was set
+
+    def set(self, dotted: str, value: Any, origin: str) -> None:
+        m = _KEY_RE.match(dotted)
+        if not m:
+            raise ConfigError(f"{dotted}: not a configuration key (write section.key or "
+                              f"sensor[i].key){_suffix(origin)}")
+        if m.group(1):
+            section, key = m.group(1), m.group(2)
+            if key not in _SECTIONS[section]:
+                raise ConfigError(f"{dotted}: unknown key (known in [{section}]: "
+                                  f"{', '.join(_SECTIONS[section])}){_suffix(origin)}")
+            self.sections[section][key] = value
+        else:
+            index, key = int(m.group(3)), m.group(4)
+            if key not in SENSOR_FIELDS:
+                raise ConfigError(f"{dotted}: unknown key (known in [[sensor]]: "
+                                  f"{', '.join(SENSOR_FIELDS)}){_suffix(origin)}")
+            if not self.sensors and index > 0:
+                self.sensors.append({})  # the implicit default sensor is sensor[0]
+            if index > len(self.sensors):
+                raise ConfigError(f"{dotted}: sensor index {index} skips ahead; the next sensor "
+                                  f"to add is sensor[{len(self.sensors)}]{_suffix(origin)}")
+            if index == len(self.sensors):
+                self.sensors.append({})
+            self.sensors[index][key] = value
+        self.origin[dotted] = origin
+
+
+def _suffix(origin: str) -> str:
+    return f" (from {origin})" if origin else ""
+
+
+def _resolve(value: Any, base: Path) -> Any:
+    if isinstance(value, str) and value.strip() and not os.path.isabs(value):
+        return str(base / value)
+    return value
+
+
+def _read_file(path: Path, raw: _Raw) -> None:
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such configuration file") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read configuration file: {err}") from err
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    base = path.parent
+    origin = str(path)
+    for top, body in doc.items():
+        if top == "sensor":
+            if not isinstance(body, list) or not all(isinstance(t, dict) for t in body):
+                raise ConfigError(f"sensor: must be an array of tables ([[sensor]]){_suffix(origin)}")
+            for i, table in enumerate(body):
+                for key, value in table.items():
+                    if ("sensor", key) in _PATH_KEYS:
+                        value = _resolve(value, base)
+                    raw.set(f"sensor[{i}].{key}", value, origin)
+        elif top in _SECTIONS:
+            if not isinstance(body, dict):
+                raise ConfigError(f"{top}: must be a table ([{top}]){_suffix(origin)}")
+            for key, value in body.items():
+                if (top, key) in _PATH_KEYS:
+                    value = _resolve(value, base)
+                raw.set(f"{top}.{key}", value, origin)
+        else:
+            raise ConfigError(f"{top}: unknown section (known: server, sensor, fit, "
+                              f"record){_suffix(origin)}")
+
+
+_ENV_SENSOR_RE = re.compile(r"^SENSOR_(\d+)_([A-Z_]+)$")
+
+
+def _read_env(env: Mapping[str, str], raw: _Raw) -> None:
+    # Sorted, so TACTILED_SENSOR_1_* (adding sensor 1) is applied before TACTILED_SENSOR_2_*.
+    def order(name: str) -> tuple[int, str]:
+        m = _ENV_SENSOR_RE.match(name[len(ENV_PREFIX):])
+        return (int(m.group(1)) if m else -1, name)
+
+    for name in sorted((n for n in env if n.startswith(ENV_PREFIX)), key=order):
+        rest = name[len(ENV_PREFIX):]
+        value = _Text(env[name])
+        m = _ENV_SENSOR_RE.match(rest)
+        if m:
+            raw.set(f"sensor[{int(m.group(1))}].{m.group(2).lower()}", value, name)
+            continue
+        section, _, key = rest.partition("_")
+        if section.lower() in _SECTIONS:
+            raw.set(f"{section.lower()}.{key.lower()}", value, name)
+        elif section == "SENSOR":
+            raise ConfigError(f"{name}: write TACTILED_SENSOR_<index>_<KEY>, e.g. "
+                              "TACTILED_SENSOR_0_URL")
+        # Any other TACTILED_* variable (TACTILED_CONFIG, ...) is not a settings key.
+
+
+def _build(raw: _Raw) -> Settings:
+    def typed(checks: dict[str, Callable[[Any, str], Any]], values: dict[str, Any], cls: type,
+              prefix: str) -> Any:
+        out = {}
+        for key, value in values.items():
+            dotted = f"{prefix}.{key}"
+            try:
+                out[key] = checks[key](value, dotted)
+            except ConfigError as err:
+                raise ConfigError(f"{err}{_suffix(raw.origin.get(dotted, ''))}") from None
+        return cls(**out)
+
+    server = typed(_SERVER_FIELDS, raw.sections["server"], ServerSettings, "server")
+    fit = typed(FIT_FIELDS, raw.sections["fit"], FitSettings, "fit")
+    record = typed(_RECORD_FIELDS, raw.sections["record"], RecordSettings, "record")
+    sensor_tables = raw.sensors or [{}]
+    sensors = []
+    for i, table in enumerate(sensor_tables):
+        values = {"name": f"finger{i}", **table}
+        sensors.append(typed(SENSOR_FIELDS, values, SensorSettings, f"sensor[{i}]"))
+    seen: dict[str, int] = {}
+    for i, s in enumerate(sensors):
+        if s.name in seen:
+            raise ConfigError(f"sensor[{i}].name: {s.name!r} is already the name of "
+                              f"sensor[{seen[s.name]}]")
+        seen[s.name] = i
+    for i, s in enumerate(sensors):
+        if s.calibration is not None and not Path(s.calibration).is_file():
+            raise ConfigError(f"sensor[{i}].calibration: no such file {s.calibration!r}"
+                              f"{_suffix(raw.origin.get(f'sensor[{i}].calibration', ''))}")
+    if record.path is not None and len(sensors) > 1 and "{sensor}" not in record.path:
+        raise ConfigError(f"record.path: must contain '{{sensor}}' with {len(sensors)} sensors "
+                          f"(one recording file per sensor), got {record.path!r}")
+    return Settings(server=server, sensors=tuple(sensors), fit=fit, record=record)
+
+
+def load_settings(path: str | os.PathLike[str] | None = None,
+                  env: Mapping[str, str] | None = None,
+                  overrides: Mapping[str, Any] | None = None) -> Settings:
+    """Defaults < TOML file ``path`` < ``env`` (``TACTILED_*``) < ``overrides`` (dotted keys).
+
+    ``path`` None: ``env["TACTILED_CONFIG"]`` if set, else no file.  ``env`` None: no
+    environment (pass ``os.environ`` explicitly; tests pass dicts).  Raises
+    :class:`~tactiled.errors.ConfigError` naming the key of the first problem.
+    """
+    env = {} if env is None else env
+    raw = _Raw()
+    if path is None and env.get(ENV_CONFIG):
+        path = env[ENV_CONFIG]
+    if path is not None:
+        _read_file(Path(path), raw)
+    _read_env(env, raw)
+    for dotted, value in (overrides or {}).items():
+        raw.set(dotted, _Text(value) if isinstance(value, str) else value, "overrides")
+    settings = _build(raw)
+    return replace(settings, source=None if path is None else str(path))
+
+
+def settings_to_dict(settings: Settings) -> dict[str, Any]:
+    """The settings as plain data, with the token masked (for logs and the health endpoint)."""
+    def table(obj: Any) -> dict[str, Any]:
+        return {f.name: getattr(obj, f.name) for f in fields(obj)}
+
+    server = table(settings.server)
+    if server["token"] is not None:
+        server["token"] = "***"
+    return {
+        "server": server,
+        "sensor": [table(s) for s in settings.sensors],
+        "fit": table(settings.fit),
+        "record": table(settings.record),
+        "source": settings.source,
+    }

@@ -1,0 +1,68 @@
+"""Gate: no contact, unchanged within noise (chi-square), changed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tactiled.physics.contact import Contact
+from tactiled.physics.strain import predict_strain
+from tactiled.pipeline.gate import Gate
+
+SIGMA = 0.0005
+
+
+def test_no_contact_is_decided_before_anything_else() -> None:
+    gate = Gate(SIGMA)
+    gate.fitted(np.zeros((8, 8)))
+    assert gate.decide(np.zeros((8, 8)), in_contact=False).action == "no_contact"
+
+
+def test_first_contact_frame_is_fitted_then_noise_only_changes_are_reused() -> None:
+    rng = np.random.default_rng(1)
+    clean = predict_strain(Contact(10.0, math.inf, 90.0, 1.0, 11.0, 13.0))
+    gate = Gate(SIGMA, z=3.0)
+    first = clean + rng.normal(0, SIGMA, clean.shape)
+    assert gate.decide(first, True).action == "fit"
+    gate.fitted(first)
+    actions = [gate.decide(clean + rng.normal(0, SIGMA, clean.shape), True).action
+               for _ in range(2000)]
+    refits = actions.count("fit") / len(actions)
+    # chi-square(64) beyond 64 + 3 sqrt(128): 0.4 % in theory.
+    assert refits < 0.015, refits
+    assert actions.count("unchanged") > 0.98 * len(actions)
+
+
+def test_a_change_the_fit_could_see_is_fitted() -> None:
+    rng = np.random.default_rng(2)
+    base = predict_strain(Contact(10.0, math.inf, 90.0, 1.0, 11.0, 13.0))
+    moved = predict_strain(Contact(10.0, math.inf, 90.0, 1.0, 11.5, 13.0))  # 0.5 mm along x
+    heavier = predict_strain(Contact(10.0, math.inf, 90.0, 1.1, 11.0, 13.0))  # +10 % force
+    gate = Gate(SIGMA)
+    gate.fitted(base + rng.normal(0, SIGMA, base.shape))
+    for changed in (moved, heavier):
+        decisions = [gate.decide(changed + rng.normal(0, SIGMA, base.shape), True)
+                     for _ in range(50)]
+        assert all(d.action == "fit" for d in decisions)
+        assert all(d.chi2 is not None and d.chi2 > 100 for d in decisions)
+
+
+def test_reset_and_disabling_reuse() -> None:
+    frame = np.full((8, 8), 0.01)
+    gate = Gate(SIGMA)
+    gate.fitted(frame)
+    assert gate.decide(frame, True).action == "unchanged"
+    gate.configure(reuse_unchanged=False)
+    assert gate.decide(frame, True).action == "fit"
+    gate.configure(reuse_unchanged=True)
+    gate.reset()
+    assert not gate.has_reference
+    assert gate.decide(frame, True).action == "fit"
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf])
+def test_bad_sigma_is_refused(bad: float) -> None:
+    with pytest.raises(ValueError, match="sigma"):
+        Gate(bad)

@@ -1,0 +1,42 @@
+"""The whole chain on the scene simulator (sim:// driver): simulated physics -> wire bytes ->
+decoder -> lookup table -> zeroing (with drift and hysteresis) -> gate -> worker fit."""
+
+from __future__ import annotations
+
+from pipeline_helpers import accounted, check_estimates, collect, strict_json
+
+from tactiled.config import Geometry
+from tactiled.pipeline import Daemon
+from tactiled.settings import load_settings
+
+
+def test_a_simulated_press_is_measured(arun) -> None:
+    # The "press" scene: a 10 mm cylinder at 90 deg pressed to 1 N at the array centre and held
+    # 1 s; 200 frames/s of device time, played as fast as possible, once.
+    url = "sim://?scene=press&seed=4&rate=200&speed=0&loop=0"
+    overrides = {"sensor[0].url": url, "sensor[0].model": "cylinder"}
+
+    async def main() -> tuple[list, dict]:
+        daemon = Daemon(load_settings(None, {}, overrides), lossless=True)
+        estimates = collect(daemon)
+        await daemon.start()
+        assert await daemon.wait_finished(60)
+        st = daemon.stats("finger0")
+        await daemon.stop()
+        return estimates, st
+
+    estimates, st = arun(main())
+    check_estimates(estimates, "finger0", 0)
+    assert st["frames"] == len(estimates) == accounted(st) == 600
+    g = Geometry()
+    # The hold: 1.0 .. 2.0 s of scene time.
+    held = [e for e in estimates if 1.05e6 <= e.device_time_us <= 1.95e6]
+    assert held and all(e.contact for e in held)
+    fits = [e.fit for e in held if e.gate == "fit"]
+    assert fits
+    for fit in fits:
+        strict_json(fit)
+        assert abs(fit["x_mm"] - g.span_x / 2) < 0.5 and abs(fit["y_mm"] - g.span_y / 2) < 0.5
+        assert abs(fit["force_n"] - 1.0) < 0.15
+        assert 7.0 < fit["r1_mm"] < 14.0 and abs(fit["angle_deg"] - 90.0) < 15.0
+    assert not estimates[0].contact and not estimates[-1].contact

@@ -1,0 +1,190 @@
+"""Fit workers: SIGKILL and hangs are noticed, counted and repaired without stale or NaN
+estimates; the pool survives bad input; the leak check catches a worker left running."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pipeline_helpers import (
+    SETTLE_FRAMES,
+    accounted,
+    check_estimates,
+    collect,
+    contact_path,
+    leftover_workers,
+    make_frames,
+    strict_json,
+    write_recording,
+)
+
+from tactiled.config import DEFAULT_SENSOR
+from tactiled.physics.contact import Contact
+from tactiled.physics.strain import predict_strain
+from tactiled.pipeline import Daemon
+from tactiled.pipeline.pool import FitJob, WorkerPool
+from tactiled.settings import FitSettings, load_settings
+
+
+def live_stream(tmp_path: Path, frames: int, period_s: float = 0.002) -> str:
+    """A replay URL paced in real time: a contact moving all the time (always refitted)."""
+    recording = write_recording(tmp_path / "live.tact",
+                                make_frames(contact_path(frames), seed=11), period_s)
+    return f"replay://{recording}?speed=1"
+
+
+def test_sigkilled_worker_is_replaced_within_a_second(tmp_path: Path, arun) -> None:
+    overrides = {"sensor[0].url": live_stream(tmp_path, 700),
+                 "sensor[0].reuse_unchanged": False, "sensor[0].model": "cylinder"}
+
+    async def main() -> tuple[list, dict, dict, float, float]:
+        daemon = Daemon(load_settings(None, {}, overrides))
+        estimates = collect(daemon)
+        await daemon.start()
+        pool = daemon.pool
+        while sum(e.gate == "fit" for e in estimates) < 10:
+            await asyncio.sleep(0.002)
+        while not pool.busy_pids():  # kill it mid-fit
+            await asyncio.sleep(0)
+        victim = pool.busy_pids()[0]
+        killed_at = time.monotonic()
+        os.kill(victim, signal.SIGKILL)
+        while not (pool.restarts == 1 and pool.stats()["workers"][0]["state"] == "ready"):
+            assert time.monotonic() - killed_at < 5.0, "no replacement worker"
+            await asyncio.sleep(0.002)
+        replaced_in = time.monotonic() - killed_at
+        assert pool.pids()[0] != victim
+        assert await daemon.wait_finished(30)
+        st = daemon.stats("finger0")
+        workers = daemon.stats()["workers"]
+        await daemon.stop()
+        return estimates, st, workers, killed_at, replaced_in
+
+    estimates, st, workers, killed_at, replaced_in = arun(main())
+    assert replaced_in < 1.0, f"replacement ready after {replaced_in:.3f} s"
+    assert workers["restarts"] == 1 and workers["restarts_by_reason"] == {"died": 1}
+    assert workers["last_restart"]["spawned_s"] < 1.0 and workers["last_restart"]["ready_s"] < 1.0
+    assert st["worker_restarts"] == 1
+    assert st["fit_failed"] <= 1  # the fit in flight is lost (unless it answered first)
+    check_estimates(estimates, "finger0", 0)  # in order, consistent, strict JSON
+    after = [e for e in estimates if e.gate == "fit" and e.published_time > killed_at + replaced_in]
+    assert len(after) >= 5, "fitting did not resume"
+    assert st["frames"] == accounted(st)
+
+
+def test_hung_worker_is_killed_and_replaced(tmp_path: Path, arun) -> None:
+    overrides = {"sensor[0].url": live_stream(tmp_path, 500), "fit.timeout": 0.3,
+                 "sensor[0].reuse_unchanged": False, "sensor[0].model": "cylinder"}
+
+    async def main() -> tuple[list, dict, dict, float, int]:
+        daemon = Daemon(load_settings(None, {}, overrides))
+        estimates = collect(daemon)
+        await daemon.start()
+        pool = daemon.pool
+        sensor = daemon.sensors["finger0"]
+        while sum(e.gate == "fit" for e in estimates) < 5:
+            await asyncio.sleep(0.002)
+        superseded_before = sensor.superseded
+        hung_at = time.monotonic()
+        victim = pool.debug_sleep(0, 30.0)  # the fit queued behind it never gets answered
+        assert victim is not None
+        while pool.restarts == 0:
+            assert time.monotonic() - hung_at < 3.0, "hung worker not noticed"
+            await asyncio.sleep(0.005)
+        noticed = time.monotonic() - hung_at
+        superseded_during = sensor.superseded - superseded_before
+        assert await daemon.wait_finished(30)
+        st = daemon.stats("finger0")
+        workers = daemon.stats()["workers"]
+        await daemon.stop()
+        return estimates, st, workers, noticed, superseded_during
+
+    estimates, st, workers, noticed, superseded_during = arun(main())
+    assert 0.3 <= noticed < 0.8, f"hang noticed after {noticed:.3f} s"
+    assert workers["restarts_by_reason"] == {"hung": 1}
+    assert workers["last_restart"]["ready_s"] < 1.0
+    assert st["fit_failed"] == 1  # the fit queued behind the hang
+    assert superseded_during > 10  # frames kept coming and replaced each other: no queue
+    check_estimates(estimates, "finger0", 0)
+    assert sum(e.gate == "fit" for e in estimates if e.seq > SETTLE_FRAMES + 200) >= 5
+    assert st["frames"] == accounted(st)
+
+
+class Owner:
+    """A minimal JobOwner: hands out given strain frames, keeps the answers."""
+
+    name = "owner"
+
+    def __init__(self, spec: int) -> None:
+        self.spec = spec
+        self.todo: list[np.ndarray] = []
+        self.since = time.monotonic()
+        self.results: list[tuple[dict[str, Any] | None, str | None]] = []
+        self.failed: list[str] = []
+
+    def job_waiting_since(self) -> float | None:
+        return self.since if self.todo else None
+
+    def take_job(self) -> FitJob:
+        return FitJob(owner=self, ordinal=len(self.results), seq=0, strain=self.todo.pop(0),
+                      model="auto", spec=self.spec)
+
+    def on_fit_result(self, job, fit, worker_ms, error) -> None:
+        self.results.append((fit, error))
+
+    def on_fit_failed(self, job, reason) -> None:
+        self.failed.append(reason)
+
+
+def test_worker_answers_nan_and_malformed_frames_and_survives(arun) -> None:
+    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+    with_nan = clean.copy()
+    with_nan[3, 3] = np.nan
+    with_nan[0, :] = np.inf
+    all_nan = np.full((8, 8), np.nan)
+    wrong_shape = np.zeros((3, 5))
+
+    async def main() -> Owner:
+        pool = WorkerPool(1, FitSettings())
+        owner = Owner(pool.register_spec(DEFAULT_SENSOR, (("window", 4),)))
+        pool.attach(owner)
+        await pool.start()
+        owner.todo = [with_nan, all_nan, wrong_shape, clean]
+        pool.wake()
+        t0 = time.monotonic()
+        while len(owner.results) < 4:
+            assert time.monotonic() - t0 < 10
+            await asyncio.sleep(0.005)
+        restarts = pool.restarts
+        await pool.stop()
+        assert restarts == 0
+        return owner
+
+    owner = arun(main())
+    (nan_fit, e1), (empty_fit, e2), (bad, error), (good, e4) = owner.results
+    assert e1 is None and e2 is None and e4 is None
+    for fit in (nan_fit, empty_fit, good):
+        strict_json(fit)
+    assert nan_fit["contact"] and abs(nan_fit["x_mm"] - 11.0) < 0.5
+    assert empty_fit["contact"] is False
+    assert bad is None and "ValueError" in error and "shape" in error
+    assert good["r1_mm"] is not None and abs(good["r1_mm"] - 10.0) < 1.0
+
+
+def test_the_leak_check_sees_a_worker_left_running(arun) -> None:
+    """The autouse fixture's check must be able to fail: a started pool is seen alive."""
+
+    async def main() -> None:
+        pool = WorkerPool(1, FitSettings())
+        await pool.start()
+        pids = [p for p in pool.pids() if p]
+        assert pids and leftover_workers(pids, grace=0.0) == pids
+        await pool.stop()
+        assert leftover_workers(pids) == []
+
+    arun(main())
