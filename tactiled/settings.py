@@ -75,6 +75,7 @@ class SensorSettings:
     window: int = 4  # side of the square fit window, tactels
     noise_sigma: float = 0.0005  # strain noise of a zeroed tactel, 1 sigma (dimensionless)
     false_rate: float = 1e-4  # false contacts per noise-only frame (contact threshold)
+    detector_average: int = 2  # frames the contact detector averages (latency for sensitivity)
     reuse_unchanged: bool = True  # gate: reuse the last fit for a frame unchanged within noise
     unchanged_z: float = 3.0  # gate: "unchanged" means chi^2 <= n + z sqrt(2n), see gate.py
 
@@ -294,6 +295,7 @@ SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "window": _window,
     "noise_sigma": _positive(_as_float, "strain"),
     "false_rate": _false_rate,
+    "detector_average": _in_range(_as_int, 1, 64, "a frame count"),
     "reuse_unchanged": _as_bool,
     "unchanged_z": _in_range(_as_float, 0.0, 1e6, "a z-score"),
 }

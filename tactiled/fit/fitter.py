@@ -129,17 +129,24 @@ class Fitter:
         model: str = "cylinder",
         start: np.ndarray | None = None,
         mask: np.ndarray | None = None,
+        warm: tuple[str, tuple[float, ...]] | None = None,
     ) -> FitResult:
         """Fit ``model`` ('cylinder', 'sphere', 'general' or 'auto') to a zeroed strain frame.
 
-        ``start`` is an internal parameter vector of that model (a warm start); ``mask`` marks
+        ``start`` is an internal parameter vector of that model; ``warm`` is the previous
+        frame's ``(result.model, result.params)`` on a persisting contact: it starts the same
+        model there, and under 'auto' keeps the model the data chose while its fit stays
+        consistent with the noise (the full choice is made again otherwise).  ``mask`` marks
         usable tactels (False for dead, saturated or non-finite ones; non-finite entries are
         masked automatically).
         """
         t0 = time.perf_counter()
         if model == "auto":
-            res = self._fit_auto(strain, mask)
+            res = self._fit_auto(strain, mask, warm)
         else:
+            get_model(model)  # ValueError naming the choices
+            if start is None and warm is not None and warm[0] == model and warm[1]:
+                start = np.asarray(warm[1], dtype=float)
             res = self._fit_model(strain, get_model(model), start, mask)
         res.fit_ms = (time.perf_counter() - t0) * 1e3
         return res
@@ -229,6 +236,12 @@ class Fitter:
             return False
         chi2 = sol.cost * peak * peak / (self.sigma * self.sigma)
         return chi2 <= 4.0 * n_points + 1e-4 * n_points * (peak / self.sigma) ** 2
+
+    def _consistent(self, res: FitResult) -> bool:
+        """chi^2 within 3 standard deviations of its expectation for a correct model."""
+        n, k = res.n_points, get_model(res.model).size
+        dof = max(n - k, 1)
+        return res.chi2 <= dof + 3.0 * math.sqrt(2.0 * dof)
 
     def _cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
         g = self.sensor.geometry
@@ -401,9 +414,18 @@ class Fitter:
         return model_name
 
     # ------------------------------------------------------------------------------------
-    def _fit_auto(self, strain: np.ndarray, mask: np.ndarray | None) -> FitResult:
+    def _fit_auto(self, strain: np.ndarray, mask: np.ndarray | None,
+                  warm: tuple[str, tuple[float, ...]] | None = None) -> FitResult:
         """Fit all three models and keep the lowest BIC with known noise,
-        ``chi^2 + k ln n`` (Schwarz): a parameter must buy more than ``ln n`` of chi^2."""
+        ``chi^2 + k ln n`` (Schwarz): a parameter must buy more than ``ln n`` of chi^2.
+
+        With ``warm`` (the previous frame's model and parameters) only that model is fitted,
+        from there, and kept if its chi^2 is consistent with the noise."""
+        if warm is not None and warm[0] in ("cylinder", "sphere", "general") and warm[1]:
+            kept = self._fit_model(strain, get_model(warm[0]), np.asarray(warm[1], dtype=float), mask)
+            if kept.contact and kept.chi2 is not None and kept.peak and self._consistent(kept):
+                kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
+                return kept
         cyl = self._fit_model(strain, get_model("cylinder"), None, mask)
         if not cyl.contact or cyl.chi2 is None or cyl.params is None:
             return cyl

@@ -61,8 +61,10 @@ class JobOwner(Protocol):
         """Hand over the waiting frame as a job (now in flight)."""
 
     def on_fit_result(self, job: FitJob, fit: dict[str, Any] | None, worker_ms: float,
-                      error: str | None) -> None:
-        """The worker answered (``fit`` is None and ``error`` says why if the fitter raised)."""
+                      error: str | None, warm: tuple[str, tuple[float, ...]] | None = None) -> None:
+        """The worker answered (``fit`` is None and ``error`` says why if the fitter raised);
+        ``warm`` is the solution as a warm start for the sensor's next frame (None if unfit
+        for one)."""
 
     def on_fit_failed(self, job: FitJob, reason: str) -> None:
         """The job is lost: its worker died, hung, or the pool stopped."""
@@ -79,6 +81,8 @@ class FitJob:
     model: str
     spec: int
     mask: np.ndarray | None = None  # usable tactels (None: all)
+    #: the sensor's previous fit on a persisting contact, ``(model, params)``: a warm start
+    warm: tuple[str, tuple[float, ...]] | None = None
     sent_at: float = 0.0
 
 
@@ -369,8 +373,8 @@ class WorkerPool:
             assert job is not None
             w.fits += 1
             self.fits += 1
-            _, _, fit, _compute_s, error = msg
-            job.owner.on_fit_result(job, fit, (now - job.sent_at) * 1e3, error)
+            _, _, fit, _compute_s, error, warm = msg
+            job.owner.on_fit_result(job, fit, (now - job.sent_at) * 1e3, error, warm)
             self.wake()
         elif kind == "setup_done" and msg[3] is not None:
             log.error("fit worker %d: fitter setup failed: %s", w.slot, msg[3])
@@ -402,7 +406,7 @@ class WorkerPool:
                     continue
             job.sent_at = time.monotonic()
             w.job = job
-            if not self._send(w, ("fit", job.spec, job.strain, job.model, job.mask), "fit",
+            if not self._send(w, ("fit", job.spec, job.strain, job.model, job.mask, job.warm), "fit",
                               self.settings.timeout, job):
                 continue  # _lose has failed the job already
 

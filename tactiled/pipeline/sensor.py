@@ -62,10 +62,13 @@ log = logging.getLogger(__name__)
 RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing source
 
 
+#: The daemon withholds a radius whose Cramer-Rao bound exceeds half of it ("force too low
+#: for curvature"; MODEL.md: radius is not observable at low force).
+WITHHOLD_RELATIVE_SIGMA = 0.5
 def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
     so this process never imports the fitter (numba, scipy: 1.3 s and ~100 MB)."""
-    return (("window", window),)
+    return (("window", window), ("withhold_relative_sigma", WITHHOLD_RELATIVE_SIGMA))
 
 
 @dataclass
@@ -128,6 +131,7 @@ class SensorPipeline:
         self._waiting: _Waiting | None = None
         self._in_flight: _Waiting | None = None
         self._last_fit: Estimate | None = None
+        self._warm: tuple[str, tuple[float, ...]] | None = None  # previous fit: a warm start
         self._settled = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
         self._recorder: Recorder | None = None
@@ -307,6 +311,7 @@ class SensorPipeline:
         if action == GATE_NO_CONTACT:
             self.gate.reset()
             self._last_fit = None
+            self._warm = None
             self.skipped[GATE_NO_CONTACT] += 1
             self._supersede_waiting()
             self._publish(waiting, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
@@ -335,7 +340,7 @@ class SensorPipeline:
         table = self.table or LookupTable.linear(g.rows, g.cols, sensor_id=sensor_id)
         s = self.settings
         detector = ContactDetector(s.noise_sigma, sensor=self.sensor_model,
-                                   false_rate=s.false_rate)
+                                   false_rate=s.false_rate, average=s.detector_average)
         self.stage = CalibrationStage(table, Zeroer(table.shape, detector=detector))
         self.sensor_id = sensor_id
 
@@ -369,10 +374,10 @@ class SensorPipeline:
         assert w is not None and self._in_flight is None
         self._waiting, self._in_flight = None, w
         return FitJob(owner=self, ordinal=w.ordinal, seq=w.seq, strain=w.strain,
-                      model=self.model, spec=self.spec, mask=self.mask)
+                      model=self.model, spec=self.spec, mask=self.mask, warm=self._warm)
 
     def on_fit_result(self, job: FitJob, fit: dict[str, Any] | None, worker_ms: float,
-                      error: str | None) -> None:
+                      error: str | None, warm: tuple[str, tuple[float, ...]] | None = None) -> None:
         w, self._in_flight = self._in_flight, None
         try:
             if w is None or w.ordinal != job.ordinal:  # cannot happen: one job in flight
@@ -393,10 +398,12 @@ class SensorPipeline:
             est = self._publish(w, GATE_FIT, w.seq, worker_ms, fit)
             if est.contact and all(fit.get(k) is not None for k in ("x_mm", "y_mm")):
                 self._last_fit = est
+                self._warm = warm  # the contact persists: start the next fit here
                 self.gate.fitted(w.strain)
                 self._regate_waiting()
             else:
                 self._last_fit = None
+                self._warm = None
                 self.gate.reset()
         finally:
             self._check_settled()
@@ -416,6 +423,7 @@ class SensorPipeline:
             self.stage.tare()
         self.gate.reset()
         self._last_fit = None
+        self._warm = None
 
     def runtime_config(self) -> dict[str, Any]:
         from tactiled.settings import RUNTIME_SENSOR_KEYS
@@ -434,12 +442,14 @@ class SensorPipeline:
                             reuse_unchanged=s.reuse_unchanged)
         if self.stage is not None:
             det = self.stage.zeroer.detector
-            enter = detection_threshold(s.noise_sigma, s.false_rate, sensor=self.sensor_model)
+            enter = detection_threshold(s.noise_sigma / math.sqrt(det.average), s.false_rate,
+                                        sensor=self.sensor_model)
             det.sigma = s.noise_sigma
             det.enter_threshold, det.exit_threshold = enter, DEFAULT_EXIT_FRACTION * enter
         # A fit made under other settings must not be reused for new frames.
         self.gate.reset()
         self._last_fit = None
+        self._warm = None
 
     # -- reporting ------------------------------------------------------------------------------
 

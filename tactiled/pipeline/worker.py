@@ -6,8 +6,9 @@ The protocol is tuples pickled over one duplex ``multiprocessing`` Connection, a
 in order (which is what lets the parent give every outstanding request a deadline):
 
 - started with its initial specs, it answers ``("ready", pid, warm_up_s)``;
-- ``("fit", rid, spec, strain, model, mask)`` -> ``("result", rid, fit_json_dict | None,
-  compute_s, error | None)`` (the fitter raising costs one frame, never the worker);
+- ``("fit", rid, spec, strain, model, mask, warm)`` -> ``("result", rid, fit_json_dict | None,
+  compute_s, error | None, warm | None)`` (the fitter raising costs one frame, never the
+  worker); ``warm`` is ``(model, params)`` of a converged fit, the next frame's warm start;
 - ``("setup", rid, spec, SensorModel, options)`` -> ``("setup_done", rid, build_s, error)``;
 - ``("ping", rid)`` -> ``("pong", rid)``;
 - ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
@@ -54,17 +55,20 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 return  # the parent is gone
             kind = msg[0]
             if kind == "fit":
-                _, rid, spec, strain, model, mask = msg
+                _, rid, spec, strain, model, mask, warm = msg
                 t = time.perf_counter()
+                follow = None
                 try:
                     fitter = fitters.get(spec)
                     if fitter is None:
                         raise LookupError(f"no fitter for spec {spec} (its setup failed)")
-                    result = fitter.fit(strain, model, mask=mask)
+                    result = fitter.fit(strain, model, mask=mask, warm=warm)
                     out, error = plain(result.to_json_dict()), None
+                    if result.converged and result.params is not None and result.model:
+                        follow = (result.model, result.params)
                 except Exception as err:  # a fitter bug must cost one frame, not the worker
                     out, error = None, f"{type(err).__name__}: {err}"
-                conn.send(("result", rid, out, time.perf_counter() - t, error))
+                conn.send(("result", rid, out, time.perf_counter() - t, error, follow))
             elif kind == "ping":
                 conn.send(("pong", msg[1]))
             elif kind == "setup":

@@ -163,7 +163,9 @@ def test_a_result_older_than_the_last_estimate_is_dropped(arun) -> None:
     released = make_frames([], settle=1, start_seq=SETTLE_FRAMES + 1, seed=9)[0]
 
     async def main() -> tuple[list, dict]:
-        daemon = Daemon(load_settings(None, {}, {"sensor[0].url": "replay://unused.tact"}),
+        # one-frame contact decisions, so a single release frame ends the contact
+        daemon = Daemon(load_settings(None, {}, {"sensor[0].url": "replay://unused.tact",
+                                                 "sensor[0].detector_average": 1}),
                         sources={"finger0": source})
         estimates = collect(daemon)
         await daemon.start()
@@ -322,3 +324,30 @@ def test_stop_is_graceful_and_flushes_the_recording(tmp_path: Path, arun) -> Non
     recorded = read_recording(tmp_path / "finger0.tact")
     assert len(recorded) == st["frames"] == st["recorded"] > SETTLE_FRAMES
     assert math.isfinite(took)
+
+
+def test_a_persisting_contact_is_fitted_from_the_previous_solution(tmp_path: Path, arun) -> None:
+    """Warm starts: once a contact is fitted, each next fit starts from that solution (and under
+    'auto' keeps the model the data chose while it fits within noise)."""
+    truth = contact_path(30)
+    frames = make_frames(truth, seed=4, tail=5)
+    overrides = {
+        "sensor[0].url": f"replay://{write_recording(tmp_path / 'w.tact', frames)}?speed=0",
+        "sensor[0].reuse_unchanged": False,  # every contact frame is fitted
+    }
+
+    async def main() -> list:
+        daemon = Daemon(load_settings(None, {}, overrides), lossless=True)
+        estimates = collect(daemon)
+        await daemon.start()
+        assert await daemon.wait_finished(60)
+        await daemon.stop()
+        return estimates
+
+    estimates = arun(main())
+    fitted = [e for e in estimates if e.gate == "fit" and e.contact]
+    assert len(fitted) >= 20
+    warm = [e for e in fitted if e.fit["message"].startswith("model ") and "kept from the previous frame" in e.fit["message"]]
+    # the first fit of the contact is cold; nearly all that follow are warm
+    assert not fitted[0].fit["message"].startswith("model ")
+    assert len(warm) >= len(fitted) - 3, [e.fit["message"] for e in fitted]

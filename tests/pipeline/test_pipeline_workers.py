@@ -134,7 +134,7 @@ class Owner:
         return FitJob(owner=self, ordinal=len(self.results), seq=0, strain=self.todo.pop(0),
                       model="auto", spec=self.spec)
 
-    def on_fit_result(self, job, fit, worker_ms, error) -> None:
+    def on_fit_result(self, job, fit, worker_ms, error, warm=None) -> None:
         self.results.append((fit, error))
 
     def on_fit_failed(self, job, reason) -> None:
