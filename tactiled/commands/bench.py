@@ -9,6 +9,8 @@ Suites (default: all):
   skip        the daemon's per-frame skips: no contact (false/missed rates, cost of an empty
               frame), unchanged frames, too light for curvature, and a scripted scene at 1 kHz
               with all skipping on and off (frames/s, errors)
+  acquisition three simulated fingers at 1 kHz over real ptys through the whole daemon:
+              frames lost, every frame accounted for, fit rate, latency p50/p99
   foundation  the fitter against its bars: noise-free recovery from the reference integration,
               noisy efficiency (RMS/CRB, 2-sigma coverage), the paper's Table 1, speed
 
@@ -26,7 +28,7 @@ import platform
 import sys
 import time
 
-SUITES = ("configs", "models", "skip", "foundation")
+SUITES = ("configs", "models", "skip", "foundation", "acquisition")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -131,5 +133,9 @@ def run(args: argparse.Namespace) -> int:
         out += ["", "## Foundation: noisy frames against the Cramer-Rao bound", "", text]
         out += ["", "## Foundation: the paper's Table 1 in simulation", "", foundation.paper_table1(args.quick, args.progress)]
         out += ["", "## Foundation: speed", "", foundation.speed(args.quick, args.progress)]
+    if "acquisition" in suites:
+        from tactiled.bench import acquisition
+
+        out += ["", "## Acquisition: three fingers at 1 kHz over ptys", "", acquisition.run(args.quick)]
     print("\n".join(out))
     return 0
