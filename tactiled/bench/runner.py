@@ -143,14 +143,16 @@ def run_estimators(
     bar = Progress(len(frames), "configurations", progress)
     scene = None
     pairs = list(zip(estimators, rows))
-    for i, (bf, truth) in enumerate(zip(frames, truths)):
+    order_rng = np.random.default_rng(0)
+    for bf, truth in zip(frames, truths):
         if bf.scene != scene:
             for est in estimators:
                 est.reset()
             scene = bf.scene
-        # rotate who goes first: the first to touch a new frame pays its cache misses
-        k = i % len(pairs)
-        for est, row in pairs[k:] + pairs[:k]:
+        # a fresh random order each frame: no estimator always goes first (paying the new
+        # frame's cache misses) or always follows the same neighbour (inheriting its cache)
+        for idx in order_rng.permutation(len(pairs)):
+            est, row = pairs[idx]
             w0, t0 = time.perf_counter(), time.thread_time()
             vals = est.estimate(bf.strain)
             row.times_ms.append((time.thread_time() - t0) * 1e3)

@@ -35,13 +35,20 @@ DAEMON_AVERAGE = 2  # frames the daemon's contact detector averages (1 ms at 1 k
 
 def _contacts_005(rng: np.random.Generator, n: int, sensor: SensorModel, near_axis: bool) -> list[Contact]:
     """0.05 N cylinders, R 1-50 mm, centred anywhere on the array; psi 30-150 deg, or (the
-    paper's line-contact failure case) within 30 deg of the finger axis."""
+    paper's line-contact failure case) within 30 deg of the finger axis (but not so close that
+    the contact is too long to model at all: those are redrawn)."""
     g = sensor.geometry
-    out = []
-    for _ in range(n):
+    model = StrainModel(sensor)
+    out: list[Contact] = []
+    while len(out) < n:
         psi = float(rng.uniform(30, 150)) if not near_axis else float(rng.uniform(-29.5, 29.5)) % 180.0
-        out.append(Contact(float(math.exp(rng.uniform(0, math.log(50)))), math.inf, psi or 1.0,
-                           0.05, float(rng.uniform(0, g.span_x)), float(rng.uniform(0, g.span_y))))
+        c = Contact(float(math.exp(rng.uniform(0, math.log(50)))), math.inf, psi or 1.0,
+                    0.05, float(rng.uniform(0, g.span_x)), float(rng.uniform(0, g.span_y)))
+        try:
+            model.predict(c, [c.x0], [c.y0])
+        except ValueError:
+            continue
+        out.append(c)
     return out
 
 
