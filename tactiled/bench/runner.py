@@ -230,7 +230,8 @@ def markdown_table(rows: list[Row]) -> str:
 
 
 def pareto_plot(rows: list[Row], path: str) -> None:
-    """Scatter of median time against RMS error / CRB, the front joined (needs matplotlib:
+    """Median CPU time against RMS error / CRB, one numbered point per row (red: on the
+    three-objective Pareto front), with a zoom on the full fits (needs matplotlib:
     ``pip install 'tactiled[plot]'``)."""
     import matplotlib
 
@@ -238,20 +239,25 @@ def pareto_plot(rows: list[Row], path: str) -> None:
     import matplotlib.pyplot as plt
 
     front = pareto_front(rows)
-    fig, ax = plt.subplots(figsize=(8, 5))
-    for row, on in zip(rows, front):
-        t, a = row.time_stats()[0], row.rms_over_crb()
-        ax.scatter([t], [a], color="tab:red" if on else "tab:gray", zorder=3)
-        ax.annotate(row.name, (t, a), fontsize=7, xytext=(4, 4), textcoords="offset points")
-    pts = sorted((r.time_stats()[0], r.rms_over_crb()) for r, on in zip(rows, front) if on)
-    if pts:
-        ax.plot(*zip(*pts), color="tab:red", lw=1)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("median CPU time per frame (ms)")
-    ax.set_ylabel("RMS error / Cramer-Rao bound")
-    ax.set_title("tactiled bench: run time against error")
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+    pts = [(r.time_stats()[0], r.rms_over_crb()) for r in rows]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5.5), gridspec_kw={"width_ratios": [1, 1.3]})
+    fits = [i for i, (_, a) in enumerate(pts) if a < 2.0]
+    for ax, idx, title in ((axes[0], range(len(rows)), "all configurations"),
+                           (axes[1], fits, "the full fits (zoom)")):
+        for i in idx:
+            t, a = pts[i]
+            ax.scatter([t], [a], color="tab:red" if front[i] else "tab:gray", zorder=3)
+            ax.annotate(str(i + 1), (t, a), fontsize=9, xytext=(3, 3), textcoords="offset points")
+        ax.set_xlabel("median CPU time per frame (ms)")
+        ax.set_ylabel("RMS error / Cramer-Rao bound")
+        ax.set_title(title)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].set_xscale("log")
+    axes[0].set_yscale("log")
+    legend = "\n".join(f"{i + 1}. {r.name}{'' if front[i] else '  (dominated)'}" for i, r in enumerate(rows))
+    fig.text(0.01, 0.01, legend, fontsize=7, va="bottom", family="monospace")
+    fig.suptitle("tactiled bench: run time against error (red: Pareto front over time, "
+                 "RMS/CRB and noise-free bias)", fontsize=10)
+    fig.tight_layout(rect=(0, 0.22, 1, 0.95))
     fig.savefig(path, dpi=120)
     plt.close(fig)
