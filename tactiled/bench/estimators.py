@@ -12,7 +12,6 @@ import numpy as np
 
 from tactiled.config import SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
-from tactiled.fit.models import VALUE_KEYS, get_model
 from tactiled.fit.start import features, force_estimate, start_table
 from tactiled.fit.window import interpolated_peak
 

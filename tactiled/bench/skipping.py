@@ -26,7 +26,7 @@ from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 from tactiled.pipeline.gate import Gate
-from tactiled.sim import FingerSimulator, Pose, SceneBuilder
+from tactiled.sim import FingerSimulator, Pose, Scene, SceneBuilder
 
 #: MODEL.md's sensor noise (the paper's +/-0.05 % quantisation bound as a sigma).
 NOISE = NoiseModel(sigma=0.0005)
@@ -56,7 +56,7 @@ def no_contact(quick: bool, progress: bool | None) -> str:
     sensor = SensorModel(noise=NOISE)
     rng = np.random.default_rng(31)
     n_noise = 200_000 if quick else 2_000_000
-    single = ContactDetector(sensor=sensor)
+    single = ContactDetector(sensor=sensor, exit_fraction=1.0)  # single frames, no hysteresis
     bar = Progress(3, "no-contact decision", progress)
     # false contacts, one frame at a time (the statistic of each frame against its threshold)
     false_single = 0
@@ -179,9 +179,10 @@ def too_light(quick: bool, progress: bool | None) -> str:
     return "\n".join(out)
 
 
-def scripted_scene(geometry_sensor: SensorModel | None = None) -> "Scene":  # noqa: F821
+def scripted_scene(geometry_sensor: SensorModel | None = None) -> Scene:
+    """A few seconds of approach, press, roll, rotate, hold and release."""
     g = (geometry_sensor or SensorModel()).geometry
-    xc, yc = g.span_x / 2, g.span_y / 2
+    yc = g.span_y / 2
     return (SceneBuilder(Pose(r1=10.0, psi_deg=90.0, x0=0.3 * g.span_x, y0=yc))
             .idle(0.3).approach(0.2).press(0.4, force=1.0)
             .roll(1.0, x0=0.7 * g.span_x).rotate(1.0, psi_deg=40.0)

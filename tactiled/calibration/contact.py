@@ -45,6 +45,8 @@ from tactiled.config import DEFAULT_SENSOR, SensorModel
 from tactiled.physics.impulse import line_response
 
 DEFAULT_FALSE_RATE = 1e-4
+#: Frames a false entry is held by hysteresis, as budgeted (measured mean: 1.6 at exit 0.6).
+HYSTERESIS_DWELL = 2.0
 DEFAULT_EXIT_FRACTION = 0.6
 DEFAULT_SUBDIVIDE = 2  # template centres every half pitch
 DEFAULT_REACH = 1.5  # pitches: 3 tactels around an on-tactel centre, 4 around a half-way one
@@ -137,25 +139,16 @@ class ContactDetector:
         exit_threshold: float | None = None,
         average: int = 1,
     ) -> None:
-        self.sigma = float(sensor.noise.effective_sigma if sigma is None else sigma)
         if not (isinstance(average, int) and 1 <= average <= 64):
             raise ValueError(f"average must be an integer from 1 to 64 frames, got {average!r}")
+        if not 0.0 < exit_fraction <= 1.0:
+            raise ValueError(f"exit_fraction must lie in (0, 1], got {exit_fraction!r}")
         self.average = average
-        if enter_threshold is None:
-            # the mean of `average` frames has noise sigma / sqrt(average)
-            enter_threshold = detection_threshold(self.sigma / math.sqrt(average), false_rate,
-                                                  sensor=sensor, subdivide=subdivide, reach=reach)
-        if exit_threshold is None:
-            if not 0.0 < exit_fraction <= 1.0:
-                raise ValueError(f"exit_fraction must lie in (0, 1], got {exit_fraction!r}")
-            exit_threshold = exit_fraction * enter_threshold
-        if not (math.isfinite(enter_threshold) and 0 < exit_threshold <= enter_threshold):
-            raise ValueError(
-                f"need 0 < exit_threshold <= enter_threshold, got {exit_threshold!r}, "
-                f"{enter_threshold!r}"
-            )
-        self.enter_threshold = float(enter_threshold)
-        self.exit_threshold = float(exit_threshold)
+        self._sensor, self._subdivide, self._reach = sensor, subdivide, reach
+        self._exit_fraction = exit_fraction
+        self.configure(sigma=float(sensor.noise.effective_sigma if sigma is None else sigma),
+                       false_rate=false_rate, enter_threshold=enter_threshold,
+                       exit_threshold=exit_threshold)
         self.shape = (sensor.geometry.rows, sensor.geometry.cols)
         ax, ay = filter_matrices(sensor, subdivide, reach)
         self._ax, self._ay_t = ax, np.ascontiguousarray(ay.T)
@@ -167,6 +160,31 @@ class ContactDetector:
         self.nonfinite_frames = 0
         self._recent: list[np.ndarray] = []  # the last `average` filter maps (update only)
         self._sum: np.ndarray | None = None
+
+    def configure(self, *, sigma: float | None = None, false_rate: float = DEFAULT_FALSE_RATE,
+                  enter_threshold: float | None = None, exit_threshold: float | None = None) -> None:
+        """Set the thresholds (at run time too): from the noise ``sigma`` (strain) and the
+        false-contact budget, or given directly (strain)."""
+        if sigma is not None:
+            self.sigma = float(sigma)
+        if enter_threshold is None:
+            # The mean of `average` frames has noise sigma / sqrt(average).  With hysteresis a
+            # false entry is held until the noise falls below the exit threshold: measured, it
+            # lasts 1.6 frames on average at exit_fraction 0.6, so entries are set for half the
+            # false-contact budget to keep false contact *frames* within it.
+            dwell = HYSTERESIS_DWELL if self._exit_fraction < 1.0 else 1.0
+            enter_threshold = detection_threshold(
+                self.sigma / math.sqrt(self.average), false_rate / dwell,
+                sensor=self._sensor, subdivide=self._subdivide, reach=self._reach)
+        if exit_threshold is None:
+            exit_threshold = self._exit_fraction * enter_threshold
+        if not (math.isfinite(enter_threshold) and 0 < exit_threshold <= enter_threshold):
+            raise ValueError(
+                f"need 0 < exit_threshold <= enter_threshold, got {exit_threshold!r}, "
+                f"{enter_threshold!r}"
+            )
+        self.enter_threshold = float(enter_threshold)
+        self.exit_threshold = float(exit_threshold)
 
     def _filter(self, zeroed: ArrayLike) -> tuple[np.ndarray, bool]:
         """(filter map T of one frame, whether it had non-finite entries)."""

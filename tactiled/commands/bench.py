@@ -50,14 +50,14 @@ def _header(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from tactiled.bench import foundation, runner
-    from tactiled.bench.estimators import FitEstimator, default_configurations
+    from tactiled.bench.estimators import default_configurations
     from tactiled.bench.suite import BENCH_NOISE, build_suite
     from tactiled.config import SensorModel
     from tactiled.fit.fitter import FitOptions, Fitter
 
     if args.plot:
         try:
-            import matplotlib  # noqa: F401
+            import matplotlib  # noqa: F401  (only to fail early and clearly)
         except ImportError:
             print("tactiled bench: error: --plot needs matplotlib: pip install 'tactiled[plot]'", file=sys.stderr)
             return 2

@@ -27,11 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.calibration.contact import (
-    DEFAULT_EXIT_FRACTION,
-    ContactDetector,
-    detection_threshold,
-)
+from tactiled.calibration.contact import ContactDetector
 from tactiled.calibration.fileformat import load_calibration
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
@@ -441,11 +437,7 @@ class SensorPipeline:
         self.gate.configure(sigma=s.noise_sigma, z=s.unchanged_z,
                             reuse_unchanged=s.reuse_unchanged)
         if self.stage is not None:
-            det = self.stage.zeroer.detector
-            enter = detection_threshold(s.noise_sigma / math.sqrt(det.average), s.false_rate,
-                                        sensor=self.sensor_model)
-            det.sigma = s.noise_sigma
-            det.enter_threshold, det.exit_threshold = enter, DEFAULT_EXIT_FRACTION * enter
+            self.stage.zeroer.detector.configure(sigma=s.noise_sigma, false_rate=s.false_rate)
         # A fit made under other settings must not be reused for new frames.
         self.gate.reset()
         self._last_fit = None
