@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from tactiled.bench.runner import Progress
-from tactiled.bench.suite import BENCH_NOISE
+from tactiled.bench.suite import BENCH_NOISE, issue_cylinder
 from tactiled.config import SensorModel
 from tactiled.fit.fitter import Fitter
 from tactiled.fit.models import get_model
@@ -97,8 +97,7 @@ def noisy_efficiency(quick: bool, progress: bool | None) -> tuple[str, dict[str,
     times: list[float] = []
     bar = Progress(scenes, "noisy frames vs Cramer-Rao", progress)
     for _ in range(scenes):
-        c = Contact(float(math.exp(rng.uniform(0, math.log(50)))), math.inf, float(rng.uniform(30, 150)),
-                    float(rng.uniform(0.5, 2.0)), float(rng.uniform(5.0, 18.0)), float(rng.uniform(6.0, 21.0)))
+        c = issue_cylinder(rng)
         clean = model.predict(c)
         truth = {"r1_mm": c.r1, "angle_deg": c.psi_deg, "force_n": c.force, "x_mm": c.x0, "y_mm": c.y0}
         p_true = get_model("cylinder").from_values(c.r1, c.r2, c.psi_deg, c.force, c.x0, c.y0)
@@ -176,8 +175,7 @@ def speed(quick: bool, progress: bool | None) -> str:
     n = 300 if quick else 2000
     frames = []
     for _ in range(n):
-        c = Contact(float(math.exp(rng.uniform(0, math.log(50)))), math.inf, float(rng.uniform(30, 150)),
-                    float(rng.uniform(0.5, 2.0)), float(rng.uniform(5.0, 18.0)), float(rng.uniform(6.0, 21.0)))
+        c = issue_cylinder(rng)
         frames.append((c, add_noise(model.predict(c), BENCH_NOISE, rng)))
     out: dict[str, tuple[list[float], list[float]]] = {}
     bar = Progress(4, "speed", progress)

@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from tactiled.bench.runner import Progress
+from tactiled.bench.suite import issue_cylinder
 from tactiled.calibration.contact import ContactDetector
 from tactiled.config import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
@@ -164,8 +165,7 @@ def too_light(quick: bool, progress: bool | None) -> str:
         withheld = 0
         er, ef = [], []
         for _ in range(n):
-            c = Contact(float(math.exp(rng.uniform(0, math.log(50)))), math.inf, float(rng.uniform(30, 150)), f,
-                        float(rng.uniform(5, 18)), float(rng.uniform(6, 21)))
+            c = issue_cylinder(rng, force=f)
             res = fitter.fit(model.predict(c) + rng.normal(0, NOISE.sigma, (8, 8)), "cylinder")
             if res.values["r1_mm"] is None:
                 withheld += 1
