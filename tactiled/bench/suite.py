@@ -54,9 +54,10 @@ def random_contact(rng: np.random.Generator, kind: str, sensor: SensorModel) -> 
 def issue_cylinder(rng: np.random.Generator, force: float | None = None) -> Contact:
     """A cylinder from the issues' range: R 1-50 mm (log-uniform), psi 30-150 deg, force
     0.5-2 N (or ``force``), centre a pitch or more inside the array (x 5-18, y 6-21 mm)."""
+    r = float(math.exp(rng.uniform(0.0, math.log(50.0))))
+    psi = float(rng.uniform(30.0, 150.0))
     f = float(rng.uniform(0.5, 2.0)) if force is None else force
-    return Contact(float(math.exp(rng.uniform(0.0, math.log(50.0)))), math.inf, float(rng.uniform(30.0, 150.0)),
-                   f, float(rng.uniform(5.0, 18.0)), float(rng.uniform(6.0, 21.0)))
+    return Contact(r, math.inf, psi, f, float(rng.uniform(5.0, 18.0)), float(rng.uniform(6.0, 21.0)))
 
 
 def build_suite(
