@@ -1,0 +1,248 @@
+"""The FastAPI app: REST under ``/v1``, the stream at ``/v1/stream``, the dashboard at ``/``.
+
+Every handler is ``async def`` so it runs on the loop that runs the pipeline (the daemon's
+objects are not thread-safe).  Errors are ``{"detail": "<precise message>"}``: 404 for an
+unknown sensor, 400/415/422 for a malformed request (422 names the offending key), 401/403 for
+credentials; never a 5xx for anything a client sent.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from fastapi import Depends, FastAPI, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.routing import WebSocketRoute
+
+from tactiled import __version__
+from tactiled.errors import ConfigError
+from tactiled.pipeline import Daemon, UnknownSensorError
+from tactiled.settings import Settings
+from tactiled_service import dashboard
+from tactiled_service.auth import AuthPolicy, Denial, HostGuard
+from tactiled_service.health import HealthMonitor
+from tactiled_service.messages import Encoder
+from tactiled_service.options import ServiceOptions
+from tactiled_service.schemas import (
+    ConfigPatch,
+    ConfigResponse,
+    ErrorResponse,
+    EstimateMessage,
+    FrameMessage,
+    HealthResponse,
+    SensorsResponse,
+    TareResponse,
+    VersionResponse,
+)
+from tactiled_service.stream import StreamEndpoint, StreamManager
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Context:
+    """Everything the handlers share (one per server)."""
+
+    daemon: Daemon
+    settings: Settings
+    options: ServiceOptions
+    auth: AuthPolicy
+    encoder: Encoder
+    manager: StreamManager
+    health: HealthMonitor
+    calibrations: dict[str, dict[str, Any]]
+
+
+def _calibration(path: str | None, table: Any) -> dict[str, Any]:
+    """``{"id", "file", "created"}``: the id is a digest of the file, so two hosts can tell
+    whether they run the same calibration."""
+    if path is None or table is None:
+        return {"id": "nominal", "file": None, "created": None}
+    try:
+        digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+        cal_id = f"sha256:{digest}"
+    except OSError:
+        cal_id = "unreadable"
+    return {"id": cal_id, "file": str(path), "created": getattr(table, "created", None)}
+
+
+def build_context(daemon: Daemon, options: ServiceOptions, auth: AuthPolicy) -> Context:
+    """Wire the service's parts around ``daemon`` (no I/O but reading calibration files)."""
+    physics = {}
+    calibrations = {}
+    for name, pipe in daemon.sensors.items():
+        model = pipe.sensor_model
+        physics[name] = (model.geometry.finger_radius, model.material.compliance)
+        calibrations[name] = _calibration(pipe.settings.calibration, pipe.table)
+    encoder = Encoder(physics)
+    manager = StreamManager(daemon, options, auth, encoder)
+    health = HealthMonitor(daemon, manager, options)
+    return Context(daemon, daemon.settings, options, auth, encoder, manager, health,
+                   calibrations)
+
+
+def _raise(denial: Denial | None) -> None:
+    if denial is not None:
+        raise HTTPException(denial.status, denial.message, dict(denial.headers) or None)
+
+
+#: Largest PATCH body accepted, bytes (a config patch is a few hundred).
+MAX_BODY = 64 * 1024
+
+ERRORS: dict[int | str, dict[str, Any]] = {
+    code: {"model": ErrorResponse} for code in (400, 401, 403, 404, 415, 422)}
+
+
+def create_app(ctx: Context) -> FastAPI:
+    """The ASGI app for ``ctx``."""
+    app = FastAPI(title="tactiled", version=__version__,
+                  description="Tactile curvature sensing daemon: REST and WebSocket API "
+                              "(docs/api.md).",
+                  openapi_url="/v1/openapi.json", docs_url=None, redoc_url=None)
+    app.state.ctx = ctx
+    auth = ctx.auth
+
+    def read_access(request: Request) -> None:
+        _raise(auth.check_read(request.scope))
+
+    def control_access(request: Request) -> None:
+        _raise(auth.check_control(request.scope))
+
+    def sensor(name: str) -> str:
+        if name not in ctx.daemon.sensors:
+            raise HTTPException(404, f"unknown sensor {name!r}; known: "
+                                     f"{', '.join(ctx.daemon.sensors)}")
+        return name
+
+    # -- errors ---------------------------------------------------------------------------------
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        parts = []
+        for e in exc.errors():
+            loc = ".".join(str(p) for p in e.get("loc", ()))
+            parts.append(f"{loc}: {e.get('msg', 'invalid')}")
+        return JSONResponse({"detail": "; ".join(parts) or "invalid request"}, status_code=422)
+
+    @app.exception_handler(Exception)
+    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("%s %s failed", request.method, request.url.path)
+        return JSONResponse({"detail": f"internal error: {type(exc).__name__}"},
+                            status_code=500)
+
+    app.add_middleware(HostGuard, auth=auth)
+
+    # -- REST -----------------------------------------------------------------------------------
+
+    @app.get("/v1/version", response_model=VersionResponse, tags=["service"])
+    async def version() -> dict[str, Any]:
+        """Release and API version."""
+        return VersionResponse(version=__version__).model_dump()
+
+    @app.get("/v1/health", response_model=HealthResponse, tags=["service"])
+    async def health() -> dict[str, Any]:
+        """Overall and per-sensor status (OK, WARN, STALE, ERROR) with rates and counters."""
+        return ctx.health.report()
+
+    @app.get("/v1/sensors", response_model=SensorsResponse, responses=ERRORS,
+             dependencies=[Depends(read_access)], tags=["sensors"])
+    async def sensors() -> dict[str, Any]:
+        """Every sensor with its geometry (mm) and calibration."""
+        out = []
+        for name, pipe in ctx.daemon.sensors.items():
+            g = pipe.sensor_model.geometry
+            status = pipe.source.status()
+            out.append({
+                "name": name, "sensor_id": pipe.sensor_id, "url": status.url,
+                "connected": bool(status.connected), "rows": g.rows, "cols": g.cols,
+                "dx_mm": g.dx, "dy_mm": g.dy, "finger_radius_mm": g.finger_radius,
+                "model": pipe.model, "calibration": ctx.calibrations[name],
+            })
+        return {"sensors": out}
+
+    @app.get("/v1/sensors/{name}/estimate", response_model=EstimateMessage,
+             responses={**ERRORS, 503: {"model": ErrorResponse}},
+             dependencies=[Depends(read_access)], tags=["sensors"])
+    async def estimate(name: str = Depends(sensor)) -> Any:
+        """The latest estimate of sensor ``name`` (the stream's estimate message)."""
+        est = ctx.daemon.hub.latest_estimate(name)
+        if est is None:
+            raise HTTPException(503, f"no estimate published yet for sensor {name!r}",
+                                {"Retry-After": "1"})
+        return JSONResponse(ctx.encoder.message(est))
+
+    @app.get("/v1/sensors/{name}/frame", response_model=FrameMessage,
+             responses={**ERRORS, 503: {"model": ErrorResponse}},
+             dependencies=[Depends(read_access)], tags=["sensors"])
+    async def frame(name: str = Depends(sensor)) -> Any:
+        """The latest linearised, zeroed strain frame of sensor ``name``."""
+        fr = ctx.daemon.hub.latest_frame(name)
+        if fr is None:
+            raise HTTPException(503, f"no frame received yet from sensor {name!r}",
+                                {"Retry-After": "1"})
+        return JSONResponse(ctx.encoder.message(fr))
+
+    @app.post("/v1/sensors/{name}/tare", response_model=TareResponse, responses=ERRORS,
+              dependencies=[Depends(control_access)], tags=["control"])
+    async def tare(name: str = Depends(sensor)) -> dict[str, Any]:
+        """Re-zero sensor ``name`` on its next frame (nothing may touch it then)."""
+        try:
+            ctx.daemon.tare(name)
+        except UnknownSensorError as err:  # removed since the check: cannot happen today
+            raise HTTPException(404, str(err)) from None
+        return {"sensor": name, "status": "scheduled",
+                "message": "the sensor re-zeroes on its next frame; nothing may touch it"}
+
+    @app.get("/v1/config", response_model=ConfigResponse, responses=ERRORS,
+             dependencies=[Depends(read_access)], tags=["control"])
+    async def get_config() -> dict[str, Any]:
+        """Thresholds and model choice, as PATCH accepts them."""
+        return ctx.daemon.get_config()
+
+    @app.patch("/v1/config", response_model=ConfigResponse, responses=ERRORS,
+               dependencies=[Depends(control_access)], tags=["control"],
+               openapi_extra={"requestBody": {"required": True, "content": {
+                   "application/json": {"schema": ConfigPatch.model_json_schema()},
+                   "application/merge-patch+json": {
+                       "schema": ConfigPatch.model_json_schema()}}}})
+    async def patch_config(request: Request) -> dict[str, Any]:
+        """Change thresholds / model choice at run time, all or nothing; 422 names the key."""
+        ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
+        if ctype not in ("application/json", "application/merge-patch+json"):
+            raise HTTPException(415, "Content-Type must be application/json, got "
+                                     f"{ctype or 'none'!r}")
+        length = request.headers.get("content-length", "")
+        if length.isdigit() and int(length) > MAX_BODY:
+            raise HTTPException(413, f"body larger than {MAX_BODY} bytes")
+        raw = await request.body()
+        if len(raw) > MAX_BODY:
+            raise HTTPException(413, f"body larger than {MAX_BODY} bytes")
+        try:
+            patch = json.loads(raw)
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as err:
+            where = (f": {err.msg} at line {err.lineno} column {err.colno}"
+                     if isinstance(err, json.JSONDecodeError) else "")
+            raise HTTPException(400, f"body is not valid JSON{where}") from None
+        if not isinstance(patch, dict):
+            raise HTTPException(422, "body: expected a JSON object like {\"sensors\": "
+                                     "{\"<name>\": {\"model\": \"sphere\"}}}, got "
+                                     f"{type(patch).__name__}")
+        try:
+            return ctx.daemon.update_config(patch)
+        except ConfigError as err:
+            raise HTTPException(422, str(err)) from None
+        except (TypeError, ValueError) as err:  # a value the checks did not foresee
+            raise HTTPException(422, f"config: {err}") from None
+
+    # -- stream and dashboard -------------------------------------------------------------------
+
+    app.router.routes.append(WebSocketRoute("/v1/stream", StreamEndpoint(lambda: ctx.manager),
+                                            name="stream"))
+    dashboard.mount(app, auth)
+    return app

@@ -1,0 +1,228 @@
+"""Who may use the API: bearer token, dashboard session cookie, Origin and Host checks.
+
+The model (docs/api.md, "Security"):
+
+* **Open mode** (listening on loopback, no token configured): no credentials are needed.
+  Browsers are still kept out of other sites' reach: a request whose ``Host`` is not a
+  loopback name is refused (DNS rebinding), and a WebSocket or control request carrying a
+  foreign ``Origin`` is refused (cross-site WebSocket hijacking, CSRF).
+* **Token mode** (a token is configured; required off loopback): ``/v1`` endpoints other than
+  ``/v1/health``, ``/v1/version`` and the OpenAPI document need ``Authorization: Bearer
+  <token>``, or the dashboard's session cookie.  The stream checks this at the handshake, so
+  an unauthorised client is answered 401/403 and never accepted.
+* The dashboard logs in by being loaded once as ``/?token=<token>``: the server sets an
+  HttpOnly, SameSite=Strict session cookie and redirects to ``/``, so the token leaves the
+  address bar and page scripts never see it.
+
+Everything here works on raw ASGI scopes, so REST routes and the raw WebSocket endpoint share
+it.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import ipaddress
+import secrets
+import time
+from collections import OrderedDict
+from collections.abc import Iterable
+from dataclasses import dataclass
+from http.cookies import CookieError, SimpleCookie
+from typing import Any
+
+SESSION_COOKIE = "tactiled_session"
+#: A dashboard session lasts this long without a new login (s).
+SESSION_TTL_S = 12 * 3600.0
+MAX_SESSIONS = 1000
+LOOPBACK_NAMES = frozenset({"localhost", "localhost.localdomain", "ip6-localhost"})
+
+
+@dataclass(frozen=True)
+class Denial:
+    """Why a request is refused: HTTP ``status``, a precise ``message``, extra headers."""
+
+    status: int
+    message: str
+    headers: tuple[tuple[str, str], ...] = ()
+
+
+def is_loopback_host(host: str) -> bool:
+    """True for a loopback address or name (``127.0.0.1``, ``::1``, ``localhost``)."""
+    name = host.strip().strip("[]").lower()
+    if name in LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        return False
+
+
+def header(scope: dict[str, Any], name: bytes) -> str | None:
+    """The first value of header ``name`` (lower-case bytes) in an ASGI scope."""
+    for key, value in scope.get("headers", ()):
+        if key == name:
+            return value.decode("latin-1")
+    return None
+
+
+def _host_name(host_header: str) -> str:
+    """``127.0.0.1:8765`` -> ``127.0.0.1``; ``[::1]:8765`` -> ``::1``."""
+    if host_header.startswith("["):
+        return host_header[1:].split("]", 1)[0]
+    return host_header.rsplit(":", 1)[0] if host_header.count(":") == 1 else host_header
+
+
+class Sessions:
+    """Dashboard sessions: random ids with an expiry (monotonic s), oldest evicted first."""
+
+    def __init__(self, ttl: float = SESSION_TTL_S, limit: int = MAX_SESSIONS) -> None:
+        self.ttl = ttl
+        self.limit = limit
+        self._expiry: OrderedDict[str, float] = OrderedDict()
+
+    def create(self) -> str:
+        sid = secrets.token_urlsafe(32)
+        self._expiry[sid] = time.monotonic() + self.ttl
+        while len(self._expiry) > self.limit:
+            self._expiry.popitem(last=False)
+        return sid
+
+    def valid(self, sid: str | None) -> bool:
+        if not sid:
+            return False
+        expiry = self._expiry.get(sid)
+        if expiry is None:
+            return False
+        if time.monotonic() > expiry:
+            del self._expiry[sid]
+            return False
+        return True
+
+
+class AuthPolicy:
+    """The checks above for one server: ``token`` (None: open), ``loopback`` (bound to a
+    loopback address), extra ``allowed_origins`` (``scheme://host[:port]``)."""
+
+    def __init__(self, token: str | None, loopback: bool,
+                 allowed_origins: Iterable[str] = ()) -> None:
+        if token is None and not loopback:
+            raise ValueError("a token is required when not listening on loopback")
+        self.token = token
+        self.loopback = loopback
+        self.allowed_origins = frozenset(o.rstrip("/").lower() for o in allowed_origins)
+        self.sessions = Sessions()
+
+    @property
+    def open(self) -> bool:
+        """No credentials needed (loopback, no token)."""
+        return self.token is None
+
+    # -- individual checks ----------------------------------------------------------------------
+
+    def check_host(self, scope: dict[str, Any]) -> Denial | None:
+        """In open mode, refuse a Host header that is not a loopback name: a page of another
+        site that rebinds its DNS name to 127.0.0.1 would otherwise reach the open API."""
+        if not self.open:
+            return None
+        host = header(scope, b"host")
+        if host is None:  # HTTP/1.0 clients; not a browser
+            return None
+        if is_loopback_host(_host_name(host)):
+            return None
+        return Denial(403, f"Host {host!r} not allowed: this server is open to loopback "
+                           "clients only (configure a token to serve other hosts)")
+
+    def check_origin(self, scope: dict[str, Any]) -> Denial | None:
+        """A browser request from another origin than the server's own (or the allow-list)
+        is refused; clients that send no Origin (not browsers) pass."""
+        origin = header(scope, b"origin")
+        if origin is None:
+            return None
+        origin_l = origin.rstrip("/").lower()
+        if origin_l in self.allowed_origins:
+            return None
+        host = header(scope, b"host")
+        if host is not None:
+            scheme = scope.get("scheme", "http")
+            scheme = {"ws": "http", "wss": "https"}.get(scheme, scheme)
+            if origin_l == f"{scheme}://{host}".lower():
+                return None
+        return Denial(403, f"Origin {origin!r} not allowed (allowed: the server's own origin"
+                           + (", " + ", ".join(sorted(self.allowed_origins))
+                              if self.allowed_origins else "") + ")")
+
+    def session_id(self, scope: dict[str, Any]) -> str | None:
+        raw = header(scope, b"cookie")
+        if not raw:
+            return None
+        try:
+            cookie = SimpleCookie(raw)
+        except CookieError:
+            return None
+        morsel = cookie.get(SESSION_COOKIE)
+        return morsel.value if morsel is not None else None
+
+    def check_credentials(self, scope: dict[str, Any]) -> Denial | None:
+        """Token mode: a valid bearer token or dashboard session; open mode: nothing."""
+        if self.open:
+            return None
+        auth = header(scope, b"authorization")
+        if auth is not None:
+            scheme, _, value = auth.partition(" ")
+            if scheme.lower() != "bearer" or not value.strip():
+                return Denial(401, "Authorization header must be 'Bearer <token>'",
+                              (("WWW-Authenticate", 'Bearer realm="tactiled"'),))
+            if self.token_matches(value.strip()):
+                return None
+            return Denial(403, "invalid token",
+                          (("WWW-Authenticate", 'Bearer realm="tactiled", '
+                                                'error="invalid_token"'),))
+        if self.sessions.valid(self.session_id(scope)):
+            return None
+        return Denial(401, "authentication required: send 'Authorization: Bearer <token>' "
+                           "(or open the dashboard as /?token=<token>)",
+                      (("WWW-Authenticate", 'Bearer realm="tactiled"'),))
+
+    def token_matches(self, candidate: str) -> bool:
+        """Constant-time comparison with the configured token."""
+        if self.token is None:
+            return False
+        return hmac.compare_digest(candidate.encode(), self.token.encode())
+
+    # -- combined -------------------------------------------------------------------------------
+
+    def check_stream(self, scope: dict[str, Any]) -> Denial | None:
+        """The WebSocket handshake: Origin first (a browser page of another site), then
+        credentials."""
+        return self.check_origin(scope) or self.check_credentials(scope)
+
+    def check_control(self, scope: dict[str, Any]) -> Denial | None:
+        """State-changing REST calls: the same as the stream (Origin stops CSRF even in open
+        mode)."""
+        return self.check_origin(scope) or self.check_credentials(scope)
+
+    def check_read(self, scope: dict[str, Any]) -> Denial | None:
+        """Data reads: credentials only (a cross-origin page cannot read the answer)."""
+        return self.check_credentials(scope)
+
+
+class HostGuard:
+    """ASGI middleware applying :meth:`AuthPolicy.check_host` to HTTP requests (the stream
+    applies it at its own handshake)."""
+
+    def __init__(self, app: Any, auth: AuthPolicy) -> None:
+        self.app = app
+        self.auth = auth
+
+    async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        if scope["type"] == "http":
+            denial = self.auth.check_host(scope)
+            if denial is not None:
+                body = json.dumps({"detail": denial.message}).encode()
+                await send({"type": "http.response.start", "status": denial.status,
+                            "headers": [(b"content-type", b"application/json"),
+                                        (b"content-length", str(len(body)).encode())]})
+                await send({"type": "http.response.body", "body": body})
+                return
+        await self.app(scope, receive, send)

@@ -1,0 +1,229 @@
+"""Pydantic schemas of the API: what clients send, what the REST endpoints return.
+
+They document the API (OpenAPI at ``/v1/openapi.json``) and validate requests; responses
+are built as plain dicts by the handlers and checked against these on the way out.  Units:
+mm, N, degrees, Hz, seconds, milliseconds where the name says ``_ms``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+SCHEMA_VERSION = 1  # same as messages.SCHEMA_VERSION (kept import-free for clients)
+
+
+def format_validation_error(err: ValidationError, prefix: str = "") -> str:
+    """One line naming each offending key: ``streams.0: Input should be 'estimates' or
+    'frames'; max_rate: Input should be greater than 0``."""
+    parts = []
+    for e in err.errors(include_url=False):
+        loc = ".".join(str(p) for p in e.get("loc", ()) if p != "body")
+        where = f"{prefix}{loc}" if loc else (prefix.rstrip(".") or "message")
+        parts.append(f"{where}: {e.get('msg', 'invalid')}")
+    return "; ".join(parts) or "invalid request"
+
+
+# -- WebSocket: client -> server -----------------------------------------------------------------
+
+
+class SubscribeRequest(BaseModel):
+    """``{"type": "subscribe", "sensors": [...]|null, "streams": [...], "max_rate": Hz|null}``.
+
+    ``sensors`` null (or absent): every sensor.  ``streams``: ``estimates`` (default),
+    ``frames`` or both.  ``max_rate``: at most this many messages per second per sensor and
+    stream (the newest wins); null: every item.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    type: Literal["subscribe"]
+    sensors: list[str] | None = Field(default=None, min_length=1)
+    streams: list[Literal["estimates", "frames"]] = Field(default=["estimates"], min_length=1)
+    max_rate: float | None = Field(default=None, gt=0, allow_inf_nan=False, strict=True)
+
+
+# -- REST responses ------------------------------------------------------------------------------
+
+
+class ErrorResponse(BaseModel):
+    """Every 4xx/5xx answer: ``detail`` says precisely what was wrong."""
+
+    detail: str
+
+
+class VersionResponse(BaseModel):
+    name: str = "tactiled"
+    version: str
+    api: str = "v1"
+    schema_version: int = SCHEMA_VERSION
+
+
+class Ellipse(BaseModel):
+    """The contact ellipse: semi-axes ``a_mm >= b_mm``, major axis at ``theta_deg`` from +x
+    toward +y."""
+
+    a_mm: float
+    b_mm: float
+    theta_deg: float
+
+
+class EstimateMessage(BaseModel):
+    """An estimate (REST and WebSocket): the envelope, every key of a ``tactiled fit`` line
+    (contact, model, x_mm, y_mm, force_n, r1_mm, r2_mm, angle_deg, rms, std, fit_ms, label,
+    converged, iterations, condition, peak, reasons, message), and ``ellipse``."""
+
+    model_config = ConfigDict(extra="allow")
+
+    type: Literal["estimate"]
+    v: int
+    sensor: str
+    sensor_id: int
+    seq: int
+    device_time_us: int
+    host_time: float | None = Field(description="CLOCK_MONOTONIC s when the frame arrived")
+    time: float | None = Field(description="Unix time s of publication")
+    latency_ms: float | None
+    worker_ms: float | None
+    gate: Literal["fit", "no_contact", "unchanged"]
+    fitted_seq: int | None
+    contact: bool
+    model: str | None
+    x_mm: float | None
+    y_mm: float | None
+    force_n: float | None
+    r1_mm: float | None
+    r2_mm: float | None = Field(description="null: infinite (a cylinder)")
+    angle_deg: float | None = Field(description="R2 axis from +x toward +y, [0, 180)")
+    rms: float | None
+    std: dict[str, float | None]
+    fit_ms: float | None
+    ellipse: Ellipse | None
+
+
+class FrameMessage(BaseModel):
+    """A linearised, zeroed strain frame (dimensionless, positive under compression);
+    ``strain[m][n]`` is the tactel at x = m dx, y = n dy."""
+
+    model_config = ConfigDict(extra="allow")
+
+    type: Literal["frame"]
+    v: int
+    sensor: str
+    sensor_id: int
+    seq: int
+    device_time_us: int
+    host_time: float | None
+    contact: bool
+    statistic: float | None
+    rows: int
+    cols: int
+    strain: list[list[float]]
+
+
+class Calibration(BaseModel):
+    id: str = Field(description="'nominal' (the linear table) or 'sha256:<16 hex>' of the file")
+    file: str | None
+    created: str | None
+
+
+class SensorInfo(BaseModel):
+    name: str
+    sensor_id: int | None
+    url: str
+    connected: bool
+    rows: int
+    cols: int
+    dx_mm: float
+    dy_mm: float
+    finger_radius_mm: float
+    model: str
+    calibration: Calibration
+
+
+class SensorsResponse(BaseModel):
+    sensors: list[SensorInfo]
+
+
+class TareResponse(BaseModel):
+    sensor: str
+    status: Literal["scheduled"]
+    message: str
+
+
+class ConfigResponse(BaseModel):
+    """The settings changeable at run time (see PATCH)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    sensors: dict[str, dict[str, Any]]
+    fit: dict[str, Any]
+
+
+class ConfigPatch(BaseModel):
+    """A partial config: ``{"sensors": {"finger0": {"model": "sphere"}}, "fit":
+    {"timeout": 0.5}}``.  Keys not given are left alone; all or nothing."""
+
+    model_config = ConfigDict(extra="allow")
+
+    sensors: dict[str, dict[str, Any]] | None = None
+    fit: dict[str, Any] | None = None
+
+
+Status = Literal["OK", "WARN", "STALE", "ERROR"]
+
+
+class SensorHealth(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    status: Status
+    reason: str = Field(description="why the status is not OK ('' when OK)")
+    connected: bool
+    frame_rate_hz: float
+    fit_rate_hz: float
+    frames: int
+    crc_errors: int
+    rejected_chunks: int
+    lost_frames: int
+    duplicated_frames: int
+    superseded_frames: int
+    published: int
+    fit_errors: int
+    fits_lost: int
+    worker_restarts: int
+    last_frame_age_s: float | None
+    last_estimate_age_s: float | None
+
+
+class SubscriberHealth(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    id: int
+    peer: str
+    connected_s: float
+    subscription: dict[str, Any] | None
+    sent: int
+    queued: int
+    dropped: int
+    coalesced: int
+
+
+class SubscribersHealth(BaseModel):
+    count: int
+    limit: int
+    refused: dict[str, int]
+    stalled: int
+    clients: list[SubscriberHealth]
+
+
+class HealthResponse(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+    status: Status
+    version: str
+    state: str
+    uptime_s: float | None
+    sensors: dict[str, SensorHealth]
+    workers: dict[str, Any]
+    subscribers: SubscribersHealth

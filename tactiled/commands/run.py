@@ -1,0 +1,96 @@
+"""Run the daemon: acquisition, fitting, the REST/WebSocket API and the dashboard, one process.
+
+With no configuration it plays the simulated finger's looping demo scene (one sensor,
+finger0) and serves http://127.0.0.1:8765/ (the default port), which it prints on stdout once
+the server answers.  Precedence: flags > TACTILED_* environment (TACTILED_TOKEN for the token)
+> the --config file > defaults.  Listening on anything but loopback requires a token.
+
+SIGTERM or Ctrl-C: graceful stop within 5 s (stream clients get close code 1001, devices are
+released, recordings flushed); a second Ctrl-C exits at once.  Under systemd (Type=notify) it
+reports READY=1 once serving, WATCHDOG=1 while frames flow, STOPPING=1 on the way out.
+
+examples:
+  tactiled run
+  tactiled run --config /etc/tactiled/tactiled.toml
+  TACTILED_TOKEN=s3cret tactiled run --host 0.0.0.0 --port 9000
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import sys
+from typing import Any
+
+from tactiled.errors import ConfigError, TactiledError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", default=None,
+                   help="TOML configuration file (default: $TACTILED_CONFIG, else built-in "
+                        "defaults: the simulated demo finger)")
+    p.add_argument("--host", default=None,
+                   help="address to listen on (default 127.0.0.1; others need a token)")
+    p.add_argument("--port", type=int, default=None,
+                   help="TCP port (default 8765; 0 picks a free one)")
+    p.add_argument("--token", default=None,
+                   help="bearer token clients must send (default $TACTILED_TOKEN; prefer the "
+                        "environment: command lines are visible to other users)")
+    p.add_argument("--max-subscribers", type=int, default=None, metavar="N",
+                   help="WebSocket stream connections accepted at once (default 64)")
+    p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
+                   help="browser origin (scheme://host:port) allowed to use the stream and "
+                        "control endpoints besides the server's own; repeatable")
+    # -v is also accepted after the command name (the top-level parser handles the level).
+    p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                   help="more log output")
+
+
+def _overrides(args: argparse.Namespace) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    token = args.token if args.token is not None else os.environ.get("TACTILED_TOKEN")
+    if token is not None:
+        out["server.token"] = token
+    if args.host is not None:
+        out["server.host"] = args.host
+    if args.port is not None:
+        out["server.port"] = args.port
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from tactiled.settings import load_settings
+
+    settings = load_settings(args.config, os.environ, _overrides(args))  # ConfigError: exit 2
+    try:
+        # The service pulls in FastAPI and uvicorn: only this command pays for them.
+        from tactiled_service.options import ServiceOptions
+        from tactiled_service.server import serve
+    except ImportError as err:
+        print(f"tactiled run: error: the service is not installed: {err}", file=sys.stderr)
+        return 2
+    kwargs: dict[str, Any] = {}
+    if args.max_subscribers is not None:
+        kwargs["max_subscribers"] = args.max_subscribers
+    if args.allow_origin:
+        kwargs["allowed_origins"] = tuple(args.allow_origin)
+    try:
+        options = ServiceOptions(**kwargs)
+    except ValueError as err:
+        raise ConfigError(f"--max-subscribers: {err}") from None
+
+    def ready(service: Any) -> None:
+        # The one line on stdout: scripts and tests read the address from it.
+        print(service.url, flush=True)
+        if settings.server.token:
+            print(f"tactiled: open {service.url}?token=<token> once to log in the dashboard",
+                  file=sys.stderr, flush=True)
+
+    try:
+        return asyncio.run(serve(settings, options, on_ready=ready))
+    except TactiledError:
+        raise  # one line and exit code 2, at the CLI's edge
+    except (OSError, RuntimeError) as err:
+        print(f"tactiled run: error: {err}", file=sys.stderr)
+        return 1

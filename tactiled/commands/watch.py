@@ -1,0 +1,135 @@
+"""Subscribe to a running daemon and print what it streams, one JSON object per line.
+
+Like gpspipe: every estimate (and, with --frames, every zeroed frame) the daemon's stream
+sends, as it arrives, flushed line by line so it can be piped (`tactiled watch | jq .r1_mm`).
+Each line is the stream's message: "type" ("estimate" or "frame"), "v", "sensor", "seq", the
+keys of a `tactiled fit` line, and "ellipse".  Control messages (version, subscribed) are not
+printed; an error message from the server goes to stderr.
+
+Exit status: 0 when the daemon closes the stream normally (or on Ctrl-C), 1 when the
+connection fails or is closed with an error code, 2 for bad arguments or a refused token.
+
+examples:
+  tactiled watch
+  tactiled watch ws://robot.local:8765/v1/stream --token "$TACTILED_TOKEN" --sensor thumb
+  tactiled watch --frames --rate 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import sys
+from typing import Any, TextIO
+
+from tactiled.settings import DEFAULT_PORT
+
+DEFAULT_URL = f"ws://127.0.0.1:{DEFAULT_PORT}/v1/stream"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("url", nargs="?", default=None, metavar="URL",
+                   help=f"the daemon's stream (default {DEFAULT_URL}; an http:// address or "
+                        "host:port is completed)")
+    p.add_argument("--token", default=None,
+                   help="bearer token (default $TACTILED_TOKEN)")
+    p.add_argument("--sensor", action="append", default=None, metavar="NAME",
+                   help="only this sensor; repeatable (default: all)")
+    p.add_argument("--frames", action="store_true", help="also print the zeroed strain frames")
+    p.add_argument("--rate", type=float, default=None, metavar="HZ",
+                   help="at most this many messages per second per sensor and stream "
+                        "(default: every one)")
+    p.add_argument("--count", type=int, default=None, metavar="N",
+                   help="exit after N data messages")
+
+
+def stream_url(url: str | None) -> str:
+    """Complete ``url`` to a ``ws://.../v1/stream`` address."""
+    if not url:
+        return DEFAULT_URL
+    if url.startswith(("http://", "https://")):
+        url = "ws" + url[len("http"):]
+    elif not url.startswith(("ws://", "wss://")):
+        url = "ws://" + url
+    scheme, rest = url.split("://", 1)
+    if "/" not in rest:
+        rest += "/v1/stream"
+    elif rest.endswith("/") and rest.count("/") == 1:
+        rest += "v1/stream"
+    return f"{scheme}://{rest}"
+
+
+def subscribe_message(args: argparse.Namespace) -> dict[str, Any]:
+    msg: dict[str, Any] = {"type": "subscribe",
+                           "streams": ["estimates", "frames"] if args.frames else ["estimates"]}
+    if args.sensor:
+        msg["sensors"] = list(args.sensor)
+    if args.rate is not None:
+        msg["max_rate"] = args.rate
+    return msg
+
+
+async def watch(args: argparse.Namespace, out: TextIO) -> int:
+    from websockets.asyncio.client import connect
+    from websockets.exceptions import ConnectionClosed, InvalidStatus, InvalidURI
+
+    url = stream_url(args.url)
+    token = args.token if args.token is not None else os.environ.get("TACTILED_TOKEN")
+    headers = {"Authorization": f"Bearer {token}"} if token else None
+    count = 0
+    try:
+        async with connect(url, additional_headers=headers, compression=None,
+                           max_size=2**22, open_timeout=10) as ws:
+            async for text in ws:
+                msg = json.loads(text)
+                kind = msg.get("type")
+                if kind == "version":
+                    await ws.send(json.dumps(subscribe_message(args)))
+                elif kind == "error":
+                    print(f"tactiled watch: server: {msg.get('message')}", file=sys.stderr)
+                    if msg.get("request") == "subscribe":
+                        return 2
+                elif kind in ("estimate", "frame"):
+                    out.write(text + "\n")
+                    out.flush()
+                    count += 1
+                    if args.count is not None and count >= args.count:
+                        return 0
+            code, reason = ws.close_code, ws.close_reason
+    except InvalidStatus as err:
+        status = err.response.status_code
+        try:
+            detail = json.loads(err.response.body or b"{}").get("detail", "")
+        except ValueError:
+            detail = ""
+        print(f"tactiled watch: {url}: refused ({status}){': ' + detail if detail else ''}",
+              file=sys.stderr)
+        return 2 if status in (401, 403) else 1
+    except InvalidURI as err:
+        print(f"tactiled watch: error: {err}", file=sys.stderr)
+        return 2
+    except ConnectionClosed as err:
+        code = err.rcvd.code if err.rcvd is not None else 1006
+        reason = err.rcvd.reason if err.rcvd is not None else "no close frame"
+        print(f"tactiled watch: closed by the daemon ({code} {reason})", file=sys.stderr)
+        return 0 if code in (1000, 1001) else 1
+    except (OSError, TimeoutError) as err:
+        print(f"tactiled watch: cannot connect to {url}: {err}", file=sys.stderr)
+        return 1
+    print(f"tactiled watch: the daemon closed the stream ({code} {reason})", file=sys.stderr)
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.rate is not None and not args.rate > 0:
+        print("tactiled watch: error: --rate must be > 0", file=sys.stderr)
+        return 2
+    if args.count is not None and args.count < 1:
+        print("tactiled watch: error: --count must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        return asyncio.run(watch(args, sys.stdout))
+    except KeyboardInterrupt:
+        return 0

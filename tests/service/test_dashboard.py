@@ -1,0 +1,110 @@
+"""The dashboard in a real browser: headless Chromium (Debian's) driven by Playwright loads the
+page from a running daemon and sees estimates appear and update, the strain map drawn, the
+health counters; with a token, the ?token= login and its session cookie open the stream."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from svc_helpers import sim_settings
+
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync"]
+
+
+@pytest.fixture
+def browser_page(chromium: str, tmp_path: Path) -> Iterator[tuple[Any, list[str]]]:
+    """A fresh Chromium profile and page; yields (page, errors seen by the page)."""
+    from playwright.sync_api import sync_playwright
+
+    errors: list[str] = []
+    with sync_playwright() as p:
+        context = p.chromium.launch_persistent_context(
+            str(tmp_path / "profile"), executable_path=chromium, headless=True,
+            args=CHROMIUM_ARGS, viewport={"width": 1400, "height": 1000})
+        try:
+            page = context.pages[0] if context.pages else context.new_page()
+            page.on("pageerror", lambda err: errors.append(f"page error: {err}"))
+            page.on("console", lambda msg: errors.append(f"console: {msg.text}")
+                    if msg.type == "error" else None)
+            yield page, errors
+        finally:
+            context.close()
+
+
+def seq_of(page: Any, sensor: str) -> int:
+    return int(page.text_content(f"#sensor-{sensor} [data-k=seq]"))
+
+
+def wait_numeric_seq(page: Any, sensor: str, timeout_ms: int = 30_000) -> None:
+    page.wait_for_function(
+        "s => /^\\d+$/.test(document.querySelector(`#sensor-${s} [data-k=seq]`)"
+        "?.textContent || '')", arg=sensor, timeout=timeout_ms)
+
+
+def canvas_colours(page: Any, sensor: str) -> int:
+    """Distinct colours drawn on the sensor's strain map."""
+    return page.evaluate("""s => {
+        const c = document.querySelector(`#sensor-${s} canvas`);
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        const seen = new Set();
+        for (let i = 0; i < d.length; i += 16) seen.add(`${d[i]},${d[i+1]},${d[i+2]}`);
+        return seen.size;
+    }""", sensor)
+
+
+def test_dashboard_shows_live_estimates(browser_page, shared_server, tmp_path):
+    page, errors = browser_page
+    page.goto(shared_server.url + "/")
+    for sensor in ("finger0", "finger1"):
+        wait_numeric_seq(page, sensor)
+    first = seq_of(page, "finger0")
+    page.wait_for_function(
+        "n => Number(document.querySelector('#sensor-finger0 [data-k=seq]').textContent) > n",
+        arg=first, timeout=5000)
+    assert seq_of(page, "finger0") > first  # it updates, not just appears
+    # A contact with its readouts and ellipse (the demo scene presses within seconds).
+    page.wait_for_function(
+        "() => { const q = k => document.querySelector(`#sensor-finger0 [data-k=${k}]`)"
+        ".textContent; return q('contact') === 'yes' && q('ellipse') !== '—' "
+        "&& q('force_n').includes('±'); }", timeout=40_000)
+    force = page.text_content("#sensor-finger0 [data-k=force_n]")
+    assert re.fullmatch(r"\d+\.\d{3} ± \d+\.\d{3} N", force), force
+    assert page.text_content("#sensor-finger0 [data-k=model]") in (
+        "cylinder", "sphere", "general")
+    assert canvas_colours(page, "finger0") > 8, "the strain map is not drawn"
+    # Health counters from /v1/health.
+    page.wait_for_function("() => document.querySelector('#overall').textContent === 'OK' && "
+                           "document.querySelector('#sensor-finger1 .status').textContent "
+                           "=== 'OK'", timeout=15_000)
+    row = page.text_content("#health tbody tr[data-sensor=finger0]")
+    assert "finger0" in row and "OK" in row
+    assert "subscriber(s)" in page.text_content("#subscribers")
+    assert page.text_content("#conn") == "live"
+    shot = tmp_path / "dashboard.png"
+    page.screenshot(path=str(shot), full_page=True)
+    assert shot.stat().st_size > 10_000
+    assert not errors, errors
+
+
+def test_dashboard_login_with_token(browser_page, live_server):
+    token = "dashboard-token-123"
+    server = live_server(sim_settings(1, **{"server.token": token}))
+    page, errors = browser_page
+    response = page.goto(server.url + "/")
+    assert response.status == 401
+    errors.clear()  # the browser reports that 401 as a console error
+    page.goto(f"{server.url}/?token={token}")
+    assert page.url == server.url + "/", "the token must leave the address bar"
+    wait_numeric_seq(page, "finger0")
+    assert page.text_content("#conn") == "live"
+    cookies = page.context.cookies()
+    session = [c for c in cookies if c["name"] == "tactiled_session"]
+    assert session and session[0]["httpOnly"] and session[0]["sameSite"] == "Strict"
+    assert page.evaluate("document.cookie") == "", "scripts cannot read the session"
+    assert not errors, errors
