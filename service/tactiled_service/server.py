@@ -43,7 +43,6 @@ from tactiled.sources import FrameSource
 from tactiled.systemd import Notifier, WatchdogGate, watchdog_interval, watchdog_loop
 from tactiled_service.app import Context, build_context, create_app
 from tactiled_service.auth import AuthPolicy
-from tactiled_service.messages import load_ellipse
 from tactiled_service.options import ServiceOptions
 from tactiled_service.protocol import protocol_class
 
@@ -177,16 +176,15 @@ class Service:
         """Bind, start the daemon (workers warm) and the server; READY=1 when serving."""
         self.bind()
         assert self.sock is not None
-        loop = asyncio.get_running_loop()
         try:
             self.daemon = Daemon(self.settings, sources=self.sources)
             auth = AuthPolicy(self.settings.server.token, self.loopback,
                               self.options.allowed_origins)
             self.ctx = build_context(self.daemon, self.options, auth)
-            # The Hertz ellipse imports numba (~1 s): off the loop, while the workers warm up.
-            ellipse = loop.run_in_executor(None, load_ellipse)
+            # Fits carry their contact ellipse, so this process never needs the Hertz code
+            # (numba: ~1 s and ~100 MB); messages.display_ellipse loads it lazily only for a
+            # fit line without one.
             await self.daemon.start()
-            await ellipse
             self.ctx.manager.start()
             self.server = _Server(self._uvicorn_config(create_app(self.ctx)))
             self._serve_task = asyncio.create_task(self.server.serve(sockets=[self.sock]),

@@ -304,6 +304,7 @@ class Fitter:
             message=sol.message,
             reasons=reasons,
             params=tuple(float(x) for x in sol.p),
+            ellipse={"a_mm": ell.a, "b_mm": ell.b, "theta_deg": math.degrees(ell.theta) % 180.0},
         )
 
     def _uncertainty(

@@ -52,6 +52,9 @@ class FitResult:
     criterion: dict[str, float] | None = None  # model -> information criterion (auto)
     #: the model's internal parameter vector at the solution (a warm start for the next frame)
     params: tuple[float, ...] | None = None
+    #: the fitted contact ellipse, for display: semi-axes a >= b in mm, major axis direction
+    #: theta in degrees from +x toward +y, in [0, 180)
+    ellipse: dict[str, float] | None = None
 
     def __post_init__(self) -> None:
         self.sanitise()
@@ -68,6 +71,8 @@ class FitResult:
         self.chi2 = _finite_or_none(self.chi2)
         self.condition = _finite_or_none(self.condition)
         self.peak = _finite_or_none(self.peak)
+        if self.ellipse is not None and not all(math.isfinite(v) for v in self.ellipse.values()):
+            self.ellipse = None
 
     def to_json_dict(self, frame: int | None = None) -> dict[str, Any]:
         """The ``tactiled fit`` line (also the WebSocket estimate body)."""
@@ -88,5 +93,6 @@ class FitResult:
             peak=self.peak,
             reasons=dict(self.reasons),
             message=self.message,
+            ellipse=dict(self.ellipse) if self.ellipse else None,
         )
         return out

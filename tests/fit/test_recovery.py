@@ -90,3 +90,18 @@ def test_warm_start_lands_on_the_cold_answer(fitter):
     for k in ("r1_mm", "angle_deg", "force_n", "x_mm", "y_mm"):
         assert warm.values[k] == pytest.approx(cold.values[k], rel=1e-4, abs=1e-4)
     assert warm.iterations <= cold.iterations + 1
+
+
+def test_result_carries_the_fitted_contact_ellipse(fitter):
+    from tactiled.physics.hertz import contact_ellipse_radii
+
+    c = Contact(10.0, math.inf, 45.0, 1.0, 11.0, 13.0)
+    res = fitter.fit(reference_strain(c), "cylinder")
+    v = res.values
+    e = contact_ellipse_radii(v["r1_mm"], math.inf, v["angle_deg"], v["force_n"])
+    assert res.ellipse["a_mm"] == pytest.approx(e.a, rel=1e-9)
+    assert res.ellipse["b_mm"] == pytest.approx(e.b, rel=1e-9)
+    assert res.ellipse["theta_deg"] == pytest.approx(math.degrees(e.theta), abs=1e-7)
+    # the paper's example: 11.4 mm x 3.5 mm at 26 deg
+    assert 2 * res.ellipse["a_mm"] == pytest.approx(11.38, abs=0.02)
+    assert res.to_json_dict()["ellipse"] == res.ellipse
