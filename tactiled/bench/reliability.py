@@ -53,6 +53,40 @@ def rss_mb(pid: int | str = "self") -> float | None:
     return None
 
 
+def _total_busy_ticks() -> int:
+    """Busy CPU time of the whole machine (all cores), in clock ticks (/proc/stat)."""
+    with open("/proc/stat", encoding="ascii") as fh:
+        fields = [int(x) for x in fh.readline().split()[1:]]
+    idle = fields[3] + (fields[4] if len(fields) > 4 else 0)  # idle + iowait
+    return sum(fields[:8]) - idle
+
+
+def _tree_ticks(root: int) -> int:
+    """CPU time of ``root`` and its live descendants, including the children each has reaped
+    (so fit workers replaced meanwhile, reaped by the forkserver, still count), in ticks."""
+    parents: dict[int, int] = {}
+    ticks: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", encoding="ascii") as fh:
+                rest = fh.read().rsplit(")", 1)[1].split()
+        except (FileNotFoundError, ProcessLookupError, IndexError):
+            continue
+        pid = int(entry)
+        parents[pid] = int(rest[1])
+        ticks[pid] = sum(int(x) for x in rest[11:15])  # utime stime cutime cstime
+    total = 0
+    for pid, t in ticks.items():
+        p, seen = pid, 0
+        while p and p != root and seen < 64:
+            p, seen = parents.get(p, 0), seen + 1
+        if p == root:
+            total += t
+    return total
+
+
 def _start_simulators(tmp: Path, rate: float, scene: str) -> list[tuple[subprocess.Popen, Path]]:
     sims = []
     for i, _ in enumerate(FINGERS):
@@ -116,6 +150,7 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float) -> di
         await asyncio.sleep(warmup)
         before = daemon.stats()
         t0 = time.monotonic()
+        cpu0 = (_total_busy_ticks(), _tree_ticks(os.getpid()), time.monotonic())
         base = rss_mb()
         samples: list[tuple[float, float]] = [(0.0, base or 0.0)]
         workers: dict[int, list[float]] = {}
@@ -127,10 +162,16 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float) -> di
                     workers.setdefault(pid, []).append(r)
         after = daemon.stats()
         elapsed = time.monotonic() - t0
+        cpu1 = (_total_busy_ticks(), _tree_ticks(os.getpid()), time.monotonic())
     finally:
         await daemon.stop()
+    hz = os.sysconf("SC_CLK_TCK")
+    wall = cpu1[2] - cpu0[2]
+    ours = (cpu1[1] - cpu0[1]) / hz / wall
+    other = max(0.0, (cpu1[0] - cpu0[0]) / hz / wall - ours)
     return {"before": before, "after": after, "elapsed": elapsed, "rss": samples,
-            "workers_rss": workers}
+            "workers_rss": workers, "cpu_cores": {"soak": round(ours, 2),
+                                                  "other_jobs": round(other, 2)}}
 
 
 def _sensor_delta(a: dict[str, Any], b: dict[str, Any], elapsed: float) -> dict[str, Any]:
@@ -171,8 +212,13 @@ def soak(seconds: float, warmup: float = 5.0, rate: float = 1000.0, scene: str =
     worker_growth = {str(pid): round(max(v) - v[0], 2) for pid, v in run["workers_rss"].items()}
     result = {
         "seconds": round(elapsed, 1), "warmup_s": warmup, "rate_hz": rate, "scene": scene,
-        "cpus": os.cpu_count(), "fit_workers": after["workers"]["size"],
+        "cpus": os.cpu_count(), "cpu_cores": run["cpu_cores"],
+        "fit_workers": after["workers"]["size"],
         "worker_restarts": after["workers"]["restarts"] - before["workers"]["restarts"],
+        "worker_restarts_by_reason": {
+            k: v - before["workers"]["restarts_by_reason"].get(k, 0)
+            for k, v in after["workers"]["restarts_by_reason"].items()
+            if v - before["workers"]["restarts_by_reason"].get(k, 0)},
         "rss_mb": {"after_warmup": round(base, 2), "max": round(max(v for _, v in rss), 2),
                    "last": round(rss[-1][1], 2), "growth": round(growth, 2),
                    "slope_mb_per_h": (None if (s := _slope_mb_per_h(rss)) is None
@@ -205,7 +251,10 @@ def _markdown(r: dict[str, Any]) -> str:
     lines += ["", f"Daemon RSS: {m['after_warmup']:.1f} MB after warm-up, max {m['max']:.1f} MB, "
               f"growth {m['growth']:.2f} MB (bar {RSS_BAR_MB:g} MB), slope "
               f"{m['slope_mb_per_h']} MB/h over {m['samples']} samples; worker RSS growth (MB): "
-              f"{r['workers_rss_growth_mb']}; worker restarts {r['worker_restarts']}.",
+              f"{r['workers_rss_growth_mb']}; worker restarts {r['worker_restarts']} "
+              f"{r['worker_restarts_by_reason']}.",
+              f"CPU (cores, average): this soak {r['cpu_cores']['soak']}, other jobs on the "
+              f"machine {r['cpu_cores']['other_jobs']}.",
               f"Simulators: {r['simulators']}", f"Passed: {r['passed']}"]
     return "\n".join(lines)
 

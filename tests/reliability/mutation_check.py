@@ -1,0 +1,132 @@
+"""Mutation check of the reliability tests: each test must be able to fail.
+
+Each mutation below is a deliberate defect applied to a *copy* of the repository in a temporary
+directory (never to the working tree); the named tests are run there (``PYTHONPATH`` points at
+the copy, which wins over the editable install) and must fail.  Run from the repository root::
+
+    .venv/bin/python tests/reliability/mutation_check.py            # all (~4 min)
+    .venv/bin/python tests/reliability/mutation_check.py M3 M14     # some
+
+A mutation whose target text no longer exists is reported as "not applicable" (the code moved
+on): update its text.
+"""
+import os, shutil, subprocess, sys, json, tempfile, time
+from pathlib import Path
+SRC = str(Path(__file__).resolve().parents[2])
+DST = tempfile.mkdtemp(prefix="tactiled-mut-") + "/repo"
+ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/drivers:{DST}/service")
+PY = sys.executable
+
+MUTATIONS = [
+ ("M1 decoder accepts frames failing their CRC", "tactiled/frames.py",
+  "    if cobs_ok and zlib.crc32(memoryview(data)[:-CRC_LEN]) == crc:", "    if cobs_ok:",
+  ["tests/reliability/test_serial_faults.py::test_damaged_stream[bitflip]",
+   "tests/reliability/test_decoder_fuzz.py::test_fuzzed_streams_are_counted_and_cut_anywhere"]),
+ ("M2 decoder buffer unbounded", "tactiled/frames.py",
+  "        if len(self._buf) > MAX_ENCODED_LEN:", "        if False:",
+  ["tests/reliability/test_decoder_fuzz.py::test_random_bytes_never_raise",
+   "tests/reliability/test_decoder_fuzz.py::test_memory_is_bounded_over_a_long_stream[4]",
+   "tests/reliability/test_decoder_fuzz.py::test_time_per_megabyte"]),
+ ("M3 unplug not reported", "drivers/tactiled_drivers/serial_source.py",
+  "        self.connected = False\n        self.disconnects += 1", "        self.disconnects += 1",
+  ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
+ ("M4 port not closed on unplug (fd leak)", "drivers/tactiled_drivers/serial_source.py",
+  "                port.close()", "                self.__dict__.setdefault('_leak', []).append(port)",
+  ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
+ ("M5 no exclusive lock", "drivers/tactiled_drivers/serial_source.py",
+  'self.url.get_bool("exclusive", True)', 'self.url.get_bool("exclusive", False)',
+  ["tests/reliability/test_unplug.py::test_second_process_is_refused_with_a_clear_error"]),
+ ("M6 decoder not reset on reconnect", "drivers/tactiled_drivers/serial_source.py",
+  "        self.decoder.reset()", "        pass",
+  ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
+ ("M7 worker death not noticed (sentinel and EOF)", "tactiled/pipeline/pool.py",
+  '        if w.state in ("starting", "ready"):\n            self._lose(w, "died"', '        if False:\n            self._lose(w, "died"',
+  ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/pool.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
+ ("M8 hung worker never killed", "tactiled/pipeline/pool.py",
+  "                        if now - w.head_since > head.timeout:", "                        if False:",
+  ["tests/reliability/test_worker_faults.py::test_hung_worker[2]",
+   "tests/reliability/test_worker_faults.py::test_frame_that_hangs_the_fitter"]),
+ ("M9 a fitter exception kills the worker", "tactiled/pipeline/worker.py",
+  "                except Exception as err:  # a fitter bug must cost one frame, not the worker",
+  "                except ZeroDivisionError as err:",
+  ["tests/reliability/test_worker_faults.py::test_fitter_that_raises_costs_frames_not_workers"]),
+ ("M10 stale fit results published", "tactiled/pipeline/sensor.py",
+  "            if w.ordinal <= self._last_published:", "            if False:",
+  ["tests/reliability/test_serial_faults.py::test_damaged_stream[garbage]",
+   "tests/reliability/test_serial_faults.py::test_damaged_stream[mixed]",
+   "tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"]),
+ ("M11 superseded frames not counted", "tactiled/pipeline/sensor.py",
+  "            if self._waiting is not None:\n                self.superseded += 1", "            if self._waiting is not None:\n                pass",
+  ["tests/reliability/test_serial_faults.py::test_damaged_stream[garbage]", "tests/reliability/test_soak.py::test_soak_short"]),
+ ("M12 calibration version not checked", "tactiled/calibration/fileformat.py",
+  "    if not _is_int(version) or version != VERSION:", "    if not _is_int(version):",
+  ["tests/reliability/test_bad_files.py::test_bad_calibration_files_are_refused_before_any_worker_starts",
+   "tests/reliability/test_bad_files.py::test_replay_and_record_commands_refuse_bad_files"]),
+ ("M13 recording version not checked", "tactiled/recording.py",
+  "    if version != VERSION:", "    if False:",
+  ["tests/reliability/test_bad_files.py::test_replay_and_record_commands_refuse_bad_files"]),
+ ("M14 fitter numerics changed (solver tolerance)", "tactiled/fit/fitter.py",
+  "    tol: float = 1e-9", "    tol: float = 1e-8",
+  ["tests/reliability/test_golden_replay.py"]),
+ ("M15 hub leaks every estimate (memory)", "tactiled/pipeline/hub.py",
+  "            self._latest_estimate[item.sensor] = item", "            self._latest_estimate[item.sensor] = item\n            self.__dict__.setdefault('_leak', []).append(item)",
+  ["tests/reliability/test_soak.py::test_soak_short"]),
+ ("M16 the worker answers a NaN (as a fitter bug would)", "tactiled/pipeline/worker.py",
+  "                    out, error = plain(result.to_json_dict()), None", "                    out, error = dict(plain(result.to_json_dict()), rms=float('nan')), None",
+  ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"]),
+ ("M17 bytes held between reads are dropped", "tactiled/frames.py",
+  "        chunks[0] = bytes(self._buf) + chunks[0]", "        chunks[0] = chunks[0]",
+  ["tests/reliability/test_serial_faults.py::test_every_split_point_across_reads"]),
+ ("M18 a config file that is not valid TOML is read as empty", "tactiled/settings.py",
+  "            doc = tomllib.load(fh)", "            doc = {}",
+  ["tests/reliability/test_bad_files.py::test_truncated_and_invalid_config_files_are_refused"]),
+ ("M19 frames of the wrong shape reach the calibration stage", "tactiled/pipeline/sensor.py",
+  "        if frame.shape != (g.rows, g.cols):", "        if False:",
+  ["tests/reliability/test_serial_faults.py::test_damaged_stream[length]"]),
+ ("M20 the decoder slows down (10 us per chunk)", "tactiled/frames.py",
+  '    """Decode one delimiter-free chunk to a Frame, or name the DecoderStats counter to bump."""',
+  '    """Decode one delimiter-free chunk to a Frame, or name the DecoderStats counter to bump."""\n    time.sleep(1e-5)',
+  ["tests/reliability/test_decoder_fuzz.py::test_time_per_megabyte"]),
+ ("M21 the decoder keeps every frame it delivers", "tactiled/frames.py",
+  "        self._last_seq[frame.sensor_id] = frame.seq",
+  "        self._last_seq[frame.sensor_id] = frame.seq\n        self.__dict__.setdefault('_kept', []).append(frame)",
+  ["tests/reliability/test_decoder_fuzz.py::test_sequence_memory_is_bounded_by_the_sensor_id_space[16384]",
+   "tests/reliability/test_decoder_fuzz.py::test_memory_is_bounded_over_a_long_stream[4]"]),
+ ("M22 a truncated last record is an error", "tactiled/recording.py",
+  "            if len(data) < length:\n                self._truncate(offset, RECORD_HEADER_SIZE + len(data))\n                return",
+  "            if len(data) < length:\n                raise FrameError('cut')",
+  ["tests/reliability/test_bad_files.py::test_replay_of_a_recording_cut_short_replays_the_complete_records"]),
+]
+
+def fresh():
+    if os.path.exists(DST):
+        shutil.rmtree(DST)
+    shutil.copytree(SRC, DST, ignore=shutil.ignore_patterns(
+        ".venv", ".git", ".hypothesis", ".mypy_cache", ".ruff_cache", ".pytest_cache",
+        "*.egg-info"))
+
+only = sys.argv[1:]
+results = []
+for name, path, old, new, tests, *more in MUTATIONS:
+    if only and not any(name.startswith(o + " ") for o in only):
+        continue
+    fresh()
+    p = os.path.join(DST, path)
+    s = open(p).read()
+    if old not in s:
+        results.append((name, "MUTATION NOT APPLICABLE")); print(name, "NOT APPLICABLE", flush=True); continue
+    open(p, "w").write(s.replace(old, new, 1))
+    for path2, old2, new2 in (more[0] if more else []):
+        p2 = os.path.join(DST, path2); s2 = open(p2).read(); assert old2 in s2, old2
+        open(p2, "w").write(s2.replace(old2, new2, 1))
+    t = time.time()
+    r = subprocess.run([PY, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-x", "--timeout", "300", *tests],
+                       cwd=DST, env=ENV, capture_output=True, text=True)
+    tail = [l for l in r.stdout.splitlines() if l.startswith(("FAILED", "ERROR")) or " passed" in l or " failed" in l][-4:]
+    verdict = "caught (tests failed)" if r.returncode != 0 else "NOT CAUGHT"
+    results.append((name, verdict, tail, round(time.time() - t)))
+    print(name, "->", verdict, round(time.time() - t), "s", tail, flush=True)
+shutil.rmtree(os.path.dirname(DST), ignore_errors=True)
+caught = sum(1 for r in results if r[1].startswith("caught"))
+print(f"{caught} of {len(results)} mutations caught")
+sys.exit(0 if caught == len(results) else 1)

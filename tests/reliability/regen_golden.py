@@ -1,0 +1,112 @@
+"""Golden estimate files for the recorded-session regression test (test_golden_replay.py).
+
+Three short sessions were recorded with ``tactiled record`` from the scene simulator (press,
+sphere, edge; 3 s each at 30 frames/s) and are checked in under ``tests/data/golden/`` with
+what ``tactiled replay --mode lossless --no-timing`` printed for them.  The test replays each
+recording through the whole daemon again and fails on any difference, as gpsd's regression
+tests compare ``gpsfake`` output with checked-in ``.chk`` files.
+
+Regenerate the golden estimates (after a deliberate change of the estimates; review the diff)::
+
+    .venv/bin/python -m tests.reliability.regen_golden
+
+and, to re-record the sessions from the simulator as well (new recordings; rarely needed)::
+
+    .venv/bin/python -m tests.reliability.regen_golden --record
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+GOLDEN = Path(__file__).resolve().parent.parent / "data" / "golden"
+
+#: session name -> the simulator URL it was recorded from.
+SESSIONS = {
+    name: f"sim://?scene={name}&seed=1&rate=30&speed=0&loop=0"
+    for name in ("press", "sphere", "edge")
+}
+
+REL_TOL = 1e-9  # floats: relative tolerance of the comparison (see compare())
+ABS_TOL = 1e-12
+
+
+def recording(name: str) -> Path:
+    return GOLDEN / f"{name}.tact"
+
+
+def golden(name: str) -> Path:
+    return GOLDEN / f"{name}.jsonl"
+
+
+def replay_command(path: Path) -> list[str]:
+    """The command whose output is the golden file (run as ``python -m tactiled.cli``)."""
+    return [sys.executable, "-m", "tactiled.cli", "replay", str(path), "--mode", "lossless",
+            "--speed", "0", "--no-timing"]
+
+
+def replay(path: Path) -> str:
+    done = subprocess.run(replay_command(path), capture_output=True, text=True, timeout=300,
+                          check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"replay of {path} failed ({done.returncode}): {done.stderr}")
+    return done.stdout
+
+
+def compare(expected: Any, actual: Any, where: str = "") -> list[str]:
+    """Differences between two parsed JSON values: exact for everything but floats, which
+    must agree within ``REL_TOL`` (relative) or ``ABS_TOL``."""
+    if isinstance(expected, dict) and isinstance(actual, dict):
+        out = []
+        for key in sorted(expected.keys() | actual.keys()):
+            if key not in actual:
+                out.append(f"{where}.{key}: missing")
+            elif key not in expected:
+                out.append(f"{where}.{key}: unexpected ({actual[key]!r})")
+            else:
+                out += compare(expected[key], actual[key], f"{where}.{key}")
+        return out
+    if isinstance(expected, list) and isinstance(actual, list):
+        if len(expected) != len(actual):
+            return [f"{where}: {len(actual)} items, expected {len(expected)}"]
+        return [d for i, (e, a) in enumerate(zip(expected, actual))
+                for d in compare(e, a, f"{where}[{i}]")]
+    if (isinstance(expected, float) and isinstance(actual, (int, float))
+            and not isinstance(actual, bool)):
+        if math.isclose(expected, actual, rel_tol=REL_TOL, abs_tol=ABS_TOL):
+            return []
+        return [f"{where}: {actual!r}, expected {expected!r}"]
+    if type(expected) is not type(actual) or expected != actual:
+        return [f"{where}: {actual!r}, expected {expected!r}"]
+    return []
+
+
+def record(name: str) -> None:
+    path = recording(name)
+    path.unlink(missing_ok=True)
+    subprocess.run([sys.executable, "-m", "tactiled.cli", "record", SESSIONS[name], "-o",
+                    str(path)], check=True, timeout=300)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--record", action="store_true",
+                        help="re-record the sessions from the simulator first")
+    args = parser.parse_args(argv)
+    GOLDEN.mkdir(parents=True, exist_ok=True)
+    for name in SESSIONS:
+        if args.record or not recording(name).exists():
+            record(name)
+        text = replay(recording(name))
+        golden(name).write_text(text)
+        print(f"{golden(name)}: {len(text.splitlines())} estimates from {recording(name)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,114 @@
+"""Recorded sessions replayed through the whole daemon against checked-in golden estimates, as
+gpsd's regression tests replay device logs through ``gpsfake``: any difference fails.
+
+Each session in ``tests/data/golden/`` (press, sphere, edge: 3 s at 30 frames/s, recorded with
+``tactiled record`` from the simulator) is replayed with ``tactiled replay --mode lossless
+--no-timing`` in a subprocess: the replay driver, the wire decoder, calibration, zeroing, the
+gate, a real fit worker and the hub, with the keys that depend on timing
+(``tactiled.pipeline.TIMING_KEYS``) left out.  Lossless mode fits every frame the gate passes
+and waits for it, so the output depends only on the recording.
+
+Comparison: the parsed JSON of every line, exactly for strings, integers, booleans and nulls
+(gate, model, iterations, converged, seq, ...), and within a relative 1e-9 for floats.  Byte
+equality holds on this machine (reported by the test), but the fitter's compiled kernels are
+built for the host CPU, so another CPU of the same kind may round a last bit differently
+(e.g. with or without FMA); 1e-9 is far below any meaningful change of an estimate (six orders
+below the noise-limited uncertainties) and far above last-bit rounding.
+
+Regenerate after a deliberate change (and review the diff): ``.venv/bin/python -m
+tests.reliability.regen_golden`` (see that module).
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import subprocess
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+import regen_golden as g
+from rel_helpers import figures
+
+from tactiled.pipeline import TIMING_KEYS
+
+REGEN = ".venv/bin/python -m tests.reliability.regen_golden"
+
+
+def _replay_all() -> dict[str, str]:
+    with ThreadPoolExecutor(len(g.SESSIONS)) as ex:
+        return dict(zip(g.SESSIONS, ex.map(lambda n: g.replay(g.recording(n)), g.SESSIONS)))
+
+
+@pytest.fixture(scope="module")
+def replayed() -> dict[str, str]:
+    return _replay_all()
+
+
+def _report(name: str, expected: str, actual: str, diffs: list[str]) -> str:
+    udiff = list(difflib.unified_diff(expected.splitlines(), actual.splitlines(),
+                                      f"{g.golden(name)}", "replay", n=0, lineterm=""))
+    return (f"session {name!r}: {len(diffs)} difference(s), first: {diffs[:8]}\n"
+            + "\n".join(udiff[:12]) + f"\nIf the change is intended, regenerate: {REGEN}")
+
+
+@pytest.mark.parametrize("name", list(g.SESSIONS))
+def test_replay_matches_the_golden_estimates(replayed: dict[str, str], name: str) -> None:
+    expected_text = g.golden(name).read_text()
+    actual_text = replayed[name]
+    expected = [json.loads(line) for line in expected_text.splitlines()]
+    actual = [json.loads(line) for line in actual_text.splitlines()]
+    assert not any(k in line for line in expected + actual for k in TIMING_KEYS)
+    diffs = [] if len(expected) == len(actual) else [
+        f"{len(actual)} estimates, expected {len(expected)}"]
+    for i, (e, a) in enumerate(zip(expected, actual)):
+        diffs += g.compare(e, a, f"line {i + 1} (seq {e.get('seq')})")
+    assert not diffs, _report(name, expected_text, actual_text, diffs)
+    gates = {line["gate"] for line in expected}
+    assert gates == {"fit", "unchanged", "no_contact"}, gates
+    assert any(line["gate"] == "fit" and line["contact"] for line in expected)
+    figures(f"golden[{name}]", estimates=len(actual), byte_identical=actual_text == expected_text,
+            fitted=sum(line["gate"] == "fit" for line in actual))
+
+
+def test_the_comparison_catches_a_change() -> None:
+    """The comparison itself can fail: a float off by 1e-8 relative, a changed model name, an
+    extra key, a missing line."""
+    lines = [json.loads(line) for line in g.golden("press").read_text().splitlines()]
+    fit = next(line for line in lines if line["gate"] == "fit" and line["x_mm"] is not None)
+    assert not g.compare(fit, json.loads(json.dumps(fit)))
+    changed = dict(fit, x_mm=fit["x_mm"] * (1 + 1e-8))
+    assert g.compare(fit, changed) == [f".x_mm: {changed['x_mm']!r}, expected {fit['x_mm']!r}"]
+    assert g.compare(fit, dict(fit, model="general" if fit["model"] != "general" else "sphere"))
+    assert g.compare(fit, dict(fit, latency_ms=1.0))
+    assert g.compare(fit, dict(fit, std=dict(fit["std"], x_mm=None)))
+    assert g.compare(lines, lines[:-1])
+    assert not g.compare(fit, dict(fit, x_mm=fit["x_mm"] * (1 + 1e-12)))
+
+
+def test_golden_files_are_small_and_reproduce_their_recordings() -> None:
+    """The checked-in data stays small, and each recording is what its simulator URL gives
+    (the wire bytes, not the host times, which are the recording run's)."""
+    from urllib.parse import parse_qs, urlsplit
+
+    from tactiled.frames import decode_frame, encode_frame
+    from tactiled.recording import read_recording
+    from tactiled.sim import FingerSimulator
+
+    total = sum(p.stat().st_size for p in g.GOLDEN.iterdir())
+    assert total < 512 * 1024, f"{total} bytes of golden data"
+    for name, url in g.SESSIONS.items():
+        q = {k: v[0] for k, v in parse_qs(urlsplit(url).query).items()}
+        sim = FingerSimulator(scene=q["scene"], seed=int(q["seed"]), rate_hz=float(q["rate"]),
+                              loop=False)
+        wires = [w for _, w in read_recording(g.recording(name))]
+        assert wires == [encode_frame(sim.next_frame()) for _ in wires]
+        assert len(wires) == round(sim.scene.duration * float(q["rate"]))
+        assert decode_frame(wires[0]).seq == 0
+
+
+def test_the_replay_command_is_the_documented_one() -> None:
+    cmd = g.replay_command(g.recording("press"))
+    assert cmd[1:5] == ["-m", "tactiled.cli", "replay", str(g.recording("press"))]
+    assert {"--mode", "lossless", "--no-timing", "--speed", "0"} <= set(cmd)
+    assert subprocess.run(cmd[:3] + ["--help"], capture_output=True).returncode == 0
