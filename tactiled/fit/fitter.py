@@ -23,7 +23,7 @@ from tactiled.fit.start import features, force_estimate, start_table
 from tactiled.fit.window import choose_window, interpolated_peak
 from tactiled.physics.contact import Contact
 from tactiled.physics.kernels import cramer_rao as crb_kernel
-from tactiled.physics.strain import StrainModel
+from tactiled.physics.strain import StrainModel, warm_rules
 
 #: Singular values below this fraction of the largest make J^T J numerically singular.
 SINGULAR_CONDITION = 1e12
@@ -120,6 +120,7 @@ class Fitter:
         """Build the start table and load the compiled kernels now, so the first frame's
         fit time is a fit's and not a start-up's."""
         start_table(self.sensor)
+        warm_rules()
         g = self.sensor.geometry
         frame = self.model.predict(Contact(8.0, math.inf, 80.0, 1.0, g.span_x / 2, g.span_y / 2))
         for name in ("cylinder", "sphere", "general"):
