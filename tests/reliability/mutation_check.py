@@ -10,7 +10,7 @@ the copy, which wins over the editable install) and must fail.  Run from the rep
 A mutation whose target text no longer exists is reported as "not applicable" (the code moved
 on): update its text.
 """
-import os, shutil, subprocess, sys, json, tempfile, time
+import os, shutil, subprocess, sys, tempfile, time
 from pathlib import Path
 SRC = str(Path(__file__).resolve().parents[2])
 DST = tempfile.mkdtemp(prefix="tactiled-mut-") + "/repo"

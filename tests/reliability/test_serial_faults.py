@@ -18,7 +18,6 @@ published must carry the seq/device time of a frame sent intact: no corrupt fram
 
 from __future__ import annotations
 
-import asyncio
 import random
 import sys
 import zlib

@@ -245,9 +245,53 @@ async def _send_quietly(hand: Hand, finger: int, raws: list[Any], quiet: float) 
     return seqs
 
 
-# (A test that sent a rail-to-rail frame whose fit ran past fit.timeout was removed when the
-# cause, quadrature rules built on the spot in a fresh worker, was fixed: such frames now fit
-# in ~0.1 s.  The hung-worker path it exercised is covered by test_hung_worker.)
+async def _hanging_frames(more_ptys) -> dict:
+    async with Hand(more_ptys) as hand:
+        pool = hand.pool
+        await hand.fitting(more=20)
+        # Every tactel at full scale: a "contact" the size of the finger, whose fit takes tens
+        # of seconds (the quadrature grows with the contact; measured 27 s in one process).
+        before = pool.restarts
+        t0 = time.monotonic()
+        await _send_quietly(hand, 0, [np.full((8, 8), 65535)], quiet=0.05)
+        await wait_for(lambda: pool.restarts > before, 5, "hung fit noticed")
+        noticed = time.monotonic() - t0  # t0: just before the frame was written
+        await wait_for(hand.all_ready, 5, "replacement ready")
+        last = pool.stats()["last_restart"]
+        await hand.fitting(more=10)
+        resumed = time.monotonic() - t0
+        # Then a burst of the worst a device can send, back to back (latest frame wins).
+        rng = np.random.default_rng(7)
+        burst = [np.zeros((8, 8)) + 10001, np.indices((8, 8)).sum(0) % 2 * 65535]
+        burst += [rng.integers(0, 65536, (8, 8)) for _ in range(30)]
+        await _send_quietly(hand, 0, burst, quiet=0.0)
+        await wait_for(hand.all_ready, 5, "workers ready after the burst")
+        await hand.fitting(more=10, timeout=15)
+        stats = await hand.settle()
+        workers = pool.stats()
+    _check(hand, stats)
+    return {"noticed": noticed, "last": last, "resumed": resumed, "stats": stats,
+            "workers": workers}
+
+
+def test_frame_that_hangs_the_fitter(more_ptys, arun) -> None:
+    """A frame whose fit runs past ``fit.timeout`` (1 s) costs that frame and one worker: it is
+    SIGKILLed as hung, replaced within a second, and both fingers are fitted again.
+
+    Every count at 65535 still takes ~9 s to fit in a fresh worker after the quadrature-rule
+    fix (a3a9b58; 27 s before): the contact it implies is the size of the finger, and the
+    forward model's cost grows with the contact."""
+    r = arun(_hanging_frames(more_ptys))
+    assert 1.0 <= r["noticed"] < 1.35, r["noticed"]  # fit.timeout, then the 50 ms supervisor
+    assert r["last"]["reason"] == "hung" and r["last"]["ready_s"] < READY_S
+    assert set(r["workers"]["restarts_by_reason"]) == {"hung"}
+    thumb = r["stats"]["thumb"]
+    assert thumb["worker_restarts"] == r["workers"]["restarts"] >= 1
+    assert thumb["fit_failed"] >= 1 and thumb["fit_errors"] == 0
+    figures("frame_that_hangs_the_fitter", noticed_s=round(r["noticed"], 3),
+            ready_ms=round(1e3 * r["last"]["ready_s"], 1),
+            fitting_again_s=round(r["resumed"], 3), restarts=r["workers"]["restarts"],
+            fit_failed=thumb["fit_failed"])
 
 
 async def _failing_setup(more_ptys) -> dict:
