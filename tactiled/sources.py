@@ -326,6 +326,13 @@ class FrameSource(abc.ABC):
             decoder=decoder_stats,
         )
 
+    async def retry_pause(self, delay: float) -> None:
+        """Wait before the next attempt to open a source that failed to open: ``delay``
+        seconds (the caller's backoff).  A driver that can tell its device has come back
+        (the serial driver watches the device path) returns early so the retry is immediate.
+        """
+        await asyncio.sleep(delay)
+
     # -- for drivers ----------------------------------------------------------------------
 
     def _timestamp(self) -> float:

@@ -205,7 +205,7 @@ class SensorPipeline:
                     log.warning("%s: %s (retrying)", self.name, err)
                 self.last_error = str(err)
                 await self._close_source()
-                await asyncio.sleep(delay)
+                await self.source.retry_pause(delay)  # early if the device reappears
                 delay = min(delay * 2.0, RETRY_MAX)
             except Exception as err:
                 # Anything else (a corrupt recording, a driver bug) would fail again the same

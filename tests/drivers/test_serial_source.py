@@ -267,6 +267,35 @@ def test_backoff_doubles_up_to_the_cap(pty_device, wait_until) -> None:
     asyncio.run(main())
 
 
+def test_retry_pause_is_cut_short_only_by_a_device_that_appears(pty_device) -> None:
+    """The backoff spaces out attempts that keep failing the same way (here: the port held
+    by another open, so the node is there and unchanged), but a device that appears during
+    the pause is tried at once instead of up to ``RETRY_MAX`` later."""
+
+    async def main() -> tuple[float, float]:
+        src = SerialSource(serial_url(pty_device.path))
+        holder = serial.Serial(pty_device.path, timeout=0, exclusive=True)
+        try:
+            with pytest.raises(DeviceConnectionError, match="in use"):
+                src._open_port()
+            start = time.monotonic()
+            await src.retry_pause(0.4)
+            unchanged = time.monotonic() - start
+        finally:
+            holder.close()
+        pty_device.unplug()
+        with pytest.raises(DeviceConnectionError, match="does not exist"):
+            src._open_port()
+        asyncio.get_running_loop().call_later(0.2, pty_device.replug)
+        start = time.monotonic()
+        await src.retry_pause(5.0)
+        return unchanged, time.monotonic() - start
+
+    unchanged, appeared = asyncio.run(main())
+    assert unchanged >= 0.4
+    assert 0.2 <= appeared < 0.2 + 0.5, appeared  # one 50 ms watch step, plus scheduling
+
+
 class _SlowRetry(SerialSource):
     RETRY_MIN = 5.0
 
