@@ -293,7 +293,9 @@ SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "calibration": _optional(_as_str),
     "model": _choice(MODELS),
     "window": _window,
-    "noise_sigma": _positive(_as_float, "strain"),
+    # Below ~1e-8 the fit's weights overflow (1e-300 divided by zero in the fitter); above 0.1
+    # the noise would exceed any strain the rubber can carry.
+    "noise_sigma": _in_range(_as_float, 1e-8, 0.1, "strain (1 sigma)"),
     "false_rate": _false_rate,
     "detector_average": _in_range(_as_int, 1, 64, "a frame count"),
     "reuse_unchanged": _as_bool,

@@ -27,6 +27,16 @@ baseline's noise is ``sigma/sqrt(n)`` (``n`` = 25 frames at 100 Hz: +2 % on the 
 
 NaN/inf entries are output as 0 and do not touch their tactel's baseline;
 :attr:`Zeroer.nonfinite_frames` counts such frames.
+
+**One implausible frame cannot drag the baseline.**  Outside the running-mean start-up, each
+frame's pull on a tactel's baseline is clipped to ``MAX_STEP_SIGMAS`` (10) noise sigmas of the
+detector's ``sigma``: drift and hysteresis residuals are far below that per frame, so they are
+followed as before, but a glitch (an ADC returning zero counts for a few frames, which the
+detector rightly does not call a contact) moves the baseline by at most ``weight x 10 sigma``
+instead of ``weight x`` its full deviation (was 7-39 sigma per glitch frame with the 0.3 s
+release constant; every contact after it then carried that pedestal).  A genuine step in the
+unloaded strain larger than 10 sigma is then absorbed at 10 sigma per time constant; ``tare``
+takes it at once.
 """
 
 from __future__ import annotations
@@ -42,6 +52,7 @@ DEFAULT_TAU_DRIFT = 5.0  # s
 DEFAULT_TAU_RELEASE = 0.3  # s
 DEFAULT_HOLDOFF = 1.5  # s
 DEFAULT_SETTLE = 0.25  # s
+MAX_STEP_SIGMAS = 10.0  # a frame's pull on the baseline is clipped to this many noise sigmas
 
 
 class Zeroer:
@@ -128,7 +139,12 @@ class Zeroer:
             tau = self.tau_release if t < self._release_until else self.tau_drift
             # -expm1(-dt/tau) = 1 - exp(-dt/tau), accurate for small dt/tau; 1/n makes the first
             # frames after a (re)start a plain running mean (the bias-corrected EMA).
-            self.baseline += max(-math.expm1(-dt / tau), 1.0 / self._frames) * z
+            ema = -math.expm1(-dt / tau)
+            if 1.0 / self._frames >= ema:  # the running mean of the start-up: take it whole
+                self.baseline += z / self._frames
+            else:
+                limit = MAX_STEP_SIGMAS * self.detector.sigma
+                self.baseline += ema * np.clip(z, -limit, limit)
         return z
 
     def tare(self, strain: ArrayLike | None = None) -> None:

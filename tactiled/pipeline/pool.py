@@ -360,6 +360,9 @@ class WorkerPool:
                     and self.last_restart.get("ready_s") is None:
                 self.last_restart["ready_s"] = now - self.last_restart["lost_at"]
             log.info("fit worker %d ready (pid %s, warm-up %.3f s)", w.slot, msg[1], msg[2])
+            for spec, error in msg[3].items():
+                log.error("fit worker %d: fitter setup failed for spec %d: %s", w.slot, spec,
+                          error)
             self._ready.set()
             self.wake()
             return

@@ -5,7 +5,9 @@ parent runs an asyncio loop, and forking a process with a running loop and threa
 The protocol is tuples pickled over one duplex ``multiprocessing`` Connection, answered strictly
 in order (which is what lets the parent give every outstanding request a deadline):
 
-- started with its initial specs, it answers ``("ready", pid, warm_up_s)``;
+- started with its initial specs, it answers ``("ready", pid, warm_up_s, broken)``, where
+  ``broken`` maps a spec whose fitter could not be built to the error (its fits then answer
+  with that error: one sensor's bad model must not keep the worker from serving the others);
 - ``("fit", rid, spec, strain, model, mask, warm)`` -> ``("result", rid, fit_json_dict | None,
   compute_s, error | None, warm | None)`` (the fitter raising costs one frame, never the
   worker); ``warm`` is ``(model, params)`` of a converged fit, the next frame's warm start;
@@ -44,10 +46,15 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     from tactiled.fit.fitter import FitOptions, Fitter
 
     t0 = time.perf_counter()
-    fitters: dict[int, Any] = {key: Fitter(sensor, FitOptions(**dict(options)))
-                               for key, (sensor, options) in specs.items()}
+    fitters: dict[int, Any] = {}
+    broken: dict[int, str] = {}
+    for key, (sensor, options) in specs.items():
+        try:
+            fitters[key] = Fitter(sensor, FitOptions(**dict(options)))
+        except Exception as err:
+            broken[key] = f"{type(err).__name__}: {err}"
     try:
-        conn.send(("ready", os.getpid(), time.perf_counter() - t0))
+        conn.send(("ready", os.getpid(), time.perf_counter() - t0, broken))
         while True:
             try:
                 msg = conn.recv()
@@ -61,7 +68,8 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 try:
                     fitter = fitters.get(spec)
                     if fitter is None:
-                        raise LookupError(f"no fitter for spec {spec} (its setup failed)")
+                        raise LookupError(f"no fitter for this sensor (building it failed: "
+                                          f"{broken.get(spec, 'unknown spec')})")
                     result = fitter.fit(strain, model, mask=mask, warm=warm)
                     out, error = plain(result.to_json_dict()), None
                     if result.converged and result.params is not None and result.model:
@@ -77,9 +85,11 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 try:
                     fitters[spec] = Fitter(sensor, FitOptions(**dict(options)))
                 except Exception as err:  # its fits will then answer with an error
-                    conn.send(("setup_done", rid, time.perf_counter() - t,
-                               f"{type(err).__name__}: {err}"))
+                    fitters.pop(spec, None)
+                    broken[spec] = f"{type(err).__name__}: {err}"
+                    conn.send(("setup_done", rid, time.perf_counter() - t, broken[spec]))
                     continue
+                broken.pop(spec, None)
                 conn.send(("setup_done", rid, time.perf_counter() - t, None))
             elif kind == "sleep":
                 time.sleep(msg[2])  # deliberately unresponsive: the parent must notice

@@ -122,6 +122,33 @@ def test_release_residual_decays_with_tau_release_then_drift_tracking_resumes():
     assert peak[j + 1] / peak[j] == pytest.approx(math.exp(-dt / DEFAULT_TAU_DRIFT), rel=1e-9)
 
 
+def test_one_implausible_frame_pulls_the_baseline_at_most_ten_sigma_times_the_weight():
+    """A glitch (every tactel at -0.5 strain, e.g. an ADC returning zero counts) is no contact,
+    so the baseline learns from it, but only up to MAX_STEP_SIGMAS noise sigmas of pull: the
+    shift is exactly weight x 10 sigma (independently: weight = 1 - exp(-dt/tau)), where the
+    whole deviation would have moved it by 0.5 x weight = 5 sigma here."""
+    from tactiled.calibration.zeroing import MAX_STEP_SIGMAS
+
+    zeroer = Zeroer(detector=ContactDetector(SIGMA))
+    dt = 1.0 / RATE
+    k = 0
+    for k in range(1000):  # 10 s: well past the running-mean start-up (n > tau_drift * rate)
+        zeroer.update(np.zeros((8, 8)), k * dt)
+    before = zeroer.baseline.copy()
+    zeroer.update(np.full((8, 8), -0.5), (k + 1) * dt)
+    assert not zeroer.in_contact
+    weight = 1.0 - math.exp(-dt / DEFAULT_TAU_DRIFT)
+    np.testing.assert_allclose(before - zeroer.baseline, weight * MAX_STEP_SIGMAS * SIGMA,
+                               rtol=1e-12)
+    # a step of the unloaded strain beyond 10 sigma, told "no contact", is still absorbed:
+    # linearly at 10 sigma per time constant while clipped, then exponentially
+    step = 0.02  # 40 sigma
+    t0 = (k + 2) * dt
+    for j in range(int(60 * RATE)):
+        z = zeroer.update(np.full((8, 8), step), t0 + j * dt, contact=False)
+    assert abs(z).max() < 0.05 * SIGMA
+
+
 def test_baseline_is_frozen_during_contact_and_caller_can_decide_contact():
     zeroer = Zeroer()
     zeroer.update(np.zeros((8, 8)), 0.0)

@@ -176,6 +176,47 @@ def test_worker_answers_nan_and_malformed_frames_and_survives(arun) -> None:
     assert good["r1_mm"] is not None and abs(good["r1_mm"] - 10.0) < 1.0
 
 
+def test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker(arun) -> None:
+    """A spec whose Fitter raises when built (a noise sigma so small its weights divide by
+    zero; settings refuse it, but a worker must not depend on that) is registered before the
+    pool starts and after: the worker still becomes ready, that spec's fits answer with the
+    build error, and the healthy spec is fitted by the same worker, with no restart."""
+    import dataclasses
+
+    from tactiled.config import NoiseModel
+
+    broken = dataclasses.replace(DEFAULT_SENSOR, noise=NoiseModel(sigma=1e-300, quantum=0.0))
+    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+
+    async def main() -> tuple[Owner, Owner, Owner, int]:
+        pool = WorkerPool(1, FitSettings(startup_timeout=20.0))
+        bad_at_start = Owner(pool.register_spec(broken, (("window", 4),)))
+        good = Owner(pool.register_spec(DEFAULT_SENSOR, (("window", 4),)))
+        for owner in (bad_at_start, good):
+            pool.attach(owner)
+        await pool.start()
+        bad_later = Owner(pool.register_spec(broken, (("window", 3),)))
+        pool.attach(bad_later)
+        bad_at_start.todo, good.todo, bad_later.todo = [clean], [clean, clean], [clean]
+        pool.wake()
+        t0 = time.monotonic()
+        while len(bad_at_start.results) + len(good.results) + len(bad_later.results) < 4:
+            assert time.monotonic() - t0 < 20, "fits not answered"
+            await asyncio.sleep(0.005)
+        restarts = pool.restarts
+        await pool.stop()
+        return bad_at_start, good, bad_later, restarts
+
+    bad_at_start, good, bad_later, restarts = arun(main())
+    assert restarts == 0
+    for owner in (bad_at_start, bad_later):
+        ((fit, error),) = owner.results
+        assert fit is None and "ZeroDivisionError" in error, error
+    assert "building it failed" in bad_at_start.results[0][1]
+    for fit, error in good.results:
+        assert error is None and abs(fit["r1_mm"] - 10.0) < 1.0
+
+
 def test_the_leak_check_sees_a_worker_left_running(arun) -> None:
     """The autouse fixture's check must be able to fail: a started pool is seen alive."""
 
