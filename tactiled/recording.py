@@ -104,7 +104,23 @@ class RecordingReader:
         self.truncated_offset: int | None = None
 
     def __iter__(self) -> Iterator[tuple[float, bytes]]:
+        for host_time, data in self._walk(read_data=True):
+            assert data is not None
+            yield host_time, data
+
+    def scan(self) -> int:
+        """Check every record's framing without reading the payloads (seeking over them):
+        the number of complete records; raises :class:`FrameError` where a record is corrupt
+        (as iterating would, later).  Sets ``truncated`` as iterating does."""
+        for _ in self._walk(read_data=False, warn=False):
+            pass
+        return self.records
+
+    def _walk(self, *, read_data: bool,
+              warn: bool = True) -> Iterator[tuple[float, bytes | None]]:
         stream = self._stream
+        stream.seek(0, os.SEEK_END)
+        size = stream.tell()
         stream.seek(self.header.header_size)
         self.records = 0
         self.truncated, self.truncated_bytes, self.truncated_offset = False, 0, None
@@ -114,23 +130,29 @@ class RecordingReader:
             if not head:
                 return
             if len(head) < RECORD_HEADER_SIZE:
-                self._truncate(offset, len(head))
+                self._truncate(offset, len(head), warn)
                 return
             host_time, length = _RECORD.unpack(head)
             if length == 0 or length > MAX_RECORD_BYTES or not math.isfinite(host_time):
                 raise FrameError(f"{self.path}: corrupt record at byte {offset} "
                                  f"(length {length}, host_time {host_time!r})")
-            data = stream.read(length)
-            if len(data) < length:
-                self._truncate(offset, RECORD_HEADER_SIZE + len(data))
+            if read_data:
+                data: bytes | None = stream.read(length)
+                have = len(data)
+            else:
+                data, have = None, min(length, size - offset - RECORD_HEADER_SIZE)
+                stream.seek(offset + RECORD_HEADER_SIZE + have)
+            if have < length:
+                self._truncate(offset, RECORD_HEADER_SIZE + have, warn)
                 return
             self.records += 1
             yield host_time, data
 
-    def _truncate(self, offset: int, dangling: int) -> None:
+    def _truncate(self, offset: int, dangling: int, warn: bool) -> None:
         self.truncated, self.truncated_bytes, self.truncated_offset = True, dangling, offset
-        log.warning("%s: truncated last record at byte %d (%d dangling bytes ignored) after "
-                    "%d complete records", self.path, offset, dangling, self.records)
+        if warn:
+            log.warning("%s: truncated last record at byte %d (%d dangling bytes ignored) "
+                        "after %d complete records", self.path, offset, dangling, self.records)
 
     def close(self) -> None:
         """Close the file."""

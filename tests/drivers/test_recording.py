@@ -73,6 +73,10 @@ def test_truncated_last_record_reported_not_raised(tmp_path, frame_factory, capl
     assert reader.truncated_offset == complete_end
     assert "truncated" in caplog.text and str(complete_end) in caplog.text
     assert len(read_recording(path)) == 4
+    with RecordingReader(path) as reader:  # the same verdict without reading the payloads
+        assert reader.scan() == 4
+    assert (reader.truncated, reader.truncated_bytes) == (True, cut)
+    assert reader.truncated_offset == complete_end
 
 
 def test_not_a_recording(tmp_path) -> None:
@@ -95,6 +99,9 @@ def test_corrupt_length_mid_file_raises(tmp_path, frame_factory) -> None:
         f.write(struct.pack("<I", 0xFFFFFFF0))
     with pytest.raises(FrameError, match=f"corrupt record at byte {HEADER_SIZE}"):
         read_recording(path)
+    with RecordingReader(path) as reader, \
+            pytest.raises(FrameError, match=f"corrupt record at byte {HEADER_SIZE}"):
+        reader.scan()
 
 
 def test_writer_refuses_to_overwrite_and_checks_input(tmp_path) -> None:

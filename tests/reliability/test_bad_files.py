@@ -247,10 +247,6 @@ def test_replay_of_a_recording_cut_short_replays_the_complete_records(tmp_path: 
     assert "truncated last record" in err and "39 complete records" in err
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG (reported): `tactiled replay` checks only the header at start; a record corrupt in "
-    "the middle of the file stops the sensor ('source failed' in the log) but the command "
-    "prints the estimates before it and exits 0; remove this marker when fixed"))
 def test_replay_refuses_a_recording_corrupt_in_the_middle(tmp_path: Path) -> None:
     path, offset = _corrupt_mid_file(tmp_path)
     result = _run_all({"mid": ["replay", str(path), "--no-timing"]})["mid"]
