@@ -25,10 +25,10 @@ opening the same path with backoff: 0.1 s, doubling, capped at 2 s.  A successfu
 counts a reconnect and resumes reading; the decoder's half-received frame is dropped.
 
 **A device that comes back is tried at once.**  The backoff only spaces out attempts that keep
-failing the same way; while waiting, the driver calls ``stat`` on the device path every 50 ms, and when
-the node appears or changes (a new device number, inode, mode or owner: replugged, re-created
-by udev, given its permissions) the next attempt is made immediately.  So a device away for
-minutes resumes within ~50 ms of its return, not up to 2 s later, at the cost of one
+failing the same way; while waiting, the driver calls ``stat`` on the device path every 50 ms,
+and when the node appears or changes (a new device number, inode, mode or owner: replugged,
+re-created by udev, given its permissions) the next attempt is made immediately.  So a device
+away for minutes resumes within ~50 ms of its return, not up to 2 s later, at the cost of one
 ``stat`` per 50 ms while it is away (no inotify: ``/dev`` symlinks made by udev rules and
 ptys behind a symlink are covered alike).  :meth:`retry_pause` offers the same to the
 daemon, which retries a device absent at start-up.
