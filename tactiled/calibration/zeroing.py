@@ -28,14 +28,16 @@ baseline's noise is ``sigma/sqrt(n)`` (``n`` = 25 frames at 100 Hz: +2 % on the 
 NaN/inf entries are output as 0 and do not touch their tactel's baseline;
 :attr:`Zeroer.nonfinite_frames` counts such frames.
 
-**One implausible frame cannot drag the baseline.**  Outside the running-mean start-up, each
-frame's pull on a tactel's baseline is clipped to ``MAX_STEP_SIGMAS`` (10) noise sigmas of the
-detector's ``sigma``: drift and hysteresis residuals are far below that per frame, so they are
-followed as before, but a glitch (an ADC returning zero counts for a few frames, which the
-detector rightly does not call a contact) moves the baseline by at most ``weight x 10 sigma``
-instead of ``weight x`` its full deviation (was 7-39 sigma per glitch frame with the 0.3 s
-release constant; every contact after it then carried that pedestal).  A genuine step in the
-unloaded strain larger than 10 sigma is then absorbed at 10 sigma per time constant; ``tare``
+**One implausible frame cannot drag the baseline.**  A no-contact frame on which most tactels
+(more than half) sit beyond ``MAX_STEP_SIGMAS`` (10) noise sigmas of the detector's ``sigma``
+is no physical state of an unloaded finger: a glitch (an ADC returning zero counts for a few
+frames, which the detector rightly does not call a contact).  Outside the running-mean
+start-up, such a frame's pull on each tactel's baseline is clipped to 10 sigma, so it moves
+the baseline by at most ``weight x 10 sigma`` instead of ``weight x`` its full deviation (was
+7-39 sigma per glitch frame with the 0.3 s release constant; every contact after it then
+carried that pedestal).  Ordinary frames are not clipped: a release residual is a local bump
+and drift is slow, so both are followed exactly as before.  A genuine step of the whole
+unloaded frame by more than 10 sigma is absorbed at 10 sigma per time constant; ``tare``
 takes it at once.
 """
 
@@ -140,11 +142,14 @@ class Zeroer:
             # -expm1(-dt/tau) = 1 - exp(-dt/tau), accurate for small dt/tau; 1/n makes the first
             # frames after a (re)start a plain running mean (the bias-corrected EMA).
             ema = -math.expm1(-dt / tau)
-            if 1.0 / self._frames >= ema:  # the running mean of the start-up: take it whole
-                self.baseline += z / self._frames
+            mean = 1.0 / self._frames
+            if mean >= ema:  # the running mean of the start-up: take the frame whole
+                self.baseline += mean * z
             else:
                 limit = MAX_STEP_SIGMAS * self.detector.sigma
-                self.baseline += ema * np.clip(z, -limit, limit)
+                if np.count_nonzero(np.abs(z) > limit) * 2 > z.size:  # implausible: clip
+                    z = np.clip(z, -limit, limit)
+                self.baseline += ema * z
         return z
 
     def tare(self, strain: ArrayLike | None = None) -> None:
