@@ -113,6 +113,7 @@ class Fitter:
         self._span = max(g.span_x, g.span_y)
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
+        self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
         if warm:
             self._warm_up()
 
@@ -134,6 +135,7 @@ class Fitter:
         start: np.ndarray | None = None,
         mask: np.ndarray | None = None,
         warm: tuple[str, tuple[float, ...]] | None = None,
+        budget_s: float | None = None,
     ) -> FitResult:
         """Fit ``model`` ('cylinder', 'sphere', 'general' or 'auto') to a zeroed strain frame.
 
@@ -143,17 +145,31 @@ class Fitter:
         consistent with the noise (the full choice is made again otherwise).  ``mask`` marks
         usable tactels (False for dead, saturated or non-finite ones; non-finite entries are
         masked automatically).
+
+        ``budget_s`` bounds the search (seconds of wall time): past it no further model
+        evaluation starts, and the result is the best point so far, not converged, with the
+        reason "time budget exceeded".  A fit normally takes about a millisecond; a frame far
+        outside the model (every tactel saturated: a contact the size of the finger) costs
+        ~150 ms per evaluation and would run for seconds.  The overrun is at most one
+        evaluation.
         """
         t0 = time.perf_counter()
-        if model == "auto":
-            res = self._fit_auto(strain, mask, warm)
-        else:
-            get_model(model)  # ValueError naming the choices
-            if start is None and warm is not None and warm[0] == model and warm[1]:
-                start = np.asarray(warm[1], dtype=float)
-            res = self._fit_model(strain, get_model(model), start, mask)
+        self._deadline = None if budget_s is None else t0 + budget_s
+        try:
+            if model == "auto":
+                res = self._fit_auto(strain, mask, warm)
+            else:
+                get_model(model)  # ValueError naming the choices
+                if start is None and warm is not None and warm[0] == model and warm[1]:
+                    start = np.asarray(warm[1], dtype=float)
+                res = self._fit_model(strain, get_model(model), start, mask)
+        finally:
+            self._deadline = None
         res.fit_ms = (time.perf_counter() - t0) * 1e3
         return res
+
+    def _out_of_time(self) -> bool:
+        return self._deadline is not None and time.perf_counter() > self._deadline
 
     # ------------------------------------------------------------------------------------
     def _prepare(self, strain: np.ndarray, mask: np.ndarray | None):
@@ -196,10 +212,11 @@ class Fitter:
                 max_iter=SCOUT_ITERATIONS if scouting else self.options.max_iter,
                 # stop once the next step would lower chi^2 by less than 1e-6 (0.01 scouting)
                 atol=(1e-2 if scouting else 1e-6) * (self.sigma / peak) ** 2,
+                deadline=self._deadline,
             )
             if best is None or sol.cost < best.cost:
                 best = sol
-            if self._good_enough(best, peak, n_points):
+            if self._good_enough(best, peak, n_points) or self._out_of_time():
                 break
         assert best is not None
         return self._result(model, best, peak, win, n_points, tried)
@@ -438,7 +455,7 @@ class Fitter:
                 kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
                 return kept
         cyl = self._fit_model(strain, get_model("cylinder"), None, mask)
-        if not cyl.contact or cyl.chi2 is None or cyl.params is None:
+        if not cyl.contact or cyl.chi2 is None or cyl.params is None or self._out_of_time():
             return cyl
         fits = [cyl]
         ln_r, psi, ln_f, x0, y0 = cyl.params

@@ -11,6 +11,7 @@ forward model computes both in one pass.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -19,6 +20,7 @@ import numpy as np
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations
 
 ResidualFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+TIME_BUDGET_EXCEEDED = "time budget exceeded"
 
 
 @dataclass
@@ -42,6 +44,7 @@ def levenberg_marquardt(
     ftol: float = 1e-10,
     lam0: float = 1e-3,
     atol: float = 0.0,
+    deadline: float | None = None,
 ) -> SolveResult:
     """Minimise ``sum(r(p)^2)`` from ``p0``.
 
@@ -49,6 +52,8 @@ def levenberg_marquardt(
     accepted step is below ``xtol`` (in units of ``max_step`` where given) or the relative
     decrease of the cost is below ``ftol``.  A residual function that raises ``ValueError`` or
     returns non-finite values rejects the trial step (treated as an infinite cost).
+    ``deadline`` (``time.perf_counter()`` seconds) stops the search before the next
+    evaluation once passed: not converged, "time budget exceeded".
     """
     p = np.array(p0, dtype=float)
     try:
@@ -80,6 +85,9 @@ def levenberg_marquardt(
             if predicted <= ftol * cost + atol:
                 converged, message = True, "predicted decrease below ftol"
                 break
+            if deadline is not None and time.perf_counter() > deadline:
+                message = TIME_BUDGET_EXCEEDED
+                break
             trial = p + step
             try:
                 r_new, jac_new = fun(trial)
@@ -96,7 +104,7 @@ def levenberg_marquardt(
                     break
             lam *= nu
             nu *= 2.0
-        if converged:
+        if converged or message is TIME_BUDGET_EXCEEDED:
             break
         if not accepted:
             message = "no step reduces the cost (damping exhausted)"

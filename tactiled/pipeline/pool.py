@@ -44,6 +44,9 @@ PRELOAD_MODULE = "tactiled.pipeline.preload"
 TICK = 0.05  # s, supervisor period: the resolution of hang detection
 BACKOFF_MIN, BACKOFF_MAX = 0.1, 5.0  # s, restart delays of a worker that keeps dying young
 YOUNG = 2.0  # s, a worker lost this soon after being ready, before any fit, counts as failing
+#: Share of ``fit.timeout`` a fit may spend before the fitter stops itself (its time budget);
+#: the rest is margin for one last evaluation and the answer, so the worker is not killed.
+FIT_BUDGET_FRACTION = 0.5
 
 #: pid of every worker process any pool started (for tests that check none is left alive).
 SPAWNED_PIDS: list[int] = []
@@ -409,8 +412,11 @@ class WorkerPool:
                     continue
             job.sent_at = time.monotonic()
             w.job = job
-            if not self._send(w, ("fit", job.spec, job.strain, job.model, job.mask, job.warm), "fit",
-                              self.settings.timeout, job):
+            # The fitter stops itself at half the deadline (FIT_BUDGET_FRACTION), so a frame
+            # far outside the model costs a non-converged estimate, not a killed worker.
+            budget = FIT_BUDGET_FRACTION * self.settings.timeout
+            if not self._send(w, ("fit", job.spec, job.strain, job.model, job.mask, job.warm,
+                                  budget), "fit", self.settings.timeout, job):
                 continue  # _lose has failed the job already
 
     # -- supervision ------------------------------------------------------------------------------

@@ -8,9 +8,10 @@ in order (which is what lets the parent give every outstanding request a deadlin
 - started with its initial specs, it answers ``("ready", pid, warm_up_s, broken)``, where
   ``broken`` maps a spec whose fitter could not be built to the error (its fits then answer
   with that error: one sensor's bad model must not keep the worker from serving the others);
-- ``("fit", rid, spec, strain, model, mask, warm)`` -> ``("result", rid, fit_json_dict | None,
-  compute_s, error | None, warm | None)`` (the fitter raising costs one frame, never the
-  worker); ``warm`` is ``(model, params)`` of a converged fit, the next frame's warm start;
+- ``("fit", rid, spec, strain, model, mask, warm, budget_s)`` -> ``("result", rid,
+  fit_json_dict | None, compute_s, error | None, warm | None)`` (the fitter raising costs one
+  frame, never the worker); ``warm`` is ``(model, params)`` of a converged fit, the next
+  frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
 - ``("setup", rid, spec, SensorModel, options)`` -> ``("setup_done", rid, build_s, error)``;
 - ``("ping", rid)`` -> ``("pong", rid)``;
 - ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
@@ -62,7 +63,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 return  # the parent is gone
             kind = msg[0]
             if kind == "fit":
-                _, rid, spec, strain, model, mask, warm = msg
+                _, rid, spec, strain, model, mask, warm, budget_s = msg
                 t = time.perf_counter()
                 follow = None
                 try:
@@ -70,7 +71,8 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                     if fitter is None:
                         raise LookupError(f"no fitter for this sensor (building it failed: "
                                           f"{broken.get(spec, 'unknown spec')})")
-                    result = fitter.fit(strain, model, mask=mask, warm=warm)
+                    result = fitter.fit(strain, model, mask=mask, warm=warm,
+                                        budget_s=budget_s)
                     out, error = plain(result.to_json_dict()), None
                     if result.converged and result.params is not None and result.model:
                         follow = (result.model, result.params)

@@ -245,19 +245,19 @@ async def _send_quietly(hand: Hand, finger: int, raws: list[Any], quiet: float) 
     return seqs
 
 
-async def _hanging_frames(more_ptys) -> dict:
+async def _saturated_frames(more_ptys) -> dict:
     async with Hand(more_ptys) as hand:
         pool = hand.pool
         await hand.fitting(more=20)
-        # Every tactel at full scale: a "contact" the size of the finger, whose fit takes tens
-        # of seconds (the quadrature grows with the contact; measured 27 s in one process).
+        # Every tactel at full scale: a "contact" the size of the finger, whose fit used to run
+        # for ~9 s (150 ms per evaluation of the model; 27 s before the rule-ladder fix).
         before = pool.restarts
         t0 = time.monotonic()
-        await _send_quietly(hand, 0, [np.full((8, 8), 65535)], quiet=0.05)
-        await wait_for(lambda: pool.restarts > before, 5, "hung fit noticed")
-        noticed = time.monotonic() - t0  # t0: just before the frame was written
-        await wait_for(hand.all_ready, 5, "replacement ready")
-        last = pool.stats()["last_restart"]
+        (seq,) = await _send_quietly(hand, 0, [np.full((8, 8), 65535)], quiet=0.05)
+        await wait_for(lambda: any(e.seq == seq and e.sensor == "thumb" for e in hand.estimates),
+                       5, "an estimate of the saturated frame")
+        answered = time.monotonic() - t0  # t0: just before the frame was written
+        (saturated,) = [e for e in hand.estimates if e.seq == seq and e.sensor == "thumb"]
         await hand.fitting(more=10)
         resumed = time.monotonic() - t0
         # Then a burst of the worst a device can send, back to back (latest frame wins).
@@ -270,28 +270,29 @@ async def _hanging_frames(more_ptys) -> dict:
         stats = await hand.settle()
         workers = pool.stats()
     _check(hand, stats)
-    return {"noticed": noticed, "last": last, "resumed": resumed, "stats": stats,
-            "workers": workers}
+    return {"answered": answered, "saturated": saturated, "resumed": resumed,
+            "stats": stats, "workers": workers, "restarts": workers["restarts"] - before}
 
 
-def test_frame_that_hangs_the_fitter(more_ptys, arun) -> None:
-    """A frame whose fit runs past ``fit.timeout`` (1 s) costs that frame and one worker: it is
-    SIGKILLed as hung, replaced within a second, and both fingers are fitted again.
-
-    Every count at 65535 still takes ~9 s to fit in a fresh worker after the quadrature-rule
-    fix (a3a9b58; 27 s before): the contact it implies is the size of the finger, and the
-    forward model's cost grows with the contact."""
-    r = arun(_hanging_frames(more_ptys))
-    assert 1.0 <= r["noticed"] < 1.35, r["noticed"]  # fit.timeout, then the 50 ms supervisor
-    assert r["last"]["reason"] == "hung" and r["last"]["ready_s"] < READY_S
-    assert set(r["workers"]["restarts_by_reason"]) == {"hung"}
+def test_frame_far_outside_the_model_costs_a_budgeted_fit_not_a_worker(more_ptys,
+                                                                       arun) -> None:
+    """A frame whose fit would run for seconds (every count at 65535) is stopped by the
+    fitter's time budget (half of ``fit.timeout`` = 1 s): it gets an estimate saying "time
+    budget exceeded" (not converged) well before the deadline, no worker is killed, and both
+    fingers go on being fitted; so does a burst of random and saturated frames after it.
+    (Before the budget the worker was SIGKILLed as hung at the deadline and replaced: the
+    hung-worker path itself is tested by ``test_hung_worker``.)"""
+    r = arun(_saturated_frames(more_ptys))
+    fit = r["saturated"].fit
+    assert r["saturated"].gate == "fit" and fit["contact"] is True
+    assert fit["converged"] is False and fit["reasons"]["fit"] == "time budget exceeded", fit
+    assert r["answered"] < 1.0, r["answered"]  # inside fit.timeout: the worker was not killed
+    assert r["restarts"] == 0 and r["workers"]["restarts_by_reason"] == {}, r["workers"]
     thumb = r["stats"]["thumb"]
-    assert thumb["worker_restarts"] == r["workers"]["restarts"] >= 1
-    assert thumb["fit_failed"] >= 1 and thumb["fit_errors"] == 0
-    figures("frame_that_hangs_the_fitter", noticed_s=round(r["noticed"], 3),
-            ready_ms=round(1e3 * r["last"]["ready_s"], 1),
-            fitting_again_s=round(r["resumed"], 3), restarts=r["workers"]["restarts"],
-            fit_failed=thumb["fit_failed"])
+    assert thumb["fit_failed"] == 0 and thumb["fit_errors"] == 0
+    figures("frame_far_outside_the_model", answered_s=round(r["answered"], 3),
+            fit_ms=round(fit["fit_ms"], 1), iterations=fit["iterations"],
+            fitting_again_s=round(r["resumed"], 3), restarts=r["restarts"])
 
 
 async def _failing_setup(more_ptys) -> dict:

@@ -85,3 +85,35 @@ def test_contact_longer_than_the_array_but_on_the_finger_is_flagged_not_withheld
     assert res.label != "line"
     assert "outside the planar model" in res.reasons["model"]
     assert res.values["r1_mm"] is not None
+
+
+def test_time_budget_stops_a_fit_far_outside_the_model():
+    """Every tactel at full scale (2.77 strain: a "contact" the size of the finger) costs the
+    forward model ~50-150 ms per evaluation and ran for ~10 s; with ``budget_s`` the fitter
+    stops before the next evaluation once the budget is spent (so at most one evaluation
+    over it), saying why, with a finite best point.  The bound asserted is generous (shared
+    machine): the budget plus two seconds, where the unbudgeted fit takes ~10 s."""
+    import time
+
+    fitter = Fitter()
+    saturated = np.full((8, 8), (65535 - 10000) / 20000.0)
+    for model in ("cylinder", "auto"):
+        t0 = time.perf_counter()
+        res = fitter.fit(saturated, model, budget_s=0.2)
+        took = time.perf_counter() - t0
+        assert took < 0.2 + 2.0, (model, took)
+        assert res.converged is False and res.reasons["fit"] == "time budget exceeded", res
+        assert res.params is not None and all(math.isfinite(p) for p in res.params)
+        json.dumps(res.to_json_dict(), allow_nan=False)
+
+
+def test_a_budget_that_is_not_reached_changes_nothing():
+    """An ordinary contact fitted with a budget gives the same result, bit for bit, as
+    without one (the budget only ever stops a search, it never alters a step)."""
+    fitter = Fitter()
+    frame = StrainModel().predict(Contact(6.0, math.inf, 70.0, 1.2, 12.0, 14.0))
+    for model in ("cylinder", "auto"):
+        free = fitter.fit(frame, model)
+        budgeted = fitter.fit(frame, model, budget_s=60.0)
+        assert budgeted.converged and budgeted.params == free.params
+        assert budgeted.reasons == free.reasons
