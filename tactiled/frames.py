@@ -233,7 +233,6 @@ class FrameDecoder:
         chunks = data.split(b"\x00")
         chunks[0] = bytes(self._buf) + chunks[0]
         self._buf = bytearray(chunks.pop())
-        self._check_bound()
         if host_time is None:
             host_time = time.monotonic()
         frames: list[Frame] = []
@@ -249,6 +248,9 @@ class FrameDecoder:
             elif self._accept(result):
                 result.host_time = host_time
                 frames.append(result)
+        # The unterminated tail comes after every complete chunk in the stream: an oversize
+        # tail is rejected only now, or a good frame before it would count as a resync.
+        self._check_bound()
         return frames
 
     def _check_bound(self) -> None:

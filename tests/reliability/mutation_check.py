@@ -44,8 +44,11 @@ MUTATIONS = [
   ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/pool.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
  ("M8 hung worker never killed", "tactiled/pipeline/pool.py",
   "                        if now - w.head_since > head.timeout:", "                        if False:",
-  ["tests/reliability/test_worker_faults.py::test_hung_worker[2]",
-   "tests/reliability/test_worker_faults.py::test_frame_that_hangs_the_fitter"]),
+  ["tests/reliability/test_worker_faults.py::test_hung_worker[2]"]),
+ ("M8b fit time budget ignored", "tactiled/fit/fitter.py",
+  "                deadline=self._deadline,", "                deadline=None,",
+  ["tests/reliability/test_worker_faults.py::"
+   "test_frame_far_outside_the_model_costs_a_budgeted_fit_not_a_worker"]),
  ("M9 a fitter exception kills the worker", "tactiled/pipeline/worker.py",
   "                except Exception as err:  # a fitter bug must cost one frame, not the worker",
   "                except ZeroDivisionError as err:",
@@ -93,9 +96,33 @@ MUTATIONS = [
   ["tests/reliability/test_decoder_fuzz.py::test_sequence_memory_is_bounded_by_the_sensor_id_space[16384]",
    "tests/reliability/test_decoder_fuzz.py::test_memory_is_bounded_over_a_long_stream[4]"]),
  ("M22 a truncated last record is an error", "tactiled/recording.py",
-  "            if len(data) < length:\n                self._truncate(offset, RECORD_HEADER_SIZE + len(data))\n                return",
-  "            if len(data) < length:\n                raise FrameError('cut')",
+  "            if have < length:\n                self._truncate(offset, RECORD_HEADER_SIZE + have, warn)\n                return",
+  "            if have < length:\n                raise FrameError('cut')",
   ["tests/reliability/test_bad_files.py::test_replay_of_a_recording_cut_short_replays_the_complete_records"]),
+ # The fixes of bugs 1-4: each test that was a strict xfail must fail again without its fix.
+ ("M23 (bug 1) the device path is not watched while waiting to retry",
+  "drivers/tactiled_drivers/serial_source.py",
+  "            if node is not None and node != self._node_at_attempt:", "            if False:",
+  ["tests/reliability/test_unplug.py::test_resume_within_a_second_after_a_long_absence[1.6]",
+   "tests/reliability/test_unplug.py::"
+   "test_device_plugged_in_after_daemon_start_resumes_within_a_second"]),
+ ("M24 (bug 2) a fitter that cannot be built kills the worker", "tactiled/pipeline/worker.py",
+  "            fitters[key] = Fitter(sensor, FitOptions(**dict(options)))\n        except Exception as err:",
+  "            fitters[key] = Fitter(sensor, FitOptions(**dict(options)))\n        except KeyError as err:",
+  ["tests/pipeline/test_pipeline_workers.py::"
+   "test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker"]),
+ ("M25 (bug 3) the baseline step is not clipped", "tactiled/calibration/zeroing.py",
+  "                    z = np.clip(z, -limit, limit)",
+  "                    pass",
+  ["tests/reliability/test_worker_faults.py::test_one_glitch_frame_barely_moves_the_baseline[0]"]),
+ ("M26 (bug 4) replay does not check the records first", "tactiled/commands/replay.py",
+  "            reader.scan()", "            pass",
+  ["tests/reliability/test_bad_files.py::test_replay_refuses_a_recording_corrupt_in_the_middle"]),
+ ("M27 (bug 6) an oversize tail is rejected before the complete chunks", "tactiled/frames.py",
+  "        self._buf = bytearray(chunks.pop())\n",
+  "        self._buf = bytearray(chunks.pop())\n        self._check_bound()\n",
+  ["tests/reliability/test_decoder_fuzz.py::"
+   "test_an_oversize_tail_after_a_good_frame_is_not_a_resync"]),
 ]
 
 def fresh():

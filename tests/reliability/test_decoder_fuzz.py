@@ -100,6 +100,18 @@ def expected_outcomes(data: bytes) -> int:
     return sum(1 for c in complete if c) + (len(tail) > MAX_ENCODED_LEN)
 
 
+def test_an_oversize_tail_after_a_good_frame_is_not_a_resync() -> None:
+    """Found by the fuzz below (bug 6): a good frame then more than MAX_ENCODED_LEN bytes
+    with no 0x00, read at once, counted the tail's rejection before the frame and so the
+    frame as a resync; read in two pieces it did not.  Stream order is what counts."""
+    good = encode_frame(Frame(seq=1, device_time_us=1, raw=np.zeros((8, 8), np.uint16)))
+    stream = good + b"\x01" * (MAX_ENCODED_LEN + 10)
+    for cuts in ([0, len(stream)], [0, len(good), len(stream)], [0, 26, len(stream)]):
+        dec, frames, _ = feed_in_pieces(stream, cuts)
+        assert len(frames) == 1 and dec.stats.oversize == 1, cuts
+        assert dec.stats.resyncs == 0, cuts
+
+
 @FUZZ
 @given(data=st.data(), stream=streams)
 def test_fuzzed_streams_are_counted_and_cut_anywhere(data: st.DataObject, stream: bytes) -> None:
