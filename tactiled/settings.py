@@ -7,7 +7,8 @@ command line).  Everything is validated once, here, and every problem is a
 
 Keys (the documented example is ``deploy/tactiled.toml``)::
 
-    [server]   host = "127.0.0.1", port = 8765, token = (none)
+    [server]   host = "127.0.0.1", port = 8765, token = (none), max_subscribers = 64,
+               allow_origins = [] (browser origins besides the server's own)
     [[sensor]] name, url, wire_id, calibration, model, window, noise_sigma, false_rate,
                reuse_unchanged, unchanged_z
     [fit]      workers, start_method, timeout, ping_interval, ping_timeout, startup_timeout,
@@ -61,6 +62,9 @@ class ServerSettings:
     host: str = DEFAULT_HOST
     port: int = DEFAULT_PORT  # 0: any free port
     token: str | None = None  # bearer token for the API; None: no authentication
+    max_subscribers: int = 64  # WebSocket stream connections at once; one more gets 1013
+    #: Browser origins ("scheme://host[:port]") allowed besides the server's own.
+    allow_origins: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -244,6 +248,25 @@ def _host(value: Any, key: str) -> str:
     return v
 
 
+_ORIGIN_RE = re.compile(r"^https?://[^/\s?#]+$", re.IGNORECASE)
+
+
+def _origins(value: Any, key: str) -> tuple[str, ...]:
+    """A list of browser origins (``scheme://host[:port]``); as text, comma-separated."""
+    if isinstance(value, _Text):
+        value = [part.strip() for part in value.split(",") if part.strip()]
+    if not isinstance(value, (list, tuple)):
+        raise _fail(key, f"expected a list of origins, got {value!r}")
+    out = []
+    for item in value:
+        origin = _as_str(item, key).strip().rstrip("/")
+        if not _ORIGIN_RE.match(origin):
+            raise _fail(key, f"{item!r} is not an origin: write scheme://host[:port], e.g. "
+                             "\"http://console.local:8080\" (no path)")
+        out.append(origin)
+    return tuple(out)
+
+
 def _window(value: Any, key: str) -> int:
     v = _as_int(value, key)
     if not 2 <= v <= 255:
@@ -285,6 +308,8 @@ _SERVER_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "host": _host,
     "port": _in_range(_as_int, 0, 65535, "a TCP port"),
     "token": _optional(_as_str),
+    "max_subscribers": _in_range(_as_int, 1, 100_000, "a connection count"),
+    "allow_origins": _origins,
 }
 SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "name": _name,

@@ -38,10 +38,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="bearer token clients must send (default $TACTILED_TOKEN; prefer the "
                         "environment: command lines are visible to other users)")
     p.add_argument("--max-subscribers", type=int, default=None, metavar="N",
-                   help="WebSocket stream connections accepted at once (default 64)")
+                   help="WebSocket stream connections accepted at once (default: "
+                        "[server] max_subscribers, 64)")
     p.add_argument("--allow-origin", action="append", default=[], metavar="ORIGIN",
                    help="browser origin (scheme://host:port) allowed to use the stream and "
-                        "control endpoints besides the server's own; repeatable")
+                        "control endpoints besides the server's own; repeatable (replaces "
+                        "[server] allow_origins)")
     # -v is also accepted after the command name (the top-level parser handles the level).
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more log output")
@@ -70,7 +72,9 @@ def run(args: argparse.Namespace) -> int:
     except ImportError as err:
         print(f"tactiled run: error: the service is not installed: {err}", file=sys.stderr)
         return 2
-    kwargs: dict[str, Any] = {}
+    # The flags override the [server] keys of the configuration (the usual precedence).
+    kwargs: dict[str, Any] = {"max_subscribers": settings.server.max_subscribers,
+                              "allowed_origins": settings.server.allow_origins}
     if args.max_subscribers is not None:
         kwargs["max_subscribers"] = args.max_subscribers
     if args.allow_origin:

@@ -106,6 +106,13 @@ def test_environment_can_add_a_sensor_and_paths_are_relative_to_the_file(tmp_pat
     ('[[sensor]]\nurl = "replay://a"\nreuse_unchanged = "yes"\n', {}, {},
      "sensor[0].reuse_unchanged: expected a boolean"),
     ("", {}, {"nonsense": 1}, "nonsense: not a configuration key"),
+    ('[server]\nallow_origins = "http://a:1"\n', {}, {},
+     "server.allow_origins: expected a list of origins"),
+    ('[server]\nallow_origins = ["http://a:1/path"]\n', {}, {},
+     "server.allow_origins: 'http://a:1/path' is not an origin"),
+    ("", {"TACTILED_SERVER_MAX_SUBSCRIBERS": "0"}, {}, "server.max_subscribers: must be"),
+    ('[[sensor]]\nurl = "replay://a"\nnoise_sigma = 1e-300\n', {}, {},
+     "sensor[0].noise_sigma: must be strain (1 sigma) in 1e-08..0.1"),
 ])
 def test_invalid_configuration_names_the_key(tmp_path: Path, text: str, env: dict,
                                              overrides: dict, message: str) -> None:
@@ -113,6 +120,17 @@ def test_invalid_configuration_names_the_key(tmp_path: Path, text: str, env: dic
     with pytest.raises(ConfigError) as info:
         load_settings(cfg, env, overrides)
     assert str(info.value).startswith(message), str(info.value)
+
+
+def test_server_limits_from_file_and_environment(tmp_path: Path) -> None:
+    cfg = write(tmp_path, '[server]\nmax_subscribers = 5\n'
+                          'allow_origins = ["http://console.local:8080/", "https://lab.example"]\n')
+    s = load_settings(cfg, {}, {})
+    assert s.server.max_subscribers == 5
+    assert s.server.allow_origins == ("http://console.local:8080", "https://lab.example")
+    s = load_settings(cfg, {"TACTILED_SERVER_ALLOW_ORIGINS": "http://a:1, http://b:2"}, {})
+    assert s.server.allow_origins == ("http://a:1", "http://b:2")
+    assert load_settings(None, {}, {}).server.allow_origins == ()
 
 
 def test_environment_errors_say_which_variable(tmp_path: Path) -> None:

@@ -184,3 +184,34 @@ def test_defaults_are_the_demo_finger_on_the_documented_port():
     doc = (Path(__file__).resolve().parents[2] / "docs" / "api.md").read_text()
     assert f"127.0.0.1:{DEFAULT_PORT}" in doc
     assert json.dumps(DEFAULT_PORT) == "8765"
+
+
+def test_server_limits_in_the_config_file_reach_the_service(daemon_process, arun, tmp_path):
+    """``[server] max_subscribers`` and ``allow_origins`` from the file are what ``tactiled
+    run`` serves with: a second stream connection is closed 1013, the listed origin is let in
+    and another one refused (403 before accept)."""
+    config = tmp_path / "tactiled.toml"
+    config.write_text('[server]\nport = 0\nmax_subscribers = 1\n'
+                      'allow_origins = ["http://console.local:8080"]\n', encoding="utf-8")
+    proc = daemon_process(["--config", str(config)])
+    ws_url = proc.wait_url().replace("http://", "ws://") + "v1/stream"
+
+    async def main() -> tuple[int | None, int]:
+        from websockets.exceptions import InvalidStatus
+
+        async with ws_connect(ws_url, origin="http://console.local:8080") as first:
+            await subscribe(first, streams=["estimates"], max_rate=10)
+            async with ws_connect(ws_url) as second:
+                with pytest.raises(ConnectionClosed) as closed:
+                    while True:
+                        await recv_json(second)
+            code = closed.value.rcvd.code if closed.value.rcvd else None
+        with pytest.raises(InvalidStatus) as refused:
+            async with ws_connect(ws_url, origin="http://elsewhere.local:8080"):
+                pass
+        return code, refused.value.response.status_code
+
+    code, status = arun(main())
+    proc.proc.send_signal(signal.SIGTERM)
+    assert proc.proc.wait(10) == 0
+    assert code == 1013 and status == 403
