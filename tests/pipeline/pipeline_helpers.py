@@ -99,30 +99,6 @@ class QueueSource(FrameSource):
         return b""
 
 
-# --------------------------------------------------------------------------------------------
-# Leak checks (used by the autouse fixture in conftest.py)
-
-
-def _alive(pid: int) -> bool:
-    """True if ``pid`` runs (a zombie has exited: it is not running)."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-            state = fh.read().rsplit(")", 1)[1].split()[0]
-    except (FileNotFoundError, ProcessLookupError, IndexError):
-        return False
-    return state not in ("Z", "X")
-
-
-def leftover_workers(pids: list[int], grace: float = 2.0) -> list[int]:
-    """Of ``pids``, those still running after up to ``grace`` seconds."""
-    deadline = time.monotonic() + grace
-    while True:
-        alive = [pid for pid in pids if pid and _alive(pid)]
-        if not alive or time.monotonic() > deadline:
-            return alive
-        time.sleep(0.02)
-
-
 def strict_json(obj: Any) -> str:
     """JSON text; raises ValueError on NaN or inf."""
     return json.dumps(obj, allow_nan=False)

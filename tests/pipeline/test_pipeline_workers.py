@@ -11,13 +11,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from procs import leftover
 from pipeline_helpers import (
     SETTLE_FRAMES,
     accounted,
     check_estimates,
     collect,
     contact_path,
-    leftover_workers,
     make_frames,
     strict_json,
     write_recording,
@@ -224,8 +224,8 @@ def test_the_leak_check_sees_a_worker_left_running(arun) -> None:
         pool = WorkerPool(1, FitSettings())
         await pool.start()
         pids = [p for p in pool.pids() if p]
-        assert pids and leftover_workers(pids, grace=0.0) == pids
+        assert pids and leftover(pids, grace=0.0) == pids
         await pool.stop()
-        assert leftover_workers(pids) == []
+        assert leftover(pids) == []
 
     arun(main())

@@ -4,48 +4,12 @@ that fails a test leaving tasks behind), and more pty devices of the project's k
 
 from __future__ import annotations
 
-import asyncio
-import multiprocessing
-import threading
-from collections.abc import Callable, Coroutine, Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from rel_helpers import leftover
-
-from tactiled.pipeline import pool as pool_module
-
-
-@pytest.fixture(autouse=True)
-def no_leftover_workers() -> Iterator[None]:
-    first = len(pool_module.SPAWNED_PIDS)
-    yield
-    started = pool_module.SPAWNED_PIDS[first:]
-    running = leftover(started)
-    children = [p for p in multiprocessing.active_children() if p.pid in started]
-    threads = [t.name for t in threading.enumerate() if t.name.startswith("tactiled-")]
-    assert not running, f"worker process(es) left running: {running}"
-    assert not children, f"multiprocessing children left: {children}"
-    assert not threads, f"pipeline threads left running: {threads}"
-
-
-@pytest.fixture
-def arun() -> Callable[[Coroutine[Any, Any, Any]], Any]:
-    def run(coro: Coroutine[Any, Any, Any]) -> Any:
-        leftovers: list[str] = []
-
-        async def main() -> Any:
-            result = await coro
-            me = asyncio.current_task()
-            leftovers.extend(t.get_name() for t in asyncio.all_tasks() if t is not me)
-            return result
-
-        result = asyncio.run(main())
-        assert not leftovers, f"tasks left running: {leftovers}"
-        return result
-
-    return run
+from procs import arun, no_leftover_workers  # noqa: F401 - fixtures, shared with pipeline
 
 
 @pytest.fixture

@@ -174,26 +174,6 @@ def _all_finite(obj: Any) -> bool:
     return True
 
 
-def alive(pid: int) -> bool:
-    """True if ``pid`` runs (a zombie has exited: it is not running)."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-            state = fh.read().rsplit(")", 1)[1].split()[0]
-    except (FileNotFoundError, ProcessLookupError, IndexError):
-        return False
-    return state not in ("Z", "X")
-
-
-def leftover(pids: list[int], grace: float = 2.0) -> list[int]:
-    """Of ``pids``, those still running after up to ``grace`` seconds."""
-    deadline = time.monotonic() + grace
-    while True:
-        running = [pid for pid in pids if pid and alive(pid)]
-        if not running or time.monotonic() > deadline:
-            return running
-        time.sleep(0.02)
-
-
 def open_fds() -> list[str]:
     """What this process's descriptors point at (Linux /proc), sorted."""
     out = []

@@ -26,6 +26,7 @@ from typing import Any
 
 import pytest
 from live import TEST_OPTIONS, LiveServer
+from procs import alive as pid_alive
 from svc_helpers import sim_settings
 
 from tactiled.pipeline import pool as pool_module
@@ -156,15 +157,6 @@ def daemon_process() -> Callable[..., DaemonProcess]:
 # Leak check
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-            state = fh.read().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return False
-    return state not in ("Z", "X")
-
-
 @pytest.fixture(autouse=True)
 def no_leftovers() -> Iterator[None]:
     """Fail a test that leaves a server thread, a `tactiled run` process or a fit worker
@@ -192,7 +184,7 @@ def no_leftovers() -> Iterator[None]:
     deadline = time.monotonic() + 3.0
     while True:
         alive = [p for p in pool_module.SPAWNED_PIDS[first_pid:]
-                 if p and p not in owned and _pid_alive(p)]
+                 if p and p not in owned and pid_alive(p)]
         if not alive or time.monotonic() > deadline:
             break
         time.sleep(0.05)

@@ -1,0 +1,75 @@
+"""Process checks and fixtures shared by the pipeline and reliability suites (Linux /proc).
+
+Their conftests import :func:`no_leftover_workers` and :func:`arun` (pytest takes fixtures
+from a conftest's namespace); the service suite has its own variants, which tolerate the
+workers of module-scoped servers and cap ``arun`` at 60 s.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import multiprocessing
+import threading
+import time
+from collections.abc import Callable, Coroutine, Iterator
+from typing import Any
+
+import pytest
+
+from tactiled.pipeline import pool as pool_module
+
+
+def alive(pid: int) -> bool:
+    """True if ``pid`` runs (a zombie has exited: it is not running)."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
+            state = fh.read().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state not in ("Z", "X")
+
+
+def leftover(pids: list[int], grace: float = 2.0) -> list[int]:
+    """Of ``pids``, those still running after up to ``grace`` seconds."""
+    deadline = time.monotonic() + grace
+    while True:
+        running = [pid for pid in pids if pid and alive(pid)]
+        if not running or time.monotonic() > deadline:
+            return running
+        time.sleep(0.02)
+
+
+@pytest.fixture(autouse=True)
+def no_leftover_workers() -> Iterator[None]:
+    """Fail a test that leaves a fit worker (or any multiprocessing child) or a pipeline thread
+    running.  Workers are found through the pool's record of every pid it started."""
+    first = len(pool_module.SPAWNED_PIDS)
+    yield
+    started = pool_module.SPAWNED_PIDS[first:]
+    running = leftover(started)
+    children = [p for p in multiprocessing.active_children() if p.pid in started]
+    threads = [t.name for t in threading.enumerate() if t.name.startswith("tactiled-")]
+    assert not running, f"worker process(es) left running: {running}"
+    assert not children, f"multiprocessing children left: {children}"
+    assert not threads, f"pipeline threads left running: {threads}"
+
+
+@pytest.fixture
+def arun() -> Callable[[Coroutine[Any, Any, Any]], Any]:
+    """``arun(coro)``: ``asyncio.run(coro)``, failing if the coroutine returns while other
+    tasks are still running (asyncio.run would cancel them silently)."""
+
+    def run(coro: Coroutine[Any, Any, Any]) -> Any:
+        leftovers: list[str] = []
+
+        async def main() -> Any:
+            result = await coro
+            me = asyncio.current_task()
+            leftovers.extend(t.get_name() for t in asyncio.all_tasks() if t is not me)
+            return result
+
+        result = asyncio.run(main())
+        assert not leftovers, f"tasks left running: {leftovers}"
+        return result
+
+    return run
