@@ -276,8 +276,11 @@ def _window(value: Any, key: str) -> int:
 
 def _false_rate(value: Any, key: str) -> float:
     v = _as_float(value, key)
-    if not 0.0 < v < 1.0:
-        raise _fail(key, f"must be a probability in (0, 1), got {v!r}")
+    # Below ~1e-14 per frame the detector's threshold (a normal quantile of 1 - p / centres)
+    # is beyond double precision; above 0.5 a "contact" would be a coin toss.
+    if not 1e-12 <= v <= 0.5:
+        raise _fail(key, f"must be a probability in 1e-12..0.5 (false contacts per "
+                         f"noise-only frame), got {v!r}")
     return v
 
 

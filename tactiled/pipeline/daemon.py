@@ -216,9 +216,20 @@ class Daemon:
                             if key in SENSOR_FIELDS else "unknown key"))
                     checked[key] = check_sensor_value(key, value, where)
                 sensor_changes[name] = checked
+        # Every value passed its check, but applying one can still fail (a detector threshold
+        # out of reach): then what was applied is rolled back, so a patch is all or nothing.
+        applied: list[tuple[SensorPipeline, dict[str, Any]]] = []
         for name, checked in sensor_changes.items():
-            if checked:
-                self.sensors[name].configure(checked)
+            if not checked:
+                continue
+            pipe = self.sensors[name]
+            applied.append((pipe, {key: getattr(pipe.settings, key) for key in checked}))
+            try:
+                pipe.configure(checked)
+            except (ValueError, ArithmeticError) as err:
+                for done, old in reversed(applied):
+                    done.configure(old)
+                raise ConfigError(f"sensors.{name}: cannot be applied: {err}") from None
         if fit_changes:
             self.pool.settings = replace(self.pool.settings, **fit_changes)
         return self.get_config()

@@ -259,6 +259,8 @@ def test_runtime_config_tare_and_unknown_sensors(arun) -> None:
             ({"fit": {"timeout": -1}}, "fit.timeout: must be a positive"),
             ({"fit": {"workers": 3}}, "fit.workers: cannot be changed"),
             ({"server": {"port": 1}}, "server: not changeable"),
+            ({"sensors": {"finger0": {"false_rate": 1e-300}}},
+             "sensors.finger0.false_rate: must be a probability in 1e-12..0.5"),
         ]:
             with pytest.raises(ConfigError) as info:
                 daemon.update_config(bad)
@@ -351,3 +353,43 @@ def test_a_persisting_contact_is_fitted_from_the_previous_solution(tmp_path: Pat
     # the first fit of the contact is cold; nearly all that follow are warm
     assert not fitted[0].fit["message"].startswith("model ")
     assert len(warm) >= len(fitted) - 3, [e.fit["message"] for e in fitted]
+
+
+def test_a_patch_that_fails_while_being_applied_is_rolled_back(arun, monkeypatch) -> None:
+    """All or nothing even past validation: if applying a checked value fails for the second
+    sensor (simulated: its detector refuses; no real value that passes the checks does that
+    any more, 1e-300 for false_rate did), the first sensor's change is undone too."""
+    sources = {"finger0": QueueSource(), "finger1": QueueSource()}
+
+    async def main() -> tuple[dict, dict, str]:
+        daemon = Daemon(load_settings(None, {}, {
+            "sensor[0].url": "replay://a.tact", "sensor[1].url": "replay://b.tact",
+            "sensor[1].name": "finger1"}), sources=sources, lossless=True)
+        await daemon.start()
+        try:
+            for name, source in sources.items():  # the calibration stage forms on a frame
+                source.put(make_frames(contact_path(1, moving=False), seed=6)[0])
+                while daemon.sensors[name].stage is None:
+                    await asyncio.sleep(0.005)
+            before = daemon.get_config()
+            detector = daemon.sensors["finger1"].stage.zeroer.detector
+            real = detector.configure
+
+            def refuse(**kwargs):
+                if kwargs.get("false_rate") == 0.01:
+                    raise ValueError("threshold out of reach")
+                return real(**kwargs)
+
+            monkeypatch.setattr(detector, "configure", refuse)
+            with pytest.raises(ConfigError) as info:
+                daemon.update_config({"sensors": {"finger0": {"model": "sphere"},
+                                                  "finger1": {"false_rate": 0.01}}})
+            return before, daemon.get_config(), str(info.value)
+        finally:
+            for source in sources.values():
+                source.end()
+            await daemon.stop()
+
+    before, after, message = arun(main())
+    assert message == "sensors.finger1: cannot be applied: threshold out of reach"
+    assert after == before
