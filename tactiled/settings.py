@@ -202,16 +202,6 @@ def _optional(check: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
     return checked
 
 
-def _positive(check: Callable[[Any, str], Any], what: str) -> Callable[[Any, str], Any]:
-    def checked(value: Any, key: str) -> Any:
-        v = check(value, key)
-        if not v > 0:
-            raise _fail(key, f"must be a positive {what}, got {v!r}")
-        return v
-
-    return checked
-
-
 def _in_range(check: Callable[[Any, str], Any], lo: float, hi: float,
               what: str) -> Callable[[Any, str], Any]:
     def checked(value: Any, key: str) -> Any:
@@ -329,14 +319,18 @@ SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "reuse_unchanged": _as_bool,
     "unchanged_z": _in_range(_as_float, 0.0, 1e6, "a z-score"),
 }
+#: Bounds of the pool's times (s): below the supervisor's 50 ms tick a deadline means nothing
+#: (5e-324 passed a plain positivity check and had every fit's worker killed as hung).
+MIN_FIT_TIME_S, MAX_FIT_TIME_S = 0.05, 3600.0
+_FIT_TIME = _in_range(_as_float, MIN_FIT_TIME_S, MAX_FIT_TIME_S, "a positive time in s")
 FIT_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "workers": _in_range(_as_int, 0, 256, "a worker count (0: automatic)"),
     "start_method": _choice(START_METHODS),
-    "timeout": _positive(_as_float, "time in s"),
-    "ping_interval": _positive(_as_float, "time in s"),
-    "ping_timeout": _positive(_as_float, "time in s"),
-    "startup_timeout": _positive(_as_float, "time in s"),
-    "stop_timeout": _positive(_as_float, "time in s"),
+    "timeout": _FIT_TIME,
+    "ping_interval": _FIT_TIME,
+    "ping_timeout": _FIT_TIME,
+    "startup_timeout": _FIT_TIME,
+    "stop_timeout": _FIT_TIME,
 }
 _RECORD_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "path": _optional(_as_str),

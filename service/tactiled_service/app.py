@@ -16,9 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from fastapi import Depends, FastAPI, HTTPException, Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse
-from starlette.routing import WebSocketRoute
+from fastapi.responses import JSONResponse, Response
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, WebSocketRoute
 
 from tactiled import __version__
 from tactiled.errors import ConfigError
@@ -39,6 +41,7 @@ from tactiled_service.schemas import (
     SensorsResponse,
     TareResponse,
     VersionResponse,
+    inline_json_schema,
 )
 from tactiled_service.stream import StreamEndpoint, StreamManager
 
@@ -99,6 +102,15 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (400, 401, 403, 404, 415, 422)}
 
 
+def _json_number(text: str) -> int | float:
+    """A JSON number written with a fraction or exponent: an int when integral.  JSON has one
+    number type and the documented schema's ``integer`` includes ``185.0`` (JSON Schema), so a
+    ``window`` of 185.0 is 185; the daemon's checks want an int for it, and take ints for
+    float keys."""
+    value = float(text)
+    return int(value) if value.is_integer() else value
+
+
 def create_app(ctx: Context) -> FastAPI:
     """The ASGI app for ``ctx``."""
     app = FastAPI(title="tactiled", version=__version__,
@@ -129,6 +141,19 @@ def create_app(ctx: Context) -> FastAPI:
             loc = ".".join(str(p) for p in e.get("loc", ()))
             parts.append(f"{loc}: {e.get('msg', 'invalid')}")
         return JSONResponse({"detail": "; ".join(parts) or "invalid request"}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(request: Request, exc: StarletteHTTPException) -> Response:
+        if exc.status_code == 405:
+            # Starlette's Allow names the methods of the first route of the path only, and
+            # /v1/config has one route per method: RFC 9110 wants all the path's methods.
+            allowed: set[str] = set()
+            for route in app.router.routes:
+                methods = getattr(route, "methods", None)
+                if methods and route.matches(request.scope)[0] != Match.NONE:
+                    allowed |= methods
+            exc.headers = {**(exc.headers or {}), "Allow": ", ".join(sorted(allowed))}
+        return await http_exception_handler(request, exc)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
@@ -205,12 +230,13 @@ def create_app(ctx: Context) -> FastAPI:
         """Thresholds and model choice, as PATCH accepts them."""
         return ctx.daemon.get_config()
 
-    @app.patch("/v1/config", response_model=ConfigResponse, responses=ERRORS,
+    @app.patch("/v1/config", response_model=ConfigResponse,
+               responses={**ERRORS, 413: {"model": ErrorResponse}},
                dependencies=[Depends(control_access)], tags=["control"],
                openapi_extra={"requestBody": {"required": True, "content": {
-                   "application/json": {"schema": ConfigPatch.model_json_schema()},
+                   "application/json": {"schema": inline_json_schema(ConfigPatch)},
                    "application/merge-patch+json": {
-                       "schema": ConfigPatch.model_json_schema()}}}})
+                       "schema": inline_json_schema(ConfigPatch)}}}})
     async def patch_config(request: Request) -> dict[str, Any]:
         """Change thresholds / model choice at run time, all or nothing; 422 names the key."""
         ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
@@ -224,7 +250,7 @@ def create_app(ctx: Context) -> FastAPI:
         if len(raw) > MAX_BODY:
             raise HTTPException(413, f"body larger than {MAX_BODY} bytes")
         try:
-            patch = json.loads(raw)
+            patch = json.loads(raw, parse_float=_json_number)
         except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as err:
             where = (f": {err.msg} at line {err.lineno} column {err.colno}"
                      if isinstance(err, json.JSONDecodeError) else "")

@@ -7,9 +7,10 @@ mm, N, degrees, Hz, seconds, milliseconds where the name says ``_ms``.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic.json_schema import SkipJsonSchema
 
 SCHEMA_VERSION = 1  # same as messages.SCHEMA_VERSION (kept import-free for clients)
 
@@ -161,14 +162,77 @@ class ConfigResponse(BaseModel):
     fit: dict[str, Any]
 
 
+def _optional_keys(schema: dict[str, Any]) -> None:
+    """Document every key as optional without a ``null`` default: a PATCH leaves out what it
+    does not change, and ``null`` is not a value of any of them (the daemon answers 422)."""
+    schema.pop("required", None)
+    for prop in schema.get("properties", {}).values():
+        prop.pop("default", None)
+
+
+# The PATCH body, key by key, as Daemon.update_config checks it (tactiled.settings field
+# checks: same bounds), so that a schema-valid value is a value the daemon accepts, and any
+# other key is refused (422) rather than ignored.  Sensor names are the running daemon's.
+
+
+class SensorConfigPatch(BaseModel):
+    """The run-time settings of one sensor (``sensors.<name>``)."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra=_optional_keys)
+
+    model: Literal["auto", "cylinder", "sphere", "general"] | SkipJsonSchema[None] = None
+    window: Annotated[int, Field(ge=2, le=255)] | SkipJsonSchema[None] = Field(
+        default=None, description="tactels")
+    noise_sigma: Annotated[float, Field(ge=1e-8, le=0.1)] | SkipJsonSchema[None] = Field(
+        default=None, description="strain, 1 sigma")
+    false_rate: Annotated[float, Field(ge=1e-12, le=0.5)] | SkipJsonSchema[None] = Field(
+        default=None, description="false contacts per noise-only frame")
+    reuse_unchanged: bool | SkipJsonSchema[None] = None
+    unchanged_z: Annotated[float, Field(ge=0.0, le=1e6)] | SkipJsonSchema[None] = Field(
+        default=None, description="z-score")
+
+
+Seconds = Annotated[float, Field(ge=0.05, le=3600.0)]  # settings.MIN/MAX_FIT_TIME_S
+
+
+class FitConfigPatch(BaseModel):
+    """The run-time settings of the fit worker pool (``fit``), seconds."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra=_optional_keys)
+
+    timeout: Seconds | SkipJsonSchema[None] = None
+    ping_interval: Seconds | SkipJsonSchema[None] = None
+    ping_timeout: Seconds | SkipJsonSchema[None] = None
+
+
 class ConfigPatch(BaseModel):
     """A partial config: ``{"sensors": {"finger0": {"model": "sphere"}}, "fit":
     {"timeout": 0.5}}``.  Keys not given are left alone; all or nothing."""
 
-    model_config = ConfigDict(extra="allow")
+    model_config = ConfigDict(extra="forbid", json_schema_extra=_optional_keys)
 
-    sensors: dict[str, dict[str, Any]] | None = None
-    fit: dict[str, Any] | None = None
+    sensors: dict[str, SensorConfigPatch] | SkipJsonSchema[None] = None
+    fit: FitConfigPatch | SkipJsonSchema[None] = None
+
+
+def inline_json_schema(model: type[BaseModel]) -> dict[str, Any]:
+    """``model``'s JSON schema with its ``$defs`` substituted in place: for a schema embedded
+    in the OpenAPI document (``openapi_extra``), where ``#/$defs/...`` would not resolve.
+    (The models given here are not recursive.)"""
+    schema = model.model_json_schema()
+    defs = schema.pop("$defs", {})
+
+    def resolve(node: Any) -> Any:
+        if isinstance(node, dict):
+            ref = node.get("$ref")
+            if isinstance(ref, str) and ref.startswith("#/$defs/"):
+                return resolve(defs[ref.removeprefix("#/$defs/")])
+            return {key: resolve(value) for key, value in node.items()}
+        if isinstance(node, list):
+            return [resolve(value) for value in node]
+        return node
+
+    return resolve(schema)
 
 
 Status = Literal["OK", "WARN", "STALE", "ERROR"]
