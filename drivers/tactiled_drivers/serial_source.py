@@ -151,6 +151,15 @@ class SerialSource(FrameSource):
                 if not self._is_current(port):  # closed (or lost) while we waited
                     continue
                 data = port.read(READ_CHUNK)
+                # A tty returns at most 4095 bytes per read (its line discipline's buffer),
+                # so one read per wake-up caps a sensor at ~4 KB per loop cycle: a busy loop
+                # (50 subscribers on a starved CPU) then falls behind a 1 kHz finger and the
+                # pty (15 KB) fills.  Drain what is there, up to 64 KB.
+                while data and len(data) < 65536:
+                    more = port.read(READ_CHUNK)
+                    if not more:
+                        break
+                    data += more
             except (serial.SerialException, OSError) as err:
                 self._lost(err)
                 continue

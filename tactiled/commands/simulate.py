@@ -195,6 +195,10 @@ class FrameWriter:
 
     def send(self, data: bytes) -> None:
         if len(self.pending) >= PENDING_LIMIT:
+            # A catch-up batch after a starved tick can exceed the limit on its own: offer
+            # what is pending to the device first, and drop only if it really is full.
+            self.flush()
+        if len(self.pending) >= PENDING_LIMIT:
             self.dropped += 1
             return
         self.pending += data

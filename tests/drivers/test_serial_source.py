@@ -428,3 +428,17 @@ def test_serial_url_errors() -> None:
         open_source("serial:///dev/ttyACM0?exclusive=maybe")
     with pytest.raises(ValueError, match=r"unknown parameter.*bauds"):
         open_source("serial:///dev/ttyACM0?bauds=9600")
+
+
+def test_one_read_drains_more_than_the_ttys_4095_byte_chunks(pty_device) -> None:
+    """A tty hands out at most 4095 bytes per read(); with 8 KB waiting, one read() of the
+    driver returns all of it (it drains up to 64 KB per wake-up), so a busy event loop that
+    wakes the reader rarely does not let a 1 kHz finger fill the device buffer (bug 7)."""
+
+    async def main() -> int:
+        async with SerialSource(serial_url(pty_device.path)) as src:
+            pty_device.write(bytes(range(1, 256)) * 32)  # 8160 bytes, no frame delimiter
+            await asyncio.sleep(0.2)  # all of it in the slave's buffer
+            return len(await src.read(timeout=2.0))
+
+    assert asyncio.run(main()) == 255 * 32
