@@ -1,12 +1,33 @@
-"""Acquisition soak: three fingers at 1 kHz over ptys (``tactiled simulate --pty`` processes)
-into the real daemon, run by ``python -m tactiled.bench.reliability`` in a process of its own
-so that its resident memory is the daemon's (see that module).
+"""Soak: three fingers at 1 kHz over ptys (``tactiled simulate --pty`` processes) into the
+real service (daemon + uvicorn) with 50 WebSocket subscribers, 5 of which never read; run by
+``python -m tactiled.bench.reliability`` in a process of its own so that its resident memory
+is the service's, the subscribers in another (see that module).
 
-Bars: the daemon's RSS grows by less than 5 MB after the warm-up, no frame is lost or rejected
-in acquisition, every frame is accounted for, no fit worker is restarted.  The short version
-(20 s) always runs; the 10-minute one with ``-m slow``; one hour with
-``TACTILED_SOAK_SECONDS=3600 pytest -m slow tests/reliability/test_soak.py``.  Subscribers
-(REST/WebSocket) are not part of this soak: the service has its own.
+Bars, all judged on every run whatever else the machine is doing:
+
+* memory: the service's RSS grows by less than 5 MB after the warm-up; its open descriptors
+  do not grow;
+* acquisition: no frame lost through the daemon's fault.  Frames missing at the decoder are
+  attributed by seq with what the simulators record: a simulator starved by other jobs for
+  more than a second *skips* the frames it is late for (``skipped_by_simulator``), and one
+  starved for a few tens of ms queues a catch-up batch bigger than its own pending limit and
+  drops the excess before writing anything (``overflowed_in_simulator``): neither ever
+  reached the wire, so neither is the daemon's fault.  One whose pty is full *drops* frames
+  (``dropped_device_full``): the daemon did not read in time, its fault.  So ``daemon_lost =
+  lost - skipped - overflowed`` must be 0, no frame may be dropped on a full pty, the decoder
+  must have decoded every frame written in the window (``frames == sent``, i.e. the rate over
+  frames actually sent is 100 %), none rejected or duplicated, every frame accounted for by
+  the pipeline, no disconnect;
+* subscribers: every healthy subscriber gets >= 99 % of what the server owed it (server's own
+  counters, after an ``unsubscribe`` flush), none is closed; the never-reading ones are
+  closed (1013) and come back.
+
+Worker restarts, the CPU used by other jobs, how long the service waited for a CPU and how
+late its event loop woke are reported as figures (and in the failure message), not judged:
+on a machine whose other jobs keep the service off the CPU for more than ~125 ms at a time,
+the acquisition bar fails, and the message says so.  The short version (25 s after a 60 s
+warm-up, ~1.5 min in all) always runs; the 10-minute one with ``-m slow``; one hour with
+``TACTILED_SOAK_SECONDS=3600 pytest -m slow tests/reliability/test_soak.py``.
 """
 
 from __future__ import annotations
@@ -23,49 +44,70 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="needs Linux ptys and /proc")
 
 LONG = float(os.environ.get("TACTILED_SOAK_SECONDS", "600"))
+SUBSCRIBERS, STALLED = 50, 5
 
 
 def _soak(seconds: float) -> dict:
     done = subprocess.run([sys.executable, "-m", "tactiled.bench.reliability", "--seconds",
-                           repr(seconds), "--json"], capture_output=True, text=True,
-                          timeout=seconds + 240, check=False)
+                           repr(seconds), "--subscribers", str(SUBSCRIBERS), "--stalled",
+                           str(STALLED), "--json"], capture_output=True, text=True,
+                          timeout=seconds + 300, check=False)
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
     assert lines, f"no result (exit {done.returncode}): {done.stderr[-2000:]}"
     return json.loads(lines[-1])
 
 
-#: Other jobs on the machine using more CPU than this (cores, averaged over the run) make the
-#: acquisition figures a measure of the machine, not of the daemon: on the shared 2-core
-#: development machine a concurrent test suite starves the simulators themselves (they skip
-#: frames) and the daemon.  The frame-loss bar is then not judged; memory always is.
-QUIET_CORES = 0.25
-
-
 def _check(r: dict) -> None:
-    figures(f"soak[{r['seconds']:g} s]", rss_mb=r["rss_mb"], sensors=r["sensors"],
-            worker_restarts=r["worker_restarts_by_reason"],
-            workers_rss_growth_mb=r["workers_rss_growth_mb"],
-            simulators=r["simulators"], cpu_cores=r["cpu_cores"], passed=r["passed"])
-    assert r["rss_mb"]["growth"] < 5.0, r["rss_mb"]
+    rss = {k: v for k, v in r["rss_mb"].items() if k != "series"}
+    figures(f"soak[{r['seconds']:g} s]", rss_mb=rss, fds=r["fds"], sensors=r["sensors"],
+            subscribers=r["subscribers"], worker_restarts=r["worker_restarts_by_reason"],
+            workers_rss_growth_mb=r["workers_rss_growth_mb"], simulators=r["simulators"],
+            cpu_cores=r["cpu_cores"], service_loop_lag=r["service_loop_lag"],
+            passed=r["passed"])
+    problems = []
+    if not r["rss_mb"]["growth"] < 5.0:
+        problems.append(f"service RSS grew by {r['rss_mb']['growth']} MB (bar 5 MB): {rss}")
+    if r["fds"]["end"] > r["fds"]["after_warmup"]:
+        problems.append(f"descriptors grew: {r['fds']}")
     for name, s in r["sensors"].items():
-        assert s["connected"] and s["disconnects"] == 0, (name, s)
-        assert s["unaccounted"] == 0, (name, s)  # every frame decoded is accounted for
-        assert s["rejected"] == 0 and s["duplicated"] == 0, (name, s)
-    busy = r["cpu_cores"]["other_jobs"]
-    if busy > QUIET_CORES:
-        pytest.skip(f"other jobs used {busy} CPU cores during the soak: frame loss not judged "
-                    f"(lost: {[s['lost'] for s in r['sensors'].values()]}; RSS growth "
-                    f"{r['rss_mb']['growth']} MB, checked)")
-    for name, s in r["sensors"].items():
-        assert s["frame_rate_hz"] > 0.98 * 1000, (name, s)
-        assert s["lost"] == 0, (name, s)
+        if not (s["connected"] and s["disconnects"] == 0):
+            problems.append(f"{name}: disconnected {s}")
+        if s["unaccounted"] or s["rejected"] or s["duplicated"]:
+            problems.append(f"{name}: unaccounted {s['unaccounted']}, rejected "
+                            f"{s['rejected']}, duplicated {s['duplicated']}")
+        if s["daemon_lost"] != 0 or s["dropped_device_full"] != 0:
+            problems.append(
+                f"{name}: {s['daemon_lost']} frame(s) lost by the daemon ({s['lost']} lost, "
+                f"{s['skipped_by_simulator']} of them skipped by the starved simulator, "
+                f"{s['overflowed_in_simulator']} never written by it (catch-up batch over "
+                f"its pending limit); {s['dropped_device_full']} dropped because the pty was "
+                f"full); other jobs used {r['cpu_cores']['other_jobs']} cores, the service "
+                f"waited for a CPU {r['cpu_cores']['runqueue_wait']['service']:.0%} of the "
+                f"time; its loop woke > 125 ms "
+                f"late {r['service_loop_lag']['over_125ms']} times, max "
+                f"{r['service_loop_lag']['max_ms']} ms")
+        if s["sent"] is None or s["frames"] != s["sent"]:
+            problems.append(f"{name}: decoded {s['frames']} of {s['sent']} frames sent")
+    sub = r["subscribers"]
+    if sub is None:
+        problems.append("no subscribers")
+    else:
+        if sub["healthy"] != SUBSCRIBERS - STALLED or sub["delivery_min"] < 0.99:
+            problems.append(f"healthy subscribers: {sub['healthy']}, delivery min "
+                            f"{sub['delivery_min']} (bar 0.99), median "
+                            f"{sub['delivery_median']}, server dropped {sub['server_dropped']}")
+        if sub["healthy_closed"]:
+            problems.append(f"{sub['healthy_closed']} healthy subscriber(s) closed")
+        if not (sub["stalled_closed"] > 0 and sub["stalled_reconnects"] > 0):
+            problems.append(f"never-reading subscribers not closed and back: {sub}")
+    assert not problems, "\n".join(problems)
 
 
 def test_soak_short() -> None:
-    _check(_soak(20.0))
+    _check(_soak(25.0))
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(LONG + 600)
+@pytest.mark.timeout(LONG + 900)
 def test_soak_long() -> None:
     _check(_soak(LONG))
