@@ -297,6 +297,31 @@ class Staller:
             self.sock = None
 
 
+class Restaller:
+    """A thread that reconnects every :class:`Staller` the server has cut (it resets them),
+    so it stalls again.  Watched through the local TCP state, not the server's health
+    endpoint: polling that would cost the server CPU the baseline does not pay."""
+
+    def __init__(self, stallers: list[Staller], name: str = "bench-stallers") -> None:
+        self.stallers = stallers
+        self.done = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    def _run(self) -> None:
+        while not self.done.wait(0.2):
+            for s in self.stallers:
+                if not s.alive():
+                    s.connect()
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def stop(self) -> None:
+        self.done.set()
+        if self.thread.is_alive():
+            self.thread.join(5)
+
+
 # -- phases -------------------------------------------------------------------------------------
 
 STALL_LEAD = 4.0  # s: never-reading subscribers connect this long before measuring starts
@@ -334,18 +359,7 @@ def run_phase(name: str, base: str, port: int, args: argparse.Namespace, stalled
     stallers = [Staller(port, everything if args.stalled_want == "everything" else sub)
                 for _ in range(stalled)]
     readers = Readers()
-    done = threading.Event()
-
-    def keep_stalling() -> None:
-        # A never-reading subscriber the server has cut (it resets them) comes back and
-        # stalls again.  Watched through the local TCP state, not the server's health
-        # endpoint: polling that would cost the server CPU the baseline does not pay.
-        while not done.wait(0.2):
-            for s in stallers:
-                if not s.alive():
-                    s.connect()
-
-    restaller = threading.Thread(target=keep_stalling, name="bench-stallers", daemon=True)
+    restaller = Restaller(stallers)
     try:
         time.sleep(max(0.0, start - STALL_LEAD - time.monotonic()))
         for s in stallers:
@@ -378,9 +392,7 @@ def run_phase(name: str, base: str, port: int, args: argparse.Namespace, stalled
             time.sleep(0.05)
         after = health(base)
     finally:
-        done.set()
-        if restaller.is_alive():
-            restaller.join(5)
+        restaller.stop()
         for s in stallers:
             s.close()
         readers.stop()

@@ -67,7 +67,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -292,21 +291,13 @@ def subscribers_main(port: str, healthy: str, stalled: str, max_rate: str) -> in
     (per reader: local port, estimates received, closed; the never-reading ones'
     connections); on ``exit`` (or end of input): closes everything.
     """
-    from tactiled_service.bench_fanout import Readers, Staller, client_frame
+    from tactiled_service.bench_fanout import Readers, Restaller, Staller, client_frame
 
     sub = json.dumps({"type": "subscribe", "streams": ["estimates"],
                       "max_rate": float(max_rate)}).encode()
     stallers = [Staller(int(port), sub) for _ in range(int(stalled))]
     readers = Readers()
-    done = threading.Event()
-
-    def keep_stalling() -> None:
-        while not done.wait(0.2):
-            for s in stallers:
-                if not s.alive():
-                    s.connect()
-
-    restaller = threading.Thread(target=keep_stalling, name="soak-stallers", daemon=True)
+    restaller = Restaller(stallers, name="soak-stallers")
     try:
         for s in stallers:
             s.connect()
@@ -321,8 +312,7 @@ def subscribers_main(port: str, healthy: str, stalled: str, max_rate: str) -> in
                 break
             if command != "stop":
                 continue
-            done.set()
-            restaller.join(5)
+            restaller.stop()
             unsubscribe = client_frame(b'{"type":"unsubscribe"}')
             for c in readers.clients:
                 if not c.closed:
@@ -339,7 +329,7 @@ def subscribers_main(port: str, healthy: str, stalled: str, max_rate: str) -> in
                              "unsubscribed": c.unsubscribed} for c in readers.clients],
                 "stalled_connects": [s.connects for s in stallers]}), flush=True)
     finally:
-        done.set()
+        restaller.stop()
         for s in stallers:
             s.close()
         readers.stop()
