@@ -4,22 +4,21 @@ URL parameters: ``baud`` (bits/s, default 1000000; ignored by USB CDC-ACM device
 ``exclusive`` (default 1: take an ``flock`` on the port so a second daemon cannot interleave
 reads with ours).
 
-**Non-blocking reads: ``loop.add_reader`` on the port's file descriptor, no thread.**
-pyserial's POSIX ``Serial`` already opens the device ``O_NONBLOCK`` and, with ``timeout=0``,
-``read(n)`` returns at once with what is there (``b""`` if nothing).  So each read waits for
-readiness in the event loop (``add_reader``) and then calls ``read`` once.  Compared with a
-reader thread feeding an ``asyncio.Queue`` this needs no thread to start, stop or join, no
-queue to bound, no cross-thread hand-off latency, and cancellation (read timeouts, shutdown)
-is an ordinary ``CancelledError`` at the ``await``.  It also gives back-pressure for free: when
-nobody reads, nothing is read, and the kernel's tty buffer holds (or, as on the wire, drops)
-bytes.  The price is POSIX only (asyncio cannot watch a Windows COM handle), which suits a
-daemon deployed with systemd and udev.
+**Reads in a thread of its own** (:class:`~tactiled_drivers.port_reader.PortReader`): it
+sleeps in ``select`` until bytes arrive and moves them into memory at once, and the event loop
+takes them from there (``await``, so read timeouts and shutdown are ordinary cancellation).
+An earlier version read in the event loop (``loop.add_reader``, no thread); the soak showed why
+that is not enough: a tty buffers 0.1-0.4 s of a 1 kHz finger, and the loop, which also serves
+the WebSocket subscribers, stalled for longer than that under load and frames were lost at
+the device.  See that module for the details and the bound on memory.  POSIX only, which
+suits a daemon deployed with systemd and udev.
 
 **A vanishing device** shows in two ways, both handled: pyserial raises ``SerialException``
 for ``EIO`` ("read failed"), and for a descriptor that polls readable but reads ``b""`` (what a
 Linux pty gives once its master is closed, and a USB serial adapter once unplugged).  ``OSError``
-(e.g. ``EIO`` from the ``TIOCINQ`` ioctl behind ``in_waiting``) is treated the same.  The driver
-then closes the port (releasing its descriptor and pyserial's two abort pipes, so nothing leaks),
+(e.g. ``EIO`` from the ``TIOCINQ`` ioctl behind ``in_waiting``) is treated the same.  The reader
+thread hands the error over after the bytes it read before it; the driver then stops the
+thread, closes the port (releasing its descriptor and pyserial's two abort pipes, so nothing leaks),
 sets ``connected = False`` and ``last_error``, counts a disconnect, logs one warning, and retries
 opening the same path with backoff: 0.1 s, doubling, capped at 2 s.  A successful re-open logs,
 counts a reconnect and resumes reading; the decoder's half-received frame is dropped.
@@ -40,6 +39,7 @@ import asyncio
 import errno
 import logging
 import os
+import time
 from typing import ClassVar
 
 import serial
@@ -47,11 +47,11 @@ import serial
 from tactiled.errors import DeviceConnectionError
 from tactiled.frames import FrameDecoder
 from tactiled.sources import FrameSource, SourceURL
+from tactiled_drivers.port_reader import PortReader
 
 log = logging.getLogger(__name__)
 
 DEFAULT_BAUD = 1_000_000
-READ_CHUNK = 4096  # bytes per read(); one tty buffer's worth
 
 
 def _describe_open_error(path: str, err: serial.SerialException) -> str:
@@ -88,9 +88,11 @@ class SerialSource(FrameSource):
         self.baud: int = self.url.get_int("baud", DEFAULT_BAUD, minimum=1)
         self.exclusive: bool = self.url.get_bool("exclusive", True)
         self._port: serial.Serial | None = None
+        self._reader: PortReader | None = None
+        #: Most bytes the reader thread held for the loop at once, over every connection.
+        self.read_backlog_peak = 0
         self._retry_delay = self.RETRY_MIN
         self._waiter: asyncio.Future[None] | None = None
-        self._watched_fd: int | None = None
         #: The device node as the latest open attempt saw it (see :meth:`_node`).
         self._node_at_attempt: tuple[int, ...] | None = None
 
@@ -106,19 +108,23 @@ class SerialSource(FrameSource):
 
     def _open_port(self) -> serial.Serial:
         self._node_at_attempt = self._node()
-        # timeout=0: read() returns at once with whatever is buffered (the loop does the
-        # waiting); exclusive: flock(LOCK_EX | LOCK_NB), refused while another open file
+        # timeout=None: the reader thread's read() blocks until bytes arrive (stop() cancels
+        # it); exclusive: flock(LOCK_EX | LOCK_NB), refused while another open file
         # description holds it, even in this process.
         try:
-            return serial.Serial(self.path, baudrate=self.baud, timeout=0,
+            return serial.Serial(self.path, baudrate=self.baud, timeout=None,
                                  exclusive=self.exclusive)
         except serial.SerialException as err:
             raise DeviceConnectionError(_describe_open_error(self.path, err)) from err
         except (OSError, ValueError) as err:  # e.g. termios on a non-tty, bad baud rate
             raise DeviceConnectionError(f"cannot open serial port {self.path}: {err}") from err
 
+    def _attach(self, port: serial.Serial) -> None:
+        self._port = port
+        self._reader = PortReader(port)
+
     async def _open_internal(self) -> None:
-        self._port = self._open_port()
+        self._attach(self._open_port())
         self._retry_delay = self.RETRY_MIN
         log.info("opened serial port %s at %d baud", self.path, self.baud)
 
@@ -126,10 +132,13 @@ class SerialSource(FrameSource):
         self._release_port()
 
     def _release_port(self) -> None:
-        """Stop watching the descriptor, wake a pending read, and close the port."""
-        self._unwatch()
+        """Stop the reader thread, wake a pending read, and close the port."""
+        reader, self._reader = self._reader, None
+        if reader is not None:  # a read waiting in take() returns b"" and loops
+            reader.stop()
+            self.read_backlog_peak = max(self.read_backlog_peak, reader.peak)
         waiter, self._waiter = self._waiter, None
-        if waiter is not None:  # a read waiting for data or for the next retry: end it
+        if waiter is not None:  # a read waiting for the next retry: end it
             _resolve(waiter)
         port, self._port = self._port, None
         if port is not None:
@@ -142,50 +151,33 @@ class SerialSource(FrameSource):
 
     async def _read_internal(self) -> bytes:
         while self.is_open:
-            port = self._port
-            if port is None:
+            reader = self._reader
+            if reader is None:
                 await self._reconnect()
                 continue
             try:
-                await self._wait_readable(port)
-                if not self._is_current(port):  # closed (or lost) while we waited
-                    continue
-                data = port.read(READ_CHUNK)
-                # A tty returns at most 4095 bytes per read (its line discipline's buffer),
-                # so one read per wake-up caps a sensor at ~4 KB per loop cycle: a busy loop
-                # (50 subscribers on a starved CPU) then falls behind a 1 kHz finger and the
-                # pty (15 KB) fills.  Drain what is there, up to 64 KB.
-                while data and len(data) < 65536:
-                    more = port.read(READ_CHUNK)
-                    if not more:
-                        break
-                    data += more
+                data = await reader.take()
             except (serial.SerialException, OSError) as err:
-                self._lost(err)
+                if self._reader is reader:
+                    self._lost(err)
                 continue
-            if data:  # b"" is a spurious wake-up (another reader, EAGAIN): wait again
+            if data:
                 return data
+            # b"": that reader was stopped (close, or replaced): look again
         return b""
 
-    def _is_current(self, port: serial.Serial) -> bool:
-        return self._port is port
+    def _timestamp(self) -> float:
+        # When the reader thread read the bytes, not when the loop took them: a frame's
+        # latency then includes the time it waited for a busy loop.
+        reader = self._reader
+        return reader.arrival if reader is not None and reader.arrival else time.monotonic()
 
-    async def _wait_readable(self, port: serial.Serial) -> None:
-        loop = asyncio.get_running_loop()
-        fd = port.fileno()
-        waiter: asyncio.Future[None] = loop.create_future()
-
-        self._waiter = waiter
-        loop.add_reader(fd, _resolve, waiter)
-        self._watched_fd = fd
-        try:
-            await waiter
-        finally:
-            # Always unregister before the descriptor can be closed: epoll keeps stale
-            # registrations otherwise, and the number may be reused by the next open().
-            self._unwatch()
-            if self._waiter is waiter:
-                self._waiter = None
+    @property
+    def read_backlog(self) -> int:
+        """Most bytes read from the device but not yet taken by the loop, at once: how far
+        the loop fell behind (bytes; 0 before the first read)."""
+        live = self._reader.peak if self._reader is not None else 0
+        return max(self.read_backlog_peak, live)
 
     async def retry_pause(self, delay: float) -> None:
         """Wait ``delay`` s before the next open attempt, or until the device node appears or
@@ -218,11 +210,6 @@ class SerialSource(FrameSource):
             if self._waiter is waiter:
                 self._waiter = None
 
-    def _unwatch(self) -> None:
-        fd, self._watched_fd = self._watched_fd, None
-        if fd is not None:
-            asyncio.get_running_loop().remove_reader(fd)
-
     def _lost(self, err: BaseException) -> None:
         """The device vanished: report it once, free the port, start retrying."""
         self._release_port()
@@ -247,7 +234,7 @@ class SerialSource(FrameSource):
                 log.info("%s", err)
             self.last_error = str(err)
             return
-        self._port = port
+        self._attach(port)
         self._retry_delay = self.RETRY_MIN
         self.connected = True
         self.reconnects += 1

@@ -159,12 +159,11 @@ def test_read_timeout_loses_no_data(pty_device, frame_factory, same_frame) -> No
                 await src.read(timeout=0.05)
             assert 0.04 <= time.monotonic() - start < 0.5
             assert src.connected  # a quiet device is not a lost one
-            # The cancelled wait left no reader behind (it would spin on every byte).
-            loop = asyncio.get_running_loop()
-            assert not loop.remove_reader(src._port.fileno())
+            # The cancelled wait left no waiter behind for the reader thread to wake.
+            assert src._reader is not None and src._reader._waiter is None
             pty_device.write(encode_frame(sent))
             got = [f async for f in _first(src, 1)]
-            assert not loop.remove_reader(src._port.fileno())
+            assert src._reader._waiter is None
         assert same_frame(got[0], sent)
 
     asyncio.run(main())
@@ -432,8 +431,8 @@ def test_serial_url_errors() -> None:
 
 def test_one_read_drains_more_than_the_ttys_4095_byte_chunks(pty_device) -> None:
     """A tty hands out at most 4095 bytes per read(); with 8 KB waiting, one read() of the
-    driver returns all of it (it drains up to 64 KB per wake-up), so a busy event loop that
-    wakes the reader rarely does not let a 1 kHz finger fill the device buffer (bug 7)."""
+    driver returns all of it (everything its reader thread holds), so a busy event loop that
+    gets to the port rarely does not let a 1 kHz finger fill the device buffer (bug 7)."""
 
     async def main() -> int:
         async with SerialSource(serial_url(pty_device.path)) as src:
@@ -442,3 +441,22 @@ def test_one_read_drains_more_than_the_ttys_4095_byte_chunks(pty_device) -> None
             return len(await src.read(timeout=2.0))
 
     assert asyncio.run(main()) == 255 * 32
+
+
+def test_host_time_is_when_the_bytes_arrived_not_when_the_loop_took_them(
+        pty_device, frame_factory) -> None:
+    """A frame's ``host_time`` (the start of its latency) is stamped by the reader thread as
+    the bytes arrive: a loop busy for 0.3 s must show up as 0.3 s of latency."""
+    sent = frame_factory(1, seed=9)[0]
+
+    async def main() -> tuple[float, float, float]:
+        async with SerialSource(serial_url(pty_device.path)) as src:
+            before = time.monotonic()
+            pty_device.write(encode_frame(sent))
+            time.sleep(0.3)  # the loop is busy; the thread reads meanwhile
+            taken = time.monotonic()
+            frame = [f async for f in _first(src, 1)][0]
+            return before, frame.host_time, taken
+
+    before, host_time, taken = asyncio.run(main())
+    assert before <= host_time < before + 0.15 < taken

@@ -1,0 +1,175 @@
+"""The serial driver's reader thread (``PortReader``) against a real pseudo-terminal: it must
+drain the device while the event loop is stuck, stop at its memory limit, hand over every
+byte before an error, and stop promptly."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import sys
+import threading
+import time
+
+import pytest
+import serial
+
+from tactiled_drivers.port_reader import PortReader
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
+
+PAYLOAD = bytes(range(1, 256)) * 257  # 65 535 bytes: four times what a pty buffers
+
+
+class Writer(threading.Thread):
+    """Plays the device from a thread (the event loop is blocked on purpose): writes
+    ``data`` to the pty master, retrying on a full buffer, until ``deadline`` s."""
+
+    def __init__(self, master: int, data: bytes, deadline: float) -> None:
+        super().__init__(daemon=True)
+        self.master, self.data, self.deadline = master, data, deadline
+        self.accepted = 0
+        self.finished_at: float | None = None
+
+    def run(self) -> None:
+        end = time.monotonic() + self.deadline
+        view = memoryview(self.data)
+        while self.accepted < len(self.data) and time.monotonic() < end:
+            try:
+                self.accepted += os.write(self.master, view[self.accepted:self.accepted + 1024])
+            except BlockingIOError:
+                time.sleep(0.001)
+        if self.accepted == len(self.data):
+            self.finished_at = time.monotonic()
+
+
+def open_port(path: str) -> serial.Serial:
+    return serial.Serial(path, timeout=None, exclusive=True)
+
+
+async def take_all(reader: PortReader, n: int, timeout: float = 5.0) -> bytes:
+    got = b""
+    async with asyncio.timeout(timeout):
+        while len(got) < n:
+            got += await reader.take()
+    return got
+
+
+def test_drains_the_device_while_the_event_loop_is_stuck(pty_device) -> None:
+    """64 KB arrive while the loop is blocked for 1.5 s: a reader in the loop would let the
+    pty fill after ~15 KB and the device would stall (or drop, at 1 kHz); the thread takes
+    it all as it comes, and the loop then gets every byte in order."""
+
+    async def main() -> None:
+        port = open_port(pty_device.path)
+        reader = PortReader(port)
+        try:
+            writer = Writer(pty_device.master, PAYLOAD, deadline=1.5)
+            start = time.monotonic()
+            writer.start()
+            time.sleep(1.5)  # the event loop is stuck (a GC pause, a CPU-starved process)
+            writer.join()
+            assert writer.accepted == len(PAYLOAD), \
+                f"the device could write only {writer.accepted} of {len(PAYLOAD)} bytes"
+            assert writer.finished_at is not None and writer.finished_at - start < 1.5
+            assert await take_all(reader, len(PAYLOAD)) == PAYLOAD
+            assert reader.peak >= 32 * 1024  # held for the loop: it really was behind
+        finally:
+            reader.stop()
+            port.close()
+
+    asyncio.run(main())
+
+
+def test_stops_reading_at_its_limit_and_loses_nothing(pty_device) -> None:
+    """At ``limit`` bytes held the thread stops reading, so the kernel buffer fills and the
+    device is held back (memory stays bounded); once the loop takes, reading resumes and
+    every byte arrives in order."""
+
+    async def main() -> None:
+        port = open_port(pty_device.path)
+        reader = PortReader(port, limit=4096)
+        try:
+            writer = Writer(pty_device.master, PAYLOAD, deadline=5.0)
+            writer.start()
+            time.sleep(0.5)
+            held_back = writer.accepted
+            assert held_back < len(PAYLOAD)  # back-pressure reached the device
+            assert 4096 <= reader.peak < held_back
+            got = await take_all(reader, len(PAYLOAD))
+            writer.join()
+            assert got == PAYLOAD
+        finally:
+            reader.stop()
+            port.close()
+
+    asyncio.run(main())
+
+
+def test_error_comes_after_every_byte_read_before_it(pty_device) -> None:
+    async def main() -> None:
+        port = open_port(pty_device.path)
+        reader = PortReader(port)
+        try:
+            pty_device.write(PAYLOAD[:3000])
+            time.sleep(0.2)
+            pty_device.unplug()  # the slave's reads now fail (EIO)
+            time.sleep(0.2)
+            assert not reader.alive
+            assert await take_all(reader, 3000) == PAYLOAD[:3000]
+            with pytest.raises((serial.SerialException, OSError)):
+                await reader.take()
+            assert await reader.take() == b""  # the error is raised once, then end of data
+        finally:
+            reader.stop()
+            port.close()
+
+    asyncio.run(main())
+
+
+def test_stop_wakes_a_pending_take_and_leaves_the_port_open(pty_device) -> None:
+    async def main() -> None:
+        port = open_port(pty_device.path)
+        reader = PortReader(port)
+        try:
+            pending = asyncio.create_task(reader.take())
+            await asyncio.sleep(0.05)
+            assert not pending.done()
+            start = time.monotonic()
+            reader.stop()
+            assert await asyncio.wait_for(pending, 1.0) == b""
+            assert time.monotonic() - start < 1.0
+            assert not reader.alive
+            assert port.is_open
+        finally:
+            port.close()
+
+    asyncio.run(main())
+
+
+def test_a_cancelled_take_loses_nothing(pty_device) -> None:
+    async def main() -> None:
+        port = open_port(pty_device.path)
+        reader = PortReader(port)
+        try:
+            with pytest.raises(TimeoutError):
+                await asyncio.wait_for(reader.take(), 0.05)
+            assert reader._waiter is None
+            pty_device.write(b"abc")
+            assert await take_all(reader, 3) == b"abc"
+        finally:
+            reader.stop()
+            port.close()
+
+    asyncio.run(main())
+
+
+def test_limit_must_be_positive(pty_device) -> None:
+    async def main() -> None:
+        port = open_port(pty_device.path)
+        try:
+            with pytest.raises(ValueError, match="limit must be at least 1 byte"):
+                PortReader(port, limit=0)
+        finally:
+            port.close()
+
+    asyncio.run(main())
