@@ -253,6 +253,23 @@ class Readers:
                     continue
                 client.feed(data, monotonic(), self.measuring)
 
+    def unsubscribe_all(self, timeout: float = 30.0) -> bool:
+        """Send every open client an ``unsubscribe`` and wait until each has its confirmation
+        (everything the server sent before it has then been read) or is closed; False if
+        some did not within ``timeout`` s."""
+        unsubscribe = client_frame(b'{"type":"unsubscribe"}')
+        for c in self.clients:
+            if not c.closed:
+                c.sock.setblocking(True)
+                c.sock.sendall(unsubscribe)
+                c.sock.setblocking(False)
+        deadline = time.monotonic() + timeout
+        while not all(c.unsubscribed or c.closed for c in self.clients):
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.05)
+        return True
+
     def stop(self) -> None:
         self._stop = True
         if self._thread.is_alive():
@@ -380,16 +397,8 @@ def run_phase(name: str, base: str, port: int, args: argparse.Namespace, stalled
         seconds = time.monotonic() - t0
         cpu = cpu_seconds(pid) - cpu0
         stall_count = health(base)["subscribers"]["stalled"] - before["subscribers"]["stalled"]
-        unsubscribe = client_frame(b'{"type":"unsubscribe"}')
-        for c in readers.clients:
-            c.sock.setblocking(True)
-            c.sock.sendall(unsubscribe)
-            c.sock.setblocking(False)
-        deadline = time.monotonic() + 30
-        while not all(c.unsubscribed or c.closed for c in readers.clients):
-            if time.monotonic() > deadline:
-                raise SystemExit("clients did not see their unsubscribe confirmed in 30 s")
-            time.sleep(0.05)
+        if not readers.unsubscribe_all(30.0):
+            raise SystemExit("clients did not see their unsubscribe confirmed in 30 s")
         after = health(base)
     finally:
         restaller.stop()

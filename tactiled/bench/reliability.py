@@ -58,6 +58,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import ctypes
+import gc
 import json
 import logging
 import os
@@ -291,7 +293,7 @@ def subscribers_main(port: str, healthy: str, stalled: str, max_rate: str) -> in
     (per reader: local port, estimates received, closed; the never-reading ones'
     connections); on ``exit`` (or end of input): closes everything.
     """
-    from tactiled_service.bench_fanout import Readers, Restaller, Staller, client_frame
+    from tactiled_service.bench_fanout import Readers, Restaller, Staller
 
     sub = json.dumps({"type": "subscribe", "streams": ["estimates"],
                       "max_rate": float(max_rate)}).encode()
@@ -313,17 +315,8 @@ def subscribers_main(port: str, healthy: str, stalled: str, max_rate: str) -> in
             if command != "stop":
                 continue
             restaller.stop()
-            unsubscribe = client_frame(b'{"type":"unsubscribe"}')
-            for c in readers.clients:
-                if not c.closed:
-                    c.sock.setblocking(True)
-                    c.sock.sendall(unsubscribe)
-                    c.sock.setblocking(False)
-            deadline = time.monotonic() + 30
-            while not all(c.unsubscribed or c.closed for c in readers.clients):
-                if time.monotonic() > deadline:
-                    break  # reported: a reader without its confirmation counts as failed
-                time.sleep(0.05)
+            # A reader without its confirmation is reported, and counts as failed.
+            readers.unsubscribe_all(30.0)
             print(json.dumps({
                 "readers": [{"port": c.port, "received": c.total, "closed": c.closed,
                              "unsubscribed": c.unsubscribed} for c in readers.clients],
@@ -412,11 +405,29 @@ class _LoopLag:
         self.ticks = 0
         self.max_ms = 0.0
         self._task: asyncio.Task[None] | None = None
+        # Garbage-collector pauses of the service process (every thread waits for them).
+        self.gc_runs = [0, 0, 0]
+        self.gc_max_ms = [0.0, 0.0, 0.0]
+        self.gc_total_ms = 0.0
+        self._gc_t0 = 0.0
+
+    def _on_gc(self, phase: str, info: dict[str, Any]) -> None:
+        if phase == "start":
+            self._gc_t0 = time.perf_counter()
+            return
+        ms = (time.perf_counter() - self._gc_t0) * 1e3
+        g = info["generation"]
+        self.gc_runs[g] += 1
+        self.gc_max_ms[g] = max(self.gc_max_ms[g], ms)
+        self.gc_total_ms += ms
 
     def start(self) -> None:
         self._task = asyncio.create_task(self._run(), name="soak-loop-lag")
+        gc.callbacks.append(self._on_gc)
 
     def stop(self) -> None:
+        if self._on_gc in gc.callbacks:
+            gc.callbacks.remove(self._on_gc)
         if self._task is not None:
             self._task.cancel()
             self._task = None
@@ -434,7 +445,61 @@ class _LoopLag:
 
     def figures(self) -> dict[str, Any]:
         return {"ticks": self.ticks, "max_ms": round(self.max_ms, 1),
-                **{f"over_{e}ms": n for e, n in zip(self.EDGES_MS, self.over)}}
+                **{f"over_{e}ms": n for e, n in zip(self.EDGES_MS, self.over)},
+                "gc": {"runs": self.gc_runs, "max_ms": [round(v, 1) for v in self.gc_max_ms],
+                       "total_ms": round(self.gc_total_ms)}}
+
+
+class _MallInfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in (
+        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks",
+        "fordblks", "keepcost")]
+
+
+def _heap() -> dict[str, float] | None:
+    """Where the service's memory is, in MB: Python's small-object allocator (pymalloc: the
+    1 MiB arenas it holds, and the bytes of live objects in them) and glibc malloc (bytes in
+    use, free but kept, mmapped).  RSS that grows while the live bytes do not is an allocator
+    keeping freed memory (fragmentation), not a leak.  ``None`` off CPython/glibc 2.33+."""
+    try:
+        libc = ctypes.CDLL(None)
+        mallinfo2 = libc.mallinfo2
+    except (OSError, AttributeError):
+        return None
+    mallinfo2.restype = _MallInfo2
+    m = mallinfo2()
+    mb = 1 / 2**20
+    out = {"malloc_in_use_mb": round(m.uordblks * mb, 2),
+           "malloc_free_kept_mb": round(m.fordblks * mb, 2),
+           "malloc_mmapped_mb": round(m.hblkhd * mb, 2)}
+    out.update(_pymalloc())
+    return out
+
+
+def _pymalloc() -> dict[str, float]:
+    """pymalloc's arenas and live bytes, from ``sys._debugmallocstats()`` (which writes to
+    the C-level stderr, so that is pointed at a file for the call); {} if unavailable."""
+    stats = getattr(sys, "_debugmallocstats", None)
+    if stats is None:
+        return {}
+    with tempfile.TemporaryFile() as f:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(f.fileno(), 2)
+        try:
+            stats()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        f.seek(0)
+        text = f.read().decode(errors="replace")
+    found = dict(re.findall(r"^# (arenas allocated current|bytes in allocated blocks)\s+=\s+"
+                            r"([\d,]+)", text, re.MULTILINE))
+    if len(found) < 2:
+        return {}
+    return {"pymalloc_arenas": int(found["arenas allocated current"].replace(",", "")),
+            "pymalloc_live_mb": round(int(found["bytes in allocated blocks"].replace(",", ""))
+                                      / 2**20, 2)}
 
 
 async def _fd_peak(span: float = 1.0, samples: int = 11) -> int:
@@ -497,7 +562,11 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
     def marks() -> dict[str, Any]:
         return {"stats": daemon.stats(),
                 "last_seq": {n: daemon.sensors[n].source.decoder.last_seq for n in FINGERS},
-                "stalled_closed": manager.stalled if manager is not None else 0}
+                # Most bytes the serial driver's reader thread held for the loop (whole run).
+                "read_backlog": {n: getattr(daemon.sensors[n].source, "read_backlog", None)
+                                 for n in FINGERS},
+                "stalled_closed": manager.stalled if manager is not None else 0,
+                "heap": _heap()}
 
     lag = _LoopLag()
     try:
@@ -652,6 +721,7 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
                           elapsed)
         _attribute(s, simulators[i], before["last_seq"][name], after["last_seq"][name],
                    elapsed)
+        s["read_backlog_bytes"] = after["read_backlog"][name]
         sensors[name] = s
     rss = run["rss"]
     base = rss[0][1]
@@ -676,6 +746,7 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
                    "series": [[round(t), round(v, 2)]
                               for t, v in rss[::max(1, len(rss) // 40)]]},
         "service_loop_lag": run["loop_lag"],
+        "heap": {"after_warmup": before["heap"], "end": after["heap"]},
         "fds": {"after_warmup": run["fds_peak"][0], "end": run["fds_peak"][1],
                 "growth": run["fds_peak"][1] - run["fds_peak"][0],
                 "min": min(fds), "max": max(fds)},
@@ -753,6 +824,10 @@ def _markdown(r: dict[str, Any]) -> str:
               f"min {f['min']}, max {f['max']}); worker RSS growth (MB): "
               f"{r['workers_rss_growth_mb']}; worker "
               f"restarts {r['worker_restarts']} {r['worker_restarts_by_reason']}."]
+    h0, h1 = r["heap"]["after_warmup"], r["heap"]["end"]
+    if h0 and h1:
+        lines.append("Heap after warm-up -> end: " + ", ".join(
+            f"{k} {h0[k]:g} -> {h1[k]:g}" for k in h0 if k in h1) + ".")
     if sub:
         lines.append(f"Subscribers: delivery min {100 * sub['delivery_min']:.2f} %, median "
                      f"{100 * sub['delivery_median']:.2f} % (bar {100 * DELIVERY_BAR:g} %), "

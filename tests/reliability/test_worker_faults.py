@@ -100,6 +100,14 @@ class Hand:
     def all_ready(self) -> bool:
         return all(w["state"] == "ready" for w in self.pool.stats()["workers"])
 
+    async def all_serving(self) -> None:
+        """Wait for more fits on every finger and at least one answered by every worker:
+        a worker lost before its first fit is restarted with backoff, by design (crash-loop
+        protection), so each fault waits for this before the next."""
+        await self.fitting(more=5)
+        await wait_for(lambda: all(w["fits"] > 0 for w in self.pool.stats()["workers"]), 10,
+                       "both workers serving")
+
     async def settle(self) -> dict[str, dict]:
         for s in self.streamers:
             await s.stop()
@@ -153,10 +161,7 @@ async def _kills(more_ptys, kills: int) -> dict:
                 assert last["ready_s"] is not None and last["ready_s"] < READY_S
             await hand.fitting(more=5)
             fit_again.append(time.monotonic() - killed_at)
-            # Let every worker serve fits before the next kill: a worker lost before its first
-            # fit is restarted with backoff, by design (crash-loop protection).
-            await wait_for(lambda: all(w["fits"] > 0 for w in pool.stats()["workers"]), 10,
-                           "both workers serving")
+            await hand.all_serving()
         stats = await hand.settle()
         workers = pool.stats()
     _check(hand, stats)
@@ -196,9 +201,7 @@ async def _hangs(more_ptys, hangs: int, timeout: float) -> dict:
             await wait_for(hand.all_ready, 5, f"hang {k}: replacement ready")
             ready.append(pool.stats()["last_restart"]["ready_s"])
             assert time.monotonic() - t0 < timeout + READY_S + 0.2
-            await hand.fitting(more=5)
-            await wait_for(lambda: all(w["fits"] > 0 for w in pool.stats()["workers"]), 10,
-                           "both workers serving")
+            await hand.all_serving()
         stats = await hand.settle()
         workers = pool.stats()
     _check(hand, stats)
