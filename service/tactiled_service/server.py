@@ -36,6 +36,7 @@ from typing import Any
 
 import uvicorn
 
+from tactiled import heap
 from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon
 from tactiled.settings import Settings
@@ -324,6 +325,16 @@ class Service:
         assert self.daemon is not None
         return sum(p.frames for p in self.daemon.sensors.values())
 
+    def settle_heap(self, period_s: float = heap.COLLECT_PERIOD_S) -> None:
+        """Freeze the start-up heap and collect every ``period_s`` s (:mod:`tactiled.heap`).
+
+        For the process that *is* this service (``serve``, the soak), once started; not done
+        by :meth:`start` because a process running many services one after another (the
+        tests) would freeze each one's objects for good."""
+        heap.settle()
+        self._tasks.append(asyncio.create_task(heap.collect_every(period_s),
+                                               name="tactiled-gc"))
+
     # -- stopping -------------------------------------------------------------------------------
 
     async def stop(self) -> None:
@@ -384,6 +395,7 @@ async def serve(settings: Settings, options: ServiceOptions | None = None, *,
         return 0
     await asyncio.gather(stop, return_exceptions=True)
     starting.result()  # re-raises a start-up failure
+    service.settle_heap()
     if on_ready is not None:
         on_ready(service)
     await service.wait()

@@ -553,6 +553,7 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
         service = Service(settings, ServiceOptions(max_subscribers=subscribers + stalled + 10),
                           sources=sources)
         await service.start()
+        service.settle_heap()  # as tactiled run (tactiled_service.server.serve) does
         daemon = service.daemon
     else:
         daemon = Daemon(settings, sources=sources)
@@ -591,11 +592,13 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
         base = rss_mb()
         samples: list[tuple[float, float]] = [(0.0, base or 0.0)]
         fds: list[int] = [open_fds()]
+        heaps: list[tuple[float, dict[str, float] | None]] = [(0.0, before["heap"])]
         workers: dict[int, list[float]] = {}
         while (elapsed := time.monotonic() - t0) < seconds:
             await asyncio.sleep(min(interval, seconds - elapsed))
             samples.append((time.monotonic() - t0, rss_mb() or 0.0))
             fds.append(open_fds())
+            heaps.append((samples[-1][0], _heap()))
             for pid in daemon.pool.pids():
                 if pid and (r := rss_mb(pid)) is not None:
                     workers.setdefault(pid, []).append(r)
@@ -642,6 +645,7 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
                  "simulators": [round((b - a) / wall, 3)
                                 for a, b in zip(waits0[1:], waits1[1:])]}}
     return {"before": before, "after": after, "elapsed": elapsed, "rss": samples, "fds": fds,
+            "heaps": heaps,
             "fds_peak": (fds_before, fds_after),
             "workers_rss": workers, "cpu_cores": cores, "delivery": delivery,
             "loop_lag": lag.figures()}
@@ -746,7 +750,12 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
                    "series": [[round(t), round(v, 2)]
                               for t, v in rss[::max(1, len(rss) // 40)]]},
         "service_loop_lag": run["loop_lag"],
-        "heap": {"after_warmup": before["heap"], "end": after["heap"]},
+        "heap": {"after_warmup": before["heap"], "end": after["heap"],
+                 # [s, pymalloc arenas, pymalloc live MB, malloc in use MB], as the RSS series.
+                 "series": [[round(t), h.get("pymalloc_arenas"), h.get("pymalloc_live_mb"),
+                             h.get("malloc_in_use_mb")]
+                            for t, h in run["heaps"][::max(1, len(run["heaps"]) // 40)]
+                            if h is not None]},
         "fds": {"after_warmup": run["fds_peak"][0], "end": run["fds_peak"][1],
                 "growth": run["fds_peak"][1] - run["fds_peak"][0],
                 "min": min(fds), "max": max(fds)},

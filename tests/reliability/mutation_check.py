@@ -132,6 +132,13 @@ MUTATIONS = [
  ("M29 the reader thread's memory is unbounded", "drivers/tactiled_drivers/port_reader.py",
   "            if self._held >= self.limit:", "            if False:",
   ["tests/drivers/test_port_reader.py::test_stops_reading_at_its_limit_and_loses_nothing"]),
+ ("M30 (bug 10) the service leaves its collector to its thresholds", "tactiled/heap.py",
+  "        await asyncio.sleep(period_s)\n        gc.collect()",
+  "        await asyncio.sleep(period_s)\n        gc.collect(0)",
+  ["tests/reliability/test_heap_policy.py"]),
+ ("M31 the start-up heap is not frozen", "tactiled/heap.py",
+  "    gc.freeze()\n", "",
+  ["tests/reliability/test_heap_policy.py"]),
 ]
 
 def fresh():
