@@ -111,8 +111,12 @@ class Hand:
     async def settle(self) -> dict[str, dict]:
         for s in self.streamers:
             await s.stop()
-        await wait_for(lambda: all(p.settled for p in self.daemon.sensors.values()), 10,
-                       "every fit done")
+        # Every frame written decoded first: the serial reader thread may still hold the last
+        # bytes while the pipeline looks idle (seen once: a stats snapshot one fit short).
+        pipes = [self.daemon.sensors[n] for n in FINGERS]
+        await wait_for(lambda: all(p.frames >= s.sent for p, s in zip(pipes, self.streamers)),
+                       10, "every frame written decoded")
+        await wait_for(lambda: all(p.settled for p in pipes), 10, "every fit done")
         return {n: self.daemon.stats(n) for n in FINGERS}
 
 
