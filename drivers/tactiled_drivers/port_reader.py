@@ -27,6 +27,8 @@ import time
 
 import serial
 
+from tactiled_drivers.futures import resolve
+
 log = logging.getLogger(__name__)
 
 DEFAULT_LIMIT = 4 << 20  # bytes held before reading pauses
@@ -117,7 +119,7 @@ class PortReader:
         if waiter is None:
             return
         try:
-            self._loop.call_soon_threadsafe(_resolve, waiter)
+            self._loop.call_soon_threadsafe(resolve, waiter)
         except RuntimeError:  # the loop is closed: nobody is waiting any more
             pass
 
@@ -166,14 +168,9 @@ class PortReader:
         with self._lock:
             waiter, self._waiter = self._waiter, None
         if waiter is not None:
-            _resolve(waiter)
+            resolve(waiter)
 
     @property
     def alive(self) -> bool:
         """True while the thread runs."""
         return self._thread.is_alive()
-
-
-def _resolve(future: asyncio.Future[None]) -> None:
-    if not future.done():
-        future.set_result(None)

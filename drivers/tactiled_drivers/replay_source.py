@@ -28,6 +28,7 @@ from tactiled.errors import DriverError
 from tactiled.frames import FrameDecoder
 from tactiled.recording import RecordingReader
 from tactiled.sources import FrameSource, SourceURL
+from tactiled_drivers.futures import resolve
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +67,7 @@ class ReplaySource(FrameSource):
 
     async def _close_internal(self) -> None:
         if self._waker is not None:  # a paced read may be waiting for a frame due much later
-            _resolve(self._waker)
+            resolve(self._waker)
         if self._reader is not None:
             self._reader.close()
             self._reader = None
@@ -111,7 +112,7 @@ class ReplaySource(FrameSource):
         """Sleep ``delay`` seconds, or less if :meth:`close` wakes us."""
         loop = asyncio.get_running_loop()
         waker: asyncio.Future[None] = loop.create_future()
-        handle = loop.call_later(delay, _resolve, waker)
+        handle = loop.call_later(delay, resolve, waker)
         self._waker = waker
         try:
             await waker
@@ -134,8 +135,3 @@ class ReplaySource(FrameSource):
         # The recording starts over: its seq numbers repeat, and that is not data loss.
         self.decoder.reset()
         return True
-
-
-def _resolve(future: asyncio.Future[None]) -> None:
-    if not future.done():
-        future.set_result(None)

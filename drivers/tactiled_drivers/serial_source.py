@@ -47,6 +47,7 @@ import serial
 from tactiled.errors import DeviceConnectionError
 from tactiled.frames import FrameDecoder
 from tactiled.sources import FrameSource, SourceURL
+from tactiled_drivers.futures import resolve
 from tactiled_drivers.port_reader import PortReader
 
 log = logging.getLogger(__name__)
@@ -139,7 +140,7 @@ class SerialSource(FrameSource):
             self.read_backlog_peak = max(self.read_backlog_peak, reader.peak)
         waiter, self._waiter = self._waiter, None
         if waiter is not None:  # a read waiting for the next retry: end it
-            _resolve(waiter)
+            resolve(waiter)
         port, self._port = self._port, None
         if port is not None:
             try:
@@ -201,7 +202,7 @@ class SerialSource(FrameSource):
         """Sleep ``delay`` seconds, or less if :meth:`close` wakes us (via ``_waiter``)."""
         loop = asyncio.get_running_loop()
         waiter: asyncio.Future[None] = loop.create_future()
-        handle = loop.call_later(delay, _resolve, waiter)
+        handle = loop.call_later(delay, resolve, waiter)
         self._waiter = waiter
         try:
             await waiter
@@ -242,8 +243,3 @@ class SerialSource(FrameSource):
         # connection, and a replugged device may have restarted its sequence count.
         self.decoder.reset()
         log.warning("serial port %s is back (reconnect %d)", self.path, self.reconnects)
-
-
-def _resolve(future: asyncio.Future[None]) -> None:
-    if not future.done():
-        future.set_result(None)

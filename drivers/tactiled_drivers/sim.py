@@ -44,6 +44,7 @@ from tactiled.sim import (
     scene_from_spec,
 )
 from tactiled.sources import FrameSource, SourceURL
+from tactiled_drivers.futures import resolve
 
 log = logging.getLogger(__name__)
 
@@ -153,15 +154,10 @@ class SimSource(FrameSource):
         """Sleep ``delay`` seconds, or less if :meth:`close` wakes us."""
         loop = asyncio.get_running_loop()
         waker: asyncio.Future[None] = loop.create_future()
-        handle = loop.call_later(max(delay, 0.0), _resolve, waker)
+        handle = loop.call_later(max(delay, 0.0), resolve, waker)
         self._waker = waker
         try:
             await waker
         finally:
             handle.cancel()
             self._waker = None
-
-
-def _resolve(future: asyncio.Future[None]) -> None:
-    if not future.done():
-        future.set_result(None)

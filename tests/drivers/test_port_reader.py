@@ -5,10 +5,12 @@ byte before an error, and stop promptly."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import sys
 import threading
 import time
+from collections.abc import Iterator
 
 import pytest
 import serial
@@ -46,6 +48,18 @@ def open_port(path: str) -> serial.Serial:
     return serial.Serial(path, timeout=None, exclusive=True)
 
 
+@contextlib.contextmanager
+def reading(path: str, **kwargs: int) -> Iterator[tuple[serial.Serial, PortReader]]:
+    """The port open with a reader on it; both stopped and closed on the way out."""
+    port = open_port(path)
+    reader = PortReader(port, **kwargs)
+    try:
+        yield port, reader
+    finally:
+        reader.stop()
+        port.close()
+
+
 async def take_all(reader: PortReader, n: int, timeout: float = 5.0) -> bytes:
     got = b""
     async with asyncio.timeout(timeout):
@@ -60,9 +74,7 @@ def test_drains_the_device_while_the_event_loop_is_stuck(pty_device) -> None:
     it all as it comes, and the loop then gets every byte in order."""
 
     async def main() -> None:
-        port = open_port(pty_device.path)
-        reader = PortReader(port)
-        try:
+        with reading(pty_device.path) as (_port, reader):
             writer = Writer(pty_device.master, PAYLOAD, deadline=1.5)
             start = time.monotonic()
             writer.start()
@@ -73,9 +85,6 @@ def test_drains_the_device_while_the_event_loop_is_stuck(pty_device) -> None:
             assert writer.finished_at is not None and writer.finished_at - start < 1.5
             assert await take_all(reader, len(PAYLOAD)) == PAYLOAD
             assert reader.peak >= 32 * 1024  # held for the loop: it really was behind
-        finally:
-            reader.stop()
-            port.close()
 
     asyncio.run(main())
 
@@ -86,9 +95,7 @@ def test_stops_reading_at_its_limit_and_loses_nothing(pty_device) -> None:
     every byte arrives in order."""
 
     async def main() -> None:
-        port = open_port(pty_device.path)
-        reader = PortReader(port, limit=4096)
-        try:
+        with reading(pty_device.path, limit=4096) as (_port, reader):
             writer = Writer(pty_device.master, PAYLOAD, deadline=5.0)
             writer.start()
             time.sleep(0.5)
@@ -98,18 +105,13 @@ def test_stops_reading_at_its_limit_and_loses_nothing(pty_device) -> None:
             got = await take_all(reader, len(PAYLOAD))
             writer.join()
             assert got == PAYLOAD
-        finally:
-            reader.stop()
-            port.close()
 
     asyncio.run(main())
 
 
 def test_error_comes_after_every_byte_read_before_it(pty_device) -> None:
     async def main() -> None:
-        port = open_port(pty_device.path)
-        reader = PortReader(port)
-        try:
+        with reading(pty_device.path) as (_port, reader):
             pty_device.write(PAYLOAD[:3000])
             time.sleep(0.2)
             pty_device.unplug()  # the slave's reads now fail (EIO)
@@ -119,9 +121,6 @@ def test_error_comes_after_every_byte_read_before_it(pty_device) -> None:
             with pytest.raises((serial.SerialException, OSError)):
                 await reader.take()
             assert await reader.take() == b""  # the error is raised once, then end of data
-        finally:
-            reader.stop()
-            port.close()
 
     asyncio.run(main())
 
@@ -148,17 +147,12 @@ def test_stop_wakes_a_pending_take_and_leaves_the_port_open(pty_device) -> None:
 
 def test_a_cancelled_take_loses_nothing(pty_device) -> None:
     async def main() -> None:
-        port = open_port(pty_device.path)
-        reader = PortReader(port)
-        try:
+        with reading(pty_device.path) as (_port, reader):
             with pytest.raises(TimeoutError):
                 await asyncio.wait_for(reader.take(), 0.05)
             assert reader._waiter is None
             pty_device.write(b"abc")
             assert await take_all(reader, 3) == b"abc"
-        finally:
-            reader.stop()
-            port.close()
 
     asyncio.run(main())
 
