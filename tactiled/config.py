@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class Geometry:
@@ -105,13 +107,96 @@ class NoiseModel:
 
 
 @dataclass(frozen=True)
+class TactelPositions:
+    """Each tactel's displacement from its nominal grid position, mm, row-major
+    (``k = m * cols + n``): tactel ``[m, n]`` sits at ``(m*dx + ex[k], n*dy + ey[k])``.
+
+    Empty tuples (the default) mean every tactel is on its nominal pitch.  Tuples, not arrays,
+    keep a :class:`SensorModel` hashable (fitters and start tables are cached per model).
+    """
+
+    ex: tuple[float, ...] = ()
+    ey: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if len(self.ex) != len(self.ey):
+            raise ValueError(f"ex and ey must have the same length, got {len(self.ex)} and {len(self.ey)}")
+        for name in ("ex", "ey"):
+            for k, v in enumerate(getattr(self, name)):
+                if not (math.isfinite(v) and abs(v) <= MAX_POSITION_ERROR):
+                    raise ValueError(f"{name}[{k}] must be a displacement within +/-{MAX_POSITION_ERROR} mm, got {v!r}")
+
+    @property
+    def nominal(self) -> bool:
+        """True when every tactel is on the nominal grid."""
+        return not self.ex or (not any(self.ex) and not any(self.ey))
+
+    def arrays(self, rows: int, cols: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(ex, ey)`` as ``(rows, cols)`` arrays in mm (zeros when nominal)."""
+        if not self.ex:
+            return np.zeros((rows, cols)), np.zeros((rows, cols))
+        if len(self.ex) != rows * cols:
+            raise ValueError(f"{len(self.ex)} tactel positions for a {rows}x{cols} array")
+        return (np.array(self.ex, dtype=float).reshape(rows, cols),
+                np.array(self.ey, dtype=float).reshape(rows, cols))
+
+    @classmethod
+    def from_arrays(cls, ex: np.ndarray, ey: np.ndarray) -> TactelPositions:
+        """From ``(rows, cols)`` arrays of displacements in mm."""
+        return cls(tuple(float(v) for v in np.ravel(ex)), tuple(float(v) for v in np.ravel(ey)))
+
+
+@dataclass(frozen=True)
+class ModelError:
+    """The model-error floor: how far a tactel's strain departs from the model's prediction
+    beyond the sensor noise, as a standard deviation in strain
+
+        sd_model = sqrt(strain**2 + (relative * s)**2)
+
+    where ``s`` is the tactel's strain.  It is added in quadrature to the noise in the fit's
+    weights and covariance.  Zero (the default) for a finger that matches its model exactly;
+    ``tactiled calibrate --identify`` measures it on a real finger.
+    """
+
+    strain: float = 0.0  # absolute part, strain (dimensionless)
+    relative: float = 0.0  # part proportional to the tactel's strain (0.01 = 1 %)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.strain) and 0.0 <= self.strain <= 0.1):
+            raise ValueError(f"model error 'strain' must lie in [0, 0.1], got {self.strain!r}")
+        if not (math.isfinite(self.relative) and 0.0 <= self.relative <= 1.0):
+            raise ValueError(f"model error 'relative' must lie in [0, 1], got {self.relative!r}")
+
+    @property
+    def zero(self) -> bool:
+        return self.strain == 0.0 and self.relative == 0.0
+
+
+#: Largest tactel displacement from the nominal grid a model accepts, mm (a third of a pitch:
+#: beyond that the tactel is not where the layout says, it is another tactel).
+MAX_POSITION_ERROR = 1.0
+
+
+@dataclass(frozen=True)
 class SensorModel:
-    """Everything the physics and the fitter need to know about one sensor."""
+    """Everything the physics and the fitter need to know about one sensor.
+
+    The defaults are the paper's finger (docs/model.md); a calibration file written by
+    ``tactiled calibrate --identify`` replaces the rubber constants, the tactel positions and
+    the model-error floor with the ones measured on the user's finger.
+    """
 
     geometry: Geometry = field(default_factory=Geometry)
     impulse: ImpulseResponse = field(default_factory=ImpulseResponse)
     material: Material = field(default_factory=Material)
     noise: NoiseModel = field(default_factory=NoiseModel)
+    positions: TactelPositions = field(default_factory=TactelPositions)
+    model_error: ModelError = field(default_factory=ModelError)
+
+    def __post_init__(self) -> None:
+        n = len(self.positions.ex)
+        if n and n != self.geometry.rows * self.geometry.cols:
+            raise ValueError(f"{n} tactel positions for a {self.geometry.rows}x{self.geometry.cols} array")
 
 
 DEFAULT_SENSOR = SensorModel()

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tactiled.calibration.lut import LookupTable
 from tactiled.errors import FrameError
 
 
@@ -38,8 +39,13 @@ def _scalar(data, key: str, path: Path) -> float | None:
     return value
 
 
-def load_frame_file(path: str | Path, allow_nonfinite: bool = False) -> FrameFile:
-    """Read and validate a frame file; :class:`FrameError` names the problem."""
+def load_frame_file(path: str | Path, allow_nonfinite: bool = False,
+                    table: LookupTable | None = None) -> FrameFile:
+    """Read and validate a frame file; :class:`FrameError` names the problem.
+
+    With a lookup ``table`` (a calibration file's), the file may hold ``counts`` (N, rows,
+    cols) raw readings in place of ``strain``: they are linearised by the table (strain 0 at
+    the table's zero-load point), and an optional ``sensor_id`` must match the table's."""
     path = Path(path)
     try:
         data = np.load(path, allow_pickle=False)
@@ -48,8 +54,11 @@ def load_frame_file(path: str | Path, allow_nonfinite: bool = False) -> FrameFil
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
         raise FrameError(f"{path}: not a readable .npz file ({err})") from err
     with data:
+        if "strain" not in data and "counts" in data and table is not None:
+            return _counts_file(path, data, table)
         if "strain" not in data:
-            raise FrameError(f"{path}: missing array 'strain' (found: {sorted(data.files) or 'nothing'})")
+            hint = " ('counts' needs --calibration CAL.json)" if "counts" in data else ""
+            raise FrameError(f"{path}: missing array 'strain' (found: {sorted(data.files) or 'nothing'}){hint}")
         try:
             strain = np.asarray(data["strain"])
         except (ValueError, OSError, zipfile.BadZipFile) as err:
@@ -74,3 +83,26 @@ def load_frame_file(path: str | Path, allow_nonfinite: bool = False) -> FrameFil
 def save_frame_file(path: str | Path, strain: np.ndarray, dx: float, dy: float, **extras: np.ndarray) -> None:
     """Write a frame file (compressed)."""
     np.savez_compressed(Path(path), strain=np.asarray(strain, dtype=float), dx=float(dx), dy=float(dy), **extras)
+
+
+def _counts_file(path: Path, data, table: LookupTable) -> FrameFile:
+    """A frame file of raw ``counts``, linearised through ``table``."""
+    try:
+        counts = np.asarray(data["counts"])
+    except (ValueError, OSError, zipfile.BadZipFile) as err:
+        raise FrameError(f"{path}: 'counts' cannot be read ({err})") from err
+    if counts.dtype.kind not in "ui":
+        raise FrameError(f"{path}: 'counts' must be integer raw readings 0..65535, got dtype {counts.dtype}")
+    if counts.ndim != 3 or counts.shape[1:] != table.shape:
+        raise FrameError(f"{path}: 'counts' must have shape (N, {table.rows}, {table.cols}) (the "
+                         f"calibration's array), got {counts.shape}")
+    if counts.size and (counts.min() < 0 or counts.max() > 0xFFFF):
+        raise FrameError(f"{path}: 'counts' outside 0..65535 (min {counts.min()}, max {counts.max()})")
+    if "sensor_id" in data.files:
+        sid = np.asarray(data["sensor_id"])
+        if sid.shape != () or sid.dtype.kind not in "ui" or int(sid) != table.sensor_id:
+            raise FrameError(f"{path}: 'sensor_id' is {sid!r}, but the calibration is for sensor "
+                             f"{table.sensor_id}")
+    strain = table.to_strain(counts.astype(np.float64))
+    extras = {k: np.asarray(data[k]) for k in data.files if k not in ("counts", "dx", "dy")}
+    return FrameFile(strain, _scalar(data, "dx", path), _scalar(data, "dy", path), extras)

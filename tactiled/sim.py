@@ -29,6 +29,7 @@ import numpy as np
 
 from tactiled.calibration.lut import LookupTable
 from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, FingerSpec
 from tactiled.frames import Frame
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
@@ -363,8 +364,7 @@ def scene_from_spec(spec: str, geometry: Geometry | None = None) -> Scene:
 #: 20000 counts per unit strain = 20 counts per 0.001 strain (one count = 5e-5 strain, a tenth
 #: of the default noise sigma); zero strain at 10000 counts, so 0 .. 65535 spans strain
 #: -0.5 .. +2.78, ample room for tension, drift and the hardest press.
-COUNTS_PER_STRAIN = 20000.0
-ZERO_STRAIN_COUNTS = 10000.0
+# (defined with the finger description, which the simulated tactels' responses come from)
 
 
 @dataclass(frozen=True)
@@ -496,8 +496,15 @@ class FingerSimulator:
         *,
         sensor_id: int = 0,
         loop: bool = True,
+        finger: FingerSpec | None = None,
     ) -> None:
+        if finger is not None and sensor is not None:
+            # the finger's rubber and tactel positions, on the given sensor's array and noise
+            sensor = finger.sensor(sensor.geometry, sensor.noise)
+        elif finger is not None:
+            sensor = finger.sensor()
         self.sensor = sensor or SensorModel()
+        self.finger = finger or FingerSpec()
         g = self.sensor.geometry
         self.shape = (g.rows, g.cols)
         self.scene = named_scene(scene, g) if isinstance(scene, str) else scene
@@ -513,9 +520,14 @@ class FingerSimulator:
         self.drift_model = drift
         self.hysteresis_model = None if hysteresis is None or hysteresis.fraction == 0 else hysteresis
         # The default table's inverse is affine: computed directly it costs ~5 us, not ~50.
+        # A finger spec's tactels are affine too, with their own gains and offsets.
         self._affine = calibration is None
+        if calibration is not None and finger is not None and not finger.is_paper:
+            raise ValueError("give the tactels' response either as a calibration table or a finger spec, not both")
+        self._cps = self.finger.counts_per_strain(g) if self._affine else None
+        self._zero = self.finger.zero_counts(g) if self._affine else None
         self.calibration = calibration or LookupTable.linear(
-            g.rows, g.cols, COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, sensor_id=sensor_id)
+            g.rows, g.cols, self._cps, self._zero, sensor_id=sensor_id)
         if self.calibration.shape != self.shape:
             raise ValueError(f"calibration shape {self.calibration.shape} != sensor shape {self.shape}")
         self.loop = loop
@@ -568,8 +580,8 @@ class FingerSimulator:
         """Raw ``uint16`` counts the tactels report for ``strain`` (the calibration's inverse)."""
         if not self._affine:
             return self.calibration.to_counts(strain)
-        c = strain * COUNTS_PER_STRAIN
-        c += ZERO_STRAIN_COUNTS
+        c = strain * self._cps
+        c += self._zero
         np.rint(c, out=c)
         np.maximum(c, 0.0, out=c)  # two ufuncs: np.clip's wrapper costs more than the work
         np.minimum(c, 65535.0, out=c)

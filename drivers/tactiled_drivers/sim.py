@@ -16,7 +16,11 @@ URL parameters (all optional):
 - ``noise``: Gaussian strain noise sigma (default 0.0005; 0 for none);
 - ``drift``: peak of the slow baseline drift wave, strain (default 0.002; 0 turns drift off);
 - ``hysteresis``: fraction of a released strain the rubber keeps, decaying with tau 0.5 s
-  (default 0.05; 0 for none).
+  (default 0.05; 0 for none);
+- a finger that is not the paper's (:class:`~tactiled.finger.FingerSpec`, default the paper's):
+  ``depth_x``, ``nu_x``, ``depth_y``, ``nu_y`` (impulse response, mm), ``modulus`` (N/mm^2),
+  ``gain_error`` (relative sd of tactel gains), ``position_error`` (sd of tactel displacements,
+  mm), ``offset_counts`` (half-width of the tactels' zero offsets, counts) and ``finger_seed``.
 
 Pacing: frame ``k`` is due at ``start + k / (rate * speed)`` on the event loop's clock, with
 ``start`` the first read, so the stream never drifts; each read returns every frame already due
@@ -33,6 +37,7 @@ import asyncio
 import logging
 from typing import ClassVar
 
+from tactiled.finger import FingerSpec
 from tactiled.frames import FrameDecoder, encode_frame
 from tactiled.sim import (
     DEFAULT_DRIFT,
@@ -56,7 +61,8 @@ class SimSource(FrameSource):
     """Wire bytes of a simulated fingertip playing a scene (see the module docstring)."""
 
     PARAMS: ClassVar[frozenset[str]] = frozenset(
-        {"seed", "scene", "rate", "sensor_id", "loop", "speed", "noise", "drift", "hysteresis"})
+        {"seed", "scene", "rate", "sensor_id", "loop", "speed", "noise", "drift", "hysteresis",
+         *FingerSpec.PARAMS})
 
     def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
         super().__init__(url, decoder=decoder)
@@ -71,6 +77,7 @@ class SimSource(FrameSource):
         fraction = u.get_float("hysteresis", DEFAULT_HYSTERESIS.fraction, minimum=0.0, maximum=1.0)
         try:
             scene = scene_from_spec(u.get_str("scene", "demo"))
+            finger = FingerSpec.from_params(u.params)
         except ValueError as err:
             raise ValueError(f"{u.url!r}: {err}") from None
         self.simulator = FingerSimulator(
@@ -82,6 +89,7 @@ class SimSource(FrameSource):
             hysteresis=HysteresisModel(fraction=fraction) if fraction > 0 else None,
             sensor_id=self.sensor_id,
             loop=self.loop,
+            finger=finger,
         )
         self.frames_sent = 0
         self.frames_skipped = 0

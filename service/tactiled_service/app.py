@@ -23,6 +23,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, WebSocketRoute
 
 from tactiled import __version__
+from tactiled.calibration.model import constants_report
 from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon, UnknownSensorError
 from tactiled.settings import Settings
@@ -188,6 +189,9 @@ def create_app(ctx: Context) -> FastAPI:
                 "connected": bool(status.connected), "rows": g.rows, "cols": g.cols,
                 "dx_mm": g.dx, "dy_mm": g.dy, "finger_radius_mm": g.finger_radius,
                 "model": pipe.model, "calibration": ctx.calibrations[name],
+                "constants": constants_report(pipe.sensor_model,
+                                              pipe.calibration.model if pipe.calibration else None,
+                                              pipe.settings.calibration),
             })
         return {"sensors": out}
 

@@ -129,6 +129,26 @@ class Calibration(BaseModel):
     created: str | None
 
 
+class ModelErrorInfo(BaseModel):
+    strain: float = Field(description="absolute part of the model-error floor, strain")
+    relative: float = Field(description="part proportional to the tactel's strain (0.01 = 1 %)")
+
+
+class ConstantsInfo(BaseModel):
+    """The contact model's constants in use for this sensor (docs/model.md)."""
+
+    depth_x: float = Field(description="impulse response depth along x, mm")
+    nu_x: float = Field(description="impulse response ratio along x")
+    depth_y: float = Field(description="impulse response depth along y, mm")
+    nu_y: float = Field(description="impulse response ratio along y")
+    modulus: float = Field(description="rubber modulus E, N/mm^2")
+    model_error: ModelErrorInfo
+    positions_identified: int = Field(description="tactels whose identified position is used")
+    source: str = Field(description="'paper' (docs/model.md) or 'identified: <calibration file>'")
+    sigma: dict[str, float | None] = Field(description="1-sigma bound of each identified constant (null: not identified or held)")
+    held: dict[str, str] = Field(description="constants held at the paper's value, and why")
+
+
 class SensorInfo(BaseModel):
     name: str
     sensor_id: int | None
@@ -141,6 +161,7 @@ class SensorInfo(BaseModel):
     finger_radius_mm: float
     model: str
     calibration: Calibration
+    constants: ConstantsInfo
 
 
 class SensorsResponse(BaseModel):

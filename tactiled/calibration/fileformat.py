@@ -19,6 +19,21 @@ Format (``docs/calibration.md`` is the reference)::
       "build": {...}                       # optional, informational: how the builder ran
     }
 
+Version 2 (written by ``tactiled calibrate --identify``) adds the finger's identified model::
+
+      "version": 2,
+      "model": {
+        "impulse": {"depth_x": 5.0, "nu_x": 0.4, "depth_y": 6.6, "nu_y": 0.6},   # mm; ratios
+        "modulus": 0.32,                                   # N/mm^2
+        "sigma": {"depth_x": 0.002, ..., "modulus": 0.0003},  # 1-sigma bounds (null: held)
+        "held": {"nu_y": "why it was held at the paper's value"},
+        "model_error": {"strain": 0.0, "relative": 0.004},  # the model-error floor
+        "positions_mm": {"ex": [...], "ey": [...]},          # rows*cols each, or null
+        "identification": {...}                              # informational report
+      }
+
+Version 1 files keep working (the paper's model, nominal positions, no floor).
+
 The loader refuses anything else with a :class:`CalibrationError` naming the file and the key
 (and the tactel); it never returns a half-valid table.  Writing is atomic (temp file + rename)
 so a crash never leaves a truncated file where the daemon will look for it.
@@ -31,16 +46,22 @@ import json
 import math
 import os
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tactiled.calibration.lut import LookupTable, tactel_label
+from tactiled.calibration.model import FingerModel
+from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.errors import CalibrationError
 
 FORMAT = "tactiled-calibration"
 VERSION = 1
+#: The version a file with an identified model is written as; the loader reads both.
+VERSION_MODEL = 2
+VERSIONS = (VERSION, VERSION_MODEL)
 _REQUIRED = ("format", "version", "sensor_id", "rows", "cols", "created", "tactels")
 
 
@@ -49,8 +70,10 @@ def utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def table_to_dict(table: LookupTable, build: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The JSON-ready document for ``table`` (``build``: optional builder metadata)."""
+def table_to_dict(table: LookupTable, build: dict[str, Any] | None = None,
+                  model: FingerModel | None = None) -> dict[str, Any]:
+    """The JSON-ready document for ``table`` (``build``: optional builder metadata; ``model``:
+    an identified finger model, which makes it a version 2 document)."""
     tactels = []
     for k in range(table.rows * table.cols):
         m, n = divmod(k, table.cols)
@@ -76,6 +99,9 @@ def table_to_dict(table: LookupTable, build: dict[str, Any] | None = None) -> di
     }
     if build:
         doc["build"] = build
+    if model is not None:
+        doc["version"] = VERSION_MODEL
+        doc["model"] = model.to_dict()
     return doc
 
 
@@ -95,8 +121,9 @@ def table_from_dict(doc: Any, source: str = "calibration") -> LookupTable:
     if doc["format"] != FORMAT:
         raise fail(f"key 'format' is {doc['format']!r}, expected {FORMAT!r}")
     version = doc["version"]
-    if not _is_int(version) or version != VERSION:
-        raise fail(f"key 'version' is {version!r}; this tactiled reads version {VERSION} only")
+    if not _is_int(version) or version not in VERSIONS:
+        raise fail(f"key 'version' is {version!r}; this tactiled reads versions "
+                   f"{', '.join(map(str, VERSIONS))}")
     for key in ("rows", "cols"):
         if not _is_int(doc[key]) or doc[key] < 1:
             raise fail(f"key {key!r} must be a positive integer, got {doc[key]!r}")
@@ -158,11 +185,11 @@ def dumps(doc: dict[str, Any]) -> str:
 
 
 def save_calibration(table: LookupTable, path: str | os.PathLike[str],
-                     build: dict[str, Any] | None = None) -> Path:
-    """Write ``table`` to ``path`` atomically; returns the path.  I/O failures raise
-    :class:`CalibrationError`."""
+                     build: dict[str, Any] | None = None, model: FingerModel | None = None) -> Path:
+    """Write ``table`` (and an identified ``model``: version 2) to ``path`` atomically;
+    returns the path.  I/O failures raise :class:`CalibrationError`."""
     path = Path(path)
-    text = dumps(table_to_dict(table, build))
+    text = dumps(table_to_dict(table, build, model))
     try:
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
         try:
@@ -183,11 +210,39 @@ def load_calibration(
     shape: tuple[int, int] | None = None,
     sensor_id: int | None = None,
 ) -> LookupTable:
-    """Read and validate a calibration file.
+    """Read and validate a calibration file; its lookup table (see :func:`load_calibration_file`
+    for the identified model of a version 2 file too).
 
     ``shape`` / ``sensor_id``, when given, must match the file (the sensor this table is about to
     be used for); a mismatch is refused like any other defect.
     """
+    return load_calibration_file(path, shape=shape, sensor_id=sensor_id).table
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A calibration file's content: the lookup table, the identified finger model (None for a
+    version 1 file: the paper's model) and the file it came from."""
+
+    table: LookupTable
+    model: FingerModel | None
+    source: str
+
+    def sensor_model(self, noise: NoiseModel | None = None, geometry: Geometry | None = None) -> SensorModel:
+        """The :class:`SensorModel` the fitter should use for this sensor."""
+        g = geometry or Geometry(rows=self.table.rows, cols=self.table.cols)
+        if self.model is None:
+            return SensorModel(geometry=g, noise=noise or NoiseModel())
+        return self.model.sensor_model(g, noise)
+
+
+def load_calibration_file(
+    path: str | os.PathLike[str],
+    *,
+    shape: tuple[int, int] | None = None,
+    sensor_id: int | None = None,
+) -> Calibration:
+    """Read and validate a calibration file of either version (see :func:`load_calibration`)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -202,6 +257,14 @@ def load_calibration(
             f"{path}: not valid JSON{hint}: {err.msg} at line {err.lineno} column {err.colno}"
         ) from err
     table = table_from_dict(doc, source=str(path))
+    model = None
+    if doc.get("version") == VERSION_MODEL:
+        if "model" not in doc:
+            raise CalibrationError(f"{path}: missing key 'model' (version {VERSION_MODEL})")
+        try:
+            model = FingerModel.from_dict(doc["model"], table.rows * table.cols)
+        except CalibrationError as err:
+            raise CalibrationError(f"{path}: {err}") from err
     if shape is not None and table.shape != tuple(shape):
         raise CalibrationError(
             f"{path}: table shape {table.shape} (keys 'rows', 'cols') does not match the "
@@ -211,7 +274,7 @@ def load_calibration(
         raise CalibrationError(
             f"{path}: key 'sensor_id' is {table.sensor_id}, but the sensor reports {sensor_id}"
         )
-    return table
+    return Calibration(table, model, str(path))
 
 
 def _is_bool(v: Any) -> bool:

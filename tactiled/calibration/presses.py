@@ -6,10 +6,17 @@ the sensor should read (``docs/calibration.md`` describes the procedure).  File:
 * ``counts``: ``(N, rows, cols)`` integer raw counts in 0..65535 (stored as ``uint16``);
 * ``strain_ref``: ``(N, rows, cols)`` float reference strain (positive under compression);
 * ``sensor_id`` (optional): integer scalar, the sensor's id.
+
+For identification (``tactiled calibrate --identify``) a press file may carry, in place of
+``strain_ref``, the known contact of each press:
+
+* ``contacts``: ``(N, 6)`` float, columns ``r1_mm, r2_mm (inf = cylinder), angle_deg, force_n,
+  x_mm, y_mm``; a press with ``force_n`` 0 is unloaded (its other columns are ignored).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import zipfile
 from dataclasses import dataclass, field
@@ -18,20 +25,33 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
+from tactiled.config import Geometry
 from tactiled.errors import CalibrationError
+from tactiled.finger import FingerSpec
+
+
+#: Columns of a press file's ``contacts`` array.
+CONTACT_COLUMNS = ("r1_mm", "r2_mm", "angle_deg", "force_n", "x_mm", "y_mm")
 
 
 @dataclass
 class PressSet:
-    """``counts`` ``(N, rows, cols)`` uint16; ``strain_ref`` same shape float64; ``sensor_id``
-    ``None`` when the recording did not say."""
+    """``counts`` ``(N, rows, cols)`` uint16; ``strain_ref`` same shape float64 (None when the
+    presses carry ``contacts`` instead, ``(N, 6)``: see :data:`CONTACT_COLUMNS`);
+    ``sensor_id`` ``None`` when the recording did not say."""
 
     counts: np.ndarray
-    strain_ref: np.ndarray
+    strain_ref: np.ndarray | None = None
     sensor_id: int | None = None
+    contacts: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        self.counts, self.strain_ref = _checked(self.counts, self.strain_ref, "press set")
+        if self.strain_ref is None and self.contacts is None:
+            raise CalibrationError("press set: needs 'strain_ref' or 'contacts'")
+        if self.strain_ref is not None:
+            self.counts, self.strain_ref = _checked(self.counts, self.strain_ref, "press set")
+        if self.contacts is not None:
+            self.counts, self.contacts = _checked_contacts(self.counts, self.contacts, "press set")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -73,6 +93,28 @@ def _checked(
     return c.astype(np.uint16), s
 
 
+def _checked_contacts(counts: ArrayLike, contacts: ArrayLike, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """Validate the shapes and types of ``counts`` and ``contacts`` (the values' physics is
+    checked by the identification, which knows the array)."""
+    c = np.asarray(counts)
+    k = np.asarray(contacts)
+    if c.ndim != 3:
+        raise CalibrationError(f"{source}: 'counts' must be (N, rows, cols), got shape {c.shape}")
+    if c.dtype.kind not in "ui":
+        raise CalibrationError(f"{source}: 'counts' must be integers (raw counts), got {c.dtype}")
+    if c.size and (c.min() < 0 or c.max() > 0xFFFF):
+        raise CalibrationError(f"{source}: 'counts' outside 0..65535 (min {c.min()}, max {c.max()})")
+    if k.dtype.kind not in "fiu":
+        raise CalibrationError(f"{source}: 'contacts' must be numeric, got {k.dtype}")
+    if k.ndim != 2 or k.shape[1] != len(CONTACT_COLUMNS):
+        raise CalibrationError(f"{source}: 'contacts' must be (N, {len(CONTACT_COLUMNS)}) "
+                               f"({', '.join(CONTACT_COLUMNS)}), got shape {k.shape}")
+    if k.shape[0] != c.shape[0]:
+        raise CalibrationError(f"{source}: 'contacts' has {k.shape[0]} presses but 'counts' has "
+                               f"{c.shape[0]}")
+    return c.astype(np.uint16), k.astype(np.float64)
+
+
 def load_presses(path: str | os.PathLike[str]) -> PressSet:
     """Read and validate a press file; every defect raises :class:`CalibrationError`."""
     path = Path(path)
@@ -82,13 +124,15 @@ def load_presses(path: str | os.PathLike[str]) -> PressSet:
                                "truncated, or another kind of file?)")
     try:
         with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in ("counts", "strain_ref") if k not in data.files]
-            if missing:
+            has = ', '.join(data.files) or 'none'
+            if "counts" not in data.files:
+                raise CalibrationError(f"{path}: missing array 'counts' (has: {has})")
+            if "strain_ref" not in data.files and "contacts" not in data.files:
                 raise CalibrationError(
-                    f"{path}: missing array {missing[0]!r} (has: {', '.join(data.files) or 'none'})"
-                )
+                    f"{path}: missing array 'strain_ref' (or 'contacts', for --identify) (has: {has})")
             counts = data["counts"]
-            strain_ref = data["strain_ref"]
+            strain_ref = data["strain_ref"] if "strain_ref" in data.files else None
+            contacts = data["contacts"] if "contacts" in data.files else None
             sid = data["sensor_id"] if "sensor_id" in data.files else None
     except CalibrationError:
         raise
@@ -102,14 +146,21 @@ def load_presses(path: str | os.PathLike[str]) -> PressSet:
             raise CalibrationError(f"{path}: 'sensor_id' must be an integer scalar 0..65535, "
                                    f"got {sid!r}")
         sensor_id = int(sid)
-    c, s = _checked(counts, strain_ref, str(path))
-    return PressSet(c, s, sensor_id)
+    if strain_ref is not None:
+        counts, strain_ref = _checked(counts, strain_ref, str(path))
+    if contacts is not None:
+        counts, contacts = _checked_contacts(counts, contacts, str(path))
+    return PressSet(counts, strain_ref, sensor_id, contacts)
 
 
 def save_presses(presses: PressSet, path: str | os.PathLike[str]) -> Path:
     """Write ``presses`` as an ``.npz`` (uncompressed) and return the path."""
     path = Path(path)
-    arrays: dict[str, np.ndarray] = {"counts": presses.counts, "strain_ref": presses.strain_ref}
+    arrays: dict[str, np.ndarray] = {"counts": presses.counts}
+    if presses.strain_ref is not None:
+        arrays["strain_ref"] = presses.strain_ref
+    if presses.contacts is not None:
+        arrays["contacts"] = presses.contacts
     if presses.sensor_id is not None:
         arrays["sensor_id"] = np.array(presses.sensor_id, dtype=np.int64)
     with open(path, "wb") as fh:  # a file object, so numpy does not append ".npz" to the name
@@ -203,3 +254,57 @@ def synthesize_presses(
     noisy = truth.counts(strain_ref) + rng.normal(0.0, noise_counts, strain_ref.shape)
     counts = np.clip(np.rint(noisy), 0, 0xFFFF).astype(np.uint16)
     return PressSet(counts, strain_ref, sensor_id), truth
+
+
+#: The indentors of the identification procedure (docs/calibration.md): (r1, r2) in mm.
+IDENTIFY_INDENTORS: tuple[tuple[float, float], ...] = (
+    (3.0, 3.0), (6.0, 6.0), (4.0, math.inf), (10.0, math.inf), (2.0, math.inf))
+
+
+#: Cylinder orientations (deg) of the identification presses: away from the finger's axis,
+#: where a cylinder's contact becomes a line longer than the finger (docs/model.md, limits).
+CYLINDER_ANGLES = (30.0, 150.0)
+
+
+def synthesize_contact_presses(
+    finger: FingerSpec,
+    n: int = 400,
+    *,
+    geometry: Geometry | None = None,
+    indentors: tuple[tuple[float, float], ...] = IDENTIFY_INDENTORS,
+    force_range: tuple[float, float] = (0.25, 2.0),
+    unloaded_fraction: float = 0.1,
+    frames_averaged: int = 32,
+    noise_sigma: float = 0.0005,
+    sensor_id: int | None = 1,
+    seed: int = 0,
+) -> PressSet:
+    """Presses of known contacts on a simulated finger, as docs/calibration.md's identification
+    procedure records them: indentors from ``indentors`` at random orientations (spheres 0-180
+deg, cylinders within :data:`CYLINDER_ANGLES`),
+    forces uniform in ``force_range``, centres uniform over the array; a fraction unloaded; each
+    press the mean of ``frames_averaged`` frames of strain noise ``noise_sigma``, rounded to
+    integer counts through the finger's true tactel responses."""
+    from tactiled.physics.contact import Contact
+    from tactiled.physics.strain import StrainModel
+
+    g = geometry or Geometry()
+    rng = np.random.default_rng(seed)
+    model = StrainModel(finger.sensor(g))
+    contacts = np.zeros((n, 6))
+    strain = np.zeros((n, g.rows, g.cols))
+    for p in range(n):
+        if rng.uniform() < unloaded_fraction:
+            contacts[p] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            continue
+        r1, r2 = indentors[int(rng.integers(len(indentors)))]
+        # a cylinder along the finger makes a line contact outside the planar model
+        angle = float(rng.uniform(0.0, 180.0) if r2 == r1 else rng.uniform(*CYLINDER_ANGLES))
+        force = float(rng.uniform(*force_range))
+        x, y = float(rng.uniform(0.0, g.span_x)), float(rng.uniform(0.0, g.span_y))
+        contacts[p] = (r1, r2, angle, force, x, y)
+        strain[p] = model.predict(Contact(r1, r2, angle, force, x, y))
+    strain += rng.normal(0.0, noise_sigma / math.sqrt(frames_averaged), strain.shape)
+    counts = finger.zero_counts(g) + finger.counts_per_strain(g) * strain
+    counts = np.clip(np.rint(counts), 0, 0xFFFF).astype(np.uint16)
+    return PressSet(counts, None, sensor_id, contacts)

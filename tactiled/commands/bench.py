@@ -28,7 +28,7 @@ import platform
 import sys
 import time
 
-SUITES = ("configs", "models", "skip", "foundation", "acquisition")
+SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -137,5 +137,9 @@ def run(args: argparse.Namespace) -> int:
         from tactiled.bench import acquisition
 
         out += ["", "## Acquisition: three fingers at 1 kHz over ptys", "", acquisition.run(args.quick)]
+    if "identify" in suites:
+        from tactiled.bench import identify
+
+        out += ["", "## Identification: a finger that is not the paper's", "", identify.run(args.quick, args.progress)]
     print("\n".join(out))
     return 0

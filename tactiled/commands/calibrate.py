@@ -15,8 +15,17 @@ flagged; the flags are stored in it.  --strict makes flagged tactels exit 1.
 
 Exit status: 0 success, 1 flagged tactels with --strict, 2 unusable input (one error line).
 
+With --identify, the press file carries each press's known contact instead of strain_ref:
+  contacts    (N, 6) float: r1_mm, r2_mm (inf = cylinder), angle_deg, force_n, x_mm, y_mm
+              (force_n 0 = unloaded; its other columns are ignored)
+and the rubber's constants (depth_x, nu_x, depth_y, nu_y, modulus), every tactel's response
+and position, and the model-error floor are estimated together by maximum likelihood.  Each
+constant is printed with its 1-sigma bound; one the presses cannot determine is held at the
+paper's value, and the report says why.  The file written is a version 2 calibration file.
+
 Example:
   tactiled calibrate presses.npz -o sensor3.json --knots 8
+  tactiled calibrate contacts.npz -o sensor3.json --identify
   tactiled calibrate --bench          # per-frame cost of linearisation, zeroing, detection
 """
 
@@ -49,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-strain-span", type=float, default=0.005, metavar="S",
                         help="unexercised if the reference strain spans less than S "
                         "(default 0.005)")
+    parser.add_argument("--identify", action="store_true",
+                        help="presses carry known contacts: identify the finger's rubber "
+                        "constants, tactel responses and positions, and model-error floor")
     parser.add_argument("--strict", action="store_true", help="exit 1 if any tactel is flagged")
     parser.add_argument("--bench", action="store_true",
                         help="print the per-frame cost of the calibration stage and exit")
@@ -78,6 +90,10 @@ def run(args: argparse.Namespace) -> int:
     from tactiled.calibration.presses import load_presses
 
     presses = load_presses(args.presses)
+    if args.identify:
+        return _identify(args, presses)
+    if presses.strain_ref is None:
+        raise CalibrationError(f"{args.presses}: has 'contacts' but no 'strain_ref': use --identify")
     report = build_table(
         presses,
         knots=args.knots,
@@ -96,4 +112,35 @@ def run(args: argparse.Namespace) -> int:
               "see the flags above (they are recorded in the file)", file=sys.stderr)
         if args.strict:
             return 1
+    return 0
+
+
+def _identify(args: argparse.Namespace, presses) -> int:
+    """``--identify``: the finger's model from presses of known contacts."""
+    import time
+
+    from tactiled import __version__
+    from tactiled.calibration.fileformat import save_calibration
+    from tactiled.calibration.identify import identify, format_report
+
+    if presses.contacts is None:
+        raise CalibrationError(f"{args.presses}: --identify needs a 'contacts' array (N, 6)")
+    if args.sensor_id is not None:
+        if presses.sensor_id is not None and presses.sensor_id != args.sensor_id:
+            raise CalibrationError(f"--sensor-id {args.sensor_id} does not match the press file's "
+                                   f"sensor_id {presses.sensor_id}")
+        presses.sensor_id = args.sensor_id
+    if presses.sensor_id is None:
+        raise CalibrationError(f"{args.presses}: no 'sensor_id'; give --sensor-id")
+    t0 = time.monotonic()
+
+    def progress(msg: str) -> None:
+        print(f"[{time.monotonic() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    result = identify(presses, knots=args.knots, progress=progress)
+    build = {"tool": f"tactiled {__version__} calibrate --identify", "presses": len(presses),
+             "source": str(args.presses), "knots": args.knots}
+    path = save_calibration(result.table, args.output, build=build, model=result.model)
+    print(format_report(result))
+    print(f"wrote {path}")
     return 0

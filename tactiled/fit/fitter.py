@@ -12,10 +12,13 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from tactiled.config import SensorModel
+from tactiled.fit.floor import FloorLearner
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.result import FitResult
 from tactiled.fit.solver import SolveResult, levenberg_marquardt
@@ -52,6 +55,18 @@ LINE_CONTACT_LENGTH = 1.5
 #: Iteration cap of auto's candidate fits (see Fitter._fit_model's ``scouting``).
 SCOUT_ITERATIONS = 25
 
+#: A fit's excess residual feeds the floor learner capped at this multiple of what it expects.
+OUTLIER_FACTOR = 10.0
+#: chi^2 above its quantile of this level flags a fit whose residuals exceed the noise.
+MISMATCH_LEVEL = 0.99
+
+
+@lru_cache(maxsize=None)
+def _chi2_limit(dof: int) -> float:
+    """The ``MISMATCH_LEVEL`` quantile of chi^2 with ``dof`` degrees of freedom."""
+    return float(chi2_dist.ppf(MISMATCH_LEVEL, dof))
+
+
 _STEP = {"ln_r": 1.0, "ln_ra": 1.0, "beta": 0.5, "psi": 0.5, "ln_f": 0.7, "x0": 2.0, "y0": 2.0}
 
 
@@ -71,6 +86,10 @@ class FitOptions:
     #: "exact" (analytic chain rule through the quadrature) or "fd" (forward differences of
     #: the residual; for benchmarking what the exact Jacobian buys).
     jacobian: str = "exact"
+    #: Learn from the fits' residuals how far the finger departs from its model and widen the
+    #: uncertainties of later fits to match (tactiled.fit.floor).  On for a stream of one
+    #: sensor's frames (the daemon, ``tactiled fit``); off, each fit stands alone.
+    learn_floor: bool = False
 
     def __post_init__(self) -> None:
         if self.window < 2:
@@ -114,6 +133,8 @@ class Fitter:
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
+        #: what the sensor's recent fits say of its departure from the model (see _mismatch)
+        self.floor = FloorLearner()
         if warm:
             self._warm_up()
 
@@ -200,7 +221,7 @@ class Fitter:
         prob = self._problem(strain, model, mask)
         if isinstance(prob, FitResult):
             return prob
-        residual, clean, peak, peak_idx, win, n_points = prob
+        residual, clean, peak, peak_idx, win, n_points, zdata = prob
         steps = np.array([_STEP[name] for name in model.params])
         starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
         best: SolveResult | None = None
@@ -219,7 +240,7 @@ class Fitter:
             if self._good_enough(best, peak, n_points) or self._out_of_time():
                 break
         assert best is not None
-        return self._result(model, best, peak, win, n_points, tried)
+        return self._result(model, best, peak, win, n_points, tried, zdata)
 
     def _problem(self, strain: np.ndarray, model: Model, mask: np.ndarray | None):
         """The least-squares problem on this frame: ``(residual, clean frame, peak, peak index,
@@ -249,12 +270,26 @@ class Fitter:
                 reasons={k: "too few usable tactels in the window" for k in VALUE_KEYS},
             )
         target = np.ascontiguousarray(data.ravel())
-        inv_peak = 1.0 / peak
-        residual = self.model.residual_function(model.physical, xs, ys, target, valid, inv_peak)
+        inv_scale = 1.0 / peak
+        if self.sensor.model_error.zero:
+            zdata = target[valid] / self.sigma
+        else:
+            # each tactel weighted by its noise plus the model-error floor (relative to the
+            # noise, so chi^2 = cost (peak/sigma)^2 still holds)
+            sd = self._tactel_sd(target)
+            inv_scale = inv_scale * (self.sigma / sd)
+            zdata = target[valid] / sd[valid]
+        residual = self.model.residual_function(model.physical, xs, ys, target, valid, inv_scale, win)
         if self.options.jacobian == "fd":
             residual = _forward_difference(residual)
 
-        return residual, clean, peak, peak_idx, win, n_points
+        return residual, clean, peak, peak_idx, win, n_points, zdata
+
+    def _tactel_sd(self, strain: np.ndarray) -> np.ndarray:
+        """Standard deviation (strain) of each tactel's reading about the model: the sensor
+        noise and the model-error floor (``sensor.model_error``) in quadrature."""
+        me = self.sensor.model_error
+        return np.sqrt(self.sigma**2 + me.strain**2 + (me.relative * strain) ** 2)
 
     def _good_enough(self, sol: SolveResult, peak: float, n_points: int) -> bool:
         """Residual consistent with sensor noise (chi^2 per point under ~4 with slack for
@@ -287,9 +322,13 @@ class Fitter:
                 break  # orientation plays no part
         return out
 
-    def _result(self, model: Model, sol: SolveResult, peak: float, win, n_points: int, starts: int) -> FitResult:
+    def _result(self, model: Model, sol: SolveResult, peak: float, win, n_points: int, starts: int,
+                zdata: np.ndarray) -> FitResult:
         reasons: dict[str, str] = {}
         values, std, condition = self._uncertainty(model, sol.p, sol.jacobian * peak, reasons)
+        chi2 = sol.cost * peak * peak / self.sigma**2
+        if condition is not None and std.get("x_mm") is not None:
+            self._mismatch(model, sol, peak, zdata, chi2, std, reasons)
         self._unobservable(values, std, reasons)
         if model.name == "cylinder":
             reasons.setdefault("r2_mm", "infinite: cylinder model")
@@ -310,7 +349,7 @@ class Fitter:
             values=values,
             std=std,
             rms=rms,
-            chi2=sol.cost * peak * peak / self.sigma**2,
+            chi2=chi2,
             iterations=sol.iterations,
             evaluations=sol.evaluations,
             converged=sol.converged,
@@ -343,6 +382,80 @@ class Fitter:
         if condition > ILL_CONDITION:
             reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
         return values, std, condition
+
+    def _mismatch(self, model: Model, sol: SolveResult, peak: float, zdata: np.ndarray,
+                  chi2: float, std: dict[str, float | None], reasons: dict[str, str]) -> None:
+        """Widen the uncertainties of a fit when residuals say the finger departs from its
+        model (see :mod:`tactiled.fit.floor`): by what the sensor's recent fits have shown
+        together, and by this frame's own excess when its chi^2 is beyond what the noise gives
+        ``MISMATCH_LEVEL`` of the time.  Tactel ``i`` then has variance
+        ``V_i = 1 + tau_s^2 z_i^2 + tau_g^2 |grad z_i|^2`` (units of its noise), and the
+        covariance becomes the sandwich ``A^-1 J^T V J A^-1``, ``A = J^T J``: what the estimate
+        really scatters by under that variance."""
+        n, k = sol.jacobian.shape
+        dof = n - k
+        if dof < 1:
+            return
+        flagged = chi2 > _chi2_limit(dof)
+        if not (flagged or self.options.learn_floor):
+            return  # the common case of a lone fit that matches its model: nothing to do
+        z = peak / self.sigma
+        jz = sol.jacobian * z  # residual Jacobian in units of each tactel's sd
+        rz = sol.residual * z
+        try:
+            ainv = np.linalg.inv(jz.T @ jz)
+        except np.linalg.LinAlgError:
+            return
+        resid_op = np.eye(n) - jz @ ainv @ jz.T  # M = I - H: residuals are M times the errors
+        lev = np.diag(resid_op).copy()  # M_ii = 1 - h_ii
+        m2 = zdata * zdata
+        g2 = jz[:, -2] ** 2 + jz[:, -1] ** 2  # every model's last two parameters are x0, y0
+        msq = resid_op * resid_op
+        rows = np.stack((msq @ m2, msq @ g2), axis=1)
+        excess_i = rz * rz - lev
+        excess = float(excess_i.sum())
+        s_f, g_f = float(rows[:, 0].sum()), float(rows[:, 1].sum())
+        ts, tg = self.floor.taus()
+        if not self.options.learn_floor:
+            ts = tg = 0.0
+        else:
+            self._learn(rows, excess_i, excess, s_f, g_f, dof, ts, tg)
+        source = f"the sensor's last ~{self.floor.memory} fits"
+        if flagged:
+            expected = ts * s_f + tg * g_f
+            if expected <= 0.0:  # nothing pooled yet: this frame's excess as gain-like error
+                ts, tg = max(excess, 0.0) / max(s_f, 1e-300), 0.0
+                source = "this frame's residuals"
+            elif excess > expected:
+                ts, tg = ts * excess / expected, tg * excess / expected
+                source = "this frame's residuals"
+        if ts <= 0.0 and tg <= 0.0:
+            return
+        var = 1.0 + ts * m2 + tg * g2
+        cov = ainv @ (jz.T * var) @ jz @ ainv
+        _, grad = model.report(sol.p)
+        for i, key in enumerate(VALUE_KEYS):
+            if std.get(key) is None:
+                continue
+            v = float(grad[i] @ cov @ grad[i])
+            if math.isfinite(v) and v > std[key] ** 2:
+                std[key] = math.sqrt(v)
+        reasons["uncertainty"] = (
+            f"residuals exceed the noise (from {source}; chi^2 here {chi2:.3g} for {dof} degrees "
+            f"of freedom): the finger departs from its model by ~{100 * math.sqrt(ts):.2g} % of "
+            f"the strain and ~{1000 * math.sqrt(tg):.2g} um of tactel position; uncertainties "
+            "widened to match")
+
+    def _learn(self, rows: np.ndarray, excess_i: np.ndarray, excess: float, s_f: float, g_f: float,
+               dof: int, ts: float, tg: float) -> None:
+        """Feed one fit to the floor learner.  Every fit feeds it (leaving out the flagged
+        ones, the heavy frames, would bias it low), scaled down to a cap near what the pool
+        already expects, so one contact far outside the model (an edge the size of the array)
+        moves it by a bounded step."""
+        cap = OUTLIER_FACTOR * (ts * s_f + tg * g_f + math.sqrt(2.0 * dof))
+        if excess > cap:
+            excess_i = excess_i * (cap / excess)
+        self.floor.add(rows, excess_i, dof)
 
     def cramer_rao(self, strain: np.ndarray, model: str, params: np.ndarray) -> dict[str, float | None]:
         """1-sigma Cramer-Rao bounds (user units) at the parameter vector ``params`` of

@@ -156,6 +156,44 @@ def quadrature(
     return val
 
 
+@njit(cache=True, fastmath=False, nogil=True)
+def quadrature_points(
+    x0: float,
+    y0: float,
+    a: float,
+    b: float,
+    theta: float,
+    u: np.ndarray,
+    v: np.ndarray,
+    w: np.ndarray,
+    px: np.ndarray,
+    py: np.ndarray,
+    imp: np.ndarray,
+) -> np.ndarray:
+    """The sum of :func:`quadrature` at arbitrary points ``(px[k], py[k])`` (mm): tactels off
+    the grid, evaluated exactly (the simulator's truth for a finger with displaced tactels)."""
+    dep_x, nu_x, dep_y, nu_y = imp[0], imp[1], imp[2], imp[3]
+    npt, nq = px.shape[0], u.shape[0]
+    val = np.zeros(npt)
+    c, s = math.cos(theta), math.sin(theta)
+    cx = 2.0 * dep_x * _INV_PI
+    cy = 2.0 * dep_y * _INV_PI
+    dx2 = dep_x * dep_x
+    dy2 = dep_y * dep_y
+    for q in range(nq):
+        au = a * u[q]
+        bv = b * v[q]
+        xq = x0 + au * c - bv * s
+        yq = y0 + au * s + bv * c
+        for k in range(npt):
+            tx2 = (px[k] - xq) ** 2
+            sx = tx2 + dx2
+            ty2 = (py[k] - yq) ** 2
+            sy = ty2 + dy2
+            val[k] += cx * (dx2 - nu_x * tx2) / (sx * sx) * cy * (dy2 - nu_y * ty2) / (sy * sy) * w[q]
+    return val
+
+
 @njit(cache=True, nogil=True)
 def window_residual(
     geo: np.ndarray,
@@ -169,13 +207,22 @@ def window_residual(
     imp: np.ndarray,
     target: np.ndarray,
     valid: np.ndarray,
-    inv_peak: float,
+    inv_scale: np.ndarray,
+    ex: np.ndarray,
+    ey: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised residuals ``(model - target)/peak`` over the valid tactels of a window and
-    their Jacobian with respect to a model's own parameters.
+    """Scaled residuals ``(model - target) * inv_scale`` over the valid tactels of a window
+    and their Jacobian with respect to a model's own parameters.
 
-    ``target`` and ``valid`` are the window's strains and usable-tactel flags, flattened
-    row-major; ``dphys`` is ``d(kappa_a, kappa_b, psi, F, x0, y0)/d(params)``, shape (6, k).
+    ``target``, ``valid``, ``inv_scale`` (1 / (peak strain x the tactel's relative standard
+    deviation)), ``ex`` and ``ey`` (the tactels' displacements from the grid ``xs x ys``, mm)
+    are per window tactel, flattened row-major; ``dphys`` is
+    ``d(kappa_a, kappa_b, psi, F, x0, y0)/d(params)``, shape (6, k).
+
+    A displaced tactel's strain is taken to first order, ``s(X + e) = s(X) - e . ds/d(x0, y0)``
+    (the strain depends on ``X - x0`` only); the Jacobian keeps the grid's (the dropped term is
+    ``e`` times a second derivative: for the 0.1 mm displacements of a real array, ~1/40 of a
+    term that is itself small).  Zero displacements give the grid's values bit for bit.
     """
     val, jac6 = strain_with_jacobian(geo, hj, u, v, w, xs, ys, imp)
     ny = ys.shape[0]
@@ -191,12 +238,13 @@ def window_residual(
         if not valid[idx]:
             continue
         i, j = idx // ny, idx % ny
-        r[row] = (val[i, j] - target[idx]) * inv_peak
+        scale = inv_scale[idx]
+        r[row] = (val[i, j] - ex[idx] * jac6[i, j, 4] - ey[idx] * jac6[i, j, 5] - target[idx]) * scale
         for c in range(k):
             acc = 0.0
             for e in range(6):
                 acc += jac6[i, j, e] * dphys[e, c]
-            jac[row, c] = acc * inv_peak
+            jac[row, c] = acc * scale
         row += 1
     return r, jac
 

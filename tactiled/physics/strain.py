@@ -30,7 +30,7 @@ from tactiled.config import SensorModel
 from tactiled.physics.contact import Contact
 from tactiled.physics.hertz import Ellipse, contact_ellipse, ellipse_core
 from tactiled.physics.impulse import line_response, line_response_and_slope
-from tactiled.physics.kernels import quadrature, strain_with_jacobian, window_residual
+from tactiled.physics.kernels import quadrature, quadrature_points, strain_with_jacobian, window_residual
 
 DEFAULT_TOL = 1e-9
 MIN_NODES = 3
@@ -118,6 +118,13 @@ class StrainModel:
         g = self.sensor.geometry
         self.xs_full = np.arange(g.rows) * g.dx
         self.ys_full = np.arange(g.cols) * g.dy
+        #: Tactel displacements from the grid, (rows, cols) mm each; None on the nominal grid.
+        self.shift: tuple[np.ndarray, np.ndarray] | None = None
+        if not self.sensor.positions.nominal:
+            ex, ey = self.sensor.positions.arrays(g.rows, g.cols)
+            for arr in (ex, ey):
+                arr.setflags(write=False)
+            self.shift = (ex, ey)
 
     # -- geometry ---------------------------------------------------------------------------
     def ellipse(
@@ -180,14 +187,21 @@ class StrainModel:
         ys: np.ndarray,
         target: np.ndarray,
         valid: np.ndarray,
-        inv_peak: float,
+        inv_scale: float | np.ndarray,
+        window: tuple[int, int, int, int] | None = None,
     ):
-        """A closure ``p -> (r, J)`` for the solver: normalised residuals over the valid
+        """A closure ``p -> (r, J)`` for the solver: scaled residuals over the valid
         tactels of a window and their Jacobian in a model's parameters.  ``physical(p)`` maps
-        the parameters to ``(kappa_a, kappa_b, psi, F, x0, y0)`` and its (6, k) Jacobian."""
+        the parameters to ``(kappa_a, kappa_b, psi, F, x0, y0)`` and its (6, k) Jacobian.
+
+        ``inv_scale`` multiplies each residual (a scalar, or one per window tactel, flattened);
+        ``window`` ``(r0, c0, rows, cols)`` locates ``xs x ys`` on the array, so that tactels
+        displaced from the grid (the sensor's ``positions``) are evaluated where they are."""
         ellipse_core_, rf, comp, imp, scale = ellipse_core, self._rf, self._k, self._imp, self._scale
         rule, tol, dmin = disk_rule, self.tol, self._dmin
         valid = np.ascontiguousarray(valid, dtype=np.bool_)
+        inv_scale = np.ascontiguousarray(np.broadcast_to(np.asarray(inv_scale, dtype=float), valid.shape))
+        ex, ey = self.window_shift(window, xs.shape[0], ys.shape[0])
 
         def residual(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             (ka, kb, psi, force, x0, y0), dphys = physical(p)
@@ -197,9 +211,22 @@ class StrainModel:
                 raise ValueError("infinite line contact")
             u, v, w = rule(nodes_for(a, dmin, tol), nodes_for(b, dmin, tol))
             geo = np.array((x0, y0, a, b, theta, force, scale))
-            return window_residual(geo, hj, dphys, u, v, w, xs, ys, imp, target, valid, inv_peak)
+            return window_residual(geo, hj, dphys, u, v, w, xs, ys, imp, target, valid, inv_scale, ex, ey)
 
         return residual
+
+    def window_shift(
+        self, window: tuple[int, int, int, int] | None, rows: int, cols: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The displacements (mm) of a window's tactels from the grid, flattened row-major
+        (zeros on the nominal grid or without a ``window``)."""
+        if self.shift is None or window is None:
+            zeros = np.zeros(rows * cols)
+            return zeros, zeros
+        r0, c0, nr, nc = window
+        ex, ey = self.shift
+        return (np.ascontiguousarray(ex[r0:r0 + nr, c0:c0 + nc].ravel()),
+                np.ascontiguousarray(ey[r0:r0 + nr, c0:c0 + nc].ravel()))
 
     def _chain(
         self, value: np.ndarray, d_geo: np.ndarray, hj: list[list[float]], force: float,
@@ -247,10 +274,20 @@ class StrainModel:
         return self._chain(value, d_geo, hj, force, ell)
 
     def predict(self, contact: Contact, xs: np.ndarray | None = None, ys: np.ndarray | None = None) -> np.ndarray:
-        """Predicted strain for a :class:`Contact`, on the whole array by default."""
+        """Predicted strain for a :class:`Contact`, on the whole array by default (each
+        tactel where the sensor's ``positions`` put it), else on the grid ``xs x ys``."""
+        ell, _ = self.ellipse(contact.kappa_a, contact.kappa_b, contact.psi, contact.force)
+        if xs is None and ys is None and self.shift is not None:
+            # tactels off the grid: each evaluated exactly where it sits
+            ex, ey = self.shift
+            px = np.ascontiguousarray((self.xs_full[:, None] + ex).ravel())
+            py = np.ascontiguousarray((self.ys_full[None, :] + ey).ravel())
+            u, v, w = self._rule(ell)
+            val = quadrature_points(contact.x0, contact.y0, ell.a, ell.b, ell.theta, u, v, w,
+                                    px, py, self._imp)
+            return (self._scale * contact.force) * val.reshape(ex.shape)
         xs = self.xs_full if xs is None else np.ascontiguousarray(xs, dtype=float)
         ys = self.ys_full if ys is None else np.ascontiguousarray(ys, dtype=float)
-        ell, _ = self.ellipse(contact.kappa_a, contact.kappa_b, contact.psi, contact.force)
         return self.strain_from_ellipse(ell, contact.force, contact.x0, contact.y0, xs, ys)
 
 

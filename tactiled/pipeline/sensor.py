@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from tactiled.calibration.contact import ContactDetector
-from tactiled.calibration.fileformat import load_calibration
+from tactiled.calibration.fileformat import Calibration, load_calibration_file
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
@@ -64,7 +64,8 @@ WITHHOLD_RELATIVE_SIGMA = 0.5
 def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
     so this process never imports the fitter (numba, scipy: 1.3 s and ~100 MB)."""
-    return (("window", window), ("withhold_relative_sigma", WITHHOLD_RELATIVE_SIGMA))
+    return (("window", window), ("withhold_relative_sigma", WITHHOLD_RELATIVE_SIGMA),
+            ("learn_floor", True))
 
 
 @dataclass
@@ -98,8 +99,11 @@ class SensorPipeline:
         self.record_path = record_path
         self.table: LookupTable | None = None
         self.expected_id = settings.wire_id
+        #: the calibration file's content (None: the nominal table and the paper's model)
+        self.calibration: Calibration | None = None
         if settings.calibration is not None:
-            self.table = load_calibration(settings.calibration)
+            self.calibration = load_calibration_file(settings.calibration)
+            self.table = self.calibration.table
             if self.expected_id is not None and self.table.sensor_id != self.expected_id:
                 raise CalibrationError(
                     f"{settings.calibration}: calibration of sensor {self.table.sensor_id}, "
@@ -108,7 +112,11 @@ class SensorPipeline:
         # Tactels the calibration found dead or never exercised are left out of every fit.
         self.mask = (None if self.table is None or not self.table.dead_mask.any()
                      else ~self.table.dead_mask)
-        self.sensor_model = SensorModel(noise=NoiseModel(sigma=settings.noise_sigma))
+        noise = NoiseModel(sigma=settings.noise_sigma)
+        # an identified finger's rubber, tactel positions and model-error floor (version 2
+        # calibration files); else the paper's finger
+        self.sensor_model = (SensorModel(noise=noise) if self.calibration is None
+                             else self.calibration.sensor_model(noise))
         g = self.sensor_model.geometry
         if self.table is not None and self.table.shape != (g.rows, g.cols):
             raise CalibrationError(f"{settings.calibration}: table shape {self.table.shape} is "
