@@ -229,8 +229,9 @@ class Calibration:
     source: str
 
     def sensor_model(self, noise: NoiseModel | None = None, geometry: Geometry | None = None) -> SensorModel:
-        """The :class:`SensorModel` the fitter should use for this sensor."""
-        g = geometry or Geometry(rows=self.table.rows, cols=self.table.cols)
+        """The :class:`SensorModel` the fitter should use for this sensor, on the sensor's
+        ``geometry`` (default: the nominal array; the caller checks the table fits it)."""
+        g = geometry or Geometry()
         if self.model is None:
             return SensorModel(geometry=g, noise=noise or NoiseModel())
         return self.model.sensor_model(g, noise)

@@ -77,7 +77,8 @@ def test_refuses_missing_and_unreadable_files(tmp_path):
     [
         (lambda d: d.update(format="something-else"),
          r"key 'format' is 'something-else', expected 'tactiled-calibration'"),
-        (lambda d: d.update(version=2), r"key 'version' is 2; this tactiled reads version 1 only"),
+        (lambda d: d.update(version=3), r"key 'version' is 3; this tactiled reads versions 1, 2"),
+        (lambda d: d.update(version=2), r"missing key 'model' \(version 2\)"),
         (lambda d: d.update(version="1"), r"key 'version' is '1'"),
         (lambda d: d.pop("sensor_id"), r"missing key 'sensor_id'"),
         (lambda d: d.pop("created"), r"missing key 'created'"),
