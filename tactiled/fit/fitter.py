@@ -118,6 +118,25 @@ def _forward_difference(residual):
     return fd
 
 
+@dataclass
+class _Frame:
+    """A frame's window, shared by the models fitted to it (see ``Fitter._frame``)."""
+
+    clean: np.ndarray  # the frame, unusable tactels zeroed
+    peak_idx: tuple[int, int]
+    peak: float
+    win: tuple[int, int, int, int]
+    xs: np.ndarray  # the window's tactel coordinates on the grid, mm
+    ys: np.ndarray
+    target: np.ndarray  # the window's strains, flattened
+    valid: np.ndarray  # usable tactels of the window, flattened
+    n_points: int
+    inv_scale: np.ndarray  # per tactel: 1 / (peak x its sd relative to the noise)
+    zdata: np.ndarray  # the usable tactels' strains in units of their sd
+    ex: np.ndarray  # the window's tactel displacements from the grid, mm
+    ey: np.ndarray
+
+
 class Fitter:
     """Fits contact models to strain frames of one sensor."""
 
@@ -133,6 +152,8 @@ class Fitter:
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
+        self._in_fit = False
+        self._frame_memo: tuple[tuple[int, int], _Frame | FitResult] | None = None
         #: what the sensor's recent fits say of its departure from the model (see _mismatch)
         self.floor = FloorLearner()
         if warm:
@@ -176,6 +197,7 @@ class Fitter:
         """
         t0 = time.perf_counter()
         self._deadline = None if budget_s is None else t0 + budget_s
+        self._in_fit = True
         try:
             if model == "auto":
                 res = self._fit_auto(strain, mask, warm)
@@ -186,6 +208,8 @@ class Fitter:
                 res = self._fit_model(strain, get_model(model), start, mask)
         finally:
             self._deadline = None
+            self._in_fit = False
+            self._frame_memo = None  # the memo must not outlive the frame (ids are reused)
         res.fit_ms = (time.perf_counter() - t0) * 1e3
         return res
 
@@ -244,46 +268,66 @@ class Fitter:
 
     def _problem(self, strain: np.ndarray, model: Model, mask: np.ndarray | None):
         """The least-squares problem on this frame: ``(residual, clean frame, peak, peak index,
-        window, usable points)``, or a FitResult saying why there is none."""
+        window, usable points, window strains in units of their sd)``, or a FitResult saying
+        why there is none."""
+        fr = self._frame(strain, mask)
+        if isinstance(fr, FitResult):
+            return fr
+        if fr.n_points <= model.size:
+            return FitResult(
+                contact=True, model=model.name, peak=fr.peak, window=fr.win, n_points=fr.n_points,
+                message=f"only {fr.n_points} usable tactels in the window for {model.size} parameters",
+                reasons={k: "too few usable tactels in the window" for k in VALUE_KEYS},
+            )
+        residual = self.model.window_residual_function(
+            model.physical, fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
+        if self.options.jacobian == "fd":
+            residual = _forward_difference(residual)
+        return residual, fr.clean, fr.peak, fr.peak_idx, fr.win, fr.n_points, fr.zdata
+
+    def _frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
+        """What every model's problem on this frame shares (computed once per :meth:`fit`,
+        which auto's several models reuse), or a FitResult saying there is no problem."""
+        key = (id(strain), id(mask))
+        if self._frame_memo is not None and self._frame_memo[0] == key:
+            return self._frame_memo[1]
         clean, ok = self._prepare(strain, mask)
         g = self.sensor.geometry
         if clean.shape != (g.rows, g.cols):
             raise ValueError(f"frame shape {clean.shape} does not match the sensor's {(g.rows, g.cols)}")
+        out: _Frame | FitResult
         if not ok.any():
-            return FitResult(contact=False, message="no usable tactels", reasons={"frame": "all tactels masked"})
-        flat = int(np.argmax(clean if ok is self._all_ok else np.where(ok, clean, -np.inf)))
-        peak_idx = divmod(flat, clean.shape[1])
-        peak = float(clean[peak_idx])
-        if not peak > MIN_PEAK:
-            return FitResult(contact=False, peak=peak, message=f"no strain above {MIN_PEAK:g}")
+            out = FitResult(contact=False, message="no usable tactels", reasons={"frame": "all tactels masked"})
+        else:
+            flat = int(np.argmax(clean if ok is self._all_ok else np.where(ok, clean, -np.inf)))
+            peak_idx = divmod(flat, clean.shape[1])
+            peak = float(clean[peak_idx])
+            if not peak > MIN_PEAK:
+                out = FitResult(contact=False, peak=peak, message=f"no strain above {MIN_PEAK:g}")
+            else:
+                out = self._window(clean, ok, peak_idx, peak)
+        if self._deadline is not None or self._in_fit:
+            self._frame_memo = (key, out)
+        return out
+
+    def _window(self, clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: float) -> _Frame:
         win = choose_window(clean, peak_idx, self.options.window)
         r0, c0, nr, nc = win
-        xs = self.model.xs_full[r0:r0 + nr]
-        ys = self.model.ys_full[c0:c0 + nc]
-        data = clean[r0:r0 + nr, c0:c0 + nc]
-        valid = ok[r0:r0 + nr, c0:c0 + nc].ravel()
-        n_points = int(valid.sum())
-        if n_points <= model.size:
-            return FitResult(
-                contact=True, model=model.name, peak=peak, window=win, n_points=n_points,
-                message=f"only {n_points} usable tactels in the window for {model.size} parameters",
-                reasons={k: "too few usable tactels in the window" for k in VALUE_KEYS},
-            )
-        target = np.ascontiguousarray(data.ravel())
-        inv_scale = 1.0 / peak
+        target = np.ascontiguousarray(clean[r0:r0 + nr, c0:c0 + nc].ravel())
+        valid = np.ascontiguousarray(ok[r0:r0 + nr, c0:c0 + nc].ravel())
         if self.sensor.model_error.zero:
+            inv_scale = np.full(target.size, 1.0 / peak)
             zdata = target[valid] / self.sigma
         else:
             # each tactel weighted by its noise plus the model-error floor (relative to the
             # noise, so chi^2 = cost (peak/sigma)^2 still holds)
             sd = self._tactel_sd(target)
-            inv_scale = inv_scale * (self.sigma / sd)
+            inv_scale = (1.0 / peak) * (self.sigma / sd)
             zdata = target[valid] / sd[valid]
-        residual = self.model.residual_function(model.physical, xs, ys, target, valid, inv_scale, win)
-        if self.options.jacobian == "fd":
-            residual = _forward_difference(residual)
-
-        return residual, clean, peak, peak_idx, win, n_points, zdata
+        ex, ey = self.model.window_shift(win, nr, nc)
+        return _Frame(clean, peak_idx, peak, win, self.model.xs_full[r0:r0 + nr],
+                      self.model.ys_full[c0:c0 + nc], target, valid, int(valid.sum()), inv_scale,
+                      zdata, ex, ey)
 
     def _tactel_sd(self, strain: np.ndarray) -> np.ndarray:
         """Standard deviation (strain) of each tactel's reading about the model: the sensor

@@ -16,12 +16,12 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from tactiled.config import SensorModel
 from tactiled.physics.contact import Contact
 from tactiled.fit.window import interpolated_peak
-from tactiled.physics.impulse import line_response
 from tactiled.physics.strain import StrainModel
 
 _RADII = np.geomspace(0.3, 150.0, 12)
@@ -45,9 +45,9 @@ def force_estimate(strain: np.ndarray, sensor: SensorModel, x0: float | None = N
     if x0 is None or y0 is None:
         pk = np.unravel_index(int(np.argmax(strain)), strain.shape)
         x0, y0 = interpolated_peak(strain, pk, g.dx, g.dy)
-    sx = float(np.sum(line_response(np.arange(g.rows) * g.dx - x0, imp.depth_x, imp.nu_x)))
-    sy = float(np.sum(line_response(np.arange(g.cols) * g.dy - y0, imp.depth_y, imp.nu_y)))
-    total = float(np.sum(strain)) * mat.modulus / max(sx * sy, 1e-12)
+    sx = line_sum(g.rows, g.dx, x0, imp.depth_x, imp.nu_x)
+    sy = line_sum(g.cols, g.dy, y0, imp.depth_y, imp.nu_y)
+    total = float(strain.sum()) * mat.modulus / max(sx * sy, 1e-12)
     return min(max(total, 1e-3), 50.0)
 
 
@@ -104,19 +104,48 @@ class StartTable:
 
     def candidates(self, feat: np.ndarray, count: int = 2, min_separation: float = 35.0) -> list[Candidate]:
         """The best ``count`` candidates whose orientations differ by ``min_separation`` deg."""
-        q = np.clip(np.nan_to_num(feat, nan=0.0, posinf=1e6, neginf=-1e6), -1e6, 1e6)
+        # NaN (a neighbour off the array) reads as 0, as in the table; infinities are clipped
+        q = [0.0 if v != v else min(max(v, -1e6), 1e6) for v in feat.tolist()]
         dist, near = self._tree.query(q, k=48)
-        radii, angles = self.params[near, 0], self.params[near, 1]
-        chosen = [0]
-        sep = np.full(near.size, 180.0)
-        while len(chosen) < count:
-            last = angles[chosen[-1]]
-            sep = np.minimum(sep, np.abs((angles - last + 90.0) % 180.0 - 90.0))
-            ok = np.flatnonzero(sep >= min_separation)
-            if ok.size == 0:
-                break
-            chosen.append(int(ok[0]))
-        return [Candidate(float(radii[i]), float(angles[i]), float(dist[i])) for i in chosen]
+        chosen = pick_separated(self.params[near, 1], count, min_separation)
+        return [Candidate(float(self.params[near[i], 0]), float(self.params[near[i], 1]), float(dist[i]))
+                for i in chosen]
+
+
+@njit(cache=True, nogil=True)
+def pick_separated(angles: np.ndarray, count: int, min_separation: float) -> list[int]:
+    """Indices into ``angles`` (deg, best first): the first, then each next one whose
+    orientation differs from every one chosen by ``min_separation`` (orientations modulo 180)."""
+    chosen = [0]
+    n = angles.shape[0]
+    sep = np.full(n, 180.0)
+    while len(chosen) < count:
+        last = angles[chosen[-1]]
+        nxt = -1
+        for i in range(n):
+            d = abs((angles[i] - last + 90.0) % 180.0 - 90.0)
+            if d < sep[i]:
+                sep[i] = d
+            if nxt < 0 and sep[i] >= min_separation:
+                nxt = i
+        if nxt < 0:
+            break
+        chosen.append(nxt)
+    return chosen
+
+
+@njit(cache=True, nogil=True)
+def line_sum(n: int, pitch: float, x0: float, depth: float, nu: float) -> float:
+    """``sum_m h(m * pitch - x0)`` over ``n`` tactels (the line response, 1/mm)."""
+    d2 = depth * depth
+    c = 2.0 * depth / math.pi
+    total = 0.0
+    for m in range(n):
+        u = m * pitch - x0
+        u2 = u * u
+        s = u2 + d2
+        total += c * (d2 - nu * u2) / (s * s)
+    return total
 
 
 @lru_cache(maxsize=8)

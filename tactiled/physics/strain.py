@@ -202,10 +202,18 @@ class StrainModel:
         valid = np.ascontiguousarray(valid, dtype=np.bool_)
         inv_scale = np.ascontiguousarray(np.broadcast_to(np.asarray(inv_scale, dtype=float), valid.shape))
         ex, ey = self.window_shift(window, xs.shape[0], ys.shape[0])
+        return self.window_residual_function(physical, xs, ys, target, valid, inv_scale, ex, ey)
+
+    def window_residual_function(self, physical, xs: np.ndarray, ys: np.ndarray, target: np.ndarray,
+                                 valid: np.ndarray, inv_scale: np.ndarray, ex: np.ndarray, ey: np.ndarray):
+        """:meth:`residual_function` on arrays already prepared (contiguous, one entry per
+        window tactel, ``valid`` boolean): the fitter's per-frame fast path."""
+        ellipse_core_, rf, comp, imp, scale = ellipse_core, self._rf, self._k, self._imp, self._scale
+        rule, tol, dmin = disk_rule, self.tol, self._dmin
+        hj = np.empty((3, 4))
 
         def residual(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             (ka, kb, psi, force, x0, y0), dphys = physical(p)
-            hj = np.empty((3, 4))
             a, b, theta, _ = ellipse_core_(ka, kb, psi, force, rf, comp, hj)
             if a < 0.0:
                 raise ValueError("infinite line contact")
