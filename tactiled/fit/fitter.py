@@ -18,6 +18,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from tactiled.config import SensorModel
+from tactiled.fit import compiled
 from tactiled.fit.floor import FloorLearner
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.result import FitResult
@@ -152,6 +153,8 @@ class Fitter:
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
+        m = self.model
+        self._model_args = (m._rf, m._k, m._scale, m._dmin, m._imp)
         self._in_fit = False
         self._frame_memo: tuple[tuple[int, int], _Frame | FitResult] | None = None
         #: what the sensor's recent fits say of its departure from the model (see _mismatch)
@@ -250,15 +253,20 @@ class Fitter:
         starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
         best: SolveResult | None = None
         tried = 0
+        max_iter = SCOUT_ITERATIONS if scouting else self.options.max_iter
+        # stop once the next step would lower chi^2 by less than 1e-6 (0.01 scouting)
+        atol = (1e-2 if scouting else 1e-6) * (self.sigma / peak) ** 2
+        fr = self._frame(strain, mask) if self.options.jacobian == "exact" else None
         for p0 in starts:
             tried += 1
-            sol = levenberg_marquardt(
-                residual, p0, max_step=steps,
-                max_iter=SCOUT_ITERATIONS if scouting else self.options.max_iter,
-                # stop once the next step would lower chi^2 by less than 1e-6 (0.01 scouting)
-                atol=(1e-2 if scouting else 1e-6) * (self.sigma / peak) ** 2,
-                deadline=self._deadline,
-            )
+            sol = None
+            if isinstance(fr, _Frame):  # the whole search compiled (falls back on huge contacts)
+                sol = compiled.solve(
+                    compiled.KINDS[model.name], p0, steps, max_iter, atol, self._model_args,
+                    (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey), self.options.tol)
+            if sol is None:
+                sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=max_iter, atol=atol,
+                                          deadline=self._deadline)
             if best is None or sol.cost < best.cost:
                 best = sol
             if self._good_enough(best, peak, n_points) or self._out_of_time():

@@ -1,0 +1,238 @@
+"""The Levenberg-Marquardt search of one start, compiled whole (issue 16).
+
+:func:`tactiled.fit.solver.levenberg_marquardt` calls back into Python for every evaluation of
+the forward model: the model's parameter map, the Hertz solve, the quadrature rule's size and
+the window residual are each a compiled kernel, but the glue between them (argument packing,
+dispatch, the damping loop) cost three times the arithmetic.  Here the same steps run in one
+compiled call: the same parameter maps (``tactiled.fit.models``), the same Hertz solve and
+window residual kernels, the same node-count rule and 1-D Gauss rules (packed into arrays), and
+the same damping loop, operation for operation, so a fit gives the numbers the Python path
+gives.
+
+What it does not do, it hands back: a contact needing more than :data:`MAX_COMPILED_NODES`
+nodes per axis (a contact many rubber depths long, where one evaluation costs milliseconds and
+the fitter's time budget must be able to stop the search) returns :data:`FALLBACK`, and the
+caller runs the Python solver, which checks the budget between evaluations.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+from numba import njit
+
+from tactiled.fit.solver import SolveResult
+from tactiled.physics.hertz import ellipse_core
+from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
+from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
+
+#: Largest rule (nodes per axis) the compiled search uses; beyond it, the Python solver.
+MAX_COMPILED_NODES = 64
+#: Model kinds (the order of ``tactiled.fit.models``' parameter maps below).
+KINDS = {"cylinder": 0, "sphere": 1, "general": 2}
+
+# status codes of an evaluation and of a search
+_OK, _INVALID_LINE, _INVALID_LONG, FALLBACK = 0, 1, 2, 3
+#: messages, by code, as the Python solver words them
+MESSAGES = ("maximum iterations reached", "step below xtol", "predicted decrease below ftol",
+            "no step reduces the cost (damping exhausted)")
+
+
+@lru_cache(maxsize=1)
+def rule_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(ladder, offsets, u, wu, s, ws)``: every ladder size up to the compiled limit and its
+    Gauss-Jacobi(1, 1) (u) and Gauss-Chebyshev-U (s) rules, packed (from the same cached rules
+    the Python path uses, so the nodes are the same numbers)."""
+    ladder = np.array(_LADDER, dtype=np.int64)
+    sizes = [n for n in _LADDER if n <= MAX_COMPILED_NODES]
+    offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
+    us, wus, ss, wss = [], [], [], []
+    for i, n in enumerate(sizes):
+        u, wu = _rule_u(n)
+        s, ws = _rule_s(n)
+        us.append(u)
+        wus.append(wu)
+        ss.append(s)
+        wss.append(ws)
+        offsets[i + 1] = offsets[i] + n
+    return (ladder, offsets, np.concatenate(us), np.concatenate(wus), np.concatenate(ss),
+            np.concatenate(wss))
+
+
+@njit(cache=True, nogil=True)
+def _physical(kind: int, p: np.ndarray, d: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """The models' parameter maps (``Model.physical``), filling ``d`` (zeroed, (6, k))."""
+    if kind == 0:  # cylinder: ln_r, psi, ln_f, x0, y0
+        ka, f = math.exp(-p[0]), math.exp(p[2])
+        d[0, 0] = -ka
+        d[2, 1] = 1.0
+        d[3, 2] = f
+        d[4, 3] = 1.0
+        d[5, 4] = 1.0
+        return ka, 0.0, p[1], f, p[3], p[4]
+    if kind == 1:  # sphere: ln_r, ln_f, x0, y0
+        k, f = math.exp(-p[0]), math.exp(p[1])
+        d[0, 0] = -k
+        d[1, 0] = -k
+        d[3, 1] = f
+        d[4, 2] = 1.0
+        d[5, 3] = 1.0
+        return k, k, 0.0, f, p[2], p[3]
+    # general: ln_ra, beta, psi, ln_f, x0, y0
+    ka, beta, f = math.exp(-p[0]), p[1], math.exp(p[3])
+    kb = beta * beta * ka
+    d[0, 0] = -ka
+    d[1, 0] = -kb
+    d[1, 1] = 2.0 * beta * ka
+    d[2, 2] = 1.0
+    d[3, 3] = f
+    d[4, 4] = 1.0
+    d[5, 5] = 1.0
+    return ka, kb, p[2], f, p[4], p[5]
+
+
+@njit(cache=True, nogil=True)
+def _nodes(extent: float, depth: float, tol: float, ladder: np.ndarray) -> int:
+    """``strain.nodes_for``: the ladder size, or -1 beyond MAX_NODES (too long to integrate)."""
+    r = depth / max(extent, 1e-12)
+    log_rho = math.asinh(r)
+    n = math.ceil(0.5 * math.log(1.0 / tol) / log_rho) if log_rho > 0 else MAX_NODES + 1
+    if n > MAX_NODES:
+        return -1
+    return ladder[np.searchsorted(ladder, max(n, MIN_NODES))]
+
+
+@njit(cache=True, nogil=True)
+def _rule_index(n: int, ladder: np.ndarray) -> int:
+    return np.searchsorted(ladder, n)
+
+
+@njit(cache=True, nogil=True)
+def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey,
+              ladder, offsets, ru, rwu, rs, rws):
+    """One evaluation of the residual closure: ``(status, r, J)``; status ``_OK``, an invalid
+    point (``_INVALID_LINE``: infinite line contact; ``_INVALID_LONG``: too long to integrate,
+    with the semi-axis in ``r[0]``) or ``FALLBACK`` (a rule past the compiled limit)."""
+    d = np.zeros((6, k))
+    ka, kb, psi, force, x0, y0 = _physical(kind, p, d)
+    hj = np.empty((3, 4))
+    a, b, theta, _ = ellipse_core(ka, kb, psi, force, rf, comp, hj)
+    empty_r = np.zeros(1)
+    empty_j = np.zeros((1, k))
+    if a < 0.0:
+        return _INVALID_LINE, empty_r, empty_j
+    nu = _nodes(a, dmin, tol, ladder)
+    if nu < 0:
+        empty_r[0] = a
+        return _INVALID_LONG, empty_r, empty_j
+    ns = _nodes(b, dmin, tol, ladder)
+    if ns < 0:
+        empty_r[0] = b
+        return _INVALID_LONG, empty_r, empty_j
+    if nu > MAX_COMPILED_NODES or ns > MAX_COMPILED_NODES:
+        return FALLBACK, empty_r, empty_j
+    iu, is_ = _rule_index(nu, ladder), _rule_index(ns, ladder)
+    ou, os_ = offsets[iu], offsets[is_]
+    nq = nu * ns
+    u = np.empty(nq)
+    v = np.empty(nq)
+    w = np.empty(nq)
+    for i in range(nu):
+        ui, wui = ru[ou + i], rwu[ou + i]
+        root = math.sqrt(1.0 - ui * ui)
+        for j in range(ns):
+            q = i * ns + j
+            u[q] = ui
+            v[q] = root * rs[os_ + j]
+            w[q] = wui * rws[os_ + j]
+    geo = np.empty(7)
+    geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6] = x0, y0, a, b, theta, force, scale
+    r, jac = window_residual(geo, hj, d, u, v, w, xs, ys, imp, target, valid, inv_scale, ex, ey)
+    return _OK, r, jac
+
+
+@njit(cache=True, nogil=True)
+def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, rf, comp, scale, dmin, tol, imp,
+           xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws):
+    """``solver.levenberg_marquardt`` for one model and start, compiled.  Returns
+    ``(status, p, r, J, cost, iterations, evaluations, converged, message code)``; status
+    ``_OK``, ``_INVALID_LINE`` / ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``),
+    or ``FALLBACK``."""
+    k = p0.shape[0]
+    p = p0.copy()
+    status, r, jac = _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid,
+                               inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws)
+    if status != _OK:
+        extent = r[0] if status == _INVALID_LONG else 0.0
+        return status, p, r, jac, extent, 0, 1, False, -1
+    cost = finite_cost(r, jac)
+    if not math.isfinite(cost):
+        return _OK, p, r, jac, math.inf, 0, 1, False, -2  # non-finite residual at start
+    lam, nu = lam0, 2.0
+    evals = 1
+    message = 0
+    converged = False
+    it = 0
+    trial = p
+    r_new, jac_new, cost_new = r, jac, cost
+    for it in range(1, max_iter + 1):
+        jtj, g, diag = normal_equations(jac, r)
+        accepted = False
+        while lam < 1e12:
+            step, over, predicted = damped_step(jtj, g, diag, lam, max_step)
+            if over < xtol:
+                converged, message = True, 1
+                break
+            if predicted <= ftol * cost + atol:
+                converged, message = True, 2
+                break
+            trial = p + step
+            st, r_new, jac_new = _evaluate(kind, trial, k, rf, comp, scale, dmin, tol, imp, xs, ys,
+                                           target, valid, inv_scale, ex, ey, ladder, offsets, ru,
+                                           rwu, rs, rws)
+            if st == FALLBACK:
+                return FALLBACK, p, r, jac, cost, it, evals, False, 0
+            cost_new = finite_cost(r_new, jac_new) if st == _OK else math.inf
+            evals += 1
+            if cost_new < math.inf:
+                if cost_new < cost:
+                    rho = (cost - cost_new) / predicted
+                    lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12)
+                    nu = 2.0
+                    accepted = True
+                    break
+            lam *= nu
+            nu *= 2.0
+        if converged:
+            break
+        if not accepted:
+            message = 3
+            break
+        p, r, jac, cost = trial, r_new, jac_new, cost_new
+    return _OK, p, r, jac, cost, it, evals, converged, message
+
+
+def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: float, model_args: tuple,
+          window_args: tuple, tol: float, xtol: float = 1e-9, ftol: float = 1e-10,
+          lam0: float = 1e-3) -> SolveResult | None:
+    """Run :func:`search`; a :class:`SolveResult` worded as the Python solver words it, or
+    None when the search must fall back to the Python solver."""
+    rf, comp, scale, dmin, imp = model_args
+    xs, ys, target, valid, inv_scale, ex, ey = window_args
+    status, p, r, jac, cost, it, evals, converged, msg = search(
+        kind, np.asarray(p0, dtype=float), max_step, max_iter, xtol, ftol, lam0, atol, rf, comp,
+        scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables())
+    if status == FALLBACK:
+        return None
+    if status == _INVALID_LINE:
+        return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), math.inf, 0, 1, False,
+                           "invalid start: infinite line contact")
+    if status == _INVALID_LONG:
+        return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), math.inf, 0, 1, False,
+                           f"invalid start: contact ellipse semi-axis {cost:.4g} mm is too long for "
+                           f"the planar model (over {MAX_NODES} quadrature nodes at tol {tol:g})")
+    if msg == -2:
+        return SolveResult(p, r, jac, math.inf, 0, 1, False, "non-finite residual at start")
+    return SolveResult(p, r, jac, cost, it, evals, converged, MESSAGES[msg])
