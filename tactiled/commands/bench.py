@@ -28,7 +28,7 @@ import platform
 import sys
 import time
 
-SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify")
+SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify", "speed")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -36,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="a small suite that runs in about a minute")
     p.add_argument("--scenes", type=int, default=None, help="scenes in the configs suite (default 240, quick 40)")
     p.add_argument("--seed", type=int, default=1, help="suite seed (default 1)")
+    p.add_argument("--baseline", metavar="REV", default=None,
+                   help="speed suite: also time the fitter of git revision REV, interleaved "
+                   "(ratios to it are the figure; needs a git checkout)")
     p.add_argument("--plot", metavar="FILE.png", default=None,
                    help="write a Pareto chart of time against error (needs matplotlib: pip install 'tactiled[plot]')")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -137,6 +140,11 @@ def run(args: argparse.Namespace) -> int:
         from tactiled.bench import acquisition
 
         out += ["", "## Acquisition: three fingers at 1 kHz over ptys", "", acquisition.run(args.quick)]
+    if "speed" in suites and (args.suite == "speed" or args.baseline):
+        from tactiled.bench import speed
+
+        out += ["", "## Fitter speed" + (f" against {args.baseline}" if args.baseline else ""), "",
+                speed.run(args.quick, args.progress, args.baseline)]
     if "identify" in suites:
         from tactiled.bench import identify
 
