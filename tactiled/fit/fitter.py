@@ -24,7 +24,7 @@ from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.result import FitResult
 from tactiled.fit.solver import SolveResult, levenberg_marquardt
 from tactiled.fit.start import features, force_estimate, start_table
-from tactiled.fit.window import choose_window, interpolated_peak
+from tactiled.fit.window import choose_window, interpolated_peak, plain_window
 from tactiled.physics.contact import Contact
 from tactiled.physics.kernels import cramer_rao as crb_kernel
 from tactiled.physics.strain import StrainModel, warm_rules
@@ -299,6 +299,27 @@ class Fitter:
         key = (id(strain), id(mask))
         if self._frame_memo is not None and self._frame_memo[0] == key:
             return self._frame_memo[1]
+        out = self._plain_frame(strain) if mask is None else None
+        if out is None:
+            out = self._general_frame(strain, mask)
+        if self._deadline is not None or self._in_fit:
+            self._frame_memo = (key, out)
+        return out
+
+    def _plain_frame(self, strain: np.ndarray) -> _Frame | None:
+        """:meth:`_frame` for the common frame (no mask, every tactel usable, a peak above
+        ``MIN_PEAK``), its peak and window found in one compiled pass; None otherwise."""
+        s = strain if (type(strain) is np.ndarray and strain.dtype == np.float64
+                       and strain.flags.c_contiguous) else np.ascontiguousarray(strain, dtype=float)
+        if s.shape != self._all_ok.shape:
+            return None
+        usable, m, n, r0, c0, nr, nc = plain_window(s, self.options.window, MAX_STRAIN)
+        peak = float(s[m, n])
+        if not usable or not peak > MIN_PEAK:
+            return None
+        return self._window_arrays(s, self._all_ok, (m, n), peak, (r0, c0, nr, nc))
+
+    def _general_frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
         clean, ok = self._prepare(strain, mask)
         g = self.sensor.geometry
         if clean.shape != (g.rows, g.cols):
@@ -313,19 +334,18 @@ class Fitter:
             if not peak > MIN_PEAK:
                 out = FitResult(contact=False, peak=peak, message=f"no strain above {MIN_PEAK:g}")
             else:
-                out = self._window(clean, ok, peak_idx, peak)
-        if self._deadline is not None or self._in_fit:
-            self._frame_memo = (key, out)
+                out = self._window_arrays(clean, ok, peak_idx, peak,
+                                          choose_window(clean, peak_idx, self.options.window))
         return out
 
-    def _window(self, clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: float) -> _Frame:
-        win = choose_window(clean, peak_idx, self.options.window)
+    def _window_arrays(self, clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: float,
+                       win: tuple[int, int, int, int]) -> _Frame:
         r0, c0, nr, nc = win
-        target = np.ascontiguousarray(clean[r0:r0 + nr, c0:c0 + nc].ravel())
-        valid = np.ascontiguousarray(ok[r0:r0 + nr, c0:c0 + nc].ravel())
+        target = clean[r0:r0 + nr, c0:c0 + nc].flatten()
+        valid = ok[r0:r0 + nr, c0:c0 + nc].flatten()
         if self.sensor.model_error.zero:
             inv_scale = np.full(target.size, 1.0 / peak)
-            zdata = target[valid] / self.sigma
+            zdata = (target if ok is self._all_ok else target[valid]) / self.sigma
         else:
             # each tactel weighted by its noise plus the model-error floor (relative to the
             # noise, so chi^2 = cost (peak/sigma)^2 still holds)

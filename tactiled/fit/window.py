@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 
 def window_origin(peak: int, size: int, length: int, lower: float, upper: float) -> int:
@@ -53,3 +54,38 @@ def interpolated_peak(strain: np.ndarray, peak: tuple[int, int], dx: float, dy: 
     lo_y = float(strain[m, n - 1]) if n > 0 else c
     hi_y = float(strain[m, n + 1]) if n < cols - 1 else c
     return (m + _vertex(lo_x, c, hi_x)) * dx, (n + _vertex(lo_y, c, hi_y)) * dy
+
+
+@njit(cache=True, nogil=True)
+def _origin(peak: int, size: int, length: int, lower: float, upper: float) -> int:
+    """:func:`window_origin`, compiled."""
+    if size >= length:
+        return 0
+    start = peak - (size - 1) // 2
+    if size % 2 == 0 and upper < lower:
+        start -= 1
+    return min(max(start, 0), length - size)
+
+
+@njit(cache=True, nogil=True)
+def plain_window(strain: np.ndarray, size: int, max_strain: float) -> tuple[int, int, int, int, int, int, int]:
+    """The peak and window of a frame with every tactel usable, in one compiled pass:
+    ``(usable, m, n, row0, col0, rows, cols)``; ``usable`` is 0 when any strain is not finite
+    or beyond ``max_strain`` (the caller then takes the general path).  The peak is the first
+    maximum in row-major order (``np.argmax``); the window is :func:`choose_window`'s."""
+    rows, cols = strain.shape
+    best = -np.inf
+    m = n = 0
+    for i in range(rows):
+        for j in range(cols):
+            v = strain[i, j]
+            if not (abs(v) <= max_strain):
+                return 0, 0, 0, 0, 0, 0, 0
+            if v > best:
+                best, m, n = v, i, j
+    nr, nc = min(size, rows), min(size, cols)
+    lo_r = strain[m - 1, n] if m > 0 else -np.inf
+    hi_r = strain[m + 1, n] if m + 1 < rows else -np.inf
+    lo_c = strain[m, n - 1] if n > 0 else -np.inf
+    hi_c = strain[m, n + 1] if n + 1 < cols else -np.inf
+    return 1, m, n, _origin(m, nr, rows, lo_r, hi_r), _origin(n, nc, cols, lo_c, hi_c), nr, nc
