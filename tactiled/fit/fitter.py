@@ -26,6 +26,7 @@ from tactiled.fit.solver import SolveResult, levenberg_marquardt
 from tactiled.fit.start import features, force_estimate, start_table
 from tactiled.fit.window import choose_window, interpolated_peak, plain_window
 from tactiled.physics.contact import Contact
+from tactiled.physics.hertz import Ellipse, ellipse_core
 from tactiled.physics.kernels import cramer_rao as crb_kernel
 from tactiled.physics.strain import StrainModel, warm_rules
 
@@ -138,6 +139,14 @@ class _Frame:
     ey: np.ndarray
 
 
+@lru_cache(maxsize=None)
+def _steps(model: Model) -> np.ndarray:
+    """The step caps of ``model``'s parameters (read-only, shared)."""
+    out = np.array([_STEP[name] for name in model.params])
+    out.setflags(write=False)
+    return out
+
+
 class Fitter:
     """Fits contact models to strain frames of one sensor."""
 
@@ -153,6 +162,7 @@ class Fitter:
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
+        self._no_jac = np.empty((0, 0))  # ellipse_core fills a Jacobian only when (3, 4)
         m = self.model
         self._model_args = (m._rf, m._k, m._scale, m._dmin, m._imp)
         self._in_fit = False
@@ -249,7 +259,7 @@ class Fitter:
         if isinstance(prob, FitResult):
             return prob
         residual, clean, peak, peak_idx, win, n_points, zdata = prob
-        steps = np.array([_STEP[name] for name in model.params])
+        steps = _steps(model)
         starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
         best: SolveResult | None = None
         tried = 0
@@ -272,6 +282,12 @@ class Fitter:
             if self._good_enough(best, peak, n_points) or self._out_of_time():
                 break
         assert best is not None
+        if scouting:  # only ranked by chi^2, then solved again in full if chosen: no report
+            return FitResult(contact=True, model=model.name, chi2=best.cost * peak * peak / self.sigma**2,
+                             iterations=best.iterations, evaluations=best.evaluations,
+                             converged=best.converged, peak=peak, n_points=n_points, window=win,
+                             starts=tried, message=best.message,
+                             params=tuple(float(x) for x in best.p))
         return self._result(model, best, peak, win, n_points, tried, zdata)
 
     def _problem(self, strain: np.ndarray, model: Model, mask: np.ndarray | None):
@@ -408,9 +424,9 @@ class Fitter:
             reasons.setdefault("angle_deg", "undefined: sphere model")
         if model.name == "general" and values.get("r2_mm") is None:
             reasons.setdefault("r2_mm", "infinite: fitted as a cylinder")
-        phys, _ = model.physical(sol.p)
-        ell, _ = self.model.ellipse(*phys[:4])
-        line = self._line_contact(ell, values, std, reasons)
+        (ka, kb, psi, force, _, _), _ = model.physical(sol.p)
+        ell = Ellipse(*ellipse_core(ka, kb, psi, force, self.model._rf, self.model._k, self._no_jac))
+        line = ell.a >= 0.0 and self._line_contact(ell, values, std, reasons)
         if not sol.converged:
             reasons.setdefault("fit", sol.message)
         rms = math.sqrt(sol.cost / max(n_points, 1))
@@ -433,7 +449,8 @@ class Fitter:
             message=sol.message,
             reasons=reasons,
             params=tuple(float(x) for x in sol.p),
-            ellipse={"a_mm": ell.a, "b_mm": ell.b, "theta_deg": math.degrees(ell.theta) % 180.0},
+            ellipse=({"a_mm": ell.a, "b_mm": ell.b, "theta_deg": math.degrees(ell.theta) % 180.0}
+                     if ell.a >= 0.0 else None),  # a < 0: an infinite line (an invalid start)
         )
 
     def _uncertainty(
@@ -443,7 +460,8 @@ class Fitter:
         Jacobian of the window strains, unnormalised) and the condition number of J."""
         values, grad = model.report(p)
         std: dict[str, float | None] = dict.fromkeys(VALUE_KEYS)
-        sd, condition = crb_kernel(np.ascontiguousarray(jraw), grad, self.sigma)
+        sd, condition = crb_kernel(jraw if jraw.flags.c_contiguous else np.ascontiguousarray(jraw),
+                                   grad, self.sigma)
         if not math.isfinite(condition) or condition > SINGULAR_CONDITION:
             for k in VALUE_KEYS:
                 reasons[k] = "Jacobian singular: parameter not identifiable from this window"
@@ -660,9 +678,12 @@ class Fitter:
             crit[r.model] = (r.chi2 if r.chi2 is not None else math.inf) + k * math.log(max(r.n_points, 2))
         best = min(fits, key=lambda r: crit[r.model])
         iterations = sum(r.iterations for r in fits)
-        if best is not cyl and best.params is not None:  # scouted: now solve it fully
+        evaluations = sum(r.evaluations for r in fits)
+        resolved = best is not cyl and best.params is not None
+        if resolved:  # scouted: now solve it fully
             best = self._fit_model(strain, get_model(best.model), np.asarray(best.params), mask)
             iterations += best.iterations
         best.criterion = {k: float(v) for k, v in crit.items() if math.isfinite(v)}
         best.iterations = iterations
+        best.evaluations = evaluations + (best.evaluations if resolved else 0)
         return best
