@@ -54,6 +54,10 @@ MAX_ANGLE_SIGMA = 45.0
 LINE_CONTACT_ANGLE = 30.0
 LINE_CONTACT_LENGTH = 1.5
 
+#: A full fit stops once the next step would lower chi^2 by less than this (units of the
+#: noise: 1e-4 moves no parameter by more than 0.01 of its sigma; measured on warm fits, 1e-6
+#: took 4 evaluations at the median, 1e-4 takes 3).
+STOP_CHI2 = 1e-4
 #: Iteration cap of auto's candidate fits (see Fitter._fit_model's ``scouting``).
 SCOUT_ITERATIONS = 25
 
@@ -264,8 +268,9 @@ class Fitter:
         best: SolveResult | None = None
         tried = 0
         max_iter = SCOUT_ITERATIONS if scouting else self.options.max_iter
-        # stop once the next step would lower chi^2 by less than 1e-6 (0.01 scouting)
-        atol = (1e-2 if scouting else 1e-6) * (self.sigma / peak) ** 2
+        # stop once the next step would lower chi^2 by less than STOP_CHI2 (0.01 scouting): a
+        # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
+        atol = (1e-2 if scouting else STOP_CHI2) * (self.sigma / peak) ** 2
         fr = self._frame(strain, mask) if self.options.jacobian == "exact" else None
         for p0 in starts:
             tried += 1

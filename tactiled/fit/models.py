@@ -77,8 +77,7 @@ class Cylinder(Model):
         r, f = math.exp(p[0]), math.exp(p[2])
         vals = {"x_mm": float(p[3]), "y_mm": float(p[4]), "force_n": f, "r1_mm": r,
                 "r2_mm": None, "angle_deg": _wrap_deg(p[1])}
-        g = np.full((6, 5), np.nan)
-        g[:, :] = 0.0
+        g = np.zeros((6, 5))
         g[0, 3] = 1.0
         g[1, 4] = 1.0
         g[2, 2] = f

@@ -61,10 +61,13 @@ class FitResult:
 
     def sanitise(self) -> None:
         """Replace any non-finite number by None with a reason (never NaN on the wire)."""
+        isfinite = math.isfinite
         for table, what in ((self.values, "value"), (self.std, "uncertainty")):
-            for k, v in list(table.items()):
+            for k, v in table.items():
+                if v is None or (type(v) is float and isfinite(v)):
+                    continue  # the common case: nothing to change (a dict's values may be set)
                 fv = _finite_or_none(v)
-                if v is not None and fv is None:
+                if fv is None:
                     self.reasons.setdefault(k, f"{what} not finite")
                 table[k] = fv
         self.rms = _finite_or_none(self.rms)

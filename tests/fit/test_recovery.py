@@ -87,8 +87,10 @@ def test_warm_start_lands_on_the_cold_answer(fitter):
     cold = fitter.fit(frame, "cylinder")
     m = get_model("cylinder")
     warm = fitter.fit(frame, "cylinder", start=m.from_values(11.0, math.inf, 97.0, 0.95, 10.1, 11.9))
+    # both stop once a step would lower chi^2 by under 1e-4 (fitter.STOP_CHI2): that leaves a
+    # parameter within 0.01 of its sigma of the minimum
     for k in ("r1_mm", "angle_deg", "force_n", "x_mm", "y_mm"):
-        assert warm.values[k] == pytest.approx(cold.values[k], rel=1e-4, abs=1e-4)
+        assert abs(warm.values[k] - cold.values[k]) <= 0.01 * cold.std[k], k
     assert warm.iterations <= cold.iterations + 1
 
 
