@@ -188,6 +188,8 @@ def describe_error(err: BaseException) -> str:
         text = text.split(marker, 1)[0]
     if text.startswith("Json5Err(Message { msg: \""):
         text = text[len("Json5Err(Message { msg: \""):].split("\", location", 1)[0]
+    if text.count("[") > text.count("]"):  # the cut took a closing bracket with it
+        text = text.replace(": [", ": ", 1)
     return text.strip().rstrip(".") or type(err).__name__
 
 
@@ -278,7 +280,9 @@ class Bus:
             if self.settings.mode != "client":
                 self.sender.stop()
                 self.state = "closed"
-                raise ConfigError(f"zenoh: cannot open a session: {describe_error(err)}") from None
+                text = describe_error(err)
+                key = "zenoh.listen" if "listener" in text.lower() else "zenoh"
+                raise ConfigError(f"{key}: cannot open a session: {text}") from None
             self._open_error = describe_error(err)
             log.warning("zenoh: cannot reach a router (%s); retrying in the background",
                         self._open_error)
