@@ -193,9 +193,12 @@ def describe_error(err: BaseException) -> str:
     return text.strip().rstrip(".") or type(err).__name__
 
 
-async def _in_thread(fn: Callable[[], Any], name: str, timeout: float | None = None) -> Any:
+async def _in_thread(fn: Callable[[], Any], name: str, timeout: float | None = None,
+                     orphan: Callable[[Any], None] | None = None) -> Any:
     """``fn()`` on a daemon thread of its own (a hung Zenoh call must not hold the process at
-    exit, as the default executor's threads would); TimeoutError after ``timeout`` s."""
+    exit, as the default executor's threads would); TimeoutError after ``timeout`` s.  If the
+    caller gives up (timeout, cancellation), ``orphan`` gets the result when it comes (a
+    session opened for no one is closed)."""
     loop = asyncio.get_running_loop()
     fut: asyncio.Future[Any] = loop.create_future()
 
@@ -208,7 +211,29 @@ async def _in_thread(fn: Callable[[], Any], name: str, timeout: float | None = N
             loop.call_soon_threadsafe(_settle, fut, result, None)
 
     threading.Thread(target=run, name=name, daemon=True).start()
-    return await asyncio.wait_for(asyncio.shield(fut), timeout)
+    try:
+        return await asyncio.wait_for(asyncio.shield(fut), timeout)
+    except BaseException:
+        if orphan is not None:
+            def late(f: asyncio.Future[Any]) -> None:
+                if not f.cancelled() and f.exception() is None:
+                    orphan(f.result())
+
+            fut.add_done_callback(late)
+        raise
+
+
+def _close_later(session: Any) -> None:
+    """Close a session nobody will use, off the event loop."""
+    threading.Thread(target=session.close, name="tactiled-zenoh-close", daemon=True).start()
+
+
+def check_key(key: str) -> None:
+    """Raise ValueError (Zenoh's words) unless ``key`` is a valid key expression."""
+    try:
+        zenoh.KeyExpr(key)
+    except Exception as err:
+        raise ValueError(describe_error(err)) from None
 
 
 def _settle(fut: asyncio.Future[Any], result: Any, err: BaseException | None) -> None:
@@ -275,7 +300,8 @@ class Bus:
         self.sender.start()
         self.state = "connecting"
         try:
-            session = await _in_thread(lambda: zenoh.open(self.config), "tactiled-zenoh-open")
+            session = await _in_thread(lambda: zenoh.open(self.config), "tactiled-zenoh-open",
+                                       orphan=_close_later)
         except Exception as err:
             if self.settings.mode != "client":
                 self.sender.stop()
@@ -297,7 +323,7 @@ class Bus:
             await asyncio.sleep(delay)
             try:
                 session = await _in_thread(lambda: zenoh.open(self.config),
-                                           "tactiled-zenoh-open")
+                                           "tactiled-zenoh-open", orphan=_close_later)
             except Exception as err:
                 self._open_error = describe_error(err)
                 delay = min(RETRY_MAX_S, delay * 2)

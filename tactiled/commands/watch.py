@@ -164,12 +164,10 @@ def watch_zenoh(args: argparse.Namespace, out: TextIO) -> int:
         return 2
     key = args.key or ZENOH_KEY
     try:
-        import zenoh
-
-        zenoh.KeyExpr(key)
-    except Exception as err:
-        print(f"tactiled watch: error: --key {key!r} is not a key expression: "
-              f"{bus.describe_error(err)}", file=sys.stderr)
+        bus.check_key(key)
+    except ValueError as err:
+        print(f"tactiled watch: error: --key {key!r} is not a key expression: {err}",
+              file=sys.stderr)
         return 2
     try:
         if args.list:
