@@ -25,8 +25,14 @@ WebSocket readers are the fan-out benchmark's raw-socket clients on one selector
 * **latency**: receive time minus the estimate's ``host_time`` (when the frame's bytes reached
   the daemon; ``CLOCK_MONOTONIC``, shared by the processes of one machine): frame ->
   subscriber, the fit included.
-* **daemon CPU**: the daemon's process (not its fit workers) over the phase, % of one core;
-  **reader CPU** the readers' processes (Zenoh) or the selector thread (WebSocket).
+* **daemon CPU**: the daemon's process (not its fit workers; the simulators, the pipeline,
+  the web server and Zenoh's threads) over the phase, % of one core; **reader CPU** the
+  readers' processes (Zenoh) or the selector thread (WebSocket).
+* **published/s**: estimates the pipeline published (health counters), all sensors;
+  **dropped by the daemon**: Zenoh, the bus's ``zenoh.dropped`` (its queue overflowed);
+  WebSocket, what the stream dropped for these readers (their queues overflowed); **frames
+  lost**: frames the simulated fingers skipped because the daemon's process did not get the
+  CPU in time (everything shares the machine: readers too).
 """
 
 from __future__ import annotations
@@ -257,6 +263,7 @@ class Phase:
     bus_dropped: int
     ws_dropped: int
     frames_lost: int
+    published: int  # estimates the pipeline published meanwhile (all sensors)
     delivery: list[float] = field(default_factory=list)
     span: int = 0  # estimates published in the measured seq span (all sensors)
 
@@ -332,12 +339,11 @@ def run_phase(args: argparse.Namespace, transport: str, n: int, endpoint: str, b
         _, (ref,) = reference.result()
         ws_dropped = 0
         if transport == "websocket":
+            # Messages the stream dropped for these readers while measuring (queue overflow).
+            first = {c["peer"]: c["dropped"] for c in before["subscribers"]["clients"]}
+            for c in after["subscribers"]["clients"]:
+                ws_dropped += c["dropped"] - first.get(c["peer"], 0)
             ws.unsubscribe_all(30.0)
-            final = health(base)
-            by_peer = {c["peer"]: c for c in final["subscribers"]["clients"]}
-            for c in ws.clients:
-                srv = by_peer.get(f"127.0.0.1:{c.port}")
-                ws_dropped += srv["dropped"] if srv else 0
             tallies = [c.tally for c in ws.clients]
     finally:
         ws.stop()
@@ -346,10 +352,13 @@ def run_phase(args: argparse.Namespace, transport: str, n: int, endpoint: str, b
                 p.proc.kill()
     if transport == "websocket":
         reader_cpu = getattr(ws, "cpu_s", 0.0)
-    lost = sum(s["lost_frames"] for s in after["sensors"].values()) - sum(
-        s["lost_frames"] for s in before["sensors"].values())
+    def total(doc: dict[str, Any], key: str) -> int:
+        return sum(s[key] for s in doc["sensors"].values())
+
     phase = Phase(transport, n, seconds, tallies, ref, cpu, reader_cpu,
-                  after["zenoh"]["dropped"] - before["zenoh"]["dropped"], ws_dropped, lost)
+                  after["zenoh"]["dropped"] - before["zenoh"]["dropped"], ws_dropped,
+                  total(after, "lost_frames") - total(before, "lost_frames"),
+                  total(after, "published") - total(before, "published"))
     phase.judge()
     return phase
 
@@ -363,7 +372,7 @@ def table(phases: list[Phase], args: argparse.Namespace) -> str:
         f"{args.rate:g} Hz, {args.workers} fit worker(s), {os.cpu_count()} CPUs; every reader "
         f"takes every estimate of every sensor; {args.seconds:g} s measured per phase.",
         "",
-        "| transport | readers | estimates in span | delivery min / mean | readers >= 99.9 % "
+        "| transport | readers | published/s | delivery min / mean | readers >= 99.9 % "
         "| frame→subscriber p50 / p99 ms | daemon CPU | reader CPU | dropped by the daemon "
         "| frames lost |",
         "|---|---|---|---|---|---|---|---|---|---|",
@@ -372,7 +381,7 @@ def table(phases: list[Phase], args: argparse.Namespace) -> str:
         keep_up = sum(d >= 0.999 for d in p.delivery)
         dropped = p.bus_dropped if p.transport == "zenoh" else p.ws_dropped
         lines.append(
-            f"| {p.transport} | {p.readers} | {p.span:,} "
+            f"| {p.transport} | {p.readers} | {p.published / p.seconds:,.0f} "
             f"| {100 * min(p.delivery, default=0):.2f} % / "
             f"{100 * statistics.fmean(p.delivery) if p.delivery else 0:.2f} % "
             f"| {keep_up} of {p.readers} | {p.pct(50):.2f} / {p.pct(99):.2f} "
