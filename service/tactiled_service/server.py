@@ -382,6 +382,10 @@ class Service:
             for task in self._tasks:
                 task.cancel()
             await asyncio.gather(*self._tasks, return_exceptions=True)
+            # The Zenoh front end first (alongside the rest): its liveliness token goes at
+            # once, so Zenoh peers see the daemon leave before its sensors stop.
+            bus_stop = (asyncio.ensure_future(self.bus.stop()) if self.bus is not None
+                        else None)
             if self.ctx is not None:
                 await self.ctx.manager.shutdown(timeout=min(1.0, self.options.close_timeout_s))
             if self.server is not None:
@@ -389,9 +393,8 @@ class Service:
             parts = []
             if self._serve_task is not None:
                 parts.append(self._serve_task)
-            if self.bus is not None:
-                # Its token goes first, so Zenoh peers see the daemon leave at once.
-                parts.append(asyncio.ensure_future(self.bus.stop()))
+            if bus_stop is not None:
+                parts.append(bus_stop)
             if self.daemon is not None:
                 stop_timeout = min(self.settings.fit.stop_timeout, 2.0)
                 parts.append(asyncio.ensure_future(self.daemon.stop(stop_timeout)))
