@@ -26,7 +26,7 @@ COMMANDS: dict[str, str] = {
     "calibrate": "build per-tactel lookup tables from recorded presses with known loads",
     "record": "record raw frames from a frame source to a file",
     "replay": "replay a recording through the pipeline",
-    "watch": "subscribe to a running daemon and print estimates live",
+    "watch": "subscribe to a running daemon (or every daemon on Zenoh) and print estimates live",
 }
 
 

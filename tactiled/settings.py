@@ -14,20 +14,25 @@ Keys (the documented example is ``deploy/tactiled.toml``)::
     [fit]      workers, start_method, timeout, ping_interval, ping_timeout, startup_timeout,
                stop_timeout
     [record]   path
+    [zenoh]    enabled = false, mode = "peer", connect = [], listen = [],
+               multicast_scouting = (on in peer mode), prefix = "tactiled/<hostname>",
+               frame_rate_hz = 0, config = (none)
 
 With no file and no sensor keys anywhere there is one sensor, ``finger0`` on
 ``sim://?scene=demo&seed=1``.
 
 Environment: ``TACTILED_CONFIG`` names the file when ``path`` is None;
 ``TACTILED_<SECTION>_<KEY>`` sets ``<section>.<key>`` (``TACTILED_SERVER_PORT``,
-``TACTILED_FIT_TIMEOUT``, ``TACTILED_RECORD_PATH``); ``TACTILED_SENSOR_<i>_<KEY>`` sets
-``sensor[i].<key>`` (``TACTILED_SENSOR_0_URL``; ``i`` may be one past the last sensor to add
-one).  An unknown name under those four prefixes is an error (a typo must not be ignored);
+``TACTILED_FIT_TIMEOUT``, ``TACTILED_RECORD_PATH``, ``TACTILED_ZENOH_CONNECT``);
+``TACTILED_SENSOR_<i>_<KEY>`` sets ``sensor[i].<key>`` (``TACTILED_SENSOR_0_URL``; ``i`` may be
+one past the last sensor to add one).  An unknown name under those five prefixes is an error (a
+typo must not be ignored);
 other ``TACTILED_*`` names belong to other parts of tactiled and are left alone.  Overrides are
 a flat dict of the same dotted keys: ``{"server.port": 9000, "sensor[0].url": "..."}``.
 String values from the environment or overrides are parsed as the key's type (``""`` means
-"none" for optional keys).  Relative ``calibration`` and ``record.path`` values in the file are
-relative to the file's directory; elsewhere to the working directory.
+"none" for optional keys; lists are comma-separated).  Relative ``calibration``,
+``record.path`` and ``zenoh.config`` values in the file are relative to the file's directory;
+elsewhere to the working directory.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import socket
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, fields, replace
@@ -49,6 +55,12 @@ DEFAULT_PORT = 8765
 DEFAULT_URL = "sim://?scene=demo&seed=1"
 MODELS = ("auto", "cylinder", "sphere", "general")
 START_METHODS = ("forkserver", "spawn")
+ZENOH_MODES = ("peer", "client")
+#: Link protocols a Zenoh endpoint may name (what zenoh's transports know), and of those the
+#: ones whose address is ``host:port``.
+ZENOH_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "serial",
+                   "vsock")
+ZENOH_IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
 ENV_PREFIX = "TACTILED_"
 ENV_CONFIG = "TACTILED_CONFIG"
 
@@ -104,6 +116,39 @@ class RecordSettings:
     path: str | None = None  # file path; must contain "{sensor}" with several sensors
 
 
+def default_zenoh_prefix() -> str:
+    """``tactiled/<hostname>``, the host name reduced to what a key expression chunk may hold
+    (letters, digits, '_', '.', '-'; anything else becomes '_')."""
+    host = re.sub(r"[^A-Za-z0-9_.-]", "_", socket.gethostname().strip()) or "localhost"
+    return f"tactiled/{host}"
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """Publishing on Zenoh (``service/tactiled_service/bus.py``, ``docs/zenoh.md``): off by
+    default; needs the ``zenoh`` extra (``pip install 'tactiled[zenoh]'``)."""
+
+    enabled: bool = False
+    mode: str = "peer"  # "peer" (meshes with other peers) or "client" (through a router)
+    #: Endpoints to connect to, ``<protocol>/<address>`` (``tcp/192.168.1.10:7447``).
+    connect: tuple[str, ...] = ()
+    #: Endpoints to listen on; empty: Zenoh's default (a peer: ``tcp/[::]:0``, every
+    #: interface and a free port; a client: none).
+    listen: tuple[str, ...] = ()
+    #: UDP multicast scouting for peers and routers; None: on in peer mode, off in client mode.
+    multicast_scouting: bool | None = None
+    prefix: str = field(default_factory=default_zenoh_prefix)  # every key starts with it
+    frame_rate_hz: float = 0.0  # zeroed frames per second per sensor, at most; 0: none
+    config: str | None = None  # a Zenoh configuration file (JSON5), applied first
+
+    @property
+    def scouting(self) -> bool:
+        """Whether multicast scouting is on (the default resolved for the mode)."""
+        if self.multicast_scouting is None:
+            return self.mode == "peer"
+        return self.multicast_scouting
+
+
 @dataclass(frozen=True)
 class Settings:
     """The daemon's whole configuration."""
@@ -112,6 +157,7 @@ class Settings:
     sensors: tuple[SensorSettings, ...] = (SensorSettings(),)
     fit: FitSettings = field(default_factory=FitSettings)
     record: RecordSettings = field(default_factory=RecordSettings)
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     source: str | None = None  # the config file read, if any
 
     def sensor(self, name: str) -> SensorSettings:
@@ -257,6 +303,59 @@ def _origins(value: Any, key: str) -> tuple[str, ...]:
     return tuple(out)
 
 
+_ENDPOINT_RE = re.compile(r"^([A-Za-z0-9-]+)/([^?#]*)(\?[^#]*)?(#.*)?$")
+_HOST_PORT_RE = re.compile(r"^(\[[0-9A-Fa-f:.%a-zA-Z]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+
+
+def _endpoint(value: Any, key: str) -> str:
+    """A Zenoh endpoint, ``<protocol>/<address>[?<metadata>][#<config>]``: a known protocol,
+    and for the IP ones an address ``host:port`` (an IPv6 host in brackets)."""
+    text = _as_str(value, key).strip()
+    m = _ENDPOINT_RE.match(text)
+    if not m or not m.group(2):
+        raise _fail(key, f"{text!r} is not an endpoint: write <protocol>/<address>, e.g. "
+                         "\"tcp/192.168.1.10:7447\"")
+    proto, address = m.group(1), m.group(2)
+    if proto not in ZENOH_PROTOCOLS:
+        raise _fail(key, f"unknown protocol {proto!r} in {text!r} (known: "
+                         f"{', '.join(ZENOH_PROTOCOLS)})")
+    if proto in ZENOH_IP_PROTOCOLS:
+        hp = _HOST_PORT_RE.match(address)
+        if not hp:
+            raise _fail(key, f"{text!r}: the address must be host:port, e.g. "
+                             f"\"{proto}/127.0.0.1:7447\" (an IPv6 host in brackets: "
+                             f"\"{proto}/[::1]:7447\")")
+        if int(hp.group(2)) > 65535:
+            raise _fail(key, f"{text!r}: port {hp.group(2)} is not a port (0..65535)")
+    return text
+
+
+def _endpoints(value: Any, key: str) -> tuple[str, ...]:
+    """A list of Zenoh endpoints; as text, comma-separated.  Errors name the item
+    (``zenoh.connect[1]: ...``)."""
+    if isinstance(value, _Text):
+        value = [part.strip() for part in value.split(",") if part.strip()]
+    if not isinstance(value, (list, tuple)):
+        raise _fail(key, f"expected a list of endpoints like [\"tcp/192.168.1.10:7447\"], "
+                         f"got {value!r}")
+    return tuple(_endpoint(item, f"{key}[{i}]") for i, item in enumerate(value))
+
+
+def _key_prefix(value: Any, key: str) -> str:
+    """A Zenoh key with no wildcard: non-empty chunks separated by '/'."""
+    v = _as_str(value, key).strip()
+    if not v or any(not chunk for chunk in v.split("/")):
+        raise _fail(key, f"must be a Zenoh key of non-empty chunks separated by '/' (no leading, "
+                         f"trailing or doubled '/'), e.g. \"tactiled/hand1\", got {v!r}")
+    bad = sorted({c for c in v if c in "*$?#" or c.isspace()})
+    if bad:
+        raise _fail(key, f"must be a plain key: {' '.join(map(repr, bad))} not allowed (no "
+                         f"wildcards, selectors or spaces), got {v!r}")
+    if v.startswith("@"):
+        raise _fail(key, f"keys starting with '@' are Zenoh's own, got {v!r}")
+    return v
+
+
 def _window(value: Any, key: str) -> int:
     v = _as_int(value, key)
     if not 2 <= v <= 255:
@@ -335,13 +434,25 @@ FIT_FIELDS: dict[str, Callable[[Any, str], Any]] = {
 _RECORD_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "path": _optional(_as_str),
 }
+_ZENOH_FIELDS: dict[str, Callable[[Any, str], Any]] = {
+    "enabled": _as_bool,
+    "mode": _choice(ZENOH_MODES),
+    "connect": _endpoints,
+    "listen": _endpoints,
+    "multicast_scouting": _optional(_as_bool),
+    "prefix": _key_prefix,
+    # Above the fastest sensor's frame rate the limit means nothing; 0 publishes no frame.
+    "frame_rate_hz": _in_range(_as_float, 0.0, 10_000.0, "a rate in Hz"),
+    "config": _optional(_as_str),
+}
 _SECTIONS: dict[str, dict[str, Callable[[Any, str], Any]]] = {
     "server": _SERVER_FIELDS,
     "fit": FIT_FIELDS,
     "record": _RECORD_FIELDS,
+    "zenoh": _ZENOH_FIELDS,
 }
 #: Keys whose relative paths are taken relative to the config file.
-_PATH_KEYS = {("sensor", "calibration"), ("record", "path")}
+_PATH_KEYS = {("sensor", "calibration"), ("record", "path"), ("zenoh", "config")}
 
 #: Sensor keys the daemon can change while running (Daemon.update_config).
 RUNTIME_SENSOR_KEYS = ("model", "window", "noise_sigma", "false_rate", "reuse_unchanged",
@@ -360,7 +471,7 @@ def check_sensor_value(key: str, value: Any, where: str) -> Any:
 # Loading and merging
 
 
-_KEY_RE = re.compile(r"^(?:(server|fit|record)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
+_KEY_RE = re.compile(r"^(?:(server|fit|record|zenoh)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
 
 
 @dataclass
@@ -368,7 +479,7 @@ class _Raw:
     """The merged, not yet typed configuration, with where each value came from."""
 
     sections: dict[str, dict[str, Any]] = field(
-        default_factory=lambda: {"server": {}, "fit": {}, "record": {}})
+        default_factory=lambda: {"server": {}, "fit": {}, "record": {}, "zenoh": {}})
     sensors: list[dict[str, Any]] = field(default_factory=list)
     origin: dict[str, str] = field(default_factory=dict)  # dotted key -> where it was set
 
@@ -439,7 +550,7 @@ def _read_file(path: Path, raw: _Raw) -> None:
                 raw.set(f"{top}.{key}", value, origin)
         else:
             raise ConfigError(f"{top}: unknown section (known: server, sensor, fit, "
-                              f"record){_suffix(origin)}")
+                              f"record, zenoh){_suffix(origin)}")
 
 
 _ENV_SENSOR_RE = re.compile(r"^SENSOR_(\d+)_([A-Z_]+)$")
@@ -482,6 +593,7 @@ def _build(raw: _Raw) -> Settings:
     server = typed(_SERVER_FIELDS, raw.sections["server"], ServerSettings, "server")
     fit = typed(FIT_FIELDS, raw.sections["fit"], FitSettings, "fit")
     record = typed(_RECORD_FIELDS, raw.sections["record"], RecordSettings, "record")
+    zenoh = typed(_ZENOH_FIELDS, raw.sections["zenoh"], ZenohSettings, "zenoh")
     sensor_tables = raw.sensors or [{}]
     sensors = []
     for i, table in enumerate(sensor_tables):
@@ -500,7 +612,14 @@ def _build(raw: _Raw) -> Settings:
     if record.path is not None and len(sensors) > 1 and "{sensor}" not in record.path:
         raise ConfigError(f"record.path: must contain '{{sensor}}' with {len(sensors)} sensors "
                           f"(one recording file per sensor), got {record.path!r}")
-    return Settings(server=server, sensors=tuple(sensors), fit=fit, record=record)
+    if zenoh.config is not None and not Path(zenoh.config).is_file():
+        raise ConfigError(f"zenoh.config: no such file {zenoh.config!r}"
+                          f"{_suffix(raw.origin.get('zenoh.config', ''))}")
+    if zenoh.mode == "client" and not zenoh.connect and not zenoh.scouting:
+        raise ConfigError("zenoh.connect: a client needs a router to connect to: give its "
+                          "endpoint (e.g. [\"tcp/192.168.1.10:7447\"]) or set "
+                          "zenoh.multicast_scouting = true to find one")
+    return Settings(server=server, sensors=tuple(sensors), fit=fit, record=record, zenoh=zenoh)
 
 
 def load_settings(path: str | os.PathLike[str] | None = None,
@@ -538,5 +657,6 @@ def settings_to_dict(settings: Settings) -> dict[str, Any]:
         "sensor": [table(s) for s in settings.sensors],
         "fit": table(settings.fit),
         "record": table(settings.record),
+        "zenoh": table(settings.zenoh),
         "source": settings.source,
     }

@@ -55,6 +55,8 @@ class HealthMonitor:
         self.daemon = daemon
         self.manager = manager
         self.options = options
+        #: The Zenoh front end (tactiled_service.bus.Bus), set by the server when enabled.
+        self.bus: Any = None
         self._history: deque[tuple[float, dict[str, dict[str, int]]]] = deque()
 
     # -- counters -------------------------------------------------------------------------------
@@ -175,4 +177,5 @@ class HealthMonitor:
                 "states": [w.get("state") for w in workers.get("workers", [])],
             },
             "subscribers": self.manager.stats(),
+            "zenoh": None if self.bus is None else self.bus.stats(),
         }

@@ -302,6 +302,31 @@ class SubscribersHealth(BaseModel):
     clients: list[SubscriberHealth]
 
 
+class ZenohHealth(BaseModel):
+    """The Zenoh front end (docs/zenoh.md); the health document's ``zenoh`` is null when
+    ``[zenoh] enabled`` is false."""
+
+    model_config = ConfigDict(extra="allow")
+
+    state: Literal["new", "connecting", "open", "closed"]
+    mode: str
+    prefix: str
+    zid: str | None
+    peers: int
+    routers: int
+    published: dict[str, int] = Field(description="puts handed to Zenoh, by kind "
+                                                  "(estimate, frame, health)")
+    dropped: int = Field(description="items dropped because the publishing thread fell "
+                                     "queue_size behind (oldest first)")
+    queued: int
+    queue_size: int
+    put_errors: int
+    put_ms: dict[str, float | None]
+    queries: int
+    query_errors: int
+    last_error: str
+
+
 class HealthResponse(BaseModel):
     model_config = ConfigDict(extra="allow")
 
@@ -312,3 +337,4 @@ class HealthResponse(BaseModel):
     sensors: dict[str, SensorHealth]
     workers: dict[str, Any]
     subscribers: SubscribersHealth
+    zenoh: ZenohHealth | None = None

@@ -19,6 +19,9 @@ socket made here:
   finish, releases the devices and flushes the recordings.
 * **sd_notify**: READY=1 once the socket is bound and served, WATCHDOG=1 only while the frame
   counters advance (a stuck pipeline gets the daemon restarted), STATUS= a one-line summary.
+* **Zenoh** (``[zenoh] enabled``): :mod:`tactiled_service.bus`, a second front end on the same
+  hub, is imported only then (the ``zenoh`` extra), checked in :meth:`Service.bind`, opened
+  before the sensors start and closed first on the way out (its liveliness token goes at once).
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import signal
 import socket
 import time
 from collections.abc import Callable, Iterator, Mapping
+from types import ModuleType
 from typing import Any
 
 import uvicorn
@@ -39,7 +43,7 @@ import uvicorn
 from tactiled import heap
 from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon
-from tactiled.settings import Settings
+from tactiled.settings import Settings, ZenohSettings
 from tactiled.sources import FrameSource
 from tactiled.systemd import Notifier, WatchdogGate, watchdog_interval, watchdog_loop
 from tactiled_service.app import Context, build_context, create_app
@@ -82,6 +86,19 @@ def listen_socket(host: str, port: int, tcp_user_timeout_s: float, backlog: int 
         raise ConfigError(f"server.port: cannot listen on {format_host(host)}:{port}: "
                           f"{err.strerror or err}") from None
     return sock
+
+
+def load_bus(settings: ZenohSettings) -> ModuleType:
+    """:mod:`tactiled_service.bus`, imported now (only ``[zenoh] enabled`` pays for Zenoh), with
+    ``settings`` checked by Zenoh's own parser.  :class:`ConfigError` saying what to install
+    when the extra is missing, or naming the key Zenoh refuses."""
+    try:
+        from tactiled_service import bus
+    except ImportError as err:
+        raise ConfigError(f"zenoh.enabled: publishing on Zenoh needs the zenoh extra: pip "
+                          f"install 'tactiled[zenoh]' ({err})") from None
+    bus.session_config(settings)
+    return bus
 
 
 def format_host(host: str) -> str:
@@ -127,6 +144,8 @@ class Service:
         self.loopback = False  # bound to a loopback address (set by bind)
         self.daemon: Daemon | None = None
         self.ctx: Context | None = None
+        self.bus: Any = None  # tactiled_service.bus.Bus when [zenoh] enabled
+        self._bus_module: ModuleType | None = None
         self.server: _Server | None = None
         self.host = settings.server.host
         self.port = settings.server.port
@@ -155,10 +174,13 @@ class Service:
         """Bind the listening socket and check the security rule (no I/O beyond that).
 
         Raises :class:`ConfigError`: the address cannot be bound, or it is not loopback and
-        no token is configured.
+        no token is configured; or ``[zenoh] enabled`` without the zenoh extra, or with an
+        endpoint Zenoh refuses.
         """
         if self.sock is not None:
             return
+        if self.settings.zenoh.enabled and self._bus_module is None:
+            self._bus_module = load_bus(self.settings.zenoh)
         server = self.settings.server
         sock = listen_socket(server.host, server.port, self.options.tcp_user_timeout_s,
                              send_buffer=self.options.socket_send_buffer)
@@ -182,6 +204,13 @@ class Service:
             auth = AuthPolicy(self.settings.server.token, self.loopback,
                               self.options.allowed_origins)
             self.ctx = build_context(self.daemon, self.options, auth)
+            if self._bus_module is not None:
+                # Before the sensors start: the first estimates already go out, and a session
+                # that cannot open at all stops the start before any device is opened.
+                self.bus = self._bus_module.Bus(self.settings.zenoh, self.daemon,
+                                                self.ctx.encoder, self.ctx.health)
+                self.ctx.health.bus = self.bus
+                await self.bus.start()
             # Fits carry their contact ellipse, so this process never needs the Hertz code
             # (numba: ~1 s and ~100 MB); messages.display_ellipse loads it lazily only for a
             # fit line without one.
@@ -210,6 +239,9 @@ class Service:
                  else "token required")
 
     async def _abort_start(self) -> None:
+        if self.bus is not None:
+            with contextlib.suppress(Exception):
+                await self.bus.stop()
         if self._serve_task is not None and self.server is not None:
             self.server.should_exit = True
             with contextlib.suppress(BaseException):
@@ -350,6 +382,10 @@ class Service:
             for task in self._tasks:
                 task.cancel()
             await asyncio.gather(*self._tasks, return_exceptions=True)
+            # The Zenoh front end first (alongside the rest): its liveliness token goes at
+            # once, so Zenoh peers see the daemon leave before its sensors stop.
+            bus_stop = (asyncio.ensure_future(self.bus.stop()) if self.bus is not None
+                        else None)
             if self.ctx is not None:
                 await self.ctx.manager.shutdown(timeout=min(1.0, self.options.close_timeout_s))
             if self.server is not None:
@@ -357,6 +393,8 @@ class Service:
             parts = []
             if self._serve_task is not None:
                 parts.append(self._serve_task)
+            if bus_stop is not None:
+                parts.append(bus_stop)
             if self.daemon is not None:
                 stop_timeout = min(self.settings.fit.stop_timeout, 2.0)
                 parts.append(asyncio.ensure_future(self.daemon.stop(stop_timeout)))

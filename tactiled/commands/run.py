@@ -9,10 +9,14 @@ SIGTERM or Ctrl-C: graceful stop within 5 s (stream clients get close code 1001,
 released, recordings flushed); a second Ctrl-C exits at once.  Under systemd (Type=notify) it
 reports READY=1 once serving, WATCHDOG=1 while frames flow, STOPPING=1 on the way out.
 
+With --zenoh (or [zenoh] enabled) it also publishes the estimates, frames and health on Zenoh
+(needs the zenoh extra: pip install 'tactiled[zenoh]'; docs/zenoh.md).
+
 examples:
   tactiled run
   tactiled run --config /etc/tactiled/tactiled.toml
   TACTILED_TOKEN=s3cret tactiled run --host 0.0.0.0 --port 9000
+  tactiled run --zenoh --zenoh-connect tcp/192.168.1.10:7447
 """
 
 from __future__ import annotations
@@ -44,6 +48,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="browser origin (scheme://host:port) allowed to use the stream and "
                         "control endpoints besides the server's own; repeatable (replaces "
                         "[server] allow_origins)")
+    z = p.add_argument_group("Zenoh (docs/zenoh.md; flags win over [zenoh] and TACTILED_ZENOH_*)")
+    z.add_argument("--zenoh", action="store_true", default=None,
+                   help="publish on Zenoh ([zenoh] enabled = true)")
+    z.add_argument("--zenoh-mode", choices=("peer", "client"), default=None,
+                   help="peer (default) or client (through a router)")
+    z.add_argument("--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint to connect to, e.g. tcp/192.168.1.10:7447; repeatable "
+                        "(replaces [zenoh] connect)")
+    z.add_argument("--zenoh-listen", action="append", default=None, metavar="ENDPOINT",
+                   help="endpoint to listen on, e.g. tcp/0.0.0.0:7447; repeatable (replaces "
+                        "[zenoh] listen)")
+    z.add_argument("--zenoh-prefix", default=None, metavar="KEY",
+                   help="the key every publication starts with (default tactiled/<hostname>)")
     # -v is also accepted after the command name (the top-level parser handles the level).
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more log output")
@@ -58,6 +75,12 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         out["server.host"] = args.host
     if args.port is not None:
         out["server.port"] = args.port
+    for flag, key in (("zenoh", "enabled"), ("zenoh_mode", "mode"),
+                      ("zenoh_connect", "connect"), ("zenoh_listen", "listen"),
+                      ("zenoh_prefix", "prefix")):
+        value = getattr(args, flag, None)
+        if value is not None:
+            out[f"zenoh.{key}"] = value
     return out
 
 

@@ -9,10 +9,20 @@ printed; an error message from the server goes to stderr.
 Exit status: 0 when the daemon closes the stream normally (or on Ctrl-C), 1 when the
 connection fails or is closed with an error code, 2 for bad arguments or a refused token.
 
+With --zenoh it reads Zenoh instead (docs/zenoh.md; needs the zenoh extra): the estimates of
+every daemon it can reach under the key expression --key (default tactiled/**), each line
+tagged with its daemon's "prefix" first; --list prints one line per daemon alive (its
+liveliness token) with its status and sensors, then exits.  The session is configured like a
+daemon's [zenoh] (--config FILE, TACTILED_ZENOH_* variables: mode, multicast_scouting,
+connect), --connect replacing connect; it never listens.
+
 examples:
   tactiled watch
   tactiled watch ws://robot.local:8765/v1/stream --token "$TACTILED_TOKEN" --sensor thumb
   tactiled watch --frames --rate 10
+  tactiled watch --zenoh
+  tactiled watch --zenoh --connect tcp/192.168.1.10:7447 --key 'tactiled/hand1/**'
+  tactiled watch --zenoh --list
 """
 
 from __future__ import annotations
@@ -24,9 +34,11 @@ import os
 import sys
 from typing import Any, TextIO
 
+from tactiled.errors import TactiledError
 from tactiled.settings import DEFAULT_PORT
 
 DEFAULT_URL = f"ws://127.0.0.1:{DEFAULT_PORT}/v1/stream"
+ZENOH_KEY = "tactiled/**"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -43,6 +55,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: every one)")
     p.add_argument("--count", type=int, default=None, metavar="N",
                    help="exit after N data messages")
+    z = p.add_argument_group("Zenoh")
+    z.add_argument("--zenoh", action="store_true",
+                   help="read the daemons publishing on Zenoh instead of one WebSocket stream")
+    z.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="Zenoh endpoint to connect to, e.g. tcp/192.168.1.10:7447; "
+                        "repeatable (default: [zenoh] connect, and multicast scouting)")
+    z.add_argument("--key", default=None, metavar="EXPR",
+                   help=f"key expression to read (default {ZENOH_KEY})")
+    z.add_argument("--list", action="store_true",
+                   help="list the daemons alive and their sensors, then exit")
+    z.add_argument("--config", default=None, metavar="FILE",
+                   help="take the Zenoh session's settings from this file's [zenoh] "
+                        "(default $TACTILED_CONFIG)")
 
 
 def stream_url(url: str | None) -> str:
@@ -122,7 +147,63 @@ async def watch(args: argparse.Namespace, out: TextIO) -> int:
     return 0
 
 
+def watch_zenoh(args: argparse.Namespace, out: TextIO) -> int:
+    """``--zenoh``: the bus's estimates (or ``--list``) through Zenoh."""
+    from tactiled.settings import load_settings
+
+    overrides: dict[str, Any] = {}
+    if args.connect:
+        overrides["zenoh.connect"] = list(args.connect)
+    settings = load_settings(args.config, os.environ, overrides).zenoh  # ConfigError: exit 2
+    try:
+        # Only --zenoh pays for Zenoh (the zenoh extra).
+        from tactiled_service import bus
+    except ImportError as err:
+        print(f"tactiled watch: error: --zenoh needs the zenoh extra: pip install "
+              f"'tactiled[zenoh]' ({err})", file=sys.stderr)
+        return 2
+    key = args.key or ZENOH_KEY
+    try:
+        bus.check_key(key)
+    except ValueError as err:
+        print(f"tactiled watch: error: --key {key!r} is not a key expression: {err}",
+              file=sys.stderr)
+        return 2
+    try:
+        if args.list:
+            for entry in bus.list_daemons(settings, key):
+                out.write(json.dumps(entry) + "\n")
+            out.flush()
+            return 0
+        kinds = ("estimate", "frame") if args.frames else ("estimate",)
+        return bus.watch(settings, key, out, kinds=kinds, sensors=args.sensor, count=args.count)
+    except TactiledError:
+        raise
+    except Exception as err:  # zenoh.ZError: no router for a client, a refused endpoint
+        print(f"tactiled watch: zenoh: {bus.describe_error(err)}", file=sys.stderr)
+        return 1
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.zenoh or args.list or args.connect or args.key:
+        if not args.zenoh:
+            print("tactiled watch: error: --list, --connect and --key go with --zenoh",
+                  file=sys.stderr)
+            return 2
+        if args.url or args.token or args.rate is not None:
+            print("tactiled watch: error: --zenoh reads Zenoh, not a WebSocket stream: no URL, "
+                  "--token or --rate", file=sys.stderr)
+            return 2
+        if args.count is not None and args.count < 1:
+            print("tactiled watch: error: --count must be >= 1", file=sys.stderr)
+            return 2
+        try:
+            return watch_zenoh(args, sys.stdout)
+        except KeyboardInterrupt:
+            return 0
+    if args.config:
+        print("tactiled watch: error: --config goes with --zenoh", file=sys.stderr)
+        return 2
     if args.rate is not None and not args.rate > 0:
         print("tactiled watch: error: --rate must be > 0", file=sys.stderr)
         return 2

@@ -147,9 +147,11 @@ def marked_processes(marker: str) -> list[int]:
     return found
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def daemon_process() -> Callable[..., DaemonProcess]:
-    """``daemon_process(args, env=None)``: start ``tactiled run``."""
+    """``daemon_process(args, env=None)``: start ``tactiled run``.  Session-scoped (it only
+    hands out the class) so module fixtures can start daemons shared by their tests; those
+    stop them themselves, and the leak check counts only what a test started."""
     return DaemonProcess
 
 
