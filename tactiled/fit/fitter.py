@@ -160,7 +160,8 @@ class Fitter:
         self.sensor = sensor or SensorModel()
         self.options = options or FitOptions()
         self.model = StrainModel(self.sensor, tol=self.options.tol)
-        self.sigma = self.sensor.noise.effective_sigma
+        self.sigma = self.sensor.noise.effective_sigma  # of the frame being fitted
+        self._sigma1 = self.sigma  # of one frame
         g = self.sensor.geometry
         self._span = max(g.span_x, g.span_y)
         self._all_ok = np.ones((g.rows, g.cols), bool)
@@ -195,8 +196,13 @@ class Fitter:
         mask: np.ndarray | None = None,
         warm: tuple[str, tuple[float, ...]] | None = None,
         budget_s: float | None = None,
+        frames: int = 1,
     ) -> FitResult:
         """Fit ``model`` ('cylinder', 'sphere', 'general' or 'auto') to a zeroed strain frame.
+
+        ``frames`` > 1 says the frame is the mean of that many frames of one contact: its noise
+        is the sensor's over ``sqrt(frames)`` (the model-error floor does not average away),
+        and chi^2, the weights and the uncertainties follow.
 
         ``start`` is an internal parameter vector of that model; ``warm`` is the previous
         frame's ``(result.model, result.params)`` on a persisting contact: it starts the same
@@ -215,6 +221,10 @@ class Fitter:
         t0 = time.perf_counter()
         self._deadline = None if budget_s is None else t0 + budget_s
         self._in_fit = True
+        if frames != 1:
+            if not (isinstance(frames, int) and frames >= 1):
+                raise ValueError(f"frames must be a positive whole number, got {frames!r}")
+            self.sigma = self._sigma1 / math.sqrt(frames)
         try:
             if model == "auto":
                 res = self._fit_auto(strain, mask, warm)
@@ -226,6 +236,7 @@ class Fitter:
         finally:
             self._deadline = None
             self._in_fit = False
+            self.sigma = self._sigma1
             self._frame_memo = None  # the memo must not outlive the frame (ids are reused)
         res.fit_ms = (time.perf_counter() - t0) * 1e3
         return res

@@ -51,3 +51,21 @@ def test_reported_sigma_matches_actual_scatter(noisy_fitter):
         ratio = math.sqrt(np.mean(e**2)) / np.median(s)
         assert 0.8 < ratio < 1.2, (k, ratio)
         assert np.mean(np.abs(e) < 2 * s) > 0.90, k
+
+
+def test_mean_of_n_frames_has_sqrt_n_smaller_bounds(fitter):
+    """A frame that is the mean of N frames (fit(..., frames=N)) is fitted with noise
+    sigma / sqrt(N): the bounds shrink by sqrt(N) and chi^2 grows by N for the same residuals;
+    the fitter's own sigma is back afterwards."""
+    rng = np.random.default_rng(4)
+    c = Contact(10.0, math.inf, 70.0, 1.0, 11.2, 12.9)
+    frame = add_noise(StrainModel().predict(c), NoiseModel(sigma=0.0005 / 4.0), rng)  # a mean of 16
+    one = fitter.fit(frame, "cylinder")
+    many = fitter.fit(frame, "cylinder", frames=16)
+    for k in ("r1_mm", "angle_deg", "force_n", "x_mm", "y_mm"):
+        assert many.std[k] == pytest.approx(one.std[k] / 4.0, rel=1e-6)
+        assert many.values[k] == pytest.approx(one.values[k], rel=1e-6, abs=1e-9)
+    assert many.chi2 == pytest.approx(16.0 * one.chi2, rel=1e-6)
+    assert fitter.sigma == 0.0005
+    with pytest.raises(ValueError, match="frames"):
+        fitter.fit(frame, "cylinder", frames=0)
