@@ -44,6 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="browser origin (scheme://host:port) allowed to use the stream and "
                         "control endpoints besides the server's own; repeatable (replaces "
                         "[server] allow_origins)")
+    p.add_argument("--max-fits-per-worker", type=int, default=None, metavar="N",
+                   help="replace a fit worker after N fits, its successor started first (no "
+                        "fit lost); 0 never (default: [fit] max_fits_per_worker, 0)")
     # -v is also accepted after the command name (the top-level parser handles the level).
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more log output")
@@ -58,6 +61,8 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         out["server.host"] = args.host
     if args.port is not None:
         out["server.port"] = args.port
+    if args.max_fits_per_worker is not None:
+        out["fit.max_fits_per_worker"] = args.max_fits_per_worker
     return out
 
 
