@@ -292,5 +292,5 @@ class StrainModel:
 
 
 def predict_strain(contact: Contact, sensor: SensorModel | None = None) -> np.ndarray:
-    """Predicted strain frame ``(rows, cols)`` for ``contact`` on ``sensor`` (default MODEL.md)."""
+    """Predicted strain frame ``(rows, cols)`` for ``contact`` on ``sensor`` (default: docs/model.md's)."""
     return StrainModel(sensor).predict(contact)

@@ -59,7 +59,7 @@ RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing
 
 
 #: The daemon withholds a radius whose Cramer-Rao bound exceeds half of it ("force too low
-#: for curvature"; MODEL.md: radius is not observable at low force).
+#: for curvature"; docs/model.md: radius is not observable at low force).
 WITHHOLD_RELATIVE_SIGMA = 0.5
 def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
