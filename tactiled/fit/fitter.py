@@ -54,6 +54,18 @@ LINE_CONTACT_LENGTH = 1.5
 
 #: Iteration cap of auto's candidate fits (see Fitter._fit_model's ``scouting``).
 SCOUT_ITERATIONS = 25
+#: A fit is converged when one more solver step (the Gauss-Newton step within the step caps)
+#: could lower chi^2 by less than this: at the minimum's doorstep that puts every parameter
+#: within 0.1 of its 1-sigma bound of it, and rounding (~1e-10 of chi^2) cannot cross it
+#: (levenberg_marquardt's ``verdict_tol``; docs/fitting.md).
+CONVERGED_CHI2 = 0.01
+
+#: The solver keeps a radius within these (mm): half and twice RADIUS_LIMITS, beyond which a
+#: radius is withheld as an artefact anyway.  Unbounded, a frame too light for curvature sent
+#: ln R crawling towards -inf one capped step per iteration until the iteration cap, the other
+#: parameters unfinished, and where that crawl ended hung on the last bits of the data.
+_LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
+_LOG_RADII = ("ln_r", "ln_ra")
 
 #: A fit's excess residual feeds the floor learner capped at this multiple of what it expects.
 OUTLIER_FACTOR = 10.0
@@ -223,6 +235,9 @@ class Fitter:
             return prob
         residual, clean, peak, peak_idx, win, n_points, zdata = prob
         steps = np.array([_STEP[name] for name in model.params])
+        radius = np.array([name in _LOG_RADII for name in model.params])
+        bounds = (np.where(radius, _LN_R_BOUNDS[0], -np.inf),
+                  np.where(radius, _LN_R_BOUNDS[1], np.inf))
         starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
         best: SolveResult | None = None
         tried = 0
@@ -234,6 +249,8 @@ class Fitter:
                 # stop once the next step would lower chi^2 by less than 1e-6 (0.01 scouting)
                 atol=(1e-2 if scouting else 1e-6) * (self.sigma / peak) ** 2,
                 deadline=self._deadline,
+                verdict_tol=CONVERGED_CHI2 * (self.sigma / peak) ** 2,
+                bounds=bounds,
             )
             if best is None or sol.cost < best.cost:
                 best = sol
