@@ -654,12 +654,14 @@ class WorkerPool:
     def request_memory(self) -> int:
         """Ask every ready worker where its memory is (answered after the fit it holds, into
         :meth:`stats`' ``memory`` per worker); returns how many were asked.  A worker that
-        does not answer within ``fit.ping_timeout`` of being free to counts as hung."""
+        does not answer within ``fit.timeout + fit.ping_timeout`` of being free to (the
+        figures take a few ms; a starved machine can take longer) counts as hung."""
         asked = 0
+        deadline = self.settings.timeout + self.settings.ping_timeout
         for w in self._workers:
             if w.state == "ready" and w.conn is not None and not any(
                     r.kind == "memory" for r in w.outstanding):
-                asked += self._send(w, ("memory",), "memory", self.settings.ping_timeout)
+                asked += self._send(w, ("memory",), "memory", deadline)
         return asked
 
     def stats(self) -> dict[str, Any]:
