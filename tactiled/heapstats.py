@@ -181,7 +181,8 @@ def rule_cache_bytes(strain: Any) -> int:
     keys (node counts): a 1-D rule of n nodes holds 2 arrays of n doubles, a disk rule of
     ``(n_u, n_s)`` nodes 3 arrays of ``n_u n_s``."""
     total = 0
-    for name, arrays in (("_rule_u", 2), ("_rule_s", 2), ("disk_rule", 3)):
+    for name, arrays in (("_rule_u", 2), ("_rule_s", 2), ("_kept_disk_rule", 3),
+                         ("disk_rule", 3)):
         fn = getattr(strain, name, None)
         for key in _lru_keys(fn) if fn is not None else ():
             nodes = key if isinstance(key, int) else math.prod(k for k in key if isinstance(k, int))
@@ -197,10 +198,11 @@ def fitter_cache_figures() -> dict[str, int]:
     out: dict[str, int] = {}
     strain = sys.modules.get("tactiled.physics.strain")
     if strain is not None:
-        for name in ("_rule_u", "_rule_s", "disk_rule"):
+        for name, key in (("_rule_u", "rule_u"), ("_rule_s", "rule_s"),
+                          ("_kept_disk_rule", "disk_rule"), ("disk_rule", "disk_rule")):
             fn = getattr(strain, name, None)
             if fn is not None and hasattr(fn, "cache_info"):
-                out[f"cache_{name.lstrip('_')}"] = fn.cache_info().currsize
+                out[f"cache_{key}"] = fn.cache_info().currsize
         out["cache_rule_mb"] = round(rule_cache_bytes(strain) * _MB, 3)
     start = sys.modules.get("tactiled.fit.start")
     if start is not None and hasattr(start, "start_table"):
