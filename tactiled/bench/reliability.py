@@ -488,12 +488,15 @@ def _slope_mb_per_h(samples: list[tuple[float, float]]) -> float | None:
 
 
 async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subscribers: int,
-                stalled: int, max_rate: float, sim_pids: list[int]) -> dict[str, Any]:
+                stalled: int, max_rate: float, sim_pids: list[int],
+                fit_timeout: float | None = None) -> dict[str, Any]:
     from tactiled.pipeline import Daemon
     from tactiled.settings import load_settings
     from tactiled.sources import open_source
 
     overrides: dict[str, Any] = {"server.host": "127.0.0.1", "server.port": 0}
+    if fit_timeout is not None:
+        overrides["fit.timeout"] = fit_timeout
     sources = {}
     for i, name in enumerate(FINGERS):
         url = f"serial://{tmp / f'tty{i}'}"
@@ -716,7 +719,7 @@ def _worker_figures(series: list[tuple[float, float, float | None, float | None]
 def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
          scene: str = DEFAULT_SCENE, interval: float | None = None, subscribers: int = 50,
          stalled: int = 5, max_rate: float = 30.0,
-         settle: float = SETTLE_S) -> dict[str, Any]:
+         settle: float = SETTLE_S, fit_timeout: float | None = None) -> dict[str, Any]:
     """Run the soak; a JSON-ready result with ``passed`` and the figures."""
     if subscribers < 0 or stalled < 0 or (subscribers and stalled >= subscribers):
         raise ValueError("need subscribers >= 0 and 0 <= stalled < subscribers")
@@ -727,7 +730,7 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
         sims = _start_simulators(tmp, rate, scene)
         try:
             run = asyncio.run(_soak(tmp, seconds, warmup, interval, subscribers, stalled,
-                                    max_rate, [p.pid for p, _ in sims]))
+                                    max_rate, [p.pid for p, _ in sims], fit_timeout))
         finally:
             simulators = _stop_simulators(sims)
     before, after, elapsed = run["before"], run["after"], run["elapsed"]
@@ -753,6 +756,7 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
     bw, aw = before["stats"]["workers"], after["stats"]["workers"]
     result: dict[str, Any] = {
         "seconds": round(elapsed, 1), "warmup_s": warmup, "rate_hz": rate, "scene": scene,
+        "fit_timeout_s": fit_timeout,
         "cpus": os.cpu_count(), "cpu_cores": run["cpu_cores"],
         "fit_workers": aw["size"],
         "worker_restarts": aw["restarts"] - bw["restarts"],
@@ -914,6 +918,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="of which never read (default 5)")
     p.add_argument("--max-rate", type=float, default=30.0,
                    help="subscribers' max_rate, Hz per sensor (default 30, the dashboard's)")
+    p.add_argument("--fit-timeout", type=float, default=None,
+                   help="fit.timeout for the soak's workers, s (default the daemon's, 1): a "
+                        "machine starved by other jobs can hold a fit past 1 s, and a worker "
+                        "killed as hung starts its memory series afresh")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     args = p.parse_args(argv)
     if args.subscribers < 0 or args.stalled < 0 or (
@@ -921,7 +929,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error("need --subscribers >= 0 and 0 <= --stalled < --subscribers")
     seconds = args.seconds if args.seconds is not None else (20.0 if args.quick else 600.0)
     result = soak(seconds, args.warmup, args.rate, args.scene, args.interval, args.subscribers,
-                  args.stalled, args.max_rate, args.settle)
+                  args.stalled, args.max_rate, args.settle, args.fit_timeout)
     print(json.dumps(result) if args.json else _markdown(result))
     return 0 if all(result["passed"].values()) else 1
 
