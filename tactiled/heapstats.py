@@ -42,11 +42,19 @@ class _MallInfo2(ctypes.Structure):
         "fordblks", "keepcost")]
 
 
+_LIBC: list[Any] = []
+
+
 def _libc() -> Any:
-    try:
-        return ctypes.CDLL(None)
-    except OSError:
-        return None
+    """This process's C library, loaded once: every ``ctypes.CDLL`` makes a class of its own
+    (its function pointer type), which dies only in a cyclic collection, so one per call would
+    be the very creep these figures look for."""
+    if not _LIBC:
+        try:
+            _LIBC.append(ctypes.CDLL(None))
+        except OSError:
+            _LIBC.append(None)
+    return _LIBC[0]
 
 
 _ARENA_RE = re.compile(r'<heap nr="(\d+)">.*?<system type="current" size="(\d+)"/>', re.S)
@@ -218,7 +226,18 @@ def fitter_cache_figures() -> dict[str, int]:
     return out
 
 
+def gc_figures() -> dict[str, int]:
+    """The cyclic collector's state: objects it tracks (``gc_objects``), full collections so
+    far and the objects they freed (``gc_full_collections``, ``gc_full_collected``): garbage
+    that waits for a rare full collection shows as live bytes in between."""
+    import gc
+
+    full = gc.get_stats()[2]
+    return {"gc_objects": len(gc.get_objects()), "gc_full_collections": full["collections"],
+            "gc_full_collected": full["collected"]}
+
+
 def worker_figures() -> dict[str, float]:
-    """What a fit worker reports about its memory: :func:`heap_figures` and
-    :func:`fitter_cache_figures`."""
-    return {**heap_figures(), **fitter_cache_figures()}
+    """What a fit worker reports about its memory: :func:`heap_figures`,
+    :func:`fitter_cache_figures` and :func:`gc_figures`."""
+    return {**heap_figures(), **fitter_cache_figures(), **gc_figures()}
