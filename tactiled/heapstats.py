@@ -5,7 +5,10 @@
   mmapped; and from ``malloc_info`` the number of arenas and what each holds from the system);
 * :func:`pymalloc_figures`: Python's small-object allocator (1 MiB arenas held, bytes of live
   objects in them);
-* :func:`heap_figures`: all of them, one flat dict of numbers (MB, counts).
+* :func:`heap_figures`: all of them, one flat dict of numbers (MB, counts);
+* :func:`fitter_cache_figures` (the fitter's quadrature-rule caches and start tables, numba's
+  compiled specialisations), :func:`gc_figures` (the cyclic collector), and
+  :func:`worker_figures`, what a fit worker answers to the pool's ``memory`` request.
 
 RSS that grows while the bytes in use do not is an allocator keeping freed memory
 (fragmentation), not a leak; bytes in use that grow are a leak or a cache filling up.  Linux
@@ -103,14 +106,6 @@ def malloc_info_xml() -> str:
         finally:
             libc.fclose(fp)
         return open(tmp.name, encoding="ascii", errors="replace").read()
-
-
-def malloc_trim() -> bool:
-    """Ask glibc to give free memory at the top of its heaps back (``malloc_trim(0)``)."""
-    libc = _libc()
-    if libc is None or not hasattr(libc, "malloc_trim"):
-        return False
-    return bool(libc.malloc_trim(0))
 
 
 def pymalloc_figures() -> dict[str, float]:
