@@ -1,6 +1,6 @@
 """Typed settings of the sensor: geometry, material, impulse response, noise.
 
-Units follow ``MODEL.md``: millimetres, newtons, N/mm^2; strain is dimensionless and positive
+Units follow ``docs/model.md``: millimetres, newtons, N/mm^2; strain is dimensionless and positive
 under compression.  These are frozen dataclasses so a model built from them can be cached and
 shared with a worker process safely.
 """

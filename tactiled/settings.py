@@ -10,9 +10,9 @@ Keys (the documented example is ``deploy/tactiled.toml``)::
     [server]   host = "127.0.0.1", port = 8765, token = (none), max_subscribers = 64,
                allow_origins = [] (browser origins besides the server's own)
     [[sensor]] name, url, wire_id, calibration, model, window, noise_sigma, false_rate,
-               reuse_unchanged, unchanged_z
+               detector_average, reuse_unchanged, unchanged_z, rate_hz
     [fit]      workers, start_method, timeout, ping_interval, ping_timeout, startup_timeout,
-               stop_timeout
+               stop_timeout, max_fits_per_worker
     [record]   path
     [zenoh]    enabled = false, mode = "peer", connect = [], listen = [],
                multicast_scouting = (on in peer mode), prefix = "tactiled/<hostname>",
@@ -94,6 +94,9 @@ class SensorSettings:
     detector_average: int = 2  # frames the contact detector averages (latency for sensitivity)
     reuse_unchanged: bool = True  # gate: reuse the last fit for a frame unchanged within noise
     unchanged_z: float = 3.0  # gate: "unchanged" means chi^2 <= n + z sqrt(2n), see gate.py
+    #: Nominal frame rate (Hz); health reports the sensor DEGRADED while it delivers less
+    #: (below 0.9 of it over a second) for more than 2 s.  None: no nominal rate, not judged.
+    rate_hz: float | None = None
 
 
 @dataclass(frozen=True)
@@ -107,6 +110,9 @@ class FitSettings:
     ping_timeout: float = 1.0  # ... and restarted if it does not answer within this
     startup_timeout: float = 30.0  # a new worker must be ready (fitters warmed) within this
     stop_timeout: float = 2.0  # graceful stop: in-flight fits get this long, then SIGKILL
+    #: Replace a worker after this many fits (a successor is started first, so no fit is lost
+    #: and the stream has no gap); 0: never.  A safety net against memory creep, off by default.
+    max_fits_per_worker: int = 0
 
 
 @dataclass(frozen=True)
@@ -417,6 +423,7 @@ SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "detector_average": _in_range(_as_int, 1, 64, "a frame count"),
     "reuse_unchanged": _as_bool,
     "unchanged_z": _in_range(_as_float, 0.0, 1e6, "a z-score"),
+    "rate_hz": _optional(_in_range(_as_float, 0.01, 1e6, "a frame rate in Hz")),
 }
 #: Bounds of the pool's times (s): below the supervisor's 50 ms tick a deadline means nothing
 #: (5e-324 passed a plain positivity check and had every fit's worker killed as hung).
@@ -430,6 +437,7 @@ FIT_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "ping_timeout": _FIT_TIME,
     "startup_timeout": _FIT_TIME,
     "stop_timeout": _FIT_TIME,
+    "max_fits_per_worker": _in_range(_as_int, 0, 10**12, "a fit count (0: never)"),
 }
 _RECORD_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "path": _optional(_as_str),

@@ -309,6 +309,17 @@ class FrameSource(abc.ABC):
             for frame in self.decoder.feed(data, host_time=self.last_read_time):
                 yield frame
 
+    @property
+    def read_backlog_now(self) -> int:
+        """Bytes read from the device but not yet handed to the decoder, now (0 for a source
+        that reads only when asked; the serial driver's reader thread can run ahead)."""
+        return 0
+
+    @property
+    def read_backlog(self) -> int:
+        """The most bytes :attr:`read_backlog_now` has been at once (0 as above)."""
+        return 0
+
     def status(self) -> SourceStatus:
         """A snapshot of the counters above."""
         stats = getattr(self.decoder, "stats", None)

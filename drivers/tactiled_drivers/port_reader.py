@@ -171,6 +171,11 @@ class PortReader:
             resolve(waiter)
 
     @property
+    def held(self) -> int:
+        """Bytes read and not yet taken by :meth:`take`, now."""
+        return self._held
+
+    @property
     def alive(self) -> bool:
         """True while the thread runs."""
         return self._thread.is_alive()

@@ -174,6 +174,12 @@ class SerialSource(FrameSource):
         return reader.arrival if reader is not None and reader.arrival else time.monotonic()
 
     @property
+    def read_backlog_now(self) -> int:
+        """Bytes the reader thread holds for the loop now."""
+        reader = self._reader
+        return reader.held if reader is not None else 0
+
+    @property
     def read_backlog(self) -> int:
         """Most bytes read from the device but not yet taken by the loop, at once: how far
         the loop fell behind (bytes; 0 before the first read)."""

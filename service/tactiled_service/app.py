@@ -31,6 +31,8 @@ from tactiled_service import dashboard
 from tactiled_service.auth import AuthPolicy, Denial, HostGuard
 from tactiled_service.health import HealthMonitor
 from tactiled_service.messages import Encoder
+from tactiled_service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
+from tactiled_service.metrics import Metrics
 from tactiled_service.options import ServiceOptions
 from tactiled_service.schemas import (
     ConfigPatch,
@@ -61,6 +63,7 @@ class Context:
     manager: StreamManager
     health: HealthMonitor
     calibrations: dict[str, dict[str, Any]]
+    metrics: Metrics
 
 
 def _calibration(path: str | None, table: Any) -> dict[str, Any]:
@@ -88,7 +91,7 @@ def build_context(daemon: Daemon, options: ServiceOptions, auth: AuthPolicy) -> 
     manager = StreamManager(daemon, options, auth, encoder)
     health = HealthMonitor(daemon, manager, options)
     return Context(daemon, daemon.settings, options, auth, encoder, manager, health,
-                   calibrations)
+                   calibrations, Metrics(daemon, manager, health))
 
 
 def _raise(denial: Denial | None) -> None:
@@ -175,6 +178,16 @@ def create_app(ctx: Context) -> FastAPI:
     async def health() -> dict[str, Any]:
         """Overall and per-sensor status (OK, WARN, STALE, ERROR) with rates and counters."""
         return ctx.health.report()
+
+    @app.get("/metrics", response_class=Response, tags=["service"],
+             dependencies=[Depends(read_access)],
+             responses={**ERRORS, 200: {"description": "Prometheus text format 0.0.4",
+                                        "content": {"text/plain": {"schema": {
+                                            "type": "string"}}}}})
+    async def metrics() -> Response:
+        """Counters, gauges and latency histograms in the Prometheus text format (docs/api.md
+        lists them); the same credentials as the other data endpoints."""
+        return Response(ctx.metrics.render(), media_type=METRICS_CONTENT_TYPE)
 
     @app.get("/v1/sensors", response_model=SensorsResponse, responses=ERRORS,
              dependencies=[Depends(read_access)], tags=["sensors"])

@@ -7,27 +7,45 @@ A sensor is, worst first:
   ``startup_grace_s`` after start; or the daemon is not running;
 * ``STALE``: frames arrive but no estimate was published for ``stale_after_s`` (fits are not
   coming back: every worker busy, hung or restarting), so what clients see is old;
+* ``DEGRADED``: the sensor has a nominal rate (``rate_hz``) and has delivered less than
+  ``RATE_TOLERANCE`` (0.9) of it, measured over the last second, for more than
+  ``RATE_GRACE_S`` (2 s) on end: a device or a link that slows down;
 * ``WARN``: data flows, but error counters (CRC and other rejected chunks, lost or duplicated
   frames, fit errors, lost fits, worker restarts, source errors) grew within the last
   ``warn_window_s``;
 * ``OK`` otherwise.
 
-The overall ``status`` is the worst sensor's.  Counter growth is judged against samples kept
-by :meth:`HealthMonitor.sample`, which the server calls every second.
+The overall ``status`` is the worst sensor's.  Counter growth, and the share of frames
+superseded over the last ``SHARE_WINDOW_S``, are judged against samples kept by
+:meth:`HealthMonitor.sample`, which the server calls every second.  The report also gives
+each sensor's read backlog and the resident memory of the daemon and of every fit worker.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections import deque
 from typing import Any
 
 from tactiled import __version__
+from tactiled.heapstats import rss_mb
 from tactiled.pipeline import Daemon
 from tactiled_service.options import ServiceOptions
 from tactiled_service.stream import StreamManager
 
-SEVERITY = {"OK": 0, "WARN": 1, "STALE": 2, "ERROR": 3}
+SEVERITY = {"OK": 0, "WARN": 1, "DEGRADED": 2, "STALE": 3, "ERROR": 4}
+
+#: A sensor is DEGRADED when its frame rate over the last second stays below this fraction of
+#: its nominal ``rate_hz`` ...
+RATE_TOLERANCE = 0.9
+#: ... for longer than this (s).  The margin keeps a sensor at its nominal rate from flickering
+#: (a 1 s count of a 1 kHz stream varies by a frame or two); the grace rides out a hiccup.
+RATE_GRACE_S = 2.0
+#: The share of frames superseded (replaced while waiting for a fit) is over this window (s).
+SHARE_WINDOW_S = 10.0
+#: Counters remembered by the samples besides the warn counters.
+_SHARE_COUNTERS = ("frames", "superseded_frames")
 
 #: Counters whose growth means trouble, with the words used to report it.
 WARN_COUNTERS = {
@@ -48,6 +66,10 @@ def _rnd(x: float | None, digits: int = 3) -> float | None:
     return None if x is None else round(x, digits)
 
 
+def _mb(pid: int | None) -> float | None:
+    return None if pid is None else _rnd(rss_mb(pid))
+
+
 class HealthMonitor:
     """Builds health reports for ``daemon`` and the stream ``manager``."""
 
@@ -58,6 +80,7 @@ class HealthMonitor:
         #: The Zenoh front end (tactiled_service.bus.Bus), set by the server when enabled.
         self.bus: Any = None
         self._history: deque[tuple[float, dict[str, dict[str, int]]]] = deque()
+        self._below_since: dict[str, float] = {}  # sensor -> since when it is under its rate
 
     # -- counters -------------------------------------------------------------------------------
 
@@ -94,6 +117,9 @@ class HealthMonitor:
             "pipeline_errors": int(st["errors"]),
             "wrong_sensor": int(st["wrong_sensor"]),
             "last_frame_age_s": _rnd(st["last_frame_age_s"]),
+            "read_backlog_bytes": int(st.get("read_backlog_bytes") or 0),
+            "read_backlog_peak_bytes": int(st.get("read_backlog_peak_bytes") or 0),
+            "rate_hz": st.get("rate_hz"),
             "last_estimate_age_s": None if est is None else _rnd(now - est.published_time),
             "latency_ms": st.get("latency_ms"),
             "worker_ms": st.get("worker_ms"),
@@ -102,22 +128,58 @@ class HealthMonitor:
         }
 
     def sample(self) -> None:
-        """Remember the warn counters now (the server calls this every second)."""
+        """Remember the warn counters, frames and superseded frames now (the server calls this
+        every second), and follow each sensor's rate against its nominal one."""
         now = time.monotonic()
-        snap = {name: {k: int(self.counters(name)[k]) for k in WARN_COUNTERS}
-                for name in self.daemon.sensors}
+        snap = {}
+        for name in self.daemon.sensors:
+            c = self.counters(name)
+            self._track_rate(name, c, now)
+            snap[name] = {k: int(c[k]) for k in (*WARN_COUNTERS, *_SHARE_COUNTERS)}
         self._history.append((now, snap))
-        edge = now - self.options.warn_window_s
+        edge = now - max(self.options.warn_window_s, SHARE_WINDOW_S)
         while len(self._history) > 1 and self._history[1][0] <= edge:
             self._history.popleft()
 
-    def _growth(self, name: str, current: dict[str, Any]) -> dict[str, int]:
+    def _baseline(self, name: str, window: float, now: float) -> dict[str, int] | None:
+        """The sample at the start of the last ``window`` s (the newest one at or before its
+        edge, else the oldest kept), None before the first sample."""
         if not self._history:
+            return None
+        edge = now - window
+        chosen = self._history[0][1]
+        for t, snap in self._history:
+            if t > edge:
+                break
+            chosen = snap
+        return chosen.get(name, {})
+
+    def _growth(self, name: str, current: dict[str, Any]) -> dict[str, int]:
+        before = self._baseline(name, self.options.warn_window_s, time.monotonic())
+        if before is None:
             return {}
-        _, oldest = self._history[0]
-        before = oldest.get(name, {})
         return {k: current[k] - before.get(k, 0) for k in WARN_COUNTERS
                 if current[k] > before.get(k, 0)}
+
+    def superseded_share(self, name: str, current: dict[str, Any]) -> float | None:
+        """Share of the frames of the last ``SHARE_WINDOW_S`` that were superseded while
+        waiting for a fit (latest frame wins), None without frames in the window."""
+        before = self._baseline(name, SHARE_WINDOW_S, time.monotonic())
+        if before is None or "frames" not in before:
+            return None
+        frames = current["frames"] - before["frames"]
+        if frames <= 0:
+            return None
+        return round(max(0, current["superseded_frames"] - before["superseded_frames"])
+                     / frames, 4)
+
+    def _track_rate(self, name: str, c: dict[str, Any], now: float) -> None:
+        """Note since when the sensor delivers under ``RATE_TOLERANCE`` of its nominal rate."""
+        nominal = c.get("rate_hz")
+        if nominal and c["frame_rate_hz"] < RATE_TOLERANCE * nominal:
+            self._below_since.setdefault(name, now)
+        else:
+            self._below_since.pop(name, None)
 
     # -- status ---------------------------------------------------------------------------------
 
@@ -143,6 +205,11 @@ class HealthMonitor:
         if est_age is None or est_age > o.stale_after_s:
             shown = "none yet" if est_age is None else f"the last is {est_age:.1f} s old"
             return "STALE", f"frames arrive but no estimate is published ({shown})"
+        below = self._below_since.get(name)
+        if below is not None and time.monotonic() - below > RATE_GRACE_S:
+            return "DEGRADED", (
+                f"frame rate {c['frame_rate_hz']:.0f} Hz, below the nominal {c['rate_hz']:g} "
+                f"Hz (under {RATE_TOLERANCE:.0%} of it) for {time.monotonic() - below:.1f} s")
         growth = self._growth(name, c)
         if growth:
             words = ", ".join(f"{n} {WARN_COUNTERS[k]}" for k, n in growth.items())
@@ -153,12 +220,15 @@ class HealthMonitor:
         """The ``GET /v1/health`` document (schema: ``schemas.HealthResponse``)."""
         sensors: dict[str, dict[str, Any]] = {}
         worst = "OK"
+        now = time.monotonic()
         for name in self.daemon.sensors:
             c = self.counters(name)
+            self._track_rate(name, c, now)
             status, reason = self.sensor_status(name, c)
             if SEVERITY[status] > SEVERITY[worst]:
                 worst = status
-            sensors[name] = {"status": status, "reason": reason, **c}
+            sensors[name] = {"status": status, "reason": reason, **c,
+                             "superseded_share_10s": self.superseded_share(name, c)}
         if not sensors:
             worst = "ERROR"
         stats = self.daemon.stats()
@@ -173,9 +243,15 @@ class HealthMonitor:
                 "size": workers.get("size"),
                 "restarts": workers.get("restarts"),
                 "restarts_by_reason": workers.get("restarts_by_reason"),
+                "recycles": workers.get("recycles", 0),
                 "fits": workers.get("fits"),
                 "states": [w.get("state") for w in workers.get("workers", [])],
+                "processes": [{"slot": w.get("slot"), "pid": w.get("pid"),
+                               "state": w.get("state"), "fits": w.get("fits"),
+                               "rss_mb": _mb(w.get("pid"))}
+                              for w in workers.get("workers", [])],
             },
+            "process": {"pid": os.getpid(), "rss_mb": _mb(os.getpid())},
             "subscribers": self.manager.stats(),
             "zenoh": None if self.bus is None else self.bus.stats(),
         }

@@ -256,7 +256,7 @@ def inline_json_schema(model: type[BaseModel]) -> dict[str, Any]:
     return resolve(schema)
 
 
-Status = Literal["OK", "WARN", "STALE", "ERROR"]
+Status = Literal["OK", "WARN", "DEGRADED", "STALE", "ERROR"]
 
 
 class SensorHealth(BaseModel):
@@ -279,6 +279,12 @@ class SensorHealth(BaseModel):
     worker_restarts: int
     last_frame_age_s: float | None
     last_estimate_age_s: float | None
+    read_backlog_bytes: int = Field(
+        description="bytes read from the device and not yet decoded, now")
+    read_backlog_peak_bytes: int = Field(description="the most read_backlog_bytes has been")
+    rate_hz: float | None = Field(description="nominal frame rate (null: not configured)")
+    superseded_share_10s: float | None = Field(
+        description="share of the last 10 s of frames superseded while waiting for a fit")
 
 
 class SubscriberHealth(BaseModel):
@@ -336,5 +342,6 @@ class HealthResponse(BaseModel):
     uptime_s: float | None
     sensors: dict[str, SensorHealth]
     workers: dict[str, Any]
+    process: dict[str, Any] = Field(description="the daemon's pid and resident memory (MB)")
     subscribers: SubscribersHealth
     zenoh: ZenohHealth | None = None

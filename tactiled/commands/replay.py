@@ -55,6 +55,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="omit the keys that vary between runs (for diffing replays)")
 
 
+#: fit.timeout of a lossless replay, s (its fits' time budget is half of it).
+LOSSLESS_FIT_TIMEOUT = 120.0
+
+
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     path = Path(args.file).resolve()
     speed = repr(float(args.speed))
@@ -64,6 +68,11 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         "sensor[0].model": args.model,
         "fit.workers": 1,
     }
+    if args.mode == "lossless":
+        # offline, every frame waits for its fit: no real-time budget, so the output depends
+        # on the recording only, not on how fast (or how loaded) the machine is (a frame far
+        # outside the model can take a second or more to fit)
+        out["fit.timeout"] = LOSSLESS_FIT_TIMEOUT
     if args.window is not None:
         out["sensor[0].window"] = args.window
     if args.sigma is not None:

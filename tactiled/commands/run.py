@@ -48,6 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="browser origin (scheme://host:port) allowed to use the stream and "
                         "control endpoints besides the server's own; repeatable (replaces "
                         "[server] allow_origins)")
+    p.add_argument("--max-fits-per-worker", type=int, default=None, metavar="N",
+                   help="replace a fit worker after N fits, its successor started first (no "
+                        "fit lost); 0 never (default: [fit] max_fits_per_worker, 0)")
     z = p.add_argument_group("Zenoh (docs/zenoh.md; flags win over [zenoh] and TACTILED_ZENOH_*)")
     z.add_argument("--zenoh", action="store_true", default=None,
                    help="publish on Zenoh ([zenoh] enabled = true)")
@@ -75,6 +78,8 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         out["server.host"] = args.host
     if args.port is not None:
         out["server.port"] = args.port
+    if args.max_fits_per_worker is not None:
+        out["fit.max_fits_per_worker"] = args.max_fits_per_worker
     for flag, key in (("zenoh", "enabled"), ("zenoh_mode", "mode"),
                       ("zenoh_connect", "connect"), ("zenoh_listen", "listen"),
                       ("zenoh_prefix", "prefix")):

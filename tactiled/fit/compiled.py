@@ -23,7 +23,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from tactiled.fit.solver import SolveResult
+from tactiled.fit.solver import STALLED, WITHIN_TOLERANCE, SolveResult, remaining_decrease
 from tactiled.physics.hertz import ellipse_core
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
 from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
@@ -154,14 +154,43 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
 
 
 @njit(cache=True, nogil=True)
-def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, rf, comp, scale, dmin, tol, imp,
-           xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws):
-    """``solver.levenberg_marquardt`` for one model and start, compiled.  Returns
-    ``(status, p, r, J, cost, iterations, evaluations, converged, message code)``; status
-    ``_OK``, ``_INVALID_LINE`` / ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``),
-    or ``FALLBACK``."""
+def _pin(p: np.ndarray, jtj: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """``solver._pin``: parameters on a bound that the descent pushes out are held."""
+    k = p.shape[0]
+    any_pinned = False
+    for i in range(k):
+        if (p[i] <= lo[i] and g[i] > 0.0) or (p[i] >= hi[i] and g[i] < 0.0):
+            any_pinned = True
+    if not any_pinned:
+        return jtj, g
+    jtj, g = jtj.copy(), g.copy()
+    for i in range(k):
+        if (p[i] <= lo[i] and g[i] > 0.0) or (p[i] >= hi[i] and g[i] < 0.0):
+            for j in range(k):
+                jtj[i, j] = 0.0
+                jtj[j, i] = 0.0
+            g[i] = 0.0
+    return jtj, g
+
+
+@njit(cache=True, nogil=True)
+def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``np.clip(x, lo, hi)``."""
+    out = np.empty_like(x)
+    for i in range(x.shape[0]):
+        out[i] = min(max(x[i], lo[i]), hi[i])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp, scale, dmin, tol,
+           imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws):
+    """``solver.levenberg_marquardt`` for one model and start, compiled (the box ``lo``,
+    ``hi`` as its ``bounds``; the verdict is the caller's).  Returns ``(status, p, r, J, cost,
+    iterations, evaluations, converged, message code)``; status ``_OK``, ``_INVALID_LINE`` /
+    ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``), or ``FALLBACK``."""
     k = p0.shape[0]
-    p = p0.copy()
+    p = _clip(p0, lo, hi)
     status, r, jac = _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid,
                                inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws)
     if status != _OK:
@@ -179,6 +208,7 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, rf, comp, scale
     r_new, jac_new, cost_new = r, jac, cost
     for it in range(1, max_iter + 1):
         jtj, g, diag = normal_equations(jac, r)
+        jtj, g = _pin(p, jtj, g, lo, hi)
         accepted = False
         while lam < 1e12:
             step, over, predicted = damped_step(jtj, g, diag, lam, max_step)
@@ -188,7 +218,7 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, rf, comp, scale
             if predicted <= ftol * cost + atol:
                 converged, message = True, 2
                 break
-            trial = p + step
+            trial = _clip(p + step, lo, hi)
             st, r_new, jac_new = _evaluate(kind, trial, k, rf, comp, scale, dmin, tol, imp, xs, ys,
                                            target, valid, inv_scale, ex, ey, ladder, offsets, ru,
                                            rwu, rs, rws)
@@ -216,13 +246,17 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, rf, comp, scale
 
 def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: float, model_args: tuple,
           window_args: tuple, tol: float, xtol: float = 1e-9, ftol: float = 1e-10,
-          lam0: float = 1e-3) -> SolveResult | None:
-    """Run :func:`search`; a :class:`SolveResult` worded as the Python solver words it, or
-    None when the search must fall back to the Python solver."""
+          lam0: float = 1e-3, bounds: tuple[np.ndarray, np.ndarray] | None = None,
+          verdict_tol: float | None = None) -> SolveResult | None:
+    """Run :func:`search`; a :class:`SolveResult` worded and judged as the Python solver
+    words and judges it (``verdict_tol``, ``bounds``: see ``levenberg_marquardt``), or None
+    when the search must fall back to the Python solver."""
     rf, comp, scale, dmin, imp = model_args
     xs, ys, target, valid, inv_scale, ex, ey = window_args
+    p0 = np.asarray(p0, dtype=float)
+    lo, hi = bounds if bounds is not None else (np.full(p0.size, -np.inf), np.full(p0.size, np.inf))
     status, p, r, jac, cost, it, evals, converged, msg = search(
-        kind, np.asarray(p0, dtype=float), max_step, max_iter, xtol, ftol, lam0, atol, rf, comp,
+        kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp,
         scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables())
     if status == FALLBACK:
         return None
@@ -235,4 +269,12 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
                            f"the planar model (over {MAX_NODES} quadrature nodes at tol {tol:g})")
     if msg == -2:
         return SolveResult(p, r, jac, math.inf, 0, 1, False, "non-finite residual at start")
-    return SolveResult(p, r, jac, cost, it, evals, converged, MESSAGES[msg])
+    message = MESSAGES[msg]
+    if verdict_tol is not None:
+        close = remaining_decrease(jac, r, max_step, p, bounds) <= verdict_tol
+        if close and not converged:
+            message = f"{message}, {WITHIN_TOLERANCE}"
+        elif converged and not close:
+            message = STALLED
+        converged = close
+    return SolveResult(p, r, jac, cost, it, evals, bool(converged), message)

@@ -60,6 +60,18 @@ LINE_CONTACT_LENGTH = 1.5
 STOP_CHI2 = 1e-4
 #: Iteration cap of auto's candidate fits (see Fitter._fit_model's ``scouting``).
 SCOUT_ITERATIONS = 25
+#: A fit is converged when one more solver step (the Gauss-Newton step within the step caps)
+#: could lower chi^2 by less than this: at the minimum's doorstep that puts every parameter
+#: within 0.1 of its 1-sigma bound of it, and rounding (~1e-10 of chi^2) cannot cross it
+#: (levenberg_marquardt's ``verdict_tol``; docs/fitting.md).
+CONVERGED_CHI2 = 0.01
+
+#: The solver keeps a radius within these (mm): half and twice RADIUS_LIMITS, beyond which a
+#: radius is withheld as an artefact anyway.  Unbounded, a frame too light for curvature sent
+#: ln R crawling towards -inf one capped step per iteration until the iteration cap, the other
+#: parameters unfinished, and where that crawl ended hung on the last bits of the data.
+_LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
+_LOG_RADII = ("ln_r", "ln_ra")
 
 #: A fit's excess residual feeds the floor learner capped at this multiple of what it expects.
 OUTLIER_FACTOR = 10.0
@@ -149,6 +161,17 @@ def _steps(model: Model) -> np.ndarray:
     out = np.array([_STEP[name] for name in model.params])
     out.setflags(write=False)
     return out
+
+
+@lru_cache(maxsize=None)
+def _bounds(model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """The solver's box on ``model``'s parameters: its log radii within ``_LN_R_BOUNDS``."""
+    radius = np.array([name in _LOG_RADII for name in model.params])
+    lo = np.where(radius, _LN_R_BOUNDS[0], -np.inf)
+    hi = np.where(radius, _LN_R_BOUNDS[1], np.inf)
+    for arr in (lo, hi):
+        arr.setflags(write=False)
+    return lo, hi
 
 
 class Fitter:
@@ -274,7 +297,7 @@ class Fitter:
         if isinstance(prob, FitResult):
             return prob
         residual, clean, peak, peak_idx, win, n_points, zdata = prob
-        steps = _steps(model)
+        steps, bounds = _steps(model), _bounds(model)
         starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
         best: SolveResult | None = None
         tried = 0
@@ -282,6 +305,7 @@ class Fitter:
         # stop once the next step would lower chi^2 by less than STOP_CHI2 (0.01 scouting): a
         # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
         atol = (1e-2 if scouting else STOP_CHI2) * (self.sigma / peak) ** 2
+        verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
         fr = self._frame(strain, mask) if self.options.jacobian == "exact" else None
         for p0 in starts:
             tried += 1
@@ -289,10 +313,12 @@ class Fitter:
             if isinstance(fr, _Frame):  # the whole search compiled (falls back on huge contacts)
                 sol = compiled.solve(
                     compiled.KINDS[model.name], p0, steps, max_iter, atol, self._model_args,
-                    (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey), self.options.tol)
+                    (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey), self.options.tol,
+                    bounds=bounds, verdict_tol=verdict_tol)
             if sol is None:
                 sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=max_iter, atol=atol,
-                                          deadline=self._deadline)
+                                          deadline=self._deadline, verdict_tol=verdict_tol,
+                                          bounds=bounds)
             if best is None or sol.cost < best.cost:
                 best = sol
             if self._good_enough(best, peak, n_points) or self._out_of_time():

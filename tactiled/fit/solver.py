@@ -21,6 +21,11 @@ from tactiled.physics.kernels import damped_step, finite_cost, normal_equations
 
 ResidualFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 TIME_BUDGET_EXCEEDED = "time budget exceeded"
+#: Added to the message of a search that ended without its stopping rule firing (the
+#: iteration cap) but within ``verdict_tol`` of the minimum: converged.
+WITHIN_TOLERANCE = "within tolerance of the least-squares minimum"
+#: The message of a search whose stopping rule fired short of that: not converged.
+STALLED = "stalled short of the least-squares minimum (steps too small to get there)"
 
 
 @dataclass
@@ -45,6 +50,8 @@ def levenberg_marquardt(
     lam0: float = 1e-3,
     atol: float = 0.0,
     deadline: float | None = None,
+    verdict_tol: float | None = None,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SolveResult:
     """Minimise ``sum(r(p)^2)`` from ``p0``.
 
@@ -54,8 +61,22 @@ def levenberg_marquardt(
     returns non-finite values rejects the trial step (treated as an infinite cost).
     ``deadline`` (``time.perf_counter()`` seconds) stops the search before the next
     evaluation once passed: not converged, "time budget exceeded".
+
+    ``verdict_tol`` (cost units) decides ``converged`` on where the search ended, not on which
+    stopping rule fired: converged when the Gauss-Newton model at the final point puts the
+    cheapest step within the caps less than ``verdict_tol`` of cost below it
+    (:func:`remaining_decrease`), whatever ended the loop.  A tolerance far above rounding
+    cannot be crossed by last-bit differences; whether the iteration cap or a stopping rule
+    comes first can.  Without it the stopping rule is the verdict.
+
+    ``bounds`` (lower, upper arrays; +-inf for none) keep the parameters in a box: a trial
+    point is clipped into it, and a parameter on a bound that the descent pushes outwards is
+    held there while the others move (see :func:`_pin`).
     """
     p = np.array(p0, dtype=float)
+    if bounds is not None:
+        lo, hi = bounds
+        p = np.clip(p, lo, hi)
     try:
         r, jac = fun(p)
     except (ValueError, OverflowError) as err:
@@ -72,6 +93,8 @@ def levenberg_marquardt(
     it = 0
     for it in range(1, max_iter + 1):
         jtj, g, diag = normal_equations(jac, r)
+        if bounds is not None:
+            jtj, g = _pin(p, jtj, g, lo, hi)
         accepted = False
         while lam < 1e12:
             try:
@@ -88,7 +111,7 @@ def levenberg_marquardt(
             if deadline is not None and time.perf_counter() > deadline:
                 message = TIME_BUDGET_EXCEEDED
                 break
-            trial = p + step
+            trial = p + step if bounds is None else np.clip(p + step, lo, hi)
             try:
                 r_new, jac_new = fun(trial)
                 cost_new = finite_cost(r_new, jac_new)
@@ -110,4 +133,42 @@ def levenberg_marquardt(
             message = "no step reduces the cost (damping exhausted)"
             break
         p, r, jac, cost = trial, r_new, jac_new, cost_new
+    if verdict_tol is not None and message is not TIME_BUDGET_EXCEEDED:
+        close = remaining_decrease(jac, r, scale, p, bounds) <= verdict_tol
+        if close and not converged:
+            message = f"{message}, {WITHIN_TOLERANCE}"
+        elif converged and not close:
+            message = STALLED
+        converged = close
     return SolveResult(p, r, jac, cost, it, evals, converged, message)
+
+
+def _pin(p: np.ndarray, jtj: np.ndarray, g: np.ndarray, lo: np.ndarray,
+         hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Take the parameters that sit on a bound with the descent pushing them out of the
+    step (their rows and columns of ``J^T J`` and their gradient set to 0): the step then
+    moves the others only, as if those were constants."""
+    pinned = ((p <= lo) & (g > 0.0)) | ((p >= hi) & (g < 0.0))
+    if not pinned.any():
+        return jtj, g
+    jtj, g = jtj.copy(), g.copy()
+    jtj[pinned, :] = 0.0
+    jtj[:, pinned] = 0.0
+    g[pinned] = 0.0
+    return jtj, g
+
+
+def remaining_decrease(jac: np.ndarray, r: np.ndarray, scale: np.ndarray, p: np.ndarray,
+                       bounds: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    """How much the cost could still drop in one step: the decrease the Gauss-Newton model of
+    ``|r + J s|^2`` predicts for its minimising step, capped per parameter by ``scale`` (the
+    solver's trust region) and barely damped (a flat direction stays finite), the parameters
+    pinned on a bound held (``bounds``); cost units."""
+    jtj, g, diag = normal_equations(jac, r)
+    if bounds is not None:
+        jtj, g = _pin(p, jtj, g, *bounds)
+    try:
+        _, _, predicted = damped_step(jtj, g, diag, 1e-9, scale)
+    except np.linalg.LinAlgError:  # pragma: no cover - the damping makes it definite
+        return math.inf
+    return predicted if math.isfinite(predicted) else math.inf

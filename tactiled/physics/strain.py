@@ -54,22 +54,45 @@ def _rule_s(n: int) -> tuple[np.ndarray, np.ndarray]:
     return roots_chebyu(n)
 
 
-def warm_rules(up_to: int = 96) -> None:
-    """Compute the 1-D rules a fit is likely to visit now (~50 ms), not on the first frames:
-    scipy's root finders cost 0.5-4 ms a call, and a fit exploring many contact sizes in a
-    fresh process would otherwise spend most of a second on them."""
-    for n in range(MIN_NODES, up_to + 1):
-        _rule_u(n)
-        _rule_s(n)
+#: Disk rules of at most this many nodes (``n_u * n_s``) are kept: with node counts on the
+#: ladder that is 320 rules and 4.4 MB, all built by :func:`warm_rules` (in the forkserver's
+#: template, so the workers share them).  Larger ones (contacts much longer than the rubber is
+#: deep: rare, and each costs far more to integrate than to build) are built on every use and
+#: never kept.  A cache of every pair met instead (an LRU of 512 rules, up to 24 MB each) grew
+#: for hours as fits met new contact sizes: the fit workers' memory creep (docs/reliability.md).
+CACHED_RULE_NODES = 2048
+#: The pairs of node counts kept: ``n_u >= n_s`` (the major semi-axis never needs fewer nodes
+#: than the minor), both on the ladder.
+_KEPT = frozenset((n_u, n_s) for n_u in _LADDER for n_s in _LADDER
+                  if n_s <= n_u and n_u * n_s <= CACHED_RULE_NODES)
 
 
-@lru_cache(maxsize=512)
+def warm_rules() -> None:
+    """Compute now every rule this process will keep: the 1-D rules of every ladder size
+    (~0.3 s) and the disk rules up to ``CACHED_RULE_NODES`` nodes (~10 ms).  A fit then never
+    builds a rule it keeps, so a process's memory does not grow with the contacts it meets;
+    and the first frames are fitted as fast as the later ones (scipy's root finders cost up to
+    0.1 s a call)."""
+    for n_u in _LADDER:
+        _rule_u(n_u)
+        _rule_s(n_u)
+    for n_u, n_s in sorted(_KEPT):
+        _kept_disk_rule(n_u, n_s)
+
+
 def disk_rule(n_u: int, n_s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nodes ``(u, v)`` and weights of the unit-disk rule for weight ``sqrt(1 - u^2 - v^2)``.
 
-    The weights sum to ``2 pi / 3``.  Arrays are read-only (cached and shared).  The 1-D rules
-    are cached on their own, so a new pair of sizes costs only the tensor product.
+    The weights sum to ``2 pi / 3``.  Arrays are read-only (kept and shared up to
+    ``CACHED_RULE_NODES`` nodes, built afresh beyond).  The 1-D rules are cached on their own,
+    so a new pair of sizes costs only the tensor product.
     """
+    if (n_u, n_s) in _KEPT:
+        return _kept_disk_rule(n_u, n_s)
+    return _build_disk_rule(n_u, n_s)
+
+
+def _build_disk_rule(n_u: int, n_s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     u, wu = _rule_u(n_u)
     s, ws = _rule_s(n_s)
     uu = np.repeat(u, n_s)
@@ -79,6 +102,10 @@ def disk_rule(n_u: int, n_s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     for arr in (uu, v, w):
         arr.setflags(write=False)
     return uu, v, w
+
+
+#: The kept disk rules (keys: the pairs of ``_KEPT``, all built by warm_rules).
+_kept_disk_rule = lru_cache(maxsize=None)(_build_disk_rule)
 
 
 def nodes_for(extent: float, depth: float, tol: float = DEFAULT_TOL) -> int:
@@ -300,5 +327,5 @@ class StrainModel:
 
 
 def predict_strain(contact: Contact, sensor: SensorModel | None = None) -> np.ndarray:
-    """Predicted strain frame ``(rows, cols)`` for ``contact`` on ``sensor`` (default MODEL.md)."""
+    """Predicted strain frame ``(rows, cols)`` for ``contact`` on ``sensor`` (default: docs/model.md's)."""
     return StrainModel(sensor).predict(contact)

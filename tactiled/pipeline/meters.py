@@ -1,7 +1,10 @@
-"""Sliding-window meters for the stats: event rates and mean values over the last second."""
+"""Meters for the stats: event rates and mean values over the last second (sliding windows),
+and cumulative latency histograms (for the metrics endpoint)."""
 
 from __future__ import annotations
 
+import bisect
+import math
 from collections import deque
 
 
@@ -66,3 +69,37 @@ class WindowMean:
             return None if x is None else round(x, digits)
 
         return {"last": r(self.last), "mean_1s": r(self.mean(now)), "max_1s": r(self.max(now))}
+
+
+#: Upper bounds (s) of the latency histograms' buckets: 0.1 ms to 2.5 s, roughly x2.5 apart
+#: (a fit takes ~1 ms, a gated estimate ~0.1 ms; ``fit.timeout`` is 1 s by default).
+LATENCY_BUCKETS_S = (0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1,
+                     0.25, 0.5, 1.0, 2.5)
+
+
+class Histogram:
+    """Counts of values at or below each bucket bound (the last bucket is +Inf), their sum and
+    count: what a Prometheus histogram exposes, kept by the pipeline without depending on a
+    metrics library (the service turns it into ``*_bucket``, ``*_sum``, ``*_count``).  Never
+    reset; ``observe`` costs one bisection."""
+
+    def __init__(self, bounds: tuple[float, ...] = LATENCY_BUCKETS_S) -> None:
+        if list(bounds) != sorted(set(bounds)) or not bounds:
+            raise ValueError(f"bucket bounds must be increasing, got {bounds!r}")
+        self.bounds = tuple(float(b) for b in bounds)
+        self._counts = [0] * (len(self.bounds) + 1)  # per bucket, the last one +Inf
+        self.sum = 0.0
+        self.count = 0
+
+    def observe(self, value: float) -> None:
+        self._counts[bisect.bisect_left(self.bounds, value)] += 1
+        self.sum += value
+        self.count += 1
+
+    def cumulative(self) -> list[tuple[float, int]]:
+        """``[(upper bound, observations <= it), ..., (inf, count)]``."""
+        out, total = [], 0
+        for bound, n in zip((*self.bounds, math.inf), self._counts):
+            total += n
+            out.append((bound, total))
+        return out

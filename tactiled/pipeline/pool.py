@@ -14,7 +14,12 @@ One pool serves every sensor of the daemon (``fit.workers`` processes, by defaul
   pings its workers), a new one must be ready within ``fit.startup_timeout``;
 * a lost worker is replaced at once; one that keeps dying before it answers a single fit is
   restarted with backoff (0.1 s doubling to 5 s), so a crash loop cannot eat the CPU the other
-  workers need.
+  workers need;
+* with ``fit.max_fits_per_worker`` set (a safety net, off by default), a worker that has
+  answered that many fits is *recycled*: a successor is started beside it, and only once the
+  successor is ready does the old one stop taking fits; it finishes the fit it holds (whose
+  result is delivered as usual), is told to stop and is reaped.  No fit is lost, and the slot
+  always has a ready worker (see :meth:`WorkerPool.stats`, ``last_recycle``).
 
 A sensor (a :class:`JobOwner`) holds at most one fit in flight, so its results come back in
 order; the pool hands a free worker to the sensor whose waiting frame is oldest.
@@ -100,7 +105,8 @@ class _Request:
 @dataclass
 class _Worker:
     slot: int
-    state: str = "spawning"  # spawning -> starting -> ready -> stopping | dead
+    #: spawning -> starting -> ready -> (retiring: recycled, finishing its fit) -> stopping | dead
+    state: str = "spawning"
     process: BaseProcess | None = None
     conn: Connection | None = None
     pid: int | None = None
@@ -113,10 +119,20 @@ class _Worker:
     known_specs: set[int] = field(default_factory=set)
     job: FitJob | None = None
     fits: int = 0
+    #: earliest monotonic time a successor may be started for it (after a failed one)
+    recycle_after: float = 0.0
+    #: the worker's last answer to a ``memory`` request (``tactiled.heapstats``), and when
+    memory: dict[str, Any] | None = None
+    memory_at: float | None = None
 
     @property
     def busy(self) -> bool:
         return self.job is not None
+
+    @property
+    def alive(self) -> bool:
+        """Its process runs (or is being started) and the pool still owns it."""
+        return self.state in ("spawning", "starting", "ready", "retiring")
 
 
 class WorkerPool:
@@ -138,6 +154,10 @@ class WorkerPool:
         self._spec_ids: dict[tuple[SensorModel, Any], int] = {}
         self._owners: list[JobOwner] = []
         self._workers: list[_Worker] = [_Worker(slot) for slot in range(size)]
+        #: recycling: the successor being started for a slot, and the workers it replaced
+        #: that are finishing their last fit or exiting
+        self._successors: dict[int, _Worker] = {}
+        self._retiring: list[_Worker] = []
         self._failures = [0] * size  # consecutive young deaths per slot
         self._rid = 0
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -152,6 +172,8 @@ class WorkerPool:
         self.restarts = 0
         self.restarts_by_reason: dict[str, int] = {}
         self.last_restart: dict[str, Any] | None = None
+        self.recycles = 0
+        self.last_recycle: dict[str, Any] | None = None
 
     # -- set-up -------------------------------------------------------------------------------
 
@@ -203,20 +225,32 @@ class WorkerPool:
 
     # -- process lifecycle ----------------------------------------------------------------------
 
-    def _spawn_task(self, slot: int, delay: float, old: _Worker | None) -> None:
-        task = asyncio.create_task(self._respawn(slot, delay, old), name=f"tactiled-spawn-{slot}")
+    def _spawn_task(self, slot: int, delay: float, old: _Worker | None,
+                    successor: _Worker | None = None) -> None:
+        self._track(self._respawn(slot, delay, old, successor), f"tactiled-spawn-{slot}")
+
+    def _track(self, coro: Any, name: str) -> None:
+        task = asyncio.create_task(coro, name=name)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
-    async def _respawn(self, slot: int, delay: float, old: _Worker | None) -> None:
+    async def _respawn(self, slot: int, delay: float, old: _Worker | None,
+                       successor: _Worker | None = None) -> None:
+        """Start a worker process for ``slot``: the slot's worker (replacing ``old``, reaped
+        first), or, given ``successor`` (already registered), the slot's successor."""
         if old is not None:
             await self._reap(old, 1.0)
         if delay > 0:
             await asyncio.sleep(delay)
         if self._stopping:
+            if successor is not None:
+                self._successors.pop(slot, None)
             return
-        w = _Worker(slot)
-        self._workers[slot] = w
+        if successor is not None:
+            w = successor
+        else:
+            w = _Worker(slot)
+            self._workers[slot] = w
         parent_conn, child_conn = self._ctx.Pipe(duplex=True)
         from tactiled.pipeline.worker import worker_main
 
@@ -233,7 +267,9 @@ class WorkerPool:
             parent_conn.close()
             w.state = "dead"
             self._failures[slot] += 1
-            if not self._stopping:
+            if self._successors.get(slot) is w:
+                self._successor_failed(w)
+            elif not self._stopping:
                 self._spawn_task(slot, self._backoff(slot), None)
             return
         finally:
@@ -247,10 +283,12 @@ class WorkerPool:
         w.state = "starting"
         self._loop.add_reader(parent_conn.fileno(), self._on_readable, w)
         self._loop.add_reader(process.sentinel, self._on_sentinel, w)
-        if self.last_restart is not None and self.last_restart.get("slot") == slot \
+        if successor is None and self.last_restart is not None \
+                and self.last_restart.get("slot") == slot \
                 and self.last_restart.get("spawned_s") is None:
             self.last_restart["spawned_s"] = now - self.last_restart["lost_at"]
-        log.info("fit worker %d started (pid %s)", slot, process.pid)
+        log.info("fit worker %d %sstarted (pid %s)", slot,
+                 "successor " if successor is not None else "", process.pid)
         if self._stopping:
             self._lose(w, "stopped", "pool stopping", count=False)
 
@@ -277,14 +315,18 @@ class WorkerPool:
         code = w.process.exitcode
         if w.exited is not None and not w.exited.done():
             w.exited.set_result(code)
-        if w.state in ("starting", "ready"):
+        if w.state in ("starting", "ready", "retiring"):
             self._lose(w, "died", f"exit code {code}")
 
     def _lose(self, w: _Worker, reason: str, detail: str, count: bool = True) -> None:
-        """The worker is gone or unusable: kill it, fail its job, schedule a replacement."""
+        """The worker is gone or unusable: kill it, fail its job, schedule a replacement
+        (for the slot's serving worker; a lost successor or retiring worker is not replaced:
+        the slot has its worker)."""
         if w.state in ("dead", "stopping"):
             return
         was_ready_at = w.ready_at
+        role = ("successor" if self._successors.get(w.slot) is w
+                else "retiring" if w.state == "retiring" else "serving")
         w.state = "dead"
         self._detach(w)
         if w.process is not None and w.exited is not None and not w.exited.done():
@@ -302,14 +344,93 @@ class WorkerPool:
                         detail)
         if job is not None:
             job.owner.on_fit_failed(job, reason)
+        if role == "retiring":
+            self._track(self._reap_retired(w), f"tactiled-reap-{w.slot}")
+            self.wake()
+            return
         # A worker lost before it ever answered a fit is a crash loop in the making (a bad
         # environment, a frame that kills the fitter): back off.  One that has been doing its
         # job (killed by the OOM killer, by hand) is replaced at once.
         young = was_ready_at is None or (w.fits == 0 and now - was_ready_at < YOUNG)
         self._failures[w.slot] = self._failures[w.slot] + 1 if young else 1
-        if not self._stopping:
+        if role == "successor":
+            self._successor_failed(w)
+            self._track(self._reap(w, 1.0), f"tactiled-reap-{w.slot}")
+        elif (succ := self._successors.pop(w.slot, None)) is not None:
+            # A successor is on its way: it becomes the slot's worker (ready when it is).
+            self._workers[w.slot] = succ
+            self._track(self._reap(w, 1.0), f"tactiled-reap-{w.slot}")
+        elif not self._stopping:
             self._spawn_task(w.slot, self._backoff(w.slot), w)
         self.wake()
+
+    # -- recycling (fit.max_fits_per_worker) ------------------------------------------------------
+
+    def _maybe_recycle(self, w: _Worker, now: float) -> None:
+        """Start a successor for ``w`` once it has answered ``max_fits_per_worker`` fits."""
+        limit = self.settings.max_fits_per_worker
+        if (not limit or w.fits < limit or w.state != "ready" or self._stopping
+                or self._workers[w.slot] is not w or w.slot in self._successors
+                or now < w.recycle_after):
+            return
+        succ = _Worker(w.slot)
+        self._successors[w.slot] = succ
+        log.info("fit worker %d (pid %s) answered %d fits (fit.max_fits_per_worker): starting "
+                 "its successor", w.slot, w.pid, w.fits)
+        self._spawn_task(w.slot, 0.0, None, successor=succ)
+
+    def _successor_failed(self, succ: _Worker) -> None:
+        """A successor could not be started or died before it was ready: the serving worker
+        goes on, and a new successor is tried no sooner than the backoff."""
+        if self._successors.get(succ.slot) is succ:
+            del self._successors[succ.slot]
+        serving = self._workers[succ.slot]
+        serving.recycle_after = time.monotonic() + max(1.0, self._backoff(succ.slot))
+
+    def _promote(self, succ: _Worker, now: float) -> None:
+        """``succ`` is ready: it serves the slot from now on; the worker it replaces takes no
+        new fit, finishes the one it holds, and is then told to stop."""
+        old = self._workers[succ.slot]
+        del self._successors[succ.slot]
+        self._workers[succ.slot] = succ
+        self.recycles += 1
+        self.last_recycle = {"slot": succ.slot, "old_pid": old.pid, "new_pid": succ.pid,
+                             "old_fits": old.fits, "successor_ready_at": now,
+                             "old_stopped_at": None, "old_state": old.state}
+        log.info("fit worker %d: successor pid %s ready, pid %s retires after %d fits",
+                 succ.slot, succ.pid, old.pid, old.fits)
+        if old.state == "ready":
+            old.state = "retiring"
+            self._retiring.append(old)
+            if old.job is None:
+                self._retire(old)
+
+    def _retire(self, w: _Worker) -> None:
+        """A retiring worker holds no fit any more: tell it to stop and reap it."""
+        if self.last_recycle is not None and self.last_recycle.get("old_pid") == w.pid:
+            self.last_recycle["old_stopped_at"] = time.monotonic()
+        if w.conn is not None:
+            try:
+                w.conn.send(("stop",))
+            except (OSError, ValueError):
+                pass
+        w.state = "stopping"
+        w.outstanding.clear()
+        self._detach(w)
+        self._track(self._reap_retired(w), f"tactiled-retire-{w.slot}")
+
+    async def _reap_retired(self, w: _Worker) -> None:
+        """Wait for a retired worker to exit (``fit.stop_timeout``, then SIGKILL), reap it."""
+        if w.process is not None and w.exited is not None and not w.exited.done():
+            try:
+                await asyncio.wait_for(asyncio.shield(w.exited), self.settings.stop_timeout)
+            except TimeoutError:
+                log.warning("retired fit worker %d (pid %s) did not exit; killing it", w.slot,
+                            w.pid)
+                w.process.kill()
+        await self._reap(w, 2.0)
+        if w in self._retiring:
+            self._retiring.remove(w)
 
     async def _reap(self, w: _Worker, timeout: float) -> None:
         """Wait (up to ``timeout`` s) for the process to exit, then release its resources."""
@@ -359,7 +480,9 @@ class WorkerPool:
         if kind == "ready":
             w.state, w.ready_at, w.head_since = "ready", now, now
             w.pid = msg[1]
-            if self.last_restart is not None and self.last_restart.get("slot") == w.slot \
+            if self._successors.get(w.slot) is w:
+                self._promote(w, now)
+            elif self.last_restart is not None and self.last_restart.get("slot") == w.slot \
                     and self.last_restart.get("ready_s") is None:
                 self.last_restart["ready_s"] = now - self.last_restart["lost_at"]
             log.info("fit worker %d ready (pid %s, warm-up %.3f s)", w.slot, msg[1], msg[2])
@@ -381,7 +504,13 @@ class WorkerPool:
             self.fits += 1
             _, _, fit, _compute_s, error, warm = msg
             job.owner.on_fit_result(job, fit, (now - job.sent_at) * 1e3, error, warm)
+            if w.state == "retiring":
+                self._retire(w)
+            else:
+                self._maybe_recycle(w, now)
             self.wake()
+        elif kind == "memory":
+            w.memory, w.memory_at = msg[2], now
         elif kind == "setup_done" and msg[3] is not None:
             log.error("fit worker %d: fitter setup failed: %s", w.slot, msg[3])
 
@@ -426,18 +555,23 @@ class WorkerPool:
         while True:
             await asyncio.sleep(TICK)
             now = time.monotonic()
-            for w in list(self._workers):
+            for w in self._all():
                 if w.state == "starting":
                     if now - w.started_at > s.startup_timeout:
                         self._lose(w, "startup", f"not ready within {s.startup_timeout:g} s")
-                elif w.state == "ready":
+                elif w.state in ("ready", "retiring"):
                     if w.outstanding:
                         head = w.outstanding[0]
                         if now - w.head_since > head.timeout:
                             self._lose(w, "hung", f"no answer to {head.kind!r} within "
                                                   f"{head.timeout:g} s")
-                    elif now - w.last_answer >= s.ping_interval:
+                    elif w.state == "ready" and now - w.last_answer >= s.ping_interval:
                         self._send(w, ("ping",), "ping", s.ping_timeout)
+
+    def _all(self) -> list[_Worker]:
+        """Every worker the pool owns: the slots' workers, successors being started, and
+        recycled workers finishing or exiting."""
+        return [*self._workers, *self._successors.values(), *self._retiring]
 
     # -- test hook -----------------------------------------------------------------------------
 
@@ -462,7 +596,7 @@ class WorkerPool:
             return
         timeout = self.settings.stop_timeout if timeout is None else timeout
         deadline = time.monotonic() + timeout
-        while any(w.busy for w in self._workers) and time.monotonic() < deadline:
+        while any(w.busy for w in self._all()) and time.monotonic() < deadline:
             await asyncio.sleep(0.005)
         self._stopping = True
         if self._supervisor is not None:
@@ -471,11 +605,12 @@ class WorkerPool:
         # Spawns under way finish (and see _stopping); they are never cancelled mid-start.
         if self._tasks:
             await asyncio.gather(*list(self._tasks), return_exceptions=True)
-        for w in self._workers:
+        everyone = self._all()
+        for w in everyone:
             job, w.job = w.job, None
             if job is not None:
                 job.owner.on_fit_failed(job, "stopped")
-            if w.conn is not None and w.state in ("starting", "ready"):
+            if w.conn is not None and w.state in ("starting", "ready", "retiring"):
                 try:
                     w.conn.send(("stop",))
                 except (OSError, ValueError):
@@ -483,15 +618,15 @@ class WorkerPool:
             if w.state != "dead":
                 w.state = "stopping"
             self._detach(w)
-        pending = [w.exited for w in self._workers if w.exited is not None and not w.exited.done()]
+        pending = [w.exited for w in everyone if w.exited is not None and not w.exited.done()]
         if pending:
             await asyncio.wait(pending, timeout=max(0.0, deadline - time.monotonic()))
-        for w in self._workers:
+        for w in everyone:
             if w.process is not None and w.exited is not None and not w.exited.done():
                 log.warning("fit worker %d (pid %s) did not stop in time; killing it", w.slot,
                             w.pid)
                 w.process.kill()
-        for w in self._workers:
+        for w in everyone:
             await self._reap(w, 2.0)
             if w.process is not None and self._loop is not None:
                 try:
@@ -507,9 +642,27 @@ class WorkerPool:
         """The current worker processes' pids, by slot (None while one is being started)."""
         return [w.pid if w.state in ("starting", "ready") else None for w in self._workers]
 
+    def process_pids(self) -> list[int]:
+        """Pids of every worker process alive now: the slots' workers, successors being
+        started and recycled workers not yet gone."""
+        return [w.pid for w in self._all() if w.pid is not None and w.alive]
+
     def busy_pids(self) -> list[int]:
         """Pids of workers fitting right now."""
-        return [w.pid for w in self._workers if w.busy and w.pid is not None]
+        return [w.pid for w in self._all() if w.busy and w.pid is not None]
+
+    def request_memory(self) -> int:
+        """Ask every ready worker where its memory is (answered after the fit it holds, into
+        :meth:`stats`' ``memory`` per worker); returns how many were asked.  A worker that
+        does not answer within ``fit.timeout + fit.ping_timeout`` of being free to (the
+        figures take a few ms; a starved machine can take longer) counts as hung."""
+        asked = 0
+        deadline = self.settings.timeout + self.settings.ping_timeout
+        for w in self._workers:
+            if w.state == "ready" and w.conn is not None and not any(
+                    r.kind == "memory" for r in w.outstanding):
+                asked += self._send(w, ("memory",), "memory", deadline)
+        return asked
 
     def stats(self) -> dict[str, Any]:
         """Worker states and counters, JSON-ready (times in seconds)."""
@@ -522,9 +675,22 @@ class WorkerPool:
             "restarts_by_reason": dict(self.restarts_by_reason),
             "last_restart": None if self.last_restart is None else {
                 k: v for k, v in self.last_restart.items() if k != "lost_at"},
+            "max_fits_per_worker": self.settings.max_fits_per_worker,
+            "recycles": self.recycles,
+            "last_recycle": None if self.last_recycle is None else {
+                "slot": self.last_recycle["slot"], "old_pid": self.last_recycle["old_pid"],
+                "new_pid": self.last_recycle["new_pid"],
+                "old_fits": self.last_recycle["old_fits"],
+                "old_stopped_s": (None if self.last_recycle["old_stopped_at"] is None else
+                                  self.last_recycle["old_stopped_at"]
+                                  - self.last_recycle["successor_ready_at"])},
             "workers": [
                 {"slot": w.slot, "pid": w.pid, "state": w.state, "busy": w.busy,
-                 "fits": w.fits, "uptime_s": None if w.ready_at is None else now - w.ready_at}
+                 "fits": w.fits, "uptime_s": None if w.ready_at is None else now - w.ready_at,
+                 "memory": w.memory,
+                 "memory_age_s": None if w.memory_at is None else now - w.memory_at}
                 for w in self._workers
             ],
+            "recycling": [{"slot": w.slot, "pid": w.pid, "state": w.state, "fits": w.fits}
+                          for w in (*self._successors.values(), *self._retiring)],
         }

@@ -47,7 +47,7 @@ from tactiled.pipeline.estimate import (
 )
 from tactiled.pipeline.gate import Gate
 from tactiled.pipeline.hub import Hub
-from tactiled.pipeline.meters import RateMeter, WindowMean
+from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
 from tactiled.recording import Recorder
 from tactiled.settings import SensorSettings
@@ -59,7 +59,7 @@ RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing
 
 
 #: The daemon withholds a radius whose Cramer-Rao bound exceeds half of it ("force too low
-#: for curvature"; MODEL.md: radius is not observable at low force).
+#: for curvature"; docs/model.md: radius is not observable at low force).
 WITHHOLD_RELATIVE_SIGMA = 0.5
 def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
@@ -161,6 +161,9 @@ class SensorPipeline:
         self.fit_rate = RateMeter()
         self.latency_ms = WindowMean()
         self.worker_ms = WindowMean()
+        #: since start: host receive -> published, per gate; and a fit's worker round trip (s)
+        self.latency_hist = {g: Histogram() for g in (GATE_FIT, GATE_UNCHANGED, GATE_NO_CONTACT)}
+        self.fit_hist = Histogram()
 
     # -- running --------------------------------------------------------------------------------
 
@@ -363,6 +366,7 @@ class SensorPipeline:
         self.published += 1
         if math.isfinite(est.latency_ms):
             self.latency_ms.add(est.published_time, est.latency_ms)
+            self.latency_hist[gate].observe(est.latency_ms / 1e3)
         self.hub.publish(est)
         return est
 
@@ -396,6 +400,7 @@ class SensorPipeline:
             now = time.monotonic()
             self.fit_rate.tick(now)
             self.worker_ms.add(now, worker_ms)
+            self.fit_hist.observe(worker_ms / 1e3)
             if w.ordinal <= self._last_published:
                 self.stale_dropped += 1  # a newer frame's estimate is out already
                 return
@@ -472,6 +477,9 @@ class SensorPipeline:
             "frame_rate_hz": self.frame_rate.rate(now),
             "fit_rate_hz": self.fit_rate.rate(now),
             "last_frame_age_s": None if self.last_frame_at is None else now - self.last_frame_at,
+            # bytes read from the device and not yet decoded: now, and the most at once
+            "read_backlog_bytes": self.source.read_backlog_now,
+            "read_backlog_peak_bytes": self.source.read_backlog,
             "decoder": dict(src.decoder),
             "superseded": self.superseded,
             "fitted": self.fitted,
@@ -490,6 +498,7 @@ class SensorPipeline:
             "latency_ms": self.latency_ms.summary(now),
             "worker_ms": self.worker_ms.summary(now),
             "worker_restarts": self.pool.restarts,
+            "rate_hz": self.settings.rate_hz,
             "recorded": 0 if self._recorder is None else self._recorder.frames_written,
             "record_errors": self.record_errors,
             "model": self.model,

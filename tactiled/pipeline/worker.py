@@ -14,6 +14,9 @@ in order (which is what lets the parent give every outstanding request a deadlin
   frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
 - ``("setup", rid, spec, SensorModel, options)`` -> ``("setup_done", rid, build_s, error)``;
 - ``("ping", rid)`` -> ``("pong", rid)``;
+- ``("memory", rid)`` -> ``("memory", rid, figures)``: where this process's memory is
+  (:func:`tactiled.heapstats.worker_figures`: RSS, malloc and pymalloc books, the fitter's
+  caches, fits so far), for the soak and for diagnosing growth;
 - ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
 - ``("stop",)``: exit.
 
@@ -47,6 +50,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     from tactiled.fit.fitter import FitOptions, Fitter
 
     t0 = time.perf_counter()
+    fits = 0
     fitters: dict[int, Any] = {}
     broken: dict[int, str] = {}
     for key, (sensor, options) in specs.items():
@@ -78,9 +82,14 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                         follow = (result.model, result.params)
                 except Exception as err:  # a fitter bug must cost one frame, not the worker
                     out, error = None, f"{type(err).__name__}: {err}"
+                fits += 1
                 conn.send(("result", rid, out, time.perf_counter() - t, error, follow))
             elif kind == "ping":
                 conn.send(("pong", msg[1]))
+            elif kind == "memory":
+                from tactiled.heapstats import worker_figures
+
+                conn.send(("memory", msg[1], {**worker_figures(), "fits": fits}))
             elif kind == "setup":
                 _, rid, spec, sensor, options = msg
                 t = time.perf_counter()

@@ -66,8 +66,11 @@ PINNED_ENV = {
 }
 
 
-def replay(path: Path) -> str:
-    env = {**os.environ, **PINNED_ENV}
+def replay(path: Path, pinned: bool = True) -> str:
+    """What the replay command prints for ``path``, with the numerics pinned to baseline
+    x86-64 (``PINNED_ENV``), or, ``pinned=False``, as the host CPU runs them."""
+    env = {**os.environ, **PINNED_ENV} if pinned else {
+        k: v for k, v in os.environ.items() if k not in PINNED_ENV}
     done = subprocess.run(replay_command(path), capture_output=True, text=True, timeout=600,
                           check=False, env=env)
     if done.returncode != 0:
@@ -75,9 +78,9 @@ def replay(path: Path) -> str:
     return done.stdout
 
 
-def compare(expected: Any, actual: Any, where: str = "") -> list[str]:
+def compare(expected: Any, actual: Any, where: str = "", rel_tol: float = REL_TOL) -> list[str]:
     """Differences between two parsed JSON values: exact for everything but floats, which
-    must agree within ``REL_TOL`` (relative) or ``ABS_TOL``."""
+    must agree within ``rel_tol`` (relative; ``REL_TOL`` by default) or ``ABS_TOL``."""
     if isinstance(expected, dict) and isinstance(actual, dict):
         out = []
         for key in sorted(expected.keys() | actual.keys()):
@@ -86,16 +89,16 @@ def compare(expected: Any, actual: Any, where: str = "") -> list[str]:
             elif key not in expected:
                 out.append(f"{where}.{key}: unexpected ({actual[key]!r})")
             else:
-                out += compare(expected[key], actual[key], f"{where}.{key}")
+                out += compare(expected[key], actual[key], f"{where}.{key}", rel_tol)
         return out
     if isinstance(expected, list) and isinstance(actual, list):
         if len(expected) != len(actual):
             return [f"{where}: {len(actual)} items, expected {len(expected)}"]
         return [d for i, (e, a) in enumerate(zip(expected, actual))
-                for d in compare(e, a, f"{where}[{i}]")]
+                for d in compare(e, a, f"{where}[{i}]", rel_tol)]
     if (isinstance(expected, float) and isinstance(actual, (int, float))
             and not isinstance(actual, bool)):
-        if math.isclose(expected, actual, rel_tol=REL_TOL, abs_tol=ABS_TOL):
+        if math.isclose(expected, actual, rel_tol=rel_tol, abs_tol=ABS_TOL):
             return []
         return [f"{where}: {actual!r}, expected {expected!r}"]
     if type(expected) is not type(actual) or expected != actual:

@@ -22,6 +22,13 @@ Bars, all judged on every run whatever else the machine is doing:
   counters, after an ``unsubscribe`` flush), none is closed; the never-reading ones are
   closed (1013) and come back.
 
+Memory, on the long runs (samples after the first 5 minutes spanning 10 or more): the RSS of
+the service and of every fit worker grows less than 1 MB per hour (the slope of a line fitted
+to the samples); each worker's heap figures (asked over the worker protocol) come with them.
+
+The fingers play the ``busy`` scene (``SCENE``): contacts that never hold still, so nearly
+every frame needs a fit and the workers are kept busy.
+
 Worker restarts, the CPU used by other jobs, how long the service waited for a CPU and how
 late its event loop woke are reported as figures (and in the failure message), not judged:
 on a machine whose other jobs keep the service off the CPU for more than ~125 ms at a time,
@@ -45,12 +52,16 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
 
 LONG = float(os.environ.get("TACTILED_SOAK_SECONDS", "600"))
 SUBSCRIBERS, STALLED = 50, 5
+#: The fingers' scene: contacts that press, roll, turn and change shape all the time, so the
+#: fit workers are busy (tactiled.bench.scenes.busy_scene; the built-in ``moving`` scene of
+#: tactiled.sim, once there, is meant for the same and may replace it).
+SCENE = "busy"
 
 
-def _soak(seconds: float, rate_hz: float = 1000.0) -> dict:
+def _soak(seconds: float, rate_hz: float = 1000.0, scene: str = SCENE) -> dict:
     done = subprocess.run([sys.executable, "-m", "tactiled.bench.reliability", "--seconds",
                            repr(seconds), "--subscribers", str(SUBSCRIBERS), "--stalled",
-                           str(STALLED), "--rate", repr(rate_hz), "--json"],
+                           str(STALLED), "--rate", repr(rate_hz), "--scene", scene, "--json"],
                           capture_output=True, text=True,
                           timeout=seconds + 300, check=False)
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
@@ -60,14 +71,23 @@ def _soak(seconds: float, rate_hz: float = 1000.0) -> dict:
 
 def _check(r: dict) -> None:
     rss = {k: v for k, v in r["rss_mb"].items() if k != "series"}
-    figures(f"soak[{r['seconds']:g} s]", rss_mb=rss, fds=r["fds"], sensors=r["sensors"],
-            subscribers=r["subscribers"], worker_restarts=r["worker_restarts_by_reason"],
-            workers_rss_growth_mb=r["workers_rss_growth_mb"], simulators=r["simulators"],
+    workers = {pid: {k: v for k, v in w.items() if k != "heap_series"}
+               for pid, w in r["workers_memory"].items()}
+    figures(f"soak[{r['seconds']:g} s, {r['scene']}]", rss_mb=rss, fds=r["fds"],
+            sensors=r["sensors"], subscribers=r["subscribers"],
+            worker_restarts=r["worker_restarts_by_reason"], heap=r["heap"]["end"],
+            workers_rss_growth_mb=r["workers_rss_growth_mb"], workers_memory=workers,
+            simulators=r["simulators"],
             cpu_cores=r["cpu_cores"], service_loop_lag=r["service_loop_lag"],
             passed=r["passed"])
     problems = []
     if not r["rss_mb"]["growth"] < 5.0:
         problems.append(f"service RSS grew by {r['rss_mb']['growth']} MB (bar 5 MB): {rss}")
+    if r["passed"].get("rss_slope_under_1MB_per_h") is False:
+        slopes = {"service": r["rss_mb"]["slope_after_settle_mb_per_h"],
+                  **{pid: w["slope_after_settle_mb_per_h"]
+                     for pid, w in r["workers_memory"].items()}}
+        problems.append(f"RSS slope after {r['rss_mb']['settle_s']:g} s over 1 MB/h: {slopes}")
     if r["fds"]["end"] > r["fds"]["after_warmup"]:
         problems.append(f"descriptors grew: {r['fds']}")
     for name, s in r["sensors"].items():

@@ -103,3 +103,33 @@ def test_warn_when_error_counters_grow_within_the_window():
     time.sleep(0.1)
     mon.sample()
     assert mon.report()["sensors"]["f"]["status"] == "OK"
+
+
+def test_degraded_below_the_nominal_rate_only_after_the_grace():
+    daemon = FakeDaemon(rate_hz=1000.0, frame_rate_hz=850.0)
+    mon = HealthMonitor(daemon, FakeManager(), ServiceOptions())  # type: ignore[arg-type]
+    s = mon.report()["sensors"]["f"]
+    assert s["status"] == "OK"  # just went under: within the 2 s grace
+    mon._below_since["f"] -= 2.5  # as if it had been under for 2.5 s
+    report = mon.report()
+    s = report["sensors"]["f"]
+    assert report["status"] == s["status"] == "DEGRADED"
+    assert "frame rate 850 Hz, below the nominal 1000 Hz" in s["reason"]
+    # At 0.9 of the nominal rate or above it is fine again, and the clock restarts.
+    daemon._stats["frame_rate_hz"] = 905.0
+    assert mon.report()["sensors"]["f"]["status"] == "OK"
+    daemon._stats["frame_rate_hz"] = 850.0
+    assert mon.report()["sensors"]["f"]["status"] == "OK"
+
+
+def test_no_nominal_rate_no_judgement():
+    assert status(FakeDaemon(frame_rate_hz=3.0))[1] == "OK"
+
+
+def test_superseded_share_over_the_window():
+    daemon = FakeDaemon(frames=1000, superseded=100)
+    mon = HealthMonitor(daemon, FakeManager(), ServiceOptions())  # type: ignore[arg-type]
+    assert mon.report()["sensors"]["f"]["superseded_share_10s"] is None  # no sample yet
+    mon.sample()
+    daemon._stats.update(frames=2000, superseded=350)
+    assert mon.report()["sensors"]["f"]["superseded_share_10s"] == 0.25

@@ -77,7 +77,7 @@ def test_authorised_stream_delivers(token_server, arun):
 @pytest.mark.parametrize("method,path", [
     ("GET", "/v1/sensors"), ("GET", "/v1/sensors/finger0/estimate"),
     ("GET", "/v1/sensors/finger0/frame"), ("POST", "/v1/sensors/finger0/tare"),
-    ("GET", "/v1/config"), ("PATCH", "/v1/config"),
+    ("GET", "/v1/config"), ("PATCH", "/v1/config"), ("GET", "/metrics"),
 ])
 def test_rest_needs_the_token(token_server, method, path):
     kw = {"json": {}} if method == "PATCH" else {}
