@@ -333,10 +333,10 @@ MOVING_FORCE_N = (0.3, 2.0)
 
 
 def _moving(g: Geometry) -> Scene:
-    """~5 s of contacts that never rest: a 10 mm cylinder, then an 8 mm sphere, then a knife
+    """5.45 s of contacts that never rest: a 10 mm cylinder, then an 8 mm sphere, then a knife
     edge (r1 = 0.5 mm), each touching down while rolling, rolling at 20-100 mm/s with force
-    ramps within 0.3-2 N, the cylinder and the edge also turning at 180 deg/s, each lifted off
-    for 0.1 s while the indentor is changed.  Every touching segment is linear (constant speed:
+    ramps within 0.3-2 N, the cylinder and the edge also turning at 180 deg/s, lifted off for
+    0.1 s while the indentor is changed, and for 0.65 s at the loop point.  Every touching segment is linear (constant speed:
     no easing to rest at its ends) and lasts a whole number of milliseconds, so at 1 kHz every
     frame differs from the one before by the scripted speeds.  Loops: it starts and ends
     untouched in the same pose."""
@@ -351,6 +351,10 @@ def _moving(g: Geometry) -> Scene:
     lin = "linear"
     return (
         SceneBuilder(Pose(r1=10.0, psi_deg=90.0, **at(-5.0, -3.0)))
+        # Untouched for 0.65 s at the loop point (this idle and the last approach): the hand lets
+        # go and grasps again.  The daemon's zeroer moves its baseline only while nothing
+        # touches and starts it from an unloaded finger; 0.1 s lift-offs are too short for that.
+        .idle(0.5)
         # -- cylinder: touch down rolling, rolls at 20, 50, 100 mm/s, turns at 180 deg/s
         .press(0.10, force=0.6, ease=lin, **at(-3.0, -3.0))  # 20 mm/s
         .roll(0.30, force=1.2, **at(3.0, -3.0))  # 20 mm/s, +2 N/s
@@ -376,8 +380,8 @@ def _moving(g: Geometry) -> Scene:
         .rotate(0.40, psi_deg=135.0, force=1.2, **at(-5.0, 4.0))  # 180 deg/s, 20 mm/s
         .roll(0.15, force=1.5, **at(2.5, 4.0))  # 50 mm/s
         .rotate(0.50, psi_deg=45.0, force=0.8, **at(-3.0, -5.0))  # 180 deg/s, 21 mm/s
-        .roll(0.08, force=1.0, **at(5.0, -5.0))  # 100 mm/s
-        .release(0.08, ease=lin, **at(5.0, -3.4))  # 20 mm/s
+        .roll(0.08, force=0.4, **at(5.0, -5.0))  # 100 mm/s
+        .release(0.08, ease=lin, **at(5.0, -3.4))  # 20 mm/s, from a light force: little hysteresis
         .approach(0.15, r1=10.0, r2=math.inf, psi_deg=90.0, **at(-5.0, -3.0))  # back to the start
         .build("moving")
     )

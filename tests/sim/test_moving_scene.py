@@ -46,7 +46,7 @@ def touching_pairs(ticks):
 
 def test_contacts_never_rest_and_roll_at_20_to_100_mm_s(ticks) -> None:
     speeds = [math.hypot(b.x0 - a.x0, b.y0 - a.y0) * RATE for a, b in touching_pairs(ticks)]
-    assert len(speeds) > 0.8 * len(ticks)  # touching most of the time
+    assert len(speeds) > 0.75 * len(ticks)  # touching most of the time
     lo, hi = MOVING_SPEED_MM_S
     assert min(speeds) >= lo - EPS and max(speeds) <= hi + EPS
     # the whole range is used, not just its ends
@@ -109,6 +109,10 @@ def test_cylinder_then_sphere_then_edge_with_brief_lift_offs(ticks) -> None:
     assert len(runs) == 2  # the lift-offs inside the pass; the third is across the loop
     for n in runs:
         assert 0.09 <= n / RATE <= 0.12  # ~0.1 s in the air
+    # across the loop: 0.65 s untouched, for the zeroer (an idle and the last approach)
+    lead = next(i for i, (_, c) in enumerate(ticks) if c is not None)
+    trail = next(i for i, (_, c) in enumerate(reversed(ticks[:-1])) if c is not None)
+    assert 0.64 <= (lead + trail) / RATE <= 0.67
     spheres = [c for _, c in ticks if c is not None and kind(c) == "sphere"]
     edges = [c for _, c in ticks if c is not None and kind(c) == "edge"]
     assert {c.r1 for c in spheres} == {8.0} and {c.r1 for c in edges} == {0.5}
@@ -127,7 +131,7 @@ def test_loops_cleanly(ticks) -> None:
     assert ticks[0][1] is None and ticks[-2][1] is None  # untouched at both ends
     assert ticks[-1][0] == 0.0  # the next pass starts over
     sim = FingerSimulator(scene="moving", rate_hz=RATE, noise=0.0, drift=None, hysteresis=None)
-    assert sim.ticks_per_pass == round(scene.duration * RATE) == 4950
+    assert sim.ticks_per_pass == round(scene.duration * RATE) == 5450
     first = [sim.step().contact for _ in range(sim.ticks_per_pass)]
     again = [sim.step().contact for _ in range(200)]
     assert again == first[:200]
@@ -136,7 +140,7 @@ def test_loops_cleanly(ticks) -> None:
 def test_deterministic_frames_by_seed() -> None:
     def counts(seed: int) -> list[np.ndarray]:
         sim = FingerSimulator(scene="moving", seed=seed, rate_hz=RATE)
-        sim.skip(200)  # into the first roll
+        sim.skip(700)  # into the first roll
         return [sim.step().counts for _ in range(50)]
 
     a, b, c = counts(5), counts(5), counts(6)
@@ -144,7 +148,7 @@ def test_deterministic_frames_by_seed() -> None:
     assert not all(np.array_equal(x, y) for x, y in zip(a, c))
     # every frame of a moving contact needs a new strain prediction
     sim = FingerSimulator(scene="moving", seed=1, rate_hz=RATE)
-    sim.skip(100)
+    sim.skip(600)
     for _ in range(100):
         sim.step()
     assert sim.predictions == 100
@@ -155,5 +159,5 @@ def test_available_by_name_in_simulate_and_sim_urls() -> None:
 
     assert "moving" in SCENES and scene_from_spec("Moving").name == "moving"
     small = Geometry(rows=4, cols=4)
-    c = named_scene("moving", small).contact_at(0.2)
+    c = named_scene("moving", small).contact_at(0.7)
     assert 0 < c.x0 < small.span_x and 0 < c.y0 < small.span_y
