@@ -314,20 +314,6 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
             tared.add(item.sensor)
             loop.call_soon(daemon.tare, item.sensor)
 
-    daemon.hub.add_listener(listen)
-    await daemon.start()
-    started = time.monotonic()
-    if tare is not None:
-        deadline = started + warmup + 2.0 * tare[3] + 5.0  # two passes (a skip may jump one)
-        while len(tared) < len(FINGERS) and time.monotonic() < deadline:
-            await asyncio.sleep(0.05)
-        if len(tared) < len(FINGERS):
-            raise RuntimeError(f"could not tare {sorted(set(FINGERS) - tared)}: no frames in the scene's idle")
-        # the baseline settles (0.25 s), then at least a second of fits before measuring
-        await asyncio.sleep(max(warmup - (time.monotonic() - started), 1.5))
-    else:
-        await asyncio.sleep(warmup)
-
     def total(pids: list[int]) -> float | None:
         per = [_cpu_seconds(p) for p in pids]
         return None if not per or None in per else sum(per)  # type: ignore[arg-type]
@@ -337,16 +323,31 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
                 "workers": total([p for p in daemon.pool.pids() if p is not None]),
                 "simulators": total(sim_pids)}
 
-    before = daemon.stats()
-    cpu0 = cpu()
-    counting = True
-    t0 = time.monotonic()
-    await asyncio.sleep(seconds)
-    counting = False
-    after = daemon.stats()
-    cpu1 = cpu()
-    elapsed = time.monotonic() - t0
-    await daemon.stop()
+    daemon.hub.add_listener(listen)
+    await daemon.start()
+    try:
+        started = time.monotonic()
+        if tare is not None:
+            deadline = started + warmup + 2.0 * tare[3] + 5.0  # two passes (a skip may jump one)
+            while len(tared) < len(FINGERS) and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+            if len(tared) < len(FINGERS):
+                raise RuntimeError(f"could not tare {sorted(set(FINGERS) - tared)}: no frames in the scene's idle")
+            # the baseline settles (0.25 s), then at least a second of fits before measuring
+            await asyncio.sleep(max(warmup - (time.monotonic() - started), 1.5))
+        else:
+            await asyncio.sleep(warmup)
+        before = daemon.stats()
+        cpu0 = cpu()
+        counting = True
+        t0 = time.monotonic()
+        await asyncio.sleep(seconds)
+        counting = False
+        after = daemon.stats()
+        cpu1 = cpu()
+        elapsed = time.monotonic() - t0
+    finally:
+        await daemon.stop()
     used = {k: (None if cpu0[k] is None or cpu1[k] is None else cpu1[k] - cpu0[k])  # type: ignore[operator]
             for k in cpu0}
     return RunResult(workers, before, after, elapsed, seen, used)
