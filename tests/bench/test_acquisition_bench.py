@@ -144,3 +144,32 @@ def test_bad_acquisition_options(argv: list[str], message: str) -> None:
     proc = subprocess.run([*TACTILED, "--suite", "acquisition", *argv], capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 2 and message in proc.stderr
+
+
+def test_a_tare_is_repeated_until_the_baseline_forms_on_untouched_frames() -> None:
+    class FakeDaemon:
+        def __init__(self) -> None:
+            self.tared: list[str] = []
+
+        def tare(self, sensor: str) -> None:
+            self.tared.append(sensor)
+
+    rate, per_pass = 1000.0, 5450
+    window = acq.tare_window("moving", rate)
+    daemon = FakeDaemon()
+    tarer = acq._Tarer(daemon, window, per_pass, rate, acq.scene_truth("moving", rate))
+    lo = window[0]
+    # thumb: tared in the window, then a starved simulator skips into the next contact
+    tarer.frame("thumb", 100)  # touching, outside the window: nothing
+    tarer.frame("thumb", lo)
+    assert daemon.tared == ["thumb"]
+    tarer.frame("thumb", 700)  # the baseline restarted from a contact frame: not good
+    assert tarer.state["thumb"][0] == "waiting"
+    # index and middle: tared, then 0.3 s of untouched frames
+    for name in ("index", "middle"):
+        for seq in range(per_pass + lo, per_pass + lo + 320):
+            tarer.frame(name, seq)
+    assert not tarer.done()
+    for seq in range(2 * per_pass + lo, 2 * per_pass + lo + 320, 3):  # gaps are fine while idle
+        tarer.frame("thumb", seq)
+    assert tarer.done() and tarer.tares == 4 and daemon.tared == ["thumb", "index", "middle", "thumb"]
