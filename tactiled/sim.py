@@ -244,9 +244,9 @@ class SceneBuilder:
         """Keep everything still."""
         return self._move("hold", duration, "linear")
 
-    def release(self, duration: float, ease: str = "smooth") -> SceneBuilder:
-        """Lift off: force down to 0."""
-        return self._move("release", duration, ease, force=0.0)
+    def release(self, duration: float, ease: str = "smooth", **changes: float) -> SceneBuilder:
+        """Lift off: force down to 0 (while the other ``changes`` go on, e.g. a rolling lift-off)."""
+        return self._move("release", duration, ease, force=0.0, **changes)
 
     def build(self, name: str = "") -> Scene:
         return Scene(self.segments, name)
@@ -325,6 +325,69 @@ def _edge(g: Geometry) -> Scene:
             .idle(0.5).press(0.5, force=0.8).hold(1.0).release(0.5).idle(0.5).build("edge"))
 
 
+#: The ``moving`` scene's limits (on the default 8x8 array; positions scale with the array):
+#: while touching, the contact centre always moves at 20-100 mm/s, the axis turns at up to
+#: 180 deg/s, and the force stays within 0.3-2 N except on touch-down and lift-off ramps.
+MOVING_SPEED_MM_S = (20.0, 100.0)
+MOVING_TURN_DEG_S = 180.0
+MOVING_FORCE_N = (0.3, 2.0)
+
+
+def _moving(g: Geometry) -> Scene:
+    """5.45 s of contacts that never rest: a 10 mm cylinder, then an 8 mm sphere, then a knife
+    edge (r1 = 0.5 mm), each touching down while rolling, rolling at 20-100 mm/s with force
+    ramps within 0.3-2 N, the cylinder and the edge also turning at 180 deg/s, lifted off for
+    0.1 s while the indentor is changed, and for 0.65 s at the loop point.  Every touching segment is linear (constant speed:
+    no easing to rest at its ends) and lasts a whole number of milliseconds, so at 1 kHz every
+    frame differs from the one before by the scripted speeds.  Loops: it starts and ends
+    untouched in the same pose."""
+    xc, yc = _centre(g)
+    d = Geometry()
+    sx, sy = g.span_x / d.span_x, g.span_y / d.span_y  # mm on the default array -> this one
+
+    def at(dx: float, dy: float) -> dict[str, float]:
+        """Contact centre ``(dx, dy)`` mm from the array centre (default array)."""
+        return {"x0": xc + dx * sx, "y0": yc + dy * sy}
+
+    lin = "linear"
+    return (
+        SceneBuilder(Pose(r1=10.0, psi_deg=90.0, **at(-5.0, -3.0)))
+        # Untouched for 0.65 s at the loop point (this idle and the last approach): the hand lets
+        # go and grasps again.  The daemon's zeroer moves its baseline only while nothing
+        # touches and starts it from an unloaded finger; 0.1 s lift-offs are too short for that.
+        .idle(0.5)
+        # -- cylinder: touch down rolling, rolls at 20, 50, 100 mm/s, turns at 180 deg/s
+        .press(0.10, force=0.6, ease=lin, **at(-3.0, -3.0))  # 20 mm/s
+        .roll(0.30, force=1.2, **at(3.0, -3.0))  # 20 mm/s, +2 N/s
+        .roll(0.12, force=1.5, **at(-3.0, -3.0))  # 50 mm/s
+        .roll(0.06, force=1.8, **at(3.0, -3.0))  # 100 mm/s
+        .rotate(0.25, psi_deg=135.0, force=2.0, **at(3.0, 3.0))  # 180 deg/s, 24 mm/s
+        .rotate(0.50, psi_deg=45.0, force=1.0, **at(-5.0, -3.0))  # 180 deg/s, 20 mm/s, -2 N/s
+        .rotate(0.25, psi_deg=90.0, force=0.5, **at(0.0, 0.0))  # 180 deg/s, 23 mm/s
+        .roll(0.20, force=0.3, **at(0.0, 6.0))  # 30 mm/s, light
+        .release(0.08, ease=lin, **at(0.0, 4.4))  # lift off rolling at 20 mm/s
+        .approach(0.10, r1=8.0, r2=8.0, **at(4.0, 4.0))  # 0.1 s in the air: now a sphere
+        # -- sphere: rolls at 20-80 mm/s with force ramps of up to 5.3 N/s
+        .press(0.10, force=0.8, ease=lin, **at(2.0, 4.0))  # 20 mm/s
+        .roll(0.20, force=1.6, **at(2.0, -6.0))  # 50 mm/s
+        .roll(0.25, force=0.6, **at(-3.0, 1.0))  # 34 mm/s
+        .roll(0.10, force=0.9, **at(5.0, 1.0))  # 80 mm/s
+        .roll(0.40, force=2.0, **at(-3.0, 1.0))  # 20 mm/s
+        .roll(0.30, force=0.4, **at(3.0, -4.0))  # 26 mm/s
+        .release(0.08, ease=lin, **at(4.6, -4.0))  # 20 mm/s
+        .approach(0.10, r1=0.5, r2=math.inf, psi_deg=45.0, **at(4.0, 0.0))  # now an edge
+        # -- knife edge: turns at 180 deg/s while rolling, rolls at up to 100 mm/s
+        .press(0.10, force=0.5, ease=lin, psi_deg=63.0, **at(2.0, 0.0))  # 20 mm/s, 180 deg/s
+        .rotate(0.40, psi_deg=135.0, force=1.2, **at(-5.0, 4.0))  # 180 deg/s, 20 mm/s
+        .roll(0.15, force=1.5, **at(2.5, 4.0))  # 50 mm/s
+        .rotate(0.50, psi_deg=45.0, force=0.8, **at(-3.0, -5.0))  # 180 deg/s, 21 mm/s
+        .roll(0.08, force=0.4, **at(5.0, -5.0))  # 100 mm/s
+        .release(0.08, ease=lin, **at(5.0, -3.4))  # 20 mm/s, from a light force: little hysteresis
+        .approach(0.15, r1=10.0, r2=math.inf, psi_deg=90.0, **at(-5.0, -3.0))  # back to the start
+        .build("moving")
+    )
+
+
 #: Built-in scenes by name (``sim://?scene=NAME``, ``tactiled simulate --scene NAME``).
 SCENES: dict[str, Callable[[Geometry], Scene]] = {
     "demo": _demo,
@@ -333,6 +396,7 @@ SCENES: dict[str, Callable[[Geometry], Scene]] = {
     "empty": _empty,
     "sphere": _sphere,
     "edge": _edge,
+    "moving": _moving,
 }
 
 

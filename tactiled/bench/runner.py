@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 
@@ -13,32 +12,9 @@ from tactiled.bench.estimators import Estimator
 from tactiled.bench.suite import BenchFrame
 from tactiled.fit.fitter import Fitter
 from tactiled.fit.models import get_model
+from tactiled.progress import Progress  # the suites import it from here too
 
 PARAMS = ("r1_mm", "angle_deg", "force_n", "x_mm", "y_mm")
-
-
-class Progress:
-    """A plain progress bar on stderr (no dependency); silent when stderr is not a terminal
-    unless forced, so logs stay clean."""
-
-    def __init__(self, total: int, label: str, enabled: bool | None = None) -> None:
-        self.total, self.label, self.done = max(total, 1), label, 0
-        self.enabled = sys.stderr.isatty() if enabled is None else enabled
-        self._last = 0.0
-        self._t0 = time.monotonic()
-
-    def step(self, n: int = 1) -> None:
-        self.done += n
-        now = time.monotonic()
-        if self.enabled and (now - self._last > 0.2 or self.done >= self.total):
-            self._last = now
-            frac = self.done / self.total
-            eta = (now - self._t0) / frac * (1 - frac) if frac > 0 else 0.0
-            bar = "#" * int(30 * frac)
-            sys.stderr.write(f"\r{self.label:<40.40} [{bar:<30}] {100 * frac:5.1f} % eta {eta:5.0f} s")
-            if self.done >= self.total:
-                sys.stderr.write("\n")
-            sys.stderr.flush()
 
 
 @dataclass

@@ -10,7 +10,11 @@ Suites (default: all):
               frame), unchanged frames, too light for curvature, and a scripted scene at 1 kHz
               with all skipping on and off (frames/s, errors)
   acquisition three simulated fingers at 1 kHz over real ptys through the whole daemon:
-              frames lost, every frame accounted for, fit rate, latency p50/p99
+              frames lost, every frame accounted for, fit rate, latency p50/p99; the share of
+              contact frames answered by their own fit or a justified gate reuse (not
+              superseded), and the streamed estimates' accuracy against the scene's truth;
+              --scene picks the scene (moving: contacts that never rest), --workers sweeps
+              the fit worker count (one run each, side by side)
   foundation  the fitter against its bars: noise-free recovery from the reference integration,
               noisy efficiency (RMS/CRB, 2-sigma coverage), the paper's Table 1, speed
 
@@ -19,6 +23,7 @@ Output is Markdown on stdout; progress goes to stderr.  --quick runs in about a 
 examples:
   tactiled bench --quick
   tactiled bench --suite configs --plot pareto.png
+  tactiled bench --suite acquisition --scene moving --workers 1,2,4
 """
 
 from __future__ import annotations
@@ -43,6 +48,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write a Pareto chart of time against error (needs matplotlib: pip install 'tactiled[plot]')")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar on stderr (default: when stderr is a terminal)")
+    acq = p.add_argument_group("acquisition suite")
+    acq.add_argument("--scene", default="demo",
+                     help="simulator scene the fingers play (default demo; moving: contacts that never rest)")
+    acq.add_argument("--workers", type=_worker_list, default=(2,), metavar="N[,N...]",
+                     help="fit worker counts, one run each (default 2; e.g. 1,2,4)")
+    acq.add_argument("--seconds", type=float, default=None, metavar="S",
+                     help="measured seconds per run, after 4-5 s of warm-up (default 20, quick 6)")
+
+
+def _worker_list(text: str) -> tuple[int, ...]:
+    try:
+        counts = tuple(int(t) for t in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected worker counts like 1,2,4, got {text!r}") from None
+    if not counts or any(not 1 <= n <= 64 for n in counts):
+        raise argparse.ArgumentTypeError(f"worker counts must lie in 1..64, got {text!r}")
+    return counts
 
 
 def _header(args: argparse.Namespace) -> str:
@@ -65,6 +87,16 @@ def run(args: argparse.Namespace) -> int:
             print("tactiled bench: error: --plot needs matplotlib: pip install 'tactiled[plot]'", file=sys.stderr)
             return 2
     suites = SUITES if args.suite == "all" else (args.suite,)
+    if "acquisition" in suites:
+        from tactiled.sim import SCENES
+
+        if args.scene.strip().lower() not in SCENES:
+            print(f"tactiled bench: error: unknown scene {args.scene!r}; known scenes: {', '.join(SCENES)}",
+                  file=sys.stderr)
+            return 2
+        if args.seconds is not None and not args.seconds > 0:
+            print("tactiled bench: error: --seconds must be positive", file=sys.stderr)
+            return 2
     sensor = SensorModel(noise=BENCH_NOISE)
     out = [_header(args)]
     if "configs" in suites:
@@ -139,7 +171,9 @@ def run(args: argparse.Namespace) -> int:
     if "acquisition" in suites:
         from tactiled.bench import acquisition
 
-        out += ["", "## Acquisition: three fingers at 1 kHz over ptys", "", acquisition.run(args.quick)]
+        out += ["", f"## Acquisition: three fingers at 1 kHz over ptys, scene {args.scene.strip().lower()}", "",
+                acquisition.run(args.quick, scene=args.scene.strip().lower(), workers=args.workers,
+                                seconds=args.seconds)]
     if "speed" in suites and (args.suite == "speed" or args.baseline):
         from tactiled.bench import speed
 

@@ -16,15 +16,31 @@ stored in the file by 'tactiled simulate', else 0.0005.  A bad file gets one err
 constants, tactel positions and model-error floor (docs/calibration.md).  With it, FRAMES.npz
 may hold 'counts' (N, rows, cols) raw readings (and optionally 'sensor_id', checked against the
 file) in place of 'strain'; they go through the file's tables (strain 0 at the zero-load
-point), then the fit.  Uncertainties also widen when the residuals of the frames fitted so far
-show the finger departing from its model (docs/fitting.md, "Honest uncertainties").
+point), then the fit.  Uncertainties also widen when a frame's residuals say the finger departs
+from its model (docs/fitting.md, "Honest uncertainties"; the daemon, which sees one stream, also
+learns that across frames, which a file fitted in parallel chunks cannot).
+
+Every frame is fitted on its own (cold start), so frames can be fitted in parallel: --jobs N
+worker processes (default: every core this process may use, for inputs of 2000 frames or
+more) take chunks of frames, and the lines are written strictly in frame order, the same as
+with --jobs 1 but for the timing key fit_ms.  Progress goes to stderr for inputs of 1000 frames or more (a bar on a terminal, else a
+line every 10 s and the totals at the end); stdout carries only the JSON lines.  For raw
+recordings (.tact), which need calibration and zeroing frame by frame, use 'tactiled replay'.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import multiprocessing
+import os
+import signal
 import sys
+from collections import deque
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import TextIO
 
 import numpy as np
 
@@ -32,11 +48,44 @@ from tactiled.calibration.contact import ContactDetector
 from tactiled.calibration.fileformat import Calibration, load_calibration_file
 from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.errors import TactiledError
-from tactiled.fit.fitter import FitOptions, Fitter
-from tactiled.fit.result import FitResult
+from tactiled.fit.result import FitResult  # light: no numba, no scipy
 from tactiled.framefile import load_frame_file
+from tactiled.progress import Progress
 
 MODELS = ("auto", "cylinder", "sphere", "general")
+#: Inputs at least this long show progress on stderr by default.
+LONG_INPUT = 1000
+#: Without --jobs, shorter inputs are fitted in this process: starting the workers (a
+#: forkserver that imports numba and scipy, then a fitter per worker: ~1 s more than fitting
+#: here) would cost more than two cores save on fewer frames (~0.8 ms a cold cylinder fit).
+PARALLEL_INPUT = 2000
+#: Frames per chunk handed to a worker: enough work (~16-256 ms) to drown the cost of sending
+#: it (~0.2 ms), small enough to spread evenly over the workers and keep progress moving.
+MIN_CHUNK, MAX_CHUNK = 16, 256
+#: Chunks in flight per worker: enough to keep every worker busy while the parent writes.
+AHEAD = 4
+#: Imported once by the forkserver, so the workers forked from it start with numba's kernels
+#: loaded and the default sensor's start table built (docs/pipeline.md, "Workers").
+PRELOAD_MODULE = "tactiled.pipeline.preload"
+
+
+def available_cores() -> int:
+    """CPUs this process may run on (its affinity mask, which a container or ``taskset``
+    narrows; ``os.cpu_count()`` where the platform has no such mask)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def _jobs(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of worker processes, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"--jobs must be at least 1, got {n}")
+    return n
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -50,6 +99,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibration", metavar="CAL.json", default=None,
                    help="the sensor's calibration file: its identified model (version 2) is used, "
                    "and FRAMES.npz may then hold raw 'counts'")
+    p.add_argument("--jobs", "-j", type=_jobs, default=None, metavar="N",
+                   help=f"worker processes fitting in parallel (default: every core available, "
+                        f"here {available_cores()}, for inputs of {PARALLEL_INPUT} frames or more; "
+                        "shorter ones in this process); the output does not depend on it")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help=f"progress on stderr (default: for inputs of {LONG_INPUT} frames or more)")
 
 
 def _sensor(args: argparse.Namespace, shape: tuple[int, int], dx: float | None, dy: float | None,
@@ -69,6 +124,90 @@ def _sensor(args: argparse.Namespace, shape: tuple[int, int], dx: float | None, 
     return SensorModel(geometry=geo, noise=noise)
 
 
+# --------------------------------------------------------------------------------------------
+# The work, the same in this process and in a worker
+
+
+class _Fitting:
+    """Turns frames into output lines: the contact decision, then a cold fit of each contact
+    frame (no state carries from one frame to the next, which is what makes chunks
+    independent and the output the same for any number of workers)."""
+
+    def __init__(self, sensor: SensorModel, window: int, model: str) -> None:
+        # Imported here: a parent that only hands chunks to workers never loads the fitter.
+        from tactiled.fit.fitter import FitOptions, Fitter
+
+        self.fitter = Fitter(sensor, FitOptions(window=window))
+        self.detector = ContactDetector(sensor=sensor)
+        self.model = model
+
+    def lines(self, first: int, strain: np.ndarray) -> str:
+        """JSON lines (each ending in a newline) of frames ``first, first + 1, ...``."""
+        out = []
+        for i, frame in enumerate(strain, first):
+            if self.detector.statistic(frame) > self.detector.enter_threshold:
+                result = self.fitter.fit(frame, self.model)
+            else:
+                result = FitResult(contact=False, message="no contact: below the noise threshold")
+            out.append(json.dumps(result.to_json_dict(frame=i), allow_nan=False) + "\n")
+        return "".join(out)
+
+
+_worker: _Fitting | None = None  # a worker process's fitter, built once by _init_worker
+
+
+def _init_worker(sensor: SensorModel, window: int, model: str) -> None:
+    # Ctrl-C signals the whole process group; the parent decides what stops, and a worker's
+    # traceback for it would only bury the message.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    global _worker
+    _worker = _Fitting(sensor, window, model)
+
+
+def _fit_chunk(first: int, strain: np.ndarray) -> str:
+    assert _worker is not None, "worker not initialised"
+    return _worker.lines(first, strain)
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def chunk_size(frames: int, jobs: int) -> int:
+    """Frames per chunk: about 8 chunks per worker, within [MIN_CHUNK, MAX_CHUNK]."""
+    return max(MIN_CHUNK, min(MAX_CHUNK, math.ceil(frames / (8 * jobs))))
+
+
+def _serial(work: _Fitting, strain: np.ndarray, out: TextIO, bar: Progress) -> None:
+    step = MIN_CHUNK  # written a chunk at a time: a reader of a pipe sees lines as they come
+    for lo in range(0, len(strain), step):
+        out.write(work.lines(lo, strain[lo:lo + step]))
+        bar.step(min(step, len(strain) - lo))
+
+
+def _parallel(sensor: SensorModel, args: argparse.Namespace, strain: np.ndarray, jobs: int,
+              chunk: int, out: TextIO, bar: Progress) -> None:
+    """Chunks to ``jobs`` worker processes, at most ``AHEAD`` per worker in flight (memory
+    stays bounded however long the input); each chunk's lines are written as soon as every
+    chunk before it has been."""
+    ctx = multiprocessing.get_context("forkserver")  # never fork: numpy's BLAS may hold threads
+    ctx.set_forkserver_preload([PRELOAD_MODULE])
+    pending: deque[tuple[int, Future[str]]] = deque()
+    with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_init_worker,
+                             initargs=(sensor, args.window, args.model)) as pool:
+        try:
+            lo = 0
+            while lo < len(strain) or pending:
+                while lo < len(strain) and len(pending) < AHEAD * jobs:
+                    pending.append((lo, pool.submit(_fit_chunk, lo, strain[lo:lo + chunk])))
+                    lo += chunk
+                first, future = pending.popleft()
+                out.write(future.result())
+                bar.step(min(chunk, len(strain) - first))
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+
+
 def run(args: argparse.Namespace) -> int:
     if args.window < 2:
         print(f"tactiled fit: error: --window must be at least 2, got {args.window}", file=sys.stderr)
@@ -80,14 +219,36 @@ def run(args: argparse.Namespace) -> int:
     except (TactiledError, ValueError) as err:
         print(f"tactiled fit: error: {err}", file=sys.stderr)
         return 2
-    fitter = Fitter(sensor, FitOptions(window=args.window, learn_floor=True))
-    detector = ContactDetector(sensor=sensor)
+    strain = ff.strain
+    frames = len(strain)
+    if args.jobs is not None:
+        jobs = args.jobs
+    else:
+        jobs = available_cores() if frames >= PARALLEL_INPUT else 1
+    chunk = chunk_size(frames, jobs)
+    jobs = max(1, min(jobs, math.ceil(frames / chunk)))  # no worker without a chunk to fit
+    show = frames >= LONG_INPUT if args.progress is None else args.progress
+    bar = Progress(frames, "tactiled fit", show, unit="frames")
     out = sys.stdout
-    for i, frame in enumerate(ff.strain):
-        if detector.statistic(frame) > detector.enter_threshold:
-            result = fitter.fit(frame, args.model)
+    try:
+        if jobs == 1:
+            _serial(_Fitting(sensor, args.window, args.model), strain, out, bar)
         else:
-            result = FitResult(contact=False, message="no contact: below the noise threshold")
-        out.write(json.dumps(result.to_json_dict(frame=i), allow_nan=False) + "\n")
-    out.flush()
+            _parallel(sensor, args, strain, jobs, chunk, out, bar)
+        out.flush()
+    except BrokenPipeError:
+        # The reader went away (`tactiled fit big.npz | head`): stop quietly, as cat does.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, out.fileno())  # so the interpreter's last flush does not fail again
+        return 0
+    except KeyboardInterrupt:
+        print("tactiled fit: interrupted", file=sys.stderr)
+        return 130
+    except BrokenProcessPool as err:
+        print(f"tactiled fit: error: a worker process died ({err}); try --jobs 1", file=sys.stderr)
+        return 1
+    elapsed = bar.elapsed()
+    bar.finish(f"{frames} frame(s) in {elapsed:.1f} s ({frames / elapsed if elapsed > 0 else 0:,.0f} frames/s, "
+               f"{jobs} job{'s' if jobs > 1 else ''})")
     return 0
+

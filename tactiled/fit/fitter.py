@@ -106,7 +106,8 @@ class FitOptions:
     jacobian: str = "exact"
     #: Learn from the fits' residuals how far the finger departs from its model and widen the
     #: uncertainties of later fits to match (tactiled.fit.floor).  On for a stream of one
-    #: sensor's frames (the daemon, ``tactiled fit``); off, each fit stands alone.
+    #: sensor's frames (the daemon); off, each fit stands alone (``tactiled fit``, whose chunks
+    #: run in parallel).
     learn_floor: bool = False
 
     def __post_init__(self) -> None:

@@ -1,8 +1,10 @@
 """`tactiled fit` and `tactiled simulate` as a user (and outside tools) run them: subprocesses."""
 
+import io
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -118,3 +120,96 @@ def test_help_explains():
         assert name in proc.stdout
     fit_help = run("fit", "--help").stdout
     assert "FRAMES.npz" in fit_help and "--model" in fit_help and "--window" in fit_help
+
+
+# --------------------------------------------------------------------------------------------
+# --jobs: the same lines, in frame order, from any number of worker processes
+
+FIT_MS = re.compile(r'"fit_ms": [-0-9.e]+')
+
+
+def without_timing(text: str) -> str:
+    """The output with the value of the one timing key blanked (everything else byte for byte)."""
+    return FIT_MS.sub('"fit_ms": T', text)
+
+
+@pytest.fixture(scope="module")
+def mixed_frames(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("jobs") / "mix.npz"
+    run("simulate", str(out), "--r1", "0.5:40", "--angle", "30:150", "--force", "0.2:2",
+        "--x", "3:20", "--frames", "240", "--empty", "0.2", "--seed", "11")
+    return out
+
+
+@pytest.mark.parametrize("options", [[], ["--model", "auto", "--window", "6"]])
+def test_jobs_give_the_same_lines_in_frame_order(mixed_frames: Path, options: list[str]):
+    serial = run("fit", str(mixed_frames), "--jobs", "1", *options)
+    parallel = run("fit", str(mixed_frames), "--jobs", "2", *options)
+    odd = run("fit", str(mixed_frames), "--jobs", "3", *options)  # 15 chunks over 3 workers
+    assert [json.loads(l)["frame"] for l in serial.stdout.splitlines()] == list(range(240))
+    assert without_timing(parallel.stdout) == without_timing(serial.stdout)
+    assert without_timing(odd.stdout) == without_timing(serial.stdout)
+    assert parallel.stdout != serial.stdout  # fit_ms is measured, not copied
+    assert serial.stderr == parallel.stderr == ""  # a short input: no progress, stdout only JSON
+
+
+def test_progress_and_totals_on_stderr_only(mixed_frames: Path):
+    proc = run("fit", str(mixed_frames), "--jobs", "2", "--progress")
+    assert all(json.loads(l) for l in proc.stdout.splitlines())
+    assert re.fullmatch(r"tactiled fit: 240 frame\(s\) in [0-9.]+ s \([0-9,]+ frames/s, 2 jobs\)\n",
+                        proc.stderr), proc.stderr
+    # without --jobs a short input is fitted in this process (workers would cost more)
+    assert "1 job)" in run("fit", str(mixed_frames), "--progress").stderr
+
+
+def test_a_reader_that_goes_away_ends_the_fit_quietly(mixed_frames: Path):
+    proc = subprocess.Popen([*TACTILED, "fit", str(mixed_frames), "--jobs", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    first = proc.stdout.readline()
+    proc.stdout.close()  # as `tactiled fit big.npz | head -1` does
+    _, err = proc.communicate(timeout=120)
+    assert json.loads(first)["frame"] == 0
+    assert proc.returncode == 0 and err == b"", err.decode()
+
+
+def test_jobs_option_checked(mixed_frames: Path):
+    for bad in ("0", "-2", "many"):
+        proc = run("fit", str(mixed_frames), "--jobs", bad, check=False)
+        assert proc.returncode == 2 and "--jobs" in proc.stderr and proc.stdout == ""
+
+
+def test_chunks_spread_over_the_workers():
+    from tactiled.commands.fit import MAX_CHUNK, MIN_CHUNK, chunk_size
+
+    assert chunk_size(240, 2) == MIN_CHUNK  # 15 chunks: both workers busy
+    assert chunk_size(100_000, 2) == MAX_CHUNK
+    assert chunk_size(20_000, 4) == MAX_CHUNK
+    assert chunk_size(4000, 2) == 250  # ~8 chunks per worker
+
+
+def test_progress_is_a_bar_on_a_terminal_and_lines_in_a_log(monkeypatch: pytest.MonkeyPatch):
+    from tactiled import progress
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    clock = [100.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])
+    tty, log = Terminal(), io.StringIO()
+    bars = [progress.Progress(100, "fit", True, unit="frames", interval=10.0, stream=s) for s in (tty, log)]
+    for _ in range(4):
+        clock[0] += 6.0
+        for bar in bars:
+            bar.step(20)
+    for bar in bars:
+        bar.finish("done")
+    assert tty.getvalue().count("\r") == 4 and "[" in tty.getvalue()
+    lines = log.getvalue().splitlines()  # one line per 10 s, none of them a redrawn bar
+    assert lines == ["fit: 40/100 frames (40 %), 3 frames/s, eta 18 s",
+                     "fit: 80/100 frames (80 %), 3 frames/s, eta 6 s", "fit: done"]
+    quiet = io.StringIO()
+    off = progress.Progress(10, "fit", None, stream=quiet)  # not a terminal: off by default
+    off.step(10)
+    off.finish("done")
+    assert quiet.getvalue() == ""

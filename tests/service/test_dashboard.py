@@ -1,10 +1,17 @@
 """The dashboard in a real browser: headless Chromium (Debian's) driven by Playwright loads the
 page from a running daemon and sees estimates appear and update, the strain map drawn, the
-health counters; with a token, the ?token= login and its session cookie open the stream."""
+health counters, the strip chart of the last 10 s with its bands and the reason of a withheld
+value on hover; with a token, the ?token= login and its session cookie open the stream.
+
+``TACTILED_DOCS_SCREENSHOT=docs/img/dashboard-strip.png`` makes
+``test_strip_chart_of_a_moving_contact`` also write its screenshot there (the README's)."""
 
 from __future__ import annotations
 
+import json
+import os
 import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -107,4 +114,91 @@ def test_dashboard_login_with_token(browser_page, live_server):
     session = [c for c in cookies if c["name"] == "tactiled_session"]
     assert session and session[0]["httpOnly"] and session[0]["sameSite"] == "Strict"
     assert page.evaluate("document.cookie") == "", "scripts cannot read the session"
+    assert not errors, errors
+
+
+# --------------------------------------------------------------------------------------------
+# The strip chart
+
+
+def strip_lanes(page: Any, sensor: str) -> tuple[dict[str, float], list[tuple[float, float]]]:
+    """The strip canvas's box on the page and its lanes' [top, bottom] in page pixels (force,
+    R1, angle)."""
+    canvas = page.locator(f"#sensor-{sensor} canvas.strip")
+    box = canvas.bounding_box()
+    scale = box["height"] / float(canvas.get_attribute("height"))
+    lanes = json.loads(canvas.get_attribute("data-lanes"))
+    return box, [(box["y"] + a * scale, box["y"] + b * scale) for a, b in lanes]
+
+
+def hover_until(page: Any, sensor: str, lane: int, pattern: str, timeout_s: float = 30.0) -> str:
+    """Sweep the pointer along ``lane`` of the strip chart (newest first) until the tooltip
+    matches ``pattern``; its text."""
+    tip = f"#sensor-{sensor} .strip-tip"
+    deadline = time.monotonic() + timeout_s
+    seen: set[str] = set()
+    while time.monotonic() < deadline:
+        box, lanes = strip_lanes(page, sensor)
+        top, bottom = lanes[lane]
+        for x in range(int(box["width"]) - 14, 100, -7):
+            page.mouse.move(box["x"] + x, (top + bottom) / 2)
+            page.wait_for_timeout(45)  # the tooltip follows on the next redraw (<= 33 ms)
+            text = page.text_content(tip) or ""
+            if page.is_visible(tip):
+                seen.add(text.split(" · ")[0])
+                if re.search(pattern, text):
+                    return text
+    raise AssertionError(f"no tooltip matching {pattern!r} on lane {lane}; saw e.g. {sorted(seen)[:8]}")
+
+
+def strip_colours(page: Any, sensor: str) -> int:
+    """Distinct colours drawn on the sensor's strip chart."""
+    return page.evaluate("""s => {
+        const c = document.querySelector(`#sensor-${s} canvas.strip`);
+        const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+        const seen = new Set();
+        for (let i = 0; i < d.length; i += 8) seen.add(`${d[i]},${d[i+1]},${d[i+2]}`);
+        return seen.size;
+    }""", sensor)
+
+
+def test_strip_chart_bands_and_the_reason_of_a_withheld_value(browser_page, live_server):
+    # A sphere fitted as a sphere: force and radius with their sigmas, the angle withheld
+    # ("undefined: sphere model") on every contact frame.
+    server = live_server(sim_settings(1, **{
+        "sensor[0].url": "sim://?scene=sphere&seed=2&sensor_id=0", "sensor[0].model": "sphere"}))
+    page, errors = browser_page
+    page.goto(server.url + "/")
+    wait_numeric_seq(page, "finger0")
+    force = hover_until(page, "finger0", 0, r"^force \d+\.\d{3} ± \d+\.\d{3} N · seq \d+")
+    radius = hover_until(page, "finger0", 1, r"^R1 \d+\.\d{2} ± \d+\.\d{2} mm")
+    angle = hover_until(page, "finger0", 2, r"^angle withheld: undefined: sphere model · seq \d+")
+    idle = hover_until(page, "finger0", 0, r"^force withheld: no contact")
+    assert strip_colours(page, "finger0") > 20, "the strip chart is not drawn"
+    page.mouse.move(5, 5)  # off the chart: the tooltip goes
+    page.wait_for_function("() => document.querySelector('#sensor-finger0 .strip-tip').hidden")
+    assert not errors, (errors, force, radius, angle, idle)
+
+
+def test_strip_chart_of_a_moving_contact(browser_page, live_server, tmp_path):
+    server = live_server(sim_settings(1, **{"sensor[0].url": "sim://?scene=moving&seed=1&sensor_id=0"}))
+    page, errors = browser_page
+    page.set_viewport_size({"width": 1200, "height": 900})
+    page.goto(server.url + "/")
+    wait_numeric_seq(page, "finger0")
+    started = time.monotonic()
+    for lane, pattern in ((0, r"^force \d"), (1, r"^R1 \d"), (2, r"^angle \d")):
+        hover_until(page, "finger0", lane, pattern)
+    page.mouse.move(5, 5)
+    # a full chart for the picture: 10 s of the scene's motion
+    page.wait_for_timeout(max(0.0, 11.0 - (time.monotonic() - started)) * 1000)
+    box, lanes = strip_lanes(page, "finger0")
+    page.mouse.move(box["x"] + box["width"] * 0.62, (lanes[1][0] + lanes[1][1]) / 2)
+    page.wait_for_timeout(100)
+    shot = tmp_path / "strip.png"
+    page.locator("#sensor-finger0").screenshot(path=str(shot))
+    assert shot.stat().st_size > 10_000
+    target = os.environ.get("TACTILED_DOCS_SCREENSHOT")
+    if target:
+        Path(target).write_bytes(shot.read_bytes())
     assert not errors, errors

@@ -1,14 +1,18 @@
 // tactiled dashboard: one card per sensor (strain heat map, contact ellipse, curvature axis,
-// readouts with 1-sigma uncertainties) and the health counters.
+// readouts with 1-sigma uncertainties, a strip chart of the last 10 s) and the health counters.
 //
 // Messages come from /v1/stream at a capped rate (MAX_RATE per sensor and stream); each one
-// only replaces the latest state of its sensor, and drawing happens once per animation frame
-// from that latest state, so the page never queues work and never falls behind the stream.
+// only replaces the latest state of its sensor (and appends one sample to its strip chart's
+// bounded ring), and drawing happens once per animation frame from that state, so the page
+// never queues work and never falls behind the stream.
 "use strict";
 
 const MAX_RATE = 30;         // Hz per sensor and stream asked of the server
 const HEALTH_PERIOD = 1000;  // ms between /v1/health polls
 const MIN_SCALE = 0.002;     // strain at the top of the colour scale, at least
+const STRIP_S = 10;          // seconds of history in the strip chart
+const STRIP_CAP = 2048;      // samples kept per sensor (10 s at up to 200 Hz): a ring, never grows
+const STRIP_MIN_DT = 1000 / 30;  // ms between strip redraws (it scrolls; 30 Hz is smooth enough)
 
 const state = {
   sensors: new Map(),        // name -> {info, est, frame, dirty, el, canvas, scale}
@@ -54,8 +58,8 @@ function sensorState(name) {
   card.dataset.sensor = name;
   $(".name", card).textContent = name;
   $("#sensors").appendChild(card);
-  s = {info: null, est: null, frame: null, dirty: true, el: card, canvas: $("canvas", card),
-       scale: MIN_SCALE};
+  s = {info: null, est: null, frame: null, dirty: true, el: card, canvas: $("canvas.map", card),
+       scale: MIN_SCALE, strip: newStrip($("canvas.strip", card), $(".strip-tip", card))};
   state.sensors.set(name, s);
   if (state.health && state.health.sensors[name]) showStatus(s, state.health.sensors[name]);
   return s;
@@ -97,7 +101,13 @@ function connect() {
         ws.send(JSON.stringify({type: "subscribe", streams: ["estimates", "frames"],
                                 max_rate: MAX_RATE}));
         break;
-      case "estimate": { const s = sensorState(msg.sensor); s.est = msg; s.dirty = true; break; }
+      case "estimate": {
+        const s = sensorState(msg.sensor);
+        s.est = msg;
+        s.dirty = true;
+        stripAdd(s.strip, msg);
+        break;
+      }
       case "frame": { const s = sensorState(msg.sensor); s.frame = msg; s.dirty = true; break; }
       case "error": message(`server: ${msg.message}`); break;
       default: break;
@@ -207,8 +217,210 @@ function drawReadouts(s) {
   $(".model-label", el).textContent = e.label ? `(${e.label})` : "";
 }
 
-function render() {
+// -- strip chart: the last STRIP_S seconds of force, R1 and angle --------------------------
+// One sample per estimate received (time = when it arrived here), kept in a fixed ring.  Each
+// lane draws the value as a line over its 1-sigma band; a null value (withheld, or no contact)
+// breaks the line, and a withheld one is marked under the lane; hovering shows the value with
+// its sigma, or why it is missing (the estimate's `reasons` entry).
+const LANES = [
+  {key: "force_n", label: "force", unit: "N", digits: 3, span: 0.5, colour: "#39d353"},
+  {key: "r1_mm", label: "R1", unit: "mm", digits: 2, span: 5, colour: "#58a6ff"},
+  // psi lives in [0, 180): a step across the fold is not a motion, so the line breaks there
+  {key: "angle_deg", label: "angle", unit: "°", digits: 1, fixed: [0, 180], fold: 180,
+   colour: "#f0883e"},
+];
+const STRIP_PAD = {left: 92, right: 10, top: 6, bottom: 18, gap: 8};
+
+// Lane k spans [top, bottom] in canvas pixels (also published as data-lanes, for tests).
+function stripLanes(c) {
+  const P = STRIP_PAD;
+  const h = (c.height - P.top - P.bottom - P.gap * (LANES.length - 1)) / LANES.length;
+  return LANES.map((_, k) => [P.top + k * (h + P.gap), P.top + k * (h + P.gap) + h]);
+}
+
+function newStrip(canvas, tip) {
+  const strip = {canvas, tip, buf: new Array(STRIP_CAP), start: 0, len: 0, drawn: 0,
+                 mouse: null};
+  canvas.dataset.lanes = JSON.stringify(stripLanes(canvas));
+  canvas.addEventListener("mousemove", (ev) => {
+    const r = canvas.getBoundingClientRect();
+    // the canvas may be drawn smaller than its pixel size (narrow window): map back
+    strip.mouse = {x: (ev.clientX - r.left) * canvas.width / r.width,
+                   y: (ev.clientY - r.top) * canvas.height / r.height,
+                   cssX: ev.clientX - r.left, cssY: ev.clientY - r.top};
+    strip.drawn = 0;  // redraw now, with the hover
+  });
+  canvas.addEventListener("mouseleave", () => { strip.mouse = null; tip.hidden = true; strip.drawn = 0; });
+  return strip;
+}
+
+function stripAt(strip, i) { return strip.buf[(strip.start + i) % STRIP_CAP]; }
+
+function stripAdd(strip, e) {
+  const sample = {t: performance.now(), seq: e.seq, gate: e.gate, contact: !!e.contact,
+                  v: [], sd: [], why: []};
+  const std = e.std || {}, reasons = e.reasons || {};
+  for (const lane of LANES) {
+    const v = e.contact ? e[lane.key] : null;
+    sample.v.push(v === undefined ? null : v);
+    sample.sd.push(v === null || v === undefined ? null : (std[lane.key] ?? null));
+    sample.why.push(v !== null && v !== undefined ? (reasons[lane.key] || null) :
+      !e.contact ? "no contact" : (reasons[lane.key] || "not estimated"));
+  }
+  if (strip.len < STRIP_CAP) {
+    strip.buf[(strip.start + strip.len) % STRIP_CAP] = sample;
+    strip.len++;
+  } else {  // full: the oldest sample makes room
+    strip.buf[strip.start] = sample;
+    strip.start = (strip.start + 1) % STRIP_CAP;
+  }
+}
+
+function laneRange(strip, k, lane, from) {
+  if (lane.fixed) return lane.fixed;
+  let top = 0, peak = 0;
+  for (let i = 0; i < strip.len; i++) {
+    const p = stripAt(strip, i);
+    if (p.t < from || p.v[k] === null) continue;
+    peak = Math.max(peak, p.v[k]);
+    top = Math.max(top, p.v[k] + (p.sd[k] || 0));
+  }
+  // a band far wider than the values (a radius barely observed) must not flatten the line
+  top = Math.max(lane.span, Math.min(top, 1.5 * peak));
+  const step = Math.pow(10, Math.floor(Math.log10(top)));
+  return [0, Math.ceil(top / step * 2) / 2 * step];
+}
+
+function fmtSample(lane, k, p) {
+  const v = p.v[k], sd = p.sd[k];
+  const where = `seq ${p.seq}${p.gate && p.gate !== "fit" ? ` (${p.gate})` : ""}`;
+  if (v === null) return `${lane.label} withheld: ${p.why[k]} · ${where}`;
+  let text = `${lane.label} ${v.toFixed(lane.digits)}`;
+  if (sd !== null) text += ` ± ${sd.toFixed(lane.digits)}`;
+  text += ` ${lane.unit} · ${where}`;
+  return p.why[k] ? `${text} · ${p.why[k]}` : text;
+}
+
+function drawStrip(strip, now) {
+  const c = strip.canvas, ctx = c.getContext("2d");
+  const P = STRIP_PAD, from = now - STRIP_S * 1000;
+  while (strip.len && stripAt(strip, 0).t < from - 1000) {  // forget what scrolled off
+    strip.buf[strip.start] = undefined;
+    strip.start = (strip.start + 1) % STRIP_CAP;
+    strip.len--;
+  }
+  const w = c.width - P.left - P.right;
+  const lanes = stripLanes(c);
+  const X = (t) => P.left + (t - from) / (STRIP_S * 1000) * w;
+  ctx.fillStyle = "#0b0f13";
+  ctx.fillRect(0, 0, c.width, c.height);
+  ctx.font = "11px sans-serif";
+  // time axis
+  ctx.fillStyle = "#8b949e";
+  ctx.strokeStyle = "#1f262d";
+  ctx.lineWidth = 1;
+  for (let s = 0; s <= STRIP_S; s += 2) {
+    const x = X(from + s * 1000);
+    ctx.beginPath(); ctx.moveTo(x, P.top); ctx.lineTo(x, c.height - P.bottom); ctx.stroke();
+    const label = s === STRIP_S ? "now" : `−${STRIP_S - s} s`;
+    ctx.fillText(label, Math.min(x - 10, c.width - 24), c.height - 5);
+  }
+  let hover = null;
+  LANES.forEach((lane, k) => {
+    const [top, bottom] = lanes[k], laneH = bottom - top;
+    const [lo, hi] = laneRange(strip, k, lane, from);
+    const Y = (v) => bottom - (Math.min(Math.max(v, lo), hi) - lo) / (hi - lo) * laneH;
+    ctx.strokeStyle = "#2a333c";
+    ctx.strokeRect(P.left + 0.5, top + 0.5, w, laneH);
+    // runs of consecutive samples with a value: a line, and a band where sigma is known
+    const runs = [];
+    let run = [];
+    for (let i = 0; i < strip.len; i++) {
+      const p = stripAt(strip, i);
+      if (p.t < from) continue;
+      const prev = run.length ? run[run.length - 1] : null;
+      const jump = lane.fold && prev && Math.abs(p.v[k] - prev.v[k]) > lane.fold / 2;
+      if (p.v[k] === null || jump) {
+        if (run.length) runs.push(run);
+        run = p.v[k] === null ? [] : [p];
+        if (p.v[k] === null && p.contact) {  // withheld: mark it, so the gap has a cause to hover
+          ctx.fillStyle = "#d2992299";
+          ctx.fillRect(X(p.t) - 1, bottom - 4, 2, 4);
+        }
+        continue;
+      }
+      run.push(p);
+    }
+    if (run.length) runs.push(run);
+    for (const r of runs) {
+      ctx.fillStyle = lane.colour + "40";  // the 1-sigma band, translucent
+      let band = [];
+      const flush = () => {
+        if (band.length > 1) {
+          ctx.beginPath();
+          band.forEach((p, j) => { const x = X(p.t), y = Y(p.v[k] + p.sd[k]);
+                                   if (j) ctx.lineTo(x, y); else ctx.moveTo(x, y); });
+          for (let j = band.length - 1; j >= 0; j--) ctx.lineTo(X(band[j].t), Y(band[j].v[k] - band[j].sd[k]));
+          ctx.closePath();
+          ctx.fill();
+        }
+        band = [];
+      };
+      for (const p of r) { if (p.sd[k] === null) flush(); else band.push(p); }
+      flush();
+      ctx.strokeStyle = lane.colour;
+      ctx.lineWidth = 1.5;
+      ctx.beginPath();
+      r.forEach((p, j) => { if (j) ctx.lineTo(X(p.t), Y(p.v[k])); else ctx.moveTo(X(p.t), Y(p.v[k])); });
+      ctx.stroke();
+      if (r.length === 1) { ctx.fillStyle = lane.colour; ctx.fillRect(X(r[0].t) - 1.5, Y(r[0].v[k]) - 1.5, 3, 3); }
+    }
+    // labels: name and unit, scale, the latest value
+    const last = strip.len ? stripAt(strip, strip.len - 1) : null;
+    ctx.fillStyle = lane.colour;
+    ctx.font = "bold 12px sans-serif";
+    ctx.fillText(`${lane.label} (${lane.unit})`, 6, top + 14);
+    ctx.font = "11px sans-serif";
+    ctx.fillStyle = "#e6e9ec";
+    ctx.fillText(last && last.t >= from ? (last.v[k] === null ? "—" : last.v[k].toFixed(lane.digits)) : "",
+                 6, top + 30);
+    ctx.fillStyle = "#8b949e";
+    ctx.fillText(String(+hi.toPrecision(3)), P.left - 30, top + 10);
+    ctx.fillText(String(lo), P.left - 30, bottom - 1);
+    const m = strip.mouse;
+    if (m && m.y >= top && m.y <= bottom && m.x >= P.left && strip.len) {
+      // the sample nearest the pointer in time (samples are in time order: bisect)
+      const t = from + (m.x - P.left) / w * STRIP_S * 1000;
+      let a = 0, b = strip.len - 1;
+      while (a < b) { const mid = (a + b) >> 1; if (stripAt(strip, mid).t < t) a = mid + 1; else b = mid; }
+      let best = stripAt(strip, a);
+      if (a > 0 && Math.abs(stripAt(strip, a - 1).t - t) < Math.abs(best.t - t)) best = stripAt(strip, a - 1);
+      if (best.t >= from && Math.abs(X(best.t) - m.x) <= 12) hover = {lane, k, p: best, top, bottom};
+    }
+  });
+  const tip = strip.tip;
+  if (hover) {
+    const x = X(hover.p.t);
+    ctx.strokeStyle = "#e6e9ec88";
+    ctx.beginPath(); ctx.moveTo(x, hover.top); ctx.lineTo(x, hover.bottom); ctx.stroke();
+    tip.textContent = fmtSample(hover.lane, hover.k, hover.p);
+    tip.hidden = false;
+    const m = strip.mouse, r = c.getBoundingClientRect();
+    tip.style.left = `${Math.min(m.cssX + 14, Math.max(0, r.width - 300))}px`;
+    tip.style.top = `${m.cssY + 16}px`;
+  } else {
+    tip.hidden = true;
+  }
+}
+
+function render(now) {
   for (const s of state.sensors.values()) {
+    const st = s.strip;
+    // the strip scrolls, so it is redrawn while it shows anything (or is hovered), ~30 Hz
+    if ((st.len || st.mouse || !st.drawn) && now - st.drawn >= STRIP_MIN_DT) {
+      st.drawn = now;
+      drawStrip(st, performance.now());
+    }
     if (!s.dirty) continue;
     s.dirty = false;
     drawMap(s);

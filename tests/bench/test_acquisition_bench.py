@@ -1,0 +1,175 @@
+"""The acquisition benchmark on moving contacts: its bookkeeping (shares of contact frames,
+accuracy matched to the truth by seq, the tare) on made-up runs, and one short real run through
+the command line.  Speed is reported by the benchmark (docs/benchmarks.md), never asserted."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import pytest
+
+from tactiled.bench import acquisition as acq
+from tactiled.physics.contact import Contact
+from tactiled.sim import SCENES, FingerSimulator, Pose, SceneBuilder, named_scene
+
+TACTILED = [sys.executable, "-m", "tactiled.cli", "bench", "--no-progress"]
+
+
+def counters(frames: int = 0, superseded: int = 0, stale: int = 0) -> dict:
+    return {"frames": frames, "superseded": superseded, "stale_dropped": stale, "fit_failed": 0,
+            "fit_errors": 0}
+
+
+def stats(**per_finger: dict) -> dict:
+    return {"sensors": {name: per_finger.get(name, counters()) for name in acq.FINGERS}}
+
+
+def fit_line(c: Contact | None, **changes) -> dict:
+    if c is None:
+        return {"contact": False}
+    line = {"contact": True, "r1_mm": c.r1, "angle_deg": c.psi_deg, "force_n": c.force,
+            "x_mm": c.x0, "y_mm": c.y0, "fit_ms": 0.5, "message": "converged"}
+    line.update(changes)
+    return line
+
+
+def test_truth_by_seq_is_the_simulators_contact() -> None:
+    truth = acq.scene_truth("moving", 1000.0)
+    sim = FingerSimulator(scene="moving", seed=3, rate_hz=1000.0)
+    sim.skip(2 * sim.ticks_per_pass - 300)  # across the loop
+    for _ in range(600):
+        tick = sim.step()
+        assert truth(tick.seq) == tick.contact
+
+
+def test_tare_window_lies_in_the_first_long_idle(monkeypatch: pytest.MonkeyPatch) -> None:
+    for scene in ("moving", "demo", "press"):
+        lo, hi = acq.tare_window(scene, 1000.0)
+        sc = named_scene(scene)
+        assert all(sc.contact_at(k / 1000.0) is None for k in range(lo, hi + 250))  # + settling
+    monkeypatch.setitem(SCENES, "busy", lambda g: (
+        SceneBuilder(Pose(x0=10, y0=10)).idle(0.2).press(0.5, force=1.0).release(0.5).build("busy")))
+    assert acq.tare_window("busy", 1000.0) is None  # no idle of 0.4 s
+
+
+def test_errors_in_reporting_units() -> None:
+    c = Contact(10.0, math.inf, 170.0, 1.0, 5.0, 6.0)
+    assert acq.abs_error("r1_mm", 11.0, c) == pytest.approx(10.0)
+    assert acq.abs_error("force_n", 0.9, c) == pytest.approx(10.0)
+    assert acq.abs_error("angle_deg", 5.0, c) == pytest.approx(15.0)  # across the fold at 180
+    assert acq.abs_error("x_mm", 5.02, c) == pytest.approx(20.0)
+    assert acq.abs_error("y_mm", 5.99, c) == pytest.approx(10.0)
+    assert acq.abs_error("angle_deg", 5.0, Contact(8.0, 8.0, 90.0, 1.0, 5.0, 6.0)) is None
+    assert [acq.indentor(Contact(r, r2)) for r, r2 in ((8, 8), (0.5, math.inf), (10, math.inf), (5, 9))] \
+        == ["sphere", "edge", "cylinder", "general"]
+
+
+def test_shares_latency_and_accuracy_of_a_run() -> None:
+    truth = acq.scene_truth("moving", 1000.0)
+    base = 5450 * 3  # a later pass: the truth repeats
+    rolling = [base + 700 + k for k in range(10)]  # the cylinder rolling at 20 mm/s
+    assert all(truth(s) is not None for s in rolling)
+    seen = []
+    # frames 0, 4, 8: fitted exactly; 1-3, 5-7: reused; 9: superseded (no estimate)
+    for k, seq in enumerate(rolling[:9]):
+        if k % 4 == 0:
+            seen.append(acq.Seen(0, seq, "fit", 2.0, fit_line(truth(seq))))
+        else:
+            fitted = rolling[k - k % 4]
+            seen.append(acq.Seen(0, seq, "unchanged", 0.5, fit_line(truth(fitted))))
+    seen.append(acq.Seen(1, base + 200, "no_contact", 0.1, fit_line(None)))  # idle: right
+    seen.append(acq.Seen(1, base + 201, "fit", 3.0, fit_line(truth(rolling[0]))))  # phantom
+    seen.append(acq.Seen(2, rolling[0], "fit", 4.0, fit_line(truth(rolling[0]), r1_mm=None)))
+    seen.append(acq.Seen(2, rolling[1], "no_contact", 0.1, fit_line(None)))  # missed
+    before = stats()
+    after = stats(thumb=counters(frames=10, superseded=1), index=counters(frames=2),
+                  middle=counters(frames=2, stale=1))
+    a = acq.summarise(acq.RunResult(2, before, after, 1.0, seen, {}), truth)
+    assert (a.own_fit, a.reused, a.superseded, a.unanswered) == (5, 6, 1, 1)
+    assert a.contact == 13 and a.frames == 14
+    assert a.share(a.own_fit) == "38.5 %"
+    assert sorted(a.latency_fit) == [2.0, 2.0, 2.0, 3.0, 4.0] and len(a.latency_contact) == 11
+    assert (a.touching, a.missed, a.phantom) == (11, 1, 1)
+    own, reuses = a.accuracy["own fits"], a.accuracy["reuses"]
+    assert own.estimates == 4 and own.errors["x_mm"] == pytest.approx([0.0] * 4)
+    assert own.withheld["r1_mm"] == 1 and "25 % withheld" in own.cell("r1_mm")
+    # a reuse k frames after its fit lags the contact by k x 20 um
+    assert sorted(reuses.errors["x_mm"]) == pytest.approx([20, 20, 40, 40, 60, 60])
+    assert a.accuracy["all"].estimates == 10 and set(a.accuracy) == {"all", "own fits", "reuses", "cylinder"}
+
+
+def test_the_moving_scene_on_ptys_with_a_workers_sweep() -> None:
+    """A short real run: three simulators on ptys, the daemon with 1 and then 2 workers."""
+    proc = subprocess.run([*TACTILED, "--suite", "acquisition", "--scene", "moving", "--quick",
+                           "--workers", "1,2", "--seconds", "2"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert "scene moving" in out and "--scene moving" in out
+
+    def rows(header: str) -> list[list[str]]:
+        lines = out.splitlines()
+        i = next(k for k, line in enumerate(lines) if line.startswith(header))
+        got = []
+        for line in lines[i + 2:]:
+            if not line.startswith("|"):
+                break
+            got.append([c.strip() for c in line.strip("|").split("|")])
+        return got
+
+    answers = rows("| workers | contact frames |")
+    assert [r[0] for r in answers] == ["1", "2"]
+    for r in answers:
+        assert int(r[1]) > 0
+        shares = [float(c.rstrip(" %")) for c in r[2:6]]
+        assert sum(shares) == pytest.approx(100.0, abs=0.25)
+        assert len(r[6].split(" / ")) == 2  # latency p50 / p99
+    accuracy = rows("| workers | estimates of |")
+    kinds = {(r[0], r[1]) for r in accuracy}
+    assert {("1", "all"), ("2", "all"), ("2", "own fits")} <= kinds
+    integrity = rows("| workers | finger |")
+    assert len(integrity) == 6 and {r[1] for r in integrity} == set(acq.FINGERS)
+    assert all(r[-1] == "0" for r in integrity), integrity  # every frame accounted for
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--scene", "nope"], "unknown scene 'nope'"),
+    (["--workers", "0"], "worker counts must lie in 1..64"),
+    (["--workers", "two"], "expected worker counts like 1,2,4"),
+    (["--seconds", "0"], "--seconds must be positive"),
+])
+def test_bad_acquisition_options(argv: list[str], message: str) -> None:
+    proc = subprocess.run([*TACTILED, "--suite", "acquisition", *argv], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 2 and message in proc.stderr
+
+
+def test_a_tare_is_repeated_until_the_baseline_forms_on_untouched_frames() -> None:
+    class FakeDaemon:
+        def __init__(self) -> None:
+            self.tared: list[str] = []
+
+        def tare(self, sensor: str) -> None:
+            self.tared.append(sensor)
+
+    rate, per_pass = 1000.0, 5450
+    window = acq.tare_window("moving", rate)
+    daemon = FakeDaemon()
+    tarer = acq._Tarer(daemon, window, per_pass, rate, acq.scene_truth("moving", rate))
+    lo = window[0]
+    # thumb: tared in the window, then a starved simulator skips into the next contact
+    tarer.frame("thumb", 100)  # touching, outside the window: nothing
+    tarer.frame("thumb", lo)
+    assert daemon.tared == ["thumb"]
+    tarer.frame("thumb", 700)  # the baseline restarted from a contact frame: not good
+    assert tarer.state["thumb"][0] == "waiting"
+    # index and middle: tared, then 0.3 s of untouched frames
+    for name in ("index", "middle"):
+        for seq in range(per_pass + lo, per_pass + lo + 320):
+            tarer.frame(name, seq)
+    assert not tarer.done()
+    for seq in range(2 * per_pass + lo, 2 * per_pass + lo + 320, 3):  # gaps are fine while idle
+        tarer.frame("thumb", seq)
+    assert tarer.done() and tarer.tares == 4 and daemon.tared == ["thumb", "index", "middle", "thumb"]
