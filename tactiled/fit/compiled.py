@@ -23,6 +23,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from tactiled.fit.models import physical_map
 from tactiled.fit.solver import STALLED, WITHIN_TOLERANCE, SolveResult, remaining_decrease
 from tactiled.physics.hertz import ellipse_core
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
@@ -62,38 +63,6 @@ def rule_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.nd
 
 
 @njit(cache=True, nogil=True)
-def _physical(kind: int, p: np.ndarray, d: np.ndarray) -> tuple[float, float, float, float, float, float]:
-    """The models' parameter maps (``Model.physical``), filling ``d`` (zeroed, (6, k))."""
-    if kind == 0:  # cylinder: ln_r, psi, ln_f, x0, y0
-        ka, f = math.exp(-p[0]), math.exp(p[2])
-        d[0, 0] = -ka
-        d[2, 1] = 1.0
-        d[3, 2] = f
-        d[4, 3] = 1.0
-        d[5, 4] = 1.0
-        return ka, 0.0, p[1], f, p[3], p[4]
-    if kind == 1:  # sphere: ln_r, ln_f, x0, y0
-        k, f = math.exp(-p[0]), math.exp(p[1])
-        d[0, 0] = -k
-        d[1, 0] = -k
-        d[3, 1] = f
-        d[4, 2] = 1.0
-        d[5, 3] = 1.0
-        return k, k, 0.0, f, p[2], p[3]
-    # general: ln_ra, beta, psi, ln_f, x0, y0
-    ka, beta, f = math.exp(-p[0]), p[1], math.exp(p[3])
-    kb = beta * beta * ka
-    d[0, 0] = -ka
-    d[1, 0] = -kb
-    d[1, 1] = 2.0 * beta * ka
-    d[2, 2] = 1.0
-    d[3, 3] = f
-    d[4, 4] = 1.0
-    d[5, 5] = 1.0
-    return ka, kb, p[2], f, p[4], p[5]
-
-
-@njit(cache=True, nogil=True)
 def _nodes(extent: float, depth: float, tol: float, ladder: np.ndarray) -> int:
     """``strain.nodes_for``: the ladder size, or -1 beyond MAX_NODES (too long to integrate)."""
     r = depth / max(extent, 1e-12)
@@ -116,7 +85,7 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
     point (``_INVALID_LINE``: infinite line contact; ``_INVALID_LONG``: too long to integrate,
     with the semi-axis in ``r[0]``) or ``FALLBACK`` (a rule past the compiled limit)."""
     d = np.zeros((6, k))
-    ka, kb, psi, force, x0, y0 = _physical(kind, p, d)
+    ka, kb, psi, force, x0, y0 = physical_map(kind, p, d)
     hj = np.empty((3, 4))
     a, b, theta, _ = ellipse_core(ka, kb, psi, force, rf, comp, hj)
     empty_r = np.zeros(1)

@@ -8,6 +8,7 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, nogil=True)
 def window_origin(peak: int, size: int, length: int, lower: float, upper: float) -> int:
     """First index of a ``size``-long window on an axis of ``length`` tactels containing
     ``peak``; for an even size the extra tactel goes to the side whose neighbour (``lower`` at
@@ -57,17 +58,6 @@ def interpolated_peak(strain: np.ndarray, peak: tuple[int, int], dx: float, dy: 
 
 
 @njit(cache=True, nogil=True)
-def _origin(peak: int, size: int, length: int, lower: float, upper: float) -> int:
-    """:func:`window_origin`, compiled."""
-    if size >= length:
-        return 0
-    start = peak - (size - 1) // 2
-    if size % 2 == 0 and upper < lower:
-        start -= 1
-    return min(max(start, 0), length - size)
-
-
-@njit(cache=True, nogil=True)
 def plain_window(strain: np.ndarray, size: int, max_strain: float) -> tuple[int, int, int, int, int, int, int]:
     """The peak and window of a frame with every tactel usable, in one compiled pass:
     ``(usable, m, n, row0, col0, rows, cols)``; ``usable`` is 0 when any strain is not finite
@@ -88,4 +78,4 @@ def plain_window(strain: np.ndarray, size: int, max_strain: float) -> tuple[int,
     hi_r = strain[m + 1, n] if m + 1 < rows else -np.inf
     lo_c = strain[m, n - 1] if n > 0 else -np.inf
     hi_c = strain[m, n + 1] if n + 1 < cols else -np.inf
-    return 1, m, n, _origin(m, nr, rows, lo_r, hi_r), _origin(n, nc, cols, lo_c, hi_c), nr, nc
+    return 1, m, n, window_origin(m, nr, rows, lo_r, hi_r), window_origin(n, nc, cols, lo_c, hi_c), nr, nc
