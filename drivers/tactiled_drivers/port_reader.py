@@ -14,7 +14,12 @@ the loop, which takes everything read so far in one piece when it gets round to 
 
 The memory it holds is bounded (``limit`` bytes, 4 MiB by default: ~27 s of a 1 kHz
 finger); at the limit it stops reading, so the kernel buffer fills and the device drops, as
-it would with no thread at all.  An error (the device unplugged) is handed to the consumer
+it would with no thread at all.  What it holds goes to the loop in pieces of at most
+``TAKE_LIMIT`` (64 KiB) per :meth:`PortReader.take`: after a stall of seconds the thread
+holds a megabyte per port, and one piece that size, freed after decoding, left glibc's heap
+grown by as much for good (its mmap threshold rises to the largest block freed, and the next
+ones came from the heap: the service's RSS rose in steps with the long stalls of the 1-hour
+soak, docs/reliability.md).  An error (the device unplugged) is handed to the consumer
 after every byte read before it, so no good frame is lost to it.
 """
 
@@ -24,6 +29,7 @@ import asyncio
 import logging
 import threading
 import time
+from collections import deque
 
 import serial
 
@@ -32,6 +38,7 @@ from tactiled_drivers.futures import resolve
 log = logging.getLogger(__name__)
 
 DEFAULT_LIMIT = 4 << 20  # bytes held before reading pauses
+TAKE_LIMIT = 64 << 10  # bytes handed to the loop per take() (a larger read comes whole)
 JOIN_TIMEOUT = 2.0  # seconds stop() waits for the thread
 
 
@@ -50,12 +57,11 @@ class PortReader:
         self._loop = asyncio.get_running_loop()
         self.limit = limit
         self._lock = threading.Lock()
-        self._chunks: list[bytes] = []
+        self._chunks: deque[tuple[float, bytes]] = deque()  # (monotonic s read, bytes)
         self._held = 0
         #: Most bytes held at once: how far the loop fell behind the device (bytes).
         self.peak = 0
         self._error: BaseException | None = None
-        self._arrived = 0.0
         #: ``time.monotonic()`` when the newest of the bytes :meth:`take` last returned were
         #: read from the device (s): the host time of those frames, loop lag included.
         self.arrival = 0.0
@@ -96,8 +102,7 @@ class PortReader:
     def _push(self, data: bytes) -> None:
         now = time.monotonic()
         with self._lock:
-            self._arrived = now
-            self._chunks.append(data)
+            self._chunks.append((now, data))
             self._held += len(data)
             self.peak = max(self.peak, self._held)
             if self._held >= self.limit:
@@ -126,18 +131,24 @@ class PortReader:
     # -- the event loop's side ----------------------------------------------------------------
 
     async def take(self) -> bytes:
-        """Every byte read since the last call, waiting for at least one; ``b""`` once the
+        """The bytes read since the last call, oldest first, up to ``TAKE_LIMIT`` of them (a
+        single read larger than that comes whole), waiting for at least one; ``b""`` once the
         reader has stopped.  Raises the thread's error (``SerialException``/``OSError``)
         after the bytes read before it.  Cancellation-safe: nothing is lost."""
         while True:
             with self._lock:
                 if self._chunks:
-                    data = b"".join(self._chunks) if len(self._chunks) > 1 else self._chunks[0]
-                    self._chunks.clear()
-                    self._held = 0
-                    self._room.set()
-                    self.arrival = self._arrived
-                    return data
+                    pieces: list[bytes] = []
+                    size = 0
+                    chunks = self._chunks
+                    while chunks and (not pieces or size + len(chunks[0][1]) <= TAKE_LIMIT):
+                        self.arrival, piece = chunks.popleft()
+                        pieces.append(piece)
+                        size += len(piece)
+                    self._held -= size
+                    if self._held < self.limit:
+                        self._room.set()
+                    return pieces[0] if len(pieces) == 1 else b"".join(pieces)
                 if self._error is not None:
                     err, self._error = self._error, None
                     raise err

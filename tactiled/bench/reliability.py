@@ -70,6 +70,7 @@ import asyncio
 import gc
 import json
 import logging
+import math
 import os
 import re
 import signal
@@ -78,6 +79,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from array import array
 from pathlib import Path
 from typing import Any
 
@@ -464,6 +466,34 @@ def _heap() -> dict[str, float]:
     return heap_figures()
 
 
+class _Series:
+    """Rows of floats kept in ``array('d')`` columns: the soak runs in the process it
+    measures, so its own records must not grow its heap (a list of per-sample dicts did, by
+    ~2 MB an hour of pymalloc's live bytes)."""
+
+    def __init__(self, columns: int) -> None:
+        self._cols = [array("d") for _ in range(columns)]
+
+    def append(self, *row: float | None) -> None:
+        for col, value in zip(self._cols, row):
+            col.append(math.nan if value is None else float(value))
+
+    def __len__(self) -> int:
+        return len(self._cols[0])
+
+    def rows(self) -> list[tuple[float | None, ...]]:
+        """Every row (NaN back to None), for the report, after the measurement."""
+        return [tuple(None if math.isnan(v) else v for v in row) for row in zip(*self._cols)]
+
+
+#: The columns of a worker's heap series: its answers to the memory request.
+_WORKER_HEAP_KEYS = ("rss_anon_mb", "malloc_in_use_mb", "pymalloc_live_mb", "cache_rule_mb",
+                     "fits")
+#: ... and of the service's.
+_SERVICE_HEAP_KEYS = ("pymalloc_arenas", "pymalloc_live_mb", "malloc_in_use_mb",
+                      "malloc_free_kept_mb", "rss_anon_mb")
+
+
 async def _fd_peak(span: float = 1.0, samples: int = 11) -> int:
     """The most descriptors this process had open over ``span`` s: a never-reading subscriber
     between two connections (~0.3 s of its ~7 s cycle) is not counted as a descriptor less,
@@ -489,7 +519,7 @@ def _slope_mb_per_h(samples: list[tuple[float, float]]) -> float | None:
 
 async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subscribers: int,
                 stalled: int, max_rate: float, sim_pids: list[int],
-                fit_timeout: float | None = None) -> dict[str, Any]:
+                fit_timeout: float | None = None, settle: float = SETTLE_S) -> dict[str, Any]:
     from tactiled.pipeline import Daemon
     from tactiled.settings import load_settings
     from tactiled.sources import open_source
@@ -557,12 +587,17 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
         cpu0, w0 = cpu(), time.monotonic()
         waits0 = [_run_delay_s(me)] + [_run_delay_s(p) for p in sim_pids]
         base = rss_mb()
-        samples: list[tuple[float, float]] = [(0.0, base or 0.0)]
-        fds: list[int] = [open_fds()]
-        heaps: list[tuple[float, dict[str, float] | None]] = [(0.0, before["heap"])]
-        # per worker pid: [(t, rss, anon, file)], and its own heap answers [(t, figures)]
-        workers: dict[int, list[tuple[float, float, float | None, float | None]]] = {}
-        worker_heaps: dict[int, list[tuple[float, dict[str, Any]]]] = {}
+        offset = t0 - started
+        samples = _Series(2)  # (t, rss)
+        samples.append(0.0, base or 0.0)
+        fds = array("i", [open_fds()])
+        heaps = _Series(1 + len(_SERVICE_HEAP_KEYS))
+        heaps.append(0.0, *(before["heap"].get(k) for k in _SERVICE_HEAP_KEYS))
+        # per worker pid: (t, rss, anon, file); its own heap answers (t, *_WORKER_HEAP_KEYS),
+        # with the whole answer kept twice only: the first after settling and the last
+        workers: dict[int, _Series] = {}
+        worker_heaps: dict[int, _Series] = {}
+        worker_ends: dict[int, list[dict[str, Any] | None]] = {}
         seen_answers: dict[int, float] = {}
 
         def sample_workers(t: float) -> None:
@@ -573,21 +608,27 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
                     answered = round(t - age, 3)
                     if seen_answers.get(pid) != answered:
                         seen_answers[pid] = answered
-                        worker_heaps.setdefault(pid, []).append((answered, mem))
+                        worker_heaps.setdefault(pid, _Series(1 + len(_WORKER_HEAP_KEYS))).append(
+                            answered, *(mem.get(k) for k in _WORKER_HEAP_KEYS))
+                        ends = worker_ends.setdefault(pid, [None, None])
+                        if ends[0] is None and answered + offset >= settle:
+                            ends[0] = mem
+                        ends[1] = mem
             for pid in pool.pids():
                 if pid and (r := rss_mb(pid)) is not None:
                     parts = rss_parts_mb(pid)
-                    workers.setdefault(pid, []).append(
-                        (t, r, parts.get("rss_anon_mb"), parts.get("rss_file_mb")))
+                    workers.setdefault(pid, _Series(4)).append(
+                        t, r, parts.get("rss_anon_mb"), parts.get("rss_file_mb"))
             pool.request_memory()  # answered after the fit each holds: read next time
 
         sample_workers(0.0)
         while (elapsed := time.monotonic() - t0) < seconds:
             await asyncio.sleep(min(interval, seconds - elapsed))
-            samples.append((time.monotonic() - t0, rss_mb() or 0.0))
+            now = time.monotonic() - t0
+            samples.append(now, rss_mb() or 0.0)
             fds.append(open_fds())
-            heaps.append((samples[-1][0], _heap()))
-            sample_workers(samples[-1][0])
+            heaps.append(now, *(_heap().get(k) for k in _SERVICE_HEAP_KEYS))
+            sample_workers(now)
         await asyncio.sleep(min(interval, 1.0))
         sample_workers(time.monotonic() - t0)  # the last answers
         after = marks()
@@ -632,10 +673,13 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
                  "service": round((waits1[0] - waits0[0]) / wall, 3),
                  "simulators": [round((b - a) / wall, 3)
                                 for a, b in zip(waits0[1:], waits1[1:])]}}
-    return {"before": before, "after": after, "elapsed": elapsed, "rss": samples, "fds": fds,
-            "heaps": heaps, "offset": t0 - started, "worker_heaps": worker_heaps,
+    return {"before": before, "after": after, "elapsed": elapsed, "rss": samples.rows(),
+            "fds": list(fds), "heaps": heaps.rows(), "offset": offset,
+            "worker_heaps": {pid: v.rows() for pid, v in worker_heaps.items()},
+            "worker_ends": worker_ends,
             "fds_peak": (fds_before, fds_after),
-            "workers_rss": workers, "cpu_cores": cores, "delivery": delivery,
+            "workers_rss": {pid: v.rows() for pid, v in workers.items()},
+            "cpu_cores": cores, "delivery": delivery,
             "loop_lag": lag.figures()}
 
 
@@ -691,15 +735,16 @@ def default_warmup(seconds: float, subscribers: int) -> float:
 
 
 def _worker_figures(series: list[tuple[float, float, float | None, float | None]],
-                    heaps: list[tuple[float, dict[str, Any]]], offset: float,
+                    heaps: list[tuple[float | None, ...]],
+                    ends: list[dict[str, Any] | None], offset: float,
                     settle: float) -> dict[str, Any]:
     """One worker's memory over the soak: RSS (and its anonymous and file parts) at its
     first and last sample, growth, the slope after ``settle`` s since the start (samples are
-    ``offset`` s after it), and its own heap figures first after ``settle`` and last."""
+    ``offset`` s after it), and its own heap figures first after ``settle`` and last
+    (``ends``; ``heaps`` rows are ``(t, *_WORKER_HEAP_KEYS)``)."""
     late = [row for row in series if row[0] + offset >= settle]
     slope = _slope_mb_per_h([(t, r) for t, r, _, _ in late])
     first, last = series[0], series[-1]
-    late_heaps = [h for h in heaps if h[0] + offset >= settle] or heaps
     return {
         "rss_first": round(first[1], 2), "rss_last": round(last[1], 2),
         "growth": round(max(r for _, r, _, _ in series) - first[1], 2),
@@ -708,11 +753,11 @@ def _worker_figures(series: list[tuple[float, float, float | None, float | None]
         "slope_after_settle_mb_per_h": None if slope is None else round(slope, 2),
         "settled_span_s": round(late[-1][0] - late[0][0], 1) if late else 0.0,
         "samples": len(series),
-        "heap_first": late_heaps[0][1] if late_heaps else None,
-        "heap_last": heaps[-1][1] if heaps else None,
-        "heap_series": [[round(t + offset), h.get("rss_anon_mb"), h.get("malloc_in_use_mb"),
-                         h.get("pymalloc_live_mb"), h.get("cache_rule_mb"), h.get("fits")]
-                        for t, h in heaps[::max(1, len(heaps) // 40)]],
+        "heap_first": ends[0] or ends[1],
+        "heap_last": ends[1],
+        # [s since the start, RssAnon MB, malloc in use MB, pymalloc live MB, rule cache MB, fits]
+        "heap_series": [[round(row[0] + offset), *row[1:]]
+                        for row in heaps[::max(1, len(heaps) // 40)]],
     }
 
 
@@ -730,7 +775,7 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
         sims = _start_simulators(tmp, rate, scene)
         try:
             run = asyncio.run(_soak(tmp, seconds, warmup, interval, subscribers, stalled,
-                                    max_rate, [p.pid for p, _ in sims], fit_timeout))
+                                    max_rate, [p.pid for p, _ in sims], fit_timeout, settle))
         finally:
             simulators = _stop_simulators(sims)
     before, after, elapsed = run["before"], run["after"], run["elapsed"]
@@ -749,7 +794,9 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
     settled = [(t, v) for t, v in rss if t + offset >= settle]
     slope_settled = _slope_mb_per_h(settled)
     settled_span = settled[-1][0] - settled[0][0] if settled else 0.0
-    workers = {str(pid): _worker_figures(v, run["worker_heaps"].get(pid, []), offset, settle)
+    workers = {str(pid): _worker_figures(v, run["worker_heaps"].get(pid, []),
+                                         run["worker_ends"].get(pid, [None, None]), offset,
+                                         settle)
                for pid, v in run["workers_rss"].items()}
     worker_growth = {pid: w["growth"] for pid, w in workers.items()}
     fds = run["fds"]
@@ -776,11 +823,10 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
                               for t, v in rss[::max(1, len(rss) // 40)]]},
         "service_loop_lag": run["loop_lag"],
         "heap": {"after_warmup": before["heap"], "end": after["heap"],
-                 # [s, pymalloc arenas, pymalloc live MB, malloc in use MB], as the RSS series.
-                 "series": [[round(t), h.get("pymalloc_arenas"), h.get("pymalloc_live_mb"),
-                             h.get("malloc_in_use_mb")]
-                            for t, h in run["heaps"][::max(1, len(run["heaps"]) // 40)]
-                            if h is not None]},
+                 # [s, pymalloc arenas, pymalloc live MB, malloc in use MB, malloc free kept
+                 # MB, RssAnon MB], as the RSS series.
+                 "series": [[round(row[0]), *row[1:]]
+                            for row in run["heaps"][::max(1, len(run["heaps"]) // 40)]]},
         "fds": {"after_warmup": run["fds_peak"][0], "end": run["fds_peak"][1],
                 "growth": run["fds_peak"][1] - run["fds_peak"][0],
                 "min": min(fds), "max": max(fds)},

@@ -15,7 +15,7 @@ from collections.abc import Iterator
 import pytest
 import serial
 
-from tactiled_drivers.port_reader import PortReader
+from tactiled_drivers.port_reader import TAKE_LIMIT, PortReader
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
 
@@ -85,6 +85,30 @@ def test_drains_the_device_while_the_event_loop_is_stuck(pty_device) -> None:
             assert writer.finished_at is not None and writer.finished_at - start < 1.5
             assert await take_all(reader, len(PAYLOAD)) == PAYLOAD
             assert reader.peak >= 32 * 1024  # held for the loop: it really was behind
+
+    asyncio.run(main())
+
+
+def test_a_backlog_goes_to_the_loop_in_bounded_pieces(pty_device) -> None:
+    """After the loop was held up, what the thread holds comes out oldest first in pieces of
+    at most TAKE_LIMIT: a backlog of a megabyte must not become one block of a megabyte
+    (freed after decoding, it left glibc's heap grown by as much)."""
+    payload = PAYLOAD * 3  # ~192 KB: three pieces' worth
+
+    async def main() -> None:
+        with reading(pty_device.path) as (_port, reader):
+            writer = Writer(pty_device.master, payload, deadline=3.0)
+            writer.start()
+            time.sleep(1.5)  # the event loop is stuck
+            writer.join()
+            assert writer.accepted == len(payload)
+            pieces = []
+            async with asyncio.timeout(5.0):
+                while sum(map(len, pieces)) < len(payload):
+                    pieces.append(await reader.take())
+            assert b"".join(pieces) == payload
+            assert len(pieces) >= 3 and max(map(len, pieces)) <= TAKE_LIMIT
+            assert reader.held == 0
 
     asyncio.run(main())
 
