@@ -278,15 +278,17 @@ function stripAdd(strip, e) {
 
 function laneRange(strip, k, lane, from) {
   if (lane.fixed) return lane.fixed;
-  let top = 0, peak = 0;
+  const tops = [];
   for (let i = 0; i < strip.len; i++) {
     const p = stripAt(strip, i);
-    if (p.t < from || p.v[k] === null) continue;
-    peak = Math.max(peak, p.v[k]);
-    top = Math.max(top, p.v[k] + (p.sd[k] || 0));
+    if (p.t >= from && p.v[k] !== null) tops.push(p.v[k] + (p.sd[k] || 0));
   }
-  // a band far wider than the values (a radius barely observed) must not flatten the line
-  top = Math.max(lane.span, Math.min(top, 1.5 * peak));
+  // The scale follows most of the window, not its extremes: one wild radius (or a band far
+  // wider than the values, a radius barely observed) must not flatten the line; what lies
+  // above is drawn clipped at the lane's top.
+  tops.sort((a, b) => a - b);
+  const q = tops.length ? tops[Math.floor(0.95 * (tops.length - 1))] : 0;
+  const top = Math.max(lane.span, 1.25 * q);
   const step = Math.pow(10, Math.floor(Math.log10(top)));
   return [0, Math.ceil(top / step * 2) / 2 * step];
 }
