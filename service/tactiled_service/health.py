@@ -23,6 +23,7 @@ each sensor's read backlog and the resident memory of the daemon and of every fi
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections import deque
@@ -206,10 +207,12 @@ class HealthMonitor:
             shown = "none yet" if est_age is None else f"the last is {est_age:.1f} s old"
             return "STALE", f"frames arrive but no estimate is published ({shown})"
         below = self._below_since.get(name)
-        if below is not None and time.monotonic() - below > RATE_GRACE_S:
+        held = None if below is None else time.monotonic() - below
+        if held is not None and held > RATE_GRACE_S:
+            # Shown truncated, not rounded: 1.96 s must not read as the 2 s grace.
             return "DEGRADED", (
                 f"frame rate {c['frame_rate_hz']:.0f} Hz, below the nominal {c['rate_hz']:g} "
-                f"Hz (under {RATE_TOLERANCE:.0%} of it) for {time.monotonic() - below:.1f} s")
+                f"Hz (under {RATE_TOLERANCE:.0%} of it) for {math.floor(held * 10) / 10:.1f} s")
         growth = self._growth(name, c)
         if growth:
             words = ", ".join(f"{n} {WARN_COUNTERS[k]}" for k, n in growth.items())
