@@ -10,7 +10,7 @@ Keys (the documented example is ``deploy/tactiled.toml``)::
     [server]   host = "127.0.0.1", port = 8765, token = (none), max_subscribers = 64,
                allow_origins = [] (browser origins besides the server's own)
     [[sensor]] name, url, wire_id, calibration, model, window, noise_sigma, false_rate,
-               detector_average, reuse_unchanged, unchanged_z, rate_hz
+               detector_average, reuse_unchanged, unchanged_z, track, rate_hz
     [fit]      workers, start_method, timeout, ping_interval, ping_timeout, startup_timeout,
                stop_timeout, max_fits_per_worker
     [record]   path
@@ -94,6 +94,10 @@ class SensorSettings:
     detector_average: int = 2  # frames the contact detector averages (latency for sensitivity)
     reuse_unchanged: bool = True  # gate: reuse the last fit for a frame unchanged within noise
     unchanged_z: float = 3.0  # gate: "unchanged" means chi^2 <= n + z sqrt(2n), see gate.py
+    #: Follow the contact through time (tactiled/pipeline/tracker.py): every contact frame
+    #: measured through the last fit, a held contact sharpened, rates estimated.  False: each
+    #: estimate is one frame's fit, reused while frames are unchanged (the gate).
+    track: bool = True
     #: Nominal frame rate (Hz); health reports the sensor DEGRADED while it delivers less
     #: (below 0.9 of it over a second) for more than 2 s.  None: no nominal rate, not judged.
     rate_hz: float | None = None
@@ -422,6 +426,7 @@ SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "false_rate": _false_rate,
     "detector_average": _in_range(_as_int, 1, 64, "a frame count"),
     "reuse_unchanged": _as_bool,
+    "track": _as_bool,
     "unchanged_z": _in_range(_as_float, 0.0, 1e6, "a z-score"),
     "rate_hz": _optional(_in_range(_as_float, 0.01, 1e6, "a frame rate in Hz")),
 }
@@ -464,7 +469,7 @@ _PATH_KEYS = {("sensor", "calibration"), ("record", "path"), ("zenoh", "config")
 
 #: Sensor keys the daemon can change while running (Daemon.update_config).
 RUNTIME_SENSOR_KEYS = ("model", "window", "noise_sigma", "false_rate", "reuse_unchanged",
-                       "unchanged_z")
+                       "unchanged_z", "track")
 
 
 def check_sensor_value(key: str, value: Any, where: str) -> Any:

@@ -389,6 +389,21 @@ def _moving(g: Geometry) -> Scene:
 
 
 #: Built-in scenes by name (``sim://?scene=NAME``, ``tactiled simulate --scene NAME``).
+def _temporal(g: Geometry) -> Scene:
+    """~9.5 s of what a tracker must follow: a 10 mm cylinder at 60 deg pressed to 1.2 N at
+    the centre and held 3 s, rolled 3 mm along x in 1 s, turned to 120 deg in 1 s, a 20 %
+    force step, a 0.5 mm jump along y (each within one frame at 1 kHz), released."""
+    xc, yc = _centre(g)
+    step = 1e-3  # s: one frame at 1 kHz
+    return (SceneBuilder(Pose(r1=10.0, psi_deg=60.0, x0=xc - 1.5, y0=yc))
+            .idle(0.5).press(0.5, force=1.2).hold(3.0)
+            .roll(1.0, x0=xc + 1.5).hold(0.5)
+            .rotate(1.0, psi_deg=120.0).hold(0.5)
+            .press(step, force=1.44, ease="linear").hold(0.5)
+            .roll(step, y0=yc + 0.5).hold(0.5)
+            .release(0.5).idle(0.5).build("temporal"))
+
+
 SCENES: dict[str, Callable[[Geometry], Scene]] = {
     "demo": _demo,
     "press": _press,
@@ -397,6 +412,7 @@ SCENES: dict[str, Callable[[Geometry], Scene]] = {
     "sphere": _sphere,
     "edge": _edge,
     "moving": _moving,
+    "temporal": _temporal,
 }
 
 

@@ -211,6 +211,8 @@ class SensorConfigPatch(BaseModel):
     reuse_unchanged: bool | SkipJsonSchema[None] = None
     unchanged_z: Annotated[float, Field(ge=0.0, le=1e6)] | SkipJsonSchema[None] = Field(
         default=None, description="z-score")
+    track: bool | SkipJsonSchema[None] = Field(
+        default=None, description="follow the contact through time (tracker)")
 
 
 Seconds = Annotated[float, Field(ge=0.05, le=3600.0)]  # settings.MIN/MAX_FIT_TIME_S

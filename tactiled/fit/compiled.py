@@ -247,3 +247,16 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
             message = STALLED
         converged = close
     return SolveResult(p, r, jac, cost, it, evals, bool(converged), message)
+
+
+def evaluate(kind: int, p: np.ndarray, model_args: tuple, window_args: tuple,
+             tol: float) -> tuple[str, np.ndarray, np.ndarray]:
+    """One evaluation of the scaled window residual and its Jacobian at ``p`` (the search's
+    own, compiled): ``("ok", r, J)``, ``("invalid", ...)`` at a point outside the model's
+    domain, or ``("fallback", ...)`` past the compiled rule limit (use the Python residual)."""
+    rf, comp, scale, dmin, imp = model_args
+    status, r, jac = _evaluate(kind, np.asarray(p, dtype=float), p.size, rf, comp, scale, dmin,
+                               tol, imp, *window_args, *rule_tables())
+    if status == _OK:
+        return "ok", r, jac
+    return ("fallback" if status == FALLBACK else "invalid"), r, jac

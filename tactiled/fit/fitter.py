@@ -21,6 +21,13 @@ from tactiled.config import SensorModel
 from tactiled.fit import compiled
 from tactiled.fit.floor import FloorLearner
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
+from tactiled.fit.params import (
+    MAX_ANGLE_SIGMA,
+    POOR_RELATIVE_SIGMA,
+    RADIUS_LIMITS,
+    TOO_LIGHT,
+    UNOBSERVABLE_RELATIVE_SIGMA,
+)
 from tactiled.fit.result import FitResult
 from tactiled.fit.solver import SolveResult, levenberg_marquardt
 from tactiled.fit.start import features, force_estimate, start_table
@@ -35,18 +42,10 @@ SINGULAR_CONDITION = 1e12
 #: Above this the fit is reported but flagged as ill-conditioned.
 ILL_CONDITION = 1e7
 
-#: A radius or force whose 1-sigma bound exceeds this fraction of its value is flagged.
-POOR_RELATIVE_SIGMA = 0.5
-#: ... and withheld beyond this (the solver has run off to a degenerate limit), as is a radius
-#: outside ``RADIUS_LIMITS``: a value there is an artefact, not a measurement.
-UNOBSERVABLE_RELATIVE_SIGMA = 10.0
-RADIUS_LIMITS = (0.01, 1e5)  # mm
 #: A peak below this is no contact at all (far below any sensor's noise).
 MIN_PEAK = 1e-9
 #: Strain magnitudes above this are broken readings, not contact (1000 % compression).
 MAX_STRAIN = 10.0
-#: An orientation whose 1-sigma bound exceeds this (degrees) is withheld.
-MAX_ANGLE_SIGMA = 45.0
 #: A contact whose major axis lies within this angle (degrees) of the finger axis and which is
 #: longer than LINE_CONTACT_LENGTH times the array along it is a line contact (see
 #: Fitter._line_contact).  The rubber runs on past the array, so a contact somewhat longer than
@@ -627,7 +626,7 @@ class Fitter:
             is_radius = k != "force_n"
             what = "radius" if is_radius else "force"
             pct = "unbounded" if math.isinf(rel) else f"{100 * rel:.0f} %"
-            cause = "force too low for curvature" if inside and is_radius else "not observable from this window"
+            cause = TOO_LIGHT if inside and is_radius else "not observable from this window"
             degenerate = rel > UNOBSERVABLE_RELATIVE_SIGMA or (
                 is_radius and not RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1])
             if degenerate or (is_radius and withhold is not None and rel > withhold):

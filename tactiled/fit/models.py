@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-#: Keys of a fit's values, in the order of ``tactiled fit``'s JSON.
-VALUE_KEYS = ("x_mm", "y_mm", "force_n", "r1_mm", "r2_mm", "angle_deg")
+from tactiled.fit.params import VALUE_KEYS, report  # noqa: F401  (VALUE_KEYS re-exported)
+
 
 
 @dataclass(frozen=True)
@@ -87,11 +87,6 @@ def physical_map(kind: int, p: np.ndarray, d: np.ndarray) -> tuple[float, float,
 
 
 
-def _wrap_deg(psi: float) -> float:
-    d = math.degrees(psi) % 180.0
-    return 0.0 if d >= 180.0 else d
-
-
 class Cylinder(Model):
     def __init__(self) -> None:
         super().__init__("cylinder", ("ln_r", "psi", "ln_f", "x0", "y0"))
@@ -104,17 +99,7 @@ class Cylinder(Model):
         return np.array([math.log(r1), math.radians(psi_deg), math.log(force), x0, y0])
 
     def report(self, p):
-        r, f = math.exp(p[0]), math.exp(p[2])
-        vals = {"x_mm": float(p[3]), "y_mm": float(p[4]), "force_n": f, "r1_mm": r,
-                "r2_mm": None, "angle_deg": _wrap_deg(p[1])}
-        g = np.zeros((6, 5))
-        g[0, 3] = 1.0
-        g[1, 4] = 1.0
-        g[2, 2] = f
-        g[3, 0] = r
-        g[4, :] = np.nan
-        g[5, 1] = 180.0 / math.pi
-        return vals, g
+        return report(self.name, p)
 
 
 class Sphere(Model):
@@ -129,17 +114,7 @@ class Sphere(Model):
         return np.array([math.log(r1), math.log(force), x0, y0])
 
     def report(self, p):
-        r, f = math.exp(p[0]), math.exp(p[1])
-        vals = {"x_mm": float(p[2]), "y_mm": float(p[3]), "force_n": f, "r1_mm": r,
-                "r2_mm": r, "angle_deg": None}
-        g = np.zeros((6, 4))
-        g[0, 2] = 1.0
-        g[1, 3] = 1.0
-        g[2, 1] = f
-        g[3, 0] = r
-        g[4, 0] = r
-        g[5, :] = np.nan
-        return vals, g
+        return report(self.name, p)
 
 
 class General(Model):
@@ -155,36 +130,7 @@ class General(Model):
         return np.array([math.log(r1), beta, math.radians(psi_deg), math.log(force), x0, y0])
 
     def report(self, p):
-        ra, beta, f = math.exp(p[0]), float(p[1]), math.exp(p[3])
-        b2 = beta * beta
-        g = np.zeros((6, 6))
-        g[0, 4] = 1.0
-        g[1, 5] = 1.0
-        g[2, 3] = f
-        psi = float(p[2])
-        if b2 <= 1.0:
-            # r1 = R_a, r2 = R_a / beta^2 (inf for beta = 0)
-            r1 = ra
-            r2 = ra / b2 if b2 > 0.0 else None
-            g[3, 0] = ra
-            if r2 is not None:
-                g[4, 0] = r2
-                g[4, 1] = -2.0 * r2 / beta
-            else:
-                g[4, :] = np.nan
-        else:
-            # axes swapped: r1 = R_a / beta^2 along psi + 90 deg... i.e. the R2 axis is now
-            # perpendicular to the fitted psi.
-            r1 = ra / b2
-            r2 = ra
-            g[3, 0] = r1
-            g[3, 1] = -2.0 * r1 / beta
-            g[4, 0] = ra
-            psi += 0.5 * math.pi
-        g[5, 2] = 180.0 / math.pi
-        vals = {"x_mm": float(p[4]), "y_mm": float(p[5]), "force_n": f, "r1_mm": r1,
-                "r2_mm": r2, "angle_deg": _wrap_deg(psi)}
-        return vals, g
+        return report(self.name, p)
 
 
 MODELS: dict[str, Model] = {m.name: m for m in (Cylinder(), Sphere(), General())}

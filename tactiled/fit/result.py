@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from tactiled.fit.models import VALUE_KEYS
+from tactiled.fit.params import VALUE_KEYS
 
 
 def _finite_or_none(x: float | None) -> float | None:

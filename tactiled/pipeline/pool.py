@@ -69,10 +69,11 @@ class JobOwner(Protocol):
         """Hand over the waiting frame as a job (now in flight)."""
 
     def on_fit_result(self, job: FitJob, fit: dict[str, Any] | None, worker_ms: float,
-                      error: str | None, warm: tuple[str, tuple[float, ...]] | None = None) -> None:
+                      error: str | None, warm: tuple[str, tuple[float, ...]] | None = None,
+                      lin: Any = None) -> None:
         """The worker answered (``fit`` is None and ``error`` says why if the fitter raised);
         ``warm`` is the solution as a warm start for the sensor's next frame (None if unfit
-        for one)."""
+        for one); ``lin`` the linearisation the job asked for (None if there is none)."""
 
     def on_fit_failed(self, job: FitJob, reason: str) -> None:
         """The job is lost: its worker died, hung, or the pool stopped."""
@@ -91,6 +92,9 @@ class FitJob:
     mask: np.ndarray | None = None  # usable tactels (None: all)
     #: the sensor's previous fit on a persisting contact, ``(model, params)``: a warm start
     warm: tuple[str, tuple[float, ...]] | None = None
+    #: "fit"; "fit+lin": a fit and its linearisation; "lin": only the linearisation of the
+    #: frame at ``warm`` (the tracker's state, see tactiled.pipeline.tracker)
+    kind: str = "fit"
     sent_at: float = 0.0
 
 
@@ -502,8 +506,8 @@ class WorkerPool:
             assert job is not None
             w.fits += 1
             self.fits += 1
-            _, _, fit, _compute_s, error, warm = msg
-            job.owner.on_fit_result(job, fit, (now - job.sent_at) * 1e3, error, warm)
+            _, _, fit, _compute_s, error, warm, lin = msg
+            job.owner.on_fit_result(job, fit, (now - job.sent_at) * 1e3, error, warm, lin)
             if w.state == "retiring":
                 self._retire(w)
             else:
@@ -545,7 +549,7 @@ class WorkerPool:
             # far outside the model costs a non-converged estimate, not a killed worker.
             budget = FIT_BUDGET_FRACTION * self.settings.timeout
             if not self._send(w, ("fit", job.spec, job.strain, job.model, job.mask, job.warm,
-                                  budget), "fit", self.settings.timeout, job):
+                                  budget, job.kind), "fit", self.settings.timeout, job):
                 continue  # _lose has failed the job already
 
     # -- supervision ------------------------------------------------------------------------------

@@ -49,6 +49,7 @@ from tactiled.pipeline.gate import Gate
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
+from tactiled.pipeline.tracker import Tracker, untracked
 from tactiled.recording import Recorder
 from tactiled.settings import SensorSettings
 from tactiled.sources import FrameSource, open_source
@@ -79,6 +80,16 @@ class _Waiting:
     host_time: float
     strain: np.ndarray
     since: float  # monotonic s it started waiting
+    t: float = 0.0  # device time, s
+    #: a fit of the frame ("fit"; "fit+lin" with its linearisation, for the tracker), or only
+    #: its linearisation at ``at`` (the tracker's state, "lin")
+    kind: str = "fit"
+    at: tuple[str, tuple[float, ...]] | None = None
+
+
+#: Frames of a contact that wait for a fit before the tracker can measure them (they left the
+#: linear range); beyond this many the oldest is given up (counted superseded).
+MAX_PENDING = 64
 
 
 class SensorPipeline:
@@ -127,8 +138,15 @@ class SensorPipeline:
         self.source: FrameSource = source if source is not None else open_source(settings.url)
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
-        self._no_contact_fit = plain(FitResult(
-            contact=False, message="no contact: below the detection threshold").to_json_dict())
+        self._no_contact_fit = untracked(plain(FitResult(
+            contact=False, message="no contact: below the detection threshold").to_json_dict()),
+            0, "no contact")
+        #: the contact through time (settings.track), the frames waiting for a fit before it
+        #: can measure them (in arrival order), and the fit its estimates build on
+        self.tracker = Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
+        self._pending: list[_Waiting] = []
+        self._base: dict[str, Any] | None = None
+        self._base_seq: int | None = None
         # -- state
         self._ordinal = 0
         self._last_published = 0  # ordinal of the last estimate published
@@ -149,6 +167,9 @@ class SensorPipeline:
         self.published = 0
         self.skipped = {GATE_NO_CONTACT: 0, GATE_UNCHANGED: 0}
         self.stale_dropped = 0
+        self.tracked = 0  # contact frames answered by the tracker, without a fit of their own
+        self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
+        self.relinearize_lost = 0
         self.fit_failed = 0
         self.fit_errors = 0
         self.wrong_sensor = 0
@@ -239,7 +260,7 @@ class SensorPipeline:
 
     @property
     def settled(self) -> bool:
-        return self._waiting is None and self._in_flight is None
+        return self._waiting is None and self._in_flight is None and not self._pending
 
     def _check_settled(self) -> None:
         if self._waiting is None and self._in_flight is None:
@@ -292,7 +313,9 @@ class SensorPipeline:
         if self.stage is None:
             self._build_stage(frame.sensor_id)
         assert self.stage is not None
+        nonfinite = self.stage.zeroer.nonfinite_frames
         contact = self.stage.process(frame)
+        nonfinite = self.stage.zeroer.nonfinite_frames != nonfinite
         strain = frame.strain
         assert strain is not None
         if not np.isfinite(strain).all():  # the zeroer never lets NaN out; belt and braces
@@ -306,7 +329,10 @@ class SensorPipeline:
             device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
             statistic=detector.last_statistic, strain=strain))
         waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
-                           frame.host_time, strain, now)
+                           frame.host_time, strain, now, frame.device_time_us * 1e-6)
+        if self.settings.track:
+            self._track(waiting, contact, nonfinite)
+            return
         if self._waiting is not None or self._in_flight is not None:
             # A fit is outstanding for a frame that had changed: its result will be fresher
             # than the reference, so reusing the old estimate now would only make that result
@@ -331,6 +357,121 @@ class SensorPipeline:
                 self.superseded += 1
             self._waiting = waiting
             self.pool.wake()
+
+    # -- tracking (settings.track) ----------------------------------------------------------------
+
+    def _track(self, w: _Waiting, contact: bool, nonfinite: bool) -> None:
+        """One frame through the tracker: measured at once when it can be, else it waits for
+        a fit (with the frames after it, so the estimates keep their order)."""
+        tracker = self.tracker
+        if not contact:
+            self._end_contact()
+            self.skipped[GATE_NO_CONTACT] += 1
+            self._publish(w, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
+            return
+        if self._pending or not tracker.active or not self.settings.reuse_unchanged:
+            self._wait_for_fit(w)
+            return
+        if nonfinite:  # a reading the zeroer had to patch: never let it into the estimate
+            tracker.skip()
+            self._publish_tracked(w)
+            return
+        if tracker.step(w.strain.ravel(), w.t) == "refit":
+            self._wait_for_fit(w)
+            return
+        self._publish_tracked(w)
+        self._maybe_relinearize(w)
+
+    def _wait_for_fit(self, w: _Waiting) -> None:
+        self._pending.append(w)
+        if len(self._pending) > MAX_PENDING:
+            self._pending.pop(0)
+            self.superseded += 1
+        # latest frame wins: the newest pending frame is the one to fit (a waiting
+        # relinearisation is no longer wanted)
+        self._waiting = replace(w, kind="fit+lin", at=self.tracker.predicted(w.t) or self._warm)
+        self.pool.wake()
+
+    def _maybe_relinearize(self, w: _Waiting) -> None:
+        if self._waiting is not None and self._waiting.kind != "lin":
+            return
+        at = self.tracker.wants_linearization()
+        if at is not None:
+            self._waiting = replace(w, kind="lin", at=(at[0], tuple(float(v) for v in at[1])))
+            self.pool.wake()
+
+    def _publish_tracked(self, w: _Waiting, gate: str = GATE_UNCHANGED,
+                         worker_ms: float = 0.0) -> None:
+        assert self._base is not None
+        if gate == GATE_UNCHANGED:
+            self.tracked += 1
+            self.skipped[GATE_UNCHANGED] += 1
+        self._publish(w, gate, self._base_seq, worker_ms, self.tracker.estimate(self._base))
+
+    def _end_contact(self) -> None:
+        """The contact ended (or a tare, new settings): forget it; frames still waiting for a
+        fit are given up (counted superseded)."""
+        self.tracker.clear()
+        self.gate.reset()
+        self._last_fit = None
+        self._warm = None
+        self._base = self._base_seq = None
+        self.superseded += len(self._pending)
+        self._pending.clear()
+        if self._waiting is not None:
+            self._waiting = None
+        self._check_settled()
+
+    def _tracked_result(self, w: _Waiting, job: FitJob, fit: dict[str, Any], worker_ms: float,
+                        warm: tuple[str, tuple[float, ...]] | None, lin: Any) -> None:
+        """A fit (or relinearisation) came back: measure the frames that waited for it."""
+        tracker = self.tracker
+        if job.kind == "lin":
+            if lin is not None and tracker.active and lin.model == tracker.model:
+                tracker.adopt(lin)
+                self.relinearized += 1
+            return
+        if not self._pending:
+            return  # the contact ended while it was fitted (its frames were counted then)
+        if self._waiting is not None and self._waiting.kind != "lin":
+            self._waiting = None  # set again below if a frame still needs a fit
+        # ``w`` itself may be gone (the oldest, given up past MAX_PENDING): its fit still
+        # serves the frames after it
+        pending, self._pending = self._pending, []
+        usable = fit.get("contact") and lin is not None and all(
+            fit.get(k) is not None for k in ("x_mm", "y_mm"))
+        if not usable:
+            # nothing to track from (no contact in the window, a fit without a linearisation):
+            # the frame gets the fit as it is; those before it are given up
+            tracker.clear()
+            self._base = self._base_seq = None
+            self._warm = None
+            later = [p for p in pending if p.ordinal > w.ordinal]
+            mine = any(p.ordinal == w.ordinal for p in pending)
+            self.superseded += len(pending) - len(later) - mine
+            if mine:
+                self._publish(w, GATE_FIT, w.seq, worker_ms,
+                              untracked(fit, 1, "no tracked contact"))
+            if later:
+                self._pending = later
+                self._wait_for_fit(self._pending.pop())
+            return
+        tracker.adopt(lin)
+        self._base, self._base_seq, self._warm = fit, w.seq, warm
+        for i, p in enumerate(pending):
+            if p.ordinal == w.ordinal:
+                tracker.step(p.strain.ravel(), p.t, fitted=True)
+                self._publish_tracked(p, GATE_FIT, worker_ms)
+                continue
+            if tracker.step(p.strain.ravel(), p.t) == "refit":
+                if p.ordinal < w.ordinal:
+                    self.superseded += 1  # older than the fit and outside its linear range
+                    continue
+                self._pending = pending[i:]
+                self._wait_for_fit(self._pending.pop())
+                return
+            self._publish_tracked(p)
+        self._maybe_relinearize(pending[-1])
 
     def _regate_waiting(self) -> None:
         """After a new fit is published, a waiting frame unchanged since is answered with it."""
@@ -381,19 +522,28 @@ class SensorPipeline:
         w = self._waiting
         assert w is not None and self._in_flight is None
         self._waiting, self._in_flight = None, w
+        warm = w.at if w.kind != "fit" else self._warm
         return FitJob(owner=self, ordinal=w.ordinal, seq=w.seq, strain=w.strain,
-                      model=self.model, spec=self.spec, mask=self.mask, warm=self._warm)
+                      model=self.model, spec=self.spec, mask=self.mask, warm=warm, kind=w.kind)
 
     def on_fit_result(self, job: FitJob, fit: dict[str, Any] | None, worker_ms: float,
-                      error: str | None, warm: tuple[str, tuple[float, ...]] | None = None) -> None:
+                      error: str | None, warm: tuple[str, tuple[float, ...]] | None = None,
+                      lin: Any = None) -> None:
         w, self._in_flight = self._in_flight, None
         try:
             if w is None or w.ordinal != job.ordinal:  # cannot happen: one job in flight
                 log.error("%s: result for an unknown job (ordinal %d)", self.name, job.ordinal)
                 return
+            if job.kind == "lin":  # not a frame's fit: it only moves the tracker's point
+                if error is not None:
+                    self.relinearize_lost += 1
+                    log.warning("%s: linearisation at seq %d failed: %s", self.name, w.seq, error)
+                elif self.settings.track:
+                    self._tracked_result(w, job, {}, worker_ms, warm, lin)
+                return
             self.fitted += 1
             if error is not None or fit is None:
-                self.fit_errors += 1
+                self.fit_errors += 1 if not self.settings.track else self._drop_pending(w)
                 self.last_error = f"fit of seq {w.seq} failed: {error}"
                 log.error("%s: %s", self.name, self.last_error)
                 return
@@ -401,6 +551,10 @@ class SensorPipeline:
             self.fit_rate.tick(now)
             self.worker_ms.add(now, worker_ms)
             self.fit_hist.observe(worker_ms / 1e3)
+            if self.settings.track:
+                self._tracked_result(w, job, fit or {}, worker_ms, warm, lin)
+                return
+            fit = untracked(fit, 1, "tracking off (sensor setting track = false)")
             if w.ordinal <= self._last_published:
                 self.stale_dropped += 1  # a newer frame's estimate is out already
                 return
@@ -419,10 +573,25 @@ class SensorPipeline:
 
     def on_fit_failed(self, job: FitJob, reason: str) -> None:
         w, self._in_flight = self._in_flight, None
-        self.fit_failed += 1
         if w is not None:
             self.last_error = f"fit of seq {w.seq} lost: worker {reason}"
+        if job.kind == "lin":
+            self.relinearize_lost += 1  # not a frame's fit: counted apart
+        elif not self.settings.track:
+            self.fit_failed += 1
+        elif w is not None:
+            self.fit_failed += self._drop_pending(w)
         self._check_settled()
+
+    def _drop_pending(self, w: _Waiting) -> int:
+        """The fit of pending frame ``w`` is lost: the frames still waiting get a fit of the
+        newest of them.  1 if ``w`` was still waiting (the caller counts it), else 0 (it was
+        given up before, and counted then)."""
+        before = len(self._pending)
+        self._pending = [p for p in self._pending if p.ordinal != w.ordinal]
+        if self._pending and (self._waiting is None or self._waiting.kind == "lin"):
+            self._wait_for_fit(self._pending.pop())
+        return before - len(self._pending)
 
     # -- control --------------------------------------------------------------------------------
 
@@ -430,9 +599,7 @@ class SensorPipeline:
         """Re-zero on the next frame (nothing may touch the finger) and refit from scratch."""
         if self.stage is not None:
             self.stage.tare()
-        self.gate.reset()
-        self._last_fit = None
-        self._warm = None
+        self._end_contact()
 
     def runtime_config(self) -> dict[str, Any]:
         from tactiled.settings import RUNTIME_SENSOR_KEYS
@@ -452,9 +619,7 @@ class SensorPipeline:
         if self.stage is not None:
             self.stage.zeroer.detector.configure(sigma=s.noise_sigma, false_rate=s.false_rate)
         # A fit made under other settings must not be reused for new frames.
-        self.gate.reset()
-        self._last_fit = None
-        self._warm = None
+        self._end_contact()
 
     # -- reporting ------------------------------------------------------------------------------
 
@@ -486,6 +651,13 @@ class SensorPipeline:
             "published": self.published,
             "skipped": dict(self.skipped),
             "stale_dropped": self.stale_dropped,
+            "track": self.settings.track,
+            "tracked": self.tracked,
+            "track_resets": self.tracker.resets,
+            "track_skipped": self.tracker.skipped,
+            "relinearized": self.relinearized,
+            "relinearize_lost": self.relinearize_lost,
+            "pending": len(self._pending),
             "fit_failed": self.fit_failed,
             "fit_errors": self.fit_errors,
             "wrong_sensor": self.wrong_sensor,

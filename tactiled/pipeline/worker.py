@@ -8,10 +8,12 @@ in order (which is what lets the parent give every outstanding request a deadlin
 - started with its initial specs, it answers ``("ready", pid, warm_up_s, broken)``, where
   ``broken`` maps a spec whose fitter could not be built to the error (its fits then answer
   with that error: one sensor's bad model must not keep the worker from serving the others);
-- ``("fit", rid, spec, strain, model, mask, warm, budget_s)`` -> ``("result", rid,
-  fit_json_dict | None, compute_s, error | None, warm | None)`` (the fitter raising costs one
-  frame, never the worker); ``warm`` is ``(model, params)`` of a converged fit, the next
-  frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
+- ``("fit", rid, spec, strain, model, mask, warm, budget_s, kind)`` -> ``("result", rid,
+  fit_json_dict | None, compute_s, error | None, warm | None, lin | None)`` (the fitter
+  raising costs one frame, never the worker); ``warm`` is ``(model, params)`` of a converged
+  fit, the next frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
+  ``kind`` "fit", "fit+lin" (and the fit's :class:`~tactiled.fit.linearize.Linearization`) or
+  "lin" (only the linearisation of the frame at the sent ``warm``: no fit);
 - ``("setup", rid, spec, SensorModel, options)`` -> ``("setup_done", rid, build_s, error)``;
 - ``("ping", rid)`` -> ``("pong", rid)``;
 - ``("memory", rid)`` -> ``("memory", rid, figures)``: where this process's memory is
@@ -47,7 +49,10 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     # stops (so in-flight fits can finish), so the worker ignores it.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # Here, not at module level: the parent never needs the fitter.
+    import numpy as np
+
     from tactiled.fit.fitter import FitOptions, Fitter
+    from tactiled.fit.linearize import linearize
 
     t0 = time.perf_counter()
     fits = 0
@@ -67,23 +72,30 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 return  # the parent is gone
             kind = msg[0]
             if kind == "fit":
-                _, rid, spec, strain, model, mask, warm, budget_s = msg
+                _, rid, spec, strain, model, mask, warm, budget_s, job_kind = msg
                 t = time.perf_counter()
-                follow = None
+                follow = lin = out = None
                 try:
                     fitter = fitters.get(spec)
                     if fitter is None:
                         raise LookupError(f"no fitter for this sensor (building it failed: "
                                           f"{broken.get(spec, 'unknown spec')})")
-                    result = fitter.fit(strain, model, mask=mask, warm=warm,
-                                        budget_s=budget_s)
-                    out, error = plain(result.to_json_dict()), None
-                    if result.converged and result.params is not None and result.model:
-                        follow = (result.model, result.params)
+                    if job_kind == "lin":
+                        lin = linearize(fitter, strain, warm[0], np.asarray(warm[1]), mask)
+                        error = None
+                    else:
+                        result = fitter.fit(strain, model, mask=mask, warm=warm,
+                                            budget_s=budget_s)
+                        out, error = plain(result.to_json_dict()), None
+                        if result.converged and result.params is not None and result.model:
+                            follow = (result.model, result.params)
+                        if job_kind == "fit+lin" and result.params is not None and result.model:
+                            lin = linearize(fitter, strain, result.model,
+                                            np.asarray(result.params), mask, fit_std=result.std)
                 except Exception as err:  # a fitter bug must cost one frame, not the worker
                     out, error = None, f"{type(err).__name__}: {err}"
                 fits += 1
-                conn.send(("result", rid, out, time.perf_counter() - t, error, follow))
+                conn.send(("result", rid, out, time.perf_counter() - t, error, follow, lin))
             elif kind == "ping":
                 conn.send(("pong", msg[1]))
             elif kind == "memory":

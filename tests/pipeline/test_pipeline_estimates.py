@@ -69,9 +69,11 @@ def test_every_frame_gets_its_estimate_with_its_sensor_and_seq(tmp_path: Path, a
         assert st["published"] == (st["skipped"]["no_contact"] + st["skipped"]["unchanged"]
                                    + st["fitted"])
         assert all(not e.contact for e in got[:SETTLE_FRAMES])
-        fitted = [e for e in got[SETTLE_FRAMES:SETTLE_FRAMES + 40] if e.gate == "fit"]
-        assert len(fitted) >= 3
-        for e in fitted:  # the worker really fitted the physics: centre and force recovered
+        answered = [e for e in got[SETTLE_FRAMES:SETTLE_FRAMES + 40] if e.contact]
+        assert len(answered) >= 30 and any(e.gate == "fit" for e in answered)
+        # the worker really fitted the physics, and the tracker followed the moving contact
+        # from there: centre and force recovered on every frame
+        for e in answered:
             c = truth[e.seq - frames[0].seq - SETTLE_FRAMES]
             assert abs(e.fit["x_mm"] - c.x0) < 0.3 and abs(e.fit["y_mm"] - c.y0) < 0.3
             assert e.fit["force_n"] == pytest.approx(c.force, rel=0.15)
@@ -133,8 +135,9 @@ def test_the_calibration_file_is_applied_and_its_dead_tactels_are_left_out(
 def test_latest_frame_wins_while_the_worker_is_busy(tmp_path: Path, arun) -> None:
     frames = make_frames(contact_path(150), seed=3)  # ends in contact: the last one waits
     url = f"replay://{write_recording(tmp_path / 'a.tact', frames)}?speed=0"
+    # tracking off: each estimate is its own frame's fit (the tracked case is the next test)
     overrides = {"sensor[0].url": url, "sensor[0].reuse_unchanged": False,
-                 "sensor[0].model": "auto"}
+                 "sensor[0].model": "auto", "sensor[0].track": False}
 
     async def main() -> tuple[list, dict]:
         daemon = Daemon(load_settings(None, {}, overrides))
@@ -147,6 +150,7 @@ def test_latest_frame_wins_while_the_worker_is_busy(tmp_path: Path, arun) -> Non
 
     estimates, st = arun(main())
     check_estimates(estimates, "finger0", 0)
+    assert all(e.fit["frames_used"] in (0, 1) for e in estimates)
     # Frames come every loop iteration, a fit takes milliseconds: most are superseded.
     assert st["superseded"] > 50, st
     assert st["frames"] == len(frames) == accounted(st)
@@ -164,8 +168,11 @@ def test_a_result_older_than_the_last_estimate_is_dropped(arun) -> None:
 
     async def main() -> tuple[list, dict]:
         # one-frame contact decisions, so a single release frame ends the contact
+        # (tracking off: with it, the frame waiting for that fit is given up when the contact
+        # ends, counted superseded; test_tracking.py)
         daemon = Daemon(load_settings(None, {}, {"sensor[0].url": "replay://unused.tact",
-                                                 "sensor[0].detector_average": 1}),
+                                                 "sensor[0].detector_average": 1,
+                                                 "sensor[0].track": False}),
                         sources={"finger0": source})
         estimates = collect(daemon)
         await daemon.start()

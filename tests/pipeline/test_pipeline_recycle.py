@@ -91,7 +91,8 @@ def test_recycling_while_live_keeps_fitting(tmp_path: Path, arun) -> None:
     overrides = {"fit.workers": 1, "fit.max_fits_per_worker": 40,
                  "sensor[0].url": f"replay://{path}?speed=5",
                  "sensor[1].url": f"replay://{path}?speed=5", "sensor[1].name": "finger1",
-                 "sensor[0].reuse_unchanged": False, "sensor[1].reuse_unchanged": False}
+                 "sensor[0].reuse_unchanged": False, "sensor[1].reuse_unchanged": False,
+                 "sensor[0].track": False, "sensor[1].track": False}
 
     async def main() -> tuple[list, dict, dict]:
         daemon = Daemon(load_settings(None, {}, overrides))

@@ -1,0 +1,125 @@
+"""A fit's linearisation: what the temporal tracker needs to measure later frames without a fit.
+
+Near a contact ``p`` the window's strains are ``s(p + dp) ~ s(p) + J dp``, so a later frame
+``f`` of the same contact measures the parameters by one weighted least-squares step,
+``p + G (f - s(p))`` with ``G = (J^T W J)^-1 J^T W``: a matrix-vector product, microseconds,
+where a fit costs hundreds.  Its noise covariance is ``sigma^2 G G^T`` (the single-frame
+Cramer-Rao bound when ``W`` is the noise's), and the part of ``f - s(p)`` that ``J dp`` does not
+explain says whether the frame still lies in the linear range (or a new fit is due).
+
+Computed in the fit worker, at a fit's solution or at a point the tracker asks for, and sent
+to the daemon's main process, which has no physics of its own.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from tactiled.fit import compiled
+from tactiled.fit.models import get_model
+from tactiled.fit.params import VALUE_KEYS, report
+
+
+#: ``(A^-1)_ii A_ii`` beyond this (a variance inflated 1e12-fold by correlation): singular.
+SINGULAR = 1e12
+_ROWS = np.arange(64)
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """The window's strains around one contact of one model (internal parameters, see
+    :mod:`tactiled.fit.params`).  Arrays are per usable window tactel, ``n`` of them, and per
+    parameter, ``k``."""
+
+    model: str
+    #: the internal parameter vector it was taken at, (k,)
+    p: np.ndarray
+    #: flat (row-major) indices of the window's usable tactels in the frame, (n,)
+    index: np.ndarray
+    #: the model's strains there at ``p``, (n,)
+    strain: np.ndarray
+    #: d strain / d p, (n, k)
+    jacobian: np.ndarray
+    #: the least-squares step from a strain residual to a parameter change, (k, n)
+    gain: np.ndarray
+    #: 1 / variance of one frame's reading (noise and model-error floor), (n,), strain^-2
+    weight: np.ndarray
+    #: one frame's noise covariance of ``p + gain @ (f - strain)``, (k, k)
+    cov: np.ndarray
+    #: per value key, the variance (user units^2) the fit reported beyond what one frame's
+    #: noise gives: the model-error floor, which averaging frames does not shrink; None if
+    #: the linearisation was not taken at a fit (the tracker keeps the last it had)
+    systematic: dict[str, float] | None = None
+
+    @property
+    def dof(self) -> int:
+        """Degrees of freedom of the linearity test (usable tactels minus parameters)."""
+        return int(self.index.size - self.p.size)
+
+
+def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
+              mask: np.ndarray | None = None, fit_std: dict[str, float | None] | None = None,
+              frames: int = 1) -> Linearization | None:
+    """The linearisation of ``fitter``'s window on ``strain`` at ``model``'s internal vector
+    ``p``; None where there is none (no contact in the frame, too few tactels, a singular
+    Jacobian, a point outside the model's domain).
+
+    ``fit_std`` (the fit's reported 1-sigma values, user units) and ``frames`` (how many frames
+    that fit's frame was the mean of) give :attr:`Linearization.systematic`.
+    """
+    fr = fitter._frame(strain, mask)
+    m = get_model(model)
+    p = np.asarray(p, dtype=float)
+    if not hasattr(fr, "target") or fr.n_points <= m.size or p.shape != (m.size,):
+        return None
+    window = (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
+    status, r, jac = compiled.evaluate(compiled.KINDS[model], p, fitter._model_args, window,
+                                       fitter.options.tol)
+    if status == "invalid":  # an infinite line contact, or too long to integrate
+        return None
+    if status == "fallback":  # a contact too large for the compiled rules
+        try:
+            r, jac = fitter.model.window_residual_function(m.physical, *window)(p)
+        except ValueError:
+            return None
+    inv = fr.inv_scale[fr.valid]
+    s = fr.target[fr.valid] + r / inv
+    js = jac / inv[:, None]
+    sigma = fitter._sigma1
+    # inv_scale = (1 / peak) (sigma / sd): each tactel's sd with the model-error floor
+    sd = fitter.sigma / (fr.peak * inv)
+    w = 1.0 / (sd * sd)
+    jw = js.T * w
+    a = jw @ js
+    try:
+        ainv = np.linalg.inv(a)
+    except np.linalg.LinAlgError:
+        return None
+    # a parameter the window does not determine: a singular or NaN normal matrix, or a
+    # variance inflated SINGULAR-fold by correlation (NaN fails both tests)
+    q = np.diag(ainv) * np.diag(a)
+    if not (bool((q > 0.0).all()) and bool((q < SINGULAR).all())):
+        return None
+    gain = ainv @ jw
+    cov = (sigma * sigma) * (gain @ gain.T)
+    r0, c0, nr, nc = fr.win
+    cols = fitter._all_ok.shape[1]
+    index = ((r0 + _ROWS[:nr, None]) * cols + (c0 + _ROWS[None, :nc])).ravel()[fr.valid]
+    systematic = None
+    if fit_std is not None:
+        _, grad = report(model, p)
+        systematic = {}
+        for i, key in enumerate(VALUE_KEYS):
+            sd_fit = fit_std.get(key)
+            if sd_fit is None or not np.all(np.isfinite(grad[i])):
+                continue
+            noise = float(grad[i] @ cov @ grad[i]) / frames
+            extra = sd_fit * sd_fit - noise
+            systematic[key] = extra if math.isfinite(extra) and extra > 0.0 else 0.0
+    return Linearization(model=model, p=p.copy(), index=np.ascontiguousarray(index),
+                         strain=np.ascontiguousarray(s), jacobian=np.ascontiguousarray(js),
+                         gain=np.ascontiguousarray(gain), weight=w, cov=cov,
+                         systematic=systematic)

@@ -1,0 +1,176 @@
+"""The temporal tracker on its own (tactiled/pipeline/tracker.py), fed the way the daemon feeds
+it: real fits and real linearisations from the worker's code, frames from the physics with
+Gaussian noise, played synchronously (no processes, so the numbers are exact to the frame).
+Bounds are in units of the single-frame Cramer-Rao bound at the truth, computed by the fitter
+independently of the tracker."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tactiled.config import NoiseModel, SensorModel
+from tactiled.fit.fitter import FitOptions, Fitter
+from tactiled.fit.linearize import linearize
+from tactiled.physics.contact import Contact
+from tactiled.physics.strain import StrainModel
+from tactiled.pipeline.tracker import RATE_KEYS, Tracker, untracked
+
+SIGMA = 0.0005
+RATE = 1000.0  # frames/s
+
+
+@pytest.fixture(scope="module")
+def kit():
+    sensor = SensorModel(noise=NoiseModel(sigma=SIGMA))
+    return Fitter(sensor, FitOptions(withhold_relative_sigma=0.5)), StrainModel(sensor)
+
+
+def play(kit, truth, frames: int, seed: int, tracker: Tracker | None = None,
+         nan_at: tuple[int, ...] = ()) -> tuple[list, Tracker, int]:
+    """Frames of ``truth(t)`` through a tracker as the daemon runs it: a fit (and its
+    linearisation) when the tracker asks for one, a relinearisation when it wants one.
+    Returns ``[(t, contact, estimate, status)]``, the tracker and the number of fits."""
+    fitter, model = kit
+    rng = np.random.default_rng(seed)
+    tr = tracker or Tracker(withhold_relative_sigma=0.5)
+    out, base, fits = [], None, 0
+    for k in range(frames):
+        t = k / RATE
+        c = truth(t)
+        s = model.predict(c) + rng.normal(0.0, SIGMA, (8, 8))
+        if k in nan_at:
+            tr.skip()
+            out.append((t, c, tr.estimate(base), "skipped"))
+            continue
+        status = tr.step(s.ravel(), t) if tr.active else "refit"
+        if status == "refit":
+            res = fitter.fit(s, "cylinder", warm=tr.predicted(t))
+            fits += 1
+            tr.adopt(linearize(fitter, s, res.model, np.array(res.params), fit_std=res.std))
+            status = tr.step(s.ravel(), t, fitted=True)
+            base = res.to_json_dict()
+        want = tr.wants_linearization()
+        if want is not None:
+            lin = linearize(fitter, s, want[0], want[1])
+            if lin is not None:
+                tr.adopt(lin)
+        out.append((t, c, tr.estimate(base), status))
+    return out, tr, fits
+
+
+def crb(kit, c: Contact) -> dict:
+    fitter, model = kit
+    s = model.predict(c)
+    p = fitter.fit(s, "cylinder").params
+    return fitter.cramer_rao(s, "cylinder", np.array(p))
+
+
+HELD = Contact(r1=10.0, psi_deg=60.0, force=1.2, x0=8.0, y0=9.0)
+
+
+def test_a_held_contact_sharpens_like_one_over_sqrt_frames(kit) -> None:
+    bound = crb(kit, HELD)
+    errs = {25: [], 100: [], 400: []}
+    sds = {25: [], 100: [], 400: []}
+    for seed in range(12):
+        out, tr, fits = play(kit, lambda t: HELD, 401, seed)
+        assert fits == 1 and tr.resets == 0  # one fit, then every frame measured
+        for n in errs:
+            _, _, e, _ = out[n - 1]
+            assert e["frames_used"] == n
+            errs[n].append(e["r1_mm"] - HELD.r1)
+            sds[n].append(e["std"]["r1_mm"])
+    for n in errs:
+        sd = float(np.median(sds[n]))
+        # the reported sigma follows the bound over sqrt(frames) (the curvature averages
+        # every frame), within 25 %
+        assert sd == pytest.approx(bound["r1_mm"] / math.sqrt(n), rel=0.25), n
+        rms = math.sqrt(np.mean(np.square(errs[n])))
+        assert rms < 1.6 * sd, (n, rms, sd)  # 12 samples: chi-square's 99.9 % is 1.6^2
+    # the issue's bars: after 100 ms under a third of the single-frame bound, after 400 ms
+    # well on the way to the tenth it asks at 1 s
+    assert math.sqrt(np.mean(np.square(errs[100]))) < bound["r1_mm"] / 3
+    assert math.sqrt(np.mean(np.square(errs[400]))) < bound["r1_mm"] / 6
+
+
+def test_a_rolling_contact_is_followed_without_lag(kit) -> None:
+    v = 5.0  # mm/s along x
+    bound = crb(kit, HELD)
+    lags, rates = [], []
+    for seed in range(4):
+        out, _, _ = play(kit, lambda t: Contact(r1=10, psi_deg=60, force=1.2, x0=7 + v * t,
+                                                y0=9.0), 600, seed)
+        for t, c, e, _ in out[100:]:
+            lags.append(e["x_mm"] - c.x0)
+            rates.append(e["vx_mm_s"])
+    # the issue's bars: median signed error within 0.2 single-frame sigmas, rate within 10 %
+    assert abs(float(np.median(lags))) < 0.2 * bound["x_mm"]
+    assert float(np.median(rates)) == pytest.approx(v, rel=0.1)
+
+
+def test_a_rotation_is_followed_without_lag(kit) -> None:
+    w = 45.0  # deg/s
+    bound = crb(kit, HELD)
+    lags, rates = [], []
+    for seed in range(4):
+        out, _, _ = play(kit, lambda t: Contact(r1=10, psi_deg=60 + w * t, force=1.2, x0=8,
+                                                y0=9), 600, seed)
+        for t, c, e, _ in out[100:]:
+            lags.append(e["angle_deg"] - c.psi_deg)
+            rates.append(e["angle_rate_deg_s"])
+    assert abs(float(np.median(lags))) < 0.2 * bound["angle_deg"]
+    assert float(np.median(rates)) == pytest.approx(w, rel=0.1)
+
+
+@pytest.mark.parametrize("change", ["force step", "jump"])
+def test_a_step_shows_at_once_and_restarts_the_accumulation(kit, change) -> None:
+    def truth(t: float) -> Contact:
+        after = t >= 0.3
+        if change == "force step":
+            return Contact(r1=10, psi_deg=60, force=1.2 * (1.2 if after else 1.0), x0=8, y0=9)
+        return Contact(r1=10, psi_deg=60, force=1.2, x0=8 + (0.5 if after else 0.0), y0=9)
+
+    out, tr, _ = play(kit, truth, 340, seed=3)
+    step = 300
+    key, attr, size = (("force_n", "force", 0.24) if change == "force step"
+                       else ("x_mm", "x0", 0.5))
+    assert out[step - 1][3] == "tracked" and out[step - 1][2]["frames_used"] == step
+    # the step frame itself is fitted and restarts the filter: frames_used back to 1
+    assert out[step][3] == "reset" and out[step][2]["frames_used"] == 1
+    for k in (step, step + 1):  # visible within 2 frames: past 90 % of the step
+        e, c = out[k][2], out[k][1]
+        assert abs(e[key] - getattr(c, attr)) < 0.1 * size, (k, e[key])
+    # a force step does not change the object: the radius keeps its accumulated precision
+    if change == "force step":
+        assert out[step + 5][2]["std"]["r1_mm"] < 0.3 * crb(kit, truth(0.5))["r1_mm"]
+    assert tr.resets == 1
+
+
+def test_unusable_frames_are_skipped_and_counted_never_averaged_in(kit) -> None:
+    out, tr, _ = play(kit, lambda t: HELD, 60, seed=5, nan_at=(30, 31))
+    assert tr.skipped == 2
+    assert out[30][2]["frames_used"] == out[29][2]["frames_used"] == 30
+    assert out[30][2]["r1_mm"] == out[29][2]["r1_mm"]
+    assert out[32][2]["frames_used"] == 31
+
+
+def test_time_running_backwards_restarts_the_filter(kit) -> None:
+    fitter, model = kit
+    out, tr, _ = play(kit, lambda t: HELD, 50, seed=6)
+    s = model.predict(HELD) + np.random.default_rng(1).normal(0, SIGMA, (8, 8))
+    assert tr.step(s.ravel(), 0.001) == "reset"  # the device restarted its clock
+    assert tr.n == 1 and tr.resets == 1
+    e = tr.estimate(out[-1][2])
+    assert e["frames_used"] == 1 and all(e[k] is None for k in RATE_KEYS)
+    assert "too few frames" in e["reasons"]["vx_mm_s"]
+
+
+def test_an_estimate_it_did_not_make_carries_its_keys_empty() -> None:
+    fit = {"contact": False, "std": {"x_mm": None}, "reasons": {}}
+    out = untracked(fit, 0, "no contact")
+    assert out["frames_used"] == 0 and all(out[k] is None for k in RATE_KEYS)
+    assert all(out["reasons"][k] == "no contact" for k in RATE_KEYS)
+    assert fit == {"contact": False, "std": {"x_mm": None}, "reasons": {}}  # not modified
