@@ -13,14 +13,12 @@ to the daemon's main process, which has no physics of its own.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from tactiled.fit import compiled
 from tactiled.fit.models import get_model
-from tactiled.fit.params import VALUE_KEYS, report
 
 
 #: ``(A^-1)_ii A_ii`` beyond this (a variance inflated 1e12-fold by correlation): singular.
@@ -49,10 +47,14 @@ class Linearization:
     weight: np.ndarray
     #: one frame's noise covariance of ``p + gain @ (f - strain)``, (k, k)
     cov: np.ndarray
-    #: per value key, the variance (user units^2) the fit reported beyond what one frame's
-    #: noise gives: the model-error floor, which averaging frames does not shrink; None if
-    #: the linearisation was not taken at a fit (the tracker keeps the last it had)
-    systematic: dict[str, float] | None = None
+    #: one frame's strain noise, 1 sigma
+    sigma: float
+    #: the covariance the finger's identified model-error floor (``SensorModel.model_error``,
+    #: from its calibration) gives ``p + gain @ (f - strain)``, (k, k).  The same in every
+    #: frame: averaging frames does not shrink it.  (The floor a fitter learns from single
+    #: frames' residuals, :mod:`tactiled.fit.floor`, is not in it: part of what a frame shows
+    #: does average away; the tracker measures what does not on the frames' mean residual.)
+    systematic: np.ndarray
 
     @property
     def dof(self) -> int:
@@ -61,15 +63,10 @@ class Linearization:
 
 
 def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
-              mask: np.ndarray | None = None, fit_std: dict[str, float | None] | None = None,
-              frames: int = 1) -> Linearization | None:
+              mask: np.ndarray | None = None) -> Linearization | None:
     """The linearisation of ``fitter``'s window on ``strain`` at ``model``'s internal vector
     ``p``; None where there is none (no contact in the frame, too few tactels, a singular
-    Jacobian, a point outside the model's domain).
-
-    ``fit_std`` (the fit's reported 1-sigma values, user units) and ``frames`` (how many frames
-    that fit's frame was the mean of) give :attr:`Linearization.systematic`.
-    """
+    Jacobian, a point outside the model's domain)."""
     fr = fitter._frame(strain, mask)
     m = get_model(model)
     p = np.asarray(p, dtype=float)
@@ -108,18 +105,9 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     r0, c0, nr, nc = fr.win
     cols = fitter._all_ok.shape[1]
     index = ((r0 + _ROWS[:nr, None]) * cols + (c0 + _ROWS[None, :nc])).ravel()[fr.valid]
-    systematic = None
-    if fit_std is not None:
-        _, grad = report(model, p)
-        systematic = {}
-        for i, key in enumerate(VALUE_KEYS):
-            sd_fit = fit_std.get(key)
-            if sd_fit is None or not np.all(np.isfinite(grad[i])):
-                continue
-            noise = float(grad[i] @ cov @ grad[i]) / frames
-            extra = sd_fit * sd_fit - noise
-            systematic[key] = extra if math.isfinite(extra) and extra > 0.0 else 0.0
+    me = fitter.sensor.model_error  # the floor's variance per tactel, as Fitter._tactel_sd's
+    systematic = (gain * (me.strain ** 2 + (me.relative * s) ** 2)) @ gain.T
     return Linearization(model=model, p=p.copy(), index=np.ascontiguousarray(index),
                          strain=np.ascontiguousarray(s), jacobian=np.ascontiguousarray(js),
-                         gain=np.ascontiguousarray(gain), weight=w, cov=cov,
+                         gain=np.ascontiguousarray(gain), weight=w, cov=cov, sigma=sigma,
                          systematic=systematic)

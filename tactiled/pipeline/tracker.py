@@ -68,6 +68,14 @@ RESET_SIGMA = 5.0
 DRIFT_ALPHA = 1.0 / 32.0
 #: The drift detector's alarm, in standard deviations of its running mean.
 DRIFT_LIMIT = 5.0
+#: The mean residual of this many frames measured through one linearisation is tested for
+#: what averaging cannot remove (see :meth:`Tracker.step`).
+MEAN_RESIDUAL_FRAMES = 16
+#: ... at this normal deviate of its chi^2 (Wilson-Hilferty), over the last ~this many
+#: seconds (an exponential memory: what the contact did a while ago says little of now).
+MEAN_RESIDUAL_Z = 3.0
+MEAN_RESIDUAL_S = 1.0
+
 #: Velocities are reported from this many frames after a (re)start of the filter.
 MIN_RATE_FRAMES = 3
 #: A gap in the device clock longer than this (s), or time running backwards (the device
@@ -127,12 +135,18 @@ class Tracker:
     def clear(self) -> None:
         """Forget the contact (it ended, a tare, new settings)."""
         self.lin = None  # the Linearization frames are measured through
+        self.excess = 1.0
+        self._esum = self._ecount = None
         self.model: str | None = None
         self.names: tuple[str, ...] = ()
         self.params: list[_Param] | None = None
         self.t: float | None = None
         self.n = 0  # frames the estimate rests on since the filter (re)started
-        self.systematic: dict[str, float] = {}
+        #: how far the mean of the frames departs from the model beyond their noise: the
+        #: reported variances are multiplied by it (1: not at all)
+        self.excess = 1.0
+        self._esum: np.ndarray | None = None  # per tactel: the residuals' sum, their count
+        self._ecount: np.ndarray | None = None
         self._corr: np.ndarray | None = None
         self._lin_sd: np.ndarray | None = None  # the state's spread when linearised
 
@@ -161,11 +175,14 @@ class Tracker:
                 p[i] += turns * math.pi
                 lin = replace(lin, p=p)
         self.lin, self.model, self.names = lin, lin.model, names
+        if self._esum is None:
+            cells = int(lin.index.max()) + 1 if lin.index.size else 0
+            size = max(cells, 64)
+            self._esum, self._ecount = np.zeros(size), np.zeros(size)
+        self._log = np.array([n.startswith("ln_") for n in names])
         self._limit = chi2_limit(max(lin.dof, 1))
         sd = np.sqrt(np.diag(lin.cov))
         self._corr = lin.cov / np.outer(sd, sd)
-        if lin.systematic is not None:
-            self.systematic = lin.systematic
         self._lin_sd = (None if self.params is None
                         else np.array([math.sqrt(q.pxx) for q in self.params]))
 
@@ -200,13 +217,20 @@ class Tracker:
         ``fitted``: the frame is the one the current linearisation was fitted on (it is
         measured exactly there, and a jump restarts the filter)."""
         lin = self.lin
-        d = strain[lin.index] - lin.strain
-        dp = lin.gain @ d
-        if not fitted:
+        if fitted:
+            z = lin.p.copy()  # the fit itself: the frame's own measurement
+        else:
+            d = strain[lin.index] - lin.strain
+            dp = lin.gain @ d
             e = d - lin.jacobian @ dp
             if lin.dof > 0 and float((e * e) @ lin.weight) > self._limit:
                 return "refit"
-        z = lin.p + dp
+            # a log radius or force moved by more than a factor e from the point: no linear
+            # range reaches that far (a release: force to zero), whatever the residual says
+            if not (np.isfinite(dp).all() and (np.abs(dp[self._log]) < 1.0).all()):
+                return "refit"
+            z = lin.p + dp
+            self._mean_residual(e, t - self.t if self.t is not None else 0.0)
         r = np.diag(lin.cov)
         if self.params is None or self.t is None:
             self._start(z, r, t)
@@ -233,6 +257,31 @@ class Tracker:
         self.t = t
         self.n += 1
         return "tracked"
+
+    def _mean_residual(self, e: np.ndarray, dt: float) -> None:
+        """Model error that no single frame shows can dominate an average of thousands (a
+        tactel's zero drifting under a held contact, the rubber's hysteresis behind a rolling
+        one, a finger that departs from its model): the residual of the frames' mean, whose
+        noise is sigma / sqrt(m), reveals it.  Summed per tactel over the contact; when its
+        chi^2 is beyond the noise's, the reported variances are scaled by chi^2 / dof (the
+        Birge ratio), so the uncertainty stops shrinking where the data stop agreeing."""
+        idx = self.lin.index
+        if idx.size and int(idx.max()) >= self._esum.size:
+            return
+        if 0.0 < dt < MAX_GAP_S:
+            fade = math.exp(-dt / MEAN_RESIDUAL_S)
+            self._esum *= fade
+            self._ecount *= fade
+        self._esum[idx] += e
+        self._ecount[idx] += 1.0
+        used = self._ecount >= MEAN_RESIDUAL_FRAMES
+        n = int(used.sum())
+        dof = n - self.lin.p.size
+        if dof < 1:
+            return
+        c = self._ecount[used]
+        chi2 = float(np.sum(self._esum[used] ** 2 / c)) / (self.lin.sigma * self.lin.sigma)
+        self.excess = chi2 / dof if chi2 > chi2_limit(dof, MEAN_RESIDUAL_Z) else 1.0
 
     def skip(self) -> None:
         """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""
@@ -310,8 +359,8 @@ class Tracker:
         assert params is not None and self.model is not None
         x = np.array([q.x for q in params])
         values, grad = report(self.model, x)
-        sd = np.sqrt(np.array([q.pxx for q in params]))
-        cov = self._corr * np.outer(sd, sd)
+        sd = np.sqrt(np.array([q.pxx for q in params]) * self.excess)
+        cov = self._corr * np.outer(sd, sd) + self.lin.systematic
         var = np.einsum("ij,jk,ik->i", grad, cov, grad)
         out = dict(base)
         reasons = dict(base.get("reasons") or {})
@@ -326,7 +375,7 @@ class Tracker:
                 out[key] = base.get(key)
                 std[key] = base_std.get(key)
                 continue
-            sd = math.sqrt(var[i] + self.systematic.get(key, 0.0))
+            sd = math.sqrt(var[i])
             withheld = self._withheld(key, v, sd)
             if withheld:
                 out[key], std[key] = None, None

@@ -91,7 +91,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                             follow = (result.model, result.params)
                         if job_kind == "fit+lin" and result.params is not None and result.model:
                             lin = linearize(fitter, strain, result.model,
-                                            np.asarray(result.params), mask, fit_std=result.std)
+                                            np.asarray(result.params), mask)
                 except Exception as err:  # a fitter bug must cost one frame, not the worker
                     out, error = None, f"{type(err).__name__}: {err}"
                 fits += 1

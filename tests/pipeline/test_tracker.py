@@ -49,7 +49,7 @@ def play(kit, truth, frames: int, seed: int, tracker: Tracker | None = None,
         if status == "refit":
             res = fitter.fit(s, "cylinder", warm=tr.predicted(t))
             fits += 1
-            tr.adopt(linearize(fitter, s, res.model, np.array(res.params), fit_std=res.std))
+            tr.adopt(linearize(fitter, s, res.model, np.array(res.params)))
             status = tr.step(s.ravel(), t, fitted=True)
             base = res.to_json_dict()
         want = tr.wants_linearization()
