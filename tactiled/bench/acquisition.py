@@ -327,7 +327,7 @@ class _Tarer:
 
 async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids: list[int],
                tare: tuple[tuple[int, int], int, float, float, Callable[[int], Contact | None]] | None,
-               ) -> RunResult:
+               track: bool = True) -> RunResult:
     """``tare``: ``(window, ticks per pass, rate, seconds per pass, truth)``: tare each sensor
     in ``window`` of the pass (see :func:`tare_window` and :class:`_Tarer`)."""
     overrides: dict[str, object] = {"fit.workers": workers}
@@ -335,6 +335,7 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
         overrides[f"sensor[{i}].name"] = name
         overrides[f"sensor[{i}].url"] = f"serial://{tmp / f'tty{i}'}"
         overrides[f"sensor[{i}].wire_id"] = i + 1
+        overrides[f"sensor[{i}].track"] = track
     daemon = Daemon(load_settings(None, {}, overrides))
     index = {name: i for i, name in enumerate(FINGERS)}
     seen: list[Seen] = []
@@ -390,9 +391,10 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
     return RunResult(workers, before, after, elapsed, seen, used, tares=0 if tarer is None else tarer.tares)
 
 
-def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int) -> RunResult:
-    """One run: three simulators on ptys, a daemon with ``workers`` fit workers, ``seconds``
-    measured after ``warmup``."""
+def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int,
+            track: bool = True) -> RunResult:
+    """One run: three simulators on ptys, a daemon with ``workers`` fit workers (and the
+    sensors' ``track`` setting), ``seconds`` measured after ``warmup``."""
     with tempfile.TemporaryDirectory(prefix="tactiled-acq-") as d:
         tmp = Path(d)
         procs = _start_simulators(tmp, rate, scene)
@@ -401,7 +403,8 @@ def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int
             duration = named_scene(scene).duration
             per_pass = max(1, round(duration * rate))
             tare = None if window is None else (window, per_pass, rate, duration, scene_truth(scene, rate))
-            result = asyncio.run(_run(tmp, seconds, warmup, workers, [p.pid for p in procs], tare))
+            result = asyncio.run(_run(tmp, seconds, warmup, workers, [p.pid for p in procs], tare,
+                                      track))
         finally:
             device = _stop(procs)
     result.device = device

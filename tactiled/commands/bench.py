@@ -17,6 +17,10 @@ Suites (default: all):
               the fit worker count (one run each, side by side)
   foundation  the fitter against its bars: noise-free recovery from the reference integration,
               noisy efficiency (RMS/CRB, 2-sigma coverage), the paper's Table 1, speed
+  temporal    the tracker through the whole daemon: a held contact sharpening (radius error
+              against the single-frame bound at 100 ms and 1 s, coverage; --plot draws the
+              error against time), rolls and rotations (lag, rates), steps, and the CPU per
+              frame with tracking on and off
 
 Output is Markdown on stdout; progress goes to stderr.  --quick runs in about a minute.
 
@@ -33,7 +37,8 @@ import platform
 import sys
 import time
 
-SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify", "speed")
+SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify", "speed",
+          "temporal")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -65,6 +70,10 @@ def _worker_list(text: str) -> tuple[int, ...]:
     if not counts or any(not 1 <= n <= 64 for n in counts):
         raise argparse.ArgumentTypeError(f"worker counts must lie in 1..64, got {text!r}")
     return counts
+
+
+def _say(what: str) -> None:
+    print(f"temporal: {what}", file=sys.stderr, flush=True)
 
 
 def _header(args: argparse.Namespace) -> str:
@@ -179,6 +188,12 @@ def run(args: argparse.Namespace) -> int:
 
         out += ["", "## Fitter speed" + (f" against {args.baseline}" if args.baseline else ""), "",
                 speed.run(args.quick, args.progress, args.baseline)]
+    if "temporal" in suites:
+        from tactiled.bench import temporal
+
+        out += ["", "## Time: held contacts sharpen, moving ones are tracked", "",
+                temporal.run(args.quick, _say if args.progress is not False else None,
+                             args.plot if args.suite == "temporal" else None)]
     if "identify" in suites:
         from tactiled.bench import identify
 

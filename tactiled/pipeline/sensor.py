@@ -167,7 +167,8 @@ class SensorPipeline:
         self.published = 0
         self.skipped = {GATE_NO_CONTACT: 0, GATE_UNCHANGED: 0}
         self.stale_dropped = 0
-        self.tracked = 0  # contact frames answered by the tracker, without a fit of their own
+        self.tracked = 0  # contact frames measured by the tracker, without a fit of their own
+        self.predicted = 0  # ... of which the tracker could only predict, not measure
         self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
         self.relinearize_lost = 0
         self.fit_failed = 0
@@ -374,7 +375,8 @@ class SensorPipeline:
             return
         if nonfinite:  # a reading the zeroer had to patch: never let it into the estimate
             tracker.skip()
-            self._publish_tracked(w)
+            self.predicted += 1
+            self._publish_tracked(w, predicted=True)
             return
         if tracker.step(w.strain.ravel(), w.t) == "refit":
             self._wait_for_fit(w)
@@ -401,12 +403,13 @@ class SensorPipeline:
             self.pool.wake()
 
     def _publish_tracked(self, w: _Waiting, gate: str = GATE_UNCHANGED,
-                         worker_ms: float = 0.0) -> None:
+                         worker_ms: float = 0.0, predicted: bool = False) -> None:
         assert self._base is not None
         if gate == GATE_UNCHANGED:
-            self.tracked += 1
+            self.tracked += not predicted
             self.skipped[GATE_UNCHANGED] += 1
-        self._publish(w, gate, self._base_seq, worker_ms, self.tracker.estimate(self._base))
+        fit = self.tracker.estimate(self._base, at=w.t if predicted else None)
+        self._publish(w, gate, self._base_seq, worker_ms, fit)
 
     def _end_contact(self) -> None:
         """The contact ended (or a tare, new settings): forget it; frames still waiting for a
@@ -465,7 +468,10 @@ class SensorPipeline:
                 continue
             if tracker.step(p.strain.ravel(), p.t) == "refit":
                 if p.ordinal < w.ordinal:
-                    self.superseded += 1  # older than the fit and outside its linear range
+                    # older than the fit and outside its linear range too (a fast move): the
+                    # contact predicted to its time, not a stale estimate, and not none
+                    self.predicted += 1
+                    self._publish_tracked(p, predicted=True)
                     continue
                 self._pending = pending[i:]
                 self._wait_for_fit(self._pending.pop())
@@ -655,6 +661,7 @@ class SensorPipeline:
             "tracked": self.tracked,
             "track_resets": self.tracker.resets,
             "track_skipped": self.tracker.skipped,
+            "predicted": self.predicted,
             "relinearized": self.relinearized,
             "relinearize_lost": self.relinearize_lost,
             "pending": len(self._pending),

@@ -75,6 +75,8 @@ MEAN_RESIDUAL_FRAMES = 16
 #: seconds (an exponential memory: what the contact did a while ago says little of now).
 MEAN_RESIDUAL_Z = 3.0
 MEAN_RESIDUAL_S = 1.0
+#: Frames whose residuals are buffered before they are folded into the sums and tested.
+MEAN_RESIDUAL_FOLD = 8
 
 #: Velocities are reported from this many frames after a (re)start of the filter.
 MIN_RATE_FRAMES = 3
@@ -97,24 +99,13 @@ _RATE_OF = {"x0": "vx_mm_s", "y0": "vy_mm_s", "psi": "angle_rate_deg_s",
             "ln_f": "force_rate_n_s"}
 
 
-@dataclass
-class _Param:
-    """One parameter's filter: value ``x``, rate ``v`` (moving parameters), covariance."""
-
-    moving: bool
-    x: float = 0.0
-    v: float = 0.0
-    pxx: float = 0.0
-    pxv: float = 0.0
-    pvv: float = 0.0
-    drift: float = 0.0
-
-
 class Tracker:
     """Tracks one sensor's contact through the frames between fits (see the module's doc).
 
     ``memory_s``: how far back the moving parameters' filter looks (s); ``hold_s``: the same
-    for the curvatures.  Times are the device's clock in seconds.
+    for the curvatures.  Times are the device's clock in seconds.  The per-parameter state is
+    kept in plain Python floats: for five or six parameters that is several times faster than
+    numpy's small-array calls, and it runs on every frame in the daemon's loop.
     """
 
     def __init__(self, memory_s: float = 0.25, hold_s: float = 30.0,
@@ -135,20 +126,27 @@ class Tracker:
     def clear(self) -> None:
         """Forget the contact (it ended, a tare, new settings)."""
         self.lin = None  # the Linearization frames are measured through
-        self.excess = 1.0
-        self._esum = self._ecount = None
         self.model: str | None = None
         self.names: tuple[str, ...] = ()
-        self.params: list[_Param] | None = None
         self.t: float | None = None
         self.n = 0  # frames the estimate rests on since the filter (re)started
+        # per parameter: value, rate, covariance [[pxx, pxv], [pxv, pvv]], drift detector
+        self.x: list[float] | None = None
+        self.v: list[float] = []
+        self.pxx: list[float] = []
+        self.pxv: list[float] = []
+        self.pvv: list[float] = []
+        self.drift: list[float] = []
         #: how far the mean of the frames departs from the model beyond their noise: the
         #: reported variances are multiplied by it (1: not at all)
         self.excess = 1.0
         self._esum: np.ndarray | None = None  # per tactel: the residuals' sum, their count
         self._ecount: np.ndarray | None = None
+        self._ebuf: np.ndarray | None = None  # residuals not yet folded into the sums
+        self._eframes = 0
+        self._edt = 0.0
         self._corr: np.ndarray | None = None
-        self._lin_sd: np.ndarray | None = None  # the state's spread when linearised
+        self._lin_sd: list[float] | None = None  # the state's spread when linearised
 
     @property
     def active(self) -> bool:
@@ -158,54 +156,59 @@ class Tracker:
     @property
     def started(self) -> bool:
         """True when the filter holds an estimate."""
-        return self.params is not None
+        return self.x is not None
 
     def adopt(self, lin) -> None:
         """Measure the following frames through ``lin`` (a new fit's, or a relinearisation's).
         A different model than the filter's restarts it at the next frame."""
         if self.model is not None and lin.model != self.model:
-            self.params, self.t, self.n = None, None, 0
+            self.x, self.t, self.n = None, None, 0
         names = PARAMS[lin.model]
-        if self.params is not None and "psi" in names:
+        if self.x is not None and "psi" in names:
             # psi is periodic by pi: take the linearisation's psi next to the state's
             i = names.index("psi")
-            turns = round((self.params[i].x - float(lin.p[i])) / math.pi)
+            turns = round((self.x[i] - float(lin.p[i])) / math.pi)
             if turns:
                 p = lin.p.copy()
                 p[i] += turns * math.pi
                 lin = replace(lin, p=p)
+        self._fold()
         self.lin, self.model, self.names = lin, lin.model, names
         if self._esum is None:
-            cells = int(lin.index.max()) + 1 if lin.index.size else 0
-            size = max(cells, 64)
+            size = max(int(lin.index.max()) + 1 if lin.index.size else 0, 64)
             self._esum, self._ecount = np.zeros(size), np.zeros(size)
-        self._log = np.array([n.startswith("ln_") for n in names])
+        self._ebuf = np.zeros(lin.index.size)
+        self._moving = [n in MOVING for n in names]
+        self._logs = [i for i, n in enumerate(names) if n.startswith("ln_")]
         self._limit = chi2_limit(max(lin.dof, 1))
+        self._p = lin.p.tolist()
+        self._r = np.diag(lin.cov).tolist()
+        self._sd1 = [math.sqrt(r) for r in self._r]
         sd = np.sqrt(np.diag(lin.cov))
         self._corr = lin.cov / np.outer(sd, sd)
-        self._lin_sd = (None if self.params is None
-                        else np.array([math.sqrt(q.pxx) for q in self.params]))
+        self._sys = lin.systematic if np.any(lin.systematic) else None
+        self._rate_of = [(i, _RATE_OF[n], n) for i, n in enumerate(names) if n in _RATE_OF]
+        self._lin_sd = None if self.x is None else [math.sqrt(p) for p in self.pxx]
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:
         """``(model, p)``: where to linearise again, when the state has moved from the
         linearisation point, or has sharpened well past it; None while the point serves."""
-        lin, params = self.lin, self.params
-        if lin is None or params is None:
+        if self.lin is None or self.x is None:
             return None
-        x = np.array([q.x for q in params])
-        sd1 = np.sqrt(np.diag(lin.cov))
-        moved = bool(np.any(np.abs(x - lin.p) > RELINEARIZE_SIGMA * sd1))
-        sd = np.array([math.sqrt(q.pxx) for q in params])
-        sharper = self._lin_sd is None or bool(np.any(sd * SHARPEN < self._lin_sd))
-        return (self.model, x) if (moved or sharper) else None
+        lin_sd = self._lin_sd
+        for i, (x, p, sd1) in enumerate(zip(self.x, self._p, self._sd1)):
+            if (abs(x - p) > RELINEARIZE_SIGMA * sd1
+                    or lin_sd is None or SHARPEN * SHARPEN * self.pxx[i] < lin_sd[i] * lin_sd[i]):
+                return self.model, np.array(self.x)
+        return None
 
     def predicted(self, t: float) -> tuple[str, tuple[float, ...]] | None:
         """``(model, params)`` of the contact predicted at ``t``: a warm start for a fit."""
-        if self.params is None or self.t is None:
+        if self.x is None or self.t is None:
             return None
         dt = t - self.t
         dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
-        return self.model, tuple(q.x + q.v * dt for q in self.params)
+        return self.model, tuple(x + v * dt for x, v in zip(self.x, self.v))
 
     # -- a frame --------------------------------------------------------------------------------
 
@@ -218,150 +221,165 @@ class Tracker:
         measured exactly there, and a jump restarts the filter)."""
         lin = self.lin
         if fitted:
-            z = lin.p.copy()  # the fit itself: the frame's own measurement
+            z = list(self._p)  # the fit itself: the frame's own measurement
         else:
             d = strain[lin.index] - lin.strain
             dp = lin.gain @ d
             e = d - lin.jacobian @ dp
-            if lin.dof > 0 and float((e * e) @ lin.weight) > self._limit:
+            if float((e * e) @ lin.weight) > self._limit:
                 return "refit"
+            dz = dp.tolist()
             # a log radius or force moved by more than a factor e from the point: no linear
             # range reaches that far (a release: force to zero), whatever the residual says
-            if not (np.isfinite(dp).all() and (np.abs(dp[self._log]) < 1.0).all()):
+            if any(not abs(dz[i]) < 1.0 for i in self._logs) or not all(
+                    math.isfinite(v) for v in dz):
                 return "refit"
-            z = lin.p + dp
-            self._mean_residual(e, t - self.t if self.t is not None else 0.0)
-        r = np.diag(lin.cov)
-        if self.params is None or self.t is None:
-            self._start(z, r, t)
+            z = [p + q for p, q in zip(self._p, dz)]
+            self._ebuf += e
+            self._eframes += 1
+            self._edt += 0.0 if self.t is None else max(t - self.t, 0.0)
+            if self._eframes >= MEAN_RESIDUAL_FOLD:
+                self._fold()
+        r = self._r
+        if self.x is None or self.t is None:
+            self._start(z, t)
             return "tracked"
         dt = t - self.t
         if not 0.0 < dt < MAX_GAP_S:
-            self._start(z, r, t)
+            self._start(z, t)
             self.resets += 1
             return "reset"
         self._predict(dt)
-        innov = z - np.array([q.x for q in self.params])
-        spread = np.sqrt(np.array([q.pxx for q in self.params]) + r)
-        u = innov / spread
-        jumped = np.abs(u) > RESET_SIGMA
-        if jumped.any():
+        u = [(zi - xi) / math.sqrt(p + ri) for zi, xi, p, ri in zip(z, self.x, self.pxx, r)]
+        jumped = [abs(ui) > RESET_SIGMA for ui in u]
+        if any(jumped):
             if not fitted:
                 return "refit"
             # a change: the moving parameters start again from this frame; a curvature only
             # if it changed itself (a force step does not change the object)
-            self._start(z, r, t, keep=[not (q.moving or j) for q, j in zip(self.params, jumped)])
+            self._start(z, t, keep=[not (m or j) for m, j in zip(self._moving, jumped)])
             self.resets += 1
             return "reset"
-        self._update(innov, r, u, dt)
+        self._update(z, u, dt)
         self.t = t
         self.n += 1
         return "tracked"
-
-    def _mean_residual(self, e: np.ndarray, dt: float) -> None:
-        """Model error that no single frame shows can dominate an average of thousands (a
-        tactel's zero drifting under a held contact, the rubber's hysteresis behind a rolling
-        one, a finger that departs from its model): the residual of the frames' mean, whose
-        noise is sigma / sqrt(m), reveals it.  Summed per tactel over the contact; when its
-        chi^2 is beyond the noise's, the reported variances are scaled by chi^2 / dof (the
-        Birge ratio), so the uncertainty stops shrinking where the data stop agreeing."""
-        idx = self.lin.index
-        if idx.size and int(idx.max()) >= self._esum.size:
-            return
-        if 0.0 < dt < MAX_GAP_S:
-            fade = math.exp(-dt / MEAN_RESIDUAL_S)
-            self._esum *= fade
-            self._ecount *= fade
-        self._esum[idx] += e
-        self._ecount[idx] += 1.0
-        used = self._ecount >= MEAN_RESIDUAL_FRAMES
-        n = int(used.sum())
-        dof = n - self.lin.p.size
-        if dof < 1:
-            return
-        c = self._ecount[used]
-        chi2 = float(np.sum(self._esum[used] ** 2 / c)) / (self.lin.sigma * self.lin.sigma)
-        self.excess = chi2 / dof if chi2 > chi2_limit(dof, MEAN_RESIDUAL_Z) else 1.0
 
     def skip(self) -> None:
         """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""
         self.skipped += 1
 
-    def _start(self, z: np.ndarray, r: np.ndarray, t: float,
-               keep: list[bool] | None = None) -> None:
+    def _fold(self) -> None:
+        """Fold the buffered residuals into the per-tactel sums (every MEAN_RESIDUAL_FOLD
+        frames, to keep the per-frame cost down) and test the frames' mean residual.
+
+        Model error that no single frame shows can dominate an average of thousands (a
+        tactel's zero drifting under a held contact, the rubber's hysteresis behind a rolling
+        one, a finger that departs from its model): the residual of the frames' mean, whose
+        noise is sigma / sqrt(m), reveals it.  Summed per tactel over the last
+        ``MEAN_RESIDUAL_S``; when its chi^2 is beyond the noise's, the reported variances are
+        scaled by chi^2 / dof (the Birge ratio), so the uncertainty stops shrinking where the
+        data stop agreeing."""
+        lin, m = self.lin, self._eframes
+        if lin is None or m == 0:
+            return
+        idx = lin.index
+        fade = math.exp(-self._edt / MEAN_RESIDUAL_S)
+        self._esum *= fade
+        self._ecount *= fade
+        self._esum[idx] += self._ebuf
+        self._ecount[idx] += m
+        self._ebuf[:] = 0.0
+        self._eframes, self._edt = 0, 0.0
+        used = self._ecount >= MEAN_RESIDUAL_FRAMES
+        dof = int(used.sum()) - lin.p.size
+        if dof < 1:
+            return
+        chi2 = float(np.sum(self._esum[used] ** 2 / self._ecount[used])) / (lin.sigma * lin.sigma)
+        self.excess = chi2 / dof if chi2 > chi2_limit(dof, MEAN_RESIDUAL_Z) else 1.0
+
+    def _start(self, z: list[float], t: float, keep: list[bool] | None = None) -> None:
         """(Re)start the filter at measurement ``z``; ``keep`` marks parameters whose filter
         goes on (updated with this frame)."""
-        old = self.params
-        self.params = [_Param(moving=n in MOVING, x=float(z[i]), pxx=float(r[i]))
-                       for i, n in enumerate(self.names)]
-        if old is not None and keep is not None:
-            for i, k in enumerate(keep):
-                if k:
-                    q = old[i]
-                    s = q.pxx + float(r[i])
-                    gain = q.pxx / s
-                    q.x += gain * (float(z[i]) - q.x)
-                    q.pxx *= 1.0 - gain
-                    self.params[i] = q
-        self.t, self.n = t, 1
+        r, k = self._r, len(z)
+        old = None if self.x is None else (self.x, self.pxx)
+        self.x, self.pxx = list(z), list(r)
         # The rate is unknown: a prior wide enough for any contact the scenes move (it is
         # learnt from the next frames; velocities are reported after MIN_RATE_FRAMES).
-        for q, ri in zip(self.params, r):
-            if q.moving:
-                q.pvv = 1e6 * float(ri)
-        self._lin_sd = np.sqrt(np.array([q.pxx for q in self.params]))
+        self.v, self.pxv = [0.0] * k, [0.0] * k
+        self.pvv = [1e6 * ri if m else 0.0 for ri, m in zip(r, self._moving)]
+        self.drift = [0.0] * k
+        if old is not None and keep is not None:
+            for i, kept in enumerate(keep):
+                if kept:
+                    x0, p0 = old[0][i], old[1][i]
+                    gain = p0 / (p0 + r[i])
+                    self.x[i] = x0 + gain * (z[i] - x0)
+                    self.pxx[i] = p0 * (1.0 - gain)
+        self.t, self.n = t, 1
+        self._lin_sd = [math.sqrt(p) for p in self.pxx]
 
     def _predict(self, dt: float) -> None:
-        lin_r = np.diag(self.lin.cov)
-        tau4 = self.memory_s ** 4
-        hold2 = self.hold_s ** 2
-        for q, ri in zip(self.params, lin_r):
-            if q.moving:
+        x, v, pxx, pxv, pvv = self.x, self.v, self.pxx, self.pxv, self.pvv
+        acc_scale = 36.0 * dt / self.memory_s ** 4
+        walk = dt * dt / (self.hold_s * self.hold_s)
+        dt2, dt3 = dt * dt, dt * dt * dt
+        for i, (moving, ri) in enumerate(zip(self._moving, self._r)):
+            if moving:
                 # white acceleration of density 36 R dt / tau^4: an alpha-beta filter with a
                 # window of about tau s (R: one frame's noise variance, dt: the frame period)
-                acc = 36.0 * float(ri) * dt / tau4
-                q.x += q.v * dt
-                q.pxx += 2.0 * dt * q.pxv + dt * dt * q.pvv + acc * dt ** 3 / 3.0
-                q.pxv += dt * q.pvv + acc * dt * dt / 2.0
-                q.pvv += acc * dt
+                acc = acc_scale * ri
+                x[i] += v[i] * dt
+                pxx[i] += 2.0 * dt * pxv[i] + dt2 * pvv[i] + acc * dt3 / 3.0
+                pxv[i] += dt * pvv[i] + acc * dt2 / 2.0
+                pvv[i] += acc * dt
             else:
-                q.pxx += float(ri) * dt * dt / hold2  # a random walk with a memory of hold_s
+                pxx[i] += ri * walk  # a random walk with a memory of hold_s
 
-    def _update(self, innov: np.ndarray, r: np.ndarray, u: np.ndarray, dt: float) -> None:
-        drift_sd = math.sqrt(DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
-        for i, q in enumerate(self.params):
-            s = q.pxx + float(r[i])
-            k1, k2 = q.pxx / s, q.pxv / s
-            nu = float(innov[i])
-            q.x += k1 * nu
-            q.v += k2 * nu
-            q.pvv -= k2 * q.pxv
-            q.pxx *= 1.0 - k1
-            q.pxv *= 1.0 - k1
-            q.drift += DRIFT_ALPHA * (float(u[i]) - q.drift)
-            if abs(q.drift) > DRIFT_LIMIT * drift_sd:
+    def _update(self, z: list[float], u: list[float], dt: float) -> None:
+        x, v, pxx, pxv, pvv, drift = self.x, self.v, self.pxx, self.pxv, self.pvv, self.drift
+        limit = DRIFT_LIMIT * math.sqrt(DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
+        for i, ri in enumerate(self._r):
+            s = pxx[i] + ri
+            k1, k2 = pxx[i] / s, pxv[i] / s
+            nu = z[i] - x[i]
+            x[i] += k1 * nu
+            v[i] += k2 * nu
+            pvv[i] -= k2 * pxv[i]
+            pxx[i] *= 1.0 - k1
+            pxv[i] *= 1.0 - k1
+            drift[i] += DRIFT_ALPHA * (u[i] - drift[i])
+            if abs(drift[i]) > limit:
                 # the parameter runs away from the model (it accelerates, or the object
                 # changes slowly): widen what is uncertain so the filter catches up
-                window = dt / DRIFT_ALPHA
-                if q.moving:
-                    q.pvv = max(q.pvv, (abs(q.drift) * math.sqrt(s) / window) ** 2 * 16.0)
+                if self._moving[i]:
+                    window = dt / DRIFT_ALPHA
+                    pvv[i] = max(pvv[i], 16.0 * (drift[i] * math.sqrt(s) / window) ** 2)
                 else:
-                    q.pxx = max(q.pxx, s)
-                q.drift = 0.0
+                    pxx[i] = max(pxx[i], s)
+                drift[i] = 0.0
 
     # -- the estimate ---------------------------------------------------------------------------
 
-    def estimate(self, base: dict[str, Any]) -> dict[str, Any]:
+    def estimate(self, base: dict[str, Any], at: float | None = None) -> dict[str, Any]:
         """The estimate's fit dict: ``base`` (the last fit's ``FitResult.to_json_dict()``, which
         gives the keys the tracker does not estimate: label, rms, ellipse, ...) with the
-        tracked values, their 1-sigma, ``frames_used`` and the rates."""
-        params = self.params
-        assert params is not None and self.model is not None
-        x = np.array([q.x for q in params])
+        tracked values, their 1-sigma, ``frames_used`` and the rates.  ``at``: predicted to
+        that device time (s) from the last frame measured (a frame it could not measure)."""
+        assert self.x is not None and self.model is not None
+        dt = 0.0 if at is None or self.t is None else at - self.t
+        dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
+        if dt:
+            x = [xi + vi * dt for xi, vi in zip(self.x, self.v)]
+            pxx = [p + dt * (2.0 * c + dt * w) for p, c, w in zip(self.pxx, self.pxv, self.pvv)]
+        else:
+            x, pxx = self.x, self.pxx
         values, grad = report(self.model, x)
-        sd = np.sqrt(np.array([q.pxx for q in params]) * self.excess)
-        cov = self._corr * np.outer(sd, sd) + self.lin.systematic
-        var = np.einsum("ij,jk,ik->i", grad, cov, grad)
+        gs = grad * np.sqrt(np.array(pxx) * self.excess)  # the state's covariance: sd corr sd
+        var_a = (gs @ self._corr) * gs
+        if self._sys is not None:
+            var_a += (grad @ self._sys) * grad
+        var = var_a.sum(axis=1).tolist()
         out = dict(base)
         reasons = dict(base.get("reasons") or {})
         std: dict[str, float | None] = {}
@@ -375,13 +393,13 @@ class Tracker:
                 out[key] = base.get(key)
                 std[key] = base_std.get(key)
                 continue
-            sd = math.sqrt(var[i])
-            withheld = self._withheld(key, v, sd)
+            sd_i = math.sqrt(var[i])
+            withheld = self._withheld(key, v, sd_i)
             if withheld:
                 out[key], std[key] = None, None
                 reasons[key] = withheld
                 continue
-            out[key], std[key] = v, sd
+            out[key], std[key] = v, sd_i
             if str(reasons.get(key, "")).startswith(_SOFT):
                 del reasons[key]
         rates, rate_sd = self._rates(values, reasons)
@@ -415,22 +433,17 @@ class Tracker:
                reasons: dict[str, str]) -> tuple[dict[str, float | None], dict[str, float | None]]:
         rates: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
         sds: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
-        few = self.n < MIN_RATE_FRAMES
-        for name, q in zip(self.names, self.params):
-            key = _RATE_OF.get(name)
-            if key is None:
-                continue
-            if few:
-                reasons[key] = (f"the contact changed {self.n} frame(s) ago: too few frames for "
-                                "a rate")
-                continue
-            scale = 1.0
-            if name == "psi":
-                scale = 180.0 / math.pi
-            elif name == "ln_f":
-                scale = values["force_n"] or 0.0
-            rates[key] = q.v * scale
-            sds[key] = math.sqrt(max(q.pvv, 0.0)) * abs(scale)
+        if self.n < MIN_RATE_FRAMES:
+            why = f"the contact changed {self.n} frame(s) ago: too few frames for a rate"
+            for _, key, _ in self._rate_of:
+                reasons[key] = why
+        else:
+            v, pvv, excess = self.v, self.pvv, self.excess
+            for i, key, name in self._rate_of:
+                scale = (180.0 / math.pi if name == "psi"
+                         else (values["force_n"] or 0.0) if name == "ln_f" else 1.0)
+                rates[key] = v[i] * scale
+                sds[key] = math.sqrt(max(pvv[i] * excess, 0.0)) * abs(scale)
         if self.model == "sphere":
             reasons["angle_rate_deg_s"] = "undefined: sphere model"
         return rates, sds

@@ -35,12 +35,15 @@ def test_a_simulated_press_is_measured(arun) -> None:
     fits = [e.fit for e in held]
     assert len(fits) > 150
     # The tracker holds the contact through the hold: one estimate rests on more and more
-    # frames, and its radius sharpens (sigma like 1/sqrt(frames), 3x from 20 to 180 frames,
-    # less where the floor the fitter learns from the simulated drift and hysteresis adds in).
+    # frames; its radius would sharpen like 1/sqrt(frames) on an ideal finger (test_tracking
+    # .py), but the simulated drift (a 0.002 strain wave, 4 noise sigmas) shows in the frames'
+    # mean residual and stops it within tens of frames: it stays honest, the truth within
+    # 3 sigma, rather than shrinking past the error.
     used = [f["frames_used"] for f in fits]
     assert used == sorted(used) and used[-1] > 150
     early = next(f for f in fits if f["frames_used"] >= 20)
-    assert fits[-1]["std"]["r1_mm"] < early["std"]["r1_mm"] / 2
+    assert fits[-1]["std"]["r1_mm"] <= early["std"]["r1_mm"] * 1.05
+    assert abs(fits[-1]["r1_mm"] - 10.0) < 3 * fits[-1]["std"]["r1_mm"]
     for fit in fits:
         strict_json(fit)
         assert abs(fit["x_mm"] - g.span_x / 2) < 0.5 and abs(fit["y_mm"] - g.span_y / 2) < 0.5
