@@ -98,9 +98,16 @@ class EstimateMessage(BaseModel):
     r2_mm: float | None = Field(description="null: infinite (a cylinder)")
     angle_deg: float | None = Field(description="R2 axis from +x toward +y, [0, 180)")
     rms: float | None
-    std: dict[str, float | None]
+    std: dict[str, float | None] = Field(
+        description="1-sigma of each value and rate, same keys")
     fit_ms: float | None
     ellipse: Ellipse | None
+    frames_used: int = Field(
+        description="frames the estimate rests on (0: no contact; 1: one frame's fit)")
+    vx_mm_s: float | None = Field(description="contact centre's rate along x, mm/s")
+    vy_mm_s: float | None = Field(description="contact centre's rate along y, mm/s")
+    angle_rate_deg_s: float | None = Field(description="rate of angle_deg, deg/s")
+    force_rate_n_s: float | None = Field(description="rate of force_n, N/s")
 
 
 class FrameMessage(BaseModel):
@@ -287,6 +294,11 @@ class SensorHealth(BaseModel):
     rate_hz: float | None = Field(description="nominal frame rate (null: not configured)")
     superseded_share_10s: float | None = Field(
         description="share of the last 10 s of frames superseded while waiting for a fit")
+    tracked: int = Field(0, description="contact frames the tracker measured without a fit")
+    predicted: int = Field(0, description="contact frames the tracker could only predict")
+    track_resets: int = Field(0, description="tracker restarts on a change (a step, a jump)")
+    track_skipped: int = Field(0, description="frames with non-finite tactels kept out of "
+                                              "the tracked estimate")
 
 
 class SubscriberHealth(BaseModel):

@@ -206,7 +206,7 @@ def _plot(curves: dict, path: str) -> None:
     for name, (t, y) in curves.items():
         ax.loglog(t * 1e3, y, label=f"{name} finger")
     t = curves[next(iter(curves))][0]
-    ax.loglog(t * 1e3, 1.0 / np.sqrt(t * RATE), "k:", label="1/sqrt(frames)")
+    ax.loglog(t * 1e3, 1.0 / np.sqrt(t * RATE), "k:", label="1/sqrt(frames held)")
     ax.axhline(1 / 3, color="grey", lw=0.8)
     ax.axhline(1 / 10, color="grey", lw=0.8)
     ax.set_xlabel("time in the hold, ms")

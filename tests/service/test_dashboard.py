@@ -83,6 +83,13 @@ def test_dashboard_shows_live_estimates(browser_page, shared_server, tmp_path):
         "&& q('force_n').includes('±'); }", timeout=40_000)
     force = page.text_content("#sensor-finger0 [data-k=force_n]")
     assert re.fullmatch(r"\d+\.\d{3} ± \d+\.\d{3} N", force), force
+    # The tracker's readouts: frames the estimate rests on, and the contact's rates.
+    page.wait_for_function(
+        "() => { const q = k => document.querySelector(`#sensor-finger0 [data-k=${k}]`)"
+        ".textContent; return Number(q('frames_used')) > 10 && q('velocity').endsWith('mm/s')"
+        " && q('force_rate_n_s').endsWith('N/s'); }", timeout=40_000)
+    velocity = page.text_content("#sensor-finger0 [data-k=velocity]")
+    assert re.fullmatch(r"-?\d+\.\d{2}, -?\d+\.\d{2} ± \d+\.\d{2} mm/s", velocity), velocity
     assert page.text_content("#sensor-finger0 [data-k=model]") in (
         "cylinder", "sphere", "general")
     assert canvas_colours(page, "finger0") > 8, "the strain map is not drawn"

@@ -210,6 +210,12 @@ function drawReadouts(s) {
   set("y_mm", fmt(e.y_mm, std.y_mm, "mm", 2));
   set("ellipse", e.ellipse ? `${e.ellipse.a_mm.toFixed(2)} × ${e.ellipse.b_mm.toFixed(2)} mm @ ` +
                              `${e.ellipse.theta_deg.toFixed(0)}°` : "—");
+  set("frames_used", e.frames_used === undefined ? "—" : String(e.frames_used));
+  set("velocity", e.vx_mm_s === null || e.vx_mm_s === undefined ? "—" :
+      `${e.vx_mm_s.toFixed(2)}, ${e.vy_mm_s.toFixed(2)} ± ` +
+      `${Math.hypot(std.vx_mm_s || 0, std.vy_mm_s || 0).toFixed(2)} mm/s`);
+  set("angle_rate_deg_s", fmt(e.angle_rate_deg_s, std.angle_rate_deg_s, "°/s", 1));
+  set("force_rate_n_s", fmt(e.force_rate_n_s, std.force_rate_n_s, "N/s", 3));
   set("gate", e.gate);
   set("seq", String(e.seq));
   set("latency_ms", fmt(e.latency_ms, null, "ms", 2));
