@@ -96,33 +96,28 @@ def test_a_held_contact_sharpens_like_one_over_sqrt_frames(kit) -> None:
     assert math.sqrt(np.mean(np.square(errs[400]))) < bound["r1_mm"] / 6
 
 
-def test_a_rolling_contact_is_followed_without_lag(kit) -> None:
-    v = 5.0  # mm/s along x
+@pytest.mark.parametrize("motion", ["roll 5 mm/s", "turn 45 deg/s"])
+def test_a_moving_contact_is_followed_without_lag(kit, motion) -> None:
+    if motion.startswith("roll"):
+        rate, key, attr, rate_key = 5.0, "x_mm", "x0", "vx_mm_s"
+
+        def truth(t: float) -> Contact:
+            return Contact(r1=10, psi_deg=60, force=1.2, x0=7 + rate * t, y0=9.0)
+    else:
+        rate, key, attr, rate_key = 45.0, "angle_deg", "psi_deg", "angle_rate_deg_s"
+
+        def truth(t: float) -> Contact:
+            return Contact(r1=10, psi_deg=60 + rate * t, force=1.2, x0=8, y0=9)
     bound = crb(kit, HELD)
     lags, rates = [], []
     for seed in range(4):
-        out, _, _ = play(kit, lambda t: Contact(r1=10, psi_deg=60, force=1.2, x0=7 + v * t,
-                                                y0=9.0), 600, seed)
-        for t, c, e, _ in out[100:]:
-            lags.append(e["x_mm"] - c.x0)
-            rates.append(e["vx_mm_s"])
+        out, _, _ = play(kit, truth, 600, seed)
+        for _, c, e, _ in out[100:]:
+            lags.append(e[key] - getattr(c, attr))
+            rates.append(e[rate_key])
     # the bars: median signed error within 0.2 single-frame sigmas, rate within 10 %
-    assert abs(float(np.median(lags))) < 0.2 * bound["x_mm"]
-    assert float(np.median(rates)) == pytest.approx(v, rel=0.1)
-
-
-def test_a_rotation_is_followed_without_lag(kit) -> None:
-    w = 45.0  # deg/s
-    bound = crb(kit, HELD)
-    lags, rates = [], []
-    for seed in range(4):
-        out, _, _ = play(kit, lambda t: Contact(r1=10, psi_deg=60 + w * t, force=1.2, x0=8,
-                                                y0=9), 600, seed)
-        for t, c, e, _ in out[100:]:
-            lags.append(e["angle_deg"] - c.psi_deg)
-            rates.append(e["angle_rate_deg_s"])
-    assert abs(float(np.median(lags))) < 0.2 * bound["angle_deg"]
-    assert float(np.median(rates)) == pytest.approx(w, rel=0.1)
+    assert abs(float(np.median(lags))) < 0.2 * bound[key]
+    assert float(np.median(rates)) == pytest.approx(rate, rel=0.1)
 
 
 @pytest.mark.parametrize("change", ["force step", "jump"])
