@@ -88,7 +88,8 @@ class _Waiting:
 
 
 #: Frames of a contact that wait for a fit before the tracker can measure them (they left the
-#: linear range); beyond this many the oldest is given up (counted superseded).
+#: linear range); beyond this many the oldest (but the one being fitted) is given up (counted
+#: superseded).
 MAX_PENDING = 64
 
 
@@ -390,7 +391,11 @@ class SensorPipeline:
     def _wait_for_fit(self, w: _Waiting) -> None:
         self._pending.append(w)
         if len(self._pending) > MAX_PENDING:
-            self._pending.pop(0)
+            # give up the oldest, but never the frame being fitted: its fit may be slow (a
+            # frame far outside the model runs into its time budget) and it is answered
+            busy = self._in_flight.ordinal if self._in_flight is not None else None
+            drop = 1 if self._pending[0].ordinal == busy else 0
+            self._pending.pop(drop)
             self.superseded += 1
         # latest frame wins: the newest pending frame is the one to fit (a waiting
         # relinearisation is no longer wanted)
