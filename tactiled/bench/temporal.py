@@ -223,7 +223,7 @@ def motion(quick: bool, progress) -> str:
     g = SensorModel().geometry
     lines = ["| motion | median signed error (lag) / single-frame sigma | median reported rate "
              "| truth | rate error | inside 2 sigma (value / rate) |", "|---|---|---|---|---|---|"]
-    seeds = range(1, 2 if quick else 4)
+    seeds = range(1, 2 if quick else 9)
     for kind, speeds, key, rate_key, attr in (
             ("roll", ROLLS, "x_mm", "vx_mm_s", "x0"), ("turn", TURNS, "angle_deg",
                                                        "angle_rate_deg_s", "psi_deg")):
