@@ -131,7 +131,7 @@ class Encoder:
     def message(self, item: Estimate | ZeroedFrame) -> dict[str, Any]:
         """The message dict of a hub item (a fresh dict; callers may change it)."""
         body = item.to_json_dict()
-        body.pop("class", None)
+        body.pop("type", None)
         msg: dict[str, Any] = {"type": item.kind, "v": SCHEMA_VERSION, **body}
         if isinstance(item, Estimate):
             msg["ellipse"] = self.ellipse(item)

@@ -1,6 +1,6 @@
 """Run a recording through the acquisition pipeline; print one JSON estimate per line.
 
-Each line is an estimate as the daemon publishes it: "class": "estimate", sensor, sensor_id,
+Each line is an estimate as the daemon publishes it: "type": "estimate", sensor, sensor_id,
 seq, device_time_us, host_time, time, latency_ms, worker_ms, gate ("fit", "no_contact",
 "unchanged"), fitted_seq, then the keys of a `tactiled fit` line (contact, model, x_mm, y_mm,
 force_n, r1_mm, r2_mm, angle_deg, rms, std, fit_ms, ...).

@@ -2,7 +2,8 @@
 
 Both are immutable records with a ``kind`` (the hub's routing key) and a ``to_json_dict()``
 that is strict JSON (no NaN or inf: ``json.dumps(..., allow_nan=False)`` never fails), in the
-style of gpsd's reports: a ``class`` field says what the object is.
+style of gpsd's reports: a ``type`` field says what the object is (the same key as the
+WebSocket stream's and Zenoh's messages: one name for one thing on every interface).
 """
 
 from __future__ import annotations
@@ -85,7 +86,7 @@ class Estimate:
     def to_json_dict(self) -> dict[str, Any]:
         """The envelope keys, then the fit line's keys (contact, model, x_mm, ... message)."""
         out: dict[str, Any] = {
-            "class": "estimate",
+            "type": "estimate",
             "sensor": self.sensor,
             "sensor_id": self.sensor_id,
             "seq": self.seq,
@@ -125,7 +126,7 @@ class ZeroedFrame:
         """The frame with strain rounded to ``digits`` decimals, rows first."""
         strain = np.round(np.nan_to_num(self.strain, nan=0.0, posinf=0.0, neginf=0.0), digits)
         return {
-            "class": "frame",
+            "type": "frame",
             "sensor": self.sensor,
             "sensor_id": self.sensor_id,
             "seq": self.seq,

@@ -39,7 +39,9 @@ def test_record_then_replay_twice_gives_identical_estimates(tmp_path: Path, caps
     assert [x["seq"] for x in lines] == [f.seq for f in frames]
     gates = {x["gate"] for x in lines}
     assert gates == {"fit", "unchanged", "no_contact"}, gates
-    assert all(x["class"] == "estimate" and x["sensor"] == "replay" for x in lines)
+    # the stream's key for what a message is, "type" (it was "class" here until 2026-11-23)
+    assert all(x["type"] == "estimate" and x["sensor"] == "replay" for x in lines)
+    assert all("class" not in x for x in lines)
     assert not any(k in lines[0] for k in ("latency_ms", "host_time", "fit_ms"))
 
     # With timing (the default), the timing keys are there and the rest is unchanged.
