@@ -21,6 +21,8 @@ import gc
 
 #: Seconds between the service's full collections (see the module docstring).
 COLLECT_PERIOD_S = 10.0
+#: Seconds between returns of malloc's free memory to the system (:func:`trim`).
+TRIM_PERIOD_S = 60.0
 
 
 def settle() -> None:
@@ -37,10 +39,34 @@ def settle() -> None:
     gc.collect()
 
 
-async def collect_every(period_s: float = COLLECT_PERIOD_S) -> None:
-    """Run a full collection every ``period_s`` s (in the event loop, until cancelled)."""
-    if period_s <= 0:
-        raise ValueError(f"period_s must be > 0, got {period_s!r}")
+def trim() -> bool:
+    """Give the memory glibc's malloc holds free back to the system (``malloc_trim(0)``: the
+    heap's top, and the free pages inside every arena); False where there is no glibc.
+
+    Why: after a burst (the loop stalled for seconds on a starved machine, then worked off
+    megabytes of buffered frames) malloc keeps what it freed, and its high-water marks showed
+    as steps in a long run's RSS while the bytes in use stayed flat (docs/reliability.md, "The
+    hour").  A few milliseconds a minute."""
+    from tactiled.heapstats import _libc
+
+    libc = _libc()
+    if libc is None or not hasattr(libc, "malloc_trim"):
+        return False
+    libc.malloc_trim(0)
+    return True
+
+
+async def collect_every(period_s: float = COLLECT_PERIOD_S,
+                        trim_period_s: float = TRIM_PERIOD_S) -> None:
+    """Run a full collection every ``period_s`` s, and :func:`trim` every ``trim_period_s``
+    (in the event loop, until cancelled)."""
+    if period_s <= 0 or trim_period_s <= 0:
+        raise ValueError(f"periods must be > 0, got {period_s!r}, {trim_period_s!r}")
+    since_trim = 0.0
     while True:
         await asyncio.sleep(period_s)
         gc.collect()
+        since_trim += period_s
+        if since_trim >= trim_period_s:
+            since_trim = 0.0
+            trim()

@@ -37,7 +37,12 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from tactiled.config import SensorModel
+from tactiled.heap import trim
 from tactiled.pipeline.estimate import plain
+
+#: A worker gives malloc's free memory back to the system every this many fits (tactiled.heap
+#: .trim: about a minute of steady fitting, a few milliseconds each time).
+TRIM_EVERY_FITS = 20000
 
 #: (SensorModel, FitOptions keyword arguments as ``((name, value), ...)``)
 Spec = tuple[SensorModel, tuple[tuple[str, Any], ...]]
@@ -96,6 +101,8 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                     out, error = None, f"{type(err).__name__}: {err}"
                 fits += 1
                 conn.send(("result", rid, out, time.perf_counter() - t, error, follow, lin))
+                if fits % TRIM_EVERY_FITS == 0:
+                    trim()  # after the answer: what malloc keeps free after a burst goes back
             elif kind == "ping":
                 conn.send(("pong", msg[1]))
             elif kind == "memory":
