@@ -61,6 +61,7 @@ def _turn_scene(w: float):
     return build
 
 
+MOTION_SEEDS = 8
 ROLLS = (1.0, 3.0, 10.0)  # mm/s
 TURNS = (10.0, 45.0, 90.0)  # deg/s
 
@@ -223,7 +224,7 @@ def motion(quick: bool, progress) -> str:
     g = SensorModel().geometry
     lines = ["| motion | median signed error (lag) / single-frame sigma | median reported rate "
              "| truth | rate error | inside 2 sigma (value / rate) |", "|---|---|---|---|---|---|"]
-    seeds = range(1, 2 if quick else 9)
+    seeds = range(1, 2 if quick else 1 + MOTION_SEEDS)
     for kind, speeds, key, rate_key, attr in (
             ("roll", ROLLS, "x_mm", "vx_mm_s", "x0"), ("turn", TURNS, "angle_deg",
                                                        "angle_rate_deg_s", "psi_deg")):

@@ -90,6 +90,10 @@ class Zeroer:
         if self.detector.shape != self.shape:
             raise ValueError(f"detector shape {self.detector.shape} != zeroer shape {self.shape}")
         self.baseline: np.ndarray | None = None
+        #: the variance (strain^2) of each tactel's baseline from the noise of the frames it
+        #: averaged: every zeroed frame of a contact carries this same error, so averaging
+        #: frames does not remove it (the tracker counts it as systematic)
+        self.baseline_var = 0.0
         self.in_contact = False
         self.nonfinite_frames = 0
         self._last_t: float | None = None
@@ -143,9 +147,12 @@ class Zeroer:
             # frames after a (re)start a plain running mean (the bias-corrected EMA).
             ema = -math.expm1(-dt / tau)
             mean = 1.0 / self._frames
+            sigma2 = self.detector.sigma ** 2
             if mean >= ema:  # the running mean of the start-up: take the frame whole
                 self.baseline += mean * z
+                self.baseline_var = sigma2 * mean
             else:
+                self.baseline_var = (1.0 - ema) ** 2 * self.baseline_var + ema * ema * sigma2
                 limit = MAX_STEP_SIGMAS * self.detector.sigma
                 if np.count_nonzero(np.abs(z) > limit) * 2 > z.size:  # implausible: clip
                     z = np.clip(z, -limit, limit)
@@ -184,6 +191,7 @@ class Zeroer:
     def _tare_to(self, x: np.ndarray, bad: np.ndarray | None) -> None:
         self._pending_tare = False
         self._frames = 0
+        self.baseline_var = self.detector.sigma ** 2  # one frame's noise
         if bad is None:
             self.baseline = x.copy()
         else:

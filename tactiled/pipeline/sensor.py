@@ -419,6 +419,9 @@ class SensorPipeline:
         fit = self.tracker.estimate(self._base, at=w.t if predicted else None)
         self._publish(w, gate, self._base_seq, worker_ms, fit)
 
+    def _zero_var(self) -> float:
+        return 0.0 if self.stage is None else self.stage.zeroer.baseline_var
+
     def _end_contact(self) -> None:
         """The contact ended (or a tare, new settings): forget it; frames still waiting for a
         fit are given up (counted superseded)."""
@@ -439,7 +442,7 @@ class SensorPipeline:
         tracker = self.tracker
         if job.kind == "lin":
             if lin is not None and tracker.active and lin.model == tracker.model:
-                tracker.adopt(lin)
+                tracker.adopt(lin, self._zero_var())
                 self.relinearized += 1
             return
         if not self._pending:
@@ -467,7 +470,7 @@ class SensorPipeline:
                 self._pending = later
                 self._wait_for_fit(self._pending.pop())
             return
-        tracker.adopt(lin)
+        tracker.adopt(lin, self._zero_var())
         self._base, self._base_seq, self._warm = fit, w.seq, warm
         self._pending, last = pending, pending[-1]
         try:

@@ -108,7 +108,7 @@ class Tracker:
     numpy's small-array calls, and it runs on every frame in the daemon's loop.
     """
 
-    def __init__(self, memory_s: float = 0.25, hold_s: float = 30.0,
+    def __init__(self, memory_s: float = 0.1, hold_s: float = 30.0,
                  withhold_relative_sigma: float | None = None) -> None:
         if not (memory_s > 0 and hold_s > 0):
             raise ValueError(f"memory_s and hold_s must be positive, got {memory_s}, {hold_s}")
@@ -158,9 +158,11 @@ class Tracker:
         """True when the filter holds an estimate."""
         return self.x is not None
 
-    def adopt(self, lin) -> None:
+    def adopt(self, lin, zero_var: float = 0.0) -> None:
         """Measure the following frames through ``lin`` (a new fit's, or a relinearisation's).
-        A different model than the filter's restarts it at the next frame."""
+        A different model than the filter's restarts it at the next frame.  ``zero_var``: the
+        variance (strain^2) of each tactel's zero (``Zeroer.baseline_var``), an error every
+        frame of the contact shares: systematic, ``zero_var / sigma^2`` times ``lin.cov``."""
         if self.model is not None and lin.model != self.model:
             self.x, self.t, self.n = None, None, 0
         names = PARAMS[lin.model]
@@ -186,7 +188,8 @@ class Tracker:
         self._sd1 = [math.sqrt(r) for r in self._r]
         sd = np.sqrt(np.diag(lin.cov))
         self._corr = lin.cov / np.outer(sd, sd)
-        self._sys = lin.systematic if np.any(lin.systematic) else None
+        sys = lin.systematic + (zero_var / (lin.sigma * lin.sigma)) * lin.cov
+        self._sys = sys if np.any(sys) else None
         self._rate_of = [(i, _RATE_OF[n], n) for i, n in enumerate(names) if n in _RATE_OF]
         self._lin_sd = None if self.x is None else [math.sqrt(p) for p in self.pxx]
 
