@@ -24,7 +24,7 @@ from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.result import FitResult
 from tactiled.fit.solver import SolveResult, levenberg_marquardt
 from tactiled.fit.start import features, force_estimate, start_table
-from tactiled.fit.window import choose_window, interpolated_peak, plain_window
+from tactiled.fit.window import choose_window, interpolated_peak, plain_frame, plain_window
 from tactiled.physics.contact import Contact
 from tactiled.physics.hertz import Ellipse, ellipse_core
 from tactiled.physics.kernels import cramer_rao as crb_kernel
@@ -294,12 +294,12 @@ class Fitter:
         below 0.01 and after ``SCOUT_ITERATIONS``: enough to rank models by an information
         criterion, whose differences that matter are units of chi^2; the chosen one is then
         solved fully."""
-        prob = self._problem(strain, model, mask)
-        if isinstance(prob, FitResult):
-            return prob
-        residual, clean, peak, peak_idx, win, n_points, zdata = prob
+        fr = self._window(strain, model, mask)
+        if isinstance(fr, FitResult):
+            return fr
+        peak, win, n_points = fr.peak, fr.win, fr.n_points
         steps, bounds = _steps(model), _bounds(model)
-        starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
+        starts = [start] if start is not None else self._cold_starts(fr.clean, fr.peak_idx, model)
         best: SolveResult | None = None
         tried = 0
         max_iter = SCOUT_ITERATIONS if scouting else self.options.max_iter
@@ -307,16 +307,19 @@ class Fitter:
         # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
         atol = (1e-2 if scouting else STOP_CHI2) * (self.sigma / peak) ** 2
         verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
-        fr = self._frame(strain, mask) if self.options.jacobian == "exact" else None
+        exact = self.options.jacobian == "exact"
+        residual = None  # the Python solver's residual function, built only if it is needed
         for p0 in starts:
             tried += 1
             sol = None
-            if isinstance(fr, _Frame):  # the whole search compiled (falls back on huge contacts)
+            if exact:  # the whole search compiled (falls back on huge contacts)
                 sol = compiled.solve(
                     compiled.KINDS[model.name], p0, steps, max_iter, atol, self._model_args,
                     (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey), self.options.tol,
                     bounds=bounds, verdict_tol=verdict_tol)
             if sol is None:
+                if residual is None:
+                    residual = self._residual(fr, model)
                 sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=max_iter, atol=atol,
                                           deadline=self._deadline, verdict_tol=verdict_tol,
                                           bounds=bounds)
@@ -331,12 +334,11 @@ class Fitter:
                              converged=best.converged, peak=peak, n_points=n_points, window=win,
                              starts=tried, message=best.message,
                              params=tuple(float(x) for x in best.p))
-        return self._result(model, best, peak, win, n_points, tried, zdata)
+        return self._result(model, best, peak, win, n_points, tried, fr.zdata)
 
-    def _problem(self, strain: np.ndarray, model: Model, mask: np.ndarray | None):
-        """The least-squares problem on this frame: ``(residual, clean frame, peak, peak index,
-        window, usable points, window strains in units of their sd)``, or a FitResult saying
-        why there is none."""
+    def _window(self, strain: np.ndarray, model: Model, mask: np.ndarray | None) -> _Frame | FitResult:
+        """This frame's window (:meth:`_frame`) when it can hold ``model``, else a FitResult
+        saying why there is no problem to solve."""
         fr = self._frame(strain, mask)
         if isinstance(fr, FitResult):
             return fr
@@ -346,11 +348,25 @@ class Fitter:
                 message=f"only {fr.n_points} usable tactels in the window for {model.size} parameters",
                 reasons={k: "too few usable tactels in the window" for k in VALUE_KEYS},
             )
+        return fr
+
+    def _residual(self, fr: _Frame, model: Model):
+        """The residual function of ``model`` on the window ``fr`` (for the Python solver)."""
         residual = self.model.window_residual_function(
             model.physical, fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
         if self.options.jacobian == "fd":
             residual = _forward_difference(residual)
-        return residual, fr.clean, fr.peak, fr.peak_idx, fr.win, fr.n_points, fr.zdata
+        return residual
+
+    def _problem(self, strain: np.ndarray, model: Model, mask: np.ndarray | None):
+        """The least-squares problem on this frame: ``(residual, clean frame, peak, peak index,
+        window, usable points, window strains in units of their sd)``, or a FitResult saying
+        why there is none."""
+        fr = self._window(strain, model, mask)
+        if isinstance(fr, FitResult):
+            return fr
+        return (self._residual(fr, model), fr.clean, fr.peak, fr.peak_idx, fr.win, fr.n_points,
+                fr.zdata)
 
     def _frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
         """What every model's problem on this frame shares (computed once per :meth:`fit`,
@@ -372,11 +388,21 @@ class Fitter:
                        and strain.flags.c_contiguous) else np.ascontiguousarray(strain, dtype=float)
         if s.shape != self._all_ok.shape:
             return None
-        usable, m, n, r0, c0, nr, nc = plain_window(s, self.options.window, MAX_STRAIN)
-        peak = float(s[m, n])
-        if not usable or not peak > MIN_PEAK:
+        if not self.sensor.model_error.zero:
+            usable, m, n, r0, c0, nr, nc = plain_window(s, self.options.window, MAX_STRAIN)
+            peak = float(s[m, n])
+            if not usable or not peak > MIN_PEAK:
+                return None
+            return self._window_arrays(s, self._all_ok, (m, n), peak, (r0, c0, nr, nc))
+        # the common sensor: the window's arrays in the same compiled pass
+        usable, m, n, r0, c0, nr, nc, peak, target, valid, inv_scale, zdata = plain_frame(
+            s, self.options.window, MAX_STRAIN, MIN_PEAK, self.sigma)
+        if not usable:
             return None
-        return self._window_arrays(s, self._all_ok, (m, n), peak, (r0, c0, nr, nc))
+        win = (r0, c0, nr, nc)
+        ex, ey = self.model.window_shift(win, nr, nc)
+        return _Frame(s, (m, n), peak, win, self.model.xs_full[r0:r0 + nr],
+                      self.model.ys_full[c0:c0 + nc], target, valid, nr * nc, inv_scale, zdata, ex, ey)
 
     def _general_frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
         clean, ok = self._prepare(strain, mask)

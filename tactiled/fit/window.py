@@ -79,3 +79,32 @@ def plain_window(strain: np.ndarray, size: int, max_strain: float) -> tuple[int,
     lo_c = strain[m, n - 1] if n > 0 else -np.inf
     hi_c = strain[m, n + 1] if n + 1 < cols else -np.inf
     return 1, m, n, window_origin(m, nr, rows, lo_r, hi_r), window_origin(n, nc, cols, lo_c, hi_c), nr, nc
+
+
+@njit(cache=True, nogil=True)
+def plain_frame(strain: np.ndarray, size: int, max_strain: float, min_peak: float, sigma: float):
+    """:func:`plain_window` and the window's arrays in the same call, for a sensor without a
+    model-error floor (each tactel weighted by the noise ``sigma`` alone): ``(usable, m, n,
+    row0, col0, rows, cols, peak, target, valid, inv_scale, zdata)``, the window's strains
+    flattened row-major, every one valid, ``1 / peak`` each, and in units of ``sigma`` (the
+    numbers ``Fitter._window_arrays`` computes); ``usable`` is also 0 for a peak not above
+    ``min_peak`` (no contact: the caller's general path words it)."""
+    usable, m, n, r0, c0, nr, nc = plain_window(strain, size, max_strain)
+    peak = strain[m, n]
+    if not peak > min_peak:
+        usable = 0
+    k = nr * nc if usable else 0
+    target = np.empty(k)
+    valid = np.ones(k, dtype=np.bool_)
+    inv_scale = np.empty(k)
+    zdata = np.empty(k)
+    if usable:
+        inv = 1.0 / peak
+        for i in range(nr):
+            for j in range(nc):
+                q = i * nc + j
+                t = strain[r0 + i, c0 + j]
+                target[q] = t
+                inv_scale[q] = inv
+                zdata[q] = t / sigma
+    return usable, m, n, r0, c0, nr, nc, peak, target, valid, inv_scale, zdata
