@@ -23,8 +23,8 @@ from tactiled.fit.floor import FloorLearner
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.result import FitResult
 from tactiled.fit.solver import SolveResult, levenberg_marquardt
-from tactiled.fit.start import features, force_estimate, start_table
-from tactiled.fit.window import choose_window, interpolated_peak, plain_frame, plain_window
+from tactiled.fit.start import StartTable, _force_args, start_point, start_table
+from tactiled.fit.window import choose_window, plain_frame, plain_window
 from tactiled.physics.contact import Contact
 from tactiled.physics.hertz import Ellipse, ellipse_core
 from tactiled.physics.kernels import cramer_rao as crb_kernel
@@ -196,6 +196,8 @@ class Fitter:
         self._model_args = (m._rf, m._k, m._scale, m._dmin, m._imp)
         self._in_fit = False
         self._frame_memo: tuple[tuple[int, int], _Frame | FitResult] | None = None
+        self._starts: StartTable | None = None  # start_table(sensor), once it is needed
+        self._force_args = _force_args(self.sensor)
         #: what the sensor's recent fits say of its departure from the model (see _mismatch)
         self.floor = FloorLearner()
         if warm:
@@ -333,7 +335,7 @@ class Fitter:
                              iterations=best.iterations, evaluations=best.evaluations,
                              converged=best.converged, peak=peak, n_points=n_points, window=win,
                              starts=tried, message=best.message,
-                             params=tuple(float(x) for x in best.p))
+                             params=tuple(best.p.tolist()))
         return self._result(model, best, peak, win, n_points, tried, fr.zdata)
 
     def _window(self, strain: np.ndarray, model: Model, mask: np.ndarray | None) -> _Frame | FitResult:
@@ -463,12 +465,12 @@ class Fitter:
         return res.chi2 <= dof + 3.0 * math.sqrt(2.0 * dof)
 
     def _cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
-        g = self.sensor.geometry
-        x0, y0 = interpolated_peak(strain, peak_idx, g.dx, g.dy)
-        f0 = force_estimate(strain, self.sensor, x0, y0)
-        cands = start_table(self.sensor).candidates(
-            features(strain, peak_idx, f0), count=self.options.max_starts
-        )
+        # interpolated_peak, force_estimate and features in one compiled call
+        x0, y0, f0, feat = start_point(strain, peak_idx[0], peak_idx[1], float(strain.sum()),
+                                       *self._force_args)
+        if self._starts is None:
+            self._starts = start_table(self.sensor)
+        cands = self._starts.candidates(feat, count=self.options.max_starts)
         out = []
         for c in cands:
             if model.name == "general":
@@ -517,7 +519,7 @@ class Fitter:
             starts=starts,
             message=sol.message,
             reasons=reasons,
-            params=tuple(float(x) for x in sol.p),
+            params=tuple(sol.p.tolist()),
             ellipse=({"a_mm": ell.a, "b_mm": ell.b, "theta_deg": math.degrees(ell.theta) % 180.0}
                      if ell.a >= 0.0 else None),  # a < 0: an infinite line (an invalid start)
         )
@@ -535,9 +537,9 @@ class Fitter:
             for k in VALUE_KEYS:
                 reasons[k] = "Jacobian singular: parameter not identifiable from this window"
             return values, std, (condition if math.isfinite(condition) else None)
-        for i, k in enumerate(VALUE_KEYS):
-            if values.get(k) is not None and sd[i] >= 0.0:  # NaN (no such quantity) fails
-                std[k] = float(sd[i])
+        for k, v in zip(VALUE_KEYS, sd.tolist()):
+            if v >= 0.0 and values.get(k) is not None:  # NaN (no such quantity) fails
+                std[k] = v
         if condition > ILL_CONDITION:
             reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
         return values, std, condition

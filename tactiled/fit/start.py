@@ -20,7 +20,7 @@ from numba import njit
 
 from tactiled.config import SensorModel
 from tactiled.physics.contact import Contact
-from tactiled.fit.window import interpolated_peak
+from tactiled.fit.window import interpolated_peak, peak_centre
 from tactiled.physics.strain import StrainModel
 
 _RADII = np.geomspace(0.3, 150.0, 12)
@@ -42,22 +42,41 @@ def force_estimate(strain: np.ndarray, sensor: SensorModel, x0: float | None = N
     tails make an 8x8 array's sums 1.5-2.3x the integrals, and an edge contact loses part of
     its response.  A contact wider than the rubber depth reads a few per cent low.
     """
-    g, imp, mat = sensor.geometry, sensor.impulse, sensor.material
+    g = sensor.geometry
     if x0 is None or y0 is None:
         pk = np.unravel_index(int(np.argmax(strain)), strain.shape)
         x0, y0 = interpolated_peak(strain, pk, g.dx, g.dy)
-    sx = line_sum(g.rows, g.dx, x0, imp.depth_x, imp.nu_x)
-    sy = line_sum(g.cols, g.dy, y0, imp.depth_y, imp.nu_y)
-    total = float(strain.sum()) * mat.modulus / max(sx * sy, 1e-12)
-    return min(max(total, 1e-3), 50.0)
+    return _force(float(strain.sum()), *_force_args(sensor), float(x0), float(y0))
+
+
+def _force_args(sensor: SensorModel) -> tuple:
+    """The sensor's constants :func:`_force` takes after the summed strain."""
+    g, imp = sensor.geometry, sensor.impulse
+    return (sensor.material.modulus, g.rows, g.dx, imp.depth_x, imp.nu_x, g.cols, g.dy,
+            imp.depth_y, imp.nu_y)
+
+
+@njit(cache=True, nogil=True)
+def _force(total: float, modulus: float, rows: int, dx: float, depth_x: float, nu_x: float,
+           cols: int, dy: float, depth_y: float, nu_y: float, x0: float, y0: float) -> float:
+    """:func:`force_estimate` from the summed strain ``total`` (summed by numpy, whose
+    pairwise sum the callers share)."""
+    sx = line_sum(rows, dx, x0, depth_x, nu_x)
+    sy = line_sum(cols, dy, y0, depth_y, nu_y)
+    est = total * modulus / max(sx * sy, 1e-12)
+    return min(max(est, 1e-3), 50.0)
 
 
 def features(strain: np.ndarray, peak: tuple[int, int], force: float) -> np.ndarray:
     """The 3x3 neighbourhood of the peak / the peak (NaN where off the array), and
     ``log(peak / force)``; 9 numbers."""
+    return _features(np.asarray(strain, dtype=float), int(peak[0]), int(peak[1]), float(force))
+
+
+@njit(cache=True, nogil=True)
+def _features(strain: np.ndarray, m: int, n: int, force: float) -> np.ndarray:
     rows, cols = strain.shape
-    m, n = peak
-    c = float(strain[m, n])
+    c = strain[m, n]
     out = np.full(9, np.nan)
     k = 0
     for i in (-1, 0, 1):
@@ -69,6 +88,17 @@ def features(strain: np.ndarray, peak: tuple[int, int], force: float) -> np.ndar
             k += 1
     out[8] = _PEAK_WEIGHT * math.log(max(c, 1e-12) / force)
     return out
+
+
+@njit(cache=True, nogil=True)
+def start_point(strain: np.ndarray, m: int, n: int, total: float, modulus: float, rows: int, dx: float,
+                depth_x: float, nu_x: float, cols: int, dy: float, depth_y: float, nu_y: float):
+    """A cold start's ``(x0, y0, force, features)`` for the peak at ``(m, n)`` in one compiled
+    call: :func:`interpolated_peak`, :func:`force_estimate` (``total`` the summed strain, as
+    numpy sums it) and :func:`features`."""
+    x0, y0 = peak_centre(strain, m, n, dx, dy)
+    f0 = _force(total, modulus, rows, dx, depth_x, nu_x, cols, dy, depth_y, nu_y, x0, y0)
+    return x0, y0, f0, _features(strain, m, n, f0)
 
 
 @dataclass(frozen=True)
