@@ -123,6 +123,15 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
 
 
 @njit(cache=True, nogil=True)
+def ellipse_at(kind: int, p: np.ndarray, rf: float, comp: float) -> tuple[float, float, float, float]:
+    """The Hertz ellipse ``(a, b, theta, m)`` of the model ``kind`` at ``p`` (``a < 0``: an
+    infinite line), by the same map and solve as an evaluation, in one call."""
+    d = np.zeros((6, p.shape[0]))
+    ka, kb, psi, force, _, _ = physical_map(kind, p, d)
+    return ellipse_core(ka, kb, psi, force, rf, comp, np.empty((0, 0)))
+
+
+@njit(cache=True, nogil=True)
 def _pin(p: np.ndarray, jtj: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray):
     """``solver._pin``: parameters on a bound that the descent pushes out are held."""
     k = p.shape[0]

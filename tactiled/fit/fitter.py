@@ -26,7 +26,7 @@ from tactiled.fit.solver import SolveResult, levenberg_marquardt
 from tactiled.fit.start import StartTable, _force_args, start_point, start_table
 from tactiled.fit.window import choose_window, plain_frame, plain_window
 from tactiled.physics.contact import Contact
-from tactiled.physics.hertz import Ellipse, ellipse_core
+from tactiled.physics.hertz import Ellipse
 from tactiled.physics.kernels import cramer_rao as crb_kernel
 from tactiled.physics.strain import StrainModel, warm_rules
 
@@ -191,7 +191,6 @@ class Fitter:
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
-        self._no_jac = np.empty((0, 0))  # ellipse_core fills a Jacobian only when (3, 4)
         m = self.model
         self._model_args = (m._rf, m._k, m._scale, m._dmin, m._imp)
         self._in_fit = False
@@ -495,8 +494,8 @@ class Fitter:
             reasons.setdefault("angle_deg", "undefined: sphere model")
         if model.name == "general" and values.get("r2_mm") is None:
             reasons.setdefault("r2_mm", "infinite: fitted as a cylinder")
-        (ka, kb, psi, force, _, _), _ = model.physical(sol.p)
-        ell = Ellipse(*ellipse_core(ka, kb, psi, force, self.model._rf, self.model._k, self._no_jac))
+        ell = Ellipse(*compiled.ellipse_at(compiled.KINDS[model.name], sol.p, self.model._rf,
+                                           self.model._k))
         line = ell.a >= 0.0 and self._line_contact(ell, values, std, reasons)
         if not sol.converged:
             reasons.setdefault("fit", sol.message)
