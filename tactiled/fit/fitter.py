@@ -23,7 +23,7 @@ from tactiled.fit.floor import FloorLearner
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.result import FitResult
 from tactiled.fit.solver import SolveResult, levenberg_marquardt
-from tactiled.fit.start import StartTable, _force_args, start_point, start_table
+from tactiled.fit.start import StartTable, force_constants, start_point, start_table
 from tactiled.fit.window import choose_window, plain_frame, plain_window
 from tactiled.physics.contact import Contact
 from tactiled.physics.hertz import Ellipse
@@ -196,7 +196,7 @@ class Fitter:
         self._in_fit = False
         self._frame_memo: tuple[tuple[int, int], _Frame | FitResult] | None = None
         self._starts: StartTable | None = None  # start_table(sensor), once it is needed
-        self._force_args = _force_args(self.sensor)
+        self._force_constants = force_constants(self.sensor)
         #: what the sensor's recent fits say of its departure from the model (see _mismatch)
         self.floor = FloorLearner()
         if warm:
@@ -466,7 +466,7 @@ class Fitter:
     def _cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
         # interpolated_peak, force_estimate and features in one compiled call
         x0, y0, f0, feat = start_point(strain, peak_idx[0], peak_idx[1], float(strain.sum()),
-                                       *self._force_args)
+                                       *self._force_constants)
         if self._starts is None:
             self._starts = start_table(self.sensor)
         cands = self._starts.candidates(feat, count=self.options.max_starts)

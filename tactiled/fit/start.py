@@ -46,10 +46,10 @@ def force_estimate(strain: np.ndarray, sensor: SensorModel, x0: float | None = N
     if x0 is None or y0 is None:
         pk = np.unravel_index(int(np.argmax(strain)), strain.shape)
         x0, y0 = interpolated_peak(strain, pk, g.dx, g.dy)
-    return _force(float(strain.sum()), *_force_args(sensor), float(x0), float(y0))
+    return _force(float(strain.sum()), *force_constants(sensor), float(x0), float(y0))
 
 
-def _force_args(sensor: SensorModel) -> tuple:
+def force_constants(sensor: SensorModel) -> tuple:
     """The sensor's constants :func:`_force` takes after the summed strain."""
     g, imp = sensor.geometry, sensor.impulse
     return (sensor.material.modulus, g.rows, g.dx, imp.depth_x, imp.nu_x, g.cols, g.dy,
@@ -164,7 +164,8 @@ def nearest(table: np.ndarray, feat: np.ndarray, k: int) -> tuple[np.ndarray, np
         a0 = a1 = a2 = a3 = 0.0
         j = 0
         while j + 4 <= m:
-            t0, t1, t2, t3 = row[j] - q[j], row[j + 1] - q[j + 1], row[j + 2] - q[j + 2], row[j + 3] - q[j + 3]
+            t0, t1 = row[j] - q[j], row[j + 1] - q[j + 1]
+            t2, t3 = row[j + 2] - q[j + 2], row[j + 3] - q[j + 3]
             a0 += t0 * t0
             a1 += t1 * t1
             a2 += t2 * t2
