@@ -24,7 +24,7 @@ import numpy as np
 from numba import njit
 
 from tactiled.fit.models import physical_map
-from tactiled.fit.solver import STALLED, WITHIN_TOLERANCE, SolveResult, remaining_decrease
+from tactiled.fit.solver import STALLED, WITHIN_TOLERANCE, SolveResult
 from tactiled.physics.hertz import ellipse_core
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
 from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
@@ -123,6 +123,15 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
 
 
 @njit(cache=True, nogil=True)
+def ellipse_at(kind: int, p: np.ndarray, rf: float, comp: float) -> tuple[float, float, float, float]:
+    """The Hertz ellipse ``(a, b, theta, m)`` of the model ``kind`` at ``p`` (``a < 0``: an
+    infinite line), by the same map and solve as an evaluation, in one call."""
+    d = np.zeros((6, p.shape[0]))
+    ka, kb, psi, force, _, _ = physical_map(kind, p, d)
+    return ellipse_core(ka, kb, psi, force, rf, comp, np.empty((0, 0)))
+
+
+@njit(cache=True, nogil=True)
 def _pin(p: np.ndarray, jtj: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray):
     """``solver._pin``: parameters on a bound that the descent pushes out are held."""
     k = p.shape[0]
@@ -156,18 +165,20 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
            imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws):
     """``solver.levenberg_marquardt`` for one model and start, compiled (the box ``lo``,
     ``hi`` as its ``bounds``; the verdict is the caller's).  Returns ``(status, p, r, J, cost,
-    iterations, evaluations, converged, message code)``; status ``_OK``, ``_INVALID_LINE`` /
-    ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``), or ``FALLBACK``."""
+    iterations, evaluations, converged, message code, remaining)``; status ``_OK``,
+    ``_INVALID_LINE`` / ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``), or
+    ``FALLBACK``; ``remaining`` is ``solver.remaining_decrease`` at the end point (for the
+    caller's verdict; inf where there is none)."""
     k = p0.shape[0]
     p = _clip(p0, lo, hi)
     status, r, jac = _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid,
                                inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws)
     if status != _OK:
         extent = r[0] if status == _INVALID_LONG else 0.0
-        return status, p, r, jac, extent, 0, 1, False, -1
+        return status, p, r, jac, extent, 0, 1, False, -1, math.inf
     cost = finite_cost(r, jac)
     if not math.isfinite(cost):
-        return _OK, p, r, jac, math.inf, 0, 1, False, -2  # non-finite residual at start
+        return _OK, p, r, jac, math.inf, 0, 1, False, -2, math.inf  # non-finite residual at start
     lam, nu = lam0, 2.0
     evals = 1
     message = 0
@@ -192,7 +203,7 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
                                            target, valid, inv_scale, ex, ey, ladder, offsets, ru,
                                            rwu, rs, rws)
             if st == FALLBACK:
-                return FALLBACK, p, r, jac, cost, it, evals, False, 0
+                return FALLBACK, p, r, jac, cost, it, evals, False, 0, math.inf
             cost_new = finite_cost(r_new, jac_new) if st == _OK else math.inf
             evals += 1
             if cost_new < math.inf:
@@ -210,7 +221,20 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
             message = 3
             break
         p, r, jac, cost = trial, r_new, jac_new, cost_new
-    return _OK, p, r, jac, cost, it, evals, converged, message
+    return _OK, p, r, jac, cost, it, evals, converged, message, _remaining(jac, r, max_step, p, lo, hi)
+
+
+@njit(cache=True, nogil=True)
+def _remaining(jac, r, scale, p, lo, hi) -> float:
+    """``solver.remaining_decrease(jac, r, scale, p, (lo, hi))``, step for step (an unbounded
+    box pins nothing, as no ``bounds`` there)."""
+    jtj, g, diag = normal_equations(jac, r)
+    jtj, g = _pin(p, jtj, g, lo, hi)
+    try:
+        _, _, predicted = damped_step(jtj, g, diag, 1e-9, scale)
+    except Exception:  # pragma: no cover - the damping makes it definite
+        return math.inf
+    return predicted if math.isfinite(predicted) else math.inf
 
 
 def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: float, model_args: tuple,
@@ -224,7 +248,7 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
     xs, ys, target, valid, inv_scale, ex, ey = window_args
     p0 = np.asarray(p0, dtype=float)
     lo, hi = bounds if bounds is not None else (np.full(p0.size, -np.inf), np.full(p0.size, np.inf))
-    status, p, r, jac, cost, it, evals, converged, msg = search(
+    status, p, r, jac, cost, it, evals, converged, msg, remaining = search(
         kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp,
         scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables())
     if status == FALLBACK:
@@ -240,7 +264,7 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
         return SolveResult(p, r, jac, math.inf, 0, 1, False, "non-finite residual at start")
     message = MESSAGES[msg]
     if verdict_tol is not None:
-        close = remaining_decrease(jac, r, max_step, p, bounds) <= verdict_tol
+        close = remaining <= verdict_tol
         if close and not converged:
             message = f"{message}, {WITHIN_TOLERANCE}"
         elif converged and not close:

@@ -30,10 +30,10 @@ from tactiled.fit.params import (
 )
 from tactiled.fit.result import FitResult
 from tactiled.fit.solver import SolveResult, levenberg_marquardt
-from tactiled.fit.start import features, force_estimate, start_table
-from tactiled.fit.window import choose_window, interpolated_peak, plain_window
+from tactiled.fit.start import StartTable, force_constants, start_point, start_table
+from tactiled.fit.window import choose_window, plain_frame, plain_window
 from tactiled.physics.contact import Contact
-from tactiled.physics.hertz import Ellipse, ellipse_core
+from tactiled.physics.hertz import Ellipse
 from tactiled.physics.kernels import cramer_rao as crb_kernel
 from tactiled.physics.strain import StrainModel, warm_rules
 
@@ -190,11 +190,12 @@ class Fitter:
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
-        self._no_jac = np.empty((0, 0))  # ellipse_core fills a Jacobian only when (3, 4)
         m = self.model
         self._model_args = (m._rf, m._k, m._scale, m._dmin, m._imp)
         self._in_fit = False
         self._frame_memo: tuple[tuple[int, int], _Frame | FitResult] | None = None
+        self._starts: StartTable | None = None  # start_table(sensor), once it is needed
+        self._force_constants = force_constants(self.sensor)
         #: what the sensor's recent fits say of its departure from the model (see _mismatch)
         self.floor = FloorLearner()
         if warm:
@@ -293,12 +294,12 @@ class Fitter:
         below 0.01 and after ``SCOUT_ITERATIONS``: enough to rank models by an information
         criterion, whose differences that matter are units of chi^2; the chosen one is then
         solved fully."""
-        prob = self._problem(strain, model, mask)
-        if isinstance(prob, FitResult):
-            return prob
-        residual, clean, peak, peak_idx, win, n_points, zdata = prob
+        fr = self._window(strain, model, mask)
+        if isinstance(fr, FitResult):
+            return fr
+        peak, win, n_points = fr.peak, fr.win, fr.n_points
         steps, bounds = _steps(model), _bounds(model)
-        starts = [start] if start is not None else self._cold_starts(clean, peak_idx, model)
+        starts = [start] if start is not None else self._cold_starts(fr.clean, fr.peak_idx, model)
         best: SolveResult | None = None
         tried = 0
         max_iter = SCOUT_ITERATIONS if scouting else self.options.max_iter
@@ -306,16 +307,19 @@ class Fitter:
         # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
         atol = (1e-2 if scouting else STOP_CHI2) * (self.sigma / peak) ** 2
         verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
-        fr = self._frame(strain, mask) if self.options.jacobian == "exact" else None
+        exact = self.options.jacobian == "exact"
+        residual = None  # the Python solver's residual function, built only if it is needed
         for p0 in starts:
             tried += 1
             sol = None
-            if isinstance(fr, _Frame):  # the whole search compiled (falls back on huge contacts)
+            if exact:  # the whole search compiled (falls back on huge contacts)
                 sol = compiled.solve(
                     compiled.KINDS[model.name], p0, steps, max_iter, atol, self._model_args,
                     (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey), self.options.tol,
                     bounds=bounds, verdict_tol=verdict_tol)
             if sol is None:
+                if residual is None:
+                    residual = self._residual(fr, model)
                 sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=max_iter, atol=atol,
                                           deadline=self._deadline, verdict_tol=verdict_tol,
                                           bounds=bounds)
@@ -329,13 +333,12 @@ class Fitter:
                              iterations=best.iterations, evaluations=best.evaluations,
                              converged=best.converged, peak=peak, n_points=n_points, window=win,
                              starts=tried, message=best.message,
-                             params=tuple(float(x) for x in best.p))
-        return self._result(model, best, peak, win, n_points, tried, zdata)
+                             params=tuple(best.p.tolist()))
+        return self._result(model, best, peak, win, n_points, tried, fr.zdata)
 
-    def _problem(self, strain: np.ndarray, model: Model, mask: np.ndarray | None):
-        """The least-squares problem on this frame: ``(residual, clean frame, peak, peak index,
-        window, usable points, window strains in units of their sd)``, or a FitResult saying
-        why there is none."""
+    def _window(self, strain: np.ndarray, model: Model, mask: np.ndarray | None) -> _Frame | FitResult:
+        """This frame's window (:meth:`_frame`) when it can hold ``model``, else a FitResult
+        saying why there is no problem to solve."""
         fr = self._frame(strain, mask)
         if isinstance(fr, FitResult):
             return fr
@@ -345,11 +348,25 @@ class Fitter:
                 message=f"only {fr.n_points} usable tactels in the window for {model.size} parameters",
                 reasons={k: "too few usable tactels in the window" for k in VALUE_KEYS},
             )
+        return fr
+
+    def _residual(self, fr: _Frame, model: Model):
+        """The residual function of ``model`` on the window ``fr`` (for the Python solver)."""
         residual = self.model.window_residual_function(
             model.physical, fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
         if self.options.jacobian == "fd":
             residual = _forward_difference(residual)
-        return residual, fr.clean, fr.peak, fr.peak_idx, fr.win, fr.n_points, fr.zdata
+        return residual
+
+    def _problem(self, strain: np.ndarray, model: Model, mask: np.ndarray | None):
+        """The least-squares problem on this frame: ``(residual, clean frame, peak, peak index,
+        window, usable points, window strains in units of their sd)``, or a FitResult saying
+        why there is none."""
+        fr = self._window(strain, model, mask)
+        if isinstance(fr, FitResult):
+            return fr
+        return (self._residual(fr, model), fr.clean, fr.peak, fr.peak_idx, fr.win, fr.n_points,
+                fr.zdata)
 
     def _frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
         """What every model's problem on this frame shares (computed once per :meth:`fit`,
@@ -371,11 +388,21 @@ class Fitter:
                        and strain.flags.c_contiguous) else np.ascontiguousarray(strain, dtype=float)
         if s.shape != self._all_ok.shape:
             return None
-        usable, m, n, r0, c0, nr, nc = plain_window(s, self.options.window, MAX_STRAIN)
-        peak = float(s[m, n])
-        if not usable or not peak > MIN_PEAK:
+        if not self.sensor.model_error.zero:
+            usable, m, n, r0, c0, nr, nc = plain_window(s, self.options.window, MAX_STRAIN)
+            peak = float(s[m, n])
+            if not usable or not peak > MIN_PEAK:
+                return None
+            return self._window_arrays(s, self._all_ok, (m, n), peak, (r0, c0, nr, nc))
+        # the common sensor: the window's arrays in the same compiled pass
+        usable, m, n, r0, c0, nr, nc, peak, target, valid, inv_scale, zdata = plain_frame(
+            s, self.options.window, MAX_STRAIN, MIN_PEAK, self.sigma)
+        if not usable:
             return None
-        return self._window_arrays(s, self._all_ok, (m, n), peak, (r0, c0, nr, nc))
+        win = (r0, c0, nr, nc)
+        ex, ey = self.model.window_shift(win, nr, nc)
+        return _Frame(s, (m, n), peak, win, self.model.xs_full[r0:r0 + nr],
+                      self.model.ys_full[c0:c0 + nc], target, valid, nr * nc, inv_scale, zdata, ex, ey)
 
     def _general_frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
         clean, ok = self._prepare(strain, mask)
@@ -436,12 +463,12 @@ class Fitter:
         return res.chi2 <= dof + 3.0 * math.sqrt(2.0 * dof)
 
     def _cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
-        g = self.sensor.geometry
-        x0, y0 = interpolated_peak(strain, peak_idx, g.dx, g.dy)
-        f0 = force_estimate(strain, self.sensor, x0, y0)
-        cands = start_table(self.sensor).candidates(
-            features(strain, peak_idx, f0), count=self.options.max_starts
-        )
+        # interpolated_peak, force_estimate and features in one compiled call
+        x0, y0, f0, feat = start_point(strain, peak_idx[0], peak_idx[1], float(strain.sum()),
+                                       *self._force_constants)
+        if self._starts is None:
+            self._starts = start_table(self.sensor)
+        cands = self._starts.candidates(feat, count=self.options.max_starts)
         out = []
         for c in cands:
             if model.name == "general":
@@ -466,8 +493,8 @@ class Fitter:
             reasons.setdefault("angle_deg", "undefined: sphere model")
         if model.name == "general" and values.get("r2_mm") is None:
             reasons.setdefault("r2_mm", "infinite: fitted as a cylinder")
-        (ka, kb, psi, force, _, _), _ = model.physical(sol.p)
-        ell = Ellipse(*ellipse_core(ka, kb, psi, force, self.model._rf, self.model._k, self._no_jac))
+        ell = Ellipse(*compiled.ellipse_at(compiled.KINDS[model.name], sol.p, self.model._rf,
+                                           self.model._k))
         line = ell.a >= 0.0 and self._line_contact(ell, values, std, reasons)
         if not sol.converged:
             reasons.setdefault("fit", sol.message)
@@ -490,7 +517,7 @@ class Fitter:
             starts=starts,
             message=sol.message,
             reasons=reasons,
-            params=tuple(float(x) for x in sol.p),
+            params=tuple(sol.p.tolist()),
             ellipse=({"a_mm": ell.a, "b_mm": ell.b, "theta_deg": math.degrees(ell.theta) % 180.0}
                      if ell.a >= 0.0 else None),  # a < 0: an infinite line (an invalid start)
         )
@@ -508,9 +535,9 @@ class Fitter:
             for k in VALUE_KEYS:
                 reasons[k] = "Jacobian singular: parameter not identifiable from this window"
             return values, std, (condition if math.isfinite(condition) else None)
-        for i, k in enumerate(VALUE_KEYS):
-            if values.get(k) is not None and sd[i] >= 0.0:  # NaN (no such quantity) fails
-                std[k] = float(sd[i])
+        for k, v in zip(VALUE_KEYS, sd.tolist()):
+            if v >= 0.0 and values.get(k) is not None:  # NaN (no such quantity) fails
+                std[k] = v
         if condition > ILL_CONDITION:
             reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
         return values, std, condition

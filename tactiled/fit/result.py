@@ -70,12 +70,24 @@ class FitResult:
                 if fv is None:
                     self.reasons.setdefault(k, f"{what} not finite")
                 table[k] = fv
-        self.rms = _finite_or_none(self.rms)
-        self.chi2 = _finite_or_none(self.chi2)
-        self.condition = _finite_or_none(self.condition)
-        self.peak = _finite_or_none(self.peak)
-        if self.ellipse is not None and not all(math.isfinite(v) for v in self.ellipse.values()):
-            self.ellipse = None
+        # the common case, a finite float or None, is left as it is (what _finite_or_none gives)
+        v = self.rms
+        if not (v is None or (type(v) is float and isfinite(v))):
+            self.rms = _finite_or_none(v)
+        v = self.chi2
+        if not (v is None or (type(v) is float and isfinite(v))):
+            self.chi2 = _finite_or_none(v)
+        v = self.condition
+        if not (v is None or (type(v) is float and isfinite(v))):
+            self.condition = _finite_or_none(v)
+        v = self.peak
+        if not (v is None or (type(v) is float and isfinite(v))):
+            self.peak = _finite_or_none(v)
+        if self.ellipse is not None:
+            for v in self.ellipse.values():
+                if not isfinite(v):
+                    self.ellipse = None
+                    break
 
     def to_json_dict(self, frame: int | None = None) -> dict[str, Any]:
         """The ``tactiled fit`` line (also the WebSocket estimate body)."""

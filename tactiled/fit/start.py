@@ -17,11 +17,10 @@ from functools import lru_cache
 
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 
 from tactiled.config import SensorModel
 from tactiled.physics.contact import Contact
-from tactiled.fit.window import interpolated_peak
+from tactiled.fit.window import interpolated_peak, peak_centre
 from tactiled.physics.strain import StrainModel
 
 _RADII = np.geomspace(0.3, 150.0, 12)
@@ -29,6 +28,8 @@ _ANGLES = np.arange(7.5, 180.0, 15.0)  # psi = 0 is an infinite line for a cylin
 _FORCES = (0.15, 0.6, 2.0)
 _OFFSETS = (-0.3, 0.0, 0.3)
 _PEAK_WEIGHT = 1.0
+#: Table entries read per lookup, nearest first, among which the starts' orientations are picked.
+_NEAREST = 48
 
 
 def force_estimate(strain: np.ndarray, sensor: SensorModel, x0: float | None = None, y0: float | None = None) -> float:
@@ -41,22 +42,41 @@ def force_estimate(strain: np.ndarray, sensor: SensorModel, x0: float | None = N
     tails make an 8x8 array's sums 1.5-2.3x the integrals, and an edge contact loses part of
     its response.  A contact wider than the rubber depth reads a few per cent low.
     """
-    g, imp, mat = sensor.geometry, sensor.impulse, sensor.material
+    g = sensor.geometry
     if x0 is None or y0 is None:
         pk = np.unravel_index(int(np.argmax(strain)), strain.shape)
         x0, y0 = interpolated_peak(strain, pk, g.dx, g.dy)
-    sx = line_sum(g.rows, g.dx, x0, imp.depth_x, imp.nu_x)
-    sy = line_sum(g.cols, g.dy, y0, imp.depth_y, imp.nu_y)
-    total = float(strain.sum()) * mat.modulus / max(sx * sy, 1e-12)
-    return min(max(total, 1e-3), 50.0)
+    return _force(float(strain.sum()), *force_constants(sensor), float(x0), float(y0))
+
+
+def force_constants(sensor: SensorModel) -> tuple:
+    """The sensor's constants :func:`_force` takes after the summed strain."""
+    g, imp = sensor.geometry, sensor.impulse
+    return (sensor.material.modulus, g.rows, g.dx, imp.depth_x, imp.nu_x, g.cols, g.dy,
+            imp.depth_y, imp.nu_y)
+
+
+@njit(cache=True, nogil=True)
+def _force(total: float, modulus: float, rows: int, dx: float, depth_x: float, nu_x: float,
+           cols: int, dy: float, depth_y: float, nu_y: float, x0: float, y0: float) -> float:
+    """:func:`force_estimate` from the summed strain ``total`` (summed by numpy, whose
+    pairwise sum the callers share)."""
+    sx = line_sum(rows, dx, x0, depth_x, nu_x)
+    sy = line_sum(cols, dy, y0, depth_y, nu_y)
+    est = total * modulus / max(sx * sy, 1e-12)
+    return min(max(est, 1e-3), 50.0)
 
 
 def features(strain: np.ndarray, peak: tuple[int, int], force: float) -> np.ndarray:
     """The 3x3 neighbourhood of the peak / the peak (NaN where off the array), and
     ``log(peak / force)``; 9 numbers."""
+    return _features(np.asarray(strain, dtype=float), int(peak[0]), int(peak[1]), float(force))
+
+
+@njit(cache=True, nogil=True)
+def _features(strain: np.ndarray, m: int, n: int, force: float) -> np.ndarray:
     rows, cols = strain.shape
-    m, n = peak
-    c = float(strain[m, n])
+    c = strain[m, n]
     out = np.full(9, np.nan)
     k = 0
     for i in (-1, 0, 1):
@@ -68,6 +88,17 @@ def features(strain: np.ndarray, peak: tuple[int, int], force: float) -> np.ndar
             k += 1
     out[8] = _PEAK_WEIGHT * math.log(max(c, 1e-12) / force)
     return out
+
+
+@njit(cache=True, nogil=True)
+def start_point(strain: np.ndarray, m: int, n: int, total: float, modulus: float, rows: int, dx: float,
+                depth_x: float, nu_x: float, cols: int, dy: float, depth_y: float, nu_y: float):
+    """A cold start's ``(x0, y0, force, features)`` for the peak at ``(m, n)`` in one compiled
+    call: :func:`interpolated_peak`, :func:`force_estimate` (``total`` the summed strain, as
+    numpy sums it) and :func:`features`."""
+    x0, y0 = peak_centre(strain, m, n, dx, dy)
+    f0 = _force(total, modulus, rows, dx, depth_x, nu_x, cols, dy, depth_y, nu_y, x0, y0)
+    return x0, y0, f0, _features(strain, m, n, f0)
 
 
 @dataclass(frozen=True)
@@ -100,16 +131,64 @@ class StartTable:
         # A neighbour off the array reads as zero strain, in the table and in queries alike.
         self.features = np.nan_to_num(np.array(feats), nan=0.0)
         self.params = np.array(params)
-        self._tree = cKDTree(self.features)
 
     def candidates(self, feat: np.ndarray, count: int = 2, min_separation: float = 35.0) -> list[Candidate]:
         """The best ``count`` candidates whose orientations differ by ``min_separation`` deg."""
-        # NaN (a neighbour off the array) reads as 0, as in the table; infinities are clipped
-        q = [0.0 if v != v else min(max(v, -1e6), 1e6) for v in feat.tolist()]
-        dist, near = self._tree.query(q, k=48)
+        dist, near = nearest(self.features, np.asarray(feat, dtype=float), _NEAREST)
         chosen = pick_separated(self.params[near, 1], count, min_separation)
         return [Candidate(float(self.params[near[i], 0]), float(self.params[near[i], 1]), float(dist[i]))
                 for i in chosen]
+
+
+@njit(cache=True, nogil=True)
+def nearest(table: np.ndarray, feat: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` rows of ``table`` nearest to ``feat`` (Euclidean), nearest first (ties: the
+    lower index first): ``(distances, indices)``.  A NaN in ``feat`` (a neighbour off the array)
+    reads as 0, as in the table; infinities are clipped to +-1e6.
+
+    An exhaustive pass, the squares summed as scipy's k-d tree sums them (four lanes, then the
+    rest), so the same distances in the same order as its query, at a fraction of its cost on
+    a table this small.  A row whose first four squares already reach the k-th distance so far
+    is passed over: a sum of non-negative terms only grows, rounding included."""
+    n, m = table.shape
+    q = np.empty(m)
+    for j in range(m):
+        v = feat[j]
+        q[j] = 0.0 if v != v else min(max(v, -1e6), 1e6)
+    k = min(k, n)
+    best_d = np.full(k, np.inf)
+    best_i = np.full(k, -1, dtype=np.int64)
+    for i in range(n):
+        row = table[i]
+        worst = best_d[k - 1]
+        a0 = a1 = a2 = a3 = 0.0
+        j = 0
+        while j + 4 <= m:
+            t0, t1 = row[j] - q[j], row[j + 1] - q[j + 1]
+            t2, t3 = row[j + 2] - q[j + 2], row[j + 3] - q[j + 3]
+            a0 += t0 * t0
+            a1 += t1 * t1
+            a2 += t2 * t2
+            a3 += t3 * t3
+            j += 4
+            if a0 + a1 + a2 + a3 >= worst:
+                break
+        d = a0 + a1 + a2 + a3
+        if d >= worst:
+            continue
+        while j < m:
+            t = row[j] - q[j]
+            d += t * t
+            j += 1
+        if d < worst:  # insert, keeping the buffer sorted (an equal one stays ahead)
+            pos = k - 1
+            while pos > 0 and best_d[pos - 1] > d:
+                best_d[pos] = best_d[pos - 1]
+                best_i[pos] = best_i[pos - 1]
+                pos -= 1
+            best_d[pos] = d
+            best_i[pos] = i
+    return np.sqrt(best_d), best_i
 
 
 @njit(cache=True, nogil=True)

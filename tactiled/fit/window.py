@@ -36,25 +36,32 @@ def choose_window(strain: np.ndarray, peak: tuple[int, int], size: int) -> tuple
     return r0, c0, nr, nc
 
 
+@njit(cache=True, nogil=True)
 def _vertex(lo: float, mid: float, hi: float) -> float:
     """Offset in [-0.5, 0.5] tactels of the vertex of the parabola through three samples."""
     den = lo - 2.0 * mid + hi
     if not (den < 0.0):  # not a maximum: stay on the peak tactel
         return 0.0
-    return float(min(max(0.5 * (lo - hi) / den, -0.5), 0.5))
+    return min(max(0.5 * (lo - hi) / den, -0.5), 0.5)
+
+
+@njit(cache=True, nogil=True)
+def peak_centre(strain: np.ndarray, m: int, n: int, dx: float, dy: float) -> tuple[float, float]:
+    """:func:`interpolated_peak` of the peak at ``(m, n)``, compiled (for callers that are)."""
+    rows, cols = strain.shape
+    c = strain[m, n]
+    lo_x = strain[m - 1, n] if m > 0 else c
+    hi_x = strain[m + 1, n] if m < rows - 1 else c
+    lo_y = strain[m, n - 1] if n > 0 else c
+    hi_y = strain[m, n + 1] if n < cols - 1 else c
+    return (m + _vertex(lo_x, c, hi_x)) * dx, (n + _vertex(lo_y, c, hi_y)) * dy
 
 
 def interpolated_peak(strain: np.ndarray, peak: tuple[int, int], dx: float, dy: float) -> tuple[float, float]:
     """Sub-tactel centre of pressure (mm): a parabola through the peak and its neighbours on
     each axis (the paper's start; its aliasing error is ~0.4 mm, which the fit removes)."""
-    rows, cols = strain.shape
-    m, n = peak
-    c = float(strain[m, n])
-    lo_x = float(strain[m - 1, n]) if m > 0 else c
-    hi_x = float(strain[m + 1, n]) if m < rows - 1 else c
-    lo_y = float(strain[m, n - 1]) if n > 0 else c
-    hi_y = float(strain[m, n + 1]) if n < cols - 1 else c
-    return (m + _vertex(lo_x, c, hi_x)) * dx, (n + _vertex(lo_y, c, hi_y)) * dy
+    x, y = peak_centre(np.asarray(strain, dtype=float), int(peak[0]), int(peak[1]), float(dx), float(dy))
+    return float(x), float(y)
 
 
 @njit(cache=True, nogil=True)
@@ -79,3 +86,32 @@ def plain_window(strain: np.ndarray, size: int, max_strain: float) -> tuple[int,
     lo_c = strain[m, n - 1] if n > 0 else -np.inf
     hi_c = strain[m, n + 1] if n + 1 < cols else -np.inf
     return 1, m, n, window_origin(m, nr, rows, lo_r, hi_r), window_origin(n, nc, cols, lo_c, hi_c), nr, nc
+
+
+@njit(cache=True, nogil=True)
+def plain_frame(strain: np.ndarray, size: int, max_strain: float, min_peak: float, sigma: float):
+    """:func:`plain_window` and the window's arrays in the same call, for a sensor without a
+    model-error floor (each tactel weighted by the noise ``sigma`` alone): ``(usable, m, n,
+    row0, col0, rows, cols, peak, target, valid, inv_scale, zdata)``, the window's strains
+    flattened row-major, every one valid, ``1 / peak`` each, and in units of ``sigma`` (the
+    numbers ``Fitter._window_arrays`` computes); ``usable`` is also 0 for a peak not above
+    ``min_peak`` (no contact: the caller's general path words it)."""
+    usable, m, n, r0, c0, nr, nc = plain_window(strain, size, max_strain)
+    peak = strain[m, n]
+    if not peak > min_peak:
+        usable = 0
+    k = nr * nc if usable else 0
+    target = np.empty(k)
+    valid = np.ones(k, dtype=np.bool_)
+    inv_scale = np.empty(k)
+    zdata = np.empty(k)
+    if usable:
+        inv = 1.0 / peak
+        for i in range(nr):
+            for j in range(nc):
+                q = i * nc + j
+                t = strain[r0 + i, c0 + j]
+                target[q] = t
+                inv_scale[q] = inv
+                zdata[q] = t / sigma
+    return usable, m, n, r0, c0, nr, nc, peak, target, valid, inv_scale, zdata
