@@ -85,12 +85,19 @@ class _Waiting:
     #: its linearisation at ``at`` (the tracker's state, "lin")
     kind: str = "fit"
     at: tuple[str, tuple[float, ...]] | None = None
+    #: the contact ended while this job was in flight: its result answers nothing
+    dropped: bool = False
 
 
 #: Frames of a contact that wait for a fit before the tracker can measure them (they left the
 #: linear range); beyond this many the oldest (but the one being fitted) is given up (counted
 #: superseded).
 MAX_PENDING = 64
+#: ... and none waits longer than this (s): past it, the waiting frames get the contact
+#: predicted to their time and go out (counted predicted), so a slow fit (a loaded machine,
+#: a frame far outside the model) costs precision for a while, never latency.  Live only: in
+#: lossless mode every frame waits for its fit.
+MAX_WAIT_S = 0.005
 
 
 class SensorPipeline:
@@ -371,6 +378,9 @@ class SensorPipeline:
             self.skipped[GATE_NO_CONTACT] += 1
             self._publish(w, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
             return
+        if (self._pending and not self.lossless
+                and w.since - self._pending[0].since > MAX_WAIT_S):
+            self._flush_pending()
         if self._pending or not tracker.active or not self.settings.reuse_unchanged:
             self._wait_for_fit(w)
             return
@@ -387,6 +397,23 @@ class SensorPipeline:
             return
         self._publish_tracked(w)
         self._maybe_relinearize(w)
+
+    def _flush_pending(self) -> None:
+        """The waiting frames' fit is late: publish each with the contact predicted to its
+        time (the fit, when it comes, still moves the tracker).  Before the contact's first
+        fit there is nothing to predict from: those frames are given up (counted superseded),
+        all but the one being fitted, so what is published stays fresh, as latest-frame-wins
+        keeps it without tracking."""
+        if self.tracker.started:
+            for p in self._pending:
+                self.predicted += 1
+                self._publish_tracked(p, predicted=True)
+            self._pending.clear()
+            return
+        busy = self._in_flight.ordinal if self._in_flight is not None else None
+        keep = [p for p in self._pending if p.ordinal == busy]
+        self.superseded += len(self._pending) - len(keep)
+        self._pending = keep
 
     def _wait_for_fit(self, w: _Waiting) -> None:
         self._pending.append(w)
@@ -434,6 +461,8 @@ class SensorPipeline:
         self._pending.clear()
         if self._waiting is not None:
             self._waiting = None
+        if self._in_flight is not None:
+            self._in_flight.dropped = True
         self._check_settled()
 
     def _tracked_result(self, w: _Waiting, job: FitJob, fit: dict[str, Any], worker_ms: float,
@@ -445,15 +474,23 @@ class SensorPipeline:
                 tracker.adopt(lin, self._zero_var())
                 self.relinearized += 1
             return
-        if not self._pending:
+        if w.dropped:
             return  # the contact ended while it was fitted (its frames were counted then)
         if self._waiting is not None and self._waiting.kind != "lin":
             self._waiting = None  # set again below if a frame still needs a fit
-        # ``w`` itself may be gone (the oldest, given up past MAX_PENDING): its fit still
-        # serves the frames after it
+        # ``w`` itself may be gone: given up past MAX_PENDING, or out already with a
+        # prediction (MAX_WAIT_S); its fit still serves the tracker and the frames after it
         pending, self._pending = self._pending, []
+        mine = any(p.ordinal == w.ordinal for p in pending)
         usable = fit.get("contact") and lin is not None and all(
             fit.get(k) is not None for k in ("x_mm", "y_mm"))
+        if not usable and not mine and tracker.started:
+            # a late fit with nothing to give: the tracker goes on predicting; any frame
+            # waiting now needs a fit of its own
+            self._pending = pending
+            if pending:
+                self._wait_for_fit(self._pending.pop())
+            return
         if not usable:
             # nothing to track from (no contact in the window, a fit without a linearisation):
             # the frame gets the fit as it is; those before it are given up
@@ -461,7 +498,6 @@ class SensorPipeline:
             self._base = self._base_seq = None
             self._warm = None
             later = [p for p in pending if p.ordinal > w.ordinal]
-            mine = any(p.ordinal == w.ordinal for p in pending)
             self.superseded += len(pending) - len(later) - mine
             if mine:
                 self._publish(w, GATE_FIT, w.seq, worker_ms,
@@ -472,6 +508,11 @@ class SensorPipeline:
             return
         tracker.adopt(lin, self._zero_var())
         self._base, self._base_seq, self._warm = fit, w.seq, warm
+        if not mine and (tracker.t is None or w.t >= tracker.t):
+            tracker.step(w.strain.ravel(), w.t, fitted=True)  # its estimate went out already
+        if not pending:
+            self._maybe_relinearize(w)
+            return
         self._pending, last = pending, pending[-1]
         try:
             while self._pending:
