@@ -652,7 +652,10 @@ class Fitter:
             rel = (sd / v) if (sd is not None and v > 0) else math.inf
             is_radius = k != "force_n"
             what = "radius" if is_radius else "force"
-            pct = "unbounded" if math.isinf(rel) else f"{100 * rel:.0f} %"
+            # beyond 100 times the value the figure is noise of a degenerate solve (it differed
+            # in its leading digits between CPUs): say so, not the digits
+            pct = ("unbounded" if math.isinf(rel) else "over 10000 %" if rel > 100.0
+                   else f"{100 * rel:.0f} %")
             cause = TOO_LIGHT if inside and is_radius else "not observable from this window"
             degenerate = rel > UNOBSERVABLE_RELATIVE_SIGMA or (
                 is_radius and not RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1])

@@ -470,7 +470,8 @@ class SensorPipeline:
         """A fit (or relinearisation) came back: measure the frames that waited for it."""
         tracker = self.tracker
         if job.kind == "lin":
-            if lin is not None and tracker.active and lin.model == tracker.model:
+            # (not a linearisation of a contact that has ended since it was asked for)
+            if not w.dropped and lin is not None and tracker.active and lin.model == tracker.model:
                 tracker.adopt(lin, self._zero_var())
                 self.relinearized += 1
             return
