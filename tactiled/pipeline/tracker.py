@@ -378,11 +378,12 @@ class Tracker:
         else:
             x, pxx = self.x, self.pxx
         values, grad = report(self.model, x)
-        gs = grad * np.sqrt(np.array(pxx) * self.excess)  # the state's covariance: sd corr sd
-        var_a = (gs @ self._corr) * gs
-        if self._sys is not None:
-            var_a += (grad @ self._sys) * grad
-        var = var_a.sum(axis=1).tolist()
+        with np.errstate(over="ignore", invalid="ignore"):  # a runaway value: inf, withheld
+            gs = grad * np.sqrt(np.array(pxx) * self.excess)  # the state's covariance
+            var_a = (gs @ self._corr) * gs
+            if self._sys is not None:
+                var_a += (grad @ self._sys) * grad
+            var = var_a.sum(axis=1).tolist()
         out = dict(base)
         reasons = dict(base.get("reasons") or {})
         std: dict[str, float | None] = {}
