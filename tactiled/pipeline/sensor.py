@@ -425,8 +425,9 @@ class SensorPipeline:
             self._pending.pop(drop)
             self.superseded += 1
         # latest frame wins: the newest pending frame is the one to fit (a waiting
-        # relinearisation is no longer wanted)
-        self._waiting = replace(w, kind="fit+lin", at=self.tracker.predicted(w.t) or self._warm)
+        # relinearisation is no longer wanted); its warm start is computed when it is taken
+        w.kind = "fit+lin"
+        self._waiting = w
         self.pool.wake()
 
     def _maybe_relinearize(self, w: _Waiting) -> None:
@@ -591,6 +592,8 @@ class SensorPipeline:
         w = self._waiting
         assert w is not None and self._in_flight is None
         self._waiting, self._in_flight = None, w
+        if w.kind == "fit+lin":  # the tracker's prediction at the frame's time, now
+            w.at = self.tracker.predicted(w.t) or self._warm
         warm = w.at if w.kind != "fit" else self._warm
         return FitJob(owner=self, ordinal=w.ordinal, seq=w.seq, strain=w.strain,
                       model=self.model, spec=self.spec, mask=self.mask, warm=warm, kind=w.kind)
