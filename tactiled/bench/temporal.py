@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import os
-import time
 from pathlib import Path
 
 import numpy as np
@@ -74,47 +72,26 @@ def _register() -> None:
         SCENES.setdefault(f"t-turn-{w:g}", _turn_scene(w))
 
 
-def _play(scene: str, seed: int, extra: str = "", lossless: bool = True, speed: int = 0,
-          track: bool = True, seconds: float | None = None) -> tuple[list, dict, dict]:
-    """The daemon on one simulated finger playing ``scene`` once: its estimates (fit dicts
-    with device time), its stats, and CPU seconds (this process, the workers)."""
+def _play(scene: str, seed: int, extra: str = "") -> list[tuple[float, dict]]:
+    """The daemon on one simulated finger playing ``scene`` once, lossless: its estimates,
+    ``(device time s, fit dict)``."""
     from tactiled.pipeline import Daemon
     from tactiled.settings import load_settings
 
-    url = f"sim://?scene={scene}&seed={seed}&rate={RATE:g}&speed={speed}&loop=0{extra}"
-    overrides = {"sensor[0].url": url, "sensor[0].model": "cylinder", "sensor[0].track": track,
-                 "fit.workers": 2}
+    url = f"sim://?scene={scene}&seed={seed}&rate={RATE:g}&speed=0&loop=0{extra}"
+    overrides = {"sensor[0].url": url, "sensor[0].model": "cylinder", "fit.workers": 2}
 
     async def main():
-        daemon = Daemon(load_settings(None, {}, overrides), lossless=lossless)
+        daemon = Daemon(load_settings(None, {}, overrides), lossless=True)
         out: list = []
         daemon.hub.add_listener(lambda it: out.append((it.device_time_us * 1e-6, it.fit))
                                 if it.kind == "estimate" else None)
         await daemon.start()
-        c0 = time.process_time()
-        w0 = _workers_cpu(daemon)
-        if seconds is None:
-            await daemon.wait_finished(600)
-        else:
-            await asyncio.sleep(seconds)
-        cpu = {"main": time.process_time() - c0, "workers": _workers_cpu(daemon) - w0}
-        st = daemon.stats("finger0")
+        await daemon.wait_finished(600)
         await daemon.stop()
-        return out, st, cpu
+        return out
 
     return asyncio.run(main())
-
-
-def _workers_cpu(daemon) -> float:
-    total = 0.0
-    for p in daemon.pool.stats().get("workers", []):
-        try:
-            with open(f"/proc/{p['pid']}/stat") as fh:
-                fields = fh.read().rsplit(")", 1)[1].split()
-            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-        except (OSError, KeyError, IndexError, ValueError):
-            pass
-    return total
 
 
 def _crb(c: Contact) -> dict:
@@ -169,7 +146,7 @@ def hold(quick: bool, progress, plot: str | None = None) -> str:
         for i, seed in enumerate(seeds):
             if progress:
                 progress(f"hold {finger} seed {seed}")
-            out, _, _ = _play("t-hold", seed, extra)
+            out = _play("t-hold", seed, extra)
             by_t = {round(t, 3): f for t, f in out}
             for t_in in at:
                 f = by_t[round(HOLD_START + t_in, 3)]
@@ -236,7 +213,7 @@ def motion(quick: bool, progress) -> str:
             for seed in seeds:
                 if progress:
                     progress(f"{name} seed {seed}")
-                out, _, _ = _play(name, seed, IDEAL)
+                out = _play(name, seed, IDEAL)
                 for t, f in out:
                     if 1.1 <= t < 1.8 and f.get("contact") and f.get(key) is not None:
                         c = scene.contact_at(t)
@@ -258,10 +235,9 @@ def motion(quick: bool, progress) -> str:
 
 
 def steps(quick: bool, progress) -> str:
-    scene = named_scene("temporal")
     lines = ["| change | frames until the estimate shows 90 % of it | frames_used right after |",
              "|---|---|---|"]
-    out, _, _ = _play("temporal", 5, IDEAL)
+    out = _play("temporal", 5, IDEAL)
     by_t = {round(t, 3): f for t, f in out}
     for name, t0, key, size in (("force step 1.2 -> 1.44 N", 7.0, "force_n", 0.24),
                                 ("jump 0.5 mm along y", 7.501, "y_mm", 0.5)):
@@ -275,7 +251,6 @@ def steps(quick: bool, progress) -> str:
             k += 1
         used = by_t[round(t0 + (shown or 1) / RATE - 1 / RATE, 3)]["frames_used"]
         lines.append(f"| {name} | {shown if shown else 'not within 50'} | {used} |")
-    _ = scene
     lines += ["", "The ``temporal`` scene (ideal finger); each step happens within one frame at "
               "1 kHz.  Bar (issue 17): visible within 2 frames."]
     return "\n".join(lines)

@@ -71,18 +71,10 @@ class FitResult:
                     self.reasons.setdefault(k, f"{what} not finite")
                 table[k] = fv
         # the common case, a finite float or None, is left as it is (what _finite_or_none gives)
-        v = self.rms
-        if not (v is None or (type(v) is float and isfinite(v))):
-            self.rms = _finite_or_none(v)
-        v = self.chi2
-        if not (v is None or (type(v) is float and isfinite(v))):
-            self.chi2 = _finite_or_none(v)
-        v = self.condition
-        if not (v is None or (type(v) is float and isfinite(v))):
-            self.condition = _finite_or_none(v)
-        v = self.peak
-        if not (v is None or (type(v) is float and isfinite(v))):
-            self.peak = _finite_or_none(v)
+        for name in ("rms", "chi2", "condition", "peak"):
+            v = getattr(self, name)
+            if not (v is None or (type(v) is float and isfinite(v))):
+                setattr(self, name, _finite_or_none(v))
         if self.ellipse is not None:
             for v in self.ellipse.values():
                 if not isfinite(v):

@@ -36,7 +36,7 @@ it for every frame, in tens of microseconds.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -56,20 +56,14 @@ from tactiled.fit.params import (
 #: exceeds once in ~3.5 million (a normal deviate of 5, through Wilson-Hilferty).
 LINEAR_Z = 5.0
 
-
-def chi2_limit(dof: int, z: float = LINEAR_Z) -> float:
-    """The chi^2 quantile of ``dof`` degrees of freedom at the normal deviate ``z``
-    (Wilson-Hilferty: 5 % above the exact one at 5 degrees of freedom, 1 % at 30)."""
-    a = 2.0 / (9.0 * dof)
-    return dof * (1.0 - a + z * math.sqrt(a)) ** 3
 #: A parameter's innovation beyond this many sigmas restarts the filter (a step, a jump).
 RESET_SIGMA = 5.0
 #: Weight of the newest normalised innovation in the drift detector's running mean.
 DRIFT_ALPHA = 1.0 / 32.0
 #: The drift detector's alarm, in standard deviations of its running mean.
 DRIFT_LIMIT = 5.0
-#: The mean residual of this many frames measured through one linearisation is tested for
-#: what averaging cannot remove (see :meth:`Tracker.step`).
+#: The frames' mean residual is tested for what averaging cannot remove (see
+#: :meth:`Tracker._fold`) on the tactels that this many frames have measured.
 MEAN_RESIDUAL_FRAMES = 16
 #: ... at this normal deviate of its chi^2 (Wilson-Hilferty), over the last ~this many
 #: seconds (an exponential memory: what the contact did a while ago says little of now).
@@ -97,6 +91,13 @@ _SOFT = (TOO_LIGHT, "poorly determined", "orientation not observable")
 RATE_KEYS = ("vx_mm_s", "vy_mm_s", "angle_rate_deg_s", "force_rate_n_s")
 _RATE_OF = {"x0": "vx_mm_s", "y0": "vy_mm_s", "psi": "angle_rate_deg_s",
             "ln_f": "force_rate_n_s"}
+
+
+def chi2_limit(dof: int, z: float = LINEAR_Z) -> float:
+    """The chi^2 quantile of ``dof`` degrees of freedom at the normal deviate ``z``
+    (Wilson-Hilferty: 5 % above the exact one at 5 degrees of freedom, 1 % at 30)."""
+    a = 2.0 / (9.0 * dof)
+    return dof * (1.0 - a + z * math.sqrt(a)) ** 3
 
 
 class Tracker:
