@@ -12,21 +12,25 @@ microseconds to copy them into memory, and so drains the port whatever the loop 
 (it waits at most the interpreter's switch interval, 5 ms, for the GIL).  Decoding stays on
 the loop, which takes everything read so far in one piece when it gets round to it.
 
-The memory it holds is bounded (``limit`` bytes, 4 MiB by default: ~27 s of a 1 kHz
-finger); at the limit it stops reading, so the kernel buffer fills and the device drops, as
-it would with no thread at all.  What it holds goes to the loop in pieces of at most
-``TAKE_LIMIT`` (64 KiB) per :meth:`PortReader.take`: after a stall of seconds the thread
-holds a megabyte per port, and one piece that size, freed after decoding, left glibc's heap
-grown by as much for good (its mmap threshold rises to the largest block freed, and the next
-ones came from the heap: the service's RSS rose in steps with the long stalls of the 1-hour
-soak, docs/reliability.md).  An error (the device unplugged) is handed to the consumer
-after every byte read before it, so no good frame is lost to it.
+The memory it holds is bounded and allocated once: a ring of ``limit`` bytes (4 MiB by
+default: ~27 s of a 1 kHz finger) that the thread reads into (``os.readv`` into the ring, no
+allocation per read).  At the limit it stops reading, so the kernel buffer fills and the device
+drops, as it would with no thread at all.  What it holds goes to the loop in pieces of at most
+``TAKE_LIMIT`` (64 KiB) per :meth:`PortReader.take`.  Both rules come from the 1-hour soaks
+(docs/reliability.md): a backlog handed over as one block of a megabyte, freed after decoding,
+left glibc's heap grown by as much for good (its mmap threshold rises to the largest block
+freed); and a backlog of thousands of few-kilobyte reads, each allocated in the reader thread's
+own malloc arena and freed later from the loop's thread, left that arena fragmented after a
+stall of minutes, beyond what ``malloc_trim`` gives back.  With the ring, a stall of any length
+costs no memory beyond the ring itself.  An error (the device unplugged) is handed to the
+consumer after every byte read before it, so no good frame is lost to it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -57,8 +61,18 @@ class PortReader:
         self._loop = asyncio.get_running_loop()
         self.limit = limit
         self._lock = threading.Lock()
-        self._chunks: deque[tuple[float, bytes]] = deque()  # (monotonic s read, bytes)
-        self._held = 0
+        self._ring = bytearray(limit)  # every byte read lives here until taken
+        self._view = memoryview(self._ring)
+        #: absolute byte counts: read into the ring so far, and taken from it (held = the
+        #: difference; a byte's place in the ring is its count modulo ``limit``)
+        self._written = 0
+        self._taken = 0
+        #: one mark per read, oldest first: (absolute end of its bytes, monotonic s read)
+        self._marks: deque[tuple[int, float]] = deque()
+        # the descriptor to read into the ring (pyserial's POSIX ports); else port.read() is
+        # copied into it
+        fd = getattr(port, "fd", None)
+        self._fd: int | None = fd if isinstance(fd, int) and fd >= 0 else None
         #: Most bytes held at once: how far the loop fell behind the device (bytes).
         self.peak = 0
         self._error: BaseException | None = None
@@ -86,10 +100,28 @@ class PortReader:
                 data = port.read(1)  # blocks in select() until a byte, or cancel_read()
                 if not data:  # cancelled by stop()
                     continue
+                # this wake's bytes go into the ring and are committed (made the loop's, as
+                # one mark) together; a mark never crosses the ring's end nor TAKE_LIMIT
+                pos, _room = self._room_at(0)  # room for one byte was checked above
+                self._ring[pos] = data[0]
+                pending = 1
                 waiting = port.in_waiting
-                if waiting:
-                    data += port.read(waiting)
-                self._push(data)
+                while waiting > 0 and not self._stopping:
+                    pos, room = self._room_at(pending)
+                    if pending and (pos == 0 or pending >= TAKE_LIMIT):
+                        self._commit(pending)
+                        pending = 0
+                        continue
+                    n = min(waiting, room, TAKE_LIMIT - pending)
+                    if n <= 0:
+                        break  # the ring is full: wait for room at the top of the loop
+                    got = self._read_into(pos, n)
+                    pending += got
+                    if got < n:
+                        break  # the kernel had less than it said: back to the blocking read
+                    waiting -= got
+                if pending:
+                    self._commit(pending)
         except (serial.SerialException, OSError) as err:  # the device went away
             if not self._stopping:
                 self._fail(err)
@@ -99,13 +131,35 @@ class PortReader:
         finally:
             self._finish()
 
-    def _push(self, data: bytes) -> None:
+    def _room_at(self, pending: int) -> tuple[int, int]:
+        """Where the byte after ``pending`` uncommitted ones goes in the ring, and how many
+        fit from there before the ring's end or the bytes not yet taken."""
+        at = self._written + pending
+        pos = at % self.limit
+        free = self.limit - (at - self._taken)  # _taken only grows: safe to read unlocked
+        return pos, min(free, self.limit - pos)
+
+    def _read_into(self, pos: int, n: int) -> int:
+        """Read up to ``n`` of the bytes the kernel holds into the ring at ``pos``."""
+        if self._fd is not None:
+            got = os.readv(self._fd, [self._view[pos:pos + n]])  # releases the GIL
+            if got == 0:  # readable, yet nothing: a vanished device (pyserial's words)
+                raise serial.SerialException(
+                    "device reports readiness to read but returned no data "
+                    "(device disconnected or multiple access on port?)")
+            return got
+        data = self._port.read(n)
+        self._ring[pos:pos + len(data)] = data
+        return len(data)
+
+    def _commit(self, n: int) -> None:
         now = time.monotonic()
         with self._lock:
-            self._chunks.append((now, data))
-            self._held += len(data)
-            self.peak = max(self.peak, self._held)
-            if self._held >= self.limit:
+            self._written += n
+            self._marks.append((self._written, now))
+            held = self._written - self._taken
+            self.peak = max(self.peak, held)
+            if held >= self.limit:
                 self._room.clear()
             waiter, self._waiter = self._waiter, None
         self._wake(waiter)
@@ -131,24 +185,30 @@ class PortReader:
     # -- the event loop's side ----------------------------------------------------------------
 
     async def take(self) -> bytes:
-        """The bytes read since the last call, oldest first, up to ``TAKE_LIMIT`` of them (a
-        single read larger than that comes whole), waiting for at least one; ``b""`` once the
+        """The bytes read since the last call, oldest first, up to ``TAKE_LIMIT`` of them,
+        waiting for at least one; ``b""`` once the
         reader has stopped.  Raises the thread's error (``SerialException``/``OSError``)
         after the bytes read before it.  Cancellation-safe: nothing is lost."""
         while True:
             with self._lock:
-                if self._chunks:
-                    pieces: list[bytes] = []
-                    size = 0
-                    chunks = self._chunks
-                    while chunks and (not pieces or size + len(chunks[0][1]) <= TAKE_LIMIT):
-                        self.arrival, piece = chunks.popleft()
-                        pieces.append(piece)
-                        size += len(piece)
-                    self._held -= size
-                    if self._held < self.limit:
+                if self._marks:
+                    # whole reads, oldest first, up to TAKE_LIMIT bytes and never across the
+                    # ring's end (a read never straddles it)
+                    start = self._taken
+                    pos = start % self.limit
+                    end = start
+                    marks = self._marks
+                    while marks:
+                        mark_end = marks[0][0]
+                        if end > start and (mark_end - start > TAKE_LIMIT
+                                            or (mark_end - start) + pos > self.limit):
+                            break
+                        end, self.arrival = marks.popleft()
+                    piece = bytes(self._view[pos:pos + end - start])
+                    self._taken = end
+                    if end - start and self._written - end < self.limit:
                         self._room.set()
-                    return pieces[0] if len(pieces) == 1 else b"".join(pieces)
+                    return piece
                 if self._error is not None:
                     err, self._error = self._error, None
                     raise err
@@ -184,7 +244,7 @@ class PortReader:
     @property
     def held(self) -> int:
         """Bytes read and not yet taken by :meth:`take`, now."""
-        return self._held
+        return self._written - self._taken
 
     @property
     def alive(self) -> bool:
