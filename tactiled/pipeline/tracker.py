@@ -120,6 +120,10 @@ class Tracker:
         #: counters: filter restarts on a change; frames it could not use
         self.resets = 0
         self.skipped = 0
+        #: why the last :meth:`step` said "refit": "range" (the frame left the linear range:
+        #: a linearisation nearer the frame may measure it) or "jump" (a parameter jumped: it
+        #: needs a fit and a restart)
+        self.refit_reason = ""
         self.clear()
 
     # -- state ----------------------------------------------------------------------------------
@@ -230,15 +234,10 @@ class Tracker:
             d = strain[lin.index] - lin.strain
             dp = lin.gain @ d
             e = d - lin.jacobian @ dp
-            if float((e * e) @ lin.weight) > self._limit:
+            if not self._in_range(lin, d, dp, e, self._limit, self._logs):
+                self.refit_reason = "range"
                 return "refit"
-            dz = dp.tolist()
-            # a log radius or force moved by more than a factor e from the point: no linear
-            # range reaches that far (a release: force to zero), whatever the residual says
-            if any(not abs(dz[i]) < 1.0 for i in self._logs) or not all(
-                    math.isfinite(v) for v in dz):
-                return "refit"
-            z = [p + q for p, q in zip(self._p, dz)]
+            z = [p + q for p, q in zip(self._p, dp.tolist())]
             self._ebuf += e
             self._eframes += 1
             self._edt += 0.0 if self.t is None else max(t - self.t, 0.0)
@@ -253,11 +252,16 @@ class Tracker:
             self._start(z, t)
             self.resets += 1
             return "reset"
+        before = (self.x[:], self.pxx[:], self.pxv[:], self.pvv[:])
         self._predict(dt)
         u = [(zi - xi) / math.sqrt(p + ri) for zi, xi, p, ri in zip(z, self.x, self.pxx, r)]
         jumped = [abs(ui) > RESET_SIGMA for ui in u]
         if any(jumped):
             if not fitted:
+                # the estimate is unchanged: back to the state before this frame (its fit
+                # will be measured from there, not from a state predicted twice)
+                self.x, self.pxx, self.pxv, self.pvv = before
+                self.refit_reason = "jump"
                 return "refit"
             # a change: the moving parameters start again from this frame; a curvature only
             # if it changed itself (a force step does not change the object)
@@ -268,6 +272,42 @@ class Tracker:
         self.t = t
         self.n += 1
         return "tracked"
+
+    @staticmethod
+    def _in_range(lin, d: np.ndarray, dp: np.ndarray, e: np.ndarray, limit: float,
+                  logs: list[int]) -> bool:
+        """The linearity test of a frame's residual ``d`` about ``lin`` (step ``dp``, unexplained
+        part ``e``): chi^2 within ``limit``, and no log radius or force (``logs``) moved by a
+        factor e or more from the point (no linear range reaches that far: a release, force
+        to zero), all finite."""
+        if not float((e * e) @ lin.weight) <= limit:
+            return False
+        return all(abs(float(dp[i])) < 1.0 for i in logs) and bool(np.isfinite(dp).all())
+
+    def measures(self, lin, strain: np.ndarray) -> bool:
+        """Whether ``lin`` (of the filter's model) would measure the flattened frame ``strain``:
+        the frame passes the linearity test about it.  Nothing changes."""
+        d = strain[lin.index] - lin.strain
+        dp = lin.gain @ d
+        logs = [i for i, n in enumerate(PARAMS[lin.model]) if n.startswith("ln_")]
+        return self._in_range(lin, d, dp, d - lin.jacobian @ dp, chi2_limit(max(lin.dof, 1)),
+                              logs)
+
+    def within_reach(self, p: np.ndarray, t: float) -> bool:
+        """Whether the internal parameter vector ``p`` lies within the jump test's reach of
+        the contact predicted at ``t`` (``RESET_SIGMA`` of each parameter's predicted spread
+        and one frame's noise, as :meth:`step` judges a measurement): where a linearisation
+        may be taken for a frame without a fit."""
+        if self.x is None or self.t is None or len(p) != len(self.x):
+            return False
+        dt = t - self.t
+        dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
+        for pi, xi, vi, pxx, pxv, pvv, ri in zip(p, self.x, self.v, self.pxx, self.pxv,
+                                                 self.pvv, self._r):
+            spread = pxx + dt * (2.0 * pxv + dt * pvv) + ri
+            if not abs(float(pi) - (xi + vi * dt)) <= RESET_SIGMA * math.sqrt(spread):
+                return False
+        return True
 
     def skip(self) -> None:
         """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""
