@@ -13,12 +13,12 @@ import pytest
 
 from tactiled.config import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
-from tactiled.fit.linearize import linearize
 from tactiled.fit.models import get_model
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 from tactiled.pipeline.local import MAX_FORCE_N, LocalModel
-from tactiled.pipeline.tracker import Tracker
+
+from pipeline_helpers import play_tracked
 
 SIGMA = 0.0005
 RATE = 1000.0  # frames/s
@@ -40,28 +40,13 @@ def roll(speed_mm_s: float):
 
 def play(kit, truth, frames: int, seed: int, iterate: bool) -> tuple[list, int, int]:
     """The daemon's tracked path with no relinearisation from a worker arriving in time (the
-    worst case on a loaded machine): a frame out of the linear range is iterated here when
-    ``iterate`` (else, and when that fails, it gets a fit).  Returns ``[(t, truth, x_mm,
+    worst case on a loaded machine); a frame the tracker cannot measure is iterated here when
+    ``iterate``, and gets a fit otherwise (or when that fails).  Returns ``[(t, truth, x_mm,
     status)]``, the fits made and the frames measured by iterating."""
     fitter, model, local = kit
-    rng = np.random.default_rng(seed)
-    tr = Tracker(withhold_relative_sigma=0.5)
-    out, fits, iterated, base = [], 0, 0, None
-    for k in range(frames):
-        t = k / RATE
-        c = truth(t)
-        s = model.predict(c) + rng.normal(0.0, SIGMA, (8, 8))
-        status = tr.step(s.ravel(), t) if tr.active else "refit"
-        if status == "refit" and tr.started and iterate and local.iterate(tr, s, t):
-            status, iterated = "iterated", iterated + 1
-        elif status == "refit":
-            res = fitter.fit(s, "cylinder", warm=tr.predicted(t))
-            fits += 1
-            tr.adopt(linearize(fitter, s, res.model, np.array(res.params)))
-            status = tr.step(s.ravel(), t, fitted=True)
-            base = res.to_json_dict()
-        out.append((t, c, tr.estimate(base)["x_mm"], status))
-    return out, fits, iterated
+    out, _tr, fits, iterated = play_tracked(fitter, model, truth, frames, seed, SIGMA, RATE,
+                                            relinearize=False, local=local if iterate else None)
+    return [(t, c, est["x_mm"], status) for t, c, est, status in out], fits, iterated
 
 
 def x_bound(kit, c: Contact) -> float:
