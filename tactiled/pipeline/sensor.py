@@ -71,6 +71,20 @@ def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
             ("learn_floor", True))
 
 
+#: Warm starts go to the workers rounded to this grid (internal units: ln mm, ln N, rad, mm).
+#: The tracker's state carries the last bits of whatever CPU computed its linearisations;
+#: a fit that stops short of convergence (a line contact, its iteration cap) ends where its
+#: start led it, so those bits would reach the estimate.  On the grid they do not, but for a
+#: start within 1e-16 of a grid line.
+WARM_GRID = 1e-9
+
+
+def _on_grid(warm: tuple[str, tuple[float, ...]] | None) -> tuple[str, tuple[float, ...]] | None:
+    if warm is None:
+        return None
+    return warm[0], tuple(round(float(v) / WARM_GRID) * WARM_GRID for v in warm[1])
+
+
 @dataclass
 class _Waiting:
     """A frame waiting for (or in) a fit."""
@@ -625,7 +639,7 @@ class SensorPipeline:
         self._waiting, self._in_flight = None, w
         if w.kind == "fit+lin":  # the tracker's prediction at the frame's time, now
             w.at = self.tracker.predicted(w.t) or self._warm
-        warm = w.at if w.kind != "fit" else self._warm
+        warm = _on_grid(w.at if w.kind != "fit" else self._warm)
         return FitJob(owner=self, ordinal=w.ordinal, seq=w.seq, strain=w.strain,
                       model=self.model, spec=self.spec, mask=self.mask, warm=warm, kind=w.kind)
 
