@@ -125,6 +125,12 @@ class RunResult:
     cpu_s: dict[str, float | None]  # "daemon", "workers", "simulators": CPU seconds in the window
     device: list[tuple[int, int, int] | None] = field(default_factory=list)
     tares: int = 0  # tares it took to zero every sensor on untouched frames
+    label: str = ""  # whose code ran ("" alone; "this tree" / "baseline REV" side by side)
+
+    @property
+    def who(self) -> str:
+        """The run's name in the tables: its worker count, and whose code with a baseline."""
+        return f"{self.label}, {self.workers}" if self.label else str(self.workers)
 
 
 def indentor(c: Contact) -> str:
@@ -415,6 +421,29 @@ def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int
     return result
 
 
+def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str,
+               workers: int) -> RunResult:
+    """:func:`measure` with the code of another checkout ``tree`` (its own daemon, workers and
+    simulators), in a subprocess; its result comes back pickled."""
+    path = os.pathsep.join([tree, os.path.join(tree, "drivers"), os.path.join(tree, "service")])
+    env = {**os.environ, "PYTHONPATH": path}
+    with tempfile.TemporaryDirectory(prefix="tactiled-acq-base-") as d:
+        out = os.path.join(d, "result.pickle")
+        code = ("import pickle, sys\n"
+                "from tactiled.bench.acquisition import measure\n"
+                "if __name__ == '__main__':\n"
+                f"    r = measure({seconds!r}, {warmup!r}, {rate!r}, {scene!r}, {workers!r})\n"
+                f"    open({out!r}, 'wb').write(pickle.dumps(r))\n")
+        script = os.path.join(d, "run_baseline.py")
+        Path(script).write_text(code)
+        subprocess.run([sys.executable, script], cwd=tree, env=env, check=True,
+                       timeout=seconds + warmup + 300)
+        import pickle
+
+        with open(out, "rb") as f:
+            return pickle.load(f)
+
+
 def _pct(values: Sequence[float], q: float, digits: int = 2) -> str:
     return f"{np.percentile(values, q):.{digits}f}" if len(values) else "-"
 
@@ -443,7 +472,7 @@ def _integrity_rows(result: RunResult) -> tuple[list[str], int]:
                      + delta("fit_errors") + delta("wrong_sensor") + delta("bad_shape") + delta("errors"))
         in_hand = int(a["in_hand"]) - int(b["in_hand"])
         rows.append(
-            f"| {result.workers} | {name} | {frames / elapsed:.0f} | {gaps_total} | {'?' if unsent is None else unsent} | "
+            f"| {result.who} | {name} | {frames / elapsed:.0f} | {gaps_total} | {'?' if unsent is None else unsent} | "
             f"{'?' if acq_lost is None else acq_lost} | {rejected} | {delta('decoder', 'duplicated')} | "
             f"{delta('fitted') / elapsed:.0f} | {delta('superseded') / elapsed:.0f} | "
             f"{delta('skipped', 'unchanged') / elapsed:.0f} | {delta('skipped', 'no_contact') / elapsed:.0f} | "
@@ -457,25 +486,29 @@ def _cpu_cell(seconds: float | None, elapsed: float) -> str:
 
 def report(results: list[RunResult], scene: str, rate: float, seconds: float, warmup: float) -> str:
     """The Markdown tables of a sweep."""
+    col = "code, workers" if any(r.label for r in results) else "workers"
     truth = scene_truth(scene, rate)
     answers = [summarise(r, truth) for r in results]
-    sweep = ", ".join(str(r.workers) for r in results)
+    sweep = ", ".join(dict.fromkeys(str(r.workers) for r in results))
+    runs = ("one run each, everything restarted" if col == "workers" else
+            "four runs each, alternating this tree and the baseline's code (this, baseline, "
+            "baseline, this), everything restarted every run")
     lines = [f"{len(FINGERS)} simulated fingers (`tactiled simulate --pty --scene {scene} --rate {rate:g}`, one "
              f"process each) read over real ptys with pyserial; {seconds:g} s measured after {warmup:g} s of "
              f"warm-up; each sensor tared early in an idle of the scene, as a hand starts with its fingers free "
              f"(the daemon opens the ports at an arbitrary moment of the scene), again at the next idle if the "
              f"baseline took in a contact frame (tares per run: {', '.join(str(r.tares) for r in results)}); fit "
-             f"workers: {sweep} (one run each, everything restarted); model `auto` (the daemon's default); "
+             f"workers: {sweep} ({runs}); model `auto` (the daemon's default); "
              f"{os.cpu_count()} cores shared by everything.", ""]
     # -- answers and latency
     lines += ["### Every contact frame answered?", "",
-              "| workers | contact frames | own fit | gate reuse (unchanged) | of which predicted | superseded | stale / lost | "
+              f"| {col} | contact frames | own fit | gate reuse (unchanged) | of which predicted | superseded | stale / lost | "
               "latency p50 / p99 ms (contact frames) | own fits p50 / p99 ms | fits/s per finger | "
               "fit_ms p50 / p99 | auto kept the model | CPU: daemon / workers / simulators |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r, a in zip(results, answers):
         lines.append(
-            f"| {r.workers} | {a.contact} | {a.share(a.own_fit)} | {a.share(a.reused)} | {a.share(a.predicted)} | "
+            f"| {r.who} | {a.contact} | {a.share(a.own_fit)} | {a.share(a.reused)} | {a.share(a.predicted)} | "
             f"{a.share(a.superseded)} | "
             f"{a.share(a.unanswered)} | {_pct(a.latency_contact, 50)} / {_pct(a.latency_contact, 99)} | "
             f"{_pct(a.latency_fit, 50)} / {_pct(a.latency_fit, 99)} | "
@@ -498,28 +531,28 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
               "reader threads), its fit workers, the three simulators."]
     # -- accuracy
     lines += ["", "### Accuracy of the streamed estimates against the scene's truth", "",
-              "| workers | estimates of | count | radius % | angle deg | force % | x um | y um |",
+              f"| {col} | estimates of | count | radius % | angle deg | force % | x um | y um |",
               "|---|---|---|---|---|---|---|---|"]
     for r, a in zip(results, answers):
         for key in ("all", "own fits", "reuses", *INDENTORS, "general"):
             acc = a.accuracy.get(key)
             if acc is None or not acc.estimates:
                 continue
-            lines.append(f"| {r.workers} | {key} | {acc.estimates} | {acc.cell('r1_mm')} | {acc.cell('angle_deg')} | "
+            lines.append(f"| {r.who} | {key} | {acc.estimates} | {acc.cell('r1_mm')} | {acc.cell('angle_deg')} | "
                          f"{acc.cell('force_n')} | {acc.cell('x_mm')} | {acc.cell('y_mm')} |")
     lines += ["",
               "Median absolute errors of every estimate in contact published in the window (own fits and reuses "
               "alike) against the truth of *its own* frame (matched by seq), so a reuse that lags a moving contact "
               "costs accuracy here (rows 'own fits' and 'reuses' split them; then by the true indentor); withheld: the estimate's value was null (e.g. radius 'force too low for "
               "curvature'), its share of the estimates.  Angles are not compared on spheres.", "",
-              "| workers | truth touching | missed (published as no contact) | contact published without truth |",
+              f"| {col} | truth touching | missed (published as no contact) | contact published without truth |",
               "|---|---|---|---|"]
     for r, a in zip(results, answers):
-        lines.append(f"| {r.workers} | {a.touching} | {a.missed} ({100.0 * a.missed / max(a.touching, 1):.1f} %) | "
+        lines.append(f"| {r.who} | {a.touching} | {a.missed} ({100.0 * a.missed / max(a.touching, 1):.1f} %) | "
                      f"{a.phantom} |")
     # -- integrity
     lines += ["", "### Acquisition", "",
-              "| workers | finger | frames/s | gaps seen | not sent by the device | lost in acquisition | "
+              f"| {col} | finger | frames/s | gaps seen | not sent by the device | lost in acquisition | "
               "CRC / COBS / truncated | duplicated | fits/s | superseded/s | reused (unchanged)/s | "
               "no contact/s | stale | unaccounted |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -539,11 +572,27 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
 
 
 def run(quick: bool, rate: float = 1000.0, scene: str = "demo", workers: Sequence[int] = (2,),
-        seconds: float | None = None) -> str:
-    """Measure one run per worker count in ``workers`` and report them side by side."""
+        seconds: float | None = None, baseline: str | None = None) -> str:
+    """Measure one run per worker count in ``workers`` and report them side by side; with
+    ``baseline`` (a git revision), two runs each of this tree and of the baseline's code per
+    worker count, alternating (this, baseline, baseline, this): the machine's drift falls on
+    both alike."""
     warmup = 4.0 if quick else 5.0
     if seconds is None:
         seconds = 6.0 if quick else 20.0
     named_scene(scene)  # an unknown scene fails here, before any process starts
-    results = [measure(seconds, warmup, rate, scene, w) for w in workers]
+    if baseline is None:
+        results = [measure(seconds, warmup, rate, scene, w) for w in workers]
+        return report(results, scene, rate, seconds, warmup)
+    from tactiled.bench.speed import _checkout
+
+    results = []
+    with tempfile.TemporaryDirectory(prefix="tactiled-acq-") as tmp:
+        tree = _checkout(baseline, tmp)
+        for w in workers:
+            for mine in (True, False, False, True):
+                r = (measure(seconds, warmup, rate, scene, w) if mine
+                     else measure_at(tree, seconds, warmup, rate, scene, w))
+                r.label = "this tree" if mine else f"baseline {baseline}"
+                results.append(r)
     return report(results, scene, rate, seconds, warmup)

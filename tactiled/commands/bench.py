@@ -28,6 +28,7 @@ examples:
   tactiled bench --quick
   tactiled bench --suite configs --plot pareto.png
   tactiled bench --suite acquisition --scene moving --workers 1,2,4
+  tactiled bench --suite acquisition --scene moving --baseline REV   # this tree against REV
 """
 
 from __future__ import annotations
@@ -48,7 +49,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=1, help="suite seed (default 1)")
     p.add_argument("--baseline", metavar="REV", default=None,
                    help="speed suite: also time the fitter of git revision REV, interleaved "
-                   "(ratios to it are the figure; needs a git checkout)")
+                   "(ratios to it are the figure); acquisition suite: also run the daemon of REV, "
+                   "two runs each, alternating (needs a git checkout)")
     p.add_argument("--plot", metavar="FILE.png", default=None,
                    help="write a Pareto chart of time against error (needs matplotlib: pip install 'tactiled[plot]')")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -182,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
 
         out += ["", f"## Acquisition: three fingers at 1 kHz over ptys, scene {args.scene.strip().lower()}", "",
                 acquisition.run(args.quick, scene=args.scene.strip().lower(), workers=args.workers,
-                                seconds=args.seconds)]
+                                seconds=args.seconds, baseline=args.baseline)]
     if "speed" in suites and (args.suite == "speed" or args.baseline):
         from tactiled.bench import speed
 

@@ -17,9 +17,9 @@ from tactiled.sim import SCENES, FingerSimulator, Pose, SceneBuilder, named_scen
 TACTILED = [sys.executable, "-m", "tactiled.cli", "bench", "--no-progress"]
 
 
-def counters(frames: int = 0, superseded: int = 0, stale: int = 0) -> dict:
+def counters(frames: int = 0, superseded: int = 0, stale: int = 0, predicted: int = 0) -> dict:
     return {"frames": frames, "superseded": superseded, "stale_dropped": stale, "fit_failed": 0,
-            "fit_errors": 0}
+            "fit_errors": 0, "predicted": predicted}
 
 
 def stats(**per_finger: dict) -> dict:
@@ -84,10 +84,11 @@ def test_shares_latency_and_accuracy_of_a_run() -> None:
     seen.append(acq.Seen(2, rolling[0], "fit", 4.0, fit_line(truth(rolling[0]), r1_mm=None)))
     seen.append(acq.Seen(2, rolling[1], "no_contact", 0.1, fit_line(None)))  # missed
     before = stats()
-    after = stats(thumb=counters(frames=10, superseded=1), index=counters(frames=2),
+    after = stats(thumb=counters(frames=10, superseded=1, predicted=2), index=counters(frames=2),
                   middle=counters(frames=2, stale=1))
     a = acq.summarise(acq.RunResult(2, before, after, 1.0, seen, {}), truth)
     assert (a.own_fit, a.reused, a.superseded, a.unanswered) == (5, 6, 1, 1)
+    assert a.predicted == 2 and a.share(a.predicted) == "15.4 %"  # of the reuses, not beside
     assert a.contact == 13 and a.frames == 14
     assert a.share(a.own_fit) == "38.5 %"
     assert sorted(a.latency_fit) == [2.0, 2.0, 2.0, 3.0, 4.0] and len(a.latency_contact) == 11
@@ -123,15 +124,30 @@ def test_the_moving_scene_on_ptys_with_a_workers_sweep() -> None:
     assert [r[0] for r in answers] == ["1", "2"]
     for r in answers:
         assert int(r[1]) > 0
-        shares = [float(c.rstrip(" %")) for c in r[2:6]]
-        assert sum(shares) == pytest.approx(100.0, abs=0.25)
-        assert len(r[6].split(" / ")) == 2  # latency p50 / p99
+        own, reused, predicted, superseded, lost = (float(c.rstrip(" %")) for c in r[2:7])
+        assert own + reused + superseded + lost == pytest.approx(100.0, abs=0.25)
+        assert 0.0 <= predicted <= reused  # predicted frames go out as reuses
+        assert len(r[7].split(" / ")) == 2  # latency p50 / p99
     accuracy = rows("| workers | estimates of |")
     kinds = {(r[0], r[1]) for r in accuracy}
     assert {("1", "all"), ("2", "all"), ("2", "own fits")} <= kinds
     integrity = rows("| workers | finger |")
     assert len(integrity) == 6 and {r[1] for r in integrity} == set(acq.FINGERS)
     assert all(r[-1] == "0" for r in integrity), integrity  # every frame accounted for
+
+
+def test_a_baseline_runs_its_own_code_side_by_side() -> None:
+    """``--baseline REV``: the daemon of a git revision (here HEAD, archived into a temporary
+    folder and run from there) alternates with this tree's, two runs each, labelled."""
+    proc = subprocess.run([*TACTILED, "--suite", "acquisition", "--scene", "moving", "--quick",
+                           "--workers", "1", "--seconds", "1", "--baseline", "HEAD"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith("| code, workers | contact frames |"))
+    runs = [line.split("|")[1].strip() for line in lines[i + 2:i + 6]]
+    assert runs == ["this tree, 1", "baseline HEAD, 1", "baseline HEAD, 1", "this tree, 1"]
+    assert all(int(line.split("|")[2]) > 0 for line in lines[i + 2:i + 6])  # contact frames
 
 
 @pytest.mark.parametrize("argv, message", [
