@@ -47,6 +47,9 @@ MAX_FORCE_N = 100.0
 OFF_ARRAY_MM = 5.0
 
 
+_SHARED: dict[tuple[SensorModel, tuple[tuple[str, Any], ...]], LocalModel] = {}
+
+
 class LocalModel:
     """Linearisations of one sensor's window model (its ``SensorModel`` and fit options, as
     the workers build their fitters), computed in this process."""
@@ -70,6 +73,35 @@ class LocalModel:
         #: linearisations :meth:`iterate` adopted, and those that gave none
         self.adopted = 0
         self.lost = 0
+        self._warm_up(sensor)
+
+    def _warm_up(self, sensor: SensorModel) -> None:
+        """One linearisation now, so the first contact does not stall the loop while numba
+        loads its kernels from the cache and the quadrature tables are built (~0.1-0.3 s)."""
+        from tactiled.fit.models import get_model
+        from tactiled.physics.contact import Contact
+        from tactiled.physics.strain import StrainModel
+
+        g = sensor.geometry
+        c = Contact(10.0, math.inf, 60.0, 1.0, (g.rows - 1) * g.dx / 2, (g.cols - 1) * g.dy / 2)
+        try:
+            frame = StrainModel(sensor).predict(c)
+            p = get_model("cylinder").from_values(c.r1, c.r2, c.psi_deg, c.force, c.x0, c.y0)
+            self._linearize(self._fitter, frame, "cylinder", p, None)
+        except Exception as err:  # noqa: BLE001 - a slower first contact, never a failure
+            log.warning("warming up the daemon's linearisations failed: %s", err)
+
+    @classmethod
+    def shared(cls, sensor: SensorModel, options: tuple[tuple[str, Any], ...]) -> LocalModel:
+        """One instance per sensor model and options in this process: sensors of one model
+        share it, and only the first pays for building it (~0.5-2 s)."""
+        key = (sensor, options)
+        local = _SHARED.get(key)
+        if local is None:
+            if len(_SHARED) >= 16:  # settings changed many times: forget the oldest
+                del _SHARED[next(iter(_SHARED))]
+            local = _SHARED[key] = cls(sensor, options)
+        return local
 
     def linearize(self, strain: np.ndarray, at: tuple[str, Any],
                   mask: np.ndarray | None = None):

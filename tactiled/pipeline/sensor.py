@@ -170,6 +170,7 @@ class SensorPipeline:
         self.tracker = Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
         #: the model's linearisations in this process, for the tracker (built when needed)
         self._local: LocalModel | None = None
+        self._local_for: tuple[int, Any] | None = None
         self._pending: list[_Waiting] = []
         self._base: dict[str, Any] | None = None
         self._base_seq: int | None = None
@@ -454,13 +455,12 @@ class SensorPipeline:
     # -- linearisations in this process (tactiled.pipeline.local) -------------------------------
 
     def _local_model(self) -> LocalModel:
-        local = self._local
-        # by identity: a new SensorModel (new settings) is a new object
-        if (local is None or local.key[0] is not self.sensor_model
-                or local.key[1] != _fit_options(self.settings.window)):
-            local = self._local = LocalModel(self.sensor_model,
-                                             _fit_options(self.settings.window))
-        return local
+        options = _fit_options(self.settings.window)
+        # looked up again only when the settings gave a new SensorModel or options
+        if self._local is None or self._local_for != (id(self.sensor_model), options):
+            self._local = LocalModel.shared(self.sensor_model, options)
+            self._local_for = (id(self.sensor_model), options)
+        return self._local
 
     def _maybe_relinearize(self, w: _Waiting) -> None:
         """The state has moved from the linearisation point (or sharpened well past it):
