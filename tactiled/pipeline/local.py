@@ -32,7 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.config import Geometry, SensorModel
+from tactiled.fit.params import RADIUS_LIMITS
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +45,24 @@ ITERATIONS = 2
 #: the contact's size (one evaluation of an ellipse larger than the array takes tens of ms):
 #: in the event loop only contacts a finger can carry are evaluated.
 MAX_FORCE_N = 100.0
+MIN_FORCE_N = 1e-4
 OFF_ARRAY_MM = 5.0
+#: ... nor at a radius beyond what the fitter's own search may reach (half and twice
+#: ``RADIUS_LIMITS``): a filter whose curvature ran off (an edge too light for its radius)
+LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
+
+
+def within_reason(p: np.ndarray, geometry: Geometry) -> np.ndarray:
+    """``p`` (a model's internal vector: ``(ln_r..., ..., ln_f, x0, y0)``) with its radius,
+    force and centre clipped to what a finger carries (see ``MAX_FORCE_N``, ``OFF_ARRAY_MM``,
+    ``LN_R_BOUNDS``): where a linearisation or a fit may start."""
+    q = np.array(p, dtype=float)
+    q[0] = min(max(q[0], LN_R_BOUNDS[0]), LN_R_BOUNDS[1])
+    q[-3] = min(max(q[-3], math.log(MIN_FORCE_N)), math.log(MAX_FORCE_N))
+    g = geometry
+    q[-2] = min(max(q[-2], -OFF_ARRAY_MM), (g.rows - 1) * g.dx + OFF_ARRAY_MM)
+    q[-1] = min(max(q[-1], -OFF_ARRAY_MM), (g.cols - 1) * g.dy + OFF_ARRAY_MM)
+    return q
 
 
 _SHARED: dict[tuple[SensorModel, tuple[tuple[str, Any], ...]], LocalModel] = {}
@@ -60,10 +78,7 @@ class LocalModel:
 
         self.key = (sensor, options)
         self._fitter = Fitter(sensor, FitOptions(**dict(options)))
-        g = sensor.geometry
-        self._x_range = (-OFF_ARRAY_MM, (g.rows - 1) * g.dx + OFF_ARRAY_MM)
-        self._y_range = (-OFF_ARRAY_MM, (g.cols - 1) * g.dy + OFF_ARRAY_MM)
-        self._max_ln_f = math.log(MAX_FORCE_N)
+        self._geometry = sensor.geometry
         self._linearize = linearize
         #: linearisations computed, those that raised (a bug: counted, logged once), and
         #: points refused (outside what a finger carries)
@@ -110,10 +125,7 @@ class LocalModel:
         is none (no contact in the window, a point outside the model's domain, a parameter
         the window does not determine)."""
         p = np.asarray(at[1], dtype=float)
-        # every model's internal vector ends (..., ln_f, x0, y0)
-        if not (p.size >= 3 and p[-3] < self._max_ln_f
-                and self._x_range[0] <= p[-2] <= self._x_range[1]
-                and self._y_range[0] <= p[-1] <= self._y_range[1]):
+        if p.size < 4 or not np.array_equal(within_reason(p, self._geometry), p):
             self.refused += 1
             return None
         self.calls += 1

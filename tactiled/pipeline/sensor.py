@@ -32,7 +32,7 @@ from tactiled.calibration.fileformat import Calibration, load_calibration_file
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.errors import CalibrationError, DriverError, FrameError
 from tactiled.fit.result import FitResult
 from tactiled.frames import Frame
@@ -47,7 +47,7 @@ from tactiled.pipeline.estimate import (
 )
 from tactiled.pipeline.gate import Gate
 from tactiled.pipeline.hub import Hub
-from tactiled.pipeline.local import LocalModel
+from tactiled.pipeline.local import LocalModel, within_reason
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
 from tactiled.pipeline.tracker import Tracker, untracked
@@ -79,10 +79,15 @@ def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
 WARM_GRID = 1e-9
 
 
-def _on_grid(warm: tuple[str, tuple[float, ...]] | None) -> tuple[str, tuple[float, ...]] | None:
+def _warm_start(warm: tuple[str, tuple[float, ...]] | None,
+                geometry: Geometry) -> tuple[str, tuple[float, ...]] | None:
+    """A warm start as it goes to a worker: within what a finger carries (a filter whose
+    radius ran off, an edge too light for its curvature, must not start a fit whose first
+    evaluation outlasts the worker's deadline), on the grid."""
     if warm is None:
         return None
-    return warm[0], tuple(round(float(v) / WARM_GRID) * WARM_GRID for v in warm[1])
+    p = within_reason(np.asarray(warm[1], dtype=float), geometry)
+    return warm[0], tuple(round(float(v) / WARM_GRID) * WARM_GRID for v in p)
 
 
 @dataclass
@@ -639,7 +644,7 @@ class SensorPipeline:
         self._waiting, self._in_flight = None, w
         if w.kind == "fit+lin":  # the tracker's prediction at the frame's time, now
             w.at = self.tracker.predicted(w.t) or self._warm
-        warm = _on_grid(w.at if w.kind != "fit" else self._warm)
+        warm = _warm_start(w.at if w.kind != "fit" else self._warm, self.sensor_model.geometry)
         return FitJob(owner=self, ordinal=w.ordinal, seq=w.seq, strain=w.strain,
                       model=self.model, spec=self.spec, mask=self.mask, warm=warm, kind=w.kind)
 

@@ -16,7 +16,7 @@ from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
-from tactiled.pipeline.local import MAX_FORCE_N, LocalModel
+from tactiled.pipeline.local import MAX_FORCE_N, LocalModel, within_reason
 
 from pipeline_helpers import play_tracked
 
@@ -98,8 +98,16 @@ def test_a_point_no_finger_carries_is_refused(kit) -> None:
     good = cyl.from_values(8.0, math.inf, 60.0, 1.2, 9.0, 13.5)
     assert local.linearize(s, ("cylinder", good)) is not None
     refused = local.refused
-    for bad in (cyl.from_values(8.0, math.inf, 60.0, 2 * MAX_FORCE_N, 9.0, 13.5),
-                cyl.from_values(8.0, math.inf, 60.0, 1.2, -20.0, 13.5),
-                cyl.from_values(8.0, math.inf, 60.0, 1.2, 9.0, 60.0)):
-        assert local.linearize(s, ("cylinder", bad)) is None
-    assert local.refused == refused + 3
+    bad = [cyl.from_values(8.0, math.inf, 60.0, 2 * MAX_FORCE_N, 9.0, 13.5),
+           cyl.from_values(8.0, math.inf, 60.0, 1.2, -20.0, 13.5),
+           cyl.from_values(8.0, math.inf, 60.0, 1.2, 9.0, 60.0),
+           cyl.from_values(math.exp(-50.0), math.inf, 60.0, 1.2, 9.0, 13.5)]  # a radius run off
+    for p in bad:
+        assert local.linearize(s, ("cylinder", p)) is None
+    assert local.refused == refused + len(bad)
+    # the same limits bound a worker's warm start: clipped to the nearest reasonable contact
+    geometry = SensorModel().geometry
+    clipped = [within_reason(p, geometry) for p in bad]
+    assert math.exp(clipped[0][2]) == pytest.approx(MAX_FORCE_N)
+    assert clipped[1][3] == pytest.approx(-5.0) and clipped[3][0] > math.log(0.001)
+    assert np.array_equal(within_reason(good, geometry), good)
