@@ -421,6 +421,32 @@ def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int
     return result
 
 
+#: Run in a checkout before its daemon starts: one fit of each model and a linearisation,
+#: so numba compiles the kernels into the checkout's own cache (a fresh one has none, and a
+#: worker compiling them on its first fit, ~20 s, would be killed as hung again and again).
+#: Plain code, not a function of this tree: the checkout's own modules run it.
+COMPILE_KERNELS = """
+import math
+import numpy as np
+from tactiled.config import SensorModel
+from tactiled.fit.fitter import Fitter
+from tactiled.physics.contact import Contact
+from tactiled.physics.strain import StrainModel
+sensor = SensorModel()
+frame = StrainModel(sensor).predict(Contact(10.0, math.inf, 60.0, 1.0, 11.0, 13.0))
+fitter = Fitter(sensor)
+for model in ("cylinder", "sphere", "general", "auto"):
+    fitter.fit(frame + np.random.default_rng(1).normal(0.0, 5e-4, frame.shape), model)
+try:
+    from tactiled.fit.linearize import linearize
+except ImportError:  # a revision from before the tracker
+    linearize = None
+if linearize is not None:
+    res = fitter.fit(frame, "cylinder")
+    linearize(fitter, frame, res.model, np.asarray(res.params))
+"""
+
+
 def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str,
                workers: int) -> RunResult:
     """:func:`measure` with the code of another checkout ``tree`` (its own daemon, workers and
@@ -432,6 +458,7 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
         code = ("import pickle, sys\n"
                 "from tactiled.bench.acquisition import measure\n"
                 "if __name__ == '__main__':\n"
+                f"    exec({COMPILE_KERNELS!r})\n"
                 f"    r = measure({seconds!r}, {warmup!r}, {rate!r}, {scene!r}, {workers!r})\n"
                 f"    open({out!r}, 'wb').write(pickle.dumps(r))\n")
         script = os.path.join(d, "run_baseline.py")
