@@ -8,8 +8,7 @@ Cramer-Rao bound when ``W`` is the noise's), and the part of ``f - s(p)`` that `
 explain says whether the frame still lies in the linear range (or a new fit is due).
 
 Computed in the fit worker, at a fit's solution or at a point the tracker asks for, and sent
-to the daemon's main process; or in that process itself, for a frame the last linearisation
-cannot measure (:mod:`tactiled.pipeline.local`).
+to the daemon's main process, which has no physics of its own.
 """
 
 from __future__ import annotations

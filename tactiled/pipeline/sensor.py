@@ -47,10 +47,9 @@ from tactiled.pipeline.estimate import (
 )
 from tactiled.pipeline.gate import Gate
 from tactiled.pipeline.hub import Hub
-from tactiled.pipeline.local import LocalModel, within_reason
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
-from tactiled.pipeline.tracker import Tracker, untracked
+from tactiled.pipeline.tracker import Tracker, untracked, within_reason
 from tactiled.recording import Recorder
 from tactiled.settings import SensorSettings
 from tactiled.sources import FrameSource, open_source
@@ -64,9 +63,8 @@ RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing
 #: for curvature"; docs/model.md: radius is not observable at low force).
 WITHHOLD_RELATIVE_SIGMA = 0.5
 def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
-    """``FitOptions`` keyword arguments as a hashable tuple: the workers build their fitters
-    from it, and so does the tracker's :class:`~tactiled.pipeline.local.LocalModel` (which
-    this process imports only when a sensor tracks: numba and scipy, ~0.7 s and ~85 MB)."""
+    """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
+    so this process never imports the fitter (numba, scipy: 1.3 s and ~100 MB)."""
     return (("window", window), ("withhold_relative_sigma", WITHHOLD_RELATIVE_SIGMA),
             ("learn_floor", True))
 
@@ -173,9 +171,6 @@ class SensorPipeline:
         #: the contact through time (settings.track), the frames waiting for a fit before it
         #: can measure them (in arrival order), and the fit its estimates build on
         self.tracker = Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
-        #: the model's linearisations in this process, for the tracker (built when needed)
-        self._local: LocalModel | None = None
-        self._local_for: tuple[int, Any] | None = None
         self._pending: list[_Waiting] = []
         self._base: dict[str, Any] | None = None
         self._base_seq: int | None = None
@@ -202,8 +197,7 @@ class SensorPipeline:
         self.tracked = 0  # contact frames measured by the tracker, without a fit of their own
         self.predicted = 0  # ... of which the tracker could only predict, not measure
         self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
-        self.relinearize_lost = 0  # ... a linearisation there gave none
-        self.iterated = 0  # frames out of the linear range measured after relinearising
+        self.relinearize_lost = 0
         self.fit_failed = 0
         self.fit_errors = 0
         self.wrong_sensor = 0
@@ -224,8 +218,6 @@ class SensorPipeline:
 
     def start(self) -> None:
         """Start reading (a task on the running loop)."""
-        if self.settings.track:
-            self._local_model()  # load the model's code now, not at the first contact
         if self._task is None:
             self._task = asyncio.create_task(self._run(), name=f"tactiled-sensor-{self.name}")
 
@@ -419,7 +411,7 @@ class SensorPipeline:
             else:
                 self.superseded += 1
             return
-        if tracker.step(w.strain.ravel(), w.t) == "refit" and not self._iterate(w):
+        if tracker.step(w.strain.ravel(), w.t) == "refit":
             self._wait_for_fit(w)
             return
         self._publish_tracked(w)
@@ -457,16 +449,6 @@ class SensorPipeline:
         self._waiting = w
         self.pool.wake()
 
-    # -- linearisations in this process (tactiled.pipeline.local) -------------------------------
-
-    def _local_model(self) -> LocalModel:
-        options = _fit_options(self.settings.window)
-        # looked up again only when the settings gave a new SensorModel or options
-        if self._local is None or self._local_for != (id(self.sensor_model), options):
-            self._local = LocalModel.shared(self.sensor_model, options)
-            self._local_for = (id(self.sensor_model), options)
-        return self._local
-
     def _maybe_relinearize(self, w: _Waiting) -> None:
         """The state has moved from the linearisation point (or sharpened well past it):
         a worker linearises again where the contact now is (no frame waits for it)."""
@@ -476,17 +458,6 @@ class SensorPipeline:
         if at is not None:
             self._waiting = replace(w, kind="lin", at=(at[0], tuple(float(v) for v in at[1])))
             self.pool.wake()
-
-    def _iterate(self, w: _Waiting) -> bool:
-        """A frame outside the linear range: measured through a linearisation computed here,
-        nearer to it (:meth:`LocalModel.iterate`), if one near the prediction explains it."""
-        local = self._local_model()
-        adopted, lost = local.adopted, local.lost
-        measured = local.iterate(self.tracker, w.strain, w.t, self.mask, self._zero_var())
-        self.relinearized += local.adopted - adopted
-        self.relinearize_lost += local.lost - lost
-        self.iterated += measured
-        return measured
 
     def _publish_tracked(self, w: _Waiting, gate: str = GATE_UNCHANGED,
                          worker_ms: float = 0.0, predicted: bool = False) -> None:
@@ -572,7 +543,7 @@ class SensorPipeline:
                 if p.ordinal == w.ordinal:
                     tracker.step(p.strain.ravel(), p.t, fitted=True)
                     self._publish_tracked(self._pending.pop(0), GATE_FIT, worker_ms)
-                elif tracker.step(p.strain.ravel(), p.t) != "refit" or self._iterate(p):
+                elif tracker.step(p.strain.ravel(), p.t) != "refit":
                     self._publish_tracked(self._pending.pop(0))
                 elif p.ordinal > w.ordinal:  # it and those after it wait for the next fit
                     self._wait_for_fit(self._pending.pop())
@@ -742,8 +713,6 @@ class SensorPipeline:
             self.stage.zeroer.detector.configure(sigma=s.noise_sigma, false_rate=s.false_rate)
         # A fit made under other settings must not be reused for new frames.
         self._end_contact()
-        if s.track:
-            self._local_model()  # the model under the new settings, before the next frame
 
     # -- reporting ------------------------------------------------------------------------------
 
@@ -782,7 +751,6 @@ class SensorPipeline:
             "predicted": self.predicted,
             "relinearized": self.relinearized,
             "relinearize_lost": self.relinearize_lost,
-            "iterated": self.iterated,
             "pending": len(self._pending),
             # frames received and neither answered nor counted yet (waiting for a fit)
             "in_hand": (len(self._pending) if self.settings.track

@@ -93,6 +93,28 @@ _RATE_OF = {"x0": "vx_mm_s", "y0": "vy_mm_s", "psi": "angle_rate_deg_s",
             "ln_f": "force_rate_n_s"}
 
 
+#: A fit (or a worker's linearisation) starts from the tracker's state only within what a
+#: finger carries: a force of MIN_FORCE_N..MAX_FORCE_N (N), a centre at most OFF_ARRAY_MM
+#: outside the array, a radius within the fitter's own search bounds (half and twice
+#: ``RADIUS_LIMITS``).  A filter on a light edge can run its radius off to ln R of -50 and
+#: beyond (unobservable there, so nothing holds it); an evaluation at such a point, or at a
+#: contact larger than the array, outlasts a worker's deadline.
+MIN_FORCE_N, MAX_FORCE_N = 1e-4, 100.0
+OFF_ARRAY_MM = 5.0
+LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
+
+
+def within_reason(p: np.ndarray, geometry) -> np.ndarray:
+    """A model's internal vector ``p`` (``(ln_r.., .., ln_f, x0, y0)``) with its radius, force
+    and centre clipped to what a finger carries on ``geometry`` (a ``config.Geometry``)."""
+    q = np.array(p, dtype=float)
+    q[0] = min(max(q[0], LN_R_BOUNDS[0]), LN_R_BOUNDS[1])
+    q[-3] = min(max(q[-3], math.log(MIN_FORCE_N)), math.log(MAX_FORCE_N))
+    q[-2] = min(max(q[-2], -OFF_ARRAY_MM), (geometry.rows - 1) * geometry.dx + OFF_ARRAY_MM)
+    q[-1] = min(max(q[-1], -OFF_ARRAY_MM), (geometry.cols - 1) * geometry.dy + OFF_ARRAY_MM)
+    return q
+
+
 def chi2_limit(dof: int, z: float = LINEAR_Z) -> float:
     """The chi^2 quantile of ``dof`` degrees of freedom at the normal deviate ``z``
     (Wilson-Hilferty: 5 % above the exact one at 5 degrees of freedom, 1 % at 30)."""
@@ -120,10 +142,6 @@ class Tracker:
         #: counters: filter restarts on a change; frames it could not use
         self.resets = 0
         self.skipped = 0
-        #: why the last :meth:`step` said "refit": "range" (the frame left the linear range:
-        #: a linearisation nearer the frame may measure it) or "jump" (a parameter jumped: it
-        #: needs a fit and a restart)
-        self.refit_reason = ""
         self.clear()
 
     # -- state ----------------------------------------------------------------------------------
@@ -234,8 +252,7 @@ class Tracker:
             d = strain[lin.index] - lin.strain
             dp = lin.gain @ d
             e = d - lin.jacobian @ dp
-            if not self._in_range(lin, d, dp, e, self._limit, self._logs):
-                self.refit_reason = "range"
+            if not self._in_range(dp, e, lin.weight):
                 return "refit"
             z = [p + q for p, q in zip(self._p, dp.tolist())]
             self._ebuf += e
@@ -261,7 +278,6 @@ class Tracker:
                 # the estimate is unchanged: back to the state before this frame (its fit
                 # will be measured from there, not from a state predicted twice)
                 self.x, self.pxx, self.pxv, self.pvv = before
-                self.refit_reason = "jump"
                 return "refit"
             # a change: the moving parameters start again from this frame; a curvature only
             # if it changed itself (a force step does not change the object)
@@ -273,41 +289,14 @@ class Tracker:
         self.n += 1
         return "tracked"
 
-    @staticmethod
-    def _in_range(lin, d: np.ndarray, dp: np.ndarray, e: np.ndarray, limit: float,
-                  logs: list[int]) -> bool:
-        """The linearity test of a frame's residual ``d`` about ``lin`` (step ``dp``, unexplained
-        part ``e``): chi^2 within ``limit``, and no log radius or force (``logs``) moved by a
-        factor e or more from the point (no linear range reaches that far: a release, force
-        to zero), all finite."""
-        if not float((e * e) @ lin.weight) <= limit:
+    def _in_range(self, dp: np.ndarray, e: np.ndarray, weight: np.ndarray) -> bool:
+        """The linearity test of a frame's step ``dp`` about the linearisation point and its
+        unexplained part ``e``: chi^2 within the limit, and no log radius or force moved by a
+        factor e or more (no linear range reaches that far: a release, force to zero, whatever
+        the residual says), all finite."""
+        if not float((e * e) @ weight) <= self._limit:
             return False
-        return all(abs(float(dp[i])) < 1.0 for i in logs) and bool(np.isfinite(dp).all())
-
-    def measures(self, lin, strain: np.ndarray) -> bool:
-        """Whether ``lin`` (of the filter's model) would measure the flattened frame ``strain``:
-        the frame passes the linearity test about it.  Nothing changes."""
-        d = strain[lin.index] - lin.strain
-        dp = lin.gain @ d
-        logs = [i for i, n in enumerate(PARAMS[lin.model]) if n.startswith("ln_")]
-        return self._in_range(lin, d, dp, d - lin.jacobian @ dp, chi2_limit(max(lin.dof, 1)),
-                              logs)
-
-    def within_reach(self, p: np.ndarray, t: float) -> bool:
-        """Whether the internal parameter vector ``p`` lies within the jump test's reach of
-        the contact predicted at ``t`` (``RESET_SIGMA`` of each parameter's predicted spread
-        and one frame's noise, as :meth:`step` judges a measurement): where a linearisation
-        may be taken for a frame without a fit."""
-        if self.x is None or self.t is None or len(p) != len(self.x):
-            return False
-        dt = t - self.t
-        dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
-        for pi, xi, vi, pxx, pxv, pvv, ri in zip(p, self.x, self.v, self.pxx, self.pxv,
-                                                 self.pvv, self._r):
-            spread = pxx + dt * (2.0 * pxv + dt * pvv) + ri
-            if not abs(float(pi) - (xi + vi * dt)) <= RESET_SIGMA * math.sqrt(spread):
-                return False
-        return True
+        return all(abs(float(dp[i])) < 1.0 for i in self._logs) and bool(np.isfinite(dp).all())
 
     def skip(self) -> None:
         """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""

@@ -156,21 +156,18 @@ def check_estimates(estimates: list, sensor: str, sensor_id: int) -> None:
 
 
 def play_tracked(fitter, model, truth, frames: int, seed: int, sigma: float, rate: float,
-                 tracker=None, nan_at: tuple[int, ...] = (), relinearize: bool = True,
-                 local=None) -> tuple[list, Any, int, int]:
+                 tracker=None, nan_at: tuple[int, ...] = ()) -> tuple[list, Any, int]:
     """Frames of ``truth(t)`` (``StrainModel`` ``model``, Gaussian noise ``sigma``, ``rate``
     frames/s) through a tracker as the daemon runs it, synchronously: a frame the tracker
-    cannot measure is iterated through ``local`` (a ``LocalModel``, if given) and otherwise
-    gets a fit (and its linearisation) from ``fitter``; with ``relinearize`` a worker's
-    relinearisation arrives at once when the tracker wants one (without, none ever does: the
-    worst case of a loaded machine).  Returns ``[(t, contact, estimate, status)]``, the
-    tracker, the fits made and the frames measured by iterating."""
+    cannot measure gets a fit (and its linearisation) from ``fitter``, and a worker's
+    relinearisation arrives at once when the tracker wants one.  Returns ``[(t, contact,
+    estimate, status)]``, the tracker and the fits made."""
     from tactiled.fit.linearize import linearize
     from tactiled.pipeline.tracker import Tracker
 
     rng = np.random.default_rng(seed)
     tr = tracker or Tracker(withhold_relative_sigma=0.5)
-    out, base, fits, iterated = [], None, 0, 0
+    out, base, fits = [], None, 0
     for k in range(frames):
         t = k / rate
         c = truth(t)
@@ -180,18 +177,16 @@ def play_tracked(fitter, model, truth, frames: int, seed: int, sigma: float, rat
             out.append((t, c, tr.estimate(base), "skipped"))
             continue
         status = tr.step(s.ravel(), t) if tr.active else "refit"
-        if status == "refit" and tr.started and local is not None and local.iterate(tr, s, t):
-            status, iterated = "iterated", iterated + 1
-        elif status == "refit":
+        if status == "refit":
             res = fitter.fit(s, "cylinder", warm=tr.predicted(t))
             fits += 1
             tr.adopt(linearize(fitter, s, res.model, np.array(res.params)))
             status = tr.step(s.ravel(), t, fitted=True)
             base = res.to_json_dict()
-        want = tr.wants_linearization() if relinearize else None
+        want = tr.wants_linearization()
         if want is not None:
             lin = linearize(fitter, s, want[0], want[1])
             if lin is not None:
                 tr.adopt(lin)
         out.append((t, c, tr.estimate(base), status))
-    return out, tr, fits, iterated
+    return out, tr, fits

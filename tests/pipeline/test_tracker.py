@@ -16,7 +16,7 @@ from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.linearize import linearize
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
-from tactiled.pipeline.tracker import RATE_KEYS, Tracker, untracked
+from tactiled.pipeline.tracker import MAX_FORCE_N, RATE_KEYS, Tracker, untracked, within_reason
 
 from pipeline_helpers import play_tracked
 
@@ -34,9 +34,8 @@ def play(kit, truth, frames: int, seed: int, tracker: Tracker | None = None,
          nan_at: tuple[int, ...] = ()) -> tuple[list, Tracker, int]:
     """Frames of ``truth(t)`` through a tracker as the daemon runs it (``play_tracked``)."""
     fitter, model = kit
-    out, tr, fits, _ = play_tracked(fitter, model, truth, frames, seed, SIGMA, RATE,
-                                    tracker=tracker, nan_at=nan_at)
-    return out, tr, fits
+    return play_tracked(fitter, model, truth, frames, seed, SIGMA, RATE, tracker=tracker,
+                        nan_at=nan_at)
 
 
 def crb(kit, c: Contact) -> dict:
@@ -147,3 +146,31 @@ def test_an_estimate_it_did_not_make_carries_its_keys_empty() -> None:
     assert out["frames_used"] == 0 and all(out[k] is None for k in RATE_KEYS)
     assert all(out["reasons"][k] == "no contact" for k in RATE_KEYS)
     assert fit == {"contact": False, "std": {"x_mm": None}, "reasons": {}}  # not modified
+
+
+def test_a_start_beyond_what_a_finger_carries_is_clipped() -> None:
+    """A worker's fit or linearisation starts from the tracker's state only within reason: a
+    filter on a light edge can run its radius off to ln R of -50 and beyond, and an evaluation
+    there, or at a contact larger than the array, outlasts the worker's deadline (on the
+    moving scene the workers were killed as hung, one after the other)."""
+    from tactiled.fit.models import get_model
+    from tactiled.pipeline.sensor import WARM_GRID, _warm_start
+
+    geometry = SensorModel().geometry
+    cyl = get_model("cylinder")
+    good = cyl.from_values(8.0, math.inf, 60.0, 1.2, 9.0, 13.5)
+    assert np.array_equal(within_reason(good, geometry), good)
+    runaway = [cyl.from_values(8.0, math.inf, 60.0, 2 * MAX_FORCE_N, 9.0, 13.5),
+               cyl.from_values(8.0, math.inf, 60.0, 1.2, -20.0, 13.5),
+               cyl.from_values(8.0, math.inf, 60.0, 1.2, 9.0, 60.0),
+               np.array([-50.0, 1.0, math.log(1.2), 9.0, 13.5])]
+    clipped = [within_reason(p, geometry) for p in runaway]
+    assert math.exp(clipped[0][2]) == pytest.approx(MAX_FORCE_N)
+    assert clipped[1][3] == pytest.approx(-5.0)
+    assert clipped[2][4] == pytest.approx((geometry.cols - 1) * geometry.dy + 5.0)
+    assert math.exp(clipped[3][0]) == pytest.approx(0.005)
+    # what goes to a worker: clipped, and on the grid (the CPU's last bits stay home)
+    model, p = _warm_start(("cylinder", tuple(runaway[3] + 1e-13)), geometry)
+    assert model == "cylinder" and math.exp(p[0]) == pytest.approx(0.005, rel=1e-6)
+    assert all(abs(v / WARM_GRID - round(v / WARM_GRID)) < 1e-3 for v in p)
+    assert _warm_start(None, geometry) is None

@@ -64,13 +64,10 @@ def test_a_held_contact_sharpens(run) -> None:
     used = [e.fit["frames_used"] for e in held]
     assert used == sorted(used) and used[-1] > 2500
     first, last = held[0].fit, held[-1].fit
-    # ~600 -> ~3400 frames: sigma down by sqrt(5.7) but for the zeroing's own error (the zero
-    # of each tactel is a mean of the idle frames, ~0.043 mm here: sigma^2 = a/n + f^2 through
-    # the two points), and for the frames' mean residual, which scales the early sigma by a
-    # factor that depends on the fits of the press (0.060 or 0.083 mm at 1.2 s, with the
-    # daemon's own linearisations or without); the single-frame bound is 0.86 mm
-    # (test_tracker.py checks 1/sqrt(frames) exactly)
-    assert last["std"]["r1_mm"] < first["std"]["r1_mm"] / 1.25 and last["std"]["r1_mm"] < 0.05
+    # ~700 -> ~3500 frames: sigma down by sqrt(5) but for the zeroing's own error (the zero
+    # of each tactel is a mean of the idle frames), which the mean residual reveals; the
+    # single-frame bound here is 0.86 mm (test_tracker.py checks 1/sqrt(frames) exactly)
+    assert last["std"]["r1_mm"] < first["std"]["r1_mm"] / 1.5 and last["std"]["r1_mm"] < 0.05
     assert abs(last["r1_mm"] - 10.0) < 3 * last["std"]["r1_mm"]
     assert abs(last["force_n"] - 1.2) < 0.02
 

@@ -78,10 +78,16 @@ def replay(path: Path, pinned: bool = True) -> str:
     return done.stdout
 
 
-def compare(expected: Any, actual: Any, where: str = "", rel_tol: float = REL_TOL) -> list[str]:
+def compare(expected: Any, actual: Any, where: str = "", rel_tol: float = REL_TOL,
+            abs_tol: float | None = None) -> list[str]:
     """Differences between two parsed JSON values: exact for everything but floats, which
-    must agree within ``rel_tol`` (relative; ``REL_TOL`` by default) or ``ABS_TOL``."""
+    must agree within ``rel_tol`` (relative; ``REL_TOL`` by default) or ``ABS_TOL``.  An
+    estimate's value that has a 1-sigma in its ``std`` may also differ by ``rel_tol`` of that
+    sigma: a rate is a difference of nearly equal numbers, and its relative last digits are
+    not the measure of a change (a force rate of 67.83 N/s with a sigma of 2017 N/s moved
+    2e-6 of itself, 7e-8 of its sigma, between two CPUs)."""
     if isinstance(expected, dict) and isinstance(actual, dict):
+        std = expected.get("std") if isinstance(expected.get("std"), dict) else {}
         out = []
         for key in sorted(expected.keys() | actual.keys()):
             if key not in actual:
@@ -89,16 +95,18 @@ def compare(expected: Any, actual: Any, where: str = "", rel_tol: float = REL_TO
             elif key not in expected:
                 out.append(f"{where}.{key}: unexpected ({actual[key]!r})")
             else:
-                out += compare(expected[key], actual[key], f"{where}.{key}", rel_tol)
+                sd = std.get(key)
+                tol = rel_tol * sd if isinstance(sd, float) and math.isfinite(sd) else None
+                out += compare(expected[key], actual[key], f"{where}.{key}", rel_tol, tol)
         return out
     if isinstance(expected, list) and isinstance(actual, list):
         if len(expected) != len(actual):
             return [f"{where}: {len(actual)} items, expected {len(expected)}"]
         return [d for i, (e, a) in enumerate(zip(expected, actual))
-                for d in compare(e, a, f"{where}[{i}]", rel_tol)]
+                for d in compare(e, a, f"{where}[{i}]", rel_tol, abs_tol)]
     if (isinstance(expected, float) and isinstance(actual, (int, float))
             and not isinstance(actual, bool)):
-        if math.isclose(expected, actual, rel_tol=rel_tol, abs_tol=ABS_TOL):
+        if math.isclose(expected, actual, rel_tol=rel_tol, abs_tol=max(ABS_TOL, abs_tol or 0.0)):
             return []
         return [f"{where}: {actual!r}, expected {expected!r}"]
     if type(expected) is not type(actual) or expected != actual:

@@ -112,6 +112,10 @@ def test_the_comparison_catches_a_change() -> None:
     assert g.compare(fit, dict(fit, std=dict(fit["std"], x_mm=None)))
     assert g.compare(lines, lines[:-1])
     assert not g.compare(fit, dict(fit, x_mm=fit["x_mm"] * (1 + 1e-12)))
+    # ... or by the tolerance times its own sigma, not more
+    sd = fit["std"]["x_mm"]
+    assert not g.compare(fit, dict(fit, x_mm=fit["x_mm"] + 0.5e-9 * sd))
+    assert g.compare(fit, dict(fit, x_mm=fit["x_mm"] + 2e-9 * sd + 1e-8 * abs(fit["x_mm"])))
 
 
 def test_golden_files_are_small_and_reproduce_their_recordings() -> None:
