@@ -358,12 +358,14 @@ class Service:
         return sum(p.frames for p in self.daemon.sensors.values())
 
     def settle_heap(self, period_s: float = heap.COLLECT_PERIOD_S) -> None:
-        """Freeze the start-up heap and collect every ``period_s`` s (:mod:`tactiled.heap`).
+        """Freeze the start-up heap, collect every ``period_s`` s, and pin malloc's thresholds
+        (:mod:`tactiled.heap`).
 
         For the process that *is* this service (``serve``, the soak), once started; not done
         by :meth:`start` because a process running many services one after another (the
         tests) would freeze each one's objects for good."""
         heap.settle()
+        heap.pin_malloc()
         self._tasks.append(asyncio.create_task(heap.collect_every(period_s),
                                                name="tactiled-gc"))
 

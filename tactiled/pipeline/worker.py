@@ -37,7 +37,7 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 from tactiled.config import SensorModel
-from tactiled.heap import trim
+from tactiled.heap import pin_malloc, trim
 from tactiled.pipeline.estimate import plain
 
 #: A worker gives malloc's free memory back to the system every this many fits (tactiled.heap
@@ -53,6 +53,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     # Ctrl-C in a terminal signals the whole process group; the parent decides when a worker
     # stops (so in-flight fits can finish), so the worker ignores it.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    pin_malloc()  # what a large contact's fit frees goes back to the system (tactiled.heap)
     # Here, not at module level: the parent never needs the fitter.
     import numpy as np
 
