@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import math
 import os
+import pickle
 import re
 import signal
 import subprocess
@@ -465,8 +466,6 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
         Path(script).write_text(code)
         subprocess.run([sys.executable, script], cwd=tree, env=env, check=True,
                        timeout=seconds + warmup + 300)
-        import pickle
-
         with open(out, "rb") as f:
             return pickle.load(f)
 

@@ -252,9 +252,15 @@ class Tracker:
             d = strain[lin.index] - lin.strain
             dp = lin.gain @ d
             e = d - lin.jacobian @ dp
-            if not self._in_range(dp, e, lin.weight):
+            if float((e * e) @ lin.weight) > self._limit:
                 return "refit"
-            z = [p + q for p, q in zip(self._p, dp.tolist())]
+            dz = dp.tolist()
+            # a log radius or force moved by more than a factor e from the point: no linear
+            # range reaches that far (a release: force to zero), whatever the residual says
+            if any(not abs(dz[i]) < 1.0 for i in self._logs) or not all(
+                    math.isfinite(v) for v in dz):
+                return "refit"
+            z = [p + q for p, q in zip(self._p, dz)]
             self._ebuf += e
             self._eframes += 1
             self._edt += 0.0 if self.t is None else max(t - self.t, 0.0)
@@ -288,15 +294,6 @@ class Tracker:
         self.t = t
         self.n += 1
         return "tracked"
-
-    def _in_range(self, dp: np.ndarray, e: np.ndarray, weight: np.ndarray) -> bool:
-        """The linearity test of a frame's step ``dp`` about the linearisation point and its
-        unexplained part ``e``: chi^2 within the limit, and no log radius or force moved by a
-        factor e or more (no linear range reaches that far: a release, force to zero, whatever
-        the residual says), all finite."""
-        if not float((e * e) @ weight) <= self._limit:
-            return False
-        return all(abs(float(dp[i])) < 1.0 for i in self._logs) and bool(np.isfinite(dp).all())
 
     def skip(self) -> None:
         """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""

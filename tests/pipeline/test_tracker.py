@@ -18,8 +18,6 @@ from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 from tactiled.pipeline.tracker import MAX_FORCE_N, RATE_KEYS, Tracker, untracked, within_reason
 
-from pipeline_helpers import play_tracked
-
 SIGMA = 0.0005
 RATE = 1000.0  # frames/s
 
@@ -32,10 +30,35 @@ def kit():
 
 def play(kit, truth, frames: int, seed: int, tracker: Tracker | None = None,
          nan_at: tuple[int, ...] = ()) -> tuple[list, Tracker, int]:
-    """Frames of ``truth(t)`` through a tracker as the daemon runs it (``play_tracked``)."""
+    """Frames of ``truth(t)`` through a tracker as the daemon runs it: a fit (and its
+    linearisation) when the tracker asks for one, a relinearisation when it wants one.
+    Returns ``[(t, contact, estimate, status)]``, the tracker and the number of fits."""
     fitter, model = kit
-    return play_tracked(fitter, model, truth, frames, seed, SIGMA, RATE, tracker=tracker,
-                        nan_at=nan_at)
+    rng = np.random.default_rng(seed)
+    tr = tracker or Tracker(withhold_relative_sigma=0.5)
+    out, base, fits = [], None, 0
+    for k in range(frames):
+        t = k / RATE
+        c = truth(t)
+        s = model.predict(c) + rng.normal(0.0, SIGMA, (8, 8))
+        if k in nan_at:
+            tr.skip()
+            out.append((t, c, tr.estimate(base), "skipped"))
+            continue
+        status = tr.step(s.ravel(), t) if tr.active else "refit"
+        if status == "refit":
+            res = fitter.fit(s, "cylinder", warm=tr.predicted(t))
+            fits += 1
+            tr.adopt(linearize(fitter, s, res.model, np.array(res.params)))
+            status = tr.step(s.ravel(), t, fitted=True)
+            base = res.to_json_dict()
+        want = tr.wants_linearization()
+        if want is not None:
+            lin = linearize(fitter, s, want[0], want[1])
+            if lin is not None:
+                tr.adopt(lin)
+        out.append((t, c, tr.estimate(base), status))
+    return out, tr, fits
 
 
 def crb(kit, c: Contact) -> dict:
