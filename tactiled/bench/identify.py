@@ -179,20 +179,50 @@ def run(quick: bool, progress: bool | None) -> str:
     lines += _scores_table(rows)
     lines += ["", "### A mismatched finger nobody identified (paper's rubber, 5 % gains, 0.1 mm "
               "displacements), fitted with docs/model.md's constants", ""]
-    mm_rows = []
+    mm_rows, flats = [], []
     for seed in ((5,) if quick else (5, 6, 7)):
         spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=seed)
         f, lin = nominal_fitter(spec)
         mm_rows.append((f"finger seed {seed}", score_frames(spec, f, lin, n_frames, 41, None)))
+        flats.append(f.flat)
     lines += _scores_table(mm_rows)
-    lines += ["", "The same fingers after the floor learner's warm-up, and where their gains lie:", "",
+    lines += ["", f"The same fingers after the floor learner's warm-up, where their gains lie, and what "
+              f"the flat field learned of the central 4x4 tactels in {n_frames} fits (RMS error "
+              "against the truth, gains relative to the array's mean):", "",
               f"| finger | 2-sigma coverage after the first {MIN_FITS} fits ("
-              + " / ".join(PARAMS) + ") | mean gain, central 4x4 tactels | mean gain, all 64 |",
-              "|---|---|---|---|"]
-    for (name, sc), seed in zip(mm_rows, (5, 6, 7)):
-        gains = FingerSpec(gain_error=0.05, position_error=0.1, seed=seed).gains()
+              + " / ".join(PARAMS) + ") | mean gain, central 4x4 | mean gain, all 64 | "
+              "flat field: gains' error, before -> after | displacements' error (um), before -> after |",
+              "|---|---|---|---|---|---|"]
+    c = (slice(2, 6), slice(2, 6))
+    for (name, sc), seed, flat in zip(mm_rows, (5, 6, 7), flats):
+        spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=seed)
+        gains = spec.gains()
+        rel = gains / gains.mean()
+        ex, ey = spec.positions().arrays(8, 8)
+        ex, ey = ex - ex.mean(), ey - ey.mean()
+
+        def rms(a: np.ndarray) -> float:
+            return float(np.sqrt(np.mean(a[c] ** 2)))
+
         lines.append(f"| {name} | " + " / ".join(f"{sc.settled[k]:.1f}" for k in PARAMS)
-                     + f" % | {float(gains[2:6, 2:6].mean()):.4f} | {float(gains.mean()):.4f} |")
+                     + f" % | {float(gains[c].mean()):.4f} | {float(gains.mean()):.4f} | "
+                     f"{100 * rms(rel - 1):.2f} % -> {100 * rms(rel - flat.gain):.2f} % | "
+                     f"{1000 * rms(np.hypot(ex, ey)):.0f} -> {1000 * rms(np.hypot(ex - flat.dx, ey - flat.dy)):.0f} |")
+    if not quick:
+        lines += ["", "### More fingers nobody identified: the spread over fingers", "",
+                  "Each the mean of 400 test frames (another draw of them than above); coverage "
+                  "and RMS/CRB for r1_mm / angle_deg / force_n / x_mm / y_mm.", "",
+                  "| gains, displacements | finger seed | 2-sigma coverage % | RMS/CRB | flat field |",
+                  "|---|---|---|---|---|"]
+        for gain_error, position_error, seeds in ((0.05, 0.1, range(8, 13)), (0.08, 0.15, range(20, 26))):
+            for seed in seeds:
+                spec = FingerSpec(gain_error=gain_error, position_error=position_error, seed=seed)
+                f, lin = nominal_fitter(spec)
+                sc = score_frames(spec, f, lin, n_frames, 7, None)
+                lines.append(f"| {100 * gain_error:g} %, {1000 * position_error:g} um | {seed} | "
+                             + " / ".join(f"{sc.coverage[k]:.1f}" for k in PARAMS) + " | "
+                             + " / ".join(f"{sc.ratio[k]:.2f}" for k in PARAMS)
+                             + f" | {f.flat.note if f.flat.active else 'off: ' + (f.flat.note or 'nothing significant')} |")
     lines += ["", "### Accuracy of the constants against the number of presses", "",
               "| presses | " + " | ".join(f"{k} error (sigma)" for k in RUBBER) + " |",
               "|---|" + "---|" * len(RUBBER)]

@@ -19,6 +19,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from tactiled.config import SensorModel
 from tactiled.fit import compiled
+from tactiled.fit.flatfield import FlatField
 from tactiled.fit.floor import FloorLearner
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.params import (
@@ -198,6 +199,8 @@ class Fitter:
         self._force_constants = force_constants(self.sensor)
         #: what the sensor's recent fits say of its departure from the model (see _mismatch)
         self.floor = FloorLearner()
+        #: each tactel's gain and position as this finger's fits show them (see _mismatch)
+        self.flat = FlatField(g.rows, g.cols) if self.options.learn_floor else None
         if warm:
             self._warm_up()
 
@@ -210,6 +213,10 @@ class Fitter:
         frame = self.model.predict(Contact(8.0, math.inf, 80.0, 1.0, g.span_x / 2, g.span_y / 2))
         for name in ("cylinder", "sphere", "general"):
             self._fit_model(frame, get_model(name), None, None)
+        # a made-up frame teaches nothing of this finger
+        self.floor.reset()
+        if self.flat is not None:
+            self.flat.reset()
 
     # ------------------------------------------------------------------------------------
     def fit(
@@ -249,6 +256,7 @@ class Fitter:
             if not (isinstance(frames, int) and frames >= 1):
                 raise ValueError(f"frames must be a positive whole number, got {frames!r}")
             self.sigma = self._sigma1 / math.sqrt(frames)
+        strain = self.flattened(strain)
         try:
             if model == "auto":
                 res = self._fit_auto(strain, mask, warm)
@@ -264,6 +272,26 @@ class Fitter:
             self._frame_memo = None  # the memo must not outlive the frame (ids are reused)
         res.fit_ms = (time.perf_counter() - t0) * 1e3
         return res
+
+    def flattened(self, strain: np.ndarray) -> np.ndarray:
+        """The frame as the fits read it: divided by the tactel gains this finger's fits have
+        shown (:mod:`tactiled.fit.flatfield`), once they are significant; else as it is."""
+        f = self.flat
+        if f is None or not f.active:
+            return strain
+        s = np.asarray(strain, dtype=float)
+        return s * f.inverse_gain if s.shape == f.gain.shape else s  # _frame names a bad shape
+
+    def _window_shift(self, win: tuple[int, int, int, int], nr: int, nc: int) -> tuple[np.ndarray, np.ndarray]:
+        """The window's tactel displacements (mm, flattened row-major): the sensor model's
+        plus what this finger's fits have shown (:mod:`tactiled.fit.flatfield`)."""
+        ex, ey = self.model.window_shift(win, nr, nc)
+        f = self.flat
+        if f is not None and f.active:
+            r0, c0 = win[0], win[1]
+            ex = ex + f.dx[r0:r0 + nr, c0:c0 + nc].ravel()
+            ey = ey + f.dy[r0:r0 + nr, c0:c0 + nc].ravel()
+        return ex, ey
 
     def _out_of_time(self) -> bool:
         return self._deadline is not None and time.perf_counter() > self._deadline
@@ -334,7 +362,7 @@ class Fitter:
                              converged=best.converged, peak=peak, n_points=n_points, window=win,
                              starts=tried, message=best.message,
                              params=tuple(best.p.tolist()))
-        return self._result(model, best, peak, win, n_points, tried, fr.zdata)
+        return self._result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
 
     def _window(self, strain: np.ndarray, model: Model, mask: np.ndarray | None) -> _Frame | FitResult:
         """This frame's window (:meth:`_frame`) when it can hold ``model``, else a FitResult
@@ -400,7 +428,7 @@ class Fitter:
         if not usable:
             return None
         win = (r0, c0, nr, nc)
-        ex, ey = self.model.window_shift(win, nr, nc)
+        ex, ey = self._window_shift(win, nr, nc)
         return _Frame(s, (m, n), peak, win, self.model.xs_full[r0:r0 + nr],
                       self.model.ys_full[c0:c0 + nc], target, valid, nr * nc, inv_scale, zdata, ex, ey)
 
@@ -437,7 +465,7 @@ class Fitter:
             sd = self._tactel_sd(target)
             inv_scale = (1.0 / peak) * (self.sigma / sd)
             zdata = target[valid] / sd[valid]
-        ex, ey = self.model.window_shift(win, nr, nc)
+        ex, ey = self._window_shift(win, nr, nc)
         return _Frame(clean, peak_idx, peak, win, self.model.xs_full[r0:r0 + nr],
                       self.model.ys_full[c0:c0 + nc], target, valid, int(valid.sum()), inv_scale,
                       zdata, ex, ey)
@@ -480,12 +508,12 @@ class Fitter:
         return out
 
     def _result(self, model: Model, sol: SolveResult, peak: float, win, n_points: int, starts: int,
-                zdata: np.ndarray) -> FitResult:
+                zdata: np.ndarray, valid: np.ndarray) -> FitResult:
         reasons: dict[str, str] = {}
         values, std, condition = self._uncertainty(model, sol.p, sol.jacobian * peak, reasons)
         chi2 = sol.cost * peak * peak / self.sigma**2
         if condition is not None and std.get("x_mm") is not None:
-            self._mismatch(model, sol, peak, zdata, chi2, std, reasons)
+            self._mismatch(model, sol, peak, zdata, chi2, std, reasons, win, valid)
         self._unobservable(values, std, reasons)
         if model.name == "cylinder":
             reasons.setdefault("r2_mm", "infinite: cylinder model")
@@ -543,7 +571,8 @@ class Fitter:
         return values, std, condition
 
     def _mismatch(self, model: Model, sol: SolveResult, peak: float, zdata: np.ndarray,
-                  chi2: float, std: dict[str, float | None], reasons: dict[str, str]) -> None:
+                  chi2: float, std: dict[str, float | None], reasons: dict[str, str],
+                  win: tuple[int, int, int, int], valid: np.ndarray) -> None:
         """Widen the uncertainties of a fit when residuals say the finger departs from its
         model (see :mod:`tactiled.fit.floor`): by what the sensor's recent fits have shown
         together, and by this frame's own excess when its chi^2 is beyond what the noise gives
@@ -575,10 +604,17 @@ class Fitter:
         excess = float(excess_i.sum())
         s_f, g_f = float(rows[:, 0].sum()), float(rows[:, 1].sum())
         ts, tg = self.floor.taus()
+        corrections = None  # what the flat field's own uncertainty adds to the window's errors
         if not self.options.learn_floor:
             ts = tg = 0.0
         else:
-            self._learn(rows, excess_i, excess, s_f, g_f, dof, ts, tg)
+            weight = self._learn(rows, excess_i, excess, s_f, g_f, dof, ts, tg)
+            r0, c0, nr, nc = win
+            ii, jj = np.divmod(np.flatnonzero(valid), nc)
+            tactels = (r0 + ii) * self.flat.cols + (c0 + jj)
+            args = (tactels, zdata + rz, jz[:, -2], jz[:, -1])
+            corrections = self.flat.error_covariance(*args)  # of the corrections this fit ran with
+            self.flat.add(*args[:1], resid_op, *args[1:], rz, weight)
         source = f"the sensor's last ~{self.floor.memory} fits"
         if flagged:
             expected = ts * s_f + tg * g_f
@@ -588,10 +624,12 @@ class Fitter:
             elif excess > expected:
                 ts, tg = ts * excess / expected, tg * excess / expected
                 source = "this frame's residuals"
-        if ts <= 0.0 and tg <= 0.0:
+        if ts <= 0.0 and tg <= 0.0 and corrections is None:
             return
         var = 1.0 + ts * m2 + tg * g2
         cov = ainv @ (jz.T * var) @ jz @ ainv
+        if corrections is not None:
+            cov += ainv @ jz.T @ corrections @ jz @ ainv
         _, grad = model.report(sol.p)
         for i, key in enumerate(VALUE_KEYS):
             if std.get(key) is None:
@@ -602,19 +640,25 @@ class Fitter:
         reasons["uncertainty"] = (
             f"residuals exceed the noise (from {source}; chi^2 here {chi2:.3g} for {dof} degrees "
             f"of freedom): the finger departs from its model by ~{100 * math.sqrt(ts):.2g} % of "
-            f"the strain and ~{1000 * math.sqrt(tg):.2g} um of tactel position; uncertainties "
-            "widened to match")
+            f"the strain and ~{1000 * math.sqrt(tg):.2g} um of tactel position"
+            + ("" if corrections is None else
+               " beyond the tactel gains and positions learned from its fits (and their own uncertainty)")
+            + "; uncertainties widened to match"
+            + (f" (flat field: {self.flat.note})" if self.flat is not None and self.flat.note else ""))
 
     def _learn(self, rows: np.ndarray, excess_i: np.ndarray, excess: float, s_f: float, g_f: float,
-               dof: int, ts: float, tg: float) -> None:
+               dof: int, ts: float, tg: float) -> float:
         """Feed one fit to the floor learner.  Every fit feeds it (leaving out the flagged
         ones, the heavy frames, would bias it low), scaled down to a cap near what the pool
         already expects, so one contact far outside the model (an edge the size of the array)
-        moves it by a bounded step."""
+        moves it by a bounded step.  Returns the scale (<= 1), for the flat field's weight."""
         cap = OUTLIER_FACTOR * (ts * s_f + tg * g_f + math.sqrt(2.0 * dof))
+        scale = 1.0
         if excess > cap:
-            excess_i = excess_i * (cap / excess)
+            scale = cap / excess
+            excess_i = excess_i * scale
         self.floor.add(rows, excess_i, dof)
+        return scale
 
     def cramer_rao(self, strain: np.ndarray, model: str, params: np.ndarray) -> dict[str, float | None]:
         """1-sigma Cramer-Rao bounds (user units) at the parameter vector ``params`` of

@@ -67,7 +67,7 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     """The linearisation of ``fitter``'s window on ``strain`` at ``model``'s internal vector
     ``p``; None where there is none (no contact in the frame, too few tactels, a singular
     Jacobian, a point outside the model's domain)."""
-    fr = fitter._frame(strain, mask)
+    fr = fitter._frame(fitter.flattened(strain), mask)
     m = get_model(model)
     p = np.asarray(p, dtype=float)
     if not hasattr(fr, "target") or fr.n_points <= m.size or p.shape != (m.size,):
@@ -110,6 +110,16 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     index = ((r0 + _ROWS[:nr, None]) * cols + (c0 + _ROWS[None, :nc])).ravel()[fr.valid]
     me = fitter.sensor.model_error  # the floor's variance per tactel, as Fitter._tactel_sd's
     systematic = (gain * (me.strain ** 2 + (me.relative * s) ** 2)) @ gain.T
+    flat = fitter.flat
+    if flat is not None and flat.active:
+        # the flat field's corrections are as wrong in every frame: systematic; and the
+        # tracker reads frames as they come, so the same linearisation in their units
+        # (reading = tactel gain x what the fit reads)
+        wc = flat.error_covariance(index, s / sd, js[:, -2] / sd, js[:, -1] / sd)
+        systematic = systematic + gain @ (sd[:, None] * wc * sd[None, :]) @ gain.T
+        g = flat.gain.ravel()[index]
+        s, js, gain, w = s * g, js * g[:, None], gain / g, w / (g * g)
+        cov = (sigma * sigma) * (gain @ gain.T)
     return Linearization(model=model, p=p.copy(), index=np.ascontiguousarray(index),
                          strain=np.ascontiguousarray(s), jacobian=np.ascontiguousarray(js),
                          gain=np.ascontiguousarray(gain), weight=w, cov=cov, sigma=sigma,

@@ -155,7 +155,7 @@ class WorkerPool:
             # ``if __name__ == "__main__"``); imported once there, no restart pays for it.
             self._ctx.set_forkserver_preload(["__main__", PRELOAD_MODULE])
         self.specs: dict[int, tuple[SensorModel, Any]] = {}
-        self._spec_ids: dict[tuple[SensorModel, Any], int] = {}
+        self._spec_ids: dict[tuple[SensorModel, Any, str], int] = {}
         self._owners: list[JobOwner] = []
         self._workers: list[_Worker] = [_Worker(slot) for slot in range(size)]
         #: recycling: the successor being started for a slot, and the workers it replaced
@@ -181,15 +181,18 @@ class WorkerPool:
 
     # -- set-up -------------------------------------------------------------------------------
 
-    def register_spec(self, sensor: SensorModel, options: tuple[tuple[str, Any], ...]) -> int:
+    def register_spec(self, sensor: SensorModel, options: tuple[tuple[str, Any], ...],
+                      finger: str = "") -> int:
         """An id for a SensorModel and ``FitOptions`` keyword arguments (``(("window", 4),)``),
-        which the workers turn into a Fitter."""
-        key = (sensor, options)
+        which the workers turn into a Fitter.  ``finger`` names whose frames it fits: a
+        fitter learns its finger's departure from the model (tactiled.fit.floor,
+        tactiled.fit.flatfield), so two fingers with one model never share a fitter."""
+        key = (sensor, options, finger)
         spec = self._spec_ids.get(key)
         if spec is None:
             spec = len(self._spec_ids)
             self._spec_ids[key] = spec
-            self.specs[spec] = key
+            self.specs[spec] = (sensor, options)
         return spec
 
     def attach(self, owner: JobOwner) -> None:

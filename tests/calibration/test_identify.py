@@ -273,16 +273,18 @@ def test_identified_finger_coverage(identified):
         assert cov[k] >= 90.0, (k, cov)
 
 
-def test_mismatched_unidentified_finger_coverage():
-    """5 % gains and 0.1 mm displacements the model does not know: the residuals say so and
-    the uncertainties widen (without them this finger covered 54-77 %).  Issue 13's bar is
-    90 %; measured 88-98 % by parameter, x lowest: held at 85 % until that is closed."""
+@pytest.mark.parametrize("finger", [5, 6])
+def test_mismatched_unidentified_finger_coverage(finger):
+    """5 % gains and 0.1 mm displacements the model does not know: the residuals say so, the
+    uncertainties widen and the flat field learns the tactels (without either these fingers
+    covered 54-77 %; with the floor alone 81-98 %, finger 6's force lowest, its central
+    tactels reading 2.5 % low).  Issue 13's bar: 90 % for every parameter."""
     from tactiled.bench.identify import nominal_fitter
 
-    spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=5)
+    spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=finger)
     cov = _coverage(spec, *nominal_fitter(spec), n=400, seed=3)
     for k in PARAMS:
-        assert cov[k] >= 85.0, (k, cov)
+        assert cov[k] >= 90.0, (k, cov)
 
 
 def test_model_error_floor_enters_weights_and_covariance():

@@ -232,3 +232,14 @@ def test_the_leak_check_sees_a_worker_left_running(arun) -> None:
         assert leftover(pids) == []
 
     arun(main())
+
+
+def test_two_fingers_of_one_model_never_share_a_fitter() -> None:
+    """A fitter learns its finger (the model-error floor, the flat field): fingers with one
+    sensor model get a fitter each, and one finger keeps its own across registrations."""
+    pool = WorkerPool(1, FitSettings())
+    a = pool.register_spec(DEFAULT_SENSOR, (("window", 4),), "left")
+    b = pool.register_spec(DEFAULT_SENSOR, (("window", 4),), "right")
+    assert a != b
+    assert pool.register_spec(DEFAULT_SENSOR, (("window", 4),), "left") == a
+    assert pool.specs[a] == pool.specs[b] == (DEFAULT_SENSOR, (("window", 4),))

@@ -1,0 +1,268 @@
+"""Each tactel's gain and position on the user's finger, learned from the finger's own fits.
+
+A finger nobody identified (``tactiled calibrate --identify``) has tactels whose gains and
+positions depart from the model's.  :mod:`tactiled.fit.floor` widens the uncertainties by the
+size of that departure; it cannot remove the bias it leaves.  A gain error common to the
+tactels under a contact is the worst of it: the fit reads it as a force scale and leaves no
+residual, so a finger whose central tactels happen to read 2.5 % low reports every central
+force 2.5 % low, however wide its sigmas.  One window cannot see that; many can.  Contacts
+land all over the array, a tactel is under a window's peak in one fit and on its flank in
+another, and overlapping windows tie every tactel to its neighbours: the departure of each
+tactel is observable up to what no contact can tell apart (the array's mean gain is a force
+scale, its mean displacement a location).  Astronomers call this a flat field.
+
+The residual model.  In units of each tactel's noise, a fit's residuals (model minus reading)
+are ``r = M e`` with ``M = I - H`` the residual operator of the fit (H the hat matrix) and
+``e`` the readings' errors.  Tactel ``i`` with gain ``1 + g_i`` and displacement
+``(dx_i, dy_i)`` mm errs by
+
+    e_i = -m_i g_i + jx_i dx_i + jy_i dy_i   (+ noise)
+
+with ``m_i`` the model's strain there and ``(jx_i, jy_i)`` its slope in the contact's position
+(:mod:`tactiled.physics.kernels` applies displacements to first order the same way).  Stacking
+``u = (g, dx, dy)`` over the array, each fit adds ``X = M E`` (``E`` the window's columns of
+the error model above) to the normal equations ``N = sum X^T X``, ``b = sum X^T (r + X u_f)``,
+where ``u_f`` is the correction that fit ran with (so ``b`` estimates the whole departure, not
+what was left of it).  Old fits fade with weights of mean age ``MEMORY`` fits.
+
+The estimate.  Each tactel's gain error and displacement are drawn, as far as anyone knows
+before the fits, from zero-mean spreads of variances ``v_g`` and ``v_d``; the estimate is the
+posterior mean ``u = (N + P)^-1 b``, ``P = diag(1/v_g, 1/v_d, 1/v_d)``, with covariance
+``(N + P)^-1``.  The spreads are themselves estimated from the fits (maximum likelihood by
+expectation-maximisation, ``v <- mean(u_i^2 + cov_ii)`` per kind, a few steps per solve,
+starting wide).  What no contact can tell apart stays with the prior: a gain common to every
+tactel is a force scale (the fit absorbs it exactly), a displacement common to every tactel a
+location; the prior then says "the array reads nominal on average", and the covariance carries
+how well that is known (the spread over ``sqrt(rows*cols)``).  That posterior covariance is
+what the corrections add to each fit's uncertainty (:meth:`FlatField.error_covariance`): the
+residuals cannot show a correction that is wrong along a direction the fit absorbs.
+
+It is switched on only when it says something: when ``b^T (N + P)^-1 b`` exceeds what the noise alone gives by ``SIGNIFICANCE`` of its standard
+deviations (under the noise ``b`` has covariance ``N2 = sum w_f^2 X^T X``).  A finger that
+matches its model (the paper's, or one identified) is never corrected; its fits keep their
+Cramer-Rao bounds exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Fits the learner remembers (exponential weights with this mean age): a finger's tactels
+#: are stable over hours, so a long memory; still finite, so a drift is followed.
+MEMORY = 100_000
+#: Fits before the first solve of the normal equations (each costs 1-3 ms for an 8x8 array).
+MIN_FITS = 20
+#: Solves come after every quarter more fits (a young pool changes fast), at most this far
+#: apart (a solve costs about what a fit does; the daemon fits ~1000 frames a second).
+SOLVE_EVERY = 500
+#: Standard deviations of the noise-only statistic beyond which the departure is believed.
+SIGNIFICANCE = 5.0
+#: The prior's standard deviations before the fits estimate them: a tactel's relative gain
+#: error and its displacement (mm); wide (real fingers: a few %, ~0.1 mm).
+PRIOR_GAIN, PRIOR_SHIFT = 0.1, 0.3
+#: The largest spreads a flat field believes: tactel gains spread by more than this (relative)
+#: or tactels displaced by more than this (mm, a tenth of the pitch) are not what the fits
+#: show; a finger whose rubber differs from the model (the wrong depth or modulus) makes the
+#: fits' residuals follow the contact, not the tactels, and per-tactel corrections would only
+#: bend the estimates.  The floor learner widens the uncertainties then, and the flat field
+#: stands down.
+MAX_GAIN_SPREAD, MAX_SHIFT_SPREAD = 0.15, 0.3
+#: Expectation-maximisation steps for the prior's variances at each solve.
+EM_STEPS = 2
+#: Smallest prior variance (relative gain^2, or mm^2): a kind of departure the fits do not
+#: show is held near zero, and the posterior stays finite.
+_TINY = 1e-8
+#: The lazy exponential weights are renormalised before they pass this.
+_RESCALE = 1e100
+
+
+@dataclass
+class _Window:
+    """The sums of the fits on one set of tactels: ``idx`` their places in ``(g, dx, dy)``."""
+
+    idx: np.ndarray
+    ata: np.ndarray
+    ata2: np.ndarray
+    atb: np.ndarray
+
+
+class FlatField:
+    """The per-tactel departure ``(g, dx, dy)`` of one finger, learned from its fits."""
+
+    def __init__(self, rows: int, cols: int, memory: int = MEMORY) -> None:
+        self.rows, self.cols, self.memory = rows, cols, memory
+        n = rows * cols
+        self._n = n
+        self._keep = 1.0 - 1.0 / memory
+        # fit f enters with weight w_f = keep^-f (w grows by 1/keep each fit), so the sums
+        # N, b over w (and N2 over w^2) fade every old fit without touching the matrices
+        self._w = 1.0
+        self.ata = np.zeros((3 * n, 3 * n))
+        self.ata2 = np.zeros((3 * n, 3 * n))
+        self.atb = np.zeros(3 * n)
+        self._windows: dict[bytes, _Window] = {}
+        self._blocks: dict[bytes, np.ndarray] = {}  # the covariance's block of a window
+        #: the prior's variances (relative gain^2, mm^2): wide at first, then estimated
+        self._var = (PRIOR_GAIN ** 2, PRIOR_SHIFT ** 2)
+        self.fits = 0
+        self._next_solve = MIN_FITS
+        self.active = False
+        #: what the last solve found, in words (empty before the first)
+        self.note = ""
+        #: what the fits run with: the readings divided by ``gain``, the tactels displaced
+        #: by ``dx``, ``dy`` mm (each (rows, cols))
+        self.gain = np.ones((rows, cols))
+        self.inverse_gain = np.ones((rows, cols))
+        self.dx = np.zeros((rows, cols))
+        self.dy = np.zeros((rows, cols))
+        self._u = np.zeros(3 * n)
+        #: the posterior covariance of ``(g, dx, dy)`` (3 rows*cols square), once active
+        self.covariance: np.ndarray | None = None
+
+    # ------------------------------------------------------------------------------------
+    def add(self, tactels: np.ndarray, resid_op: np.ndarray, m: np.ndarray, jx: np.ndarray,
+            jy: np.ndarray, r: np.ndarray, weight: float = 1.0) -> None:
+        """One fit: ``tactels`` (k,) the flat indices (``row * cols + col``) of its usable
+        window tactels, ``resid_op`` (k, k) its residual operator, ``m`` (k,) the model's
+        strain, ``jx``, ``jy`` (k,) its slope in the contact's x0, y0 (per mm), ``r`` (k,) the
+        residuals (model minus reading); all in units of each tactel's noise.  ``weight``
+        (<= 1) down-weights a fit far outside the model."""
+        acc = self._window(tactels)
+        c = np.concatenate((-m, jx, jy))  # E = [diag(-m), diag(jx), diag(jy)], by its diagonals
+        # M is a symmetric projection, so X^T X = E^T M E and X^T (r + X u) = E^T (r + M E u)
+        r0 = r + resid_op @ (c * self._u[acc.idx]).reshape(3, -1).sum(axis=0)  # uncorrected
+        xtx = np.tile(resid_op, (3, 3)) * np.outer(c, c)
+        if not (math.isfinite(float(xtx.sum()) + float(r0.sum())) and weight > 0.0):
+            return
+        self._w /= self._keep
+        if self._w > _RESCALE:
+            self._rescale(1.0 / self._w)
+        w = self._w * weight
+        acc.ata += w * xtx
+        acc.ata2 += (w * w) * xtx
+        acc.atb += w * c * np.tile(r0, 3)
+        self.fits += 1
+        if self.fits >= self._next_solve:
+            self._next_solve = self.fits + min(max(self.fits // 4, 1), SOLVE_EVERY)
+            self.solve()
+
+    def _window(self, tactels: np.ndarray) -> _Window:
+        """The sums of the fits on these tactels since the last solve (a fit's window recurs
+        often, so a fit adds to a small block instead of scattering into the array's)."""
+        key = tactels.tobytes()
+        acc = self._windows.get(key)
+        if acc is None:
+            n = self._n
+            idx = np.concatenate((tactels, tactels + n, tactels + 2 * n))
+            k = idx.size
+            acc = self._windows[key] = _Window(idx, np.zeros((k, k)), np.zeros((k, k)), np.zeros(k))
+        return acc
+
+    def _rescale(self, s: float) -> None:
+        for acc in (self, *self._windows.values()):
+            acc.ata *= s
+            acc.ata2 *= s * s
+            acc.atb *= s
+        self._w *= s
+
+    def _fold(self) -> None:
+        """Add the windows' sums into the array's."""
+        for acc in self._windows.values():
+            block = np.ix_(acc.idx, acc.idx)
+            self.ata[block] += acc.ata
+            self.ata2[block] += acc.ata2
+            self.atb[acc.idx] += acc.atb
+        self._windows.clear()
+
+    def solve(self) -> None:
+        """Re-estimate the departure from the pooled fits; switch the correction on once it
+        is significant (see the module docstring)."""
+        n = self._n
+        self._fold()
+        s = 1.0 / self._w  # the stored sums times s are the weighted sums
+        a = self.ata * s
+        b = self.atb * s
+        diag = np.diag_indices(3 * n)
+        for _ in range(EM_STEPS):
+            # the prior's variances (the tactels' spread of gains and of displacements) by
+            # maximum likelihood: expectation-maximisation, carried on from solve to solve
+            prior = np.concatenate((np.full(n, 1.0 / self._var[0]), np.full(2 * n, 1.0 / self._var[1])))
+            ap = a.copy()
+            ap[diag] += prior
+            try:
+                cov = np.linalg.inv(ap)
+            except np.linalg.LinAlgError:
+                return
+            u = cov @ b
+            if not np.all(np.isfinite(u)):
+                return
+            second = u * u + np.diag(cov)  # E[u_i^2] under the posterior
+            # (held below twice the plausible: a departure elsewhere would run them off)
+            self._var = (min(max(float(second[:n].mean()), _TINY), 4.0 * MAX_GAIN_SPREAD ** 2),
+                         min(max(float(second[n:].mean()), _TINY), 4.0 * MAX_SHIFT_SPREAD ** 2))
+        gain_sd, shift_sd = math.sqrt(self._var[0]), math.sqrt(self._var[1])
+        if gain_sd > MAX_GAIN_SPREAD or shift_sd > MAX_SHIFT_SPREAD:
+            self._stand_down(
+                f"the departure is not the tactels' (it would take gains spread by "
+                f"{100 * gain_sd:.2g} % and tactels displaced by {1000 * shift_sd:.3g} um): the "
+                "rubber or the finger's shape differs from the model; identify the finger "
+                "(tactiled calibrate --identify)")
+            return
+        self.note = (f"tactel gains spread by ~{100 * gain_sd:.2g} %, tactels displaced by "
+                     f"~{1000 * shift_sd:.3g} um")
+        if not self.active:
+            # b ~ N(0, N2) under the noise alone: q = b^T C b (C the covariance) has mean
+            # tr(C N2) and variance 2 tr((C N2)^2)
+            q = float(b @ u)
+            an2 = cov @ (self.ata2 * (s * s))
+            mean, var = float(np.trace(an2)), 2.0 * float(np.sum(an2 * an2.T))
+            if not q > mean + SIGNIFICANCE * math.sqrt(max(var, 0.0)):
+                return
+            self.active = True
+        g = np.clip(u[:n], -0.5, 0.5)  # a tactel's gain cannot be corrected past half
+        self._u = np.concatenate((g, np.clip(u[n:], -1.0, 1.0)))
+        shape = (self.rows, self.cols)
+        self.gain = (1.0 + g).reshape(shape)
+        self.inverse_gain = 1.0 / self.gain
+        self.dx = self._u[n:2 * n].reshape(shape)
+        self.dy = self._u[2 * n:].reshape(shape)
+        self.covariance = cov
+        self._blocks.clear()
+
+    def _stand_down(self, reason: str) -> None:
+        """No correction (the fits run as without a flat field), for ``reason``."""
+        self.active = False
+        self.note = reason
+        self._u = np.zeros(3 * self._n)
+        self.gain = np.ones((self.rows, self.cols))
+        self.inverse_gain = self.gain
+        self.dx = np.zeros((self.rows, self.cols))
+        self.dy = self.dx
+        self.covariance = None
+        self._blocks.clear()
+
+    def error_covariance(self, tactels: np.ndarray, m: np.ndarray, jx: np.ndarray,
+                         jy: np.ndarray) -> np.ndarray | None:
+        """The covariance ``E P E^T`` (k, k) of a window's errors that the corrections' own
+        uncertainty leaves (``P`` their posterior covariance, ``E`` the error model of the
+        module docstring), in units of each tactel's noise; arguments as for :meth:`add`.
+        It is what the residuals cannot show: a correction wrong along a direction a fit
+        absorbs (a gain common to the window) moves the estimate and leaves no residual.
+        None while the correction is off."""
+        if self.covariance is None:
+            return None
+        key = tactels.tobytes()
+        p = self._blocks.get(key)
+        if p is None:
+            idx = self._window(tactels).idx
+            p = self._blocks[key] = self.covariance[np.ix_(idx, idx)]
+        c = np.concatenate((-m, jx, jy))
+        k = m.size
+        return (p * np.outer(c, c)).reshape(3, k, 3, k).sum(axis=(0, 2))
+
+    def reset(self) -> None:
+        """Forget every fit (a new finger, or a new calibration)."""
+        self.__init__(self.rows, self.cols, self.memory)

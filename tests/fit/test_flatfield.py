@@ -1,0 +1,116 @@
+"""The flat field: each tactel's gain and position learned from a finger's own fits
+(tactiled.fit.flatfield), checked against the simulated finger's truth."""
+
+import math
+
+import numpy as np
+import pytest
+
+from tactiled.bench import identify as bench
+from tactiled.config import NoiseModel
+from tactiled.finger import FingerSpec
+from tactiled.fit.flatfield import FlatField
+from tactiled.physics.strain import StrainModel
+
+CENTRE = (slice(2, 6), slice(2, 6))
+
+
+def _fit_frames(spec: FingerSpec, n: int, seed: int):
+    """A learning fitter on ``n`` test cylinders of the finger ``spec``."""
+    fitter, linearise = bench.nominal_fitter(spec)
+    truth = StrainModel(spec.sensor(noise=NoiseModel(bench.FRAME_SIGMA)))
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        clean = truth.predict(bench.test_cylinder(rng))
+        fitter.fit(linearise(spec.to_counts(clean + rng.normal(0.0, bench.FRAME_SIGMA, clean.shape))), "cylinder")
+    return fitter
+
+
+def _rms(a: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(a * a)))
+
+
+def test_the_flat_field_learns_a_fingers_gains_and_positions():
+    """5 % gains and 0.1 mm displacements the model does not know: after 400 fits the
+    tactels under the contacts are known to a fraction of their spread."""
+    spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=6)
+    flat = _fit_frames(spec, 400, seed=41).flat
+    assert flat.active
+    gains = spec.gains()
+    gains = gains / gains.mean()  # the array's mean is what no contact can tell
+    ex, ey = spec.positions().arrays(8, 8)
+    ex, ey = ex - ex.mean(), ey - ey.mean()
+    before = _rms(gains[CENTRE] - 1.0)
+    after = _rms(gains[CENTRE] - flat.gain[CENTRE])
+    assert before > 0.03 and after < before / 4, (before, after)
+    before = _rms(np.hypot(ex, ey)[CENTRE])
+    after = _rms(np.hypot(ex - flat.dx, ey - flat.dy)[CENTRE])
+    assert before > 0.1 and after < before / 2.5, (before, after)
+    # the errors left are what the posterior says they are (a few too large at most)
+    sd = np.sqrt(np.diag(flat.covariance)).reshape(3, 8, 8)
+    z = np.concatenate([((flat.gain - gains) / sd[0])[CENTRE].ravel(),
+                        ((flat.dx - ex) / sd[1])[CENTRE].ravel(), ((flat.dy - ey) / sd[2])[CENTRE].ravel()])
+    assert np.mean(np.abs(z) < 2.0) > 0.8, z
+
+
+def test_a_finger_that_matches_its_model_is_never_corrected():
+    fitter = _fit_frames(FingerSpec(), 300, seed=42)
+    assert not fitter.flat.active and fitter.flat.fits == 300
+    assert np.all(fitter.flat.gain == 1.0) and not fitter.flat.dx.any() and not fitter.flat.dy.any()
+
+
+def test_the_estimate_and_its_covariance_on_a_linear_problem():
+    """Independent of the fitter: windows with random Jacobians (4x4, 6 parameters each),
+    residuals ``M (E u + noise)`` for a known departure ``u`` of chosen spreads: the estimate
+    lands within its own sigmas of ``u`` (about 95 % inside 2 sigma), and the spreads are
+    found."""
+    rng = np.random.default_rng(3)
+    rows = cols = 8
+    n = rows * cols
+    u = np.concatenate((rng.normal(0.0, 0.05, n), rng.normal(0.0, 0.1, 2 * n)))
+    flat = FlatField(rows, cols)
+    for _ in range(3000):
+        r0, c0 = rng.integers(0, 5, 2)
+        t = np.array([(r0 + i) * cols + c0 + j for i in range(4) for j in range(4)])
+        m = rng.uniform(5.0, 200.0, 16)
+        jx, jy = rng.normal(0.0, 100.0, (2, 16))
+        jac = rng.normal(size=(16, 6))
+        resid_op = np.eye(16) - jac @ np.linalg.solve(jac.T @ jac, jac.T)
+        e = -m * u[t] + jx * u[t + n] + jy * u[t + 2 * n] + rng.normal(size=16)
+        # the fit ran with the current correction: its residuals are what is left of e
+        used = -m * flat._u[t] + jx * flat._u[t + n] + jy * flat._u[t + 2 * n]
+        flat.add(t, resid_op, m, jx, jy, resid_op @ (e - used))
+    flat.solve()
+    assert flat.active
+    est = flat._u
+    sd = np.sqrt(np.diag(flat.covariance))
+    z = (est - u) / sd
+    assert 0.9 <= np.mean(np.abs(z) < 2.0) <= 0.99, np.mean(np.abs(z) < 2.0)
+    assert abs(float(np.mean(z))) < 0.2
+    assert math.sqrt(flat._var[0]) == pytest.approx(0.05, rel=0.25)
+    assert math.sqrt(flat._var[1]) == pytest.approx(0.1, rel=0.25)
+
+
+def test_a_linearisation_reads_raw_frames_as_the_corrected_fit_does():
+    """The tracker measures later frames as they come (uncorrected) with a fit's
+    linearisation: with the flat field on, that linearisation is in the frames' own units, so
+    it measures a moved contact where a fit on the same frame lands."""
+    from tactiled.fit.linearize import linearize
+    from tactiled.physics.contact import Contact
+
+    spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=6)
+    fitter = _fit_frames(spec, 300, seed=41)
+    assert fitter.flat.active
+    fitter.flat._next_solve = 10**9  # hold the corrections still from here
+    truth = StrainModel(spec.sensor())
+    linearise = bench.nominal_fitter(spec)[1]
+    frame = linearise(spec.to_counts(truth.predict(Contact(8.0, math.inf, 70.0, 1.2, 11.0, 12.0))))
+    res = fitter.fit(frame, "cylinder")
+    lin = linearize(fitter, frame, "cylinder", np.array(res.params))
+    moved = linearise(spec.to_counts(truth.predict(Contact(8.0, math.inf, 72.0, 1.25, 11.1, 12.05))))
+    refit = fitter.fit(moved, "cylinder", warm=("cylinder", res.params))
+    z = lin.p + lin.gain @ (moved.ravel()[lin.index] - lin.strain)
+    sd = np.sqrt(np.diag(lin.cov))
+    assert np.all(np.abs(z - np.array(refit.params)) < 0.25 * sd), (z - np.array(refit.params)) / sd
+    # the corrections' own uncertainty is systematic: the same in every frame
+    assert np.all(np.diag(lin.systematic) > 0.0)
