@@ -17,14 +17,21 @@ constants, tactel positions and model-error floor (docs/calibration.md).  With i
 may hold 'counts' (N, rows, cols) raw readings (and optionally 'sensor_id', checked against the
 file) in place of 'strain'; they go through the file's tables (strain 0 at the zero-load
 point), then the fit.  Uncertainties also widen when a frame's residuals say the finger departs
-from its model (docs/fitting.md, "Honest uncertainties"; the daemon, which sees one stream, also
-learns that across frames, which a file fitted in parallel chunks cannot).
+from its model (docs/fitting.md, "Honest uncertainties").
 
-Every frame is fitted on its own (cold start), so frames can be fitted in parallel: --jobs N
-worker processes (default: every core this process may use, for inputs of 2000 frames or
-more) take chunks of frames, and the lines are written strictly in frame order, the same as
-with --jobs 1 but for the timing key fit_ms.  Progress goes to stderr for inputs of 1000 frames or more (a bar on a terminal, else a
-line every 10 s and the totals at the end); stdout carries only the JSON lines.  For raw
+The finger is learned first (--learn, the default): a first pass fits up to 2000 of the
+file's contact frames, spread over it, in order, learning how far the finger departs from its
+model (the model-error floor) and each tactel's gain and position (the flat field).  If they
+show a departure beyond the noise, every frame is then fitted with what was learned, its
+uncertainties widened to match and its tactels corrected, and stderr says so; if not, the
+output is what each frame gives alone.  --no-learn skips the pass.
+
+Every frame is fitted on its own (cold start, the same learned state), so frames can be fitted
+in parallel: --jobs N worker processes (default: every core this process may use, for inputs
+of 2000 frames or more) take chunks of frames, and the lines are written strictly in frame
+order, the same as with --jobs 1 but for the timing key fit_ms.  Progress goes to stderr for
+inputs of 1000 frames or more (a bar on a terminal, else a line every 10 s and the totals at
+the end); stdout carries only the JSON lines.  For raw
 recordings (.tact), which need calibration and zeroing frame by frame, use 'tactiled replay'.
 """
 
@@ -40,7 +47,7 @@ import sys
 from collections import deque
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -64,6 +71,8 @@ PARALLEL_INPUT = 2000
 MIN_CHUNK, MAX_CHUNK = 16, 256
 #: Chunks in flight per worker: enough to keep every worker busy while the parent writes.
 AHEAD = 4
+#: The learning pass fits at most this many contact frames (~1-2 s), spread over the file.
+LEARN_FITS = 2000
 #: Imported once by the forkserver, so the workers forked from it start with numba's kernels
 #: loaded and the default sensor's start table built (docs/pipeline.md, "Workers").
 PRELOAD_MODULE = "tactiled.pipeline.preload"
@@ -103,6 +112,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"worker processes fitting in parallel (default: every core available, "
                         f"here {available_cores()}, for inputs of {PARALLEL_INPUT} frames or more; "
                         "shorter ones in this process); the output does not depend on it")
+    p.add_argument("--learn", action=argparse.BooleanOptionalAction, default=True,
+                   help=f"first learn, from up to {LEARN_FITS} of the file's contact frames, how the "
+                   "finger departs from its model (its tactels' gains and positions, the residual "
+                   "floor) and fit every frame with it (default on; docs/fitting.md)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help=f"progress on stderr (default: for inputs of {LONG_INPUT} frames or more)")
 
@@ -133,11 +146,13 @@ class _Fitting:
     frame (no state carries from one frame to the next, which is what makes chunks
     independent and the output the same for any number of workers)."""
 
-    def __init__(self, sensor: SensorModel, window: int, model: str) -> None:
+    def __init__(self, sensor: SensorModel, window: int, model: str, learned: Any = None) -> None:
         # Imported here: a parent that only hands chunks to workers never loads the fitter.
         from tactiled.fit.fitter import FitOptions, Fitter
 
-        self.fitter = Fitter(sensor, FitOptions(window=window))
+        self.fitter = Fitter(sensor, FitOptions(window=window, learn_floor=learned is not None))
+        if learned is not None:
+            self.fitter.adopt(*learned)
         self.detector = ContactDetector(sensor=sensor)
         self.model = model
 
@@ -156,12 +171,12 @@ class _Fitting:
 _worker: _Fitting | None = None  # a worker process's fitter, built once by _init_worker
 
 
-def _init_worker(sensor: SensorModel, window: int, model: str) -> None:
+def _init_worker(sensor: SensorModel, window: int, model: str, learned: Any) -> None:
     # Ctrl-C signals the whole process group; the parent decides what stops, and a worker's
     # traceback for it would only bury the message.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     global _worker
-    _worker = _Fitting(sensor, window, model)
+    _worker = _Fitting(sensor, window, model, learned)
 
 
 def _fit_chunk(first: int, strain: np.ndarray) -> str:
@@ -170,6 +185,40 @@ def _fit_chunk(first: int, strain: np.ndarray) -> str:
 
 
 # --------------------------------------------------------------------------------------------
+
+
+def learn(sensor: SensorModel, window: int, model: str, strain: np.ndarray,
+          progress: bool) -> tuple[Any, str] | None:
+    """The learning pass: ``((floor, flat), what they say)`` when up to ``LEARN_FITS`` of the
+    contact frames of ``strain``, spread over it, fitted in order, show the finger departing
+    from its model; None when they do not (or there are too few to tell)."""
+    from tactiled.fit.fitter import FitOptions, Fitter
+
+    detector = ContactDetector(sensor=sensor)
+    contact = [i for i, frame in enumerate(strain) if detector.statistic(frame) > detector.enter_threshold]
+    if not contact:
+        return None
+    picked = contact[::max(1, math.ceil(len(contact) / LEARN_FITS))]
+    fitter = Fitter(sensor, FitOptions(window=window, learn_floor=True))
+    bar = Progress(len(picked), "tactiled fit: learning the finger", progress, unit="frames")
+    for i in picked:
+        fitter.fit(strain[i], model)
+        bar.step()
+    fitter.flat.solve()  # on every fit, not only those up to the last scheduled solve
+    ts, tg = fitter.floor.taus()
+    if not fitter.flat.active and ts <= 0.0 and tg <= 0.0:
+        bar.finish(f"{len(picked)} frame(s): no departure from the model beyond the noise")
+        return None
+    said = [f"learned from {len(picked)} of its contact frames"]
+    if fitter.flat.active:
+        said.append(f"flat field: {fitter.flat.note}")
+    elif fitter.flat.note:
+        said.append(f"no flat field: {fitter.flat.note}")
+    if ts > 0.0 or tg > 0.0:
+        said.append(f"residual floor ~{100 * math.sqrt(ts):.2g} % of the strain and "
+                    f"~{1000 * math.sqrt(tg):.2g} um of tactel position")
+    bar.finish("; ".join(said))
+    return (fitter.floor, fitter.flat), "; ".join(said)
 
 
 def chunk_size(frames: int, jobs: int) -> int:
@@ -185,7 +234,7 @@ def _serial(work: _Fitting, strain: np.ndarray, out: TextIO, bar: Progress) -> N
 
 
 def _parallel(sensor: SensorModel, args: argparse.Namespace, strain: np.ndarray, jobs: int,
-              chunk: int, out: TextIO, bar: Progress) -> None:
+              chunk: int, out: TextIO, bar: Progress, learned: Any) -> None:
     """Chunks to ``jobs`` worker processes, at most ``AHEAD`` per worker in flight (memory
     stays bounded however long the input); each chunk's lines are written as soon as every
     chunk before it has been."""
@@ -193,7 +242,7 @@ def _parallel(sensor: SensorModel, args: argparse.Namespace, strain: np.ndarray,
     ctx.set_forkserver_preload([PRELOAD_MODULE])
     pending: deque[tuple[int, Future[str]]] = deque()
     with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_init_worker,
-                             initargs=(sensor, args.window, args.model)) as pool:
+                             initargs=(sensor, args.window, args.model, learned)) as pool:
         try:
             lo = 0
             while lo < len(strain) or pending:
@@ -228,13 +277,21 @@ def run(args: argparse.Namespace) -> int:
     chunk = chunk_size(frames, jobs)
     jobs = max(1, min(jobs, math.ceil(frames / chunk)))  # no worker without a chunk to fit
     show = frames >= LONG_INPUT if args.progress is None else args.progress
-    bar = Progress(frames, "tactiled fit", show, unit="frames")
     out = sys.stdout
     try:
+        learned = None
+        if args.learn:
+            got = learn(sensor, args.window, args.model, strain, show)
+            if got is not None:
+                learned, said = got
+                if not show:  # the bar said it already
+                    print(f"tactiled fit: the finger departs from its model ({said}): every frame "
+                          "is fitted with that (--no-learn: each frame alone)", file=sys.stderr)
+        bar = Progress(frames, "tactiled fit", show, unit="frames")
         if jobs == 1:
-            _serial(_Fitting(sensor, args.window, args.model), strain, out, bar)
+            _serial(_Fitting(sensor, args.window, args.model, learned), strain, out, bar)
         else:
-            _parallel(sensor, args, strain, jobs, chunk, out, bar)
+            _parallel(sensor, args, strain, jobs, chunk, out, bar, learned)
         out.flush()
     except BrokenPipeError:
         # The reader went away (`tactiled fit big.npz | head`): stop quietly, as cat does.

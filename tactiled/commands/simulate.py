@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.finger import FingerSpec
 from tactiled.framefile import save_frame_file
 from tactiled.frames import encode_frame
 from tactiled.physics.contact import Contact
@@ -87,6 +88,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quantum", type=float, default=0.001, help="quantisation step of strain, 0 for none (default 0.001)")
     p.add_argument("--empty", type=float, default=0.0, help="fraction of frames with no contact (default 0)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    fin = p.add_argument_group(
+        "the simulated finger (default: the paper's; docs/simulator.md)",
+        "A finger whose rubber and tactels differ from the model the fitter assumes: its frames "
+        "are what that finger reads, linearised with nominal gains and zeroed at its true zero. "
+        "Tactel gains, displacements and offsets are drawn from --finger-seed.")
+    fin.add_argument("--depth-x", type=float, default=None, metavar="MM", help="rubber depth along x, mm (paper 4.3)")
+    fin.add_argument("--nu-x", type=float, default=None, metavar="NU", help="Poisson-like ratio along x (paper 0.5)")
+    fin.add_argument("--depth-y", type=float, default=None, metavar="MM", help="rubber depth along y, mm (paper 6.0)")
+    fin.add_argument("--nu-y", type=float, default=None, metavar="NU", help="Poisson-like ratio along y (paper 0.7)")
+    fin.add_argument("--modulus", type=float, default=None, metavar="E", help="Young's modulus, N/mm^2 (paper 0.25)")
+    fin.add_argument("--gain-error", type=float, default=None, metavar="SD",
+                     help="tactel gains ~ N(1, SD) (0.05: 5 %%)")
+    fin.add_argument("--position-error", type=float, default=None, metavar="MM",
+                     help="each tactel displaced ~ N(0, MM) along x and along y")
+    fin.add_argument("--offset-counts", type=float, default=None, metavar="COUNTS",
+                     help="device mode: count offsets at zero load, uniform within +/-COUNTS")
+    fin.add_argument("--finger-seed", type=int, default=None, metavar="N", help="seed of the tactels' draws (default 0)")
     dev = p.add_argument_group("device mode: stream a scene's wire frames in real time")
     where = dev.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true",
@@ -114,6 +132,16 @@ def _draw(rng: np.random.Generator, lo_hi: tuple[float, float], log: bool = Fals
     return float(rng.uniform(lo, hi))
 
 
+def finger_spec(args: argparse.Namespace) -> FingerSpec:
+    """The finger the flags describe (the paper's when none is given); ValueError naming
+    the flag for a bad value."""
+    given = {k: getattr(args, k) for k in FingerSpec.PARAMS if getattr(args, k, None) is not None}
+    try:
+        return FingerSpec.from_params(given)
+    except ValueError as err:
+        raise ValueError(f"the simulated finger: {err}") from None
+
+
 def _error(message: str) -> int:
     print(f"tactiled simulate: error: {message}", file=sys.stderr)
     return 2
@@ -138,8 +166,12 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         print(f"tactiled simulate: error: {err}", file=sys.stderr)
         return 2
+    try:
+        finger = finger_spec(args)
+    except ValueError as err:
+        return _error(str(err))
     geo = Geometry()
-    sensor = SensorModel(geometry=geo, noise=noise)
+    sensor = finger.sensor(geo, noise)
     x_rng = args.x or (geo.span_x / 2, geo.span_x / 2)
     y_rng = args.y or (geo.span_y / 2, geo.span_y / 2)
     rng = np.random.default_rng(args.seed)
@@ -162,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
         for k, v in zip(truth, (c.r1, c.r2, c.psi_deg, c.force, c.x0, c.y0)):
             truth[k][i] = v
     try:
-        strain = simulate_frames(contacts, sensor, noise, seed=args.seed)
+        strain = simulate_frames(contacts, sensor, noise, seed=args.seed) * finger.gains(geo)
     except ValueError as err:
         print(f"tactiled simulate: error: {err}", file=sys.stderr)
         return 2
@@ -257,7 +289,9 @@ def _run_device(args: argparse.Namespace) -> int:
     if args.seed < 0:
         return _error(f"--seed must be >= 0, got {args.seed}")
     try:
+        finger = finger_spec(args)
         sim = FingerSimulator(
+            finger=finger,
             scene=args.scene,
             seed=args.seed,
             rate_hz=args.rate,

@@ -201,8 +201,16 @@ class Fitter:
         self.floor = FloorLearner()
         #: each tactel's gain and position as this finger's fits show them (see _mismatch)
         self.flat = FlatField(g.rows, g.cols) if self.options.learn_floor else None
+        #: use what was learned, learn no more (:meth:`adopt`)
+        self.frozen = False
         if warm:
             self._warm_up()
+
+    def adopt(self, floor: FloorLearner, flat: FlatField | None) -> None:
+        """Fit with what another fitter of this finger learned (its model-error floor and
+        flat field), and learn no more: every frame then gets the same treatment whatever came
+        before it (``tactiled fit``, whose chunks run in parallel, learns in a first pass)."""
+        self.floor, self.flat, self.frozen = floor, flat, True
 
     def _warm_up(self) -> None:
         """Build the start table and load the compiled kernels now, so the first frame's
@@ -608,13 +616,16 @@ class Fitter:
         if not self.options.learn_floor:
             ts = tg = 0.0
         else:
-            weight = self._learn(rows, excess_i, excess, s_f, g_f, dof, ts, tg)
-            r0, c0, nr, nc = win
-            ii, jj = np.divmod(np.flatnonzero(valid), nc)
-            tactels = (r0 + ii) * self.flat.cols + (c0 + jj)
-            args = (tactels, zdata + rz, jz[:, -2], jz[:, -1])
-            corrections = self.flat.error_covariance(*args)  # of the corrections this fit ran with
-            self.flat.add(*args[:1], resid_op, *args[1:], rz, weight)
+            if not self.frozen:
+                weight = self._learn(rows, excess_i, excess, s_f, g_f, dof, ts, tg)
+            if self.flat is not None:
+                r0, c0, nr, nc = win
+                ii, jj = np.divmod(np.flatnonzero(valid), nc)
+                tactels = (r0 + ii) * self.flat.cols + (c0 + jj)
+                args = (tactels, zdata + rz, jz[:, -2], jz[:, -1])
+                corrections = self.flat.error_covariance(*args)  # of the corrections in use
+                if not self.frozen:
+                    self.flat.add(*args[:1], resid_op, *args[1:], rz, weight)
         source = f"the sensor's last ~{self.floor.memory} fits"
         if flagged:
             expected = ts * s_f + tg * g_f
