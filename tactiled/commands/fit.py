@@ -206,10 +206,11 @@ def learn(sensor: SensorModel, window: int, model: str, strain: np.ndarray,
         bar.step()
     fitter.flat.solve()  # on every fit, not only those up to the last scheduled solve
     ts, tg = fitter.floor.taus()
+    took = f"{len(picked)} frame(s) in {bar.elapsed():.1f} s"
     if not fitter.flat.active and ts <= 0.0 and tg <= 0.0:
-        bar.finish(f"{len(picked)} frame(s): no departure from the model beyond the noise")
+        bar.finish(f"{took}: no departure from the model beyond the noise")
         return None
-    said = [f"learned from {len(picked)} of its contact frames"]
+    said = []
     if fitter.flat.active:
         said.append(f"flat field: {fitter.flat.note}")
     elif fitter.flat.note:
@@ -217,8 +218,8 @@ def learn(sensor: SensorModel, window: int, model: str, strain: np.ndarray,
     if ts > 0.0 or tg > 0.0:
         said.append(f"residual floor ~{100 * math.sqrt(ts):.2g} % of the strain and "
                     f"~{1000 * math.sqrt(tg):.2g} um of tactel position")
-    bar.finish("; ".join(said))
-    return (fitter.floor, fitter.flat), "; ".join(said)
+    bar.finish(f"{took}: " + "; ".join(said))
+    return (fitter.floor, fitter.flat), f"{took}: " + "; ".join(said)
 
 
 def chunk_size(frames: int, jobs: int) -> int:
@@ -285,8 +286,8 @@ def run(args: argparse.Namespace) -> int:
             if got is not None:
                 learned, said = got
                 if not show:  # the bar said it already
-                    print(f"tactiled fit: the finger departs from its model ({said}): every frame "
-                          "is fitted with that (--no-learn: each frame alone)", file=sys.stderr)
+                    print(f"tactiled fit: the finger departs from its model (learned from {said}): "
+                          "every frame is fitted with that (--no-learn: each frame alone)", file=sys.stderr)
         bar = Progress(frames, "tactiled fit", show, unit="frames")
         if jobs == 1:
             _serial(_Fitting(sensor, args.window, args.model, learned), strain, out, bar)
