@@ -204,22 +204,25 @@ def learn(sensor: SensorModel, window: int, model: str, strain: np.ndarray,
     for i in picked:
         fitter.fit(strain[i], model)
         bar.step()
-    fitter.flat.solve()  # on every fit, not only those up to the last scheduled solve
+    flat = fitter.flat  # None on an array too large for one (flatfield.MAX_TACTELS)
+    if flat is not None:
+        flat.solve()  # on every fit, not only those up to the last scheduled solve
+    active = flat is not None and flat.active
     ts, tg = fitter.floor.taus()
     took = f"{len(picked)} frame(s) in {bar.elapsed():.1f} s"
-    if not fitter.flat.active and ts <= 0.0 and tg <= 0.0:
+    if not active and ts <= 0.0 and tg <= 0.0:
         bar.finish(f"{took}: no departure from the model beyond the noise")
         return None
     said = []
-    if fitter.flat.active:
-        said.append(f"flat field: {fitter.flat.note}")
-    elif fitter.flat.note:
-        said.append(f"no flat field: {fitter.flat.note}")
+    if active:
+        said.append(f"flat field: {flat.note}")
+    elif flat is not None and flat.note:
+        said.append(f"no flat field: {flat.note}")
     if ts > 0.0 or tg > 0.0:
         said.append(f"residual floor ~{100 * math.sqrt(ts):.2g} % of the strain and "
                     f"~{1000 * math.sqrt(tg):.2g} um of tactel position")
     bar.finish(f"{took}: " + "; ".join(said))
-    return (fitter.floor, fitter.flat), f"{took}: " + "; ".join(said)
+    return (fitter.floor, flat), f"{took}: " + "; ".join(said)
 
 
 def chunk_size(frames: int, jobs: int) -> int:

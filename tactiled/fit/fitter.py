@@ -19,6 +19,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from tactiled.config import SensorModel
 from tactiled.fit import compiled
+from tactiled.fit import flatfield
 from tactiled.fit.flatfield import FlatField
 from tactiled.fit.floor import FloorLearner
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
@@ -200,7 +201,8 @@ class Fitter:
         #: what the sensor's recent fits say of its departure from the model (see _mismatch)
         self.floor = FloorLearner()
         #: each tactel's gain and position as this finger's fits show them (see _mismatch)
-        self.flat = FlatField(g.rows, g.cols) if self.options.learn_floor else None
+        self.flat = (FlatField(g.rows, g.cols)
+                     if self.options.learn_floor and g.rows * g.cols <= flatfield.MAX_TACTELS else None)
         #: use what was learned, learn no more (:meth:`adopt`)
         self.frozen = False
         if warm:

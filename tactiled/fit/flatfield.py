@@ -50,6 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: Arrays up to this many tactels get a flat field: its normal equations are 3 per tactel
+#: square (an 8x8 array: 192, a solve ~2 ms; 16x16: 768, ~0.1 s and 14 MB a finger).
+MAX_TACTELS = 256
 #: Fits the learner remembers (exponential weights with this mean age): a finger's tactels
 #: are stable over hours, so a long memory; still finite, so a drift is followed.
 MEMORY = 100_000
