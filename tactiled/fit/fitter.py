@@ -657,7 +657,7 @@ class Fitter:
             + ("" if corrections is None else
                " beyond the tactel gains and positions learned from its fits (and their own uncertainty)")
             + "; uncertainties widened to match"
-            + (f" (flat field: {self.flat.note})" if self.flat is not None and self.flat.note else ""))
+            + (f" (flat field: {self.flat.note})" if corrections is not None else ""))
 
     def _learn(self, rows: np.ndarray, excess_i: np.ndarray, excess: float, s_f: float, g_f: float,
                dof: int, ts: float, tg: float) -> float:
