@@ -85,6 +85,9 @@ MAX_GAIN_SPREAD, MAX_SHIFT_SPREAD = 0.15, 0.3
 #: fingers); residuals that follow the contacts do not (the simulator's demo scene, whose finger
 #: is the model's: 54 %, and corrections there cost its force coverage 95 -> 78 %).
 MIN_EXPLAINED = 0.8
+#: Windows (sets of usable tactels) whose sums and covariance blocks a flat field keeps: an
+#: 8x8 array has 25 windows of 4x4 without masked tactels (each block 38 KB).
+MAX_WINDOWS = 64
 #: Expectation-maximisation steps for the prior's variances at each solve.
 EM_STEPS = 2
 #: Smallest prior variance (relative gain^2, or mm^2): a kind of departure the fits do not
@@ -162,6 +165,8 @@ class FlatField:
         acc.ata += w * xtx
         acc.ata2 += (w * w) * xtx
         acc.atb += w * c * np.tile(r0, 3)
+        if self._windows.get(tactels.tobytes()) is not acc:
+            self._fold_one(acc)  # a block of its own (past MAX_WINDOWS)
         # what the noise does not explain of the fit's residuals (uncorrected), pooled
         self.excess += w * (float(r0 @ r0) - float(np.trace(resid_op)))
         self.fits += 1
@@ -170,15 +175,21 @@ class FlatField:
             self.solve()
 
     def _window(self, tactels: np.ndarray) -> _Window:
-        """The sums of the fits on these tactels since the last solve (a fit's window recurs
-        often, so a fit adds to a small block instead of scattering into the array's)."""
+        """The sums of the fits on these tactels since the last solve: a fit's window
+        recurs, so a fit adds to a small block instead of scattering into the array's.  The
+        blocks are kept (zeroed at each solve), so what a flat field holds does not rise and
+        fall with the windows the contacts visit; past ``MAX_WINDOWS`` of them (windows with
+        masked tactels are sets of their own) a block is the fit's alone and goes straight
+        into the array's sums."""
         key = tactels.tobytes()
         acc = self._windows.get(key)
         if acc is None:
             n = self._n
             idx = np.concatenate((tactels, tactels + n, tactels + 2 * n))
             k = idx.size
-            acc = self._windows[key] = _Window(idx, np.zeros((k, k)), np.zeros((k, k)), np.zeros(k))
+            acc = _Window(idx, np.zeros((k, k)), np.zeros((k, k)), np.zeros(k))
+            if len(self._windows) < MAX_WINDOWS:
+                self._windows[key] = acc
         return acc
 
     def _rescale(self, s: float) -> None:
@@ -190,13 +201,18 @@ class FlatField:
         self._w *= s
 
     def _fold(self) -> None:
-        """Add the windows' sums into the array's."""
+        """Add the windows' sums into the array's, and zero them."""
         for acc in self._windows.values():
-            block = np.ix_(acc.idx, acc.idx)
-            self.ata[block] += acc.ata
-            self.ata2[block] += acc.ata2
-            self.atb[acc.idx] += acc.atb
-        self._windows.clear()
+            self._fold_one(acc)
+            acc.ata.fill(0.0)
+            acc.ata2.fill(0.0)
+            acc.atb.fill(0.0)
+
+    def _fold_one(self, acc: _Window) -> None:
+        block = np.ix_(acc.idx, acc.idx)
+        self.ata[block] += acc.ata
+        self.ata2[block] += acc.ata2
+        self.atb[acc.idx] += acc.atb
 
     def solve(self) -> None:
         """Re-estimate the departure from the pooled fits; switch the correction on once it
@@ -263,7 +279,9 @@ class FlatField:
         self.dx = self._u[n:2 * n].reshape(shape)
         self.dy = self._u[2 * n:].reshape(shape)
         self.covariance = cov
-        self._blocks.clear()
+        for key, blk in self._blocks.items():  # in place: the same blocks, new values
+            idx = self._windows[key].idx
+            blk[...] = cov[np.ix_(idx, idx)]
 
     def _stand_down(self, reason: str) -> None:
         """No correction (the fits run as without a flat field), for ``reason``."""
@@ -275,7 +293,6 @@ class FlatField:
         self.dx = np.zeros((self.rows, self.cols))
         self.dy = self.dx
         self.covariance = None
-        self._blocks.clear()
 
     def error_covariance(self, tactels: np.ndarray, m: np.ndarray, jx: np.ndarray,
                          jy: np.ndarray) -> np.ndarray | None:
@@ -291,7 +308,9 @@ class FlatField:
         p = self._blocks.get(key)
         if p is None:
             idx = self._window(tactels).idx
-            p = self._blocks[key] = self.covariance[np.ix_(idx, idx)]
+            p = self.covariance[np.ix_(idx, idx)]
+            if key in self._windows:  # kept (and refreshed at each solve) with its sums
+                self._blocks[key] = p
         c = np.concatenate((-m, jx, jy))
         k = m.size
         return (p * np.outer(c, c)).reshape(3, k, 3, k).sum(axis=(0, 2))

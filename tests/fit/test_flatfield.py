@@ -139,3 +139,36 @@ def test_residuals_that_follow_the_contacts_are_not_blamed_on_the_tactels():
     assert fitter.flat.fits > 2000 and fitter.flat.explained < 0.8
     assert not ever_on, fitter.flat.note
     assert np.mean(inside) > 0.93
+
+
+def test_what_a_flat_field_holds_is_bounded_and_loses_no_fit(monkeypatch):
+    """Windows with masked tactels are sets of their own: past MAX_WINDOWS of them a fit's
+    sums go straight into the array's, and the normal equations are the same as with every
+    window kept."""
+    import tactiled.fit.flatfield as ff
+
+    rng = np.random.default_rng(5)
+    fits = []
+    for _ in range(300):
+        r0, c0 = rng.integers(0, 5, 2)
+        keep = rng.uniform(size=16) > 0.1  # a masked tactel or two: many distinct sets
+        t = np.array([(r0 + i) * 8 + c0 + j for i in range(4) for j in range(4)])[keep]
+        k = t.size
+        jac = rng.normal(size=(k, 6))
+        resid_op = np.eye(k) - jac @ np.linalg.solve(jac.T @ jac, jac.T)
+        fits.append((t, resid_op, *rng.uniform(5.0, 50.0, (1, k)), *rng.normal(0.0, 30.0, (2, k)),
+                     resid_op @ rng.normal(size=k)))
+    bound = ff.MAX_WINDOWS
+    assert len({f[0].tobytes() for f in fits}) > bound + 50  # the bound is reached
+    sums = []
+    for limit in (bound, 10**6):
+        monkeypatch.setattr(ff, "MAX_WINDOWS", limit)
+        flat = FlatField(8, 8)
+        flat._next_solve = 10**9
+        for f in fits:
+            flat.add(*f)
+        assert len(flat._windows) <= limit
+        flat._fold()
+        sums.append((flat.ata.copy(), flat.atb.copy()))
+    np.testing.assert_allclose(sums[0][0], sums[1][0], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(sums[0][1], sums[1][1], rtol=1e-12, atol=1e-9)
