@@ -76,10 +76,11 @@ def probe(fits: int, every: int, warmup: int, use_tracemalloc: bool = False,
     """Run ``fits`` fits, sampling every ``every``; a JSON-ready report."""
     from tactiled.config import NoiseModel, SensorModel
     from tactiled.fit.fitter import FitOptions, Fitter
+    from tactiled.pipeline.sensor import worker_fit_options
     from tactiled.heapstats import fitter_cache_figures, heap_figures
 
     sensor = SensorModel(noise=NoiseModel(sigma=0.0005))
-    fitter = Fitter(sensor, FitOptions(window=4, withhold_relative_sigma=0.5))
+    fitter = Fitter(sensor, FitOptions(**dict(worker_fit_options(4))))  # the daemon's workers' options
     if use_tracemalloc:
         tracemalloc.start(8)
     warm = None

@@ -65,8 +65,8 @@ MEMORY = 100_000
 #: Fits before the first solve of the normal equations (each costs 1-3 ms for an 8x8 array).
 MIN_FITS = 20
 #: Solves come after every quarter more fits (a young pool changes fast), at most this far
-#: apart (a solve costs about what a fit does; the daemon fits ~1000 frames a second).
-SOLVE_EVERY = 500
+#: apart (a solve costs a few fits' time; the daemon fits up to ~1000 frames a second).
+SOLVE_EVERY = 1000
 #: Standard deviations of the noise-only statistic beyond which the departure is believed.
 SIGNIFICANCE = 5.0
 #: The prior's standard deviations before the fits estimate them: a tactel's relative gain
@@ -88,8 +88,9 @@ MIN_EXPLAINED = 0.8
 #: Windows (sets of usable tactels) whose sums and covariance blocks a flat field keeps: an
 #: 8x8 array has 25 windows of 4x4 without masked tactels (each block 38 KB).
 MAX_WINDOWS = 64
-#: Expectation-maximisation steps for the prior's variances at each solve.
-EM_STEPS = 2
+#: Expectation-maximisation steps for the prior's variances at each solve, until ``EM_FITS``
+#: fits (then one: the spreads have settled, and each step costs an inversion).
+EM_STEPS, EM_FITS = 2, 1000
 #: Smallest prior variance (relative gain^2, or mm^2): a kind of departure the fits do not
 #: show is held near zero, and the posterior stays finite.
 _TINY = 1e-8
@@ -103,7 +104,6 @@ class _Window:
 
     idx: np.ndarray
     ata: np.ndarray
-    ata2: np.ndarray
     atb: np.ndarray
 
 
@@ -119,7 +119,7 @@ class FlatField:
         # N, b over w (and N2 over w^2) fade every old fit without touching the matrices
         self._w = 1.0
         self.ata = np.zeros((3 * n, 3 * n))
-        self.ata2 = np.zeros((3 * n, 3 * n))
+        self._sw = self._sw2 = 0.0  # sums of the fits' weights and of their squares (over w, w^2)
         self.atb = np.zeros(3 * n)
         self.excess = 0.0
         #: the share of the fits' excess chi^2 (beyond the noise) the corrections explain
@@ -163,7 +163,8 @@ class FlatField:
             self._rescale(1.0 / self._w)
         w = self._w * weight
         acc.ata += w * xtx
-        acc.ata2 += (w * w) * xtx
+        self._sw += w
+        self._sw2 += w * w
         acc.atb += w * c * np.tile(r0, 3)
         if self._windows.get(tactels.tobytes()) is not acc:
             self._fold_one(acc)  # a block of its own (past MAX_WINDOWS)
@@ -187,7 +188,7 @@ class FlatField:
             n = self._n
             idx = np.concatenate((tactels, tactels + n, tactels + 2 * n))
             k = idx.size
-            acc = _Window(idx, np.zeros((k, k)), np.zeros((k, k)), np.zeros(k))
+            acc = _Window(idx, np.zeros((k, k)), np.zeros(k))
             if len(self._windows) < MAX_WINDOWS:
                 self._windows[key] = acc
         return acc
@@ -195,9 +196,10 @@ class FlatField:
     def _rescale(self, s: float) -> None:
         for acc in (self, *self._windows.values()):
             acc.ata *= s
-            acc.ata2 *= s * s
             acc.atb *= s
         self.excess *= s
+        self._sw *= s
+        self._sw2 *= s * s
         self._w *= s
 
     def _fold(self) -> None:
@@ -205,13 +207,11 @@ class FlatField:
         for acc in self._windows.values():
             self._fold_one(acc)
             acc.ata.fill(0.0)
-            acc.ata2.fill(0.0)
             acc.atb.fill(0.0)
 
     def _fold_one(self, acc: _Window) -> None:
         block = np.ix_(acc.idx, acc.idx)
         self.ata[block] += acc.ata
-        self.ata2[block] += acc.ata2
         self.atb[acc.idx] += acc.atb
 
     def solve(self) -> None:
@@ -223,12 +223,12 @@ class FlatField:
         a = self.ata * s
         b = self.atb * s
         diag = np.diag_indices(3 * n)
-        for _ in range(EM_STEPS):
+        for _ in range(EM_STEPS if self.fits < EM_FITS else 1):
             # the prior's variances (the tactels' spread of gains and of displacements) by
             # maximum likelihood: expectation-maximisation, carried on from solve to solve
             prior = np.concatenate((np.full(n, 1.0 / self._var[0]), np.full(2 * n, 1.0 / self._var[1])))
             ap = a.copy()
-            ap[diag] += prior
+            ap[diag] += prior  # kept: the null's traces below need the last prior
             try:
                 cov = np.linalg.inv(ap)
             except np.linalg.LinAlgError:
@@ -252,10 +252,15 @@ class FlatField:
         self.note = (f"tactel gains spread by ~{100 * gain_sd:.2g} %, tactels displaced by "
                      f"~{1000 * shift_sd:.3g} um")
         # b ~ N(0, N2) under the noise alone: q = b^T C b (C the covariance; the chi^2 the
-        # corrections take off the pooled fits) has mean tr(C N2) and variance 2 tr((C N2)^2)
+        # corrections take off the pooled fits) has mean tr(C N2) and variance
+        # 2 tr((C N2)^2).  With the fits alike, N2 = rho N (rho = sum w^2 / sum w), and
+        # C N = I - C P (P the prior's diagonal): both traces in O(size^2), no product
         q = float(b @ u)
-        an2 = cov @ (self.ata2 * (s * s))
-        mean, var = float(np.trace(an2)), 2.0 * float(np.sum(an2 * an2.T))
+        rho = s * self._sw2 / self._sw if self._sw > 0.0 else 1.0
+        cp = np.diag(cov) * prior
+        t1 = 3 * n - float(cp.sum())
+        t2 = 3 * n - 2.0 * float(cp.sum()) + float(prior @ (cov * cov) @ prior)
+        mean, var = rho * t1, 2.0 * rho * rho * t2
         excess = self.excess * s
         self.explained = (q - mean) / excess if excess > 0.0 else 0.0
         if self.explained < MIN_EXPLAINED:

@@ -62,7 +62,7 @@ RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing
 #: The daemon withholds a radius whose Cramer-Rao bound exceeds half of it ("force too low
 #: for curvature"; docs/model.md: radius is not observable at low force).
 WITHHOLD_RELATIVE_SIGMA = 0.5
-def _fit_options(window: int) -> tuple[tuple[str, Any], ...]:
+def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
     so this process never imports the fitter (numba, scipy: 1.3 s and ~100 MB)."""
     return (("window", window), ("withhold_relative_sigma", WITHHOLD_RELATIVE_SIGMA),
@@ -159,7 +159,7 @@ class SensorPipeline:
         if self.table is not None and self.table.shape != (g.rows, g.cols):
             raise CalibrationError(f"{settings.calibration}: table shape {self.table.shape} is "
                                    f"not the sensor's {(g.rows, g.cols)}")
-        self.spec = pool.register_spec(self.sensor_model, _fit_options(settings.window), self.name)
+        self.spec = pool.register_spec(self.sensor_model, worker_fit_options(settings.window), self.name)
         self.model = settings.model
         self.gate = Gate(settings.noise_sigma, settings.unchanged_z, settings.reuse_unchanged)
         self.source: FrameSource = source if source is not None else open_source(settings.url)
@@ -706,7 +706,7 @@ class SensorPipeline:
         self.model = s.model
         if s.noise_sigma != self.sensor_model.noise.sigma:
             self.sensor_model = replace(self.sensor_model, noise=NoiseModel(sigma=s.noise_sigma))
-        self.spec = self.pool.register_spec(self.sensor_model, _fit_options(s.window), self.name)
+        self.spec = self.pool.register_spec(self.sensor_model, worker_fit_options(s.window), self.name)
         self.gate.configure(sigma=s.noise_sigma, z=s.unchanged_z,
                             reuse_unchanged=s.reuse_unchanged)
         if self.stage is not None:

@@ -243,3 +243,30 @@ def test_two_fingers_of_one_model_never_share_a_fitter() -> None:
     assert a != b
     assert pool.register_spec(DEFAULT_SENSOR, (("window", 4),), "left") == a
     assert pool.specs[a] == pool.specs[b] == (DEFAULT_SENSOR, (("window", 4),))
+
+
+def test_workers_run_without_a_blas_thread_pool(tmp_path) -> None:
+    """A worker fits one frame at a time beside the others: its BLAS must not start threads
+    that spin on their cores.  Checked in the environment of a real worker's process (in a
+    fresh interpreter: the forkserver is one per process and reads it when it starts)."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "pool_env.py"
+    script.write_text(
+        "import asyncio, os\n"
+        "from tactiled.pipeline.pool import BLAS_THREADS, WorkerPool\n"
+        "from tactiled.settings import FitSettings\n"
+        "async def main():\n"
+        "    pool = WorkerPool(1, FitSettings())\n"
+        "    await pool.start()\n"
+        "    pid = pool.stats()['workers'][0]['pid']\n"
+        "    env = dict(v.split(b'=', 1) for v in open(f'/proc/{pid}/environ', 'rb').read().split(b'\\0') if b'=' in v)\n"
+        "    await pool.stop()\n"
+        "    print(' '.join(env.get(n.encode(), b'-').decode() for n in BLAS_THREADS))\n"
+        "if __name__ == '__main__':\n"
+        "    asyncio.run(main())\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["1", "1", "1"], out.stdout

@@ -393,9 +393,9 @@ import numpy as np
 import tactiled.pipeline.preload  # what the forkserver template holds: kernels, start table
 from tactiled.config import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
-from tactiled.pipeline.sensor import _fit_options
+from tactiled.pipeline.sensor import worker_fit_options
 strain, warm = json.loads(sys.argv[1])
-fitter = Fitter(SensorModel(noise=NoiseModel(sigma=0.0005)), FitOptions(**dict(_fit_options(4))))
+fitter = Fitter(SensorModel(noise=NoiseModel(sigma=0.0005)), FitOptions(**dict(worker_fit_options(4))))
 t = time.perf_counter()
 result = fitter.fit(np.array(strain).reshape(8, 8), "auto", warm=(warm[0], tuple(warm[1])))
 first = time.perf_counter() - t

@@ -21,6 +21,7 @@ from rel_helpers import figures
 from tactiled.bench.scenes import busy_scene
 from tactiled.config import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
+from tactiled.pipeline.sensor import worker_fit_options
 from tactiled.heapstats import fitter_cache_figures
 from tactiled.pipeline import Daemon
 from tactiled.recording import Recorder
@@ -38,7 +39,7 @@ def busy_frames(n: int, rate_hz: float = 100.0) -> list:
 
 def test_fits_of_new_contact_sizes_keep_no_new_rule() -> None:
     fitter = Fitter(SensorModel(noise=NoiseModel(sigma=0.0005)),
-                    FitOptions(window=4, withhold_relative_sigma=0.5))
+                    FitOptions(**dict(worker_fit_options(4))))  # the daemon's workers' options
     before = fitter_cache_figures()
     warm, fitted = None, 0
     for tick in busy_frames(600):
