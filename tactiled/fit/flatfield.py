@@ -55,6 +55,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 #: Arrays up to this many tactels get a flat field: its normal equations are 3 per tactel
 #: square (an 8x8 array: 192, a solve ~2 ms; 16x16: 768, ~0.1 s and 14 MB a finger).
@@ -96,6 +97,50 @@ EM_STEPS, EM_FITS = 2, 1000
 _TINY = 1e-8
 #: The lazy exponential weights are renormalised before they pass this.
 _RESCALE = 1e100
+
+
+@njit(cache=True, nogil=True)
+def _accumulate(ata: np.ndarray, atb: np.ndarray, resid_op: np.ndarray, m: np.ndarray,
+                jx: np.ndarray, jy: np.ndarray, r: np.ndarray, u: np.ndarray, idx: np.ndarray,
+                w: float) -> float:
+    """Add one fit, weighted ``w``, to a window's sums ``ata`` (3k, 3k) and ``atb`` (3k,):
+    ``X^T X = E^T M E`` and ``X^T (r + X u) = E^T (r + M E u)`` (M, the residual operator, is a
+    symmetric projection; ``E = [diag(-m), diag(jx), diag(jy)]``; ``u[idx]`` the corrections
+    the fit ran with).  Returns the excess ``|r0|^2 - tr M`` of the uncorrected residuals
+    ``r0``, or NaN (and adds nothing) when a number of the fit is not finite.  Compiled: in
+    numpy this was ~25 small array operations a fit, 40 % of a learning fitter's time."""
+    k = m.size
+    c = np.empty(3 * k)
+    check = 0.0
+    for i in range(k):
+        c[i] = -m[i]
+        c[k + i] = jx[i]
+        c[2 * k + i] = jy[i]
+    eu = np.empty(k)
+    for i in range(k):
+        eu[i] = c[i] * u[idx[i]] + c[k + i] * u[idx[k + i]] + c[2 * k + i] * u[idx[2 * k + i]]
+        check += c[i] + c[k + i] + c[2 * k + i]
+    r0 = np.empty(k)
+    total = 0.0
+    trace = 0.0
+    for i in range(k):
+        acc = r[i]
+        for j in range(k):
+            acc += resid_op[i, j] * eu[j]
+            check += resid_op[i, j]
+        r0[i] = acc
+        total += acc * acc
+        trace += resid_op[i, i]
+    if not np.isfinite(check + total):
+        return np.nan
+    for a in range(3):
+        for i in range(k):
+            ci = w * c[a * k + i]
+            atb[a * k + i] += ci * r0[i]
+            for b in range(3):
+                for j in range(k):
+                    ata[a * k + i, b * k + j] += ci * resid_op[i, j] * c[b * k + j]
+    return total - trace
 
 
 @dataclass
@@ -151,25 +196,23 @@ class FlatField:
         strain, ``jx``, ``jy`` (k,) its slope in the contact's x0, y0 (per mm), ``r`` (k,) the
         residuals (model minus reading); all in units of each tactel's noise.  ``weight``
         (<= 1) down-weights a fit far outside the model."""
-        acc = self._window(tactels)
-        c = np.concatenate((-m, jx, jy))  # E = [diag(-m), diag(jx), diag(jy)], by its diagonals
-        # M is a symmetric projection, so X^T X = E^T M E and X^T (r + X u) = E^T (r + M E u)
-        r0 = r + resid_op @ (c * self._u[acc.idx]).reshape(3, -1).sum(axis=0)  # uncorrected
-        xtx = np.tile(resid_op, (3, 3)) * np.outer(c, c)
-        if not (math.isfinite(float(xtx.sum()) + float(r0.sum())) and weight > 0.0):
+        if not weight > 0.0:
             return
+        acc = self._window(tactels)
         self._w /= self._keep
         if self._w > _RESCALE:
             self._rescale(1.0 / self._w)
         w = self._w * weight
-        acc.ata += w * xtx
+        excess = _accumulate(acc.ata, acc.atb, resid_op, m, np.ascontiguousarray(jx),
+                             np.ascontiguousarray(jy), r, self._u, acc.idx, w)
+        if not math.isfinite(excess):
+            return  # a fit with a non-finite number in it: nothing was added
         self._sw += w
         self._sw2 += w * w
-        acc.atb += w * c * np.tile(r0, 3)
         if self._windows.get(tactels.tobytes()) is not acc:
             self._fold_one(acc)  # a block of its own (past MAX_WINDOWS)
         # what the noise does not explain of the fit's residuals (uncorrected), pooled
-        self.excess += w * (float(r0 @ r0) - float(np.trace(resid_op)))
+        self.excess += w * excess
         self.fits += 1
         if self.fits >= self._next_solve:
             self._next_solve = self.fits + min(max(self.fits // 4, 1), SOLVE_EVERY)
