@@ -221,8 +221,9 @@ def learn(sensor: SensorModel, window: int, model: str, strain: np.ndarray,
     if ts > 0.0 or tg > 0.0:
         said.append(f"residual floor ~{100 * math.sqrt(ts):.2g} % of the strain and "
                     f"~{1000 * math.sqrt(tg):.2g} um of tactel position")
-    bar.finish(f"{took}: " + "; ".join(said))
-    return (fitter.floor, flat), f"{took}: " + "; ".join(said)
+    message = f"{took}: " + "; ".join(said)
+    bar.finish(message)
+    return (fitter.floor, flat), message
 
 
 def chunk_size(frames: int, jobs: int) -> int:

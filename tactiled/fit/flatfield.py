@@ -40,7 +40,7 @@ residuals cannot show a correction that is wrong along a direction the fit absor
 It is switched on only when it says something, and only when what it says is the tactels':
 when ``q = b^T (N + P)^-1 b`` (the chi^2 the corrections take off the pooled fits) exceeds
 what the noise alone gives by ``SIGNIFICANCE`` of its standard deviations (under the noise
-``b`` has covariance ``N2 = sum w_f^2 X^T X``), and explains at least ``MIN_EXPLAINED`` of the
+``b`` has covariance ``N2 = sum w_f^2 X^T X``, taken as ``N`` times the weights' mean), and explains at least ``MIN_EXPLAINED`` of the
 fits' excess chi^2.  Residuals that follow the contacts (a rubber that is not the model's,
 contacts the model does not describe, hysteresis) also look significant, but no set of
 per-tactel corrections explains much of them; nor do they keep plausible spreads (beyond
@@ -95,6 +95,10 @@ EM_STEPS, EM_FITS = 2, 1000
 #: Smallest prior variance (relative gain^2, or mm^2): a kind of departure the fits do not
 #: show is held near zero, and the posterior stays finite.
 _TINY = 1e-8
+#: Why a departure is not the tactels', in the words the flat field stands down with.
+_FOLLOW_THE_CONTACTS = ("the residuals follow the contacts, not the tactels (a rubber that is "
+                        "not the model's, contacts the model does not describe, hysteresis); "
+                        "identifying the finger (tactiled calibrate --identify) removes the first")
 #: The lazy exponential weights are renormalised before they pass this.
 _RESCALE = 1e100
 
@@ -161,7 +165,7 @@ class FlatField:
         self._n = n
         self._keep = 1.0 - 1.0 / memory
         # fit f enters with weight w_f = keep^-f (w grows by 1/keep each fit), so the sums
-        # N, b over w (and N2 over w^2) fade every old fit without touching the matrices
+        # N, b (and sum w, sum w^2) over w fade every old fit without touching the matrices
         self._w = 1.0
         self.ata = np.zeros((3 * n, 3 * n))
         self._sw = self._sw2 = 0.0  # sums of the fits' weights and of their squares (over w, w^2)
@@ -198,7 +202,7 @@ class FlatField:
         (<= 1) down-weights a fit far outside the model."""
         if not weight > 0.0:
             return
-        acc = self._window(tactels)
+        acc, kept = self._window(tactels)
         self._w /= self._keep
         if self._w > _RESCALE:
             self._rescale(1.0 / self._w)
@@ -209,7 +213,7 @@ class FlatField:
             return  # a fit with a non-finite number in it: nothing was added
         self._sw += w
         self._sw2 += w * w
-        if self._windows.get(tactels.tobytes()) is not acc:
+        if not kept:
             self._fold_one(acc)  # a block of its own (past MAX_WINDOWS)
         # what the noise does not explain of the fit's residuals (uncorrected), pooled
         self.excess += w * excess
@@ -218,23 +222,25 @@ class FlatField:
             self._next_solve = self.fits + min(max(self.fits // 4, 1), SOLVE_EVERY)
             self.solve()
 
-    def _window(self, tactels: np.ndarray) -> _Window:
+    def _window(self, tactels: np.ndarray) -> tuple[_Window, bool]:
         """The sums of the fits on these tactels since the last solve: a fit's window
         recurs, so a fit adds to a small block instead of scattering into the array's.  The
         blocks are kept (zeroed at each solve), so what a flat field holds does not rise and
         fall with the windows the contacts visit; past ``MAX_WINDOWS`` of them (windows with
         masked tactels are sets of their own) a block is the fit's alone and goes straight
-        into the array's sums."""
+        into the array's sums.  Returns the block and whether it is kept."""
         key = tactels.tobytes()
         acc = self._windows.get(key)
-        if acc is None:
-            n = self._n
-            idx = np.concatenate((tactels, tactels + n, tactels + 2 * n))
-            k = idx.size
-            acc = _Window(idx, np.zeros((k, k)), np.zeros(k))
-            if len(self._windows) < MAX_WINDOWS:
-                self._windows[key] = acc
-        return acc
+        if acc is not None:
+            return acc, True
+        n = self._n
+        idx = np.concatenate((tactels, tactels + n, tactels + 2 * n))
+        k = idx.size
+        acc = _Window(idx, np.zeros((k, k)), np.zeros(k))
+        if len(self._windows) < MAX_WINDOWS:
+            self._windows[key] = acc
+            return acc, True
+        return acc, False
 
     def _rescale(self, s: float) -> None:
         for acc in (self, *self._windows.values()):
@@ -287,10 +293,8 @@ class FlatField:
         if gain_sd > MAX_GAIN_SPREAD or shift_sd > MAX_SHIFT_SPREAD:
             self._stand_down(
                 f"the departure is not the tactels' (it would take gains spread by "
-                f"{100 * gain_sd:.2g} % and tactels displaced by {1000 * shift_sd:.3g} um): the "
-                "residuals follow the contacts, not the tactels (a rubber that is not the "
-                "model's, contacts the model does not describe, hysteresis); identifying the "
-                "finger (tactiled calibrate --identify) removes the first")
+                f"{100 * gain_sd:.2g} % and tactels displaced by {1000 * shift_sd:.3g} um): "
+                + _FOLLOW_THE_CONTACTS)
             return
         self.note = (f"tactel gains spread by ~{100 * gain_sd:.2g} %, tactels displaced by "
                      f"~{1000 * shift_sd:.3g} um")
@@ -310,10 +314,8 @@ class FlatField:
             if self.active or self.explained > 0.0:
                 self._stand_down(
                     f"the departure is not the tactels' (corrections for each tactel would "
-                    f"explain {100 * max(self.explained, 0.0):.0f} % of the fits' excess residuals): "
-                    "they follow the contacts (a rubber that is not the model's, contacts the "
-                    "model does not describe, hysteresis); identifying the finger (tactiled "
-                    "calibrate --identify) removes the first")
+                    f"explain {100 * max(self.explained, 0.0):.0f} % of the fits' excess "
+                    "residuals): " + _FOLLOW_THE_CONTACTS)
             return
         if not self.active:
             if not q > mean + SIGNIFICANCE * math.sqrt(max(var, 0.0)):
@@ -355,7 +357,7 @@ class FlatField:
         key = tactels.tobytes()
         p = self._blocks.get(key)
         if p is None:
-            idx = self._window(tactels).idx
+            idx = self._window(tactels)[0].idx
             p = self.covariance[np.ix_(idx, idx)]
             if key in self._windows:  # kept (and refreshed at each solve) with its sums
                 self._blocks[key] = p
