@@ -72,6 +72,10 @@ MEAN_RESIDUAL_S = 1.0
 #: Frames whose residuals are buffered before they are folded into the sums and tested.
 MEAN_RESIDUAL_FOLD = 8
 
+#: A log radius or force measured more than a factor e from the linearisation point needs a
+#: fit unless the step is within its noise; and beyond this step (a factor e^3) in any case.
+MAX_LOG_STEP = 3.0
+
 #: Velocities are reported from this many frames after a (re)start of the filter.
 MIN_RATE_FRAMES = 3
 #: A gap in the device clock longer than this (s), or time running backwards (the device
@@ -255,10 +259,15 @@ class Tracker:
             if float((e * e) @ lin.weight) > self._limit:
                 return "refit"
             dz = dp.tolist()
-            # a log radius or force moved by more than a factor e from the point: no linear
-            # range reaches that far (a release: force to zero), whatever the residual says
-            if any(not abs(dz[i]) < 1.0 for i in self._logs) or not all(
-                    math.isfinite(v) for v in dz):
+            # A log radius or force moved by more than a factor e from the point: no linear
+            # range reaches that far (a release: force to zero), whatever the residual says.
+            # Unless the step is within the noise (RESET_SIGMA single-frame sigmas) and below
+            # MAX_LOG_STEP: a value one frame barely determines (the radius of a light
+            # contact), which the filter weighs as such; a fit would give as uncertain a value.
+            if not all(math.isfinite(v) for v in dz) or any(
+                    abs(dz[i]) >= 1.0 and (abs(dz[i]) > RESET_SIGMA * self._sd1[i]
+                                           or abs(dz[i]) > MAX_LOG_STEP)
+                    for i in self._logs):
                 return "refit"
             z = [p + q for p, q in zip(self._p, dz)]
             self._ebuf += e

@@ -96,6 +96,26 @@ def test_a_held_contact_sharpens_like_one_over_sqrt_frames(kit) -> None:
     assert math.sqrt(np.mean(np.square(errs[400]))) < bound["r1_mm"] / 6
 
 
+def test_a_light_contact_is_measured_not_refitted_for_its_noisy_radius(kit) -> None:
+    """0.2 N on a 10 mm cylinder: one frame's sigma of ln R is 1.35, so a frame measured
+    through the linearisation often steps ln R by more than 1.  That is noise, not a jump
+    beyond the linear range: the tracker weighs it, where refitting every such frame (as it
+    once did: 140-167 fits in these 400 frames) restarted the radius's average each time and
+    left it 7-9 sigma off."""
+    light = Contact(r1=10.0, psi_deg=60.0, force=0.2, x0=8.0, y0=9.0)
+    assert crb(kit, light)["r1_mm"] / light.r1 > 1.0  # ln R's single-frame sigma
+    z = []
+    for seed in range(6):
+        out, _, fits = play(kit, lambda t: light, 400, seed)
+        e = out[-1][2]
+        assert fits <= 20, (seed, fits)
+        z.append((e["r1_mm"] - light.r1) / e["std"]["r1_mm"])
+        assert e["force_n"] == pytest.approx(light.force, rel=0.03)
+    # 6 fixed seeds: the worst within 3.5 sigma, typically within 2 (a radius this poorly
+    # determined averages in log, so a small bias upward remains)
+    assert max(abs(v) for v in z) < 3.5 and float(np.median(np.abs(z))) < 2.0, z
+
+
 @pytest.mark.parametrize("motion", ["roll 5 mm/s", "turn 45 deg/s"])
 def test_a_moving_contact_is_followed_without_lag(kit, motion) -> None:
     if motion.startswith("roll"):

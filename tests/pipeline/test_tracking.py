@@ -64,10 +64,13 @@ def test_a_held_contact_sharpens(run) -> None:
     used = [e.fit["frames_used"] for e in held]
     assert used == sorted(used) and used[-1] > 2500
     first, last = held[0].fit, held[-1].fit
-    # ~700 -> ~3500 frames: sigma down by sqrt(5) but for the zeroing's own error (the zero
-    # of each tactel is a mean of the idle frames), which the mean residual reveals; the
-    # single-frame bound here is 0.86 mm (test_tracker.py checks 1/sqrt(frames) exactly)
-    assert last["std"]["r1_mm"] < first["std"]["r1_mm"] / 1.5 and last["std"]["r1_mm"] < 0.05
+    # ~600 -> ~3300 frames: sigma down by sqrt(5.4) but for the zeroing's own error (the zero
+    # of each tactel is a mean of the idle frames), which the mean residual reveals and which
+    # leaves ~0.035 mm; the single-frame bound here is 0.86 mm (test_tracker.py checks
+    # 1/sqrt(frames) exactly).  Every 300 frames the sigma is smaller than before.
+    sds = [e.fit["std"]["r1_mm"] for e in held[::300]]
+    assert all(b < a for a, b in zip(sds, sds[1:])), sds
+    assert last["std"]["r1_mm"] < first["std"]["r1_mm"] / 1.4 and last["std"]["r1_mm"] < 0.05
     assert abs(last["r1_mm"] - 10.0) < 3 * last["std"]["r1_mm"]
     assert abs(last["force_n"] - 1.2) < 0.02
 
