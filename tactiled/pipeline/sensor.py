@@ -401,6 +401,8 @@ class SensorPipeline:
                 and w.since - self._pending[0].since > MAX_WAIT_S):
             self._flush_pending()
         if self._pending or not tracker.active or not self.settings.reuse_unchanged:
+            if not self._pending and self._reuse_unchanged(w):
+                return
             self._wait_for_fit(w)
             return
         if nonfinite:  # a reading the zeroer had to patch: never let it into the estimate
@@ -416,6 +418,17 @@ class SensorPipeline:
             return
         self._publish_tracked(w)
         self._maybe_relinearize(w)
+
+    def _reuse_unchanged(self, w: _Waiting) -> bool:
+        """With nothing to track (the contact's last fit could not place it: a frame at the
+        noise, a light touch), a frame the gate finds unchanged since that fit is answered
+        with it, as without tracking (a justified reuse): refitting would give the same
+        unplaceable contact, at the price of the slowest fits there are."""
+        if self._last_fit is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
+            return False
+        self.skipped[GATE_UNCHANGED] += 1
+        self._publish(w, GATE_UNCHANGED, self._last_fit.fitted_seq, 0.0, self._last_fit.fit)
+        return True
 
     def _flush_pending(self) -> None:
         """The waiting frames' fit is late: publish each with the contact predicted to its
@@ -516,19 +529,28 @@ class SensorPipeline:
             return
         if not usable:
             # nothing to track from (no contact in the window, a fit without a linearisation):
-            # the frame gets the fit as it is; those before it are given up
+            # the frame gets the fit as it is; those before it are given up; those after it
+            # reuse it while the gate finds them unchanged
             tracker.clear()
             self._base = self._base_seq = None
             self._warm = None
             later = [p for p in pending if p.ordinal > w.ordinal]
             self.superseded += len(pending) - len(later) - mine
+            self._last_fit = None
             if mine:
-                self._publish(w, GATE_FIT, w.seq, worker_ms,
-                              untracked(fit, 1, "no tracked contact"))
+                est = self._publish(w, GATE_FIT, w.seq, worker_ms,
+                                    untracked(fit, 1, "no tracked contact"))
+                if est.contact:
+                    self._last_fit = est
+                    self.gate.fitted(w.strain)
+            while later and self._reuse_unchanged(later[0]):
+                later.pop(0)
             if later:
                 self._pending = later
                 self._wait_for_fit(self._pending.pop())
             return
+        self._last_fit = None  # the tracker answers from here
+        self.gate.reset()
         tracker.adopt(lin, self._zero_var())
         self._base, self._base_seq, self._warm = fit, w.seq, warm
         if not mine and (tracker.t is None or w.t >= tracker.t):
@@ -608,6 +630,9 @@ class SensorPipeline:
         if self._waiting is None or self._in_flight is not None:
             return None
         return self._waiting.since
+
+    def job_background(self) -> bool:
+        return self._waiting is not None and self._waiting.kind == "lin"
 
     def take_job(self) -> FitJob:
         w = self._waiting
