@@ -66,6 +66,10 @@ class JobOwner(Protocol):
     def job_waiting_since(self) -> float | None:
         """Monotonic time its waiting frame became ready to fit, or None if nothing waits."""
 
+    def job_background(self) -> bool:
+        """True when the waiting job answers no frame (a relinearisation for the tracker):
+        it goes to a worker only when no frame of any sensor waits for a fit."""
+
     def take_job(self) -> FitJob:
         """Hand over the waiting frame as a job (now in flight)."""
 
@@ -544,11 +548,12 @@ class WorkerPool:
         for w in self._workers:
             if w.state != "ready" or w.job is not None:
                 continue
-            waiting = [(t, i) for i, o in enumerate(self._owners)
+            # frames before background work, then the longest-waiting first: fairness
+            waiting = [(o.job_background(), t, i) for i, o in enumerate(self._owners)
                        if (t := o.job_waiting_since()) is not None]
             if not waiting:
                 return
-            owner = self._owners[min(waiting)[1]]  # the longest-waiting frame first: fairness
+            owner = self._owners[min(waiting)[2]]
             job = owner.take_job()
             if job.spec not in w.known_specs:
                 sensor, options = self.specs[job.spec]

@@ -133,7 +133,15 @@ class Owner:
     def job_waiting_since(self) -> float | None:
         return self.since if self.todo else None
 
+    background = False  # its jobs answer no frame (as the tracker's relinearisations)
+    taken: list[str] | None = None  # where take_job notes the order jobs left, if given
+
+    def job_background(self) -> bool:
+        return self.background
+
     def take_job(self) -> FitJob:
+        if self.taken is not None:
+            self.taken.append(self.name)
         return FitJob(owner=self, ordinal=len(self.results), seq=0, strain=self.todo.pop(0),
                       model="auto", spec=self.spec)
 
@@ -177,6 +185,35 @@ def test_worker_answers_nan_and_malformed_frames_and_survives(arun) -> None:
     assert empty_fit["contact"] is False
     assert bad is None and "ValueError" in error and "shape" in error
     assert good["r1_mm"] is not None and abs(good["r1_mm"] - 10.0) < 1.0
+
+
+def test_a_frame_waiting_for_its_fit_goes_before_background_work(arun) -> None:
+    """With one worker, a relinearisation that has waited longer still goes after every
+    frame's fit (a frame that waits past 5 ms is published with a prediction); among frames,
+    the longest-waiting first."""
+    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+
+    async def main() -> list[str]:
+        pool = WorkerPool(1, FitSettings())
+        spec = pool.register_spec(DEFAULT_SENSOR, (("window", 4),))
+        taken: list[str] = []
+        now = time.monotonic()
+        owners = []
+        for name, since, background in (("lin", now - 3.0, True), ("late", now - 1.0, False),
+                                        ("early", now - 2.0, False)):
+            o = Owner(spec)
+            o.name, o.since, o.background, o.taken, o.todo = name, since, background, taken, [clean]
+            pool.attach(o)
+            owners.append(o)
+        await pool.start()
+        t0 = time.monotonic()
+        while sum(len(o.results) for o in owners) < 3:
+            assert time.monotonic() - t0 < 10, "fits not answered"
+            await asyncio.sleep(0.005)
+        await pool.stop()
+        return taken
+
+    assert arun(main()) == ["early", "late", "lin"]
 
 
 def test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker(arun) -> None:
