@@ -124,10 +124,10 @@ MUTATIONS = [
   ["tests/reliability/test_decoder_fuzz.py::"
    "test_an_oversize_tail_after_a_good_frame_is_not_a_resync"]),
  ("M28 (bug 9) the port is read only when the event loop asks", "drivers/tactiled_drivers/port_reader.py",
-  "                data = port.read(1)",
-  "                while self._waiter is None and not self._stopping:\n"
-  "                    threading.Event().wait(0.001)\n"
-  "                data = port.read(1)",
+  "        ready, _, _ = select.select((fd, abort), (), ())",
+  "        while self._waiter is None and not self._stopping:\n"
+  "            threading.Event().wait(0.001)\n"
+  "        ready, _, _ = select.select((fd, abort), (), ())",
   ["tests/drivers/test_port_reader.py::test_drains_the_device_while_the_event_loop_is_stuck"]),
  ("M29 the reader thread's memory is unbounded", "drivers/tactiled_drivers/port_reader.py",
   "            if held >= self.limit:", "            if False:",
