@@ -29,6 +29,7 @@ examples:
   tactiled bench --suite configs --plot pareto.png
   tactiled bench --suite acquisition --scene moving --workers 1,2,4
   tactiled bench --suite acquisition --scene moving --baseline REV   # this tree against REV
+  tactiled bench --suite acquisition --scene moving --sim-nice 10   # devices off the host's CPU
 """
 
 from __future__ import annotations
@@ -62,6 +63,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      help="fit worker counts, one run each (default 2; e.g. 1,2,4)")
     acq.add_argument("--seconds", type=float, default=None, metavar="S",
                      help="measured seconds per run, after 4-5 s of warm-up (default 20, quick 6)")
+    acq.add_argument("--sim-nice", type=int, default=0, metavar="N",
+                     help="run the simulated fingers at this niceness (0-19; default 0): a real finger's "
+                          "device has a processor of its own, so niced they take only the CPU the "
+                          "daemon leaves")
 
 
 def _worker_list(text: str) -> tuple[int, ...]:
@@ -107,6 +112,10 @@ def run(args: argparse.Namespace) -> int:
             return 2
         if args.seconds is not None and not args.seconds > 0:
             print("tactiled bench: error: --seconds must be positive", file=sys.stderr)
+            return 2
+        if not 0 <= args.sim_nice <= 19:
+            print(f"tactiled bench: error: --sim-nice must be a niceness 0-19, got {args.sim_nice}",
+                  file=sys.stderr)
             return 2
     sensor = SensorModel(noise=BENCH_NOISE)
     out = [_header(args)]
@@ -184,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
 
         out += ["", f"## Acquisition: three fingers at 1 kHz over ptys, scene {args.scene.strip().lower()}", "",
                 acquisition.run(args.quick, scene=args.scene.strip().lower(), workers=args.workers,
-                                seconds=args.seconds, baseline=args.baseline)]
+                                seconds=args.seconds, baseline=args.baseline, sim_nice=args.sim_nice)]
     if "speed" in suites and (args.suite == "speed" or args.baseline):
         from tactiled.bench import speed
 

@@ -155,11 +155,46 @@ def test_a_baseline_runs_its_own_code_side_by_side() -> None:
     (["--workers", "0"], "worker counts must lie in 1..64"),
     (["--workers", "two"], "expected worker counts like 1,2,4"),
     (["--seconds", "0"], "--seconds must be positive"),
+    (["--sim-nice", "20"], "--sim-nice must be a niceness 0-19, got 20"),
 ])
 def test_bad_acquisition_options(argv: list[str], message: str) -> None:
     proc = subprocess.run([*TACTILED, "--suite", "acquisition", *argv], capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 2 and message in proc.stderr
+
+
+def test_simulators_under_a_harness_are_reniced_and_no_others(tmp_path) -> None:
+    """``--sim-nice`` with ``--baseline``: the baseline's own harness starts its simulators, so
+    they are found under its process (grandchildren here) and reniced from outside; a
+    simulator that is not under it keeps its niceness."""
+    import os
+    import time
+
+    def simulate(link: str) -> list[str]:
+        return [sys.executable, "-m", "tactiled.cli", "simulate", "--pty", "--link",
+                str(tmp_path / link), "--scene", "press", "--rate", "50"]
+
+    harness = subprocess.Popen([sys.executable, "-c",
+                                "import subprocess, sys; subprocess.run(sys.argv[1:])",
+                                *simulate("under")],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    other = subprocess.Popen(simulate("other"), stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while not ((tmp_path / "under").exists() and (tmp_path / "other").exists()):
+            assert time.monotonic() < deadline, "simulators did not start"
+            time.sleep(0.05)
+        assert acq.renice_simulators(harness.pid, 7) == 1
+        assert acq.renice_simulators(harness.pid, 7) == 0  # already at 7
+        assert os.getpriority(os.PRIO_PROCESS, other.pid) == os.getpriority(os.PRIO_PROCESS, 0)
+    finally:
+        for p in (other, harness):
+            p.terminate()
+        for p in (other, harness):
+            p.wait(30)
+        # the harness's own simulator outlives it (nothing passes the signal on)
+        subprocess.run(["pkill", "-f", str(tmp_path / "under")], check=False)
 
 
 def test_a_tare_is_repeated_until_the_baseline_forms_on_untouched_frames() -> None:
