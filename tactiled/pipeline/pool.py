@@ -53,6 +53,9 @@ YOUNG = 2.0  # s, a worker lost this soon after being ready, before any fit, cou
 #: Share of ``fit.timeout`` a fit may spend before the fitter stops itself (its time budget);
 #: the rest is margin for one last evaluation and the answer, so the worker is not killed.
 FIT_BUDGET_FRACTION = 0.5
+#: A worker compiling a numba kernel for a request (first use on a fresh install: ~1 s per
+#: kernel, then cached) gets this much more time for it (s) before it counts as hung.
+COMPILE_GRACE_S = 30.0
 
 #: pid of every worker process any pool started (for tests that check none is left alive).
 SPAWNED_PIDS: list[int] = []
@@ -189,6 +192,8 @@ class WorkerPool:
         self._stopping = False
         self.fits = 0
         self.restarts = 0
+        #: kernels the workers compiled for a request (numba's first use on a fresh install)
+        self.compiles = 0
         self.restarts_by_reason: dict[str, int] = {}
         self.last_restart: dict[str, Any] | None = None
         self.recycles = 0
@@ -517,6 +522,12 @@ class WorkerPool:
         if not w.outstanding or w.outstanding[0].rid != msg[1]:
             self._lose(w, "protocol", f"unexpected answer {kind!r}")
             return
+        if kind == "compiling":  # not an answer: numba compiles a kernel for this request
+            w.head_since = max(w.head_since, now + COMPILE_GRACE_S)
+            self.compiles += 1
+            log.info("fit worker %d compiles a kernel (its first use here; cached from now on)",
+                     w.slot)
+            return
         req = w.outstanding.popleft()
         w.head_since = now
         if kind == "result":
@@ -610,6 +621,16 @@ class WorkerPool:
         self._send(w, ("sleep", float(seconds)), "sleep", self.settings.timeout)
         return w.pid
 
+    def debug_compile(self, slot: int, seconds: float) -> int | None:
+        """Make worker ``slot`` announce a kernel compilation and hold it for ``seconds`` (test
+        hook: the deadline is ``fit.timeout``, which a compilation may exceed).  Returns the
+        worker's pid, or None if it is not ready."""
+        w = self._workers[slot]
+        if w.state != "ready":
+            return None
+        self._send(w, ("compile", float(seconds)), "compile", self.settings.timeout)
+        return w.pid
+
     # -- stopping ---------------------------------------------------------------------------------
 
     async def stop(self, timeout: float | None = None) -> None:
@@ -695,6 +716,7 @@ class WorkerPool:
             "start_method": self.settings.start_method,
             "fits": self.fits,
             "restarts": self.restarts,
+            "compiles": self.compiles,
             "restarts_by_reason": dict(self.restarts_by_reason),
             "last_restart": None if self.last_restart is None else {
                 k: v for k, v in self.last_restart.items() if k != "lost_at"},

@@ -20,6 +20,12 @@ in order (which is what lets the parent give every outstanding request a deadlin
   (:func:`tactiled.heapstats.worker_figures`: RSS, malloc and pymalloc books, the fitter's
   caches, fits so far), for the soak and for diagnosing growth;
 - ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
+- ``("compile", rid, seconds)`` -> ``("compiled", rid)``: a test hook that holds a numba
+  compile event open for ``seconds``, as a first-time kernel compilation does;
+- ``("compiling", rid)``, unasked, before the answer to request ``rid``: numba is compiling a
+  kernel for it (its first use on a fresh install, ~1 s, cached from then on).  The parent
+  then gives the request more time instead of killing the worker mid-compile, which would
+  leave the cache unwritten and the next worker compiling again, for ever;
 - ``("stop",)``: exit.
 
 ``spec`` is a small integer naming a (SensorModel, FitOptions arguments) pair the parent
@@ -48,6 +54,26 @@ TRIM_EVERY_FITS = 20000
 Spec = tuple[SensorModel, tuple[tuple[str, Any], ...]]
 
 
+class _CompileNotice:
+    """A numba event listener: tells the parent when a kernel is being compiled for the
+    request in hand (``rid``; None between requests and during start-up, whose own deadline
+    is long).  Loading a kernel from numba's cache fires no such event."""
+
+    def __init__(self, conn: Connection) -> None:
+        from numba.core import event
+
+        self.conn = conn
+        self.rid: int | None = None
+        listener = type("Listener", (event.Listener,), {
+            "on_start": lambda _self, _event: self._started(),
+            "on_end": lambda _self, _event: None})()
+        event.register("numba:compile", listener)
+
+    def _started(self) -> None:
+        if self.rid is not None:
+            self.conn.send(("compiling", self.rid))
+
+
 def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     """Entry point of a worker process (the ``target`` of its ``Process``)."""
     # Ctrl-C in a terminal signals the whole process group; the parent decides when a worker
@@ -60,6 +86,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     from tactiled.fit.fitter import FitOptions, Fitter
     from tactiled.fit.linearize import linearize
 
+    notice = _CompileNotice(conn)
     t0 = time.perf_counter()
     fits = 0
     fitters: dict[int, Any] = {}
@@ -79,6 +106,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
             kind = msg[0]
             if kind == "fit":
                 _, rid, spec, strain, model, mask, warm, budget_s, job_kind = msg
+                notice.rid = rid
                 t = time.perf_counter()
                 follow = lin = out = None
                 try:
@@ -101,6 +129,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 except Exception as err:  # a fitter bug must cost one frame, not the worker
                     out, error = None, f"{type(err).__name__}: {err}"
                 fits += 1
+                notice.rid = None
                 conn.send(("result", rid, out, time.perf_counter() - t, error, follow, lin))
                 if fits % TRIM_EVERY_FITS == 0:
                     trim()  # after the answer: what malloc keeps free after a burst goes back
@@ -125,6 +154,15 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
             elif kind == "sleep":
                 time.sleep(msg[2])  # deliberately unresponsive: the parent must notice
                 conn.send(("slept", msg[1]))
+            elif kind == "compile":
+                from numba.core.event import trigger_event
+
+                notice.rid = msg[1]
+                with trigger_event("numba:compile", data={"dispatcher": None, "args": (),
+                                                          "return_type": None}):
+                    time.sleep(msg[2])
+                notice.rid = None
+                conn.send(("compiled", msg[1]))
             elif kind == "stop":
                 return
     except (BrokenPipeError, ConnectionResetError, EOFError):
