@@ -197,6 +197,10 @@ class DaemonCollector(Collector):
                                   "Fit workers replaced after fit.max_fits_per_worker fits "
                                   "(successor started first; no fit lost).",
                                   value=float(pool.get("recycles", 0)))
+        yield CounterMetricFamily("tactiled_worker_compiles",
+                                  "Kernels a fit worker compiled for a request (numba's first "
+                                  "use on a fresh install; cached from then on).",
+                                  value=float(pool.get("compiles", 0)))
         yield CounterMetricFamily("tactiled_worker_fits", "Fits answered by the pool's "
                                   "workers, every sensor.", value=float(pool["fits"]))
         yield GaugeMetricFamily("tactiled_fit_workers", "Fit worker processes configured.",
