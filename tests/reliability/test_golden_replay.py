@@ -77,13 +77,34 @@ def test_replay_matches_the_golden_estimates(replayed: dict[str, str], name: str
 HOST_REL_TOL = 1e-6
 
 
+def unmeasured(estimate: dict) -> bool:
+    """A fit that measured nothing: its force (the best-determined value of any contact) not
+    observable from the window.  Such a frame is noise around a contact's end; the fit wanders
+    a flat valley, and where it stops (an iteration sooner or later, so which convergence
+    message, and the diagnostics of that point) follows the arithmetic's last bits."""
+    return str((estimate.get("reasons") or {}).get("force_n", "")).startswith("not observable")
+
+
+def outline(estimate: dict) -> dict:
+    """What an estimate that measured nothing must keep on any CPU: its frame, gate, contact
+    and model, and which values it withheld."""
+    keep = ("type", "sensor", "seq", "gate", "fitted_seq", "contact", "model", "label")
+    return {**{k: estimate.get(k) for k in keep},
+            "withheld": sorted(k for k in ("x_mm", "y_mm", "force_n", "r1_mm", "r2_mm",
+                                           "angle_deg") if estimate.get(k) is None)}
+
+
 def test_the_host_cpu_changes_nothing_but_last_digits() -> None:
     """The daemon itself is not pinned: replayed with the host's own numerics (numba for the
     host CPU, OpenBLAS's and numpy's SIMD kernels, libm's FMA variants), every session must
     give the golden estimates with every verdict, model, gate, iteration count and message the
     same, and every float within a relative 1e-6.  Before the convergence verdict was made
     robust (docs/fitting.md), an AVX2 host changed 2 verdicts, 8 models and 24 iteration
-    counts of these sessions against the pinned goldens, and moved values by up to 0.35 sigma."""
+    counts of these sessions against the pinned goldens, and moved values by up to 0.35 sigma.
+    An estimate whose fit measured nothing (:func:`unmeasured`) keeps its outline: in the press
+    session's release a frame at 2.8 noise sigmas fitted as a line contact with a force sigma
+    of 2600 % stopped by ftol on one CPU and at the iteration cap on the other, its centre
+    0.05 mm apart (0.01 of its 6.5 mm sigma).  The pinned test above still compares it whole."""
     with ThreadPoolExecutor(len(g.SESSIONS)) as ex:
         host = dict(zip(g.SESSIONS, ex.map(lambda n: g.replay(g.recording(n), pinned=False),
                                            g.SESSIONS)))
@@ -93,10 +114,29 @@ def test_the_host_cpu_changes_nothing_but_last_digits() -> None:
         actual = [json.loads(line) for line in text.splitlines()]
         diffs = [] if len(expected) == len(actual) else [f"{len(actual)} estimates"]
         for i, (e, a) in enumerate(zip(expected, actual)):
-            diffs += g.compare(e, a, f"line {i + 1} (seq {e.get('seq')})", HOST_REL_TOL)
+            where = f"line {i + 1} (seq {e.get('seq')})"
+            if unmeasured(e):
+                diffs += g.compare(outline(e), outline(a), where)
+            else:
+                diffs += g.compare(e, a, where, HOST_REL_TOL)
         if diffs:
             problems[name] = diffs[:8]
     assert not problems, problems
+
+
+def test_an_unmeasured_estimate_keeps_its_outline() -> None:
+    """The host test's outline of an estimate that measured nothing still fails on a changed
+    gate, model or contact, and on a value given where it was withheld."""
+    lines = [json.loads(line) for name in g.SESSIONS
+             for line in g.golden(name).read_text().splitlines()]
+    bare = [e for e in lines if unmeasured(e)]
+    assert bare and len(bare) < len(lines) / 5  # the exception, not the rule
+    e = bare[0]
+    assert not g.compare(outline(e), outline(json.loads(json.dumps(e))))
+    for changed in (dict(e, gate="fit" if e["gate"] != "fit" else "unchanged"),
+                    dict(e, model="sphere" if e["model"] != "sphere" else "cylinder"),
+                    dict(e, contact=not e["contact"]), dict(e, force_n=0.1)):
+        assert g.compare(outline(e), outline(changed))
 
 
 def test_the_comparison_catches_a_change() -> None:
