@@ -49,15 +49,14 @@ INDENTORS = ("cylinder", "sphere", "edge")
 _SIMULATE = b"tactiled.cli\x00simulate\x00--pty"
 
 
-def _start_simulators(tmp: Path, rate: float, scene: str, nice: int = 0) -> list[subprocess.Popen]:
+def _start_simulators(tmp: Path, rate: float, scene: str) -> list[subprocess.Popen]:
     procs = []
     for i, _ in enumerate(FINGERS):
         link = tmp / f"tty{i}"
         p = subprocess.Popen(
             [sys.executable, "-m", "tactiled.cli", "simulate", "--pty", "--link", str(link),
              "--scene", scene, "--rate", str(rate), "--sensor-id", str(i + 1), "--seed", str(i + 1)],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            preexec_fn=(lambda: os.nice(nice)) if nice else None)
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         procs.append(p)
     deadline = time.monotonic() + 60
     for i, p in enumerate(procs):
@@ -440,14 +439,12 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
 
 
 def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int,
-            track: bool = True, sim_nice: int = 0) -> RunResult:
+            track: bool = True) -> RunResult:
     """One run: three simulators on ptys, a daemon with ``workers`` fit workers (and the
-    sensors' ``track`` setting), ``seconds`` measured after ``warmup``; ``sim_nice``: the
-    simulators' niceness (a device has a processor of its own: niced, they take only the
-    CPU the daemon leaves)."""
+    sensors' ``track`` setting), ``seconds`` measured after ``warmup``."""
     with tempfile.TemporaryDirectory(prefix="tactiled-acq-") as d:
         tmp = Path(d)
-        procs = _start_simulators(tmp, rate, scene, sim_nice)
+        procs = _start_simulators(tmp, rate, scene)
         try:
             window = tare_window(scene, rate)
             duration = named_scene(scene).duration
@@ -509,8 +506,9 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
                workers: int, sim_nice: int = 0) -> RunResult:
     """:func:`measure` with the code of checkout ``tree`` (its own daemon, workers and
     simulators; this one's too, for a fresh process), in a subprocess; its result comes back
-    pickled.  ``sim_nice``: its
-    simulators are reniced from here as they appear (its harness may not know the option)."""
+    pickled.  ``sim_nice``: the simulators' niceness (a device has a processor of its own:
+    niced, they take only the CPU the daemon leaves), set from here as they appear, so a
+    baseline's harness need not know the option."""
     path = os.pathsep.join([tree, os.path.join(tree, "drivers"), os.path.join(tree, "service")])
     env = {**os.environ, "PYTHONPATH": path}
     with tempfile.TemporaryDirectory(prefix="tactiled-acq-base-") as d:

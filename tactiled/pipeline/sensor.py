@@ -377,9 +377,7 @@ class SensorPipeline:
             self._supersede_waiting()
             self._publish(waiting, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
         elif action == GATE_UNCHANGED and self._last_fit is not None:
-            self.skipped[GATE_UNCHANGED] += 1
-            self._publish(waiting, GATE_UNCHANGED, self._last_fit.fitted_seq, 0.0,
-                          self._last_fit.fit)
+            self._publish_reuse(waiting, self._last_fit)
         else:
             if self._waiting is not None:
                 self.superseded += 1
@@ -424,11 +422,16 @@ class SensorPipeline:
         noise, a light touch), a frame the gate finds unchanged since that fit is answered
         with it, as without tracking (a justified reuse): refitting would give the same
         unplaceable contact, at the price of the slowest fits there are."""
-        if self._last_fit is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
+        last = self._last_fit
+        if last is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
             return False
-        self.skipped[GATE_UNCHANGED] += 1
-        self._publish(w, GATE_UNCHANGED, self._last_fit.fitted_seq, 0.0, self._last_fit.fit)
+        self._publish_reuse(w, last)
         return True
+
+    def _publish_reuse(self, w: _Waiting, last: Estimate) -> None:
+        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since)."""
+        self.skipped[GATE_UNCHANGED] += 1
+        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0, last.fit)
 
     def _flush_pending(self) -> None:
         """The waiting frames' fit is late: publish each with the contact predicted to its
@@ -589,12 +592,8 @@ class SensorPipeline:
     def _regate_waiting(self) -> None:
         """After a new fit is published, a waiting frame unchanged since is answered with it."""
         w = self._waiting
-        if w is None or self._last_fit is None:
-            return
-        if self.gate.decide(w.strain, True).action == GATE_UNCHANGED:
+        if w is not None and self._reuse_unchanged(w):
             self._waiting = None
-            self.skipped[GATE_UNCHANGED] += 1
-            self._publish(w, GATE_UNCHANGED, self._last_fit.fitted_seq, 0.0, self._last_fit.fit)
 
     def _build_stage(self, sensor_id: int) -> None:
         g = self.sensor_model.geometry

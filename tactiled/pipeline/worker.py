@@ -64,14 +64,17 @@ class _CompileNotice:
 
         self.conn = conn
         self.rid: int | None = None
-        listener = type("Listener", (event.Listener,), {
-            "on_start": lambda _self, _event: self._started(),
-            "on_end": lambda _self, _event: None})()
-        event.register("numba:compile", listener)
+        notice = self
 
-    def _started(self) -> None:
-        if self.rid is not None:
-            self.conn.send(("compiling", self.rid))
+        class Listener(event.Listener):
+            def on_start(self, _event: object) -> None:
+                if notice.rid is not None:
+                    notice.conn.send(("compiling", notice.rid))
+
+            def on_end(self, _event: object) -> None:
+                pass
+
+        event.register("numba:compile", Listener())
 
 
 def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
