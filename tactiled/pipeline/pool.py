@@ -21,8 +21,9 @@ One pool serves every sensor of the daemon (``fit.workers`` processes, by defaul
   result is delivered as usual), is told to stop and is reaped.  No fit is lost, and the slot
   always has a ready worker (see :meth:`WorkerPool.stats`, ``last_recycle``).
 
-A sensor (a :class:`JobOwner`) holds at most one fit in flight, so its results come back in
-order; the pool hands a free worker to the sensor whose waiting frame is oldest.
+A sensor (a :class:`JobOwner`) decides what it offers: the pipeline keeps at most one frame's
+fit in flight (its results come back in order) and beside it at most one background job; the
+pool hands a free worker to the sensor whose waiting frame is oldest, background jobs last.
 """
 
 from __future__ import annotations

@@ -4,7 +4,8 @@ Each frame is handled synchronously as it arrives (:meth:`SensorPipeline.on_fram
 fit leaves the loop, to a worker process.  The queueing rule is **latest frame wins**: a frame
 to fit waits in a one-frame slot; a newer frame to fit replaces it (counted ``superseded``), so
 reading never waits for fitting and nothing queues up.  At most one fit per sensor is in
-flight, so results come back in order.  A frame the gate publishes at once (no contact,
+flight, so results come back in order (beside it, at most one of the tracker's
+relinearisations, which answer no frame: one answered after a fit is ignored).  A frame the gate publishes at once (no contact,
 unchanged) also supersedes a waiting one; a fit result older than the last estimate published
 is dropped (``stale_dropped``), so no estimate ever appears under a newer seq than the frame it
 describes.  Order is judged by the pipeline's own arrival count (``ordinal``), not by ``seq``,
@@ -178,7 +179,10 @@ class SensorPipeline:
         self._ordinal = 0
         self._last_published = 0  # ordinal of the last estimate published
         self._waiting: _Waiting | None = None
-        self._in_flight: _Waiting | None = None
+        self._in_flight: _Waiting | None = None  # the frame being fitted
+        #: a relinearisation in flight (the tracker's; it answers no frame, so a frame's fit
+        #: never waits for it: see take_job)
+        self._lin_in_flight: _Waiting | None = None
         self._last_fit: Estimate | None = None
         self._warm: tuple[str, tuple[float, ...]] | None = None  # previous fit: a warm start
         self._settled = asyncio.Event()
@@ -281,17 +285,21 @@ class SensorPipeline:
                  self.frames)
 
     async def wait_settled(self) -> None:
-        """Wait until no frame of this sensor waits for, or is in, a fit."""
-        while self._waiting is not None or self._in_flight is not None:
+        """Wait until no frame of this sensor waits for, or is in, a fit (nor a
+        relinearisation)."""
+        while not self._idle():
             self._settled.clear()
             await self._settled.wait()
 
+    def _idle(self) -> bool:
+        return self._waiting is None and self._in_flight is None and self._lin_in_flight is None
+
     @property
     def settled(self) -> bool:
-        return self._waiting is None and self._in_flight is None and not self._pending
+        return self._idle() and not self._pending
 
     def _check_settled(self) -> None:
-        if self._waiting is None and self._in_flight is None:
+        if self._idle():
             self._settled.set()
 
     # -- the frame's path -----------------------------------------------------------------------
@@ -499,8 +507,9 @@ class SensorPipeline:
         self._pending.clear()
         if self._waiting is not None:
             self._waiting = None
-        if self._in_flight is not None:
-            self._in_flight.dropped = True
+        for busy in (self._in_flight, self._lin_in_flight):
+            if busy is not None:
+                busy.dropped = True
         self._check_settled()
 
     def _tracked_result(self, w: _Waiting, job: FitJob, fit: dict[str, Any], worker_ms: float,
@@ -508,7 +517,8 @@ class SensorPipeline:
         """A fit (or relinearisation) came back: measure the frames that waited for it."""
         tracker = self.tracker
         if job.kind == "lin":
-            # (not a linearisation of a contact that has ended since it was asked for)
+            # (not a linearisation of a contact that has ended since it was asked for, nor one
+            # a fit's own has replaced meanwhile)
             if not w.dropped and lin is not None and tracker.active and lin.model == tracker.model:
                 tracker.adopt(lin, self._zero_var())
                 self.relinearized += 1
@@ -535,6 +545,7 @@ class SensorPipeline:
             # the frame gets the fit as it is; those before it are given up; those after it
             # reuse it while the gate finds them unchanged
             tracker.clear()
+            self._obsolete_lin()
             self._base = self._base_seq = None
             self._warm = None
             later = [p for p in pending if p.ordinal > w.ordinal]
@@ -555,6 +566,7 @@ class SensorPipeline:
         self._last_fit = None  # the tracker answers from here
         self.gate.reset()
         tracker.adopt(lin, self._zero_var())
+        self._obsolete_lin()
         self._base, self._base_seq, self._warm = fit, w.seq, warm
         if not mine and (tracker.t is None or w.t >= tracker.t):
             tracker.step(w.strain.ravel(), w.t, fitted=True)  # its estimate went out already
@@ -588,6 +600,12 @@ class SensorPipeline:
             self._end_contact()
             return
         self._maybe_relinearize(last)
+
+    def _obsolete_lin(self) -> None:
+        """A relinearisation in flight was asked for at a point the tracker no longer holds (a
+        fit brought its own linearisation, or nothing to track): its answer is ignored."""
+        if self._lin_in_flight is not None:
+            self._lin_in_flight.dropped = True
 
     def _regate_waiting(self) -> None:
         """After a new fit is published, a waiting frame unchanged since is answered with it."""
@@ -626,9 +644,15 @@ class SensorPipeline:
     # -- the pool's side (JobOwner) -------------------------------------------------------------
 
     def job_waiting_since(self) -> float | None:
-        if self._waiting is None or self._in_flight is not None:
+        w = self._waiting
+        if w is None or self._in_flight is not None:
             return None
-        return self._waiting.since
+        # A frame's fit goes out even while a relinearisation is in flight (its answer brings
+        # a linearisation of its own, and the older one is then ignored: _tracked_result);
+        # one relinearisation at a time, and none while a frame is fitted.
+        if w.kind == "lin" and self._lin_in_flight is not None:
+            return None
+        return w.since
 
     def job_background(self) -> bool:
         return self._waiting is not None and self._waiting.kind == "lin"
@@ -636,7 +660,11 @@ class SensorPipeline:
     def take_job(self) -> FitJob:
         w = self._waiting
         assert w is not None and self._in_flight is None
-        self._waiting, self._in_flight = None, w
+        if w.kind == "lin":
+            assert self._lin_in_flight is None
+            self._waiting, self._lin_in_flight = None, w
+        else:
+            self._waiting, self._in_flight = None, w
         if w.kind == "fit+lin":  # the tracker's prediction at the frame's time, now
             w.at = self.tracker.predicted(w.t) or self._warm
         warm = _warm_start(w.at if w.kind != "fit" else self._warm, self.sensor_model.geometry)
@@ -646,9 +674,9 @@ class SensorPipeline:
     def on_fit_result(self, job: FitJob, fit: dict[str, Any] | None, worker_ms: float,
                       error: str | None, warm: tuple[str, tuple[float, ...]] | None = None,
                       lin: Any = None) -> None:
-        w, self._in_flight = self._in_flight, None
+        w = self._settle_job(job)
         try:
-            if w is None or w.ordinal != job.ordinal:  # cannot happen: one job in flight
+            if w is None or w.ordinal != job.ordinal:  # cannot happen: one job of a kind in flight
                 log.error("%s: result for an unknown job (ordinal %d)", self.name, job.ordinal)
                 return
             if job.kind == "lin":  # not a frame's fit: it only moves the tracker's point
@@ -688,8 +716,16 @@ class SensorPipeline:
         finally:
             self._check_settled()
 
+    def _settle_job(self, job: FitJob) -> _Waiting | None:
+        """The frame (or relinearisation) ``job`` was for, no longer in flight."""
+        if job.kind == "lin":
+            w, self._lin_in_flight = self._lin_in_flight, None
+        else:
+            w, self._in_flight = self._in_flight, None
+        return w
+
     def on_fit_failed(self, job: FitJob, reason: str) -> None:
-        w, self._in_flight = self._in_flight, None
+        w = self._settle_job(job)
         if w is not None:
             self.last_error = f"fit of seq {w.seq} lost: worker {reason}"
         if job.kind == "lin":
