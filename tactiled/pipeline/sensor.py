@@ -171,7 +171,7 @@ class SensorPipeline:
             0, "no contact")
         #: the contact through time (settings.track), the frames waiting for a fit before it
         #: can measure them (in arrival order), and the fit its estimates build on
-        self.tracker = Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
+        self.tracker = Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA, geometry=g)
         self._pending: list[_Waiting] = []
         self._base: dict[str, Any] | None = None
         self._base_seq: int | None = None

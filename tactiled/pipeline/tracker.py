@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from tactiled.config import Geometry
 from tactiled.fit.params import (
     MAX_ANGLE_SIGMA,
     MOVING,
@@ -72,9 +73,6 @@ MEAN_RESIDUAL_S = 1.0
 #: Frames whose residuals are buffered before they are folded into the sums and tested.
 MEAN_RESIDUAL_FOLD = 8
 
-#: A log radius or force measured more than a factor e from the linearisation point needs a
-#: fit unless the step is within its noise; and beyond this step (a factor e^3) in any case.
-MAX_LOG_STEP = 3.0
 
 #: Velocities are reported from this many frames after a (re)start of the filter.
 MIN_RATE_FRAMES = 3
@@ -106,16 +104,27 @@ _RATE_OF = {"x0": "vx_mm_s", "y0": "vy_mm_s", "psi": "angle_rate_deg_s",
 MIN_FORCE_N, MAX_FORCE_N = 1e-4, 100.0
 OFF_ARRAY_MM = 5.0
 LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
+LN_F_BOUNDS = (math.log(MIN_FORCE_N), math.log(MAX_FORCE_N))
+
+
+def reasonable_bounds(names: tuple[str, ...], geometry) -> list[tuple[int, float, float]]:
+    """``(index, low, high)`` for each parameter of ``names`` (a model's internal parameters)
+    that a finger bounds on ``geometry`` (a ``config.Geometry``): a radius, the force, the
+    centre; the others (an angle, a shape ratio) are free."""
+    x_hi = (geometry.rows - 1) * geometry.dx + OFF_ARRAY_MM
+    y_hi = (geometry.cols - 1) * geometry.dy + OFF_ARRAY_MM
+    box = {"ln_r": LN_R_BOUNDS, "ln_ra": LN_R_BOUNDS, "ln_f": LN_F_BOUNDS,
+           "x0": (-OFF_ARRAY_MM, x_hi), "y0": (-OFF_ARRAY_MM, y_hi)}
+    return [(i, *box[n]) for i, n in enumerate(names) if n in box]
 
 
 def within_reason(p: np.ndarray, geometry) -> np.ndarray:
     """A model's internal vector ``p`` (``(ln_r.., .., ln_f, x0, y0)``) with its radius, force
     and centre clipped to what a finger carries on ``geometry`` (a ``config.Geometry``)."""
     q = np.array(p, dtype=float)
-    q[0] = min(max(q[0], LN_R_BOUNDS[0]), LN_R_BOUNDS[1])
-    q[-3] = min(max(q[-3], math.log(MIN_FORCE_N)), math.log(MAX_FORCE_N))
-    q[-2] = min(max(q[-2], -OFF_ARRAY_MM), (geometry.rows - 1) * geometry.dx + OFF_ARRAY_MM)
-    q[-1] = min(max(q[-1], -OFF_ARRAY_MM), (geometry.cols - 1) * geometry.dy + OFF_ARRAY_MM)
+    names = ("ln_r",) + ("",) * (q.size - 4) + ("ln_f", "x0", "y0")
+    for i, lo, hi in reasonable_bounds(names, geometry):
+        q[i] = min(max(q[i], lo), hi)
     return q
 
 
@@ -136,9 +145,11 @@ class Tracker:
     """
 
     def __init__(self, memory_s: float = 0.1, hold_s: float = 30.0,
-                 withhold_relative_sigma: float | None = None) -> None:
+                 withhold_relative_sigma: float | None = None, geometry=None) -> None:
         if not (memory_s > 0 and hold_s > 0):
             raise ValueError(f"memory_s and hold_s must be positive, got {memory_s}, {hold_s}")
+        #: the array (a ``config.Geometry``; default the paper's): where a centre can be
+        self.geometry = geometry if geometry is not None else Geometry()
         self.memory_s = float(memory_s)
         self.hold_s = float(hold_s)
         #: a radius whose sigma exceeds this fraction of it is withheld, as the fitter does
@@ -209,6 +220,7 @@ class Tracker:
         self._ebuf = np.zeros(lin.index.size)
         self._moving = [n in MOVING for n in names]
         self._logs = [i for i, n in enumerate(names) if n.startswith("ln_")]
+        self._bounds = reasonable_bounds(names, self.geometry)
         self._limit = chi2_limit(max(lin.dof, 1))
         self._p = lin.p.tolist()
         self._r = np.diag(lin.cov).tolist()
@@ -261,15 +273,20 @@ class Tracker:
             dz = dp.tolist()
             # A log radius or force moved by more than a factor e from the point: no linear
             # range reaches that far (a release: force to zero), whatever the residual says.
-            # Unless the step is within the noise (RESET_SIGMA single-frame sigmas) and below
-            # MAX_LOG_STEP: a value one frame barely determines (the radius of a light
-            # contact), which the filter weighs as such; a fit would give as uncertain a value.
+            # Unless the step is within the noise (RESET_SIGMA single-frame sigmas): a value
+            # one frame barely determines (the radius of a light contact, of one at the
+            # noise), which the filter weighs as such; a fit would give as uncertain a value.
             if not all(math.isfinite(v) for v in dz) or any(
-                    abs(dz[i]) >= 1.0 and (abs(dz[i]) > RESET_SIGMA * self._sd1[i]
-                                           or abs(dz[i]) > MAX_LOG_STEP)
+                    abs(dz[i]) >= 1.0 and abs(dz[i]) > RESET_SIGMA * self._sd1[i]
                     for i in self._logs):
                 return "refit"
             z = [p + q for p, q in zip(self._p, dz)]
+            # ... and a value the frame does not bound is kept within what a finger carries
+            # (within_reason's box): a radius, force or centre no frame determines (a contact
+            # at the noise, letting go) would otherwise random-walk, to exp() overflow and
+            # centres a kilometre off the array (seen on release residuals)
+            for i, lo, hi in self._bounds:
+                z[i] = min(max(z[i], lo), hi)
             self._ebuf += e
             self._eframes += 1
             self._edt += 0.0 if self.t is None else max(t - self.t, 0.0)
@@ -456,6 +473,10 @@ class Tracker:
         if key == "angle_deg":
             if sd > MAX_ANGLE_SIGMA:
                 return "orientation not observable: sigma above 45 deg"
+            return None
+        if key in ("x_mm", "y_mm"):
+            if sd > OFF_ARRAY_MM:
+                return f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
             return None
         if key not in ("r1_mm", "r2_mm", "force_n") or v <= 0.0:
             return None
