@@ -83,6 +83,9 @@ MAX_GAP_S = 0.25
 #: parameter), or its own spread shrank below 1/``SHARPEN`` of the point's: time to
 #: linearise again, where the contact now is.
 RELINEARIZE_SIGMA = 1.0
+#: A force measured more than a factor e^3 from the linearisation point needs a fit, however
+#: uncertain one frame leaves it (the radius has no such cap: it is only held in its box).
+MAX_LOG_FORCE_STEP = 3.0
 SHARPEN = 2.0
 
 #: Reasons of the fitter's for a value it withheld that the tracker judges again on the frames
@@ -221,6 +224,7 @@ class Tracker:
         self._moving = [n in MOVING for n in names]
         self._logs = [i for i, n in enumerate(names) if n.startswith("ln_")]
         self._bounds = reasonable_bounds(names, self.geometry)
+        self._ln_f = names.index("ln_f")
         self._limit = chi2_limit(max(lin.dof, 1))
         self._p = lin.p.tolist()
         self._r = np.diag(lin.cov).tolist()
@@ -276,8 +280,13 @@ class Tracker:
             # Unless the step is within the noise (RESET_SIGMA single-frame sigmas): a value
             # one frame barely determines (the radius of a light contact, of one at the
             # noise), which the filter weighs as such; a fit would give as uncertain a value.
+            # The force, though, never by more than a factor e^MAX_LOG_FORCE_STEP: a contact
+            # letting go (its fit may find nothing left to place), or a filter gone astray (a
+            # point so far from the contact that its linearisation measures nothing, and every
+            # step passes as noise: seen as 577 N off the array on a held 1.2 N contact).
             if not all(math.isfinite(v) for v in dz) or any(
-                    abs(dz[i]) >= 1.0 and abs(dz[i]) > RESET_SIGMA * self._sd1[i]
+                    abs(dz[i]) >= 1.0 and (abs(dz[i]) > RESET_SIGMA * self._sd1[i]
+                                           or (i == self._ln_f and abs(dz[i]) > MAX_LOG_FORCE_STEP))
                     for i in self._logs):
                 return "refit"
             z = [p + q for p, q in zip(self._p, dz)]
