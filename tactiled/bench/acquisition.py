@@ -546,12 +546,17 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
 LOCKED_SHARE = 0.1
 
 
-def locked_fingers(result: RunResult, scene: str, rate: float) -> list[str]:
-    """The fingers of ``result`` locked in contact over the measured window: they published
-    "no contact" for under ``LOCKED_SHARE`` of the frames the scene leaves untouched."""
+def untouched_share(scene: str, rate: float) -> float:
+    """The share of a pass of ``scene`` at ``rate`` Hz in which nothing touches the finger."""
     truth = scene_truth(scene, rate)
     per_pass = max(1, round(named_scene(scene).duration * rate))
-    untouched = sum(truth(k) is None for k in range(per_pass)) / per_pass
+    return sum(truth(k) is None for k in range(per_pass)) / per_pass
+
+
+def locked_fingers(result: RunResult, untouched: float) -> list[str]:
+    """The fingers of ``result`` locked in contact over the measured window: they published
+    "no contact" for under ``LOCKED_SHARE`` of the frames their scene leaves untouched
+    (``untouched``: :func:`untouched_share`)."""
     locked = []
     for name in FINGERS:
         a, b = result.after["sensors"][name], result.before["sensors"][name]
@@ -608,6 +613,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
     col = "code, workers" if any(r.label for r in results) else "workers"
     truth = scene_truth(scene, rate)
     answers = [summarise(r, truth) for r in results]
+    untouched = untouched_share(scene, rate)
     sweep = ", ".join(dict.fromkeys(str(r.workers) for r in results))
     runs = ("one run each, everything restarted" if col == "workers" else
             "four runs each, alternating this tree and the baseline's code (this, baseline, "
@@ -638,7 +644,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
             f"{100.0 * a.kept / a.own_fit if a.own_fit else 0:.0f} % | "
             f"{_cpu_cell(r.cpu_s.get('daemon'), r.elapsed)} / {_cpu_cell(r.cpu_s.get('workers'), r.elapsed)} / "
             f"{_cpu_cell(r.cpu_s.get('simulators'), r.elapsed)} | "
-            f"{', '.join(locked_fingers(r, scene, rate)) or 'none'} |")
+            f"{', '.join(locked_fingers(r, untouched)) or 'none'} |")
     lines += ["",
               "Shares are of the contact frames (frames the detector called contact): answered by a fit of their "
               "own, answered by the last fit because the chi-square test found them unchanged within noise (a "

@@ -5,8 +5,8 @@ fit leaves the loop, to a worker process.  The queueing rule is **latest frame w
 to fit waits in a one-frame slot; a newer frame to fit replaces it (counted ``superseded``), so
 reading never waits for fitting and nothing queues up.  At most one fit per sensor is in
 flight, so results come back in order (beside it, at most one of the tracker's
-relinearisations, which answer no frame: one answered after a fit is ignored).  A frame the gate publishes at once (no contact,
-unchanged) also supersedes a waiting one; a fit result older than the last estimate published
+relinearisations, which answer no frame: one answered after a fit is ignored).  A frame the
+gate publishes at once (no contact, unchanged) also supersedes a waiting one; a fit result older than the last estimate published
 is dropped (``stale_dropped``), so no estimate ever appears under a newer seq than the frame it
 describes.  Order is judged by the pipeline's own arrival count (``ordinal``), not by ``seq``,
 which wraps at 2^32 and restarts when the device does.

@@ -106,16 +106,17 @@ def test_a_finger_that_never_sees_its_contact_end_is_marked_locked() -> None:
     """The moving scene leaves a finger untouched 15.6 % of the time (0.85 s of 5.45 s): over
     20 000 frames about 3100 "no contact" frames; under a tenth of that, the finger is locked
     in contact (the zeroer's known limitation), and its run is marked so."""
+    untouched = acq.untouched_share("moving", 1000.0)
     truth = acq.scene_truth("moving", 1000.0)
-    untouched = sum(truth(k) is None for k in range(5450)) / 5450
+    assert untouched == sum(truth(k) is None for k in range(5450)) / 5450
     assert 0.15 < untouched < 0.16
     before = stats()
     after = stats(thumb=counters(frames=20000, free=3000), index=counters(frames=20000, free=250),
                   middle=counters(frames=20000, free=0))
     run = acq.RunResult(2, before, after, 20.0, [], {})
-    assert acq.locked_fingers(run, "moving", 1000.0) == ["index", "middle"]
+    assert acq.locked_fingers(run, untouched) == ["index", "middle"]
     after["sensors"]["index"]["skipped"]["no_contact"] = 350  # above a tenth: free
-    assert acq.locked_fingers(run, "moving", 1000.0) == ["middle"]
+    assert acq.locked_fingers(run, untouched) == ["middle"]
 
 
 def test_the_moving_scene_on_ptys_with_a_workers_sweep() -> None:
