@@ -259,6 +259,7 @@ class Fitter:
         ~150 ms per evaluation and would run for seconds.  The overrun is at most one
         evaluation.
         """
+        self.catch_up()  # a worker runs it after its last answer; anyone else, here
         t0 = time.perf_counter()
         self._deadline = None if budget_s is None else t0 + budget_s
         self._in_fit = True
@@ -282,6 +283,13 @@ class Fitter:
             self._frame_memo = None  # the memo must not outlive the frame (ids are reused)
         res.fit_ms = (time.perf_counter() - t0) * 1e3
         return res
+
+    def catch_up(self) -> bool:
+        """Run the learning the last fits left due (the flat field's re-solve, 1-3 ms on an
+        8x8 array), which a fit defers so that its answer never waits for it: a daemon worker
+        calls this after sending the answer, and :meth:`fit` before fitting.  True if
+        something ran."""
+        return self.flat is not None and not self.frozen and self.flat.catch_up()
 
     def flattened(self, strain: np.ndarray) -> np.ndarray:
         """The frame as the fits read it: divided by the tactel gains this finger's fits have

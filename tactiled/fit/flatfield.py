@@ -179,6 +179,8 @@ class FlatField:
         self._var = (PRIOR_GAIN ** 2, PRIOR_SHIFT ** 2)
         self.fits = 0
         self._next_solve = MIN_FITS
+        #: a solve the fits made due and :meth:`catch_up` has not yet run
+        self.solve_due = False
         self.active = False
         #: what the last solve found, in words (empty before the first)
         self.note = ""
@@ -220,7 +222,17 @@ class FlatField:
         self.fits += 1
         if self.fits >= self._next_solve:
             self._next_solve = self.fits + min(max(self.fits // 4, 1), SOLVE_EVERY)
-            self.solve()
+            # not now: a solve costs a few fits' time, and this fit's answer does not use it
+            # (its corrections are already taken); the fitter runs it after the answer
+            self.solve_due = True
+
+    def catch_up(self) -> bool:
+        """Run the solve the fits made due (:meth:`add` only marks it); True if one ran."""
+        if not self.solve_due:
+            return False
+        self.solve_due = False
+        self.solve()
+        return True
 
     def _window(self, tactels: np.ndarray) -> tuple[_Window, bool]:
         """The sums of the fits on these tactels since the last solve: a fit's window

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 import time
 from multiprocessing.connection import Connection
 from typing import Any
@@ -134,6 +135,13 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 fits += 1
                 notice.rid = None
                 conn.send(("result", rid, out, time.perf_counter() - t, error, follow, lin))
+                if fitter is not None:
+                    # the learning this fit made due, after its answer and before the next job
+                    try:
+                        fitter.catch_up()
+                    except Exception as err:  # the fits go on with what was learnt before
+                        print(f"tactiled worker {os.getpid()}: learning the finger failed: "
+                              f"{type(err).__name__}: {err}", file=sys.stderr, flush=True)
                 if fits % TRIM_EVERY_FITS == 0:
                     trim()  # after the answer: what malloc keeps free after a burst goes back
             elif kind == "ping":

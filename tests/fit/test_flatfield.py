@@ -172,3 +172,37 @@ def test_what_a_flat_field_holds_is_bounded_and_loses_no_fit(monkeypatch):
         sums.append((flat.ata.copy(), flat.atb.copy()))
     np.testing.assert_allclose(sums[0][0], sums[1][0], rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(sums[0][1], sums[1][1], rtol=1e-12, atol=1e-9)
+
+
+def test_a_fit_answers_before_the_solve_it_makes_due():
+    """A solve of the flat field's normal equations costs a few fits' time (1-3 ms); the fit
+    that makes one due answers without running it, and it runs afterwards: a daemon worker
+    calls ``catch_up`` after sending the answer, any other caller's next fit runs it first."""
+    spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=6)
+    fitter, linearise = bench.nominal_fitter(spec)
+    truth = StrainModel(spec.sensor(noise=NoiseModel(bench.FRAME_SIGMA)))
+    rng = np.random.default_rng(43)
+    flat = fitter.flat
+    solves = []  # the fit count at each solve
+    real_solve = flat.solve
+
+    def counted_solve() -> None:
+        solves.append(flat.fits)
+        real_solve()
+
+    flat.solve = counted_solve
+    became_due = 0
+    for _ in range(60):
+        clean = truth.predict(bench.test_cylinder(rng))
+        n_before = len(solves)
+        fitter.fit(linearise(spec.to_counts(clean + rng.normal(0.0, bench.FRAME_SIGMA, clean.shape))),
+                   "cylinder")
+        if flat.solve_due:
+            became_due += 1
+            # no solve ran in the fit that made it due (one may have run first: the last due)
+            assert all(n < flat.fits for n in solves[n_before:])
+            assert fitter.catch_up() and not flat.solve_due
+            assert solves[-1] == flat.fits  # run now, on every fit so far
+        assert not fitter.catch_up()  # nothing is left due
+    assert became_due >= 3, became_due  # solves at 20, 25, 31, 38, 47, 58 fits
+    assert solves == [20, 25, 31, 38, 47, 58], solves
