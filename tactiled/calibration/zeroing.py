@@ -2,12 +2,13 @@
 
 A high-pass filter (subtract a running mean of everything) is the usual drift compensation, and
 it fails exactly where a fingertip matters: a grasp held for minutes decays into the baseline and
-vanishes.  Here the baseline moves only while no contact is detected:
+vanishes.  Here the baseline moves on a contact's tactels only while no contact is detected:
 
 * **idle** (no contact): ``baseline += a * (x - baseline)``, ``a = 1 - exp(-dt / tau_drift)``
   with ``tau_drift`` = 5 s: slow enough to average noise (an EMA of time constant tau over frames
   at rate r averages about ``2 tau r`` frames), fast enough for thermal drift;
-* **in contact**: frozen, so the contact's strain is kept however long it is held;
+* **in contact**: frozen, so the contact's strain is kept however long it is held, except
+  that drift is followed around a contact the caller can predict (below);
 * **after a release**, for ``holdoff`` s (default 1.5 s = 5 ``tau_release``): the faster
   ``tau_release`` = 0.3 s, so the rubber's hysteresis residual (and drift accumulated while frozen)
   is absorbed within about a second instead of lingering as a phantom pressure.
@@ -39,6 +40,27 @@ carried that pedestal).  Ordinary frames are not clipped: a release residual is 
 and drift is slow, so both are followed exactly as before.  A genuine step of the whole
 unloaded frame by more than 10 sigma is absorbed at 10 sigma per time constant; ``tare``
 takes it at once.
+
+**Drift is followed around a held contact.**  Frozen whole, the baseline let drift pile up
+under a long hold: on the simulated finger (drift up to 4e-5 strain/s, a tenth of a noise sigma
+a second) a 1 N grasp held for 40 s read 7-8 % heavy by its end, and after the release the drift
+alone, 1-3 sigma on every tactel, kept the matched filter above its exit threshold: the finger
+never let go.  Which part of a loaded frame is drift, the zeroer cannot tell alone (the rubber
+spreads a 1 N contact over the whole array, to -5 sigma eight millimetres off); the contact's
+model can.  :meth:`Zeroer.follow_drift` takes a frame with the strain a fit's model predicts on
+the whole array and the tactels the fit reads (its window).  Where the prediction explains the
+window within noise (a contact that has not moved from it), at most every ``DRIFT_STEP_S``:
+
+* outside the window, each tactel's baseline follows what the model does not explain
+  (``zeroed - predicted``, clipped to ``DRIFT_CLIP_SIGMAS``) with ``tau_drift``, as when idle:
+  there it is drift and noise, and no fit reads those tactels;
+* inside it, the baseline takes the outside tactels' mean pull, the drift common to the finger
+  (temperature moves every tactel the same way, if not by the same amount), never its own
+  tactels' values, which carry the contact.
+
+The daemon calls it with the tracker's linearisation (``tactiled.pipeline.sensor``).  What it
+leaves is each window tactel's own drift against the mean (the simulator's tactels drift by
+0.5-1 times a common wave: about a sixth of the drift).
 """
 
 from __future__ import annotations
@@ -55,6 +77,19 @@ DEFAULT_TAU_RELEASE = 0.3  # s
 DEFAULT_HOLDOFF = 1.5  # s
 DEFAULT_SETTLE = 0.25  # s
 MAX_STEP_SIGMAS = 10.0  # a frame's pull on the baseline is clipped to this many noise sigmas
+#: Around a held contact drift is followed at most once per this much device time (s): drift
+#: is a process of minutes.
+DRIFT_STEP_S = 0.01
+#: ... and one step's time is at most this (s): a step after a long gap is not the gap's worth
+#: of drift taken from one frame (its weight would approach 1 and put that frame's noise in).
+MAX_DRIFT_STEP_S = 0.1
+#: A tactel's pull on its baseline around a contact is clipped to this many noise sigmas.
+DRIFT_CLIP_SIGMAS = 3.0
+#: The prediction must explain the fit window's tactels to this mean squared difference (in
+#: noise variances).  Noise alone gives 1 (4 on 16 tactels: never in practice); a 1 N cylinder
+#: moved 0.2 mm from the prediction adds ~2 (2 N: 0.1 mm adds 1.4), its prediction outside the
+#: window then off by up to 2 sigma, of which one step takes a 500th.
+DRIFT_EXPLAINED = 4.0
 
 
 class Zeroer:
@@ -101,6 +136,7 @@ class Zeroer:
         self._pending_tare = False
         self._frames = 0  # since the last (re)start of the baseline
         self._settle_until = -math.inf
+        self._drift_t: float | None = None  # device time drift was last followed in contact
 
     @property
     def settling(self) -> bool:
@@ -141,6 +177,7 @@ class Zeroer:
         if self.in_contact:
             self.in_contact = False
             self._release_until = t + self.holdoff
+            self._drift_t = None
         if dt > 0.0:
             tau = self.tau_release if t < self._release_until else self.tau_drift
             # -expm1(-dt/tau) = 1 - exp(-dt/tau), accurate for small dt/tau; 1/n makes the first
@@ -159,6 +196,44 @@ class Zeroer:
                 self.baseline += ema * z
         return z
 
+    def follow_drift(self, zeroed: np.ndarray, t: float, predicted: ArrayLike,
+                     window: ArrayLike) -> bool:
+        """Follow drift under a held contact (module docstring): ``zeroed`` is the frame
+        :meth:`update` returned at time ``t`` (s), ``predicted`` the strain the contact model
+        gives on the whole array (a fit's, near this frame's contact), ``window`` the tactels
+        the fit reads (boolean, ``(rows, cols)``).  Nothing moves unless the prediction
+        explains the window's tactels within noise (their mean squared difference at most
+        ``DRIFT_EXPLAINED`` noise variances: a moving contact's prediction is stale) and
+        ``DRIFT_STEP_S`` has passed since the last move; returns True when the baseline moved."""
+        if not self.in_contact or self.baseline is None:
+            return False
+        if self._drift_t is None or t < self._drift_t:
+            self._drift_t = t  # the first call of a contact, or a clock that went back
+            return False
+        elapsed = t - self._drift_t
+        if elapsed < DRIFT_STEP_S - 1e-9:  # (frames DRIFT_STEP_S apart differ by a rounding)
+            return False
+        inside = np.asarray(window, dtype=bool)
+        outside = ~inside
+        n_in = int(np.count_nonzero(inside))
+        n_out = inside.size - n_in
+        if n_in == 0 or n_out == 0:
+            return False
+        error = np.asarray(zeroed, dtype=np.float64) - np.asarray(predicted, dtype=np.float64)
+        sigma = self.detector.sigma
+        miss = error[inside]
+        if not float(miss @ miss) <= DRIFT_EXPLAINED * n_in * sigma * sigma:  # NaN fails too
+            return False
+        if not np.all(np.isfinite(error)):
+            return False
+        self._drift_t = t
+        limit = DRIFT_CLIP_SIGMAS * sigma
+        pull = np.clip(error, -limit, limit)
+        pull *= -math.expm1(-min(elapsed, MAX_DRIFT_STEP_S) / self.tau_drift)
+        common = float(pull[outside].sum()) / n_out
+        self.baseline += np.where(outside, pull, common)
+        return True
+
     def tare(self, strain: ArrayLike | None = None) -> None:
         """Zero now: the baseline restarts from ``strain`` (a frame with nothing touching), or,
         with no argument, from the next frame :meth:`update` sees; either way it then settles as
@@ -166,6 +241,7 @@ class Zeroer:
         self.in_contact = False
         self.detector.reset()
         self._release_until = -math.inf
+        self._drift_t = None
         if strain is None:
             self._pending_tare = True
             return
@@ -187,6 +263,7 @@ class Zeroer:
         self._pending_tare = False
         self._frames = 0
         self._settle_until = -math.inf
+        self._drift_t = None
 
     def _tare_to(self, x: np.ndarray, bad: np.ndarray | None) -> None:
         self._pending_tare = False

@@ -13,12 +13,14 @@ to the daemon's main process, which has no physics of its own.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from tactiled.fit import compiled
-from tactiled.fit.models import get_model
+from tactiled.fit.models import Model, get_model
+from tactiled.physics.contact import Contact
 
 
 #: ``(A^-1)_ii A_ii`` beyond this (a variance inflated 1e12-fold by correlation): singular.
@@ -55,6 +57,10 @@ class Linearization:
     #: frames' residuals, :mod:`tactiled.fit.floor`, is not in it: part of what a frame shows
     #: does average away; the tracker measures what does not on the frames' mean residual.)
     systematic: np.ndarray
+    #: the model's strains on the whole array at ``p`` (rows, cols), in the frames' units, or
+    #: None (a contact too large to integrate): what the zeroer follows drift around
+    #: (``Zeroer.follow_drift``)
+    predicted: np.ndarray | None = None
 
     @property
     def dof(self) -> int:
@@ -111,7 +117,10 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     me = fitter.sensor.model_error  # the floor's variance per tactel, as Fitter._tactel_sd's
     systematic = (gain * (me.strain ** 2 + (me.relative * s) ** 2)) @ gain.T
     flat = fitter.flat
+    predicted = whole_array(fitter, m, p)
     if flat is not None and flat.active:
+        if predicted is not None:
+            predicted = predicted * flat.gain
         # the flat field's corrections are as wrong in every frame: systematic; and the
         # tracker reads frames as they come, so the same linearisation in their units
         # (reading = tactel gain x what the fit reads)
@@ -123,4 +132,17 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     return Linearization(model=model, p=p.copy(), index=np.ascontiguousarray(index),
                          strain=np.ascontiguousarray(s), jacobian=np.ascontiguousarray(js),
                          gain=np.ascontiguousarray(gain), weight=w, cov=cov, sigma=sigma,
-                         systematic=systematic)
+                         systematic=systematic, predicted=predicted)
+
+
+def whole_array(fitter, model: Model, p: np.ndarray) -> np.ndarray | None:
+    """The strain ``model`` at internal vector ``p`` gives on ``fitter``'s whole array (as the
+    fits read frames: before any flat-field gain), or None for a contact too long to
+    integrate."""
+    (ka, kb, psi, force, x0, y0), _ = model.physical(p)
+    try:
+        contact = Contact(1.0 / ka, 1.0 / kb if kb > 0.0 else math.inf, math.degrees(psi), force,
+                          x0, y0)
+        return fitter.model.predict(contact)
+    except (ValueError, ZeroDivisionError, OverflowError):
+        return None

@@ -185,6 +185,9 @@ class SensorPipeline:
         self._lin_in_flight: _Waiting | None = None
         self._last_fit: Estimate | None = None
         self._warm: tuple[str, tuple[float, ...]] | None = None  # previous fit: a warm start
+        #: (strain on the whole array, window mask) of the tracker's linearisation: what the
+        #: zeroer follows drift around while the contact is held (_follow_drift)
+        self._drift_ref: tuple[np.ndarray, np.ndarray] | None = None
         self._settled = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
         self._recorder: Recorder | None = None
@@ -202,6 +205,7 @@ class SensorPipeline:
         self.predicted = 0  # ... of which the tracker could only predict, not measure
         self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
         self.relinearize_lost = 0
+        self.drift_steps = 0  # times the zeroer followed drift around a held contact
         self.fit_failed = 0
         self.fit_errors = 0
         self.wrong_sensor = 0
@@ -423,6 +427,7 @@ class SensorPipeline:
             self._wait_for_fit(w)
             return
         self._publish_tracked(w)
+        self._follow_drift(w)
         self._maybe_relinearize(w)
 
     def _reuse_unchanged(self, w: _Waiting) -> bool:
@@ -503,6 +508,7 @@ class SensorPipeline:
         self._last_fit = None
         self._warm = None
         self._base = self._base_seq = None
+        self._drift_ref = None
         self.superseded += len(self._pending)
         self._pending.clear()
         if self._waiting is not None:
@@ -520,7 +526,7 @@ class SensorPipeline:
             # (not a linearisation of a contact that has ended since it was asked for, nor one
             # a fit's own has replaced meanwhile)
             if not w.dropped and lin is not None and tracker.active and lin.model == tracker.model:
-                tracker.adopt(lin, self._zero_var())
+                self._adopt(lin)
                 self.relinearized += 1
             return
         if w.dropped:
@@ -565,7 +571,7 @@ class SensorPipeline:
             return
         self._last_fit = None  # the tracker answers from here
         self.gate.reset()
-        tracker.adopt(lin, self._zero_var())
+        self._adopt(lin)
         self._obsolete_lin()
         self._base, self._base_seq, self._warm = fit, w.seq, warm
         if not mine and (tracker.t is None or w.t >= tracker.t):
@@ -600,6 +606,25 @@ class SensorPipeline:
             self._end_contact()
             return
         self._maybe_relinearize(last)
+
+    def _adopt(self, lin: Any) -> None:
+        """The tracker measures from the linearisation ``lin`` now; the zeroer follows drift
+        around the contact it predicts."""
+        self.tracker.adopt(lin, self._zero_var())
+        self._drift_ref = None
+        if lin.predicted is not None:
+            window = np.zeros(lin.predicted.size, dtype=bool)
+            window[lin.index] = True
+            self._drift_ref = (lin.predicted, window.reshape(lin.predicted.shape))
+
+    def _follow_drift(self, w: _Waiting) -> None:
+        """A frame the tracker measured as it came: the zeroer follows drift around the
+        contact where the last linearisation's prediction still explains the frame
+        (``Zeroer.follow_drift``; a contact held for minutes would otherwise drift off its
+        frozen baseline until the finger never let go)."""
+        ref = self._drift_ref
+        if ref is not None and self.stage is not None:
+            self.drift_steps += self.stage.zeroer.follow_drift(w.strain, w.t, *ref)
 
     def _obsolete_lin(self) -> None:
         """A relinearisation in flight was asked for at a point the tracker no longer holds (a

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from tactiled.calibration import ContactDetector, Zeroer
-from tactiled.calibration.zeroing import DEFAULT_HOLDOFF, DEFAULT_TAU_DRIFT, DEFAULT_TAU_RELEASE
+from tactiled.calibration.zeroing import (
+    DEFAULT_HOLDOFF,
+    DEFAULT_TAU_DRIFT,
+    DEFAULT_TAU_RELEASE,
+    DRIFT_STEP_S,
+)
 
 SIGMA = 0.0005
 RATE = 100.0  # Hz
@@ -158,6 +163,82 @@ def test_baseline_is_frozen_during_contact_and_caller_can_decide_contact():
     np.testing.assert_allclose(z, 0.001)
     assert np.all(zeroer.baseline > 0.0)  # released: now absorbing, fast (tau_release)
     np.testing.assert_allclose(zeroer.baseline, 0.001 * -math.expm1(-1.0 / DEFAULT_TAU_RELEASE))
+
+
+def _drifting_hold(follow: bool, seconds: float = 60.0, seed: int = 2):
+    """A 20-sigma contact held ``seconds`` on a finger whose tactels drift at 2e-5 strain/s
+    times a gain of 0.5-1 each (the simulator's fastest drift), then released; with
+    ``follow``, the contact's prediction (the bump itself) and a 4x4 window are given to
+    ``follow_drift`` every frame.  Returns (the RMS over the window's tactels of their zeroed
+    strain's mean error over the hold's last 5 s, in sigma; seconds from the release to the detector's exit, or None; drift steps)."""
+    rng = np.random.default_rng(seed)
+    gains = rng.uniform(0.5, 1.0, (8, 8))
+    contact = bump(0.01)
+    window = np.zeros((8, 8), dtype=bool)
+    window[2:6, 2:6] = True
+    zeroer = Zeroer()
+    start, end = 2.0, 2.0 + seconds
+    peak, exit_after, steps = [], None, 0
+    for k in range(int((end + 10.0) * RATE)):
+        t = k / RATE
+        x = 2e-5 * t * gains + rng.normal(0.0, SIGMA, (8, 8))
+        if start <= t < end:
+            x = x + contact
+        z = zeroer.update(x, t)
+        if start <= t < end:
+            assert zeroer.in_contact, t  # never erased
+            if follow:
+                steps += zeroer.follow_drift(z, t, contact, window)
+            if t >= end - 5.0:
+                peak.append((z - contact)[window])
+        if t >= end and exit_after is None and not zeroer.in_contact:
+            exit_after = t - end
+    return float(np.sqrt(np.mean(np.mean(peak, axis=0) ** 2))) / SIGMA, exit_after, steps
+
+
+def test_drift_is_followed_around_a_held_contact_and_its_release_is_seen():
+    """Frozen whole, the baseline let 60 s of drift (1.2e-3 strain x gain, 1.2-2.4 sigma) pile
+    up under the contact: the contact's tactels read that much high, and after the release the drift alone kept
+    the detector above its exit threshold for good.  Followed around the contact (outside the
+    window each tactel, inside the outside's mean), both go."""
+    error, exit_after, steps = _drifting_hold(follow=True)
+    assert error < 0.6, error  # what is left: each tactel's gain against the mean's
+    assert exit_after is not None and exit_after < 1.0, exit_after
+    assert steps == pytest.approx(60.0 / DRIFT_STEP_S, rel=0.05)  # every 10 ms, no more
+    frozen_error, frozen_exit, _ = _drifting_hold(follow=False)
+    # (gains of 0.5-1: 1.2-2.4 sigma of drift since the press)
+    assert frozen_error > max(1.2, 3.0 * error), (frozen_error, error)
+    assert frozen_exit is None
+
+
+def test_follow_drift_moves_nothing_unless_the_prediction_explains_the_window():
+    zeroer = Zeroer()
+    for k in range(100):  # settle an idle baseline
+        zeroer.update(np.zeros((8, 8)), k / RATE)
+    contact = bump(0.01)
+    window = np.zeros((8, 8), dtype=bool)
+    window[2:6, 2:6] = True
+    t = 1.0
+    z = zeroer.update(contact + 0.0003, t)  # a uniform drift of 0.6 sigma besides the contact
+    assert zeroer.in_contact
+    before = zeroer.baseline.copy()
+    assert not zeroer.follow_drift(z, t, contact, window)  # the first call starts the clock
+    t += DRIFT_STEP_S / 2
+    assert not zeroer.follow_drift(zeroer.update(contact + 0.0003, t), t, contact, window)
+    t += DRIFT_STEP_S
+    z = zeroer.update(contact + 0.0003, t)
+    # a contact that has moved (the prediction a stale one): nothing moves
+    assert not zeroer.follow_drift(z, t, bump(0.01, 3.9, 4.2), window)
+    assert not zeroer.follow_drift(z, t, contact, np.zeros((8, 8), dtype=bool))
+    np.testing.assert_array_equal(zeroer.baseline, before)
+    assert zeroer.follow_drift(z, t, contact, window)
+    moved = zeroer.baseline - before
+    weight = -math.expm1(-1.5 * DRIFT_STEP_S / DEFAULT_TAU_DRIFT)
+    np.testing.assert_allclose(moved[~window], 0.0003 * weight)  # each its own pull
+    np.testing.assert_allclose(moved[window], 0.0003 * weight)  # the outside's mean
+    zeroer.update(np.zeros((8, 8)), t + 0.01)  # released
+    assert not zeroer.in_contact
+    assert not zeroer.follow_drift(z, t + 0.05, contact, window)  # only in contact
 
 
 def test_tare_rezeroes_now_or_on_the_next_frame():

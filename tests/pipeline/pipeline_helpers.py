@@ -1,6 +1,7 @@
 """Helpers of the pipeline tests (a uniquely named module, so test modules can import it
 whatever other conftest.py files pytest has loaded): physics-true frames, recordings, a frame
-source fed by the test, leak checks, estimate checks."""
+source fed by the test, leak checks, estimate checks, and a pool whose jobs this process
+answers as a worker would (for driving one SensorPipeline synchronously)."""
 
 from __future__ import annotations
 
@@ -153,3 +154,32 @@ def check_estimates(estimates: list, sensor: str, sensor_id: int) -> None:
         strict_json(line)
         assert all_finite_numbers(line)
         assert line["latency_ms"] >= 0
+
+
+class InProcessPool:
+    """What SensorPipeline needs of a pool, no processes: jobs stay with the test, which
+    answers them with :func:`answer`."""
+
+    restarts = 0
+
+    def register_spec(self, sensor, options, finger=None) -> int:
+        self.sensor, self.options = sensor, options
+        return 0
+
+    def wake(self) -> None:
+        pass
+
+
+def answer(p: Any, fitter: Any, job: Any) -> None:
+    """Do ``job`` as a worker does (tactiled.pipeline.worker) with ``fitter``, in this
+    process, and hand the answer back to the SensorPipeline ``p``."""
+    from tactiled.fit.linearize import linearize
+    from tactiled.pipeline.estimate import plain
+
+    if job.kind == "lin":
+        lin = linearize(fitter, job.strain, job.warm[0], np.asarray(job.warm[1]), job.mask)
+        p.on_fit_result(job, {}, 1.0, None, None, lin)
+        return
+    r = fitter.fit(job.strain, job.model, mask=job.mask, warm=job.warm)
+    lin = linearize(fitter, job.strain, r.model, np.asarray(r.params), job.mask)
+    p.on_fit_result(job, plain(r.to_json_dict()), 1.0, None, (r.model, r.params), lin)

@@ -13,12 +13,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from pipeline_helpers import InProcessPool as Pool
+from pipeline_helpers import answer
 
 from tactiled.fit.fitter import FitOptions, Fitter
-from tactiled.fit.linearize import linearize
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import predict_strain
-from tactiled.pipeline.estimate import GATE_FIT, plain
+from tactiled.pipeline.estimate import GATE_FIT
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.sensor import SensorPipeline, _Waiting
 from tactiled.settings import SensorSettings
@@ -26,34 +27,10 @@ from tactiled.settings import SensorSettings
 SIGMA = 0.0005
 
 
-class Pool:
-    """What SensorPipeline needs of a pool, no processes: jobs stay with the test."""
-
-    restarts = 0
-
-    def register_spec(self, sensor, options, finger=None) -> int:
-        self.sensor, self.options = sensor, options
-        return 0
-
-    def wake(self) -> None:
-        pass
-
-
 def frame(k: int, strain: np.ndarray) -> _Waiting:
     s = np.array(strain, dtype=float)
     s.flags.writeable = False
     return _Waiting(k, k, 1, k * 1000, 0.0, s, 0.0, k * 1e-3)
-
-
-def answer(p: SensorPipeline, fitter: Fitter, job) -> None:
-    """Do the job as a worker does (tactiled.pipeline.worker) and hand the answer back."""
-    if job.kind == "lin":
-        lin = linearize(fitter, job.strain, job.warm[0], np.asarray(job.warm[1]), job.mask)
-        p.on_fit_result(job, {}, 1.0, None, None, lin)
-        return
-    r = fitter.fit(job.strain, job.model, mask=job.mask, warm=job.warm)
-    lin = linearize(fitter, job.strain, r.model, np.asarray(r.params), job.mask)
-    p.on_fit_result(job, plain(r.to_json_dict()), 1.0, None, (r.model, r.params), lin)
 
 
 def test_a_frames_fit_goes_out_while_a_relinearisation_is_in_flight() -> None:
