@@ -58,7 +58,10 @@ window within noise (a contact that has not moved from it), at most every ``DRIF
   (temperature moves every tactel the same way, if not by the same amount), never its own
   tactels' values, which carry the contact.
 
-The daemon calls it with the tracker's linearisation (``tactiled.pipeline.sensor``).  What it
+The daemon calls it with the tracker's linearisation (``tactiled.pipeline.sensor``): for each
+frame the tracker measures, and, untested (``fitted``), for the frame a fit was of, whose fit
+is the best the model explains it by (on a finger that departs from its model no prediction
+explains a frame within noise, and its drift must be followed all the same).  What it
 leaves is each window tactel's own drift against the mean (the simulator's tactels drift by
 0.5-1 times a common wave: about a sixth of the drift).
 """
@@ -197,18 +200,20 @@ class Zeroer:
         return z
 
     def follow_drift(self, zeroed: np.ndarray, t: float, predicted: ArrayLike,
-                     window: ArrayLike) -> bool:
+                     window: ArrayLike, *, fitted: bool = False) -> bool:
         """Follow drift under a held contact (module docstring): ``zeroed`` is the frame
         :meth:`update` returned at time ``t`` (s), ``predicted`` the strain the contact model
         gives on the whole array (a fit's, near this frame's contact), ``window`` the tactels
         the fit reads (boolean, ``(rows, cols)``).  Nothing moves unless the prediction
         explains the window's tactels within noise (their mean squared difference at most
-        ``DRIFT_EXPLAINED`` noise variances: a moving contact's prediction is stale) and
+        ``DRIFT_EXPLAINED`` noise variances: a moving contact's prediction is stale; not
+        tested when ``fitted`` says the prediction is a fit of this very frame, the best the
+        model explains it by, on a finger that departs from its model too) and
         ``DRIFT_STEP_S`` has passed since the last move; returns True when the baseline moved."""
         if not self.in_contact or self.baseline is None:
             return False
-        if self._drift_t is None or t < self._drift_t:
-            self._drift_t = t  # the first call of a contact, or a clock that went back
+        if self._drift_t is None:
+            self._drift_t = t  # the first call of a contact starts the clock
             return False
         elapsed = t - self._drift_t
         if elapsed < DRIFT_STEP_S - 1e-9:  # (frames DRIFT_STEP_S apart differ by a rounding)
@@ -222,8 +227,8 @@ class Zeroer:
         error = np.asarray(zeroed, dtype=np.float64) - np.asarray(predicted, dtype=np.float64)
         sigma = self.detector.sigma
         miss = error[inside]
-        if not float(miss @ miss) <= DRIFT_EXPLAINED * n_in * sigma * sigma:  # NaN fails too
-            return False
+        if not (fitted or float(miss @ miss) <= DRIFT_EXPLAINED * n_in * sigma * sigma):
+            return False  # (a NaN fails the test too)
         if not np.all(np.isfinite(error)):
             return False
         self._drift_t = t

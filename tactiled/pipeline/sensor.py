@@ -572,6 +572,7 @@ class SensorPipeline:
         self._last_fit = None  # the tracker answers from here
         self.gate.reset()
         self._adopt(lin)
+        self._follow_drift(w, fitted=True)
         self._obsolete_lin()
         self._base, self._base_seq, self._warm = fit, w.seq, warm
         if not mine and (tracker.t is None or w.t >= tracker.t):
@@ -617,14 +618,15 @@ class SensorPipeline:
             window[lin.index] = True
             self._drift_ref = (lin.predicted, window.reshape(lin.predicted.shape))
 
-    def _follow_drift(self, w: _Waiting) -> None:
-        """A frame the tracker measured as it came: the zeroer follows drift around the
-        contact where the last linearisation's prediction still explains the frame
-        (``Zeroer.follow_drift``; a contact held for minutes would otherwise drift off its
-        frozen baseline until the finger never let go)."""
+    def _follow_drift(self, w: _Waiting, fitted: bool = False) -> None:
+        """A frame the tracker measured as it came (or, ``fitted``, the frame the fit whose
+        linearisation it adopted was of): the zeroer follows drift around the contact where
+        the linearisation's prediction explains the frame (``Zeroer.follow_drift``; a contact
+        held for minutes would otherwise drift off its frozen baseline until the finger never
+        let go)."""
         ref = self._drift_ref
         if ref is not None and self.stage is not None:
-            self.drift_steps += self.stage.zeroer.follow_drift(w.strain, w.t, *ref)
+            self.drift_steps += self.stage.zeroer.follow_drift(w.strain, w.t, *ref, fitted=fitted)
 
     def _obsolete_lin(self) -> None:
         """A relinearisation in flight was asked for at a point the tracker no longer holds (a

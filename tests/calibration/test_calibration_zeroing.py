@@ -236,6 +236,10 @@ def test_follow_drift_moves_nothing_unless_the_prediction_explains_the_window():
     weight = -math.expm1(-1.5 * DRIFT_STEP_S / DEFAULT_TAU_DRIFT)
     np.testing.assert_allclose(moved[~window], 0.0003 * weight)  # each its own pull
     np.testing.assert_allclose(moved[window], 0.0003 * weight)  # the outside's mean
+    # a fit of this very frame is the best the model explains it by: no test
+    t += DRIFT_STEP_S
+    z = zeroer.update(contact + 0.0003, t)
+    assert zeroer.follow_drift(z, t, bump(0.01, 3.9, 4.2), window, fitted=True)
     zeroer.update(np.zeros((8, 8)), t + 0.01)  # released
     assert not zeroer.in_contact
     assert not zeroer.follow_drift(z, t + 0.05, contact, window)  # only in contact
