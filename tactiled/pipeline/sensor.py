@@ -838,6 +838,7 @@ class SensorPipeline:
             "predicted": self.predicted,
             "relinearized": self.relinearized,
             "relinearize_lost": self.relinearize_lost,
+            "drift_followed": self.drift_steps,
             "pending": len(self._pending),
             # frames received and neither answered nor counted yet (waiting for a fit)
             "in_hand": (len(self._pending) if self.settings.track

@@ -77,6 +77,7 @@ def test_a_contact_held_for_40_s_keeps_its_force_and_is_let_go(seed: int) -> Non
     # the drift of 40 s (up to 1.6e-3 strain, ~3 noise sigmas) is not read as force
     assert force == pytest.approx(FORCE, rel=0.03), force
     assert p.drift_steps > 0.5 * HOLD / 0.01  # followed most of the hold, every 10 ms at most
+    assert p.stats()["drift_followed"] == p.drift_steps
 
 
 def test_without_following_the_drift_the_finger_never_lets_go() -> None:
