@@ -118,9 +118,9 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     systematic = (gain * (me.strain ** 2 + (me.relative * s) ** 2)) @ gain.T
     flat = fitter.flat
     predicted = whole_array(fitter, m, p)
+    if flat is not None and flat.active and predicted is not None:
+        predicted = predicted * flat.gain
     if flat is not None and flat.active:
-        if predicted is not None:
-            predicted = predicted * flat.gain
         # the flat field's corrections are as wrong in every frame: systematic; and the
         # tracker reads frames as they come, so the same linearisation in their units
         # (reading = tactel gain x what the fit reads)
@@ -136,13 +136,16 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
 
 
 def whole_array(fitter, model: Model, p: np.ndarray) -> np.ndarray | None:
-    """The strain ``model`` at internal vector ``p`` gives on ``fitter``'s whole array (as the
-    fits read frames: before any flat-field gain), or None for a contact too long to
+    """The strain ``model`` at internal vector ``p`` gives on ``fitter``'s whole array as its
+    fits read frames (each tactel where the sensor puts it, displaced as the fitter's flat
+    field has learnt; before the flat field's gains), or None for a contact too long to
     integrate."""
     (ka, kb, psi, force, x0, y0), _ = model.physical(p)
+    flat = fitter.flat
+    moved = (flat.dx, flat.dy) if flat is not None and flat.active else None
     try:
         contact = Contact(1.0 / ka, 1.0 / kb if kb > 0.0 else math.inf, math.degrees(psi), force,
                           x0, y0)
-        return fitter.model.predict(contact)
+        return fitter.model.predict(contact, moved=moved)
     except (ValueError, ZeroDivisionError, OverflowError):
         return None

@@ -308,13 +308,19 @@ class StrainModel:
         d_geo = -((gx * alpha[:, None, :]) @ hy.T + (gy * beta[:, None, :]) @ dhy.T)
         return self._chain(value, d_geo, hj, force, ell)
 
-    def predict(self, contact: Contact, xs: np.ndarray | None = None, ys: np.ndarray | None = None) -> np.ndarray:
+    def predict(self, contact: Contact, xs: np.ndarray | None = None, ys: np.ndarray | None = None,
+                moved: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Predicted strain for a :class:`Contact`, on the whole array by default (each
-        tactel where the sensor's ``positions`` put it), else on the grid ``xs x ys``."""
+        tactel where the sensor's ``positions`` put it, further displaced by ``moved``, a
+        ``(dx, dy)`` pair of ``(rows, cols)`` arrays in mm, if given), else on the grid
+        ``xs x ys``."""
         ell, _ = self.ellipse(contact.kappa_a, contact.kappa_b, contact.psi, contact.force)
-        if xs is None and ys is None and self.shift is not None:
+        if xs is None and ys is None and (self.shift is not None or moved is not None):
             # tactels off the grid: each evaluated exactly where it sits
-            ex, ey = self.shift
+            shape = (self.xs_full.size, self.ys_full.size)
+            ex, ey = self.shift if self.shift is not None else (np.zeros(shape), np.zeros(shape))
+            if moved is not None:
+                ex, ey = ex + moved[0], ey + moved[1]
             px = np.ascontiguousarray((self.xs_full[:, None] + ex).ravel())
             py = np.ascontiguousarray((self.ys_full[None, :] + ey).ravel())
             u, v, w = self._rule(ell)

@@ -114,6 +114,11 @@ def test_a_linearisation_reads_raw_frames_as_the_corrected_fit_does():
     assert np.all(np.abs(z - np.array(refit.params)) < 0.25 * sd), (z - np.array(refit.params)) / sd
     # the corrections' own uncertainty is systematic: the same in every frame
     assert np.all(np.diag(lin.systematic) > 0.0)
+    # its prediction on the whole array is in the frames' units too (the tactel gains on it,
+    # the tactels where the flat field puts them): the window's own strains to 0.2 noise sigma,
+    # which read the learned displacements to first order where the prediction is exact
+    np.testing.assert_allclose(lin.predicted.ravel()[lin.index], lin.strain, rtol=0,
+                               atol=0.2 * bench.FRAME_SIGMA)
 
 
 def test_residuals_that_follow_the_contacts_are_not_blamed_on_the_tactels():
