@@ -205,7 +205,7 @@ class SensorPipeline:
         self.predicted = 0  # ... of which the tracker could only predict, not measure
         self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
         self.relinearize_lost = 0
-        self.drift_steps = 0  # times the zeroer followed drift around a held contact
+        self.drift_followed = 0  # times the zeroer followed drift around a held contact
         self.fit_failed = 0
         self.fit_errors = 0
         self.wrong_sensor = 0
@@ -626,7 +626,7 @@ class SensorPipeline:
         let go)."""
         ref = self._drift_ref
         if ref is not None and self.stage is not None:
-            self.drift_steps += self.stage.zeroer.follow_drift(w.strain, w.t, *ref, fitted=fitted)
+            self.drift_followed += self.stage.zeroer.follow_drift(w.strain, w.t, *ref, fitted=fitted)
 
     def _obsolete_lin(self) -> None:
         """A relinearisation in flight was asked for at a point the tracker no longer holds (a
@@ -838,7 +838,7 @@ class SensorPipeline:
             "predicted": self.predicted,
             "relinearized": self.relinearized,
             "relinearize_lost": self.relinearize_lost,
-            "drift_followed": self.drift_steps,
+            "drift_followed": self.drift_followed,
             "pending": len(self._pending),
             # frames received and neither answered nor counted yet (waiting for a fit)
             "in_hand": (len(self._pending) if self.settings.track
