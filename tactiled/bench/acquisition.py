@@ -542,7 +542,7 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
 
 #: A finger counts as locked in contact when it published fewer "no contact" estimates than
 #: this share of the frames its scene leaves untouched (docs/calibration.md, "Known
-#: limitation: locked in contact"): its run says little of fitting, and is marked so.
+#: limitation: the release residual"): its run says little of fitting, and is marked so.
 LOCKED_SHARE = 0.1
 
 

@@ -118,8 +118,6 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     systematic = (gain * (me.strain ** 2 + (me.relative * s) ** 2)) @ gain.T
     flat = fitter.flat
     predicted = whole_array(fitter, m, p)
-    if flat is not None and flat.active and predicted is not None:
-        predicted = predicted * flat.gain
     if flat is not None and flat.active:
         # the flat field's corrections are as wrong in every frame: systematic; and the
         # tracker reads frames as they come, so the same linearisation in their units
@@ -129,6 +127,8 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
         g = flat.gain.ravel()[index]
         s, js, gain, w = s * g, js * g[:, None], gain / g, w / (g * g)
         cov = (sigma * sigma) * (gain @ gain.T)
+        if predicted is not None:
+            predicted = predicted * flat.gain
     return Linearization(model=model, p=p.copy(), index=np.ascontiguousarray(index),
                          strain=np.ascontiguousarray(s), jacobian=np.ascontiguousarray(js),
                          gain=np.ascontiguousarray(gain), weight=w, cov=cov, sigma=sigma,
