@@ -74,6 +74,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.hysteresis import HysteresisCompensator, HysteresisLearner
 
 DEFAULT_TAU_DRIFT = 5.0  # s
 DEFAULT_TAU_RELEASE = 0.3  # s
@@ -140,6 +141,10 @@ class Zeroer:
         self._frames = 0  # since the last (re)start of the baseline
         self._settle_until = -math.inf
         self._drift_t: float | None = None  # device time drift was last followed in contact
+        #: the rubber's hysteresis, learnt at the drift steps and taken out of every frame
+        self.hysteresis = HysteresisCompensator(self.shape)
+        self.hysteresis_learner = HysteresisLearner(self.shape)
+        self._residual: np.ndarray | None = None  # what the compensator took from the last frame
 
     @property
     def settling(self) -> bool:
@@ -169,11 +174,15 @@ class Zeroer:
         z = x - self.baseline
         self._frames += 1
         settling = t < self._settle_until
+        dt = t - self._last_t if self._last_t is not None else 0.0
+        self._last_t = t
+        sigma = self.detector.sigma
+        self._residual = self.hysteresis.residual(z, dt, sigma)
+        if self._residual is not None:
+            z -= self._residual  # (the baseline below then follows the compensated frame)
         if contact is None:
             # While the baseline forms, its own noise would raise false contacts: learn only.
             contact = False if settling else self.detector.update(z)
-        dt = t - self._last_t if self._last_t is not None else 0.0
-        self._last_t = t
         if contact:
             self.in_contact = True
             return z  # frozen: a held contact is never absorbed
@@ -232,12 +241,27 @@ class Zeroer:
         if not np.all(np.isfinite(error)):
             return False
         self._drift_t = t
+        if t == self._last_t:  # the latest frame: the compensator took _residual from it
+            self._learn_hysteresis(error, predicted, outside, t, sigma)
         limit = DRIFT_CLIP_SIGMAS * sigma
         pull = np.clip(error, -limit, limit)
         pull *= -math.expm1(-min(elapsed, MAX_DRIFT_STEP_S) / self.tau_drift)
         common = float(pull[outside].sum()) / n_out
         self.baseline += np.where(outside, pull, common)
         return True
+
+    def _learn_hysteresis(self, error: np.ndarray, predicted: ArrayLike, outside: np.ndarray,
+                          t: float, sigma: float) -> None:
+        """One step of the hysteresis learner on the latest frame (its error before
+        compensation), and the compensator set to what it has learnt, or off."""
+        raw = error if self._residual is None else error + self._residual
+        learner = self.hysteresis_learner
+        learner.learn(raw, np.asarray(predicted, dtype=np.float64), outside, t, sigma)
+        usable = learner.usable(on=self.hysteresis.fraction > 0.0)
+        if usable is None:
+            self.hysteresis.set(0.0, self.hysteresis.tau_s)
+        else:
+            self.hysteresis.set(*usable)
 
     def tare(self, strain: ArrayLike | None = None) -> None:
         """Zero now: the baseline restarts from ``strain`` (a frame with nothing touching), or,
@@ -247,6 +271,8 @@ class Zeroer:
         self.detector.reset()
         self._release_until = -math.inf
         self._drift_t = None
+        self.hysteresis.reset()  # the peaks were measured from the old baseline
+        self.hysteresis_learner.reset()
         if strain is None:
             self._pending_tare = True
             return
@@ -269,6 +295,9 @@ class Zeroer:
         self._frames = 0
         self._settle_until = -math.inf
         self._drift_t = None
+        self.hysteresis = HysteresisCompensator(self.shape)
+        self.hysteresis_learner = HysteresisLearner(self.shape)
+        self._residual = None
 
     def _tare_to(self, x: np.ndarray, bad: np.ndarray | None) -> None:
         self._pending_tare = False
