@@ -151,6 +151,7 @@ class DaemonCollector(Collector):
             if st.get("rate_hz"):
                 nominal.add_metric([name], float(st["rate_hz"]))
         yield from (connected, backlog, backlog_peak, age, rate, nominal)
+        yield from self._hysteresis(names, stats)
         latency = _histogram("tactiled_estimate_latency_seconds",
                              "Frame arrival on the host to estimate published, by gate.",
                              ["sensor", "gate"])
@@ -179,6 +180,27 @@ class DaemonCollector(Collector):
                     share.add_metric([name], float(s["superseded_share_10s"]))
             yield status
             yield share
+
+    @staticmethod
+    def _hysteresis(names: list[str], stats: dict[str, Any]) -> Iterator[Metric]:
+        fraction = GaugeMetricFamily("tactiled_hysteresis_fraction",
+                                     "The rubber's hysteresis fraction the zeroer has learnt "
+                                     "(absent before it has learnt any).", labels=["sensor"])
+        tau = GaugeMetricFamily("tactiled_hysteresis_tau_seconds",
+                                "The time constant of the rubber's hysteresis the zeroer has "
+                                "learnt.", labels=["sensor"])
+        on = GaugeMetricFamily("tactiled_hysteresis_compensating",
+                               "1 while the zeroer takes the learnt hysteresis out of the "
+                               "frames.", labels=["sensor"])
+        for name in names:
+            h = stats[name].get("hysteresis")
+            if h is None:
+                continue
+            if h["fraction"] is not None:
+                fraction.add_metric([name], float(h["fraction"]))
+                tau.add_metric([name], float(h["tau_s"]))
+            on.add_metric([name], 1.0 if h["compensating"] else 0.0)
+        yield from (fraction, tau, on)
 
     # -- the worker pool ------------------------------------------------------------------------
 

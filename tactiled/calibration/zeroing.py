@@ -263,6 +263,17 @@ class Zeroer:
         else:
             self.hysteresis.set(*usable)
 
+    def hysteresis_summary(self) -> dict[str, float | int | bool | None]:
+        """What the zeroer knows of the rubber's hysteresis: the learnt ``fraction`` and
+        ``tau_s`` (s; None before any learning step with a trail), their ``significance`` (noise
+        sigmas), the learning ``steps`` taken, and whether it is ``compensating`` (then with
+        the learnt constants)."""
+        estimate = self.hysteresis_learner.estimate
+        fraction, tau, z = (None, None, None) if estimate is None else estimate
+        return {"fraction": fraction, "tau_s": tau, "significance": z,
+                "steps": self.hysteresis_learner.steps,
+                "compensating": self.hysteresis.fraction > 0.0}
+
     def tare(self, strain: ArrayLike | None = None) -> None:
         """Zero now: the baseline restarts from ``strain`` (a frame with nothing touching), or,
         with no argument, from the next frame :meth:`update` sees; either way it then settles as

@@ -839,6 +839,7 @@ class SensorPipeline:
             "relinearized": self.relinearized,
             "relinearize_lost": self.relinearize_lost,
             "drift_followed": self.drift_followed,
+            "hysteresis": None if zeroer is None else zeroer.hysteresis_summary(),
             "pending": len(self._pending),
             # frames received and neither answered nor counted yet (waiting for a fit)
             "in_hand": (len(self._pending) if self.settings.track

@@ -55,8 +55,10 @@ def test_every_documented_family_is_served_and_every_served_one_documented(share
             assert all(s.name.endswith(("_total", "_created")) for s in f.samples), name
     docs = documented_metrics()
     assert docs, "docs/api.md lists no metric"
-    # Gauges with no value to give have no sample (no sensor of this server has a rate_hz).
-    served |= {"tactiled_frame_rate_nominal_hertz"} & docs
+    # Gauges with no value to give have no sample (no sensor of this server has a rate_hz;
+    # the hysteresis is learnt only after seconds of tracked contact).
+    served |= {"tactiled_frame_rate_nominal_hertz", "tactiled_hysteresis_fraction",
+               "tactiled_hysteresis_tau_seconds"} & docs
     # process_* are the library's standard process metrics; those it serves are listed too.
     assert served - docs == set(), f"served but not in docs/api.md: {sorted(served - docs)}"
     assert docs - served == set(), f"in docs/api.md but not served: {sorted(docs - served)}"
@@ -89,6 +91,9 @@ def test_values_agree_with_the_daemons_counters(shared_server):
         fit = families["tactiled_fit_latency_seconds"]
         assert value(fit, "tactiled_fit_latency_seconds_count", sensor=name) == (
             st["fitted"] - st["fit_errors"])
+        assert value(families["tactiled_hysteresis_compensating"],
+                     "tactiled_hysteresis_compensating",
+                     sensor=name) == float(st["hysteresis"]["compensating"])
     assert value(families["tactiled_worker_fits"], "tactiled_worker_fits_total") == \
         stats["workers"]["fits"]
 
