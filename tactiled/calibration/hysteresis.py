@@ -56,6 +56,8 @@ MIN_PEAK_SIGMAS = 5.0
 NOISE_MARGIN = 2.0
 #: Each learning step multiplies the sums by this: a memory of 1000 steps (~12 s of contact).
 FORGET = 0.999
+#: The estimate is solved for every this many steps (it moves over hundreds).
+SOLVE_EVERY = 10
 #: The compensator switches on at this significance (noise sigmas) and off below Z_OFF.
 Z_ON = 12.0
 Z_OFF = 6.0
@@ -155,16 +157,25 @@ class HysteresisLearner:
         if not q.any():
             return
         e = unexplained.reshape(-1)[out]
-        x = np.empty((TAUS_S.size, e.size, 3))
-        x[:, :, 0] = q
-        x[:, :, 1] = load[out]
-        x[:, :, 2] = 1.0
+        lo = load[out]
+        # the normal equations of e ~ f q_k + a load + c, one per tau, from dot products
+        qq, ql, q1, qe = np.einsum("kn,kn->k", q, q), q @ lo, q.sum(axis=1), q @ e
+        normal = np.empty((TAUS_S.size, 3, 3))
+        normal[:, 0, 0] = qq
+        normal[:, 0, 1] = normal[:, 1, 0] = ql
+        normal[:, 0, 2] = normal[:, 2, 0] = q1
+        normal[:, 1, 1] = float(lo @ lo)
+        normal[:, 1, 2] = normal[:, 2, 1] = float(lo.sum())
+        normal[:, 2, 2] = float(e.size)
         self._normal *= FORGET
-        self._normal += np.einsum("kni,knj->kij", x, x)
+        self._normal += normal
         self._moment *= FORGET
-        self._moment += np.einsum("kni,n->ki", x, e)
+        self._moment[:, 0] += qe
+        self._moment[:, 1] += float(lo @ e)
+        self._moment[:, 2] += float(e.sum())
         self.steps += 1
-        self.estimate = self._solve(sigma)
+        if self.steps % SOLVE_EVERY == 0 or self.estimate is None:
+            self.estimate = self._solve(sigma)
 
     def _solve(self, sigma: float) -> tuple[float, float, float] | None:
         normal = self._normal + np.eye(3) * 1e-18  # a trail seen on one tactel only: finite

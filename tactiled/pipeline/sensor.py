@@ -118,6 +118,8 @@ MAX_PENDING = 64
 #: a frame far outside the model) costs precision for a while, never latency.  Live only: in
 #: lossless mode every frame waits for its fit.
 MAX_WAIT_S = 0.005
+#: A relinearisation is asked for at most once per this much device time (s).
+MIN_RELINEARIZE_S = 0.004
 
 
 class SensorPipeline:
@@ -188,6 +190,7 @@ class SensorPipeline:
         #: (strain on the whole array, window mask) of the tracker's linearisation: what the
         #: zeroer follows drift around while the contact is held (_follow_drift)
         self._drift_ref: tuple[np.ndarray, np.ndarray] | None = None
+        self._lin_asked_t = -math.inf  # device time (s) a relinearisation was last asked for
         self._settled = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
         self._recorder: Recorder | None = None
@@ -483,9 +486,14 @@ class SensorPipeline:
         a worker linearises again where the contact now is (no frame waits for it)."""
         if self._waiting is not None and self._waiting.kind != "lin":
             return
+        if w.t - self._lin_asked_t < MIN_RELINEARIZE_S:
+            return
         at = self.tracker.wants_linearization()
         if at is not None:
-            self._waiting = replace(w, kind="lin", at=(at[0], tuple(float(v) for v in at[1])))
+            self._lin_asked_t = w.t
+            self._waiting = _Waiting(w.ordinal, w.seq, w.sensor_id, w.device_time_us,
+                                     w.host_time, w.strain, w.since, w.t, "lin",
+                                     (at[0], tuple(map(float, at[1]))))
             self.pool.wake()
 
     def _publish_tracked(self, w: _Waiting, gate: str = GATE_UNCHANGED,
