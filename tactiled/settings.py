@@ -10,7 +10,8 @@ Keys (the documented example is ``deploy/tactiled.toml``)::
     [server]   host = "127.0.0.1", port = 8765, token = (none), max_subscribers = 64,
                allow_origins = [] (browser origins besides the server's own)
     [[sensor]] name, url, wire_id, calibration, model, window, noise_sigma, false_rate,
-               detector_average, reuse_unchanged, unchanged_z, track, rate_hz
+               detector_average, reuse_unchanged, unchanged_z, track, hysteresis,
+               rate_hz
     [fit]      workers, start_method, timeout, ping_interval, ping_timeout, startup_timeout,
                stop_timeout, max_fits_per_worker
     [record]   path
@@ -98,6 +99,9 @@ class SensorSettings:
     #: measured through the last fit, a held contact sharpened, rates estimated.  False: each
     #: estimate is one frame's fit, reused while frames are unchanged (the gate).
     track: bool = True
+    #: Learn the rubber's hysteresis from tracked contacts and take it out of every frame once
+    #: the estimate is significant (tactiled/calibration/hysteresis.py).  False: frames as read.
+    hysteresis: bool = True
     #: Nominal frame rate (Hz); health reports the sensor DEGRADED while it delivers less
     #: (below 0.9 of it over a second) for more than 2 s.  None: no nominal rate, not judged.
     rate_hz: float | None = None
@@ -427,6 +431,7 @@ SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "detector_average": _in_range(_as_int, 1, 64, "a frame count"),
     "reuse_unchanged": _as_bool,
     "track": _as_bool,
+    "hysteresis": _as_bool,
     "unchanged_z": _in_range(_as_float, 0.0, 1e6, "a z-score"),
     "rate_hz": _optional(_in_range(_as_float, 0.01, 1e6, "a frame rate in Hz")),
 }
@@ -469,7 +474,7 @@ _PATH_KEYS = {("sensor", "calibration"), ("record", "path"), ("zenoh", "config")
 
 #: Sensor keys the daemon can change while running (Daemon.update_config).
 RUNTIME_SENSOR_KEYS = ("model", "window", "noise_sigma", "false_rate", "reuse_unchanged",
-                       "unchanged_z", "track")
+                       "unchanged_z", "track", "hysteresis")
 
 
 def check_sensor_value(key: str, value: Any, where: str) -> Any:

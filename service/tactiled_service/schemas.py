@@ -220,6 +220,8 @@ class SensorConfigPatch(BaseModel):
         default=None, description="z-score")
     track: bool | SkipJsonSchema[None] = Field(
         default=None, description="follow the contact through time (tracker)")
+    hysteresis: bool | SkipJsonSchema[None] = Field(
+        default=None, description="learn the rubber's hysteresis and take it out")
 
 
 Seconds = Annotated[float, Field(ge=0.05, le=3600.0)]  # settings.MIN/MAX_FIT_TIME_S

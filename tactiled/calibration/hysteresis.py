@@ -103,19 +103,18 @@ class HysteresisCompensator:
         if f == 0.0:
             return None
         floor = MIN_PEAK_SIGMAS * sigma
-        top = float(zeroed.max())
-        if not self._active and top < floor:
+        if not self._active and float(zeroed.max()) < floor:
             return None  # nothing was loaded, nothing is: the common case costs one max
         peak = self._peak
         if dt > 0.0:
             peak *= math.exp(-dt / self.tau_s)
-        loaded = np.maximum(zeroed, 0.0)
-        held = (loaded < peak) & (peak > floor)
-        # where a tactel reads below its peak it carries f (P - s): invert for s
-        s = np.where(held, np.maximum((zeroed - f * peak) / (1.0 - f), 0.0), loaded)
-        np.maximum(peak, s - NOISE_MARGIN * sigma, out=peak)
+        # Below its peak a tactel reads z = s + f (P - s), so it carries f (P - s) =
+        # f (P - z) / (1 - f), at most f P (s >= 0).  Its peak then stays (s <= P).
+        held = (zeroed < peak) & (peak > floor)
+        taken = np.minimum((peak - zeroed) * (f / (1.0 - f)), f * peak)
+        np.maximum(peak, zeroed - NOISE_MARGIN * sigma, out=peak)
         self._active = bool(float(peak.max()) > floor)
-        return np.where(held, f * np.maximum(peak - s, 0.0), 0.0)
+        return np.where(held, taken, 0.0)
 
 
 class HysteresisLearner:

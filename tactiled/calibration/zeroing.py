@@ -101,7 +101,8 @@ class Zeroer:
 
     ``detector`` decides contact on each zeroed frame (default: a :class:`ContactDetector` for
     the default sensor); :meth:`update` may instead be told the contact state.  Time constants
-    are in seconds.
+    are in seconds.  ``hysteresis``: learn the rubber's hysteresis at the drift steps and take
+    it out of the frames (:mod:`tactiled.calibration.hysteresis`).
     """
 
     def __init__(
@@ -113,6 +114,7 @@ class Zeroer:
         holdoff: float = DEFAULT_HOLDOFF,
         settle: float = DEFAULT_SETTLE,
         detector: ContactDetector | None = None,
+        hysteresis: bool = True,
     ) -> None:
         for name, value in (("tau_drift", tau_drift), ("tau_release", tau_release)):
             if not (math.isfinite(value) and value > 0):
@@ -142,6 +144,8 @@ class Zeroer:
         self._settle_until = -math.inf
         self._drift_t: float | None = None  # device time drift was last followed in contact
         #: the rubber's hysteresis, learnt at the drift steps and taken out of every frame
+        #: (``hysteresis``: whether to; :meth:`set_hysteresis`)
+        self.learns_hysteresis = bool(hysteresis)
         self.hysteresis = HysteresisCompensator(self.shape)
         self.hysteresis_learner = HysteresisLearner(self.shape)
         self._residual: np.ndarray | None = None  # what the compensator took from the last frame
@@ -241,7 +245,7 @@ class Zeroer:
         if not np.all(np.isfinite(error)):
             return False
         self._drift_t = t
-        if t == self._last_t:  # the latest frame: the compensator took _residual from it
+        if self.learns_hysteresis and t == self._last_t:  # (the latest frame: _residual is its)
             self._learn_hysteresis(error, predicted, outside, t, sigma)
         limit = DRIFT_CLIP_SIGMAS * sigma
         pull = np.clip(error, -limit, limit)
@@ -262,6 +266,13 @@ class Zeroer:
             self.hysteresis.set(0.0, self.hysteresis.tau_s)
         else:
             self.hysteresis.set(*usable)
+
+    def set_hysteresis(self, on: bool) -> None:
+        """Learn the rubber's hysteresis and take it out (``on``), or leave frames as read
+        (the compensator off; what was learnt is kept for when it is on again)."""
+        self.learns_hysteresis = bool(on)
+        if not on:
+            self.hysteresis.set(0.0, self.hysteresis.tau_s)
 
     def hysteresis_summary(self) -> dict[str, float | int | bool | None]:
         """What the zeroer knows of the rubber's hysteresis: the learnt ``fraction`` and

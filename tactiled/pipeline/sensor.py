@@ -654,7 +654,8 @@ class SensorPipeline:
         s = self.settings
         detector = ContactDetector(s.noise_sigma, sensor=self.sensor_model,
                                    false_rate=s.false_rate, average=s.detector_average)
-        self.stage = CalibrationStage(table, Zeroer(table.shape, detector=detector))
+        self.stage = CalibrationStage(table, Zeroer(table.shape, detector=detector,
+                                                    hysteresis=s.hysteresis))
         self.sensor_id = sensor_id
 
     def _supersede_waiting(self) -> None:
@@ -806,6 +807,7 @@ class SensorPipeline:
                             reuse_unchanged=s.reuse_unchanged)
         if self.stage is not None:
             self.stage.zeroer.detector.configure(sigma=s.noise_sigma, false_rate=s.false_rate)
+            self.stage.zeroer.set_hysteresis(s.hysteresis)
         # A fit made under other settings must not be reused for new frames.
         self._end_contact()
 

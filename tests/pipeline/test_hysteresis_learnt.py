@@ -23,13 +23,15 @@ from tactiled.sim import DEFAULT_HYSTERESIS, FingerSimulator, HysteresisModel
 PASSES = 2  # of the moving scene's 5.45 s
 
 
-def _moving(hysteresis: HysteresisModel | None, learn: bool = True, seed: int = 1):
+def _moving(hysteresis: HysteresisModel | None, learn: bool = True, seed: int = 1,
+            setting: bool = True):
     """(pipeline, frames the detector called contact with nothing touching, fits, frames
     compensated) over PASSES of the moving scene, the first two counted over the last pass
     (the first is where the learning is)."""
     sim = FingerSimulator(scene="moving", seed=seed, sensor_id=seed, hysteresis=hysteresis)
     pool = InProcessPool()
-    p = SensorPipeline(SensorSettings(name="f", url="sim://"), pool=pool, hub=Hub())
+    p = SensorPipeline(SensorSettings(name="f", url="sim://", hysteresis=setting), pool=pool,
+                       hub=Hub())
     fitter = Fitter(pool.sensor, FitOptions(**dict(pool.options)))
     phantom = compensated = fits = 0
     last_pass = (PASSES - 1) * sim.ticks_per_pass
@@ -79,3 +81,16 @@ def test_a_finger_without_hysteresis_is_left_alone():
     assert h["steps"] > 500, h  # it looked: the trail was there to learn from
     assert compensated == 0 and not h["compensating"], h
     assert abs(h["fraction"]) < 0.01, h
+
+
+def test_the_sensor_setting_turns_it_off_and_on_while_running():
+    p, phantom, fits, compensated = _moving(DEFAULT_HYSTERESIS, setting=False)
+    h = p.stats()["hysteresis"]
+    assert compensated == 0 and h["steps"] == 0 and h["fraction"] is None, h
+    assert phantom > 100  # as the control: the residual is left in
+    zeroer = p.stage.zeroer
+    p.configure({"hysteresis": True})
+    assert zeroer.learns_hysteresis
+    zeroer.hysteresis.set(0.05, 0.5)
+    p.configure({"hysteresis": False})  # off: the compensator stops at once
+    assert not zeroer.learns_hysteresis and zeroer.hysteresis.fraction == 0.0
