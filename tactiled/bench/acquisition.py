@@ -541,8 +541,9 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
 
 
 #: A finger counts as locked in contact when it published fewer "no contact" estimates than
-#: this share of the frames its scene leaves untouched (docs/calibration.md, "Known
-#: limitation: the release residual"): its run says little of fitting, and is marked so.
+#: this share of the frames its scene leaves untouched (the release residual or drift held
+#: the detector on: docs/calibration.md, "The rubber's hysteresis is learnt and taken out"
+#: and "Drift during a hold"): its run says little of fitting, and is marked so.
 LOCKED_SHARE = 0.1
 
 
@@ -659,7 +660,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
               "CPU over the measured window in % of one core: the daemon's main process (event loop and serial "
               "reader threads), its fit workers, the three simulators.  'Fingers locked in contact': fingers "
               f"that published 'no contact' for under {100 * LOCKED_SHARE:g} % of the frames the scene leaves "
-              "untouched (the zeroer's known limitation, docs/calibration.md): their phantom contact frames "
+              "untouched (a release residual or drift held the detector on, docs/calibration.md): their phantom contact frames "
               "count here, so such a run says little of the fitting."]
     # -- accuracy
     lines += ["", "### Accuracy of the streamed estimates against the scene's truth", "",
