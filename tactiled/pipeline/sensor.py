@@ -265,9 +265,14 @@ class SensorPipeline:
                 delay = RETRY_MIN
                 async with contextlib.aclosing(self.source.frames()) as frames:
                     async for frame in frames:
+                        before = self._waiting
                         self.on_frame(frame)
                         if self.lossless:
                             await self.wait_settled()
+                        elif self._fit_due(before):
+                            # let the pool send it now, not after the rest of this read's
+                            # frames (and read the workers' answers meanwhile)
+                            await asyncio.sleep(0)
                 break  # the stream ended (a replay finished)
             except DriverError as err:
                 # A device that failed to open or vanished: it may come back, so retry.
@@ -480,6 +485,12 @@ class SensorPipeline:
         w.kind = "fit+lin"
         self._waiting = w
         self.pool.wake()
+
+    def _fit_due(self, before: _Waiting | None) -> bool:
+        """A frame has just started waiting for a fit (it was not ``before``), and no fit of
+        this sensor is in flight: a worker could take it at once."""
+        w = self._waiting
+        return w is not None and w is not before and w.kind != "lin" and self._in_flight is None
 
     def _maybe_relinearize(self, w: _Waiting) -> None:
         """The state has moved from the linearisation point (or sharpened well past it):
