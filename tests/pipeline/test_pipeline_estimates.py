@@ -400,3 +400,37 @@ def test_a_patch_that_fails_while_being_applied_is_rolled_back(arun, monkeypatch
     before, after, message = arun(main())
     assert message == "sensors.finger1: cannot be applied: threshold out of reach"
     assert after == before
+
+
+def test_a_frame_that_needs_a_fit_is_sent_before_the_rest_of_its_read(arun) -> None:
+    """A read brings many frames at once (a serial read after a stall): the first that needs a
+    fit (the contact's first) goes to a worker before the loop decodes and tracks the rest, so
+    its answer is not a whole read late.  Before, the pool dispatched after the read, and the
+    newest frame of it was the first fitted."""
+    source = QueueSource()
+    settle = make_frames([], settle=SETTLE_FRAMES)
+    burst = make_frames(contact_path(30), settle=0, start_seq=SETTLE_FRAMES)
+
+    async def main() -> list:
+        daemon = Daemon(load_settings(None, {}, {"sensor[0].url": "replay://unused.tact",
+                                                 "sensor[0].detector_average": 1}),
+                        sources={"finger0": source})
+        estimates = collect(daemon)
+        await daemon.start()
+        sensor = daemon.sensors["finger0"]
+        for frame in settle:
+            source.put(frame)
+        while len(estimates) < len(settle):
+            await asyncio.sleep(0.005)
+        for frame in burst:  # queued at once: one read's worth, taken without waiting
+            source.put(frame)
+        while sensor.stats()["published"] + sensor.stats()["superseded"] < len(settle) + len(burst):
+            await asyncio.sleep(0.005)
+        source.end()
+        await daemon.stop()
+        return estimates
+
+    estimates = arun(main())
+    fitted = [e.seq for e in estimates if e.gate == "fit"]
+    assert fitted, "no frame was fitted"
+    assert fitted[0] <= burst[1].seq, (fitted, burst[0].seq)
