@@ -16,8 +16,9 @@ with two constants, the fraction ``f`` and ``tau`` (s).
 them in use, from contacts it tracks.  Where a fit's model explains a frame, the tactels
 outside the fit's window read what the model does not explain (``zeroed - predicted``): noise,
 drift, and, behind a contact that moved or eased, the residual.  For each ``tau`` of a grid
-(0.1-5 s), a peak-hold ``P_k`` of the measured compressive strain gives the regressor
-``q_k = P_k - max(predicted, 0)`` (what the tactel carried once, less what it carries now).  A
+(0.1-5 s), a peak-hold ``P_k`` of the *predicted* compressive strain (noise-free, and blind to
+a held contact's own misfit) gives the regressor ``q_k = P_k - max(predicted, 0)`` (what the
+tactel carried once, less what it carries now).  A
 least-squares fit of the unexplained strain on ``q_k``, beside the predicted load itself (so a
 model that is a few per cent off in scale is not read as hysteresis) and a constant (common
 drift), gives ``f_k`` and its significance ``z_k`` in noise sigmas; the ``tau`` whose ``q_k``
@@ -25,16 +26,17 @@ explains most, refined between grid points, is the estimate.  Sums decay with ea
 memory of ``1 / (1 - FORGET)`` steps), so the estimate follows a finger that warms or ages.
 
 **Taking it out** (:class:`HysteresisCompensator`) is switched on only when the estimate is
-significant (``z >= Z_ON``), its ``tau`` lies inside the grid (at an edge it is a slope of
+significant (``z >= Z_ON`` after ``MIN_STEPS`` steps), its ``tau`` lies inside the grid (at an edge it is a slope of
 something else: drift, a model that misfits) and its fraction is plausible; it goes off again
 below ``Z_OFF``.  A finger without hysteresis stays as it was.  The compensator inverts the
 model frame by frame: where a tactel reads below its peak-hold, ``s = (z - f P) / (1 - f)``,
-and it subtracts ``R = f (P - s)``.  Both peak-holds forget the noise: they hold a strain less
-``NOISE_MARGIN`` noise sigmas, so a held contact's noise does not ratchet them up and read as
-a release.
+and it subtracts ``R = f (P - s)``.  Its peak-hold forgets the noise: it holds a strain less
+``NOISE_MARGIN`` noise sigmas, so a held contact's noise does not ratchet it up and read as a
+release.
 
-On the simulated finger (``f`` = 0.05, ``tau`` = 0.5 s) the learner finds ``tau`` = 0.5 s and
-``f`` close to 0.05 within seconds of the moving scene (docs/calibration.md has the figures).
+On the simulated finger (``f`` = 0.05, ``tau`` = 0.5 s) the learner finds ``tau`` = 0.52-0.58 s
+and ``f`` = 0.043-0.045 on the moving scene, and compensates from its third second on
+(docs/calibration.md has the figures, and those on other fingers).
 
 Pure numpy and no I/O.  Strains are on the zeroed scale (strain, no unit); times in seconds.
 """
@@ -50,9 +52,9 @@ import numpy as np
 #: towards the slowest).
 TAUS_S = np.geomspace(0.1, 5.0, 10)
 #: A tactel's peak-hold counts once it exceeds this many noise sigmas (below, a residual of a
-#: few per cent is a hundredth of a sigma).
+#: few per cent is a fraction of a sigma).
 MIN_PEAK_SIGMAS = 5.0
-#: Peak-holds hold the strain less this many noise sigmas (above).
+#: The compensator's peak-hold holds the strain less this many noise sigmas (above).
 NOISE_MARGIN = 2.0
 #: Each learning step multiplies the sums by this: a memory of 1000 steps (~12 s of contact).
 FORGET = 0.999

@@ -64,6 +64,12 @@ is the best the model explains it by (on a finger that departs from its model no
 explains a frame within noise, and its drift must be followed all the same).  What it
 leaves is each window tactel's own drift against the mean (the simulator's tactels drift by
 0.5-1 times a common wave: about a sixth of the drift).
+
+**The rubber's hysteresis is taken out before zeroing** (:mod:`tactiled.calibration.hysteresis`):
+at the drift steps a learner estimates the residual a release leaves (its fraction and time
+constant) from the tactels outside the window, and once that estimate is significant a
+compensator subtracts the residual from every frame, so the baseline, the detector and the fit
+all see the frame without it.  ``hysteresis=False`` (the sensor setting) leaves frames as read.
 """
 
 from __future__ import annotations
