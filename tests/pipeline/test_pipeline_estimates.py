@@ -160,6 +160,22 @@ def test_latest_frame_wins_while_the_worker_is_busy(tmp_path: Path, arun) -> Non
     assert estimates[-1].seq == frames[-1].seq and estimates[-1].gate == "fit"
 
 
+async def _settled_daemon(source: QueueSource, **sensor: object) -> tuple[Daemon, list]:
+    """A started daemon whose one sensor reads ``source`` (sensor settings ``sensor``, with
+    one-frame contact decisions), after SETTLE_FRAMES empty frames went through it: (the
+    daemon, its estimates so far)."""
+    overrides = {"sensor[0].url": "replay://unused.tact", "sensor[0].detector_average": 1}
+    overrides.update({f"sensor[0].{k}": v for k, v in sensor.items()})
+    daemon = Daemon(load_settings(None, {}, overrides), sources={"finger0": source})
+    estimates = collect(daemon)
+    await daemon.start()
+    for frame in make_frames([], settle=SETTLE_FRAMES):
+        source.put(frame)
+    while len(estimates) < SETTLE_FRAMES:
+        await asyncio.sleep(0.005)
+    return daemon, estimates
+
+
 def test_a_result_older_than_the_last_estimate_is_dropped(arun) -> None:
     source = QueueSource()
     settle = make_frames([], settle=SETTLE_FRAMES)
@@ -170,17 +186,8 @@ def test_a_result_older_than_the_last_estimate_is_dropped(arun) -> None:
         # one-frame contact decisions, so a single release frame ends the contact
         # (tracking off: with it, the frame waiting for that fit is given up when the contact
         # ends, counted superseded; test_tracking.py)
-        daemon = Daemon(load_settings(None, {}, {"sensor[0].url": "replay://unused.tact",
-                                                 "sensor[0].detector_average": 1,
-                                                 "sensor[0].track": False}),
-                        sources={"finger0": source})
-        estimates = collect(daemon)
-        await daemon.start()
+        daemon, estimates = await _settled_daemon(source, track=False)
         sensor = daemon.sensors["finger0"]
-        for frame in settle:
-            source.put(frame)
-        while len(estimates) < len(settle):
-            await asyncio.sleep(0.005)
         # Keep the worker busy for 0.3 s (under the 1 s fit timeout): the fit of the pressed
         # frame queues behind it, and the release frame is published first.
         assert daemon.pool.debug_sleep(0, 0.3) is not None
@@ -408,23 +415,14 @@ def test_a_frame_that_needs_a_fit_is_sent_before_the_rest_of_its_read(arun) -> N
     its answer is not a whole read late.  Before, the pool dispatched after the read, and the
     newest frame of it was the first fitted."""
     source = QueueSource()
-    settle = make_frames([], settle=SETTLE_FRAMES)
     burst = make_frames(contact_path(30), settle=0, start_seq=SETTLE_FRAMES)
 
     async def main() -> list:
-        daemon = Daemon(load_settings(None, {}, {"sensor[0].url": "replay://unused.tact",
-                                                 "sensor[0].detector_average": 1}),
-                        sources={"finger0": source})
-        estimates = collect(daemon)
-        await daemon.start()
+        daemon, estimates = await _settled_daemon(source)
         sensor = daemon.sensors["finger0"]
-        for frame in settle:
-            source.put(frame)
-        while len(estimates) < len(settle):
-            await asyncio.sleep(0.005)
         for frame in burst:  # queued at once: one read's worth, taken without waiting
             source.put(frame)
-        while sensor.stats()["published"] + sensor.stats()["superseded"] < len(settle) + len(burst):
+        while sensor.stats()["published"] + sensor.stats()["superseded"] < SETTLE_FRAMES + len(burst):
             await asyncio.sleep(0.005)
         source.end()
         await daemon.stop()
