@@ -121,8 +121,8 @@ class HysteresisCompensator:
 
 class HysteresisLearner:
     """Learns ``(f, tau)`` from the unexplained strain around tracked contacts (module
-    docstring).  :meth:`observe` every zeroed frame before compensation, :meth:`learn` at the
-    zeroer's drift steps; :attr:`estimate` is the current answer."""
+    docstring): :meth:`learn` at the zeroer's drift steps; :attr:`estimate` is the current
+    answer, :meth:`usable` whether to compensate with it."""
 
     def __init__(self, shape: tuple[int, int]) -> None:
         self.shape = tuple(shape)

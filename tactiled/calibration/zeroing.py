@@ -267,11 +267,12 @@ class Zeroer:
         raw = error if self._residual is None else error + self._residual
         learner = self.hysteresis_learner
         learner.learn(raw, np.asarray(predicted, dtype=np.float64), outside, t, sigma)
-        usable = learner.usable(on=self.hysteresis.fraction > 0.0)
-        if usable is None:
-            self.hysteresis.set(0.0, self.hysteresis.tau_s)
-        else:
+        on = self.hysteresis.fraction > 0.0
+        usable = learner.usable(on=on)
+        if usable is not None:
             self.hysteresis.set(*usable)
+        elif on:
+            self.hysteresis.set(0.0, self.hysteresis.tau_s)
 
     def set_hysteresis(self, on: bool) -> None:
         """Learn the rubber's hysteresis and take it out (``on``), or leave frames as read

@@ -497,8 +497,8 @@ class SensorPipeline:
         a worker linearises again where the contact now is (no frame waits for it)."""
         if self._waiting is not None and self._waiting.kind != "lin":
             return
-        if w.t - self._lin_asked_t < MIN_RELINEARIZE_S:
-            return
+        if 0.0 <= w.t - self._lin_asked_t < MIN_RELINEARIZE_S:
+            return  # (a device clock that went back, a restarted device, asks at once)
         at = self.tracker.wants_linearization()
         if at is not None:
             self._lin_asked_t = w.t

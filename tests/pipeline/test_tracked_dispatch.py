@@ -104,3 +104,40 @@ def test_one_relinearisation_at_a_time_and_none_beside_a_frames_fit() -> None:
     p._lin_in_flight = None
     p._in_flight = frame(3, np.zeros((8, 8)))
     assert p.job_waiting_since() is None  # behind a frame's fit
+
+
+def _lin_times(first_asked: float | None = None, frames: int = 1500) -> list[float]:
+    """Device times (s) of the relinearisations a moving contact (the moving scene, 1 kHz)
+    asks for, every job answered at once; ``first_asked``: the time the pipeline last asked,
+    as left by an earlier run of the device's clock."""
+    from tactiled.pipeline import sensor as sensor_module
+    from tactiled.sim import FingerSimulator
+
+    sim = FingerSimulator(scene="moving", seed=1, sensor_id=1)
+    pool = Pool()
+    p = SensorPipeline(SensorSettings(name="f", url="sim://"), pool=pool, hub=Hub())
+    fitter = Fitter(pool.sensor, FitOptions(**dict(pool.options)))
+    if first_asked is not None:
+        p._lin_asked_t = first_asked
+    asked = []
+    for _ in range(frames):
+        p.on_frame(sim.next_frame())
+        while p._waiting is not None and p._in_flight is None:
+            job = p.take_job()
+            if job.kind == "lin":
+                asked.append(job.seq * 1e-3)
+            answer(p, fitter, job)
+    assert sensor_module.MIN_RELINEARIZE_S == 0.004
+    return asked
+
+
+def test_relinearisations_are_asked_for_at_most_every_4_ms() -> None:
+    asked = _lin_times()
+    assert len(asked) > 100  # the contact moved: it was relinearised, and often
+    assert min(np.diff(asked)) >= 0.004 - 1e-9
+
+
+def test_a_device_clock_that_went_back_does_not_stop_relinearising() -> None:
+    # as if the device had run for an hour before a restart brought its clock back to 0
+    asked = _lin_times(first_asked=3600.0)
+    assert len(asked) > 100
