@@ -87,6 +87,15 @@ def trim() -> bool:
     return True
 
 
+def serving(period_s: float = COLLECT_PERIOD_S) -> asyncio.Task[None]:
+    """The policy of a process that serves from now on (the daemon's, the service's):
+    :func:`settle` the start-up heap, :func:`pin_malloc`, and a task running
+    :func:`collect_every` (cancel it on the way out).  Call from its event loop."""
+    settle()
+    pin_malloc()
+    return asyncio.create_task(collect_every(period_s), name="tactiled-gc")
+
+
 async def collect_every(period_s: float = COLLECT_PERIOD_S,
                         trim_period_s: float = TRIM_PERIOD_S) -> None:
     """Run a full collection every ``period_s`` s, and :func:`trim` every ``trim_period_s``

@@ -364,10 +364,7 @@ class Service:
         For the process that *is* this service (``serve``, the soak), once started; not done
         by :meth:`start` because a process running many services one after another (the
         tests) would freeze each one's objects for good."""
-        heap.settle()
-        heap.pin_malloc()
-        self._tasks.append(asyncio.create_task(heap.collect_every(period_s),
-                                               name="tactiled-gc"))
+        self._tasks.append(heap.serving(period_s))
 
     # -- stopping -------------------------------------------------------------------------------
 

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from tactiled import heap
 from tactiled.physics.contact import Contact
 from tactiled.pipeline import Daemon
 from tactiled.settings import load_settings
@@ -140,13 +141,28 @@ def _cpu_seconds(pid: int | None) -> float | None:
 @dataclass(frozen=True)
 class Seen:
     """One estimate published in the measured window: the finger's index, the frame's seq,
-    the gate's decision, frame -> estimate latency (ms) and the fit line (read-only)."""
+    the gate's decision, frame -> estimate latency (ms) and the fit line's keys that the
+    summary reads (``SLIM_KEYS``).  (Made after the run; a baseline's result, pickled by its
+    own code, comes back as one too.)"""
 
     finger: int
     seq: int
     gate: str
     latency_ms: float
     fit: dict[str, Any]
+
+
+#: The keys of an estimate's fit line that :func:`summarise` reads.
+SLIM_KEYS = ("contact", "fit_ms", "message", *PARAMS)
+
+
+def slim(fit: dict[str, Any]) -> tuple[Any, ...]:
+    """The values of ``SLIM_KEYS`` in a fit line: the flat part the summary needs.  What a
+    run keeps of its ~60 000 estimates must not weigh on the daemon it measures: a tuple of
+    numbers and strings is one the garbage collector stops tracking, while the whole fit
+    lines (nested dicts) made every full collection walk them all (55-69 ms each, a stall of
+    the loop that showed as the run's p99 latency)."""
+    return tuple(fit.get(k) for k in SLIM_KEYS)
 
 
 @dataclass
@@ -385,7 +401,7 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
         overrides[f"sensor[{i}].track"] = track
     daemon = Daemon(load_settings(None, {}, overrides))
     index = {name: i for i, name in enumerate(FINGERS)}
-    seen: list[Seen] = []
+    seen: list[tuple[int, int, str, float, tuple[Any, ...]]] = []
     counting = False
     # A hand starts with its fingers free: the daemon opened the ports at some arbitrary moment
     # of the scene, so each sensor is re-zeroed once nothing touches.
@@ -395,7 +411,8 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
         # In the pipeline's loop for every item: keep it to an append (or a few comparisons).
         kind = getattr(item, "kind", None)
         if counting and kind == "estimate":
-            seen.append(Seen(index[item.sensor], item.seq, item.gate, item.latency_ms, item.fit))
+            # a plain tuple (made a Seen after the run): the collector stops tracking it
+            seen.append((index[item.sensor], item.seq, item.gate, item.latency_ms, slim(item.fit)))
         elif kind == "frame" and tarer is not None:
             tarer.frame(item.sensor, item.seq)
 
@@ -410,6 +427,10 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
 
     daemon.hub.add_listener(listen)
     await daemon.start()
+    # The heap policy of the process that serves (tactiled run): the start-up heap frozen, a
+    # full collection every few seconds.  Without it, CPython's own full collections walked
+    # every object start-up left, stalling the loop 55-69 ms each.
+    gc_task = heap.serving()
     try:
         started = time.monotonic()
         if tarer is not None:
@@ -432,10 +453,14 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
         cpu1 = cpu()
         elapsed = time.monotonic() - t0
     finally:
+        gc_task.cancel()
+        await asyncio.gather(gc_task, return_exceptions=True)
         await daemon.stop()
     used = {k: (None if cpu0[k] is None or cpu1[k] is None else cpu1[k] - cpu0[k])  # type: ignore[operator]
             for k in cpu0}
-    return RunResult(workers, before, after, elapsed, seen, used, tares=0 if tarer is None else tarer.tares)
+    return RunResult(workers, before, after, elapsed,
+                     [Seen(*s[:4], dict(zip(SLIM_KEYS, s[4]))) for s in seen], used,
+                     tares=0 if tarer is None else tarer.tares)
 
 
 def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int,
@@ -467,6 +492,7 @@ import math
 import numpy as np
 from tactiled.config import SensorModel
 from tactiled.fit.fitter import Fitter
+from tactiled import heap
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 sensor = SensorModel()
