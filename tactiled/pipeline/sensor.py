@@ -270,9 +270,9 @@ class SensorPipeline:
                         if self.lossless:
                             await self.wait_settled()
                         elif self._fit_due(before):
-                            # let the pool send it now, not after the rest of this read's
-                            # frames (and read the workers' answers meanwhile)
-                            await asyncio.sleep(0)
+                            # the pool sends it now, not after the rest of this read's frames
+                            # and the other sensors' reads the loop holds
+                            self.pool.dispatch_now()
                 break  # the stream ended (a replay finished)
             except DriverError as err:
                 # A device that failed to open or vanished: it may come back, so retry.

@@ -243,6 +243,47 @@ def test_a_frame_waiting_for_its_fit_goes_before_background_work(arun) -> None:
     assert arun(main()) == ["early", "late", "lin"]
 
 
+def test_a_frame_dispatched_now_leaves_before_the_callbacks_the_loop_holds(arun) -> None:
+    """``dispatch_now`` hands a waiting job to a free worker within the call: a frame's fit does
+    not wait behind the other sensors' reads already queued on the loop (``wake`` only queues
+    a dispatch, after them)."""
+    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+
+    async def main() -> tuple[list[str], list[str]]:
+        pool = WorkerPool(1, FitSettings())
+        spec = pool.register_spec(DEFAULT_SENSOR, (("window", 4),))
+        order: list[str] = []
+        owners = {}
+        for name in ("woken", "now"):
+            o = Owner(spec)
+            o.name, o.taken = name, order
+            pool.attach(o)
+            owners[name] = o
+        await pool.start()
+        loop = asyncio.get_running_loop()
+        queued: list[str] = []
+        # a job queued by wake() leaves only after what the loop already holds ...
+        owners["woken"].todo.append(clean)
+        loop.call_soon(lambda: queued.append("another sensor's read"))
+        pool.wake()
+        loop.call_soon(lambda: queued.append(f"taken: {order}"))
+        await asyncio.sleep(0.01)
+        while len(owners["woken"].results) < 1:
+            await asyncio.sleep(0.005)
+        # ... one dispatched now is in its worker's hands before the call returns
+        owners["now"].todo.append(clean)
+        pool.dispatch_now()
+        at_once = list(order)
+        while len(owners["now"].results) < 1:
+            await asyncio.sleep(0.005)
+        await pool.stop()
+        return queued, at_once
+
+    queued, at_once = arun(main())
+    assert queued == ["another sensor's read", "taken: ['woken']"]
+    assert at_once == ["woken", "now"]
+
+
 def test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker(arun) -> None:
     """A spec whose Fitter raises when built (a noise sigma so small its weights divide by
     zero; settings refuse it, but a worker must not depend on that) is registered before the
