@@ -151,6 +151,12 @@ class Seen:
     latency_ms: float
     fit: dict[str, Any]
 
+    @classmethod
+    def from_record(cls, record: tuple[int, int, str, float, tuple[Any, ...]]) -> Seen:
+        """The Seen of a record as the run's listener keeps it: ``(finger, seq, gate,
+        latency_ms, slim(fit))``."""
+        return cls(*record[:4], dict(zip(SLIM_KEYS, record[4])))
+
 
 #: The keys of an estimate's fit line that :func:`summarise` reads.
 SLIM_KEYS = ("contact", "fit_ms", "message", *PARAMS)
@@ -459,7 +465,7 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
     used = {k: (None if cpu0[k] is None or cpu1[k] is None else cpu1[k] - cpu0[k])  # type: ignore[operator]
             for k in cpu0}
     return RunResult(workers, before, after, elapsed,
-                     [Seen(*s[:4], dict(zip(SLIM_KEYS, s[4]))) for s in seen], used,
+                     [Seen.from_record(s) for s in seen], used,
                      tares=0 if tarer is None else tarer.tares)
 
 
