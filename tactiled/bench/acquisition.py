@@ -5,6 +5,9 @@ its scene rate; the daemon reads them with pyserial (``serial://`` on a stable s
 linearises, zeroes, gates and fits in its worker pool, exactly as it would a device.  Measured:
 frames the decoder lost or rejected (the bar: none), that every frame was published, superseded
 or otherwise accounted for, the fit rate, and latency from frame arrival to published estimate.
+The daemon runs under the heap policy of the process that serves (``tactiled.heap.serving``, as
+``tactiled run`` does), and what the run keeps of each estimate is flat, so the collector's
+work is the daemon's own.
 
 On a scene of moving contacts (``--scene moving``) the question is whether every contact frame
 gets an answer of its own: by its own fit, or by a gate reuse the chi-square test justifies (the
@@ -166,7 +169,7 @@ def slim(fit: dict[str, Any]) -> tuple[Any, ...]:
     """The values of ``SLIM_KEYS`` in a fit line: the flat part the summary needs.  What a
     run keeps of its ~60 000 estimates must not weigh on the daemon it measures: a tuple of
     numbers and strings is one the garbage collector stops tracking, while the whole fit
-    lines (nested dicts) made every full collection walk them all (55-69 ms each, a stall of
+    lines (nested dicts) made every full collection walk them all (up to 69 ms each, a stall of
     the loop that showed as the run's p99 latency)."""
     return tuple(fit.get(k) for k in SLIM_KEYS)
 
@@ -435,7 +438,7 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
     await daemon.start()
     # The heap policy of the process that serves (tactiled run): the start-up heap frozen, a
     # full collection every few seconds.  Without it, CPython's own full collections walked
-    # every object start-up left, stalling the loop 55-69 ms each.
+    # every object start-up left, stalling the loop up to 69 ms each.
     gc_task = heap.serving()
     try:
         started = time.monotonic()

@@ -41,7 +41,7 @@ def test_what_a_run_keeps_of_an_estimate_is_left_alone_by_the_collector() -> Non
     """The listener keeps each estimate as a tuple of numbers and strings: after a collection
     the garbage collector no longer tracks it, so ~60 000 of them do not make every full
     collection of the measured daemon longer (a whole fit line, nested dicts, stays tracked;
-    they stalled the loop 55-69 ms each).  Rebuilt after the run, it summarises as the whole
+    they stalled the loop up to 69 ms each).  Rebuilt after the run, it summarises as the whole
     line does."""
     c = Contact(8.0, math.inf, 40.0, 1.2, 10.5, 12.5)
     line = {**fit_line(c), "std": {"x_mm": 0.01}, "reasons": {}, "model": "cylinder"}
