@@ -501,7 +501,6 @@ import math
 import numpy as np
 from tactiled.config import SensorModel
 from tactiled.fit.fitter import Fitter
-from tactiled import heap
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 sensor = SensorModel()
