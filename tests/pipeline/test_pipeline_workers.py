@@ -284,6 +284,40 @@ def test_a_frame_dispatched_now_leaves_before_the_callbacks_the_loop_holds(arun)
     assert at_once == ["woken", "now"]
 
 
+def test_the_last_free_worker_is_kept_for_a_frame(arun) -> None:
+    """With more than one worker, relinearisations (jobs that answer no frame) never take the
+    last free one: two wait and two workers are free, one goes out; a frame's fit that comes
+    next finds the other worker at once, not behind a relinearisation."""
+    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+
+    async def main() -> tuple[list[str], list[str]]:
+        pool = WorkerPool(2, FitSettings())
+        spec = pool.register_spec(DEFAULT_SENSOR, (("window", 4),))
+        taken: list[str] = []
+        owners = {}
+        for name, background in (("lin1", True), ("lin2", True), ("frame", False)):
+            o = Owner(spec)
+            o.name, o.background, o.taken = name, background, taken
+            pool.attach(o)
+            owners[name] = o
+        await pool.start()
+        owners["lin1"].todo.append(clean)
+        owners["lin2"].todo.append(clean)
+        pool.dispatch_now()
+        first = list(taken)
+        owners["frame"].todo.append(clean)
+        pool.dispatch_now()
+        second = list(taken)
+        while sum(len(o.results) for o in owners.values()) < 3:
+            await asyncio.sleep(0.005)
+        await pool.stop()
+        return first, second
+
+    first, second = arun(main())
+    assert len(first) == 1 and first[0] in ("lin1", "lin2")
+    assert second == [*first, "frame"]
+
+
 def test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker(arun) -> None:
     """A spec whose Fitter raises when built (a noise sigma so small its weights divide by
     zero; settings refuse it, but a worker must not depend on that) is registered before the
