@@ -243,6 +243,22 @@ def test_a_frame_waiting_for_its_fit_goes_before_background_work(arun) -> None:
     assert arun(main()) == ["early", "late", "lin"]
 
 
+def pool_of_owners(size: int, owners: tuple[tuple[str, bool], ...]
+                   ) -> tuple[WorkerPool, dict[str, Owner], list[str]]:
+    """A pool of ``size`` workers serving an :class:`Owner` per ``(name, background)``, which
+    note in one list the order their jobs leave (not started)."""
+    pool = WorkerPool(size, FitSettings())
+    spec = pool.register_spec(DEFAULT_SENSOR, (("window", 4),))
+    taken: list[str] = []
+    made = {}
+    for name, background in owners:
+        o = Owner(spec)
+        o.name, o.background, o.taken = name, background, taken
+        pool.attach(o)
+        made[name] = o
+    return pool, made, taken
+
+
 def test_a_frame_dispatched_now_leaves_before_the_callbacks_the_loop_holds(arun) -> None:
     """``dispatch_now`` hands a waiting job to a free worker within the call: a frame's fit does
     not wait behind the other sensors' reads already queued on the loop (``wake`` only queues
@@ -250,15 +266,7 @@ def test_a_frame_dispatched_now_leaves_before_the_callbacks_the_loop_holds(arun)
     clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
 
     async def main() -> tuple[list[str], list[str]]:
-        pool = WorkerPool(1, FitSettings())
-        spec = pool.register_spec(DEFAULT_SENSOR, (("window", 4),))
-        order: list[str] = []
-        owners = {}
-        for name in ("woken", "now"):
-            o = Owner(spec)
-            o.name, o.taken = name, order
-            pool.attach(o)
-            owners[name] = o
+        pool, owners, order = pool_of_owners(1, (("woken", False), ("now", False)))
         await pool.start()
         loop = asyncio.get_running_loop()
         queued: list[str] = []
@@ -291,15 +299,7 @@ def test_the_last_free_worker_is_kept_for_a_frame(arun) -> None:
     clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
 
     async def main() -> tuple[list[str], list[str]]:
-        pool = WorkerPool(2, FitSettings())
-        spec = pool.register_spec(DEFAULT_SENSOR, (("window", 4),))
-        taken: list[str] = []
-        owners = {}
-        for name, background in (("lin1", True), ("lin2", True), ("frame", False)):
-            o = Owner(spec)
-            o.name, o.background, o.taken = name, background, taken
-            pool.attach(o)
-            owners[name] = o
+        pool, owners, taken = pool_of_owners(2, (("lin1", True), ("lin2", True), ("frame", False)))
         await pool.start()
         owners["lin1"].todo.append(clean)
         owners["lin2"].todo.append(clean)
