@@ -68,6 +68,9 @@ def _read_header(stream: BinaryIO, path: Path) -> RecordingHeader:
         raise FrameError(f"{path}: recording header truncated ({len(data)} of "
                          f"{HEADER_SIZE} bytes)")
     magic, version, header_size, sensor_id, created = _HEADER.unpack(data)
+    if magic.startswith(b"PK\x03\x04"):
+        raise FrameError(f"{path}: not a tactiled recording but an .npz file (tactiled fit "
+                         "reads frame files)")
     if magic != MAGIC:
         raise FrameError(f"{path}: not a tactiled recording (bad magic {magic!r})")
     if version != VERSION:

@@ -625,7 +625,9 @@ def _build(raw: _Raw) -> Settings:
         seen[s.name] = i
     for i, s in enumerate(sensors):
         if s.calibration is not None and not Path(s.calibration).is_file():
-            raise ConfigError(f"sensor[{i}].calibration: no such file {s.calibration!r}"
+            what = ("is a directory, not a file:" if Path(s.calibration).is_dir()
+                    else "no such file")
+            raise ConfigError(f"sensor[{i}].calibration: {what} {s.calibration!r}"
                               f"{_suffix(raw.origin.get(f'sensor[{i}].calibration', ''))}")
     if record.path is not None and len(sensors) > 1 and "{sensor}" not in record.path:
         raise ConfigError(f"record.path: must contain '{{sensor}}' with {len(sensors)} sensors "

@@ -45,7 +45,6 @@ import datetime as _dt
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,6 +55,7 @@ from tactiled.calibration.lut import LookupTable, tactel_label
 from tactiled.calibration.model import FingerModel
 from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.errors import CalibrationError
+from tactiled.files import atomic_output, read_text
 
 FORMAT = "tactiled-calibration"
 VERSION = 1
@@ -188,20 +188,10 @@ def save_calibration(table: LookupTable, path: str | os.PathLike[str],
                      build: dict[str, Any] | None = None, model: FingerModel | None = None) -> Path:
     """Write ``table`` (and an identified ``model``: version 2) to ``path`` atomically;
     returns the path.  I/O failures raise :class:`CalibrationError`."""
-    path = Path(path)
     text = dumps(table_to_dict(table, build, model))
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(text)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-    except OSError as err:
-        raise CalibrationError(f"cannot write calibration file {path}: {err}") from err
-    return path
+    with atomic_output(path, CalibrationError, "w") as fh:
+        fh.write(text)
+    return Path(path)
 
 
 def load_calibration(
@@ -245,10 +235,7 @@ def load_calibration_file(
 ) -> Calibration:
     """Read and validate a calibration file of either version (see :func:`load_calibration`)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise CalibrationError(f"cannot read calibration file {path}: {err}") from err
+    text = read_text(path, "calibration file", CalibrationError)
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as err:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import os
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +26,7 @@ from numpy.typing import ArrayLike
 
 from tactiled.config import Geometry
 from tactiled.errors import CalibrationError
+from tactiled.files import plain, read_npz, write_npz
 from tactiled.finger import FingerSpec
 
 
@@ -118,33 +118,22 @@ def _checked_contacts(counts: ArrayLike, contacts: ArrayLike, source: str) -> tu
 def load_presses(path: str | os.PathLike[str]) -> PressSet:
     """Read and validate a press file; every defect raises :class:`CalibrationError`."""
     path = Path(path)
-    if path.is_file() and not zipfile.is_zipfile(path):
-        # np.load would guess "pickle" and say so, which misleads; say what is wrong instead.
-        raise CalibrationError(f"{path}: not an .npz press file (no zip archive signature; "
-                               "truncated, or another kind of file?)")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            has = ', '.join(data.files) or 'none'
-            if "counts" not in data.files:
-                raise CalibrationError(f"{path}: missing array 'counts' (has: {has})")
-            if "strain_ref" not in data.files and "contacts" not in data.files:
-                raise CalibrationError(
-                    f"{path}: missing array 'strain_ref' (or 'contacts', for --identify) (has: {has})")
-            counts = data["counts"]
-            strain_ref = data["strain_ref"] if "strain_ref" in data.files else None
-            contacts = data["contacts"] if "contacts" in data.files else None
-            sid = data["sensor_id"] if "sensor_id" in data.files else None
-    except CalibrationError:
-        raise
-    except (FileNotFoundError, PermissionError, IsADirectoryError) as err:
-        raise CalibrationError(f"cannot read press file {path}: {err.strerror}") from err
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as err:
-        raise CalibrationError(f"{path}: not a readable .npz press file: {err}") from err
+    data = read_npz(path, "press file", CalibrationError)
+    has = ", ".join(data) or "none"
+    if "counts" not in data:
+        raise CalibrationError(f"{path}: missing array 'counts' (has: {has})")
+    if "strain_ref" not in data and "contacts" not in data:
+        raise CalibrationError(
+            f"{path}: missing array 'strain_ref' (or 'contacts', for --identify) (has: {has})")
+    counts = data["counts"]
+    strain_ref = data.get("strain_ref")
+    contacts = data.get("contacts")
+    sid = data.get("sensor_id")
     sensor_id = None
     if sid is not None:
         if sid.shape != () or sid.dtype.kind not in "ui" or not 0 <= int(sid) <= 0xFFFF:
             raise CalibrationError(f"{path}: 'sensor_id' must be an integer scalar 0..65535, "
-                                   f"got {sid!r}")
+                                   f"got {plain(sid)}")
         sensor_id = int(sid)
     if strain_ref is not None:
         counts, strain_ref = _checked(counts, strain_ref, str(path))
@@ -154,8 +143,8 @@ def load_presses(path: str | os.PathLike[str]) -> PressSet:
 
 
 def save_presses(presses: PressSet, path: str | os.PathLike[str]) -> Path:
-    """Write ``presses`` as an ``.npz`` (uncompressed) and return the path."""
-    path = Path(path)
+    """Write ``presses`` as an ``.npz`` (uncompressed, atomically, under the name given) and
+    return the path."""
     arrays: dict[str, np.ndarray] = {"counts": presses.counts}
     if presses.strain_ref is not None:
         arrays["strain_ref"] = presses.strain_ref
@@ -163,9 +152,7 @@ def save_presses(presses: PressSet, path: str | os.PathLike[str]) -> Path:
         arrays["contacts"] = presses.contacts
     if presses.sensor_id is not None:
         arrays["sensor_id"] = np.array(presses.sensor_id, dtype=np.int64)
-    with open(path, "wb") as fh:  # a file object, so numpy does not append ".npz" to the name
-        np.savez(fh, **arrays)
-    return path
+    return write_npz(path, arrays, compressed=False, error=CalibrationError)
 
 
 # --------------------------------------------------------------------------------------------

@@ -102,6 +102,9 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             print("tactiled bench: error: --plot needs matplotlib: pip install 'tactiled[plot]'", file=sys.stderr)
             return 2
+        from tactiled.files import check_output
+
+        check_output(args.plot)  # before the run, not after it
     suites = SUITES if args.suite == "all" else (args.suite,)
     if "acquisition" in suites:
         from tactiled.sim import SCENES

@@ -88,7 +88,9 @@ def run(args: argparse.Namespace) -> int:
     from tactiled.calibration.builder import build_table
     from tactiled.calibration.fileformat import save_calibration
     from tactiled.calibration.presses import load_presses
+    from tactiled.files import check_output
 
+    check_output(args.output, CalibrationError)  # before the work, not after it
     presses = load_presses(args.presses)
     if args.identify:
         return _identify(args, presses)

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from tactiled.errors import TactiledError
+from tactiled.files import check_output
 from tactiled.recording import Recorder
 from tactiled.sources import FrameSource, open_source
 
@@ -86,7 +87,11 @@ def run(args: argparse.Namespace) -> int:
     if args.frames is not None and args.frames < 1:
         print("tactiled record: error: --frames must be at least 1", file=sys.stderr)
         return 2
-    path = Path(args.output)
+    try:
+        path = check_output(args.output)
+    except TactiledError as err:
+        print(f"tactiled record: error: {err}", file=sys.stderr)
+        return 2
     if path.exists() and not args.append:
         print(f"tactiled record: error: {path} exists (use --append to continue it)",
               file=sys.stderr)

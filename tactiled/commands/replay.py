@@ -28,6 +28,7 @@ from typing import Any
 from urllib.parse import quote
 
 from tactiled.errors import TactiledError
+from tactiled.files import check_input
 from tactiled.recording import RecordingReader
 from tactiled.settings import MODELS, load_settings
 
@@ -115,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         # Every record's framing is checked now (seeking over the payloads: ~1 s per million
         # records), so a file corrupt in the middle is refused with one clear error before any
         # worker starts or any estimate is printed, instead of stopping half-way.
-        with RecordingReader(args.file) as reader:
+        with RecordingReader(check_input(args.file)) as reader:
             reader.scan()
     except OSError as err:
         print(f"tactiled replay: error: cannot open {args.file}: {err.strerror or err}",

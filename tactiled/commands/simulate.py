@@ -6,6 +6,12 @@ File mode (OUTPUT.npz): each parameter takes a value or a range LO:HI drawn unif
 inverts, plus Gaussian noise and quantisation; the true parameters are stored beside 'strain'
 (true_r1, true_r2, true_angle, true_force, true_x, true_y), so a fit can be checked against them.
 
+Presses mode (OUTPUT.npz --presses N): N presses of known contacts on the simulated finger (the
+finger flags below), as docs/calibration.md's identification procedure records them (its
+indentors, forces 0.25-2 N, centres over the whole array, ~10 % unloaded, each press the mean
+of 32 frames of --sigma noise, as raw counts): the press file 'tactiled calibrate --identify'
+reads.  The contact flags (--r1, --force...) do not apply.
+
 Device mode (--pty or --serial): a simulated finger plays a scripted scene (--scene) and streams
 wire-format frames in real time at --rate Hz until SIGINT/SIGTERM, exactly as the hardware would
 (see docs/simulator.md).  --pty makes a pseudo-terminal and prints its path as the first line
@@ -17,6 +23,8 @@ examples:
   tactiled simulate cyl.npz --r1 10 --angle 45 --force 1 --x 11 --y 13 --frames 20
   tactiled simulate mix.npz --r1 2:40 --angle 30:150 --force 0.5:2 --frames 200 --seed 7
   tactiled fit cyl.npz
+  tactiled simulate presses.npz --presses 400 --depth-x 5 --nu-x 0.4 --modulus 0.32
+  tactiled calibrate presses.npz -o cal.json --identify
   tactiled simulate --pty --link /tmp/ttyTACT --scene demo --rate 1000   (read serial:///tmp/ttyTACT)
 """
 
@@ -35,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.files import check_output
 from tactiled.finger import FingerSpec
 from tactiled.framefile import save_frame_file
 from tactiled.frames import encode_frame
@@ -105,6 +114,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     fin.add_argument("--offset-counts", type=float, default=None, metavar="COUNTS",
                      help="device mode: count offsets at zero load, uniform within +/-COUNTS")
     fin.add_argument("--finger-seed", type=int, default=None, metavar="N", help="seed of the tactels' draws (default 0)")
+    prs = p.add_argument_group("presses mode: a press file for tactiled calibrate --identify")
+    prs.add_argument("--presses", type=int, default=None, metavar="N",
+                     help="write N presses of known contacts (with --sensor-id) instead of frames; "
+                     "docs/calibration.md recommends about 400, identification needs 20 loaded")
     dev = p.add_argument_group("device mode: stream a scene's wire frames in real time")
     where = dev.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true",
@@ -142,6 +155,37 @@ def finger_spec(args: argparse.Namespace) -> FingerSpec:
         raise ValueError(f"the simulated finger: {err}") from None
 
 
+def sensor_geometry(args: argparse.Namespace) -> Geometry:
+    """The simulated array's geometry, the one place every mode takes it from (today the
+    paper's 8 x 8 array)."""
+    return Geometry()
+
+
+def _run_presses(args: argparse.Namespace) -> int:
+    """Presses mode: a press file of known contacts on the finger the flags describe."""
+    from tactiled.calibration.presses import save_presses, synthesize_contact_presses
+
+    if args.presses < 1:
+        return _error(f"--presses must be at least 1, got {args.presses}")
+    if not 0 <= args.sensor_id <= 0xFFFF:
+        return _error(f"--sensor-id must lie in 0..65535, got {args.sensor_id}")
+    sigma = NoiseModel.sigma if args.sigma is None else args.sigma
+    if not (math.isfinite(sigma) and sigma >= 0):
+        return _error(f"--sigma must be a finite non-negative strain, got {sigma}")
+    try:
+        finger = finger_spec(args)
+    except ValueError as err:
+        return _error(str(err))
+    geo = sensor_geometry(args)
+    presses = synthesize_contact_presses(finger, args.presses, geometry=geo, noise_sigma=sigma,
+                                         sensor_id=args.sensor_id, seed=args.seed)
+    save_presses(presses, args.output)
+    loaded = int((presses.contacts[:, 3] > 0).sum())
+    print(f"wrote {len(presses)} press(es) ({loaded} loaded) of sensor {args.sensor_id}, "
+          f"{geo.rows}x{geo.cols}, to {args.output}", file=sys.stderr)
+    return 0
+
+
 def _error(message: str) -> int:
     print(f"tactiled simulate: error: {message}", file=sys.stderr)
     return 2
@@ -156,6 +200,9 @@ def run(args: argparse.Namespace) -> int:
         return _error("--link needs --pty")
     if not args.output:
         return _error("give an output .npz file, or --pty / --serial to act as a device")
+    check_output(args.output)  # before the work: a refusal to save it comes first, not last
+    if args.presses is not None:
+        return _run_presses(args)
     if args.sigma is None:
         args.sigma = FILE_SIGMA
     if args.frames < 1:
@@ -170,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
         finger = finger_spec(args)
     except ValueError as err:
         return _error(str(err))
-    geo = Geometry()
+    geo = sensor_geometry(args)
     sensor = finger.sensor(geo, noise)
     x_rng = args.x or (geo.span_x / 2, geo.span_x / 2)
     y_rng = args.y or (geo.span_y / 2, geo.span_y / 2)
@@ -291,6 +338,7 @@ def _run_device(args: argparse.Namespace) -> int:
     try:
         finger = finger_spec(args)
         sim = FingerSimulator(
+            SensorModel(geometry=sensor_geometry(args)),
             finger=finger,
             scene=args.scene,
             seed=args.seed,

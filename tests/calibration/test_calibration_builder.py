@@ -148,15 +148,15 @@ def test_press_file_refusals(tmp_path, arrays, message):
 def test_truncated_or_foreign_press_files(synthetic, tmp_path):
     good = save_presses(synthetic[0], tmp_path / "p.npz").read_bytes()
     (tmp_path / "cut.npz").write_bytes(good[: len(good) // 2])
-    with pytest.raises(CalibrationError, match=r"cut\.npz: not an \.npz press file .*truncated"):
+    with pytest.raises(CalibrationError, match=r"cut\.npz: not a complete \.npz press file .*truncated"):
         load_presses(tmp_path / "cut.npz")
     corrupt = bytearray(good)
     corrupt[len(good) // 2] ^= 0xFF  # a flipped byte inside an array: zip CRC mismatch
     (tmp_path / "flip.npz").write_bytes(bytes(corrupt))
-    with pytest.raises(CalibrationError, match=r"flip\.npz: not a readable \.npz press file"):
+    with pytest.raises(CalibrationError, match=r"flip\.npz: array '\w+' is corrupt"):
         load_presses(tmp_path / "flip.npz")
     (tmp_path / "x.npz").write_text("{}")
     with pytest.raises(CalibrationError, match=r"x\.npz: not an \.npz press file"):
         load_presses(tmp_path / "x.npz")
-    with pytest.raises(CalibrationError, match=r"cannot read press file .*missing\.npz: No such"):
+    with pytest.raises(CalibrationError, match=r"missing\.npz: no such file"):
         load_presses(tmp_path / "missing.npz")

@@ -44,10 +44,10 @@ def test_good_file_prints_the_grid_and_writes_the_table(press_file, tmp_path):
 @pytest.mark.parametrize(
     ("make", "extra", "message"),
     [
-        (lambda p: p.write_bytes(b"PK\x03\x04 truncated"), (), "not an .npz press file"),
+        (lambda p: p.write_bytes(b"PK\x03\x04 truncated"), (), "not a complete .npz press file"),
         (lambda p: np.savez(p, counts=np.zeros((3, 2, 2), np.uint16)), (),
          "missing array 'strain_ref'"),
-        (lambda p: None, (), "cannot read press file"),  # no such file
+        (lambda p: None, (), "bad.npz: no such file"),
         (lambda p: np.savez(p, counts=np.zeros((3, 2, 2), np.uint16),
                             strain_ref=np.zeros((3, 2, 2)), sensor_id=np.array(4)),
          ("--sensor-id", "5"), "recorded from sensor 4, not 5"),

@@ -88,7 +88,7 @@ def bad_files(tmp_path: Path):
     np.savez(tmp_path / "nan.npz", strain=nan)
     yield "nan.npz", "non-finite value(s), first at frame 1 tactel [2, 3]"
     (tmp_path / "junk.npz").write_bytes(b"not a zip file at all")
-    yield "junk.npz", "not a readable .npz"
+    yield "junk.npz", "not an .npz frame file (no zip archive signature"
     np.savez(tmp_path / "pitch.npz", strain=good, dx=-1.0)
     yield "pitch.npz", "'dx' must be a positive pitch"
     np.savez(tmp_path / "text.npz", strain=np.array([["a"]]))
