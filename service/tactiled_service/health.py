@@ -100,6 +100,7 @@ class HealthMonitor:
             "last_error": st.get("last_error") or "",
             "frame_rate_hz": float(st["frame_rate_hz"]),
             "fit_rate_hz": float(st["fit_rate_hz"]),
+            "tracked_rate_hz": float(st.get("tracked_rate_hz", 0.0)),
             "frames": int(st["frames"]),
             "crc_errors": int(dec.get("crc_errors", 0)),
             "rejected_chunks": rejected,

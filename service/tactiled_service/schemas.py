@@ -277,7 +277,10 @@ class SensorHealth(BaseModel):
     reason: str = Field(description="why the status is not OK ('' when OK)")
     connected: bool
     frame_rate_hz: float
-    fit_rate_hz: float
+    fit_rate_hz: float = Field(description="fits the workers returned in the last second "
+                               "(frame fits and the tracker's relinearisations)")
+    tracked_rate_hz: float = Field(0.0, description="contact frames per second the tracker "
+                                   "measured without a fit of their own (last second)")
     frames: int
     crc_errors: int
     rejected_chunks: int

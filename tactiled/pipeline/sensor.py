@@ -218,7 +218,8 @@ class SensorPipeline:
         self.record_errors = 0
         self.last_frame_at: float | None = None
         self.frame_rate = RateMeter()
-        self.fit_rate = RateMeter()
+        self.fit_rate = RateMeter()  # every fit a worker returns, relinearisations too
+        self.tracked_rate = RateMeter()  # contact frames the tracker measured without a fit
         self.latency_ms = WindowMean()
         self.worker_ms = WindowMean()
         #: since start: host receive -> published, per gate; and a fit's worker round trip (s)
@@ -511,7 +512,9 @@ class SensorPipeline:
                          worker_ms: float = 0.0, predicted: bool = False) -> None:
         assert self._base is not None
         if gate == GATE_UNCHANGED:
-            self.tracked += not predicted
+            if not predicted:
+                self.tracked += 1
+                self.tracked_rate.tick(time.monotonic())
             self.skipped[GATE_UNCHANGED] += 1
         fit = self.tracker.estimate(self._base, at=w.t if predicted else None)
         self._publish(w, gate, self._base_seq, worker_ms, fit)
@@ -677,6 +680,8 @@ class SensorPipeline:
 
     def _publish(self, w: _Waiting, gate: str, fitted_seq: int | None, worker_ms: float,
                  fit: dict[str, Any]) -> Estimate:
+        if fit.get("peak") is not None:  # the frame's own, not that of the fit it rests on
+            fit = {**fit, "peak": self._frame_peak(w.strain, fit["peak"])}
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)
@@ -687,6 +692,12 @@ class SensorPipeline:
             self.latency_hist[gate].observe(est.latency_ms / 1e3)
         self.hub.publish(est)
         return est
+
+    def _frame_peak(self, strain: np.ndarray, fallback: float) -> float:
+        """The largest finite strain of a frame's usable tactels (``fallback`` if none is)."""
+        s = strain if self.mask is None else strain[self.mask]
+        s = s[np.isfinite(s)]
+        return float(s.max()) if s.size else fallback
 
     # -- the pool's side (JobOwner) -------------------------------------------------------------
 
@@ -730,7 +741,9 @@ class SensorPipeline:
                 if error is not None:
                     self.relinearize_lost += 1
                     log.warning("%s: linearisation at seq %d failed: %s", self.name, w.seq, error)
-                elif self.settings.track:
+                    return
+                self.fit_rate.tick(time.monotonic())  # a fit all the same (workers.fits counts it)
+                if self.settings.track:
                     self._tracked_result(w, job, {}, worker_ms, warm, lin)
                 return
             self.fitted += 1
@@ -842,6 +855,7 @@ class SensorPipeline:
             "frames": self.frames,
             "frame_rate_hz": self.frame_rate.rate(now),
             "fit_rate_hz": self.fit_rate.rate(now),
+            "tracked_rate_hz": self.tracked_rate.rate(now),
             "last_frame_age_s": None if self.last_frame_at is None else now - self.last_frame_at,
             # bytes read from the device and not yet decoded: now, and the most at once
             "read_backlog_bytes": self.source.read_backlog_now,

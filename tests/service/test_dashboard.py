@@ -99,6 +99,13 @@ def test_dashboard_shows_live_estimates(browser_page, shared_server, tmp_path):
                            "=== 'OK'", timeout=15_000)
     row = page.text_content("#health tbody tr[data-sensor=finger0]")
     assert "finger0" in row and "OK" in row
+    # fits/s counts the fits that happen, tracked/s the frames the tracker measured without one
+    heads = page.eval_on_selector_all("#health thead th", "ths => ths.map(t => t.textContent)")
+    assert heads[2:5] == ["frames/s", "fits/s", "tracked/s"], heads
+    page.wait_for_function(
+        "() => { const c = document.querySelector('#health tbody tr[data-sensor=finger0]')"
+        ".children; return Number(c[3].textContent) > 0 && Number(c[4].textContent) > 0; }",
+        timeout=40_000)
     assert "subscriber(s)" in page.text_content("#subscribers")
     assert page.text_content("#conn") == "live"
     shot = tmp_path / "dashboard.png"

@@ -452,6 +452,7 @@ async function pollHealth() {
       const tr = document.createElement("tr");
       tr.dataset.sensor = name;
       const cells = [name, x.status, x.frame_rate_hz.toFixed(0), x.fit_rate_hz.toFixed(0),
+        (x.tracked_rate_hz ?? 0).toFixed(0),
         x.frames, x.crc_errors, x.lost_frames, x.duplicated_frames, x.superseded_frames,
         x.worker_restarts, x.last_frame_age_s === null ? "—" :
         (x.last_frame_age_s * 1000).toFixed(0) + " ms", x.reason];
