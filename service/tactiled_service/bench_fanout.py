@@ -53,11 +53,12 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.error
+import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import httpx
 
 CONFIG = """\
 [server]
@@ -105,7 +106,14 @@ def cpu_seconds(pid: int) -> float:
 
 
 def health(base: str) -> dict[str, Any]:
-    return httpx.get(base + "v1/health", timeout=10).json()
+    """The daemon's ``/v1/health`` (the standard library's client: what ships runs with the
+    package's own dependencies)."""
+    try:
+        with urllib.request.urlopen(base + "v1/health", timeout=10) as resp:
+            return json.load(resp)
+    except urllib.error.HTTPError as err:  # a status other than 200 still carries the body
+        with err:
+            return json.load(err)
 
 
 # -- a minimal WebSocket client -----------------------------------------------------------------

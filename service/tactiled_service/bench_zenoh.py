@@ -456,6 +456,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seconds", type=float, default=None,
                    help="measuring time per phase (default one scene period, 18.5 s)")
     args = p.parse_args(argv)
+    try:
+        import zenoh  # noqa: F401  (the readers need it: say so before starting anything)
+    except ImportError:
+        print("bench_zenoh: error: needs the zenoh extra: pip install 'tactiled[zenoh]'",
+              file=sys.stderr)
+        return 2
     if args.subscribers is None:
         args.subscribers = "1,10" if args.quick else "1,10,50"
     args.subscribers = [int(x) for x in args.subscribers.split(",") if x.strip()]
