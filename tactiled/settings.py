@@ -544,8 +544,10 @@ def _read_file(path: Path, raw: _Raw) -> None:
             doc = tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such configuration file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, not a configuration file") from None
     except OSError as err:
-        raise ConfigError(f"{path}: cannot read configuration file: {err}") from err
+        raise ConfigError(f"{path}: cannot read configuration file ({err.strerror or err})") from err
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from err
     base = path.parent

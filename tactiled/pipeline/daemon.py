@@ -16,6 +16,7 @@ from dataclasses import replace
 from typing import Any
 
 from tactiled.errors import CalibrationError, ConfigError, DriverError, TactiledError
+from tactiled.files import check_output
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.pool import WorkerPool
 from tactiled.pipeline.sensor import SensorPipeline
@@ -67,9 +68,15 @@ class Daemon:
                     source = open_source(s.url)  # builds the driver; no I/O yet
                 except (ValueError, DriverError) as err:
                     raise ConfigError(f"sensor[{i}].url: {err}") from err
+            record = self.settings.record_path(s.name)
+            if record is not None:  # refused now, not at the first frame (and then only logged)
+                try:
+                    check_output(record, ConfigError)
+                except ConfigError as err:
+                    raise ConfigError(f"record.path: {err}") from None
             try:
                 pipe = SensorPipeline(s, pool=self.pool, hub=self.hub,
-                                      record_path=self.settings.record_path(s.name),
+                                      record_path=record,
                                       lossless=lossless, source=source)
             except CalibrationError as err:
                 raise ConfigError(f"sensor[{i}].calibration: {err}") from err

@@ -224,3 +224,23 @@ def test_the_first_two_tracebacks_are_one_line_now(tmp_path: Path, args: list[st
     assert proc.returncode == 2 and proc.stdout == "", proc
     assert len(proc.stderr.splitlines()) == 1 and argv[1] in proc.stderr, proc.stderr
     assert not LEAKS.search(proc.stderr), proc.stderr
+
+
+def test_the_daemon_refuses_its_files_at_start(tmp_path: Path) -> None:
+    """``tactiled run``: a configuration file that is a directory, and a recording path in a
+    directory that does not exist, refused at start (before it serves), one line, exit 2."""
+    config = tmp_path / "rec.toml"
+    config.write_text('[record]\npath = "no-dir/{sensor}.tact"\n\n[[sensor]]\nurl = "sim://"\n')
+    cases = {"config": (["--config", str(tmp_path)], str(tmp_path), "is a directory"),
+             "record": (["--config", str(config), "--port", "0"], "record.path: ",
+                        "cannot write it: no directory")}
+    procs = {name: subprocess.Popen([sys.executable, "-m", "tactiled.cli", "run", *args],
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for name, (args, _, _) in cases.items()}
+    for name, p in procs.items():
+        out, err = p.communicate(timeout=60)
+        _, names, words = cases[name]
+        lines = err.strip().splitlines()
+        assert p.returncode == 2 and out == "" and len(lines) == 1, (name, out, err)
+        assert lines[0].startswith("tactiled run: error: ") and names in lines[0], lines[0]
+        assert words in lines[0] and not LEAKS.search(lines[0]), lines[0]
