@@ -32,7 +32,9 @@ Example:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from collections.abc import Iterator
 
 from tactiled.errors import CalibrationError
 
@@ -96,14 +98,15 @@ def run(args: argparse.Namespace) -> int:
         return _identify(args, presses)
     if presses.strain_ref is None:
         raise CalibrationError(f"{args.presses}: has 'contacts' but no 'strain_ref': use --identify")
-    report = build_table(
-        presses,
-        knots=args.knots,
-        sensor_id=args.sensor_id,
-        dead_fraction=args.dead_fraction,
-        nonmonotone_fraction=args.nonmonotone_fraction,
-        min_strain_span=args.min_strain_span,
-    )
+    with _naming(args.presses):
+        report = build_table(
+            presses,
+            knots=args.knots,
+            sensor_id=args.sensor_id,
+            dead_fraction=args.dead_fraction,
+            nonmonotone_fraction=args.nonmonotone_fraction,
+            min_strain_span=args.min_strain_span,
+        )
     build = {"tool": f"tactiled {__version__} calibrate", "presses": report.presses,
              "source": str(args.presses), **report.options}
     path = save_calibration(report.table, args.output, build=build)
@@ -115,6 +118,18 @@ def run(args: argparse.Namespace) -> int:
         if args.strict:
             return 1
     return 0
+
+
+@contextlib.contextmanager
+def _naming(path: str) -> Iterator[None]:
+    """What the presses cannot give (a contact that contradicts the array, too few loaded
+    presses...) is said of the press file: its name leads the message."""
+    try:
+        yield
+    except CalibrationError as err:
+        if str(err).startswith(str(path)):
+            raise
+        raise CalibrationError(f"{path}: {err}") from None
 
 
 def _identify(args: argparse.Namespace, presses) -> int:
@@ -139,7 +154,8 @@ def _identify(args: argparse.Namespace, presses) -> int:
     def progress(msg: str) -> None:
         print(f"[{time.monotonic() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    result = identify(presses, knots=args.knots, progress=progress)
+    with _naming(args.presses):
+        result = identify(presses, knots=args.knots, progress=progress)
     build = {"tool": f"tactiled {__version__} calibrate --identify", "presses": len(presses),
              "source": str(args.presses), "knots": args.knots}
     path = save_calibration(result.table, args.output, build=build, model=result.model)

@@ -244,3 +244,23 @@ def test_the_daemon_refuses_its_files_at_start(tmp_path: Path) -> None:
         assert p.returncode == 2 and out == "" and len(lines) == 1, (name, out, err)
         assert lines[0].startswith("tactiled run: error: ") and names in lines[0], lines[0]
         assert words in lines[0] and not LEAKS.search(lines[0]), lines[0]
+
+
+def test_identification_presses_that_contradict_the_array(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    good = tmp_path / "presses.npz"
+    assert _run(capsys, "simulate", str(good), "--presses", "40", "--seed", "2")[0] == 0
+    arrays = dict(np.load(good))
+    nan = arrays["contacts"].copy()
+    nan[5, 0] = np.nan
+    cases = {
+        _save(tmp_path / "nan.npz", **{**arrays, "contacts": nan}): "press 5: r1_mm must be finite, got nan",
+        _save(tmp_path / "cols.npz", **{**arrays, "contacts": nan[:, :5]}): "got shape (40, 5)",
+        _save(tmp_path / "few.npz", **{k: v[:8] if v.ndim else v for k, v in arrays.items()}):
+            "identification needs at least 20",
+        _save(tmp_path / "sid.npz", **{**arrays, "sensor_id": np.float64(3.5)}): "got 3.5",
+    }
+    for path, words in cases.items():
+        _check(_run(capsys, "calibrate", str(path), "-o", str(tmp_path / "cal.json"), "--identify"),
+               "calibrate", path, words)
+    assert not (tmp_path / "cal.json").exists()
