@@ -443,6 +443,23 @@ class Fitter:
         depth = min(self.sensor.impulse.depth_x, self.sensor.impulse.depth_y)
         return p[0], p[1], math.log(load * 4.0 * depth), x, y
 
+    def _runs_off(self, res: FitResult) -> bool:
+        """On a flat array: ``res`` (a general or sphere fit) is an ellipse whose both ends lie
+        off the array (beyond a pitch of its edge), which within the array is a line contact:
+        the line model says the same with fewer parameters and without a force or ends that
+        nothing measured."""
+        if not self.sensor.geometry.flat or res.params is None or res.model not in compiled.KINDS:
+            return False
+        a, _, theta, _ = compiled.ellipse_at(compiled.KINDS[res.model], np.asarray(res.params),
+                                             self.model._rf, self.model._k)
+        if a < 0.0:
+            return True
+        g = self.sensor.geometry
+        x0, y0 = res.params[-2], res.params[-1]
+        ends = ((x0 + s * a * math.cos(theta), y0 + s * a * math.sin(theta)) for s in (-1.0, 1.0))
+        return all(not (-g.dx <= x <= g.span_x + g.dx and -g.dy <= y <= g.span_y + g.dy)
+                   for x, y in ends)
+
     def _fit_line(self, strain: np.ndarray, start: np.ndarray | None,
                   mask: np.ndarray | None) -> FitResult:
         """A cylinder on a flat array: the line model on this frame's window."""
@@ -451,10 +468,7 @@ class Fitter:
             fr.model = "cylinder"
             return fr
         peak = fr.peak
-        nr, nc = fr.xs.size, fr.ys.size
-        px = np.repeat(fr.xs, nc) + fr.ex
-        py = np.tile(fr.ys, nr) + fr.ey
-        prob = LineProblem(self.sensor, px, py, fr.target, fr.valid, fr.inv_scale, self.options.tol)
+        prob = self._line_problem(fr)
         if start is not None and np.shape(start) != (len(LINE_PARAMS),):
             start = None  # a start of another model (a curved finger's cylinder): start cold
         starts = ([np.asarray(start, dtype=float)] if start is not None
@@ -809,6 +823,30 @@ class Fitter:
         _, jac = residual(np.asarray(params, dtype=float))
         return self._uncertainty(get_model(model), np.asarray(params, dtype=float), jac * peak, {})[1]
 
+    def line_cramer_rao(self, strain: np.ndarray, contact: LineContact) -> dict[str, float | None]:
+        """1-sigma Cramer-Rao bounds of a line contact (a cylinder on a flat array) at the
+        truth ``contact``, for the window this fitter would choose on ``strain``: ``r1_mm``,
+        ``angle_deg``, ``x_mm``, ``y_mm``, ``load_n_per_mm`` and ``offset_mm``."""
+        fr = self._window(self.flattened(strain), _LINE_MODEL, None)
+        keys = ("x_mm", "y_mm", "r1_mm", "angle_deg", "load_n_per_mm", "offset_mm")
+        if isinstance(fr, FitResult):
+            return dict.fromkeys(keys)
+        prob = self._line_problem(fr)
+        psi = contact.psi
+        c = -math.sin(psi) * (contact.x0 - prob.ref[0]) + math.cos(psi) * (contact.y0 - prob.ref[1])
+        p = np.array([math.log(contact.r1), psi, math.log(contact.load), c])
+        _, jac = prob.residual_and_jacobian(p)
+        cov, _ = _covariance(jac * fr.peak, self.sigma)
+        _, std, line = prob.report(p, cov)
+        return {**{k: std[k] for k in keys[:4]}, "load_n_per_mm": line["load_n_per_mm_std"],
+                "offset_mm": line["offset_mm_std"]}
+
+    def _line_problem(self, fr: _Frame) -> LineProblem:
+        nr, nc = fr.xs.size, fr.ys.size
+        px = np.repeat(fr.xs, nc) + fr.ex
+        py = np.tile(fr.ys, nr) + fr.ey
+        return LineProblem(self.sensor, px, py, fr.target, fr.valid, fr.inv_scale, self.options.tol)
+
     def _unobservable(self, values: dict, std: dict, reasons: dict[str, str]) -> None:
         """Withhold what the data cannot pin down rather than report confident nonsense.
 
@@ -933,12 +971,16 @@ class Fitter:
             k = len(r.params) if r.params is not None else get_model(r.model).size
             crit[r.model] = (r.chi2 if r.chi2 is not None else math.inf) + k * math.log(max(r.n_points, 2))
         best = min(fits, key=lambda r: crit[r.model])
+        if best is not cyl and self._runs_off(best):
+            best = cyl  # an ellipse longer than the array is the line the cylinder model fits
         iterations = sum(r.iterations for r in fits)
         evaluations = sum(r.evaluations for r in fits)
         resolved = best is not cyl and best.params is not None
         if resolved:  # scouted: now solve it fully
             best = self._fit_model(strain, get_model(best.model), np.asarray(best.params), mask)
             iterations += best.iterations
+            if self._runs_off(best):
+                best, resolved = cyl, False
         best.criterion = {k: float(v) for k, v in crit.items() if math.isfinite(v)}
         best.iterations = iterations
         best.evaluations = evaluations + (best.evaluations if resolved else 0)

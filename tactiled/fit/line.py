@@ -23,6 +23,9 @@ from tactiled.physics.line import across_rule, along_line, half_width, line_stra
 PARAMS = ("ln_r", "psi", "ln_p", "c")
 #: Step caps of the solver (ln R, rad, ln P, mm).
 STEPS = np.array([1.0, 0.5, 1.0, 2.0])
+#: Central-difference steps of the Jacobian (ln R, rad, ln P, mm): the angle's is wide enough
+#: that the forward model's rounding near an axis (tactiled.physics.line) does not show.
+_DIFF_STEPS = (1e-6, 1e-4, 1e-6, 1e-6)
 #: Radii (mm) the cold starts try, smallest first.
 START_RADII = (4.0, 25.0)
 FORCE_REASON = ("line contact: a cylinder on a flat array touches along a line longer than the "
@@ -75,7 +78,7 @@ class LineProblem:
         r = self.residual(p)
         jac = np.empty((r.size, p.size))
         for i in range(p.size):
-            h = 1e-6 * max(1.0, abs(p[i]))
+            h = _DIFF_STEPS[i] * max(1.0, abs(p[i]))
             q1, q2 = p.copy(), p.copy()
             q1[i] += h
             q2[i] -= h
@@ -104,6 +107,9 @@ class LineProblem:
         bounds from the internal covariance ``cov`` (None: unknown), and the line's own
         table (``load_n_per_mm``, ``offset_mm`` and their sigmas)."""
         r, psi, load, c = math.exp(p[0]), float(p[1]), math.exp(p[2]), float(p[3])
+        # the reported offset is along the normal of the reported angle (psi modulo pi):
+        # turning psi by pi turns the normal, and the offset's sign with it
+        flip = -1.0 if math.floor(psi / math.pi) % 2 else 1.0
         nx, ny = -math.sin(psi), math.cos(psi)
         ax, ay = self.centre
         # offset from the array's centre, and the line's point nearest it
@@ -124,7 +130,8 @@ class LineProblem:
         g[5, 1] = doff_dpsi
         g[5, 3] = 1.0
         std: dict[str, float | None] = dict.fromkeys(values)
-        line: dict[str, float | None] = {"load_n_per_mm": load, "offset_mm": off,
+        g[5] *= flip
+        line: dict[str, float | None] = {"load_n_per_mm": load, "offset_mm": flip * off,
                                          "load_n_per_mm_std": None, "offset_mm_std": None}
         if cov is not None:
             sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", g, cov, g), 0.0))

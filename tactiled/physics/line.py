@@ -29,9 +29,13 @@ from numba import njit
 
 from tactiled.physics.strain import _rule_s, nodes_for
 
-#: Below this |cos psi| or |sin psi| the line is taken as exactly along an axis (the residue's
-#: far pole is replaced by its limit, a principal value).
-_AXIS_EPS = 1e-5
+#: Below this |cos psi| or |sin psi| the line lies along an axis and the residue's far pole
+#: is at infinity: its limit, a principal value, is taken.  Near an axis the formula loses
+#: digits to cancellation (2e-6 of the value at 1e-6 rad from it, none at 1e-4), far below any
+#: sensor's noise.  The response has a kink at the axes (it grows as |angle| from them: a
+#: kernel's 1/u^2 tail meeting the other's slow drift), so a Jacobian by differences takes
+#: steps in the angle of 1e-4 rad (tactiled.fit.line).
+_AXIS_EPS = 1e-12
 
 
 @njit(cache=True, nogil=True)
@@ -74,7 +78,7 @@ def _pair(a1: float, b1: float, d1: float, s1: float, p1: float, q1: float,
 @njit(cache=True, nogil=True)
 def along_line(px: float, py: float, c: float, s: float, imp: np.ndarray) -> float:
     """integral over the whole line of ``h_x(px - t c) h_y(py - t s)`` dt (1/mm): the response
-    at offset ``(px, py)`` from a point of a line of direction ``(c, s)``."""
+    at offset ``(px, py)`` from a point of a line of unit direction ``(c, s)``."""
     dx, nux, dy, nuy = imp[0], imp[1], imp[2], imp[3]
     ax, bx = (1.0 + nux) * dx, 1.0 - nux
     ay, by = (1.0 + nuy) * dy, 1.0 - nuy
