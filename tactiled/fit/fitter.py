@@ -463,7 +463,7 @@ class Fitter:
     def _fit_line(self, strain: np.ndarray, start: np.ndarray | None,
                   mask: np.ndarray | None) -> FitResult:
         """A cylinder on a flat array: the line model on this frame's window."""
-        fr = self._window(strain, _LINE_MODEL, mask)
+        fr = self._line_frame(strain, mask)
         if isinstance(fr, FitResult):
             fr.model = "cylinder"
             return fr
@@ -827,7 +827,7 @@ class Fitter:
         """1-sigma Cramer-Rao bounds of a line contact (a cylinder on a flat array) at the
         truth ``contact``, for the window this fitter would choose on ``strain``: ``r1_mm``,
         ``angle_deg``, ``x_mm``, ``y_mm``, ``load_n_per_mm`` and ``offset_mm``."""
-        fr = self._window(self.flattened(strain), _LINE_MODEL, None)
+        fr = self._line_frame(self.flattened(strain), None)
         keys = ("x_mm", "y_mm", "r1_mm", "angle_deg", "load_n_per_mm", "offset_mm")
         if isinstance(fr, FitResult):
             return dict.fromkeys(keys)
@@ -840,6 +840,30 @@ class Fitter:
         _, std, line = prob.report(p, cov)
         return {**{k: std[k] for k in keys[:4]}, "load_n_per_mm": line["load_n_per_mm_std"],
                 "offset_mm": line["offset_mm_std"]}
+
+    def _line_frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
+        """The line model's window: on the ridge (tactels above half the peak), where it
+        passes nearest the array's centre.  Along a line every ridge tactel reads about the
+        peak, so the peak's own place is chance; near the centre the window sees the line's
+        position across it with the least leverage of its angle, and the same window every
+        frame."""
+        fr = self._window(strain, _LINE_MODEL, mask)
+        if isinstance(fr, FitResult):
+            return fr
+        clean, ok = self._prepare(strain, mask)
+        g = self.sensor.geometry
+        ridge = ok & (clean >= 0.5 * fr.peak)
+        m, n = np.nonzero(ridge)
+        if m.size == 0:
+            return fr
+        d2 = (m * g.dx - 0.5 * g.span_x) ** 2 + (n * g.dy - 0.5 * g.span_y) ** 2
+        k = int(np.argmin(d2))
+        idx = (int(m[k]), int(n[k]))
+        if idx == fr.peak_idx:
+            return fr
+        out = self._window_arrays(clean, ok, fr.peak_idx, fr.peak,
+                                  choose_window(clean, idx, self.options.window))
+        return out if out.n_points > _LINE_MODEL.size else fr
 
     def _line_problem(self, fr: _Frame) -> LineProblem:
         nr, nc = fr.xs.size, fr.ys.size
