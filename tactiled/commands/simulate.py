@@ -331,6 +331,8 @@ def _remove_link(link: str | None, target: str) -> None:
 def _run_device(args: argparse.Namespace) -> int:
     if args.link and not args.pty:
         return _error("--link needs --pty")
+    if args.link:
+        check_output(args.link)  # a link in a directory that does not exist: one line, now
     if not (math.isfinite(args.rate) and 0 < args.rate <= 100_000):
         return _error(f"--rate must be a frame rate in Hz in (0, 100000], got {args.rate!r}")
     if args.seed < 0:

@@ -207,6 +207,7 @@ def test_every_output_in_a_directory_that_does_not_exist(tmp_path: Path,
             "calibrate": (["calibrate", str(presses), "-o", str(js)], js),
             "calibrate --identify": (["calibrate", str(presses), "-o", str(js), "--identify"], js),
             "record": (["record", "sim://?scene=press", "-o", str(tact), "--frames", "2"], tact),
+            "simulate --pty --link": (["simulate", "--pty", "--link", str(tact)], tact),
             "bench --plot": (["bench", "--quick", "--suite", "configs", "--plot", str(png)], png),
         }
         for name, (args, path) in commands.items():
