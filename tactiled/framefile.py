@@ -27,17 +27,31 @@ class FrameFile:
     extras: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+#: The optional scalars a frame file may hold: key -> (what it is, zero allowed).
+SCALARS = {"dx": ("tactel pitch in mm", False), "dy": ("tactel pitch in mm", False),
+           "noise_sigma": ("strain noise, 1 sigma", True),
+           "noise_quantum": ("strain quantisation step", True)}
+
+
 def _scalar(data: dict[str, np.ndarray], key: str, path: Path) -> float | None:
     if key not in data:
         return None
+    what, zero = SCALARS[key]
     arr = data[key]
     if arr.size != 1 or not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
-        raise FrameError(f"{path}: '{key}' must be a single number (tactel pitch in mm), got "
-                         f"{plain(arr)}")
+        raise FrameError(f"{path}: '{key}' must be a single number ({what}), got {plain(arr)}")
     value = float(arr.reshape(()))
-    if not (math.isfinite(value) and value > 0):
-        raise FrameError(f"{path}: '{key}' must be a positive pitch in mm, got {plain(value)}")
+    if not (math.isfinite(value) and (value >= 0 if zero else value > 0)):
+        sign = "non-negative" if zero else "positive"
+        raise FrameError(f"{path}: '{key}' must be a {sign} number ({what}), got {plain(value)}")
     return value
+
+
+def _extras(path: Path, data: dict[str, np.ndarray], *taken: str) -> dict[str, np.ndarray]:
+    """The arrays beside the frames, the optional scalars among them checked."""
+    for key in ("noise_sigma", "noise_quantum"):
+        _scalar(data, key, path)
+    return {k: v for k, v in data.items() if k not in (*taken, "dx", "dy")}
 
 
 def load_frame_file(path: str | Path, allow_nonfinite: bool = False,
@@ -72,7 +86,7 @@ def load_frame_file(path: str | Path, allow_nonfinite: bool = False,
                 f"{path}: 'strain' has {int(bad.sum())} non-finite value(s), first at frame {f} "
                 f"tactel [{m}, {n}] ({plain(strain[f, m, n])})"
             )
-    extras = {k: v for k, v in data.items() if k not in ("strain", "dx", "dy")}
+    extras = _extras(path, data, "strain")
     return FrameFile(strain, _scalar(data, "dx", path), _scalar(data, "dy", path), extras)
 
 
@@ -100,5 +114,5 @@ def _counts_file(path: Path, data: dict[str, np.ndarray], table: LookupTable) ->
             raise FrameError(f"{path}: 'sensor_id' is {plain(sid)}, but the calibration is for "
                              f"sensor {table.sensor_id}")
     strain = table.to_strain(counts.astype(np.float64))
-    extras = {k: v for k, v in data.items() if k not in ("counts", "dx", "dy")}
+    extras = _extras(path, data, "counts")
     return FrameFile(strain, _scalar(data, "dx", path), _scalar(data, "dy", path), extras)

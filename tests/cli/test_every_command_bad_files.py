@@ -85,9 +85,15 @@ def _frame_contents(tmp: Path) -> dict[str, tuple[Path, str]]:
         "text strain": (_save(tmp / "str.npz", strain=np.array([["a"]])), "real numeric array"),
         "nan strain": (_save(tmp / "nan.npz", strain=nan), "frame 1 tactel [2, 3] (nan)"),
         "nan pitch": (_save(tmp / "dx.npz", strain=np.zeros((2, 8, 8)), dx=np.float64(np.nan)),
-                      "positive pitch in mm, got nan"),
+                      "positive number (tactel pitch in mm), got nan"),
         "array pitch": (_save(tmp / "dxa.npz", strain=np.zeros((2, 8, 8)), dx=np.ones(3)),
                         "got an array of shape (3,) (float64)"),
+        "array noise": (_save(tmp / "ns.npz", strain=np.zeros((2, 8, 8)), noise_sigma=np.ones(3)),
+                        "'noise_sigma' must be a single number"),
+        "text noise": (_save(tmp / "nt.npz", strain=np.zeros((2, 8, 8)),
+                             noise_quantum=np.array("x")), "got 'x'"),
+        "nan noise": (_save(tmp / "nn.npz", strain=np.zeros((2, 8, 8)),
+                            noise_sigma=np.float64(np.nan)), "non-negative number"),
     }
 
 

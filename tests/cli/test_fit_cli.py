@@ -90,7 +90,7 @@ def bad_files(tmp_path: Path):
     (tmp_path / "junk.npz").write_bytes(b"not a zip file at all")
     yield "junk.npz", "not an .npz frame file (no zip archive signature"
     np.savez(tmp_path / "pitch.npz", strain=good, dx=-1.0)
-    yield "pitch.npz", "'dx' must be a positive pitch"
+    yield "pitch.npz", "'dx' must be a positive number (tactel pitch in mm)"
     np.savez(tmp_path / "text.npz", strain=np.array([["a"]]))
     yield "text.npz", "real numeric array"
     yield "absent.npz", "no such file"
