@@ -19,6 +19,8 @@ from pathlib import Path
 
 import pytest
 
+from tactiled.cli import COMMANDS
+
 ROOT = Path(__file__).resolve().parents[2]
 BLOCKER = Path(__file__).resolve().parent / "blocked"
 #: Test-only packages (pyproject's test extra) and the optional extras' (zenoh, plot).
@@ -56,7 +58,7 @@ PROBE = textwrap.dedent(f"""
 HELP = {
     ("-m", "tactiled.cli", "--help"): "simulate",
     **{("-m", "tactiled.cli", name, "--help"): "usage: tactiled " + name
-       for name in ("run", "fit", "simulate", "bench", "calibrate", "record", "replay", "watch")},
+       for name in COMMANDS},
     ("-m", "tactiled.bench.reliability", "--help"): "--quick",
     ("-m", "tactiled.bench.learning_cost", "--help"): "--fits",
     ("-m", "tactiled.bench.worker_memory", "--help"): "--fits",
