@@ -637,10 +637,15 @@ def _build(raw: _Raw) -> Settings:
     for i, table in enumerate(sensor_tables):
         values = {"name": f"finger{i}", **table}
         sensor = typed(SENSOR_FIELDS, values, SensorSettings, f"sensor[{i}]")
-        if "noise_sigma" not in table:  # the description's, unless the sensor says otherwise
+        # the description's noise and window, unless the sensor says otherwise
+        if "noise_sigma" not in table or "window" not in table:
             from tactiled.sensors import load_description
 
-            sensor = replace(sensor, noise_sigma=load_description(sensor.description).noise_sigma)
+            desc = load_description(sensor.description)
+            if "noise_sigma" not in table:
+                sensor = replace(sensor, noise_sigma=desc.noise_sigma)
+            if "window" not in table:
+                sensor = replace(sensor, window=desc.window)
         sensors.append(sensor)
     seen: dict[str, int] = {}
     for i, s in enumerate(sensors):
