@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         return _fail(str(err))
     writer = McapWriter(out, namespace=settings.ros2.namespace, frame_id=args.frame_id)
     try:
-        stats = asyncio.run(_export_mcap(settings, writer, created - first[0], progress))
+        stats = asyncio.run(_export_mcap(settings, writer, created, first[0], progress))
     finally:
         writer.close()
     print(f"exported {stats['frames']} frame(s), {stats['published']} estimates: "
@@ -124,10 +124,10 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-async def _export_mcap(settings: Any, writer: Any, offset: float,
+async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
                        progress: Progress) -> dict[str, Any]:
-    """Replay through the pipeline into ``writer``; ``offset`` turns recorded host times
-    into Unix times."""
+    """Replay through the pipeline into ``writer``; a recorded host time ``t`` is the Unix
+    time ``created + (t - t0)`` (``t0``: the first frame's)."""
     from tactiled.pipeline import TIMING_KEYS, Daemon
 
     daemon = Daemon(settings, lossless=True)
@@ -136,7 +136,7 @@ async def _export_mcap(settings: Any, writer: Any, offset: float,
     state = {"due": -np.inf, "errors": 0}  # next diagnostics' recorded time; errors so far
 
     def on_item(item: Any) -> None:
-        stamp = item.host_time + offset
+        stamp = created + (item.host_time - t0)
         if item.kind == "estimate":
             est = item.to_json_dict()
             for key in TIMING_KEYS:

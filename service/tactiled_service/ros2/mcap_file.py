@@ -73,7 +73,7 @@ class McapWriter:
         channel = self._channel(topic, typename)
         seq = self._sequence.get(channel, 0)
         self._sequence[channel] = seq + 1
-        t_ns = max(0, round(stamp_s * 1e9))
+        t_ns = messages.nanoseconds(stamp_s)
         self.writer.add_message(channel, log_time=t_ns, publish_time=t_ns, sequence=seq,
                                 data=messages.serialize(message, typename))
         self.messages += 1

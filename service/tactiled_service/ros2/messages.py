@@ -120,11 +120,19 @@ def _cls(name: str) -> Any:
     return typestore().types[name]
 
 
+def nanoseconds(seconds: float) -> int:
+    """Unix ``seconds`` as integer nanoseconds, never negative (whole seconds and the fraction
+    apart: ``seconds * 1e9`` itself is beyond a double's 53 bits and would lose ~100 ns)."""
+    if not seconds > 0:
+        return 0
+    whole = math.floor(seconds)
+    return whole * 1_000_000_000 + round((seconds - whole) * 1e9)
+
+
 def _time(seconds: float) -> Any:
-    """builtin_interfaces/Time of Unix ``seconds`` (nanoseconds rounded, never negative)."""
-    ns = max(0, round(seconds * 1e9))
-    return _cls("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000,
-                                               nanosec=ns % 1_000_000_000)
+    """builtin_interfaces/Time of Unix ``seconds``."""
+    sec, nanosec = divmod(nanoseconds(seconds), 1_000_000_000)
+    return _cls("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
 
 
 def header(stamp_s: float, frame_id: str) -> Any:
