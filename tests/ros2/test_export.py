@@ -46,7 +46,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     tmp = tmp_path_factory.mktemp("export")
     outs = {"a": tmp / "a.mcap", "b": tmp / "b.mcap", "npz": tmp / "press.npz"}
     procs = {k: subprocess.Popen([sys.executable, "-m", "tactiled.cli", "export",
-                                  str(RECORDING), "-o", str(p), "--name", "replay"],
+                                  str(RECORDING), "-o", str(p)],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                  env={**os.environ, **regen_golden.PINNED_ENV})
              for k, p in outs.items()}
@@ -70,7 +70,7 @@ def test_mcap_has_the_ros2_profile_topics_and_types(exported: dict[str, Path]) -
     header, summary, decoded = read(exported["a"])
     assert header.profile == "ros2"
     topics = {c.topic: c for c in summary.channels.values()}
-    expected = {f"/tactiled/replay/{k}": messages.TYPES[k]
+    expected = {f"/tactiled/finger0/{k}": messages.TYPES[k]
                 for k in ("wrench", "contact", "markers", "strain")}
     expected["/diagnostics"] = messages.TYPES["diagnostics"]
     assert {t: summary.schemas[c.schema_id].name for t, c in topics.items()} == expected
@@ -82,7 +82,7 @@ def test_mcap_has_the_ros2_profile_topics_and_types(exported: dict[str, Path]) -
     for channel, msg, _ in decoded:
         per_topic[channel.topic].append(msg)
     for k in ("wrench", "contact", "markers", "strain"):
-        assert len(per_topic[f"/tactiled/replay/{k}"]) == 90, k  # every frame, every estimate
+        assert len(per_topic[f"/tactiled/finger0/{k}"]) == 90, k  # every frame, every estimate
     for topic, msgs in per_topic.items():
         assert [m.sequence for m in msgs] == list(range(len(msgs))), topic
     assert summary.statistics.message_count == len(decoded)
@@ -174,3 +174,40 @@ def test_a_file_that_is_not_a_recording_is_refused(tmp_path: Path) -> None:
                            str(tmp_path / "o.mcap")], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "not a tactiled recording" in done.stderr
     assert "Traceback" not in done.stderr and not (tmp_path / "o.mcap").exists()
+
+
+def test_the_foxglove_layout_names_what_an_export_holds(exported: dict[str, Path]) -> None:
+    layout = json.loads((ROOT / "docs" / "foxglove" / "tactiled.json").read_text())
+    _, summary, decoded = read(exported["a"])
+    topics = {c.topic for c in summary.channels.values()}
+    first = {}
+    for ch, _, dec in decoded:
+        first.setdefault(ch.topic, dec)
+    named: list[str] = []
+    for panel_id, config in layout["configById"].items():
+        kind = panel_id.split("!")[0]
+        if kind == "Image":
+            named.append(config["imageMode"]["imageTopic"])
+        elif kind == "3D":
+            named += list(config["topics"])
+        elif kind == "Plot":
+            named += [p["value"] for p in config["paths"]]
+        elif kind == "RawMessages":
+            named.append(config["topicPath"])
+    assert len(named) >= 8
+    for path in named:
+        topic, _, field = path.partition(".")
+        assert topic in topics, path
+        if field:
+            assert hasattr(first[topic], field), path
+    panels = set()
+
+    def walk(node: Any) -> None:
+        if isinstance(node, str):
+            panels.add(node)
+        else:
+            walk(node["first"])
+            walk(node["second"])
+
+    walk(layout["layout"])
+    assert panels == set(layout["configById"])

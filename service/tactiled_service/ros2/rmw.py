@@ -1,9 +1,11 @@
 """rmw_zenoh's layout on Zenoh: key expressions, liveliness tokens, attachments (no I/O).
 
-ROS 2's Zenoh middleware (ros2/rmw_zenoh, ``rmw_zenoh_cpp``; Jazzy and later) maps each ROS
-entity onto Zenoh as follows, and this module builds exactly those strings and bytes
-(sources: ``docs/design.md`` and ``rmw_zenoh_cpp/src/detail/liveliness_utils.{hpp,cpp}``,
-``attachment_helpers.cpp``, ``rmw_publisher_data.cpp``, ``qos.cpp``):
+ROS 2's Zenoh middleware (https://github.com/ros2/rmw_zenoh, ``rmw_zenoh_cpp``; Jazzy and
+later) maps each ROS entity onto Zenoh as follows, and this module builds exactly those
+strings and bytes (sources: its design document,
+https://github.com/ros2/rmw_zenoh/blob/rolling/docs/design.md, and in
+``rmw_zenoh_cpp/src/detail/``: ``liveliness_utils.{hpp,cpp}``, ``attachment_helpers.cpp``,
+``rmw_publisher_data.cpp``, ``qos.cpp``):
 
 * data of a topic goes on ``<domain_id>/<topic name without its leading '/'>/<type>/<hash>``,
   ``<type>`` the DDS-style name (``geometry_msgs::msg::dds_::WrenchStamped_``) and ``<hash>``
