@@ -41,6 +41,7 @@ import tempfile
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -79,7 +80,10 @@ class Subscriber:
         cfg.insert_json5("connect/endpoints", json.dumps([endpoint]))
         self.session = zenoh.open(cfg)
 
-    def phase(self, name: str, seconds: float, settle: float) -> Seen:
+    def phase(self, name: str, seconds: float, settle: float,
+              mark: Callable[[], None]) -> Seen:
+        """Subscribe, wait ``settle`` s, count for ``seconds`` s; ``mark()`` is called when
+        counting starts and when it stops (to read the daemon's counters and CPU)."""
         keys = {"idle": [], "json": [f"{PREFIX}/*/estimate"],
                 "ros2": ["0/tactiled/*/contact/**"],
                 "both": [f"{PREFIX}/*/estimate", "0/tactiled/*/*/**"]}[name]
@@ -102,9 +106,11 @@ class Subscriber:
         for t in threads:
             t.start()
         time.sleep(settle)  # matching reaches the daemon; queues fill to steady state
+        mark()
         counting.set()
         time.sleep(seconds)
         counting.clear()
+        mark()
         stop.set()
         for t in threads:
             t.join()
@@ -190,15 +196,17 @@ def bench(args: argparse.Namespace) -> int:
             time.sleep(args.settle)
             for _ in range(args.rounds):
                 for name in PHASES:
+                    marks: list[tuple[float, float, int, int]] = []
+
+                    def mark() -> None:
+                        marks.append((time.monotonic(), cpu_seconds(proc.pid),
+                                      *counters(base)))
+
+                    seen = sub.phase(name, args.seconds, 1.0, mark)
+                    (t0, c0, f0, p0), (t1, c1, f1, p1) = marks
                     r = results[name]
-                    f0, p0 = counters(base)
-                    c0, t0 = cpu_seconds(proc.pid), time.monotonic()
-                    # The phase's window includes its settle: the CPU and the counters cover
-                    # exactly the time the subscribers were declared.
-                    seen = sub.phase(name, args.seconds, 1.0)
-                    f1, p1 = counters(base)
-                    r.cpu_s += cpu_seconds(proc.pid) - c0
-                    r.seconds += time.monotonic() - t0
+                    r.cpu_s += c1 - c0
+                    r.seconds += t1 - t0
                     r.frames += f1 - f0
                     r.published += p1 - p0
                     r.seen.append(seen)
@@ -220,26 +228,29 @@ def report(results: dict[str, Result], args: argparse.Namespace) -> str:
         f"{args.rate:g} Hz, {args.workers} fit worker(s), {os.cpu_count()} CPUs; "
         f"{args.rounds} round(s) of {args.seconds:g} s per phase (+1 s settling each).",
         "",
-        "| phase | published/s | delivered/s JSON | delivered/s ROS 2 (Contact) | ROS gaps | "
-        "latency p50 / p99, ms | daemon CPU per frame | added per frame |",
-        "|---|---|---|---|---|---|---|---|"]
+        "| phase | frames/s | published/s | delivered/s JSON | delivered/s ROS 2 (Contact) | "
+        "ROS gaps | latency p50 / p99, ms | daemon CPU per frame | added per frame |",
+        "|---|---|---|---|---|---|---|---|---|"]
     for name in PHASES:
         r = results[name]
-        window = args.rounds * args.seconds
-        js = sum(s.json for s in r.seen) / window
-        ros = sum(s.contacts for s in r.seen) / window
+        js = sum(s.json for s in r.seen) / r.seconds
+        ros = sum(s.contacts for s in r.seen) / r.seconds
         miss = sum(missing(s.ros_seqs) for s in r.seen)
         lat = [v for s in r.seen for k in ("json", "ros2") for v in s.latency_ms[k]]
         lat_txt = (f"{pct(lat, 50):.1f} / {pct(lat, 99):.1f}" if lat else "-")
         lines.append(
-            f"| {name} | {r.published / r.seconds:,.0f} | {js:,.0f} | {ros:,.0f} | {miss} | "
+            f"| {name} | {r.frames / r.seconds:,.0f} | {r.published / r.seconds:,.0f} | "
+            f"{js:,.0f} | {ros:,.0f} | {miss} | "
             f"{lat_txt} | {r.cpu_us_per_frame:.0f} µs | "
             f"{r.cpu_us_per_frame - idle:+.0f} µs |")
     added = {n: results[n].cpu_us_per_frame - idle for n in PHASES}
-    per_est = {n: sum(s.contacts if n == "ros2" else s.json for s in results[n].seen)
-               for n in ("json", "ros2")}
-    lines += ["", f"Ratios (one run): ROS 2 Contact / JSON delivered = "
-              f"{per_est['ros2'] / max(per_est['json'], 1):.3f}; added CPU per frame, "
+    both = results["both"].seen
+    ros_n, json_n = sum(s.contacts for s in both), sum(s.json for s in both)
+    sent = sum(len(seqs) + missing({k: seqs}) for s in both for k, seqs in s.ros_seqs.items())
+    gaps = sum(missing(s.ros_seqs) for s in both)
+    lines += ["", f"Ratios (one run): in the both phase (the two subscribers side by side, the "
+              f"same estimates), ROS 2 Contact / JSON delivered = {ros_n / max(json_n, 1):.4f} "
+              f"({ros_n} / {json_n}), ROS messages missing {gaps} of {sent}; added CPU per frame, "
               f"ROS 2 Contact / JSON = {added['ros2'] / added['json']:.2f}, "
               f"both (JSON + wrench, contact, markers) / JSON = "
               f"{added['both'] / added['json']:.2f}."

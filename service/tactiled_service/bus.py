@@ -196,7 +196,8 @@ class Bus:
         self._matching: dict[str, bool] = {}
         self._declared: list[Any] = []  # queryables, listeners, the token: undeclared at stop
         #: Other front ends sharing this session (the ROS 2 node, tactiled_service.ros2): each
-        #: has ``declare(session) -> list`` (what to undeclare at stop) and ``stop()``.
+        #: has ``declare(session) -> list`` (what to undeclare at stop), ``stop()``, and
+        #: ``name`` and ``stats()`` (their section of :meth:`stats`).
         self.fronts: list[Any] = []
         self._frame_period = (1.0 / settings.frame_rate_hz if settings.frame_rate_hz > 0
                               else None)
@@ -432,6 +433,7 @@ class Bus:
                 peers, routers = len(info.peers_zid()), len(info.routers_zid())
         sent = dict(s.sent)
         puts = sum(sent.values())
+        fronts = {front.name: front.stats() for front in self.fronts}
         return {
             "state": self.state,
             "mode": self.settings.mode,
@@ -449,6 +451,7 @@ class Bus:
             "queries": self.queries,
             "query_errors": self.query_errors,
             "last_error": self._open_error or s.last_error,
+            **fronts,
         }
 
 

@@ -82,8 +82,8 @@ def client(endpoint: str) -> Any:
 
 
 class Node:
-    def __init__(self, proc: Any, port: int, record: Path) -> None:
-        self.proc, self.port, self.record = proc, port, record
+    def __init__(self, proc: Any, port: int, record: Path, url: str) -> None:
+        self.proc, self.port, self.record, self.url = proc, port, record, url
         self.endpoint = f"tcp/127.0.0.1:{port}"
 
 
@@ -99,8 +99,8 @@ def node(daemon_process: Callable[..., Any],
            "TACTILED_RECORD_PATH": str(record), "TACTILED_RECORD_FORMAT": "both"}
     proc = daemon_process(["--port", "0", "--ros2"], env=env)
     try:
-        proc.wait_url()
-        yield Node(proc, port, record)
+        url = proc.wait_url()
+        yield Node(proc, port, record, url)
     finally:
         if proc.proc.poll() is None:
             proc.proc.send_signal(signal.SIGTERM)
@@ -231,6 +231,15 @@ def test_liveliness_tokens_follow_rmw_zenohs_layout(heard: dict[str, Any]) -> No
         "/diagnostics": "diagnostic_msgs::msg::dds_::DiagnosticArray_"}
     assert len({p["id"] for p in pubs}) == len(pubs) and all(p["nid"] == "0" for p in pubs)
     assert all(p["zid"] == nodes[0]["zid"] for p in pubs)
+
+
+def test_health_counts_the_ros2_messages(node: Node, heard: dict[str, Any]) -> None:
+    import httpx
+
+    ros2 = httpx.get(node.url + "v1/health", timeout=10).json()["zenoh"]["ros2"]
+    assert set(ros2["published"]) == {"wrench", "contact", "markers", "strain", "diagnostics"}
+    assert ros2["published"]["contact"] >= len(heard["contacts"])
+    assert ros2["put_errors"] == 0 and ros2["last_error"] == ""
 
 
 def test_watch_ros2_prints_decoded_messages(node: Node) -> None:

@@ -69,6 +69,8 @@ class Ros2Node:
     """The ROS 2 node of one daemon (see the module docstring); ``health`` has ``report()``
     (the service's :class:`~tactiled_service.health.HealthMonitor`)."""
 
+    name = "ros2"  # its section in the health document's ``zenoh``
+
     def __init__(self, settings: Settings, daemon: Daemon, health: Any,
                  queue_size: int = QUEUE_SIZE) -> None:
         self.settings = settings.ros2
@@ -188,7 +190,8 @@ class Ros2Node:
                 log.exception("ros2: diagnostics failed")
 
     def stats(self) -> dict[str, Any]:
-        """Messages sent by kind, dropped, put errors, the last error."""
+        """The health document's ``zenoh.ros2``: messages put by kind, dropped (the sender
+        fell ``queue_size`` behind), put errors, the last error."""
         s = self.sender
         return {"published": dict(s.sent), "dropped": s.dropped, "put_errors": s.errors,
                 "last_error": s.last_error}
