@@ -28,7 +28,7 @@ Environment: ``TACTILED_CONFIG`` names the file when ``path`` is None;
 ``TACTILED_<SECTION>_<KEY>`` sets ``<section>.<key>`` (``TACTILED_SERVER_PORT``,
 ``TACTILED_FIT_TIMEOUT``, ``TACTILED_RECORD_PATH``, ``TACTILED_ZENOH_CONNECT``);
 ``TACTILED_SENSOR_<i>_<KEY>`` sets ``sensor[i].<key>`` (``TACTILED_SENSOR_0_URL``; ``i`` may be
-one past the last sensor to add one).  An unknown name under those five prefixes is an error (a
+one past the last sensor to add one).  An unknown name under those prefixes is an error (a
 typo must not be ignored);
 other ``TACTILED_*`` names belong to other parts of tactiled and are left alone.  Overrides are
 a flat dict of the same dotted keys: ``{"server.port": 9000, "sensor[0].url": "..."}``.
