@@ -213,6 +213,9 @@ def watch_zenoh(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.domain_id is not None and not args.ros2:
+        print("tactiled watch: error: --domain-id goes with --ros2", file=sys.stderr)
+        return 2
     if args.zenoh or args.ros2 or args.list or args.connect or args.key:
         if not (args.zenoh or args.ros2) or (args.ros2 and (args.list or args.key)):
             print("tactiled watch: error: --list, --connect and --key go with --zenoh "

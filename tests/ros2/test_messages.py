@@ -91,6 +91,17 @@ def test_contact_hash_agrees_with_an_independent_implementation() -> None:
     assert ours.startswith("RIHS01_") and len(ours) == 7 + 64
 
 
+def test_wrench_hash_agrees_with_an_independent_implementation() -> None:
+    deps = {"std_msgs/msg/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
+            "builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n",
+            "geometry_msgs/msg/Wrench": "Vector3 force\nVector3 torque\n",
+            "geometry_msgs/msg/Vector3": "float64 x\nfloat64 y\nfloat64 z\n"}
+    typename = "geometry_msgs/msg/WrenchStamped"
+    sdk = get_type_hash(typename, msg_definition="std_msgs/Header header\nWrench wrench\n",
+                        dependencies=deps)
+    assert sdk == m.type_hash(typename) == ROS2_HASHES[typename]
+
+
 def test_the_daemon_publishes_the_message_the_ament_package_builds() -> None:
     assert m.contact_definition() == CONTACT_MSG.read_text()
 
