@@ -119,6 +119,12 @@ def load_ros2(settings: Settings) -> tuple[ModuleType | None, ModuleType | None]
     except ImportError as err:
         raise ConfigError(f"{key}: ROS 2 messages need the ros2 extra: pip install "
                           f"'tactiled[zenoh,ros2]' ({err})") from None
+    if node is not None or mcap is not None:
+        from tactiled_service.ros2.messages import check_segments
+        try:
+            check_segments([s.name for s in settings.sensors])
+        except ValueError as err:
+            raise ConfigError(f"{key}: {err}") from None
     return node, mcap
 
 

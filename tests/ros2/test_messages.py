@@ -195,3 +195,9 @@ def test_diagnostics_levels_and_reasons() -> None:
 def test_topic_names_are_valid_ros_names(sensor: str, expected: str) -> None:
     assert m.topic("/tactiled", sensor, "wrench") == expected
     assert m.topic("/", sensor, "diagnostics") == "/diagnostics"
+
+
+def test_sensors_whose_topics_would_collide_are_refused() -> None:
+    m.check_segments(["finger0", "thumb", "finger-1"])
+    with pytest.raises(ValueError, match="sensors 'finger-0' and 'finger_0' have the same ROS"):
+        m.check_segments(["finger-0", "thumb", "finger_0"])

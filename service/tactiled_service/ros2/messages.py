@@ -99,6 +99,17 @@ def ros_segment(sensor: str) -> str:
     return f"s{text}" if not text or text[0].isdigit() else text
 
 
+def check_segments(sensors: list[str]) -> None:
+    """ValueError when two sensor names map to one ROS name segment (their topics would be
+    the same: ``finger-0`` and ``finger_0``)."""
+    seen: dict[str, str] = {}
+    for name in sensors:
+        other = seen.setdefault(ros_segment(name), name)
+        if other != name:
+            raise ValueError(f"sensors {other!r} and {name!r} have the same ROS topics "
+                             f"(.../{ros_segment(name)}/...): rename one")
+
+
 def topic(namespace: str, sensor: str, kind: str) -> str:
     """The fully qualified topic of ``kind`` for ``sensor``: ``<namespace>/<sensor>/<kind>``
     (``/tactiled/finger0/wrench``); diagnostics are ``/diagnostics`` (the ROS convention)."""
