@@ -235,19 +235,25 @@ def _marker(hdr: Any, ns: str, mid: int, mtype: int, action: int, *, position=(0
     pose = _cls("geometry_msgs/msg/Pose")(position=point(x=position[0], y=position[1],
                                                          z=position[2]),
                                           orientation=_quaternion_z(yaw_rad))
+    unused = _unused_marker_fields()
     return _cls("visualization_msgs/msg/Marker")(
         header=hdr, ns=ns, id=mid, type=mtype, action=action, pose=pose,
         scale=_vector(*scale),
         color=_cls("std_msgs/msg/ColorRGBA")(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3]),
-        lifetime=_cls("builtin_interfaces/msg/Duration")(sec=0, nanosec=0),
         frame_locked=False, points=[point(x=p[0], y=p[1], z=p[2]) for p in points], colors=[],
-        texture_resource="",
-        texture=_cls("sensor_msgs/msg/CompressedImage")(
-            header=hdr, format="", data=np.zeros(0, dtype=np.uint8)),
-        uv_coordinates=[], text="", mesh_resource="",
-        mesh_file=_cls("visualization_msgs/msg/MeshFile")(
-            filename="", data=np.zeros(0, dtype=np.uint8)),
-        mesh_use_embedded_materials=False)
+        texture_resource="", uv_coordinates=[], text="", mesh_resource="",
+        mesh_use_embedded_materials=False, **unused)
+
+
+@functools.cache
+def _unused_marker_fields() -> dict[str, Any]:
+    """The Marker fields tactiled leaves empty, built once and shared (messages are only
+    read after they are built): an infinite lifetime, no texture, no mesh."""
+    return {"lifetime": _cls("builtin_interfaces/msg/Duration")(sec=0, nanosec=0),
+            "texture": _cls("sensor_msgs/msg/CompressedImage")(
+                header=header(0.0, ""), format="", data=np.zeros(0, dtype=np.uint8)),
+            "mesh_file": _cls("visualization_msgs/msg/MeshFile")(
+                filename="", data=np.zeros(0, dtype=np.uint8))}
 
 
 def markers(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
