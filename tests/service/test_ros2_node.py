@@ -276,3 +276,13 @@ def test_stop_closes_the_mcap_recording(node: Node) -> None:
     assert counts["/tactiled/finger0/strain"] >= counts["/tactiled/finger0/contact"]
     assert counts["/diagnostics"] >= 1
     assert seqs == sorted(seqs)
+
+
+@pytest.mark.slow
+def test_the_ros2_benchmark_runs() -> None:
+    done = subprocess.run([PYTHON, "-m", "tactiled_service.bench_ros2", "--quick"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    rows = [line for line in done.stdout.splitlines() if line.startswith("| ")]
+    assert [r.split("|")[1].strip() for r in rows[1:]] == ["idle", "json", "ros2", "both"]
+    assert "ROS messages missing 0 of" in done.stdout
