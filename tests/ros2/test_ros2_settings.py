@@ -54,3 +54,25 @@ def test_root_namespace_and_valid_names_pass() -> None:
     s = load_settings(None, {}, {"zenoh.enabled": True, "ros2.enabled": True,
                                  "ros2.namespace": "/", "ros2.node_name": "_tactile2"})
     assert (s.ros2.namespace, s.ros2.node_name) == ("/", "_tactile2")
+
+
+def test_the_example_config_shows_every_ros2_key() -> None:
+    from tactiled.settings import settings_to_dict
+
+    example = Path(__file__).resolve().parents[2] / "deploy" / "tactiled.toml"
+    text = example.read_text()
+    s = load_settings(example, {}, {})
+    assert s.ros2 == Ros2Settings() and s.record.format == "tact"
+    missing = [k for k in settings_to_dict(s)["ros2"] if f"\n{k} =" not in text]
+    assert not missing, missing
+
+
+def test_an_mcap_recording_never_overwrites_one(tmp_path: Path) -> None:
+    from tactiled_service.ros2.mcap_file import fresh_path
+
+    path = tmp_path / "finger0.mcap"
+    assert fresh_path(path) == path
+    path.write_bytes(b"earlier")
+    again = fresh_path(path, now=1795309645.0)
+    assert again.parent == tmp_path and again.suffix == ".mcap"
+    assert again.name == "finger0-20261122T010725Z.mcap" and not again.exists()
