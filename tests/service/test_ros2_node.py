@@ -43,7 +43,7 @@ from tactiled_service.ros2 import messages, rmw
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests" / "ros2"))
-from test_rmw import parse_token  # noqa: E402  (rmw_zenoh's token rules)
+from test_ros2_rmw import parse_token  # noqa: E402  (rmw_zenoh's token rules)
 
 PYTHON = sys.executable
 RATE_HZ = 200
