@@ -88,6 +88,8 @@ class SensorSettings:
     """One fingertip: where its frames come from and how they are turned into estimates."""
 
     name: str = "finger0"  # how the API names the sensor
+    #: what the array is (docs/sensors.md): a built-in description's name or a .toml file
+    description: str = "fearing1988"
     url: str = DEFAULT_URL  # frame source URL (serial://, sim://, replay://)
     wire_id: int | None = None  # sensor_id in the frames; None: the calibration's, else any
     calibration: str | None = None  # lookup-table file; None: the nominal linear table
@@ -457,8 +459,21 @@ _SERVER_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "max_subscribers": _in_range(_as_int, 1, 100_000, "a connection count"),
     "allow_origins": _origins,
 }
+def _description(value: Any, key: str) -> str:
+    """A sensor description: a built-in's name or a .toml file, read and checked now."""
+    from tactiled.sensors import load_description
+
+    text = _as_str(value, key).strip()
+    try:
+        load_description(text)
+    except ConfigError as err:
+        raise _fail(key, str(err)) from None
+    return text
+
+
 SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "name": _name,
+    "description": _description,
     "url": _url,
     "wire_id": _optional(_in_range(_as_int, 0, 65535, "a wire sensor id")),
     "calibration": _optional(_as_str),
@@ -586,6 +601,11 @@ def _suffix(origin: str) -> str:
     return f" (from {origin})" if origin else ""
 
 
+def _is_path(value: Any) -> bool:
+    """A description value naming a file (else a built-in's name)."""
+    return isinstance(value, str) and (value.endswith(".toml") or "/" in value)
+
+
 def _resolve(value: Any, base: Path) -> Any:
     if isinstance(value, str) and value.strip() and not os.path.isabs(value):
         return str(base / value)
@@ -610,7 +630,7 @@ def _read_file(path: Path, raw: _Raw) -> None:
                 raise ConfigError(f"sensor: must be an array of tables ([[sensor]]){_suffix(origin)}")
             for i, table in enumerate(body):
                 for key, value in table.items():
-                    if ("sensor", key) in _PATH_KEYS:
+                    if ("sensor", key) in _PATH_KEYS or (key == "description" and _is_path(value)):
                         value = _resolve(value, base)
                     raw.set(f"sensor[{i}].{key}", value, origin)
         elif top in _SECTIONS:
@@ -671,7 +691,17 @@ def _build(raw: _Raw) -> Settings:
     sensors = []
     for i, table in enumerate(sensor_tables):
         values = {"name": f"finger{i}", **table}
-        sensors.append(typed(SENSOR_FIELDS, values, SensorSettings, f"sensor[{i}]"))
+        sensor = typed(SENSOR_FIELDS, values, SensorSettings, f"sensor[{i}]")
+        # the description's noise and window, unless the sensor says otherwise
+        if "noise_sigma" not in table or "window" not in table:
+            from tactiled.sensors import load_description
+
+            desc = load_description(sensor.description)
+            if "noise_sigma" not in table:
+                sensor = replace(sensor, noise_sigma=desc.noise_sigma)
+            if "window" not in table:
+                sensor = replace(sensor, window=desc.window)
+        sensors.append(sensor)
     seen: dict[str, int] = {}
     for i, s in enumerate(sensors):
         if s.name in seen:
