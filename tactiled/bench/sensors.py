@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactiled.fit.fitter import Fitter
+from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.strain import StrainModel
@@ -126,7 +126,7 @@ def score_description(desc: SensorDescription, contacts: int, draws: int, seed: 
     sensor = desc.sensor_model()
     g = sensor.geometry
     model = StrainModel(sensor)
-    fitter = Fitter(sensor)
+    fitter = Fitter(sensor, FitOptions(window=desc.window))
     sigma = sensor.noise.sigma
     centre = (0.5 * g.span_x, 0.5 * g.span_y)
     rng = np.random.default_rng([seed, sum(desc.name.encode())])

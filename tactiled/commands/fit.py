@@ -103,8 +103,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("frames", metavar="FRAMES.npz", help="frame file to fit")
     p.add_argument("--model", choices=MODELS, default="cylinder",
                    help="contact model; 'auto' picks by the Bayesian information criterion (default cylinder)")
-    p.add_argument("--window", type=int, default=4, metavar="N",
-                   help="fit an N x N window around the peak, up to the whole array (default 4)")
+    p.add_argument("--window", type=int, default=None, metavar="N",
+                   help="fit an N x N window around the peak, up to the whole array (default: "
+                   "the --sensor description's, else 4)")
     p.add_argument("--sigma", type=float, default=None,
                    help="sensor strain noise (1 sigma) for uncertainties and the contact threshold")
     p.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
@@ -280,6 +281,12 @@ def _parallel(sensor: SensorModel, args: argparse.Namespace, strain: np.ndarray,
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.window is None:
+        try:
+            args.window = load_description(args.sensor).window if args.sensor else 4
+        except TactiledError as err:
+            print(f"tactiled fit: error: {err}", file=sys.stderr)
+            return 2
     if args.window < 2:
         print(f"tactiled fit: error: --window must be at least 2, got {args.window}", file=sys.stderr)
         return 2

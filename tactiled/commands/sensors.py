@@ -25,9 +25,10 @@ HELP = "list the built-in sensor descriptions, print one as TOML, or check a des
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("action", nargs="?", choices=("list", "show", "check"), default="list",
+    p.add_argument("action", nargs="?", choices=("list", "show", "check", "windows"), default="list",
                    help="list (default): the built-ins; show NAME|FILE: print as TOML; "
-                   "check FILE: read and check a description")
+                   "check FILE: read and check a description; windows NAME|FILE: the share of "
+                   "the Fisher information each fit window keeps, and the smallest keeping 90 %%")
     p.add_argument("name", nargs="?", metavar="NAME|FILE.toml", help="a built-in's name or a .toml file")
     p.add_argument("--json", action="store_true", help="machine-readable output (list, show)")
 
@@ -60,6 +61,24 @@ def run(args: argparse.Namespace) -> int:
         d = load_description(args.name)
     except ConfigError as err:
         return _error(str(err))
+    if args.action == "windows":
+        from tactiled.sensors.window import KEEP, information, recommended
+
+        sensor = d.sensor_model()
+        info = information(sensor)
+        keys = list(next(iter(info.values())))
+        if args.json:
+            print(json.dumps({"information": {str(n): row for n, row in info.items()},
+                              "recommended": recommended(sensor)}))
+            return 0
+        print(f"{d.name}: share of the {max(info)}x{max(info)} window's Fisher information each "
+              "window keeps (reference contacts: docs/sensors.md, 'The fit window')")
+        print(f"{'window':>7} " + " ".join(f"{k:>20}" for k in keys))
+        for n, row in info.items():
+            print(f"{n:>4}x{n:<2} " + " ".join(f"{row[k]:>20.2f}" for k in keys))
+        print(f"\nsmallest keeping {100 * KEEP:.0f} % of every parameter's: {recommended(sensor)} "
+              f"(the description's window: {d.window})")
+        return 0
     if args.action == "show":
         print(json.dumps(d.summary()) if args.json else d.to_toml(), end="" if not args.json else "\n")
         return 0

@@ -23,7 +23,7 @@ from tactiled.physics.line import across_rule, along_line, half_width, line_stra
 PARAMS = ("ln_r", "psi", "ln_p", "c")
 #: Step caps of the solver (ln R, rad, ln P, mm).
 STEPS = np.array([1.0, 0.5, 1.0, 2.0])
-#: Central-difference steps of the Jacobian (ln R, rad, ln P, mm): the angle's is wide enough
+#: Forward-difference steps of the Jacobian (ln R, rad, ln P, mm): the angle's is wide enough
 #: that the forward model's rounding near an axis (tactiled.physics.line) does not show.
 _DIFF_STEPS = (1e-6, 1e-4, 1e-6, 1e-6)
 #: Radii (mm) the cold starts try, smallest first.
@@ -73,16 +73,17 @@ class LineProblem:
         return np.where(self.valid, r, 0.0)
 
     def residual_and_jacobian(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Residuals and their central-difference Jacobian (the forward model is exact; its
-        derivatives here are differences of it, 8 extra evaluations of a few microseconds)."""
+        """Residuals and their forward-difference Jacobian (the forward model is exact; its
+        derivatives here are differences of it: 4 extra evaluations, each a few tens of
+        microseconds; relative error ~1e-6, 1e-4 in the angle, far below what moves a fit or
+        its bound)."""
         r = self.residual(p)
         jac = np.empty((r.size, p.size))
         for i in range(p.size):
             h = _DIFF_STEPS[i] * max(1.0, abs(p[i]))
-            q1, q2 = p.copy(), p.copy()
-            q1[i] += h
-            q2[i] -= h
-            jac[:, i] = (self.residual(q1) - self.residual(q2)) / (2.0 * h)
+            q = p.copy()
+            q[i] += h
+            jac[:, i] = (self.residual(q) - r) / h
         return r, jac
 
     def starts(self, clean: np.ndarray, xs: np.ndarray, ys: np.ndarray, peak: float) -> list[np.ndarray]:

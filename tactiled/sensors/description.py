@@ -90,6 +90,8 @@ class SensorDescription:
     modulus_n_mm2: float = 0.25
     cover_poisson: float = 0.5
     noise_sigma: float = 0.0005
+    #: side of the fit window, tactels (``tactiled sensors windows NAME`` shows what each keeps)
+    window: int = 4
     wire_order: str | tuple[int, ...] = "row-major"
     dead: tuple[tuple[int, int], ...] = ()
     description: str = ""
@@ -314,8 +316,11 @@ def parse_description(doc: dict[str, Any], where: str = "sensor description",
     nominal = doc.get("nominal", [])
     if not isinstance(nominal, list) or not all(isinstance(k, str) and k in _KNOWN for k in nominal):
         raise _fail(where, "nominal", "must be a list of description keys")
+    window = doc.get("window", 4)
+    if isinstance(window, bool) or not isinstance(window, int) or not 2 <= window <= 64:
+        raise _fail(where, "window", f"must be a window side of 2..64 tactels, got {window!r}")
     return SensorDescription(
-        name=name, rows=rows, cols=cols, surface_radius_mm=radius,
+        name=name, rows=rows, cols=cols, surface_radius_mm=radius, window=window,
         wire_order=_wire_order(doc.get("wire_order", "row-major"), rows * cols, where),
         dead=_dead(doc.get("dead", []), rows, cols, where),
         description=text, nominal=tuple(nominal), sources=sources, **nums,

@@ -132,3 +132,15 @@ def test_the_sensors_command_lists_shows_and_checks(tmp_path) -> None:
         assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
         assert res.stderr.startswith("tactiled sensors: error:")
     assert "key 'pitch_x_mm'" in _cli("sensors", "check", str(bad)).stderr
+
+
+def test_the_cramer_rao_window_rule_gives_the_papers_4x4_on_its_finger() -> None:
+    from tactiled.sensors.window import information, recommended
+
+    sensor = load_description("fearing1988").sensor_model()
+    info = information(sensor)
+    assert min(info[8].values()) == pytest.approx(1.0)
+    assert min(info[3].values()) < 0.9 <= min(info[4].values())
+    assert recommended(sensor) == 4 == load_description("fearing1988").window
+    # on a 4x6 array only the whole array keeps 90 % of a line's information
+    assert recommended(load_description("xela_uskin_4x6").sensor_model()) == 6
