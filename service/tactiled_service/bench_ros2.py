@@ -46,8 +46,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import zenoh
-
 from tactiled_service.bench_fanout import _number_after, cpu_seconds, health
 from tactiled_service.bench_zenoh import CONFIG, PREFIX, SENSOR, free_port
 
@@ -74,6 +72,9 @@ class Subscriber:
     """One client session; :meth:`phase` declares the phase's subscribers and counts."""
 
     def __init__(self, endpoint: str) -> None:
+        import zenoh  # the zenoh extra: main() says so when it is missing
+
+        self.zenoh = zenoh
         cfg = zenoh.Config()
         cfg.insert_json5("mode", '"client"')
         cfg.insert_json5("scouting/multicast/enabled", "false")
@@ -87,7 +88,7 @@ class Subscriber:
         keys = {"idle": [], "json": [f"{PREFIX}/*/estimate"],
                 "ros2": ["0/tactiled/*/contact/**"],
                 "both": [f"{PREFIX}/*/estimate", "0/tactiled/*/*/**"]}[name]
-        subs = [self.session.declare_subscriber(k, zenoh.handlers.FifoChannel(1_000_000))
+        subs = [self.session.declare_subscriber(k, self.zenoh.handlers.FifoChannel(1_000_000))
                 for k in keys]
         seen = Seen()
         stop = threading.Event()
@@ -269,6 +270,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--settle", type=float, default=5.0, help="s after start before measuring")
     p.add_argument("--quick", action="store_true", help="1 sensor, 1 round of 3 s")
     args = p.parse_args(argv)
+    try:
+        import zenoh  # noqa: F401
+        import rosbags  # noqa: F401
+    except ImportError:
+        print("bench_ros2: error: needs the zenoh and ros2 extras: pip install "
+              "'tactiled[zenoh,ros2]'", file=sys.stderr)
+        return 2
     if args.quick:
         args.sensors, args.rounds, args.seconds, args.settle = 1, 1, 3.0, 3.0
     return bench(args)

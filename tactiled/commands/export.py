@@ -38,6 +38,7 @@ import numpy as np
 
 from tactiled.commands import replay
 from tactiled.errors import ConfigError, TactiledError
+from tactiled.files import check_input, check_output
 from tactiled.frames import FrameDecoder
 from tactiled.progress import Progress
 from tactiled.recording import RecordingReader
@@ -75,12 +76,16 @@ def _fail(message: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
+    try:
+        check_output(out)  # a directory, or one that does not exist: said now, not at the end
+    except TactiledError as err:
+        return _fail(str(err))
     if out.suffix.lower() not in FORMATS:
         return _fail(f"-o {args.output}: the output must end in .mcap or .npz")
     if out.exists():
         return _fail(f"-o {args.output}: exists (an export never overwrites a file)")
     try:
-        with RecordingReader(args.file) as reader:
+        with RecordingReader(check_input(args.file)) as reader:
             records = reader.scan()
             created = reader.header.created
             first = next(iter(reader), None)

@@ -21,6 +21,7 @@ import pytest
 from tactiled.calibration.fileformat import save_calibration
 from tactiled.calibration.lut import LookupTable
 from tactiled.cli import main
+from tactiled.frames import Frame
 from tactiled.recording import Recorder
 
 #: What must never reach a user: numpy's reprs, pickle hints, a traceback.
@@ -196,12 +197,18 @@ def test_recordings_read_by_replay(tmp_path: Path, capsys: pytest.CaptureFixture
     cases[frames] = "an .npz file (tactiled fit reads frame files)"
     for path, words in cases.items():
         _check(_run(capsys, "replay", str(path), "--no-timing"), "replay", path, words)
+        _check(_run(capsys, "export", str(path), "-o", str(tmp_path / "out.npz")), "export",
+               path, words)
+    assert not (tmp_path / "out.npz").exists()
 
 
 def test_every_output_in_a_directory_that_does_not_exist(tmp_path: Path,
                                                          capsys: pytest.CaptureFixture[str]) -> None:
     presses = tmp_path / "presses.npz"
     assert _run(capsys, "simulate", str(presses), "--presses", "30")[0] == 0
+    recording = tmp_path / "r.tact"
+    with Recorder(recording, sensor_id=0) as rec:
+        rec.record(Frame(seq=0, device_time_us=0, raw=np.zeros((8, 8), np.uint16)), 1.0)
     (tmp_path / "taken").mkdir()
     for target, words in ((tmp_path / "no-dir" / "out", "cannot write it: no directory"),
                           (tmp_path / "taken", "is a directory")):
@@ -214,11 +221,12 @@ def test_every_output_in_a_directory_that_does_not_exist(tmp_path: Path,
             "calibrate --identify": (["calibrate", str(presses), "-o", str(js), "--identify"], js),
             "record": (["record", "sim://?scene=press", "-o", str(tact), "--frames", "2"], tact),
             "simulate --pty --link": (["simulate", "--pty", "--link", str(tact)], tact),
+            "export": (["export", str(recording), "-o", str(npz)], npz),
             "bench --plot": (["bench", "--quick", "--suite", "configs", "--plot", str(png)], png),
         }
         for name, (args, path) in commands.items():
             _check(_run(capsys, *args), args[0], path, words)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["presses.npz", "taken"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["presses.npz", "r.tact", "taken"]
 
 
 @pytest.mark.parametrize("args", [["fit", "{tmp}/plain.npy"],

@@ -17,17 +17,25 @@ import sys
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from tactiled.cli import COMMANDS
+from tactiled.frames import Frame
+from tactiled.recording import Recorder
 
 ROOT = Path(__file__).resolve().parents[2]
 BLOCKER = Path(__file__).resolve().parent / "blocked"
-#: Test-only packages (pyproject's test extra) and the optional extras' (zenoh, plot).
-NOT_SHIPPED = ("httpx", "pytest", "_pytest", "playwright", "hypothesis", "mpmath", "matplotlib",
-               "schemathesis", "PIL", "zenoh")
+#: The optional extras' import names (pyproject's optional-dependencies).
+EXTRAS = {"zenoh": ("zenoh",), "ros2": ("rosbags", "mcap", "mcap_ros2", "xxhash"),
+          "plot": ("matplotlib",)}
+#: Test-only packages (pyproject's test extra; zenoh-ros2-sdk installs two top-level names)
+#: and the extras'.
+NOT_SHIPPED = ("httpx", "pytest", "_pytest", "playwright", "hypothesis", "mpmath", "PIL",
+               "schemathesis", "zenoh_ros2_sdk", "messages",
+               *(name for names in EXTRAS.values() for name in names))
 #: Modules of an optional extra (imported only where it is enabled; their users say which).
-EXTRA_MODULES = {"tactiled_service.bus": "zenoh"}
+EXTRA_MODULES = ("tactiled_service.bus", "tactiled_service.ros2.")
 
 WALK = textwrap.dedent("""
     import importlib, json, pkgutil, sys
@@ -64,6 +72,7 @@ HELP = {
     ("-m", "tactiled.bench.worker_memory", "--help"): "--fits",
     ("-m", "tactiled_service.bench_fanout", "--help"): "--clients",
     ("-m", "tactiled_service.bench_zenoh", "--help"): "--subscribers",
+    ("-m", "tactiled_service.bench_ros2", "--help"): "--sensors",
     ("-m", "tactiled.calibration.bench"): "linearise",  # no options: its whole run (~1 s)
 }
 
@@ -73,6 +82,10 @@ NEEDS_EXTRA = {
     ("-m", "tactiled.cli", "watch", "--zenoh"): "tactiled[zenoh]",
     ("-m", "tactiled_service.bench_zenoh", "--quick"): "tactiled[zenoh]",
     ("-m", "tactiled.cli", "bench", "--quick", "--plot", "pareto.png"): "tactiled[plot]",
+    ("-m", "tactiled.cli", "run", "--ros2", "--port", "0"): "tactiled[zenoh",
+    ("-m", "tactiled.cli", "watch", "--ros2"): "tactiled[zenoh,ros2]",
+    ("-m", "tactiled_service.bench_ros2", "--quick"): "tactiled[zenoh,ros2]",
+    ("-m", "tactiled.cli", "export", "r.tact", "-o", "r.mcap"): "tactiled[ros2]",
 }
 
 
@@ -108,10 +121,14 @@ def check_environment(python: str, env: dict[str, str], cwd: Path) -> None:
                           text=True, timeout=120)
     assert walk.returncode == 0, walk.stderr
     failed = json.loads(walk.stdout)
-    assert set(failed) == set(EXTRA_MODULES), failed
-    for module, extra in EXTRA_MODULES.items():
-        assert f"No module named '{extra}'" in failed[module], failed[module]
+    assert "tactiled_service.bus" in failed, failed
+    extras = {name for names in EXTRAS.values() for name in names}
+    for module, error in failed.items():
+        assert module.startswith(EXTRA_MODULES), (module, error)
+        assert any(f"No module named '{name}" in error for name in extras), (module, error)
 
+    with Recorder(cwd / "r.tact", sensor_id=0) as rec:  # for export
+        rec.record(Frame(seq=0, device_time_us=0, raw=np.zeros((8, 8), np.uint16)), 1.0)
     results = _run_all(python, [*HELP, *NEEDS_EXTRA], env, cwd)
     for args, words in HELP.items():
         r = results[args]
@@ -121,7 +138,7 @@ def check_environment(python: str, env: dict[str, str], cwd: Path) -> None:
         r = results[args]
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1 and extra in lines[0], (args, r.stderr)
-    assert not (cwd / "pareto.png").exists()
+    assert not (cwd / "pareto.png").exists() and not (cwd / "r.mcap").exists()
 
 
 def test_shipped_modules_run_without_the_test_packages(tmp_path: Path) -> None:
