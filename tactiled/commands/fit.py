@@ -281,18 +281,16 @@ def _parallel(sensor: SensorModel, args: argparse.Namespace, strain: np.ndarray,
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.window is None:
-        try:
-            args.window = load_description(args.sensor).window if args.sensor else 4
-        except TactiledError as err:
-            print(f"tactiled fit: error: {err}", file=sys.stderr)
-            return 2
-    if args.window < 2:
+    if args.window is not None and args.window < 2:
         print(f"tactiled fit: error: --window must be at least 2, got {args.window}", file=sys.stderr)
         return 2
     try:
         cal = load_calibration_file(args.calibration) if args.calibration else None
         ff = load_frame_file(args.frames, table=cal.table if cal else None)
+        if args.sensor is None and "sensor" in ff.extras:  # written by simulate --sensor
+            args.sensor = str(ff.extras["sensor"])
+        if args.window is None:
+            args.window = load_description(args.sensor).window if args.sensor else 4
         sensor = _sensor(args, ff.strain.shape[1:], ff.dx, ff.dy, ff.extras, cal)
     except (TactiledError, ValueError) as err:
         print(f"tactiled fit: error: {err}", file=sys.stderr)

@@ -45,6 +45,7 @@ import numpy as np
 from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.files import check_output
 from tactiled.finger import FingerSpec
+from tactiled.sensors import SensorDescription, load_description
 from tactiled.framefile import save_frame_file
 from tactiled.frames import encode_frame
 from tactiled.physics.contact import Contact
@@ -56,6 +57,7 @@ from tactiled.sim import (
     FingerSimulator,
     FrameSchedule,
     HysteresisModel,
+    line_length,
     simulate_frames,
 )
 
@@ -92,6 +94,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--x", type=_range, default=None, help="contact centre along the finger, mm (default: array centre)")
     p.add_argument("--y", type=_range, default=None, help="contact centre around the finger, mm (default: array centre)")
     p.add_argument("--frames", type=int, default=10, help="number of frames (default 10)")
+    p.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
+                   help="the simulated array: a built-in description (`tactiled sensors`) or a "
+                   "description file (default fearing1988, the paper's finger); on a flat array a "
+                   "cylinder is a rod longer than the array, its force spread along the array's "
+                   "diagonal (true_load_n_per_mm)")
     p.add_argument("--sigma", type=float, default=None,
                    help=f"Gaussian strain noise (default {FILE_SIGMA} for a file, 0.0005 as a device)")
     p.add_argument("--quantum", type=float, default=0.001, help="quantisation step of strain, 0 for none (default 0.001)")
@@ -146,19 +153,24 @@ def _draw(rng: np.random.Generator, lo_hi: tuple[float, float], log: bool = Fals
 
 
 def finger_spec(args: argparse.Namespace) -> FingerSpec:
-    """The finger the flags describe (the paper's when none is given); ValueError naming
-    the flag for a bad value."""
+    """The finger the flags describe, departing from the --sensor description's cover (the
+    paper's finger when none is given); ValueError naming the flag for a bad value."""
     given = {k: getattr(args, k) for k in FingerSpec.PARAMS if getattr(args, k, None) is not None}
     try:
-        return FingerSpec.from_params(given)
+        return FingerSpec.from_params(given, description(args).sensor_model())
     except ValueError as err:
         raise ValueError(f"the simulated finger: {err}") from None
 
 
+def description(args: argparse.Namespace) -> SensorDescription:
+    """The simulated array (--sensor; default the paper's finger): ConfigError naming the key
+    of a bad description."""
+    return load_description(getattr(args, "sensor", None))
+
+
 def sensor_geometry(args: argparse.Namespace) -> Geometry:
-    """The simulated array's geometry, the one place every mode takes it from (today the
-    paper's 8 x 8 array)."""
-    return Geometry()
+    """The simulated array's geometry, the one place every mode takes it from."""
+    return description(args).geometry()
 
 
 def _run_presses(args: argparse.Namespace) -> int:
@@ -245,8 +257,12 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         print(f"tactiled simulate: error: {err}", file=sys.stderr)
         return 2
+    if geo.flat:  # a cylinder on a flat array is a line: its load per length is the truth
+        truth["true_load_n_per_mm"] = np.where(np.isinf(truth["true_r2"]),
+                                               truth["true_force"] / line_length(geo), np.nan)
     save_frame_file(args.output, strain, geo.dx, geo.dy, **truth,
-                    noise_sigma=np.float64(noise.sigma), noise_quantum=np.float64(noise.quantum))
+                    noise_sigma=np.float64(noise.sigma), noise_quantum=np.float64(noise.quantum),
+                    sensor=np.str_(description(args).name))
     print(f"wrote {args.frames} frame(s) of {geo.rows}x{geo.cols} to {args.output}", file=sys.stderr)
     return 0
 
@@ -340,7 +356,7 @@ def _run_device(args: argparse.Namespace) -> int:
     try:
         finger = finger_spec(args)
         sim = FingerSimulator(
-            SensorModel(geometry=sensor_geometry(args)),
+            description(args).sensor_model(),
             finger=finger,
             scene=args.scene,
             seed=args.seed,

@@ -98,3 +98,30 @@ def test_fit_takes_a_description(tmp_path) -> None:
     wrong = subprocess.run([sys.executable, "-m", "tactiled.cli", "fit", str(frames), "--sensor", "flat16"],
                            capture_output=True, text=True, timeout=120)
     assert wrong.returncode == 2 and "16x16" in wrong.stderr and "Traceback" not in wrong.stderr
+
+
+def test_simulate_writes_a_flat_arrays_frames_and_fit_reads_its_description(tmp_path) -> None:
+    import json
+
+    out = tmp_path / "pad.npz"
+    res = subprocess.run([sys.executable, "-m", "tactiled.cli", "simulate", str(out), "--sensor", "flat16",
+                          "--r1", "8", "--angle", "30", "--force", "2", "--x", "18", "--y", "18",
+                          "--frames", "6", "--seed", "3"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    data = np.load(out)
+    assert data["strain"].shape == (6, 16, 16) and str(data["sensor"]) == "flat16"
+    fit = subprocess.run([sys.executable, "-m", "tactiled.cli", "fit", str(out)],
+                         capture_output=True, text=True, timeout=120)
+    assert fit.returncode == 0, fit.stderr
+    lines = [json.loads(x) for x in fit.stdout.splitlines()]
+    for line, load in zip(lines, data["true_load_n_per_mm"]):
+        assert line["label"] == "line" and line["force_n"] is None
+        err = line["line"]["load_n_per_mm"] - load
+        assert abs(err) < 4 * line["line"]["load_n_per_mm_std"]
+        assert abs(line["angle_deg"] - 30.0) < 4 * line["std"]["angle_deg"]
+    presses = tmp_path / "p.npz"
+    res = subprocess.run([sys.executable, "-m", "tactiled.cli", "simulate", str(presses), "--sensor",
+                          "xela_uskin_4x4", "--presses", "40"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and np.load(presses)["counts"].shape == (40, 4, 4)
+    # spheres and ellipsoids only: a cylinder's force on a flat array is not defined
+    assert np.all(np.isfinite(np.load(presses)["contacts"][:, 1]))
