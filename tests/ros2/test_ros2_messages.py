@@ -201,3 +201,15 @@ def test_sensors_whose_topics_would_collide_are_refused() -> None:
     m.check_segments(["finger0", "thumb", "finger-1"])
     with pytest.raises(ValueError, match="sensors 'finger-0' and 'finger_0' have the same ROS"):
         m.check_segments(["finger-0", "thumb", "finger_0"])
+
+
+def test_a_line_contacts_table_rides_in_the_contact_message() -> None:
+    line = {"load_n_per_mm": 0.0801, "offset_mm": -2.147, "load_n_per_mm_std": 0.00048,
+            "offset_mm_std": 0.019}
+    est = {**ESTIMATE, "force_n": None, "label": "line", "line": line, "ellipse": None}
+    msg = decode("contact", m.serialize(m.contact(est, STAMP, "pad"), m.TYPES["contact"]))
+    for key, value in line.items():
+        assert getattr(msg, f"line_{key}") == value, key
+    assert math.isnan(msg.force_n) and msg.label == "line"
+    plain = decode("contact", m.serialize(m.contact(ESTIMATE, STAMP, "f"), m.TYPES["contact"]))
+    assert math.isnan(plain.line_load_n_per_mm) and math.isnan(plain.line_offset_mm_std)

@@ -193,6 +193,7 @@ def contact(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
     """tactiled_msgs/Contact: every value of the estimate with its 1-sigma (NaN for null)."""
     std = est.get("std") or {}
     ellipse = est.get("ellipse") or {}
+    line = est.get("line") or {}
     reasons = est.get("reasons") or {}
     fields: dict[str, Any] = {
         "header": header(stamp_s, frame_id),
@@ -209,6 +210,8 @@ def contact(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
         "ellipse_a_mm": _num(ellipse.get("a_mm")),
         "ellipse_b_mm": _num(ellipse.get("b_mm")),
         "ellipse_theta_deg": _num(ellipse.get("theta_deg")),
+        **{f"line_{k}": _num(line.get(k)) for k in ("load_n_per_mm", "offset_mm",
+                                                    "load_n_per_mm_std", "offset_mm_std")},
         "converged": bool(est.get("converged")),
         "iterations": int(est.get("iterations") or 0),
         "message": str(est.get("message") or ""),
