@@ -35,6 +35,7 @@ from types import MappingProxyType, TracebackType
 from typing import Any, ClassVar
 from urllib.parse import parse_qsl, unquote, urlsplit
 
+from tactiled.devices import DeviceArray
 from tactiled.errors import DeviceTimeoutError, DriverError
 from tactiled.frames import Frame, FrameDecoder
 
@@ -230,7 +231,7 @@ class FrameSource(abc.ABC):
     def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
         self.url: SourceURL = url if isinstance(url, SourceURL) else parse_source_url(url)
         self.url.reject_unknown(self.PARAMS)
-        self.decoder: FrameDecoder = decoder if decoder is not None else FrameDecoder()
+        self.decoder: FrameDecoder = decoder if decoder is not None else self._new_decoder()
         self.connected = False
         self.reconnects = 0
         self.disconnects = 0
@@ -344,7 +345,19 @@ class FrameSource(abc.ABC):
         """
         await asyncio.sleep(delay)
 
+    def device_array(self) -> DeviceArray | None:
+        """The array this driver's device has (shape, pitch, nominal counts scaling), when the
+        driver knows it; ``None`` (the default): the paper's 8x8 finger."""
+        return None
+
     # -- for drivers ----------------------------------------------------------------------
+
+    def _new_decoder(self) -> Any:
+        """The framer this source's bytes go through (called once, from the constructor, after
+        ``self.url`` is set): ``feed(bytes, host_time) -> list[Frame]``, ``reset()`` and a
+        ``stats`` dataclass.  The default is the tactiled wire format's
+        :class:`~tactiled.frames.FrameDecoder`; a vendor driver names its own framer here."""
+        return FrameDecoder()
 
     def _timestamp(self) -> float:
         """Host time stamped on bytes just read, in seconds; ``time.monotonic()`` here."""
