@@ -18,6 +18,7 @@ examples:
   tactiled simulate mix.npz --r1 2:40 --angle 30:150 --force 0.5:2 --frames 200 --seed 7
   tactiled fit cyl.npz
   tactiled simulate --pty --link /tmp/ttyTACT --scene demo --rate 1000   (read serial:///tmp/ttyTACT)
+  tactiled simulate --as flexitac --device /tmp/ttyFLEX --rate 100   (read flexitac:///tmp/ttyFLEX)
 """
 
 from __future__ import annotations
@@ -121,6 +122,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      f"{DEFAULT_HYSTERESIS.tau_s} s; 0 for none (default {DEFAULT_HYSTERESIS.fraction})")
     dev.add_argument("--baud", type=int, default=1_000_000,
                      help="with --serial: baud rate (default 1000000; a 1 kHz 8x8 stream needs ~1.6 Mbaud)")
+    vendor = p.add_argument_group(
+        "vendor device mode: stream the scene as a lab's sensor does (docs/drivers.md)")
+    vendor.add_argument("--as", dest="as_kind", metavar="KIND",
+                        help="lines, flexitac, robotiq (a pty) or xela (a WebSocket server)")
+    vendor.add_argument("--device", metavar="PATH_OR_PORT",
+                        help="with --as: the pty's symlink path, or xela's port on 127.0.0.1 (0: any)")
 
 
 def _draw(rng: np.random.Generator, lo_hi: tuple[float, float], log: bool = False) -> float:
@@ -148,6 +155,12 @@ def _error(message: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.as_kind or args.device:
+        if args.output or args.pty or args.serial:
+            return _error("--as/--device is a device of its own: no output file, --pty or --serial")
+        from tactiled.commands.simulate_as import run as run_vendor_device
+
+        return run_vendor_device(args)
     if args.pty or args.serial:
         if args.output:
             return _error(f"give either an output file ({args.output}) or --pty/--serial, not both")

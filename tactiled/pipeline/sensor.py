@@ -154,10 +154,15 @@ class SensorPipeline:
         self.mask = (None if self.table is None or not self.table.dead_mask.any()
                      else ~self.table.dead_mask)
         noise = NoiseModel(sigma=settings.noise_sigma)
+        self.source: FrameSource = source if source is not None else open_source(settings.url)
+        # a vendor driver's array (shape, pitch, nominal counts scaling); None: the paper's
+        self.device = self.source.device_array()
+        geometry = None if self.device is None else self.device.model.geometry
         # an identified finger's rubber, tactel positions and model-error floor (version 2
-        # calibration files); else the paper's finger
-        self.sensor_model = (SensorModel(noise=noise) if self.calibration is None
-                             else self.calibration.sensor_model(noise))
+        # calibration files); else the paper's finger (on the device's array)
+        self.sensor_model = (SensorModel(geometry=geometry or Geometry(), noise=noise)
+                             if self.calibration is None
+                             else self.calibration.sensor_model(noise, geometry))
         g = self.sensor_model.geometry
         if self.table is not None and self.table.shape != (g.rows, g.cols):
             raise CalibrationError(f"{settings.calibration}: table shape {self.table.shape} is "
@@ -165,7 +170,6 @@ class SensorPipeline:
         self.spec = pool.register_spec(self.sensor_model, worker_fit_options(settings.window), self.name)
         self.model = settings.model
         self.gate = Gate(settings.noise_sigma, settings.unchanged_z, settings.reuse_unchanged)
-        self.source: FrameSource = source if source is not None else open_source(settings.url)
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
         self._no_contact_fit = untracked(plain(FitResult(
@@ -661,7 +665,8 @@ class SensorPipeline:
 
     def _build_stage(self, sensor_id: int) -> None:
         g = self.sensor_model.geometry
-        table = self.table or LookupTable.linear(g.rows, g.cols, sensor_id=sensor_id)
+        table = self.table or (LookupTable.linear(g.rows, g.cols, sensor_id=sensor_id)
+                               if self.device is None else self.device.nominal_table(sensor_id))
         s = self.settings
         detector = ContactDetector(s.noise_sigma, sensor=self.sensor_model,
                                    false_rate=s.false_rate, average=s.detector_average)
