@@ -50,17 +50,10 @@ class FlexiTacFramer(FramerBase):
             raise ValueError(f"FlexiTac array {rows}x{cols}: need 1..{MAX_CELLS} cells")
         self.shape = (rows, cols)
         self.period = 2 + rows * cols  # bytes from one marker to the next
-        self._buf = bytearray()
         self._synced = False
-
-    @property
-    def buffered(self) -> int:
-        """Bytes held between calls (at most about two frames)."""
-        return len(self._buf)
 
     def reset(self) -> None:
         super().reset()
-        self._buf.clear()
         self._synced = False
 
     def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:

@@ -53,13 +53,24 @@ class FramerBase:
 
     def __init__(self) -> None:
         self.stats = FramerStats()
+        self._buf = bytearray()  # bytes of a unit not complete yet
         self._in_error = False
         self._seq = 0
         self._t0: float | None = None
         self._last_seq: int | None = None
 
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete unit held between calls."""
+        return len(self._buf)
+
     def reset(self) -> None:
-        """Forget partial data and sequence history (the port was reopened)."""
+        """Forget partial data and sequence history (the port was reopened); a unit cut short
+        by the unplug counts as ``truncated``."""
+        if self._buf:
+            self.stats.truncated += 1
+            self.stats.discarded += len(self._buf)
+            self._buf.clear()
         self._in_error = False
         self._last_seq = None
 

@@ -52,16 +52,10 @@ class LinesFramer(FramerBase):
         self.sep = SEPARATORS[sep]
         self.time_col = time_col
         self.time_scale = TIME_UNITS_US[time_unit]
-        self._buf = bytearray()
         self._skipping = False  # inside an oversize line: drop up to the next newline
-
-    @property
-    def buffered(self) -> int:
-        return len(self._buf)
 
     def reset(self) -> None:
         super().reset()
-        self._buf.clear()
         self._skipping = False
 
     def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:

@@ -119,18 +119,12 @@ class RobotiqFramer(FramerBase):
         if finger not in (0, 1, 2, 3):
             raise ValueError(f"finger must be 0..3, got {finger!r}")
         self.finger = finger
-        self._buf = bytearray()
         self._extras: dict[str, Any] = {}
         self._stamp_ms: int | None = None  # latest timestamp, unwrapped
         self.packets = 0  # packets accepted (any finger)
 
-    @property
-    def buffered(self) -> int:
-        return len(self._buf)
-
     def reset(self) -> None:
         super().reset()
-        self._buf.clear()
         self._stamp_ms = None
 
     def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
