@@ -13,6 +13,7 @@ from urllib.parse import quote
 import numpy as np
 import pytest
 
+from tactiled.errors import DriverError
 from tactiled.frames import Frame
 from tactiled.sources import FrameSource, open_source
 from tactiled_drivers import flexitac, lines, robotiq
@@ -30,8 +31,12 @@ class Reader:
         self.task: asyncio.Task[None] | None = None
 
     async def _collect(self) -> None:
-        async for frame in self.src.frames():
-            self.frames.append(frame)
+        try:
+            async for frame in self.src.frames():
+                self.frames.append(frame)
+        except DriverError:
+            if self.src.is_open:  # closed between two reads: the stream ended, else a failure
+                raise
 
     async def __aenter__(self) -> Reader:
         await self.src.open()
