@@ -31,6 +31,7 @@ import signal
 import sys
 import time
 import tty
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -317,7 +318,13 @@ def _run_device(args: argparse.Namespace) -> int:
     except ValueError as err:
         return _error(str(err))
 
-    # Signals first: whoever waits for the "pty:" line may stop us right after it.
+    return until_signal(lambda stop: _serve(args, sim, stop))
+
+
+def until_signal(serve: Callable[[list[int]], int]) -> int:
+    """Run ``serve(stop)``, which streams until ``stop`` (a list SIGINT/SIGTERM append to) is
+    non-empty.  Signals are caught first: whoever waits for the "pty:" line may stop us right
+    after it."""
     stop: list[int] = []
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -325,7 +332,7 @@ def _run_device(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        return _serve(args, sim, stop)
+        return serve(stop)
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)

@@ -21,7 +21,6 @@ import argparse
 import asyncio
 import math
 import os
-import signal
 import sys
 import time
 from collections.abc import Callable
@@ -68,19 +67,10 @@ def run(args: argparse.Namespace) -> int:
         sims = simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1)
     except ValueError as err:
         return _error(str(err))
-    stop: list[int] = []
+    from tactiled.commands.simulate import until_signal
 
-    def on_signal(signum: int, _frame: object) -> None:
-        stop.append(signum)
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        if args.as_kind == "xela":
-            return _serve_xela(args, sims, stop)
-        return _serve_pty(args, sims, stop)
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+    serve = _serve_xela if args.as_kind == "xela" else _serve_pty
+    return until_signal(lambda stop: serve(args, sims, stop))
 
 
 # --------------------------------------------------------------------------------------------
