@@ -49,7 +49,7 @@ import serial
 from tactiled.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import FrameSource, SourceURL
-from tactiled_drivers.framing import FramerBase, now_if_none
+from tactiled_drivers.framing import FramerBase, FramerStats, now_if_none
 from tactiled_drivers.serial_source import SerialSource
 
 log = logging.getLogger(__name__)
@@ -254,8 +254,21 @@ class _SharedPort:
     def __init__(self, key: str, url: SourceURL, period_ms: int) -> None:
         self.key = key
         self.port = _RobotiqPort(url, period_ms)
+        # The port calls decoder.reset() when it reconnects: each source's framer must drop
+        # the packet the unplug cut, at that point of its own stream.
+        self.port.decoder = self  # type: ignore[assignment]
+        self.stats = FramerStats()
         self.users: list[RobotiqSource] = []
-        self._reading = False
+        self._reading: RobotiqSource | None = None
+
+    def reset(self) -> None:
+        """The port reconnected: the reading source's framer resets now (it has framed every
+        byte before this read); the others' after the bytes they hold from before."""
+        for user in self.users:
+            if user is self._reading:
+                user.decoder.reset()
+            else:
+                user.reset_at = len(user.pending)
 
     async def attach(self, user: RobotiqSource) -> None:
         if not self.users:
@@ -273,19 +286,25 @@ class _SharedPort:
     async def read_for(self, user: RobotiqSource) -> bytes:
         """The next bytes for ``user``: what another source read for it, or a read of its own."""
         while user.is_open:
+            if user.reset_at == 0:
+                user.decoder.reset()
+                user.reset_at = None
             if user.pending:
-                data = bytes(user.pending)
-                user.pending.clear()
+                cut = len(user.pending) if user.reset_at is None else user.reset_at
+                data = bytes(user.pending[:cut])
+                del user.pending[:cut]
+                if user.reset_at is not None:
+                    user.reset_at -= cut
                 return data
-            if self._reading:  # another source is reading: wait for its round to end
+            if self._reading is not None:  # another source is reading: wait for its round
                 user.wake.clear()
                 await user.wake.wait()
                 continue
-            self._reading = True
+            self._reading = user
             try:
                 data = await self.port.read()
             finally:
-                self._reading = False
+                self._reading = None
                 for other in self.users:
                     other.wake.set()
             if not data:
@@ -321,6 +340,8 @@ class RobotiqSource(FrameSource):
             f"?{query}" if query else "")
         self.pending = bytearray()
         self.pending_dropped = 0
+        #: bytes of ``pending`` to frame before the framer resets (the port reconnected)
+        self.reset_at: int | None = None
         self.wake = asyncio.Event()
         self._shared: _SharedPort | None = None
 
@@ -337,6 +358,7 @@ class RobotiqSource(FrameSource):
         if len(self.pending) + len(data) > PENDING_LIMIT:
             self.pending_dropped += len(self.pending)
             self.pending.clear()
+            self.reset_at = 0 if self.reset_at is not None else None
         self.pending += data
 
     async def _open_internal(self) -> None:
@@ -354,6 +376,7 @@ class RobotiqSource(FrameSource):
             raise
         self._shared = shared
         self.pending.clear()
+        self.reset_at = None
 
     async def _close_internal(self) -> None:
         shared, self._shared = self._shared, None

@@ -164,23 +164,32 @@ def test_robotiq_two_fingers_share_the_port(pty_device, wait_until) -> None:
     asyncio.run(main())
 
 
-def test_robotiq_restarts_auto_send_after_replug(pty_device, wait_until) -> None:
-    a = arrays(2, (7, 4), 65536, seed=5)
+def test_robotiq_unplug_mid_packet_and_replug(pty_device, wait_until) -> None:
+    """Unplugged mid-packet with both fingers reading: the cut packet is counted, never glued
+    to the new connection's bytes (a static field is 57 bytes whatever they hold), and the
+    auto-send is started again on the new device."""
+    a, b = arrays(3, (7, 4), 65536, seed=5), arrays(3, (7, 4), 65536, seed=6)
 
     async def main() -> None:
-        async with Reader(f"robotiq://{quote(pty_device.path)}?finger=0") as r:
+        base = f"robotiq://{quote(pty_device.path)}"
+        async with Reader(base + "?finger=0") as r0, Reader(base + "?finger=1") as r1:
             assert read_master(pty_device, 5)[:3] == bytes([0x9A, 0x00, 0x58])
-            await pty_device.send(robotiq.encode_finger(0, a[0]))
-            await wait_until(lambda: len(r.frames) == 1, 5.0)
+            await pty_device.send(robotiq.encode_finger(0, a[0]) + robotiq.encode_finger(1, b[0]))
+            await wait_until(lambda: len(r0.frames) == 1 and len(r1.frames) == 1, 5.0)
+            cut = robotiq.encode_finger(0, a[1]) + robotiq.encode_finger(1, b[1])
+            await pty_device.send(cut[:len(cut) - 30])  # finger 1's static packet, cut short
+            await asyncio.sleep(0.2)
             pty_device.unplug()
-            await wait_until(lambda: r.src.disconnects == 1 and not r.src.connected, 5.0)
+            await wait_until(lambda: r0.src.disconnects == 1 and not r1.src.connected, 5.0)
             pty_device.replug()
-            await wait_until(lambda: r.src.reconnects == 1, 5.0)
+            await wait_until(lambda: r0.src.reconnects == 1 and r1.src.connected, 5.0)
             assert read_master(pty_device, 5) == bytes([0x9A, 0x00, 0x58, 0x01, 10])
-            await pty_device.send(robotiq.encode_finger(0, a[1]))
-            await wait_until(lambda: len(r.frames) == 2, 5.0)
-            assert r.src.connected and "ttyTACT" in r.src.status().last_error
-        assert match(r.frames, a)
+            await pty_device.send(robotiq.encode_finger(0, a[2]) + robotiq.encode_finger(1, b[2]))
+            await wait_until(lambda: len(r0.frames) == 3 and len(r1.frames) == 2, 5.0)
+            assert "ttyTACT" in r0.src.status().last_error
+            await asyncio.sleep(0.1)
+        assert match(r0.frames, a) and match(r1.frames, [b[0], b[2]])
+        assert r1.src.decoder.stats.truncated == 1
 
     asyncio.run(main())
 
