@@ -48,7 +48,7 @@ import serial
 
 from tactiled.devices import DeviceArray, device_array
 from tactiled.frames import Frame
-from tactiled.sources import FrameSource, SourceURL
+from tactiled.sources import FrameSource, SourceURL, parse_source_url
 from tactiled_drivers.framing import FramerBase, FramerStats, now_if_none
 from tactiled_drivers.serial_source import SerialSource
 
@@ -362,8 +362,6 @@ class RobotiqSource(FrameSource):
         self.pending += data
 
     async def _open_internal(self) -> None:
-        from tactiled.sources import parse_source_url
-
         shared = _PORTS.get(self.path)
         if shared is None:
             shared = _PORTS[self.path] = _SharedPort(
