@@ -1,45 +1,42 @@
-"""The tactile arrays the vendor drivers read, as the physics and the calibration see them.
+"""The tactile arrays the vendor drivers read, and how their counts read as strain.
 
 A vendor driver (``lines://``, ``flexitac://``, ``robotiq://``, ``xela://``) delivers raw counts
-in its array's own shape; what those counts mean is the sensor's description.  Until a
-description is given, :func:`device_array` is the one place that says, per kind of device, the
-array's shape and tactel pitch (mm), the cover (the paper's rubber) and how the nominal linear
-table reads counts as strain.  The simulated devices (``tactiled simulate --as KIND``) render
-their frames from the same :class:`DeviceArray`, so a daemon on a simulated device reads its
-counts back as the simulator's strain.
-
-Pitches marked *nominal* are placeholders, not vendor figures: a real device needs its
-description (or ``tactiled calibrate --identify``) before its contact geometry is trusted.
+in its array's own shape; what the array is (shape, pitch, surface, cover) is the sensor's
+description (``tactiled/sensors``, docs/sensors.md).  :func:`device_model` is the one place that
+says which built-in description each kind of device has; :class:`DeviceArray` adds the nominal
+linear table its counts go through until a calibration file says otherwise.  The simulated
+devices (``tactiled simulate --as KIND``) render their frames from the same
+:class:`DeviceArray`, so a daemon on a simulated device reads its counts back as the
+simulator's strain.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from tactiled.calibration.lut import LookupTable
-from tactiled.config import Geometry, SensorModel
+from tactiled.config import SensorModel
+from tactiled.sensors import load_description
 
 #: The kinds of device with a driver and a simulated device.
 KINDS = ("lines", "flexitac", "robotiq", "xela")
 
-# kind -> (rows, cols, dx mm, dy mm).  Shapes: lines, the paper's 8x8 by default; FlexiTac 12x32
-# (flexitac/firmware/template.ino: ROW_COUNT 12, COLUMN_COUNT 32); Robotiq TSF-85 7x4
-# (tactile_sensors sdk_cpp/finger_data.h: FINGER_STATIC_TACTILE_ROW 7, _COL 4); XELA uSkin
-# XR1944 4x4.  Pitches: lines, the paper's; XELA 4.7 mm; FlexiTac and Robotiq nominal.
-_LAYOUT: dict[str, tuple[int, int, float, float]] = {
-    "lines": (8, 8, 3.3, 3.9),
-    "flexitac": (12, 32, 3.0, 3.0),
-    "robotiq": (7, 4, 4.0, 4.0),
-    "xela": (4, 4, 4.7, 4.7),
+#: kind -> the built-in description of its array (a 4x6 XELA sensor: ``xela_uskin_4x6``).
+DESCRIPTIONS: dict[str, str] = {
+    "lines": "fearing1988",
+    "flexitac": "flexitac_12x32",
+    "robotiq": "robotiq_tsf85",
+    "xela": "xela_uskin_4x4",
 }
+_XELA_BY_SHAPE = {(4, 4): "xela_uskin_4x4", (4, 6): "xela_uskin_4x6"}
 
 #: Counts per unit strain and counts at zero strain of the nominal table.  The 16-bit devices
 #: use :meth:`LookupTable.linear`'s defaults (the simulator's own); FlexiTac sends 8 bits
-#: (10-bit ADC >> 2), so 4000 counts per strain and a zero of 20 counts span strain -0.005 to
-#: 0.059, the simulator's presses (peak ~0.045) without clipping.
+#: (10-bit ADC >> 2), so 2000 counts per strain and a zero of 20 counts span strain -0.01 to
+#: 0.117, the simulator's presses on its thin cover without clipping.
 _COUNTS: dict[str, tuple[float, float]] = {
     "lines": (20000.0, 10000.0),
-    "flexitac": (4000.0, 20.0),
+    "flexitac": (2000.0, 20.0),
     "robotiq": (20000.0, 10000.0),
     "xela": (20000.0, 10000.0),
 }
@@ -66,13 +63,23 @@ class DeviceArray:
                                   sensor_id=sensor_id)
 
 
-def device_model(kind: str, rows: int | None = None, cols: int | None = None) -> SensorModel:
-    """The :class:`SensorModel` of a ``kind`` device (``rows``/``cols`` override its shape,
-    for the arrays whose size the URL gives); ``ValueError`` for an unknown kind."""
-    if kind not in _LAYOUT:
+def description_name(kind: str, rows: int | None = None, cols: int | None = None) -> str:
+    """The built-in description of a ``kind`` device (of ``rows`` x ``cols`` for XELA)."""
+    if kind not in DESCRIPTIONS:
         raise ValueError(f"unknown device kind {kind!r}; known: {', '.join(KINDS)}")
-    r, c, dx, dy = _LAYOUT[kind]
-    return SensorModel(geometry=Geometry(rows=rows or r, cols=cols or c, dx=dx, dy=dy))
+    if kind == "xela" and rows and cols:
+        return _XELA_BY_SHAPE.get((rows, cols), DESCRIPTIONS[kind])
+    return DESCRIPTIONS[kind]
+
+
+def device_model(kind: str, rows: int | None = None, cols: int | None = None) -> SensorModel:
+    """The :class:`SensorModel` of a ``kind`` device: its built-in description's, with
+    ``rows``/``cols`` (the arrays whose size the URL gives) replacing its shape."""
+    model = load_description(description_name(kind, rows, cols)).sensor_model()
+    g = model.geometry
+    if (rows or g.rows, cols or g.cols) != (g.rows, g.cols):
+        model = replace(model, geometry=replace(g, rows=rows or g.rows, cols=cols or g.cols))
+    return model
 
 
 def device_array(kind: str, rows: int | None = None, cols: int | None = None) -> DeviceArray:

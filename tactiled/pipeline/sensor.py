@@ -34,6 +34,7 @@ from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
 from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, DriverError, FrameError
 from tactiled.fit.result import FitResult
 from tactiled.frames import Frame
@@ -150,19 +151,19 @@ class SensorPipeline:
                     f"{settings.calibration}: calibration of sensor {self.table.sensor_id}, "
                     f"but wire_id is {self.expected_id}")
             self.expected_id = self.table.sensor_id
-        # Tactels the calibration found dead or never exercised are left out of every fit.
-        self.mask = (None if self.table is None or not self.table.dead_mask.any()
-                     else ~self.table.dead_mask)
+        #: what the array is: grid, surface, cover, wiring (docs/sensors.md)
+        self.description = load_description(settings.description)
+        # Tactels the description names dead, or the calibration found dead or never
+        # exercised, are left out of every fit.
+        self.mask = self.description.dead_mask()
+        if self.table is not None and self.table.dead_mask.any():
+            self.mask = ~self.table.dead_mask if self.mask is None else self.mask & ~self.table.dead_mask
         noise = NoiseModel(sigma=settings.noise_sigma)
-        self.source: FrameSource = source if source is not None else open_source(settings.url)
-        # a vendor driver's array (shape, pitch, nominal counts scaling); None: the paper's
-        self.device = self.source.device_array()
-        geometry = None if self.device is None else self.device.model.geometry
-        # an identified finger's rubber, tactel positions and model-error floor (version 2
-        # calibration files); else the paper's finger (on the device's array)
-        self.sensor_model = (SensorModel(geometry=geometry or Geometry(), noise=noise)
-                             if self.calibration is None
-                             else self.calibration.sensor_model(noise, geometry))
+        # the description's array; an identified finger's rubber, tactel positions and
+        # model-error floor (version 2 calibration files) in place of its cover's constants
+        base = self.description.sensor_model(settings.noise_sigma)
+        self.sensor_model = (base if self.calibration is None
+                             else self.calibration.sensor_model(noise, base.geometry, base=base))
         g = self.sensor_model.geometry
         if self.table is not None and self.table.shape != (g.rows, g.cols):
             raise CalibrationError(f"{settings.calibration}: table shape {self.table.shape} is "
@@ -170,6 +171,15 @@ class SensorPipeline:
         self.spec = pool.register_spec(self.sensor_model, worker_fit_options(settings.window), self.name)
         self.model = settings.model
         self.gate = Gate(settings.noise_sigma, settings.unchanged_z, settings.reuse_unchanged)
+        self.source: FrameSource = source if source is not None else open_source(settings.url)
+        # a vendor driver's array: its nominal counts -> strain table, when it is this shape
+        device = self.source.device_array()
+        self.device = device if device is not None and device.shape == (g.rows, g.cols) else None
+        if device is not None and self.device is None:
+            log.warning("%s: the %s device's array is %dx%d but description %s is %dx%d: its "
+                        "frames will be counted as bad_shape (set the sensor's description; "
+                        "docs/drivers.md)", self.name, device.kind, *device.shape,
+                        self.description.name, g.rows, g.cols)
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
         self._no_contact_fit = untracked(plain(FitResult(
@@ -362,6 +372,8 @@ class SensorPipeline:
         if frame.shape != (g.rows, g.cols):
             self.bad_shape += 1
             return
+        if self.description.wire_order != "row-major":  # counts in wire order: to the grid
+            frame.raw = self.description.to_grid(frame.raw)
         if self.stage is None:
             self._build_stage(frame.sensor_id)
         assert self.stage is not None

@@ -218,7 +218,6 @@ class Tracker:
         self._fold()
         self.lin, self.model, self.names = lin, lin.model, names
         if self._esum is None:
-            # every tactel of the array: a later linearisation may use others than this one
             size = max(int(lin.index.max()) + 1 if lin.index.size else 0,
                        self.geometry.rows * self.geometry.cols)
             self._esum, self._ecount = np.zeros(size), np.zeros(size)
