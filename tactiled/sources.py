@@ -348,8 +348,9 @@ class FrameSource(abc.ABC):
         await asyncio.sleep(delay)
 
     def device_array(self) -> DeviceArray | None:
-        """The array this driver's device has (shape, pitch, nominal counts scaling), when the
-        driver knows it; ``None`` (the default): the paper's 8x8 finger."""
+        """The array this driver's device has (its built-in description's model and its
+        nominal counts -> strain scaling), when the driver knows it; ``None`` (the default):
+        counts on the simulator's 16-bit scale (:meth:`LookupTable.linear`)."""
         return None
 
     # -- for drivers ----------------------------------------------------------------------

@@ -42,9 +42,12 @@ def start_device(kind: str, device: str) -> tuple[subprocess.Popen, str]:
     return proc, first_line(proc)
 
 
-def write_config(path: Path, sensors: dict[str, str]) -> Path:
+def write_config(path: Path, sensors: dict[str, str],
+                 descriptions: dict[str, str] | None = None) -> Path:
     text = "[server]\nport = 0\n" + "".join(
-        f'[[sensor]]\nname = "{name}"\nurl = "{url}"\n' for name, url in sensors.items())
+        f'[[sensor]]\nname = "{name}"\nurl = "{url}"\n'
+        + (f'description = "{descriptions[name]}"\n' if name in (descriptions or {}) else "")
+        for name, url in sensors.items())
     path.write_text(text)
     return path
 
@@ -76,7 +79,9 @@ def test_daemon_estimates_contacts_on_every_simulated_device(daemon_process, tmp
             "right": f"robotiq://{tmp_path}/tty_robotiq?finger=1",
             "xela": f"xela://{xela_addr}?sensor=1",
         }
-        config = write_config(tmp_path / "vendors.toml", sensors)
+        config = write_config(tmp_path / "vendors.toml", sensors, {
+            "flexitac": "flexitac_12x32", "left": "robotiq_tsf85", "right": "robotiq_tsf85",
+            "xela": "xela_uskin_4x4"})
         proc = daemon_process(["--config", str(config)])
         url = proc.wait_url()
         seen: dict[str, dict] = {}
