@@ -13,6 +13,7 @@ import struct
 import time
 import zlib
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +27,9 @@ class Frame:
     ``raw`` holds the tactel counts as ``uint16`` of shape ``(rows, cols)``; ``strain`` is filled
     in by calibration (linearised, zeroed, positive under compression) and is ``None`` before.
     ``device_time_us`` is the sensor's own clock in microseconds; ``host_time`` is
-    ``time.monotonic()`` seconds when the host finished receiving the frame.
+    ``time.monotonic()`` seconds when the host finished receiving the frame.  ``extras``: what a
+    vendor format sends beside the array (a Robotiq finger's accelerometer, a XELA taxel's shear
+    components...), by name; ``None`` for formats with nothing more (not sent on the wire).
     """
 
     seq: int
@@ -35,6 +38,7 @@ class Frame:
     sensor_id: int = 0
     host_time: float = 0.0
     strain: np.ndarray | None = field(default=None, repr=False)
+    extras: dict[str, Any] | None = field(default=None, repr=False)
 
     @property
     def shape(self) -> tuple[int, int]:

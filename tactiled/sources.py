@@ -5,6 +5,8 @@ A source is named by a URL whose scheme picks the driver::
     serial:///dev/ttyACM0?baud=1000000     the fingertip on a serial port (pyserial)
     sim://?seed=3&scene=press               the scene simulator, encoded to wire bytes
     replay://session.tact?speed=0           a recording (speed 0: as fast as possible)
+    flexitac:///dev/ttyUSB0?rows=12&cols=32 a lab's own device: lines://, flexitac://,
+                                            robotiq://, xela:// (docs/drivers.md)
 
 Drivers are registered by name as ``"module:Class"`` strings (the pattern of python-can's
 ``can/interfaces/__init__.py``) plus the ``tactiled.drivers`` entry-point group, so a third
@@ -35,6 +37,7 @@ from types import MappingProxyType, TracebackType
 from typing import Any, ClassVar
 from urllib.parse import parse_qsl, unquote, urlsplit
 
+from tactiled.devices import DeviceArray
 from tactiled.errors import DeviceTimeoutError, DriverError
 from tactiled.frames import Frame, FrameDecoder
 
@@ -230,7 +233,7 @@ class FrameSource(abc.ABC):
     def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
         self.url: SourceURL = url if isinstance(url, SourceURL) else parse_source_url(url)
         self.url.reject_unknown(self.PARAMS)
-        self.decoder: FrameDecoder = decoder if decoder is not None else FrameDecoder()
+        self.decoder: FrameDecoder = decoder if decoder is not None else self._new_decoder()
         self.connected = False
         self.reconnects = 0
         self.disconnects = 0
@@ -344,7 +347,20 @@ class FrameSource(abc.ABC):
         """
         await asyncio.sleep(delay)
 
+    def device_array(self) -> DeviceArray | None:
+        """The array this driver's device has (its built-in description's model and its
+        nominal counts -> strain scaling), when the driver knows it; ``None`` (the default):
+        counts on the simulator's 16-bit scale (:meth:`LookupTable.linear`)."""
+        return None
+
     # -- for drivers ----------------------------------------------------------------------
+
+    def _new_decoder(self) -> Any:
+        """The framer this source's bytes go through (called once, from the constructor, after
+        ``self.url`` is set): ``feed(bytes, host_time) -> list[Frame]``, ``reset()`` and a
+        ``stats`` dataclass.  The default is the tactiled wire format's
+        :class:`~tactiled.frames.FrameDecoder`; a vendor driver names its own framer here."""
+        return FrameDecoder()
 
     def _timestamp(self) -> float:
         """Host time stamped on bytes just read, in seconds; ``time.monotonic()`` here."""

@@ -73,6 +73,8 @@ class SerialSource(FrameSource):
     """Wire bytes from a serial device, surviving unplug/replug of the same path."""
 
     PARAMS: ClassVar[frozenset[str]] = frozenset({"baud", "exclusive"})
+    #: Baud rate when the URL gives none (a vendor driver built on this one sets its own).
+    DEFAULT_BAUD: ClassVar[int] = DEFAULT_BAUD
 
     #: Reconnect backoff, seconds: first retry after ``RETRY_MIN``, doubling to ``RETRY_MAX``.
     RETRY_MIN: ClassVar[float] = 0.1
@@ -86,7 +88,7 @@ class SerialSource(FrameSource):
             raise ValueError(f"{self.url.url!r}: no device path; write e.g. "
                              "serial:///dev/ttyACM0")
         self.path: str = self.url.location
-        self.baud: int = self.url.get_int("baud", DEFAULT_BAUD, minimum=1)
+        self.baud: int = self.url.get_int("baud", self.DEFAULT_BAUD, minimum=1)
         self.exclusive: bool = self.url.get_bool("exclusive", True)
         self._port: serial.Serial | None = None
         self._reader: PortReader | None = None
@@ -123,6 +125,14 @@ class SerialSource(FrameSource):
     def _attach(self, port: serial.Serial) -> None:
         self._port = port
         self._reader = PortReader(port)
+        self._port_opened(port)
+
+    def _port_opened(self, port: serial.Serial) -> None:
+        """Called after every (re)open of the port, before any read: a device that must be
+        told to start streaming (the Robotiq sensor's auto-send) is told here."""
+
+    def _port_closing(self, port: serial.Serial) -> None:
+        """Called before a deliberate close (not after an unplug): tell the device to stop."""
 
     async def _open_internal(self) -> None:
         self._attach(self._open_port())
@@ -130,6 +140,11 @@ class SerialSource(FrameSource):
         log.info("opened serial port %s at %d baud", self.path, self.baud)
 
     async def _close_internal(self) -> None:
+        if self._port is not None:
+            try:
+                self._port_closing(self._port)
+            except (OSError, serial.SerialException) as err:  # gone already: nothing to stop
+                log.debug("stopping %s: %s", self.path, err)
         self._release_port()
 
     def _release_port(self) -> None:

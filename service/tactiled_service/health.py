@@ -33,6 +33,10 @@ from tactiled import __version__
 from tactiled.heapstats import rss_mb
 from tactiled.pipeline import Daemon
 from tactiled_service.options import ServiceOptions
+
+#: Wire chunks the decoder rejects, by its counter name (parse_errors: the vendor formats').
+REJECTED_KEYS = ("crc_errors", "length_errors", "version_errors", "cobs_errors", "truncated",
+                 "oversize", "parse_errors")
 from tactiled_service.stream import StreamManager
 
 SEVERITY = {"OK": 0, "WARN": 1, "DEGRADED": 2, "STALE": 3, "ERROR": 4}
@@ -89,9 +93,7 @@ class HealthMonitor:
         """The counters and rates of sensor ``name``, flattened and renamed for the API."""
         st = self.daemon.stats(name)
         dec = st.get("decoder", {})
-        rejected = sum(int(dec.get(k, 0)) for k in ("crc_errors", "length_errors",
-                                                    "version_errors", "cobs_errors",
-                                                    "truncated", "oversize"))
+        rejected = sum(int(dec.get(k, 0)) for k in REJECTED_KEYS)
         est = self.daemon.hub.latest_estimate(name)
         now = time.monotonic()
         return {

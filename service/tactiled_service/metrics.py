@@ -33,15 +33,11 @@ from tactiled import __version__
 from tactiled.heapstats import rss_mb
 from tactiled.pipeline import Daemon
 from tactiled.pipeline.meters import Histogram
-from tactiled_service.health import SEVERITY, HealthMonitor
+from tactiled_service.health import REJECTED_KEYS, SEVERITY, HealthMonitor
 from tactiled_service.stream import StreamManager
 
 #: Content type of the exposition (text format 0.0.4).
 CONTENT_TYPE = CONTENT_TYPE_LATEST
-
-#: Wire chunks the decoder rejects, by its counter name.
-REJECTED_KEYS = ("crc_errors", "length_errors", "version_errors", "cobs_errors", "truncated",
-                 "oversize")
 
 #: Per-sensor counters read from ``Daemon.stats(name)``: metric name (without ``_total``),
 #: help text, and how to read the value from the stats.
@@ -55,7 +51,7 @@ SENSOR_COUNTERS: tuple[tuple[str, str, Any], ...] = (
     ("tactiled_crc_errors", "Wire chunks whose CRC-32 did not match.",
      lambda st: st["decoder"].get("crc_errors", 0)),
     ("tactiled_chunks_rejected", "Wire chunks the decoder rejected for any reason (CRC, "
-     "COBS, length, version, truncated, oversize).",
+     "COBS, length, version, truncated, oversize, a vendor format's parse errors).",
      lambda st: sum(int(st["decoder"].get(k, 0)) for k in REJECTED_KEYS)),
     ("tactiled_frames_dropped", "Decoded frames the pipeline dropped (another sensor's wire "
      "id, wrong shape, a pipeline error).",

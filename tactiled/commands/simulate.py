@@ -26,6 +26,7 @@ examples:
   tactiled simulate presses.npz --presses 400 --depth-x 5 --nu-x 0.4 --modulus 0.32
   tactiled calibrate presses.npz -o cal.json --identify
   tactiled simulate --pty --link /tmp/ttyTACT --scene demo --rate 1000   (read serial:///tmp/ttyTACT)
+  tactiled simulate --as flexitac --device /tmp/ttyFLEX --rate 100   (read flexitac:///tmp/ttyFLEX)
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ import signal
 import sys
 import time
 import tty
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -141,6 +143,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      f"{DEFAULT_HYSTERESIS.tau_s} s; 0 for none (default {DEFAULT_HYSTERESIS.fraction})")
     dev.add_argument("--baud", type=int, default=1_000_000,
                      help="with --serial: baud rate (default 1000000; a 1 kHz 8x8 stream needs ~1.6 Mbaud)")
+    vendor = p.add_argument_group(
+        "vendor device mode: stream the scene as a lab's sensor does (docs/drivers.md)")
+    vendor.add_argument("--as", dest="as_kind", metavar="KIND",
+                        help="lines, flexitac, robotiq (a pty) or xela (a WebSocket server)")
+    vendor.add_argument("--device", metavar="PATH_OR_PORT",
+                        help="with --as: the pty's symlink path, or xela's port on 127.0.0.1 (0: any)")
 
 
 def _draw(rng: np.random.Generator, lo_hi: tuple[float, float], log: bool = False) -> float:
@@ -204,6 +212,12 @@ def _error(message: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.as_kind or args.device:
+        if args.output or args.pty or args.serial:
+            return _error("--as/--device is a device of its own: no output file, --pty or --serial")
+        from tactiled.commands.simulate_as import run as run_vendor_device
+
+        return run_vendor_device(args)
     if args.pty or args.serial:
         if args.output:
             return _error(f"give either an output file ({args.output}) or --pty/--serial, not both")
@@ -370,7 +384,13 @@ def _run_device(args: argparse.Namespace) -> int:
     except ValueError as err:
         return _error(str(err))
 
-    # Signals first: whoever waits for the "pty:" line may stop us right after it.
+    return until_signal(lambda stop: _serve(args, sim, stop))
+
+
+def until_signal(serve: Callable[[list[int]], int]) -> int:
+    """Run ``serve(stop)``, which streams until ``stop`` (a list SIGINT/SIGTERM append to) is
+    non-empty.  Signals are caught first: whoever waits for the "pty:" line may stop us right
+    after it."""
     stop: list[int] = []
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -378,7 +398,7 @@ def _run_device(args: argparse.Namespace) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        return _serve(args, sim, stop)
+        return serve(stop)
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)

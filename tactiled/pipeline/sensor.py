@@ -172,6 +172,14 @@ class SensorPipeline:
         self.model = settings.model
         self.gate = Gate(settings.noise_sigma, settings.unchanged_z, settings.reuse_unchanged)
         self.source: FrameSource = source if source is not None else open_source(settings.url)
+        # a vendor driver's array: its nominal counts -> strain table, when it is this shape
+        device = self.source.device_array()
+        self.device = device if device is not None and device.shape == (g.rows, g.cols) else None
+        if device is not None and self.device is None:
+            log.warning("%s: the %s device's array is %dx%d but description %s is %dx%d: its "
+                        "frames will be counted as bad_shape (set the sensor's description; "
+                        "docs/drivers.md)", self.name, device.kind, *device.shape,
+                        self.description.name, g.rows, g.cols)
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
         self._no_contact_fit = untracked(plain(FitResult(
@@ -672,7 +680,8 @@ class SensorPipeline:
 
     def _build_stage(self, sensor_id: int) -> None:
         g = self.sensor_model.geometry
-        table = self.table or LookupTable.linear(g.rows, g.cols, sensor_id=sensor_id)
+        table = self.table or (LookupTable.linear(g.rows, g.cols, sensor_id=sensor_id)
+                               if self.device is None else self.device.nominal_table(sensor_id))
         s = self.settings
         detector = ContactDetector(s.noise_sigma, sensor=self.sensor_model,
                                    false_rate=s.false_rate, average=s.detector_average)

@@ -1,0 +1,223 @@
+"""``tactiled simulate --as KIND --device PATH_OR_PORT``: a simulated vendor device.
+
+The scene simulator renders frames on the device's array (:func:`tactiled.devices.device_array`:
+its shape, pitch and nominal counts scaling) and streams them in the vendor's own format, so
+``tactiled run`` and ``tactiled record`` can be tried on each driver without hardware:
+
+- ``lines``, ``flexitac``, ``robotiq``: a pseudo-terminal in raw mode; ``--device PATH`` is made a
+  symlink to it.  Prints ``pty: /dev/pts/N`` and ``link: PATH``.  The Robotiq device streams both
+  fingers, and only between the auto-send command that starts it and the one that stops it, as
+  the sensor does.
+- ``xela``: a WebSocket server on 127.0.0.1 (``--device PORT``, 0 for any free port) speaking as
+  ``xela_server`` does (a welcome message, then one message per tick with sensors 1 and 2).
+  Prints ``xela: ws://127.0.0.1:PORT``.
+
+Runs until SIGINT/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import os
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from tactiled.devices import KINDS, device_array
+from tactiled.sim import DriftModel, FingerSimulator, FrameSchedule, HysteresisModel
+
+MAX_BATCH = 32
+MAX_LAG_S = 1.0
+#: XELA magnetic taxels: x and y counts at rest (mid-range of 16 bits), and their wobble.
+XELA_REST = 0x8000
+XELA_SHEAR_SD = 40.0
+
+
+def simulators(args: argparse.Namespace, count: int) -> list[FingerSimulator]:
+    """``count`` simulated arrays of the ``--as`` kind (seeds ``--seed``, ``--seed + 1``...)."""
+    array = device_array(args.as_kind)
+    return [FingerSimulator(
+        sensor=array.model, scene=args.scene, seed=args.seed + k, rate_hz=args.rate,
+        noise=args.sigma,
+        drift=DriftModel(amplitude=args.drift) if args.drift else None,
+        hysteresis=HysteresisModel(fraction=args.hysteresis) if args.hysteresis else None,
+        calibration=array.nominal_table(), sensor_id=0, loop=True) for k in range(count)]
+
+
+def _error(message: str) -> int:
+    print(f"tactiled simulate: error: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    """Serve the simulated device until a signal; exit 2 on bad arguments."""
+    if args.as_kind not in KINDS:
+        return _error(f"--as must be one of {', '.join(KINDS)}, got {args.as_kind!r}")
+    if not args.device:
+        return _error("--as needs --device (a path for the pty link, or a port for xela)")
+    if not (math.isfinite(args.rate) and 0 < args.rate <= 10_000):
+        return _error(f"--rate must be a frame rate in Hz in (0, 10000], got {args.rate!r}")
+    if args.seed < 0:
+        return _error(f"--seed must be >= 0, got {args.seed}")
+    try:
+        sims = simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1)
+    except ValueError as err:
+        return _error(str(err))
+    from tactiled.commands.simulate import until_signal
+
+    serve = _serve_xela if args.as_kind == "xela" else _serve_pty
+    return until_signal(lambda stop: serve(args, sims, stop))
+
+
+# --------------------------------------------------------------------------------------------
+# Serial devices on a pty
+
+
+def _encoder(kind: str, sims: list[FingerSimulator]) -> Callable[[], bytes]:
+    """One tick of the device as its bytes."""
+    if kind == "lines":
+        from tactiled_drivers.lines import encode as encode_line
+
+        return lambda: encode_line(sims[0].next_frame().raw)
+    if kind == "flexitac":
+        from tactiled_drivers.flexitac import encode as encode_flexitac
+
+        return lambda: encode_flexitac(np.clip(sims[0].next_frame().raw, 0, 255))
+    from tactiled_drivers.robotiq import encode_finger
+
+    def robotiq() -> bytes:
+        out = b""
+        for finger, sim in enumerate(sims):
+            frame = sim.next_frame()
+            t_ms = frame.device_time_us // 1000
+            # gravity on the accelerometer's y axis, as Robotiq's own simulator puts it
+            out += encode_finger(finger, frame.raw, dynamic=int(frame.raw.sum()) % 2000 - 1000,
+                                 accelerometer=(0, 4096, 0), timestamp_ms=t_ms)
+        return out
+
+    return robotiq
+
+
+class _AutoSend:
+    """The Robotiq device's side of the auto-send command: streaming only between start and stop."""
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.streaming = False
+
+    def hear(self, data: bytes) -> None:
+        from tactiled_drivers.robotiq import COMMAND_AUTOSEND, START
+
+        self.buf += data
+        while True:
+            start = self.buf.find(START)
+            if start < 0 or len(self.buf) - start < 5:
+                del self.buf[:max(0, start)]
+                return
+            if self.buf[start + 2] == COMMAND_AUTOSEND and self.buf[start + 3] == 1:
+                self.streaming = self.buf[start + 4] != 0
+            del self.buf[:start + 1]
+
+
+def _serve_pty(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int]) -> int:
+    from tactiled.commands.simulate import FrameWriter, _make_pty, _remove_link
+
+    try:
+        fd, name = _make_pty(args.device)
+    except OSError as err:
+        return _error(f"cannot create the pty link {args.device}: {err}")
+    print(f"pty: {name}", flush=True)
+    print(f"link: {args.device}", flush=True)
+    tick = _encoder(args.as_kind, sims)
+    command = _AutoSend() if args.as_kind == "robotiq" else None
+    writer = FrameWriter(fd, name)
+    schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
+    print(f"tactiled simulate: a {args.as_kind} device playing {args.scene!r} at {args.rate:g} Hz "
+          f"on {args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
+    try:
+        while not stop:
+            if command is not None:
+                try:
+                    command.hear(os.read(fd, 4096))
+                except (BlockingIOError, OSError):
+                    pass
+            skip, send = schedule.take(time.monotonic(), MAX_BATCH)
+            for sim in sims:
+                if skip:
+                    sim.skip(skip)
+            for _ in range(send):
+                data = tick()
+                if command is None or command.streaming:
+                    writer.send(data)
+            writer.flush()
+            delay = schedule.next_due() - time.monotonic()
+            if delay > 0:
+                time.sleep(min(delay, 0.05))
+    finally:
+        os.close(fd)
+        _remove_link(args.device, name)
+    print(f"tactiled simulate: sent {writer.sent} frame(s), dropped {writer.dropped}",
+          file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+# XELA: a WebSocket server
+
+
+def _serve_xela(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int]) -> int:
+    text = str(args.device)
+    host, _, port_text = text.rpartition(":")
+    if not port_text.isdigit() or not 0 <= int(port_text) < 65536:
+        return _error(f"--device for xela is a port (or 127.0.0.1:PORT), got {text!r}")
+    if host not in ("", "127.0.0.1", "localhost"):
+        return _error(f"the simulated xela_server listens on 127.0.0.1 only, got {host!r}")
+    return asyncio.run(_xela_main(args, sims, int(port_text), stop))
+
+
+async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port: int,
+                     stop: list[int]) -> int:
+    from websockets.asyncio.server import broadcast, serve
+
+    from tactiled_drivers.xela import WELCOME, message
+
+    clients: set = set()
+    rng = np.random.default_rng(args.seed)
+    model = "XR1944"
+
+    async def handler(ws) -> None:  # noqa: ANN001 (a websockets connection)
+        await ws.send(WELCOME)
+        clients.add(ws)
+        try:
+            await ws.wait_closed()
+        finally:
+            clients.discard(ws)
+
+    async with serve(handler, "127.0.0.1", port) as server:
+        bound = server.sockets[0].getsockname()[1]
+        print(f"xela: ws://127.0.0.1:{bound}", flush=True)
+        print(f"tactiled simulate: a xela_server playing {args.scene!r} at {args.rate:g} Hz on "
+              f"ws://127.0.0.1:{bound}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
+        schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
+        number = 0
+        while not stop:
+            skip, send = schedule.take(time.monotonic(), MAX_BATCH)
+            for _ in range(send):
+                sensors = {}
+                for k, sim in enumerate(sims):
+                    if skip:
+                        sim.skip(skip)
+                    z = sim.next_frame().raw.astype(np.int64)
+                    shear = rng.normal(XELA_REST, XELA_SHEAR_SD, (2, *z.shape)).round()
+                    xyz = np.stack([shear[0], shear[1], z], axis=-1).clip(0, 0xFFFF)
+                    sensors[k + 1] = (model, xyz)
+                number += 1
+                broadcast(clients, message(number, sensors, time.time()))
+                skip = 0
+            delay = schedule.next_due() - time.monotonic()
+            await asyncio.sleep(min(max(delay, 0.0), 0.05))
+    return 0
