@@ -50,6 +50,9 @@ class DeviceArray:
     model: SensorModel
     counts_per_strain: float
     zero_counts: float
+    #: the built-in description of this array; None when the URL's rows/cols make it another
+    #: array (which then needs a description of its own: docs/sensors.md)
+    description: str | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -85,4 +88,8 @@ def device_model(kind: str, rows: int | None = None, cols: int | None = None) ->
 def device_array(kind: str, rows: int | None = None, cols: int | None = None) -> DeviceArray:
     """The :class:`DeviceArray` of a ``kind`` device (see :func:`device_model`)."""
     cps, zero = _COUNTS[kind] if kind in _COUNTS else (0.0, 0.0)
-    return DeviceArray(kind, device_model(kind, rows, cols), cps, zero)
+    model = device_model(kind, rows, cols)
+    name = description_name(kind, rows, cols)
+    g = load_description(name).geometry()
+    same = (model.geometry.rows, model.geometry.cols) == (g.rows, g.cols)
+    return DeviceArray(kind, model, cps, zero, name if same else None)

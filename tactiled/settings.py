@@ -601,6 +601,15 @@ def _suffix(origin: str) -> str:
     return f" (from {origin})" if origin else ""
 
 
+def _device_description(url: str) -> str | None:
+    """The built-in description of the array a source URL's device has (``robotiq://`` ->
+    ``robotiq_tsf85``), or None (the driver does not say, or the URL's size is another)."""
+    from tactiled.sources import open_source
+
+    device = open_source(url).device_array()  # builds the driver without I/O
+    return None if device is None else device.description
+
+
 def _is_path(value: Any) -> bool:
     """A description value naming a file (else a built-in's name)."""
     return isinstance(value, str) and (value.endswith(".toml") or "/" in value)
@@ -694,6 +703,10 @@ def _build(raw: _Raw) -> Settings:
     for i, table in enumerate(sensor_tables):
         values = {"name": f"finger{i}", **table}
         sensor = typed(SENSOR_FIELDS, values, SensorSettings, f"sensor[{i}]")
+        if "description" not in table:  # a vendor device's own array, when its driver knows it
+            device = _device_description(sensor.url)
+            if device is not None:
+                sensor = replace(sensor, description=device)
         # the description's noise and window, unless the sensor says otherwise
         if "noise_sigma" not in table or "window" not in table:
             from tactiled.sensors import load_description

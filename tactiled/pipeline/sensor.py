@@ -35,7 +35,7 @@ from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
 from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.sensors import load_description
-from tactiled.errors import CalibrationError, DriverError, FrameError
+from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.result import FitResult
 from tactiled.frames import Frame
 from tactiled.pipeline.estimate import (
@@ -174,12 +174,13 @@ class SensorPipeline:
         self.source: FrameSource = source if source is not None else open_source(settings.url)
         # a vendor driver's array: its nominal counts -> strain table, when it is this shape
         device = self.source.device_array()
-        self.device = device if device is not None and device.shape == (g.rows, g.cols) else None
-        if device is not None and self.device is None:
-            log.warning("%s: the %s device's array is %dx%d but description %s is %dx%d: its "
-                        "frames will be counted as bad_shape (set the sensor's description; "
-                        "docs/drivers.md)", self.name, device.kind, *device.shape,
-                        self.description.name, g.rows, g.cols)
+        if device is not None and device.shape != (g.rows, g.cols):
+            raise ConfigError(
+                f"sensor {self.name}: the {device.kind} device's array is "
+                f"{device.shape[0]}x{device.shape[1]}, but its description "
+                f"{self.description.name!r} is {g.rows}x{g.cols}: set the sensor's description "
+                "to the array's (docs/sensors.md)")
+        self.device = device
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
         self._no_contact_fit = untracked(plain(FitResult(

@@ -125,3 +125,15 @@ def test_simulate_writes_a_flat_arrays_frames_and_fit_reads_its_description(tmp_
     assert res.returncode == 0 and np.load(presses)["counts"].shape == (40, 4, 4)
     # spheres and ellipsoids only: a cylinder's force on a flat array is not defined
     assert np.all(np.isfinite(np.load(presses)["contacts"][:, 1]))
+
+
+def test_a_vendor_url_brings_its_arrays_description(arun) -> None:
+    from tactiled.pipeline import Daemon
+
+    s = load_settings(None, {}, {"sensor[0].url": "robotiq:///dev/ttyUSB0?finger=1"})
+    assert s.sensors[0].description == "robotiq_tsf85"
+    assert s.sensors[0].noise_sigma == load_description("robotiq_tsf85").noise_sigma
+    # a 4x4 text-line array is no built-in: the default description (8x8) is refused at start
+    s = load_settings(None, {}, {"sensor[0].url": "lines:///dev/null?rows=4&cols=4"})
+    with pytest.raises(ConfigError, match="array is 4x4, but its description 'fearing1988' is 8x8"):
+        Daemon(s)
