@@ -1,0 +1,115 @@
+"""A fit's budget: what one frame may cost before the fitter stops and says so.
+
+A frame the contact model describes converges in a few tens of solver iterations, each a
+model evaluation of a few microseconds.  A frame it cannot describe (several contacts at once,
+a hand print, a saturated patch, noise) has no good minimum: the search wanders until its caps,
+through starts and models, and where it wanders to a contact many rubber depths long, every
+evaluation integrates a quadrature of up to a million nodes.  Unbounded, such a frame cost
+tens to thousands of milliseconds.  The budget bounds it in two counts that do not depend on
+the machine, so a frame gets the same answer on every CPU:
+
+- **iterations**: Levenberg-Marquardt iterations summed over every start and model of the fit;
+- **work**: the model evaluations' cost, each ``EVALUATION_OVERHEAD`` plus its quadrature
+  nodes times the window's tactels (the inner loop's count: ~1-4 ns each while its tables stay
+  in the CPU's cache, up to ``LARGE_RULE_NODES`` nodes; ~15 ns beyond, so those count
+  ``LARGE_RULE_FACTOR`` times).
+
+An evaluation that the work left cannot pay for is not started.  A wall-clock ``deadline``
+(``Fitter.fit(budget_s=)``) stays the last resort, checked between evaluations.
+
+The defaults are set from the fits the model explains (``tactiled bench --suite unexplained``
+measures both, docs/benchmarks.md): the simulated suites' fits that converge use at most about
+a third of either, so the budget changes none of them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+#: The solver iterations of one fit, summed over its starts and models.  The simulated
+#: suites' converged fits use at most 83 (auto, cold, every kind of contact).
+DEFAULT_ITERATIONS = 120
+#: The work of one fit (see the module docstring): ~2 ms of evaluations at ~15 ns per unit.
+#: The simulated suites' converged fits use at most ~60000.
+DEFAULT_WORK = 500_000
+#: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
+#: algebra: a few us).
+EVALUATION_OVERHEAD = 1000
+#: Beyond this many quadrature nodes an evaluation's tables (8 bytes x nodes x 4 per window
+#: line) leave the cache and each node costs about ``LARGE_RULE_FACTOR`` times more.
+LARGE_RULE_NODES = 4096
+LARGE_RULE_FACTOR = 8
+
+#: How a fit the budget stopped begins its ``reasons["fit"]`` (and the solver its message).
+EXHAUSTED = "fit budget exhausted"
+#: A stopped fit whose remaining distance to the least-squares minimum (the Gauss-Newton
+#: step's chi^2 decrease, D) is within this keeps its values with every sigma widened by
+#: sqrt(1 + D); beyond it (the minimum over 3 sigma away: the linear picture no longer holds)
+#: the values are withheld.
+MAX_REMAINING_CHI2 = 9.0
+
+
+class BudgetExhausted(Exception):
+    """Raised by a residual function asked for an evaluation the budget cannot pay for; the
+    Python solver stops at the point it has (``levenberg_marquardt``)."""
+
+
+def evaluation_work(nodes_u: int, nodes_s: int, points: int) -> int:
+    """Work units of one evaluation: ``nodes_u x nodes_s`` quadrature nodes over ``points``
+    window tactels (``LARGE_RULE_FACTOR`` times that for a rule beyond ``LARGE_RULE_NODES``),
+    plus the overhead.  Plain arithmetic: the compiled search compiles this same function."""
+    nodes = nodes_u * nodes_s
+    return EVALUATION_OVERHEAD + nodes * points * (LARGE_RULE_FACTOR if nodes > LARGE_RULE_NODES else 1)
+
+
+@dataclass
+class Budget:
+    """What is left of one fit's budget (None: unlimited)."""
+
+    iterations: int | None = DEFAULT_ITERATIONS
+    work: float | None = DEFAULT_WORK
+    #: set once a solve stopped for want of budget
+    exhausted: bool = False
+    #: what the fit has spent so far
+    used_iterations: int = 0
+    used_work: float = 0.0
+
+    def iterations_for(self, cap: int) -> int:
+        """The iteration cap of the next solve: ``cap``, or what is left if less."""
+        return cap if self.iterations is None else max(0, min(cap, self.iterations))
+
+    def work_left(self) -> float:
+        return math.inf if self.work is None else max(0.0, float(self.work))
+
+    def charge(self, iterations: int, work: float) -> None:
+        self.used_iterations += iterations
+        self.used_work += work
+        if self.iterations is not None:
+            self.iterations -= iterations
+        if self.work is not None:
+            self.work -= work
+
+    @property
+    def spent(self) -> bool:
+        return self.exhausted or (self.iterations is not None and self.iterations <= 0) or (
+            self.work is not None and self.work < EVALUATION_OVERHEAD)
+
+    def charger(self):
+        """A ``charge(nodes_u, nodes_s, points)`` callable for the Python solver's residual:
+        raises :class:`BudgetExhausted` instead of an evaluation the work left cannot pay
+        for, else takes its work."""
+        def charge(nodes_u: int, nodes_s: int, points: int) -> None:
+            cost = evaluation_work(nodes_u, nodes_s, points)
+            if self.work is not None:
+                if cost > self.work:
+                    self.exhausted = True
+                    raise BudgetExhausted(EXHAUSTED)
+                self.work -= cost
+            self.used_work += cost
+        return charge
+
+
+def budget_spent(reasons: dict[str, str]) -> bool:
+    """True when a fit's ``reasons`` (as in its JSON) say the budget stopped it."""
+    return reasons.get("fit", "").startswith(EXHAUSTED)
