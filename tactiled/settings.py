@@ -18,6 +18,7 @@ Keys (the documented example is ``deploy/tactiled.toml``)::
     [zenoh]    enabled = false, mode = "peer", connect = [], listen = [],
                multicast_scouting = (on in peer mode), prefix = "tactiled/<hostname>",
                frame_rate_hz = 0, config = (none)
+    [state]    dir = ($STATE_DIRECTORY, else ~/.local/state/tactiled)
 
 With no file and no sensor keys anywhere there is one sensor, ``finger0`` on
 ``sim://?scene=demo&seed=1``.
@@ -164,6 +165,21 @@ class ZenohSettings:
 
 
 @dataclass(frozen=True)
+class StateSettings:
+    """What the daemon keeps across restarts (the flat field each sensor learns from its fits:
+    ``tactiled/pipeline/learned.py``)."""
+
+    #: The state directory; None: ``$STATE_DIRECTORY`` (systemd's ``StateDirectory=``), else
+    #: ``$XDG_STATE_HOME/tactiled`` or ``~/.local/state/tactiled``.
+    dir: str | None = None
+
+    def directory(self) -> Path:
+        from tactiled.pipeline.learned import default_state_dir
+
+        return Path(self.dir) if self.dir is not None else default_state_dir()
+
+
+@dataclass(frozen=True)
 class Settings:
     """The daemon's whole configuration."""
 
@@ -172,6 +188,7 @@ class Settings:
     fit: FitSettings = field(default_factory=FitSettings)
     record: RecordSettings = field(default_factory=RecordSettings)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    state: StateSettings = field(default_factory=StateSettings)
     source: str | None = None  # the config file read, if any
 
     def sensor(self, name: str) -> SensorSettings:
@@ -463,14 +480,18 @@ _ZENOH_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "frame_rate_hz": _in_range(_as_float, 0.0, 10_000.0, "a rate in Hz"),
     "config": _optional(_as_str),
 }
+_STATE_FIELDS: dict[str, Callable[[Any, str], Any]] = {
+    "dir": _optional(_as_str),
+}
 _SECTIONS: dict[str, dict[str, Callable[[Any, str], Any]]] = {
     "server": _SERVER_FIELDS,
     "fit": FIT_FIELDS,
     "record": _RECORD_FIELDS,
     "zenoh": _ZENOH_FIELDS,
+    "state": _STATE_FIELDS,
 }
 #: Keys whose relative paths are taken relative to the config file.
-_PATH_KEYS = {("sensor", "calibration"), ("record", "path"), ("zenoh", "config")}
+_PATH_KEYS = {("sensor", "calibration"), ("record", "path"), ("zenoh", "config"), ("state", "dir")}
 
 #: Sensor keys the daemon can change while running (Daemon.update_config).
 RUNTIME_SENSOR_KEYS = ("model", "window", "noise_sigma", "false_rate", "reuse_unchanged",
@@ -489,7 +510,7 @@ def check_sensor_value(key: str, value: Any, where: str) -> Any:
 # Loading and merging
 
 
-_KEY_RE = re.compile(r"^(?:(server|fit|record|zenoh)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
+_KEY_RE = re.compile(r"^(?:(server|fit|record|zenoh|state)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
 
 
 @dataclass
@@ -497,7 +518,7 @@ class _Raw:
     """The merged, not yet typed configuration, with where each value came from."""
 
     sections: dict[str, dict[str, Any]] = field(
-        default_factory=lambda: {"server": {}, "fit": {}, "record": {}, "zenoh": {}})
+        default_factory=lambda: {"server": {}, "fit": {}, "record": {}, "zenoh": {}, "state": {}})
     sensors: list[dict[str, Any]] = field(default_factory=list)
     origin: dict[str, str] = field(default_factory=dict)  # dotted key -> where it was set
 
@@ -568,7 +589,7 @@ def _read_file(path: Path, raw: _Raw) -> None:
                 raw.set(f"{top}.{key}", value, origin)
         else:
             raise ConfigError(f"{top}: unknown section (known: server, sensor, fit, "
-                              f"record, zenoh){_suffix(origin)}")
+                              f"record, zenoh, state){_suffix(origin)}")
 
 
 _ENV_SENSOR_RE = re.compile(r"^SENSOR_(\d+)_([A-Z_]+)$")
@@ -612,6 +633,7 @@ def _build(raw: _Raw) -> Settings:
     fit = typed(FIT_FIELDS, raw.sections["fit"], FitSettings, "fit")
     record = typed(_RECORD_FIELDS, raw.sections["record"], RecordSettings, "record")
     zenoh = typed(_ZENOH_FIELDS, raw.sections["zenoh"], ZenohSettings, "zenoh")
+    state = typed(_STATE_FIELDS, raw.sections["state"], StateSettings, "state")
     sensor_tables = raw.sensors or [{}]
     sensors = []
     for i, table in enumerate(sensor_tables):
@@ -637,7 +659,8 @@ def _build(raw: _Raw) -> Settings:
         raise ConfigError("zenoh.connect: a client needs a router to connect to: give its "
                           "endpoint (e.g. [\"tcp/192.168.1.10:7447\"]) or set "
                           "zenoh.multicast_scouting = true to find one")
-    return Settings(server=server, sensors=tuple(sensors), fit=fit, record=record, zenoh=zenoh)
+    return Settings(server=server, sensors=tuple(sensors), fit=fit, record=record, zenoh=zenoh,
+                    state=state)
 
 
 def load_settings(path: str | os.PathLike[str] | None = None,
@@ -676,5 +699,6 @@ def settings_to_dict(settings: Settings) -> dict[str, Any]:
         "fit": table(settings.fit),
         "record": table(settings.record),
         "zenoh": table(settings.zenoh),
+        "state": table(settings.state),
         "source": settings.source,
     }

@@ -10,16 +10,16 @@ the machine, so a frame gets the same answer on every CPU:
 
 - **iterations**: Levenberg-Marquardt iterations summed over every start and model of the fit;
 - **work**: the model evaluations' cost, each ``EVALUATION_OVERHEAD`` plus its quadrature
-  nodes times the window's tactels (the inner loop's count: ~1-4 ns each while its tables stay
-  in the CPU's cache, up to ``LARGE_RULE_NODES`` nodes; ~15 ns beyond, so those count
-  ``LARGE_RULE_FACTOR`` times).
+  nodes times the window's tactels (the inner loop's count: 2.3-3.4 ns each, measured from
+  7x7 to 96x40 nodes on a 4x4 window; beyond ``LARGE_RULE_NODES`` nodes the tables leave the
+  cache and a unit costs up to 7 ns, so those count ``LARGE_RULE_FACTOR`` times).
 
 An evaluation that the work left cannot pay for is not started.  A wall-clock ``deadline``
 (``Fitter.fit(budget_s=)``) stays the last resort, checked between evaluations.
 
-The defaults are set from the fits the model explains (``tactiled bench --suite unexplained``
-measures both, docs/benchmarks.md): the simulated suites' fits that converge use at most about
-a third of either, so the budget changes none of them.
+The defaults are set from the fits the model explains: every fit that converges on the
+simulated suites and in the golden replays stays within both with a margin (figures below), so
+the budget changes none of them (``tactiled bench --suite unexplained``, docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -27,19 +27,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-#: The solver iterations of one fit, summed over its starts and models.  The simulated
-#: suites' converged fits use at most 83 (auto, cold, every kind of contact).
+#: The solver iterations of one fit, summed over its starts and models.  The fits that
+#: converge use at most 95 (the simulated suites, 1200 frames each, auto cold and warm, every
+#: kind of contact) and 87 (the golden replays: an edge held at the array's end).
 DEFAULT_ITERATIONS = 120
-#: The work of one fit (see the module docstring): ~2 ms of evaluations at ~15 ns per unit.
-#: The simulated suites' converged fits use at most ~60000.
-DEFAULT_WORK = 500_000
+#: The work of one fit (see the module docstring): ~2-2.5 ms of evaluations.  The fits that
+#: converge use at most 342000 (the simulated suites) and 616000 (the golden replays' edge).
+DEFAULT_WORK = 800_000
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
-#: algebra: a few us).
+#: algebra: ~3 us, measured as the intercept of the cost per evaluation).
 EVALUATION_OVERHEAD = 1000
 #: Beyond this many quadrature nodes an evaluation's tables (8 bytes x nodes x 4 per window
-#: line) leave the cache and each node costs about ``LARGE_RULE_FACTOR`` times more.
-LARGE_RULE_NODES = 4096
-LARGE_RULE_FACTOR = 8
+#: line) leave the cache and each node costs up to ``LARGE_RULE_FACTOR`` times more.
+LARGE_RULE_NODES = 8192
+LARGE_RULE_FACTOR = 3
 
 #: How a fit the budget stopped begins its ``reasons["fit"]`` (and the solver its message).
 EXHAUSTED = "fit budget exhausted"
