@@ -102,9 +102,9 @@ def saturated(sensor: SensorModel, rng: np.random.Generator, n: int) -> list[np.
 
 def frame_sets(quick: bool, seed: int = 5) -> list[tuple[str, SensorModel, list[np.ndarray]]]:
     """``(name, sensor, frames)`` of every set the bench fits."""
-    n = 40 if quick else 300
+    n = 20 if quick else 300
     rng = np.random.default_rng(seed)
-    contacts = [bf.strain for bf in build_suite(n // 4 if quick else n // 2, 4, seed=seed,
+    contacts = [bf.strain for bf in build_suite(n // 2, 4, seed=seed,
                                                 sensor=FINGER_8)]
     return [
         ("contacts 8x8", FINGER_8, contacts),
