@@ -651,7 +651,8 @@ class Fitter:
             step = np.linalg.lstsq(sol.jacobian, -sol.residual, rcond=None)[0]
             moved = sol.jacobian @ step
             remaining = float(moved @ moved) * (peak / self.sigma) ** 2
-        why = f"{sol.message}: the fit stopped short of the least-squares minimum"
+        said = sol.message if sol.message.startswith(EXHAUSTED) else f"{EXHAUSTED} ({sol.message})"
+        why = f"{said}: the fit stopped short of the least-squares minimum"
         if not math.isfinite(remaining) or remaining > fit_budget.MAX_REMAINING_CHI2:
             for k in VALUE_KEYS:
                 if values.get(k) is not None:

@@ -824,6 +824,7 @@ class SensorPipeline:
         self.model = s.model
         if s.noise_sigma != self.sensor_model.noise.sigma:
             self.sensor_model = replace(self.sensor_model, noise=NoiseModel(sigma=s.noise_sigma))
+            self._restore = False  # the file was learned through the model before the change
         self.spec = self.pool.register_spec(self.sensor_model, self._fit_options(), self.name)
         self.gate.configure(sigma=s.noise_sigma, z=s.unchanged_z,
                             reuse_unchanged=s.reuse_unchanged)

@@ -18,7 +18,8 @@ in order (which is what lets the parent give every outstanding request a deadlin
 - ``("ping", rid)`` -> ``("pong", rid)``;
 - ``("memory", rid)`` -> ``("memory", rid, figures)``: where this process's memory is
   (:func:`tactiled.heapstats.worker_figures`: RSS, malloc and pymalloc books, the fitter's
-  caches, fits so far), for the soak and for diagnosing growth;
+  caches, fits so far; ``flat_fields``: each spec's ``FlatField.summary()``), for the soak and
+  for diagnosing growth;
 - ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
 - ``("compile", rid, seconds)`` -> ``("compiled", rid)``: a test hook that holds a numba
   compile event open for ``seconds``, as a first-time kernel compilation does;
