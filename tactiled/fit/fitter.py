@@ -236,7 +236,15 @@ class Fitter:
         g = self.sensor.geometry
         frame = self.model.predict(Contact(8.0, math.inf, 80.0, 1.0, g.span_x / 2, g.span_y / 2))
         for name in ("cylinder", "sphere", "general"):
-            self._fit_model(frame, get_model(name), None, None)
+            model = get_model(name)
+            done = self._fit_model(frame, model, None, None)
+            # the Python solver too (contacts past the compiled rules; frames the model cannot
+            # explain wander there): its kernels' first load cost 0.1-0.6 s of the first such fit
+            fr = self._frame(frame, None)
+            if not isinstance(fr, FitResult) and done.params is not None:
+                p0 = np.asarray(done.params, dtype=float)
+                levenberg_marquardt(self._residual(fr, model), p0, max_step=_steps(model),
+                                    max_iter=2, bounds=_bounds(model), verdict_tol=1e-12)
         # a made-up frame teaches nothing of this finger
         self.floor.reset()
         if self.flat is not None:
