@@ -9,10 +9,12 @@ window residual kernels, the same node-count rule and 1-D Gauss rules (packed in
 the same damping loop, operation for operation, so a fit gives the numbers the Python path
 gives.
 
-What it does not do, it hands back: a contact needing more than :data:`MAX_COMPILED_NODES`
-nodes per axis (a contact many rubber depths long, where one evaluation costs milliseconds and
-the fitter's time budget must be able to stop the search) returns :data:`FALLBACK`, and the
-caller runs the Python solver, which checks the budget between evaluations.
+A search with a work budget (:mod:`tactiled.fit.budget`) runs every evaluation here: the
+budget refuses any it cannot pay for, so none runs long.  Without one, what it does not do,
+it hands back: a contact needing more than :data:`MAX_COMPILED_NODES` nodes per axis (a
+contact many rubber depths long, where one evaluation costs milliseconds and the fitter's
+time budget must be able to stop the search) returns :data:`FALLBACK`, and the caller runs the
+Python solver, which checks the wall clock between evaluations.
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ from tactiled.physics.hertz import ellipse_core
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
 from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
 
-#: Largest rule (nodes per axis) the compiled search uses; beyond it, the Python solver.
+#: Largest rule (nodes per axis) the compiled search uses without a work budget; beyond it,
+#: the Python solver.
 MAX_COMPILED_NODES = 64
 #: Model kinds (the order of ``tactiled.fit.models``' parameter maps below).
 KINDS = {"cylinder": 0, "sphere": 1, "general": 2}
@@ -44,11 +47,11 @@ MESSAGES = ("maximum iterations reached", "step below xtol", "predicted decrease
 
 @lru_cache(maxsize=1)
 def rule_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(ladder, offsets, u, wu, s, ws)``: every ladder size up to the compiled limit and its
+    """``(ladder, offsets, u, wu, s, ws)``: every ladder size and its
     Gauss-Jacobi(1, 1) (u) and Gauss-Chebyshev-U (s) rules, packed (from the same cached rules
     the Python path uses, so the nodes are the same numbers)."""
     ladder = np.array(_LADDER, dtype=np.int64)
-    sizes = [n for n in _LADDER if n <= MAX_COMPILED_NODES]
+    sizes = list(_LADDER)
     offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
     us, wus, ss, wss = [], [], [], []
     for i, n in enumerate(sizes):
@@ -84,12 +87,12 @@ _work = njit(cache=True, nogil=True)(evaluation_work)
 
 @njit(cache=True, nogil=True)
 def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey,
-              ladder, offsets, ru, rwu, rs, rws, work_left):
+              ladder, offsets, ru, rwu, rs, rws, work_left, max_nodes):
     """One evaluation of the residual closure: ``(status, r, J, work)``; status ``_OK``, an
     invalid point (``_INVALID_LINE``: infinite line contact; ``_INVALID_LONG``: too long to
     integrate, with the semi-axis in ``r[0]``), ``FALLBACK`` (a rule past the compiled limit)
     or ``_BUDGET`` (its work, ``tactiled.fit.budget.evaluation_work``, exceeds ``work_left``:
-    not evaluated).  ``work`` is what the evaluation cost (0 when none was made)."""
+    not evaluated); ``FALLBACK`` beyond ``max_nodes`` per axis.  ``work`` is what the evaluation cost (0 when none was made)."""
     d = np.zeros((6, k))
     ka, kb, psi, force, x0, y0 = physical_map(kind, p, d)
     hj = np.empty((3, 4))
@@ -109,7 +112,7 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
     work = _work(nu, ns, target.shape[0])
     if work > work_left:
         return _BUDGET, empty_r, empty_j, 0.0
-    if nu > MAX_COMPILED_NODES or ns > MAX_COMPILED_NODES:
+    if nu > max_nodes or ns > max_nodes:
         return FALLBACK, empty_r, empty_j, 0.0
     iu, is_ = _rule_index(nu, ladder), _rule_index(ns, ladder)
     ou, os_ = offsets[iu], offsets[is_]
@@ -172,7 +175,7 @@ def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp, scale, dmin, tol,
            imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
-           work_left):
+           work_left, max_nodes):
     """``solver.levenberg_marquardt`` for one model and start, compiled (the box ``lo``,
     ``hi`` as its ``bounds``; the verdict is the caller's).  Returns ``(status, p, r, J, cost,
     iterations, evaluations, converged, message code, remaining, work)``; status ``_OK``,
@@ -185,7 +188,7 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
     p = _clip(p0, lo, hi)
     status, r, jac, work = _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target,
                                      valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
-                                     work_left)
+                                     work_left, max_nodes)
     if status != _OK:
         extent = r[0] if status == _INVALID_LONG else 0.0
         return status, p, r, jac, extent, 0, 1, False, -1, math.inf, work
@@ -214,7 +217,7 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
             trial = _clip(p + step, lo, hi)
             st, r_new, jac_new, w = _evaluate(kind, trial, k, rf, comp, scale, dmin, tol, imp, xs,
                                               ys, target, valid, inv_scale, ex, ey, ladder, offsets,
-                                              ru, rwu, rs, rws, work_left - work)
+                                              ru, rwu, rs, rws, work_left - work, max_nodes)
             if st == FALLBACK:
                 return FALLBACK, p, r, jac, cost, it, evals, False, 0, math.inf, work
             if st == _BUDGET:
@@ -268,10 +271,11 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
     xs, ys, target, valid, inv_scale, ex, ey = window_args
     p0 = np.asarray(p0, dtype=float)
     lo, hi = bounds if bounds is not None else (np.full(p0.size, -np.inf), np.full(p0.size, np.inf))
+    work_left = math.inf if budget is None else float(budget.work_left())
     status, p, r, jac, cost, it, evals, converged, msg, remaining, work = search(
         kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp,
         scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables(),
-        math.inf if budget is None else float(budget.work_left()))
+        work_left, MAX_NODES if math.isfinite(work_left) else MAX_COMPILED_NODES)
     if budget is not None:
         budget.charge(it, work)
     if status == FALLBACK:
@@ -311,7 +315,8 @@ def evaluate(kind: int, p: np.ndarray, model_args: tuple, window_args: tuple,
     domain, or ``("fallback", ...)`` past the compiled rule limit (use the Python residual)."""
     rf, comp, scale, dmin, imp = model_args
     status, r, jac, _ = _evaluate(kind, np.asarray(p, dtype=float), p.size, rf, comp, scale,
-                                  dmin, tol, imp, *window_args, *rule_tables(), math.inf)
+                                  dmin, tol, imp, *window_args, *rule_tables(), math.inf,
+                                  MAX_COMPILED_NODES)
     if status == _OK:
         return "ok", r, jac
     return ("fallback" if status == FALLBACK else "invalid"), r, jac
