@@ -26,6 +26,8 @@ COMMANDS: dict[str, str] = {
     "calibrate": "build per-tactel lookup tables from recorded presses with known loads",
     "record": "record raw frames from a frame source to a file",
     "replay": "replay a recording through the pipeline",
+    "export": "export a recording: its ROS 2 messages to MCAP, or its raw frames to npz",
+    "sensors": "list the built-in sensor descriptions, print one as TOML, or check a description file",
     "watch": "subscribe to a running daemon (or every daemon on Zenoh) and print estimates live",
 }
 

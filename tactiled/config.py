@@ -25,15 +25,22 @@ class Geometry:
     cols: int = 8
     dx: float = 3.3  # mm, spacing along the finger axis
     dy: float = 3.9  # mm, arc spacing around the circumference (12.7 mm * sin 18 deg)
-    finger_radius: float = 12.7  # mm, R_f
+    finger_radius: float = 12.7  # mm, R_f; math.inf for a flat array
 
     def __post_init__(self) -> None:
         if self.rows < 1 or self.cols < 1:
             raise ValueError(f"array shape must be positive, got ({self.rows}, {self.cols})")
-        for name in ("dx", "dy", "finger_radius"):
+        for name in ("dx", "dy"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive finite length in mm, got {value!r}")
+        if not self.finger_radius > 0:  # inf is a flat array; NaN fails here too
+            raise ValueError(f"finger_radius must be a positive length in mm (inf: flat), got {self.finger_radius!r}")
+
+    @property
+    def flat(self) -> bool:
+        """True for a flat array (``1/R_f = 0``): a cylinder touches it along a line."""
+        return math.isinf(self.finger_radius)
 
     @property
     def span_x(self) -> float:

@@ -80,9 +80,20 @@ class FingerSpec:
               "offset_counts", "finger_seed")
 
     @classmethod
-    def from_params(cls, params: Mapping[str, str | float | int]) -> FingerSpec:
-        """A spec from string or number values keyed by :data:`PARAMS` (others ignored);
-        ``ValueError`` naming the key for a bad value."""
+    def of_sensor(cls, sensor: SensorModel, **changes: float | int) -> FingerSpec:
+        """A spec whose rubber is ``sensor``'s cover (a sensor description's), with
+        ``changes``."""
+        imp, mat = sensor.impulse, sensor.material
+        base = dict(depth_x=imp.depth_x, nu_x=imp.nu_x, depth_y=imp.depth_y, nu_y=imp.nu_y,
+                    modulus=mat.modulus)
+        return cls(**{**base, **changes})
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, str | float | int],
+                    base: SensorModel | None = None) -> FingerSpec:
+        """A spec from string or number values keyed by :data:`PARAMS` (others ignored),
+        departing from ``base``'s cover (default the paper's); ``ValueError`` naming the key
+        for a bad value."""
         kw: dict[str, float | int] = {}
         for key in cls.PARAMS:
             if key not in params:
@@ -95,7 +106,7 @@ class FingerSpec:
                     kw[key] = float(raw)
             except (TypeError, ValueError):
                 raise ValueError(f"{key}: expected a number, got {raw!r}") from None
-        return cls(**kw)
+        return cls(**kw) if base is None else cls.of_sensor(base, **kw)
 
     @property
     def is_paper(self) -> bool:

@@ -14,10 +14,12 @@ Keys (the documented example is ``deploy/tactiled.toml``)::
                rate_hz
     [fit]      workers, start_method, timeout, ping_interval, ping_timeout, startup_timeout,
                stop_timeout, max_fits_per_worker
-    [record]   path
+    [record]   path, format = "tact" ("mcap", "both")
     [zenoh]    enabled = false, mode = "peer", connect = [], listen = [],
                multicast_scouting = (on in peer mode), prefix = "tactiled/<hostname>",
                frame_rate_hz = 0, config = (none)
+    [ros2]     enabled = false, domain_id = 0, namespace = "/tactiled", node_name = "tactiled",
+               frame_id = "{sensor}"
     [state]    dir = ($STATE_DIRECTORY, else ~/.local/state/tactiled)
 
 With no file and no sensor keys anywhere there is one sensor, ``finger0`` on
@@ -27,7 +29,7 @@ Environment: ``TACTILED_CONFIG`` names the file when ``path`` is None;
 ``TACTILED_<SECTION>_<KEY>`` sets ``<section>.<key>`` (``TACTILED_SERVER_PORT``,
 ``TACTILED_FIT_TIMEOUT``, ``TACTILED_RECORD_PATH``, ``TACTILED_ZENOH_CONNECT``);
 ``TACTILED_SENSOR_<i>_<KEY>`` sets ``sensor[i].<key>`` (``TACTILED_SENSOR_0_URL``; ``i`` may be
-one past the last sensor to add one).  An unknown name under those five prefixes is an error (a
+one past the last sensor to add one).  An unknown name under those prefixes is an error (a
 typo must not be ignored);
 other ``TACTILED_*`` names belong to other parts of tactiled and are left alone.  Overrides are
 a flat dict of the same dotted keys: ``{"server.port": 9000, "sensor[0].url": "..."}``.
@@ -58,6 +60,7 @@ DEFAULT_URL = "sim://?scene=demo&seed=1"
 MODELS = ("auto", "cylinder", "sphere", "general")
 START_METHODS = ("forkserver", "spawn")
 ZENOH_MODES = ("peer", "client")
+RECORD_FORMATS = ("tact", "mcap", "both")
 #: Link protocols a Zenoh endpoint may name (what zenoh's transports know), and of those the
 #: ones whose address is ``host:port``.
 ZENOH_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "serial",
@@ -86,6 +89,8 @@ class SensorSettings:
     """One fingertip: where its frames come from and how they are turned into estimates."""
 
     name: str = "finger0"  # how the API names the sensor
+    #: what the array is (docs/sensors.md): a built-in description's name or a .toml file
+    description: str = "fearing1988"
     url: str = DEFAULT_URL  # frame source URL (serial://, sim://, replay://)
     wire_id: int | None = None  # sensor_id in the frames; None: the calibration's, else any
     calibration: str | None = None  # lookup-table file; None: the nominal linear table
@@ -129,6 +134,9 @@ class RecordSettings:
     """Recording of raw frames (tactiled/recording.py format), appended across restarts."""
 
     path: str | None = None  # file path; must contain "{sensor}" with several sensors
+    #: "tact" (the raw wire frames), "mcap" (the ROS 2 messages, to ``path`` with the suffix
+    #: ``.mcap``; docs/ros2.md) or "both".
+    format: str = "tact"
 
 
 def default_zenoh_prefix() -> str:
@@ -165,6 +173,19 @@ class ZenohSettings:
 
 
 @dataclass(frozen=True)
+class Ros2Settings:
+    """ROS 2 topics on the daemon's Zenoh session, the way rmw_zenoh lays them out
+    (``service/tactiled_service/ros2/``, ``docs/ros2.md``): off by default; needs
+    ``zenoh.enabled`` and the ``ros2`` extra (``pip install 'tactiled[zenoh,ros2]'``)."""
+
+    enabled: bool = False
+    domain_id: int = 0  # the ROS_DOMAIN_ID of the graph to join
+    namespace: str = "/tactiled"  # the node's namespace: topics are <namespace>/<sensor>/<kind>
+    node_name: str = "tactiled"
+    frame_id: str = "{sensor}"  # header.frame_id of the messages; "{sensor}": the sensor's name
+
+
+@dataclass(frozen=True)
 class StateSettings:
     """What the daemon keeps across restarts (the flat field each sensor learns from its fits:
     ``tactiled/pipeline/learned.py``)."""
@@ -188,6 +209,7 @@ class Settings:
     fit: FitSettings = field(default_factory=FitSettings)
     record: RecordSettings = field(default_factory=RecordSettings)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    ros2: Ros2Settings = field(default_factory=Ros2Settings)
     state: StateSettings = field(default_factory=StateSettings)
     source: str | None = None  # the config file read, if any
 
@@ -206,9 +228,16 @@ class Settings:
 
     def record_path(self, sensor: str) -> Path | None:
         """The recording file of ``sensor`` ("{sensor}" filled in), or None."""
-        if self.record.path is None:
+        if self.record.path is None or self.record.format == "mcap":
             return None
         return Path(self.record.path.replace("{sensor}", sensor))
+
+    def mcap_record_path(self, sensor: str) -> Path | None:
+        """The MCAP recording of ``sensor`` (``record.path`` with the suffix ``.mcap``), or
+        None when ``record.format`` is "tact"."""
+        if self.record.path is None or self.record.format == "tact":
+            return None
+        return Path(self.record.path.replace("{sensor}", sensor)).with_suffix(".mcap")
 
 
 # --------------------------------------------------------------------------------------------
@@ -361,6 +390,19 @@ def _endpoint(value: Any, key: str) -> str:
     return text
 
 
+def _ros_name(pattern: str, rule: str) -> Callable[[Any, str], str]:
+    """A ROS name matching ``pattern`` whole (``rule`` says what that is, in the error)."""
+    compiled = re.compile(rf"^(?:{pattern})$")
+
+    def check(value: Any, key: str) -> str:
+        text = _as_str(value, key)
+        if not compiled.match(text) or "__" in text:
+            raise _fail(key, f"must be {rule}, without '__', got {text!r}")
+        return text
+
+    return check
+
+
 def _endpoints(value: Any, key: str) -> tuple[str, ...]:
     """A list of Zenoh endpoints; as text, comma-separated.  Errors name the item
     (``zenoh.connect[1]: ...``)."""
@@ -434,8 +476,21 @@ _SERVER_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "max_subscribers": _in_range(_as_int, 1, 100_000, "a connection count"),
     "allow_origins": _origins,
 }
+def _description(value: Any, key: str) -> str:
+    """A sensor description: a built-in's name or a .toml file, read and checked now."""
+    from tactiled.sensors import load_description
+
+    text = _as_str(value, key).strip()
+    try:
+        load_description(text)
+    except ConfigError as err:
+        raise _fail(key, str(err)) from None
+    return text
+
+
 SENSOR_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "name": _name,
+    "description": _description,
     "url": _url,
     "wire_id": _optional(_in_range(_as_int, 0, 65535, "a wire sensor id")),
     "calibration": _optional(_as_str),
@@ -468,6 +523,7 @@ FIT_FIELDS: dict[str, Callable[[Any, str], Any]] = {
 }
 _RECORD_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "path": _optional(_as_str),
+    "format": _choice(RECORD_FORMATS),
 }
 _ZENOH_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "enabled": _as_bool,
@@ -480,6 +536,17 @@ _ZENOH_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "frame_rate_hz": _in_range(_as_float, 0.0, 10_000.0, "a rate in Hz"),
     "config": _optional(_as_str),
 }
+_ROS_SEGMENT = r"[A-Za-z_][A-Za-z0-9_]*"
+_ROS2_FIELDS: dict[str, Callable[[Any, str], Any]] = {
+    "enabled": _as_bool,
+    # 0..232: the domain ids ROS 2 documents (DDS port arithmetic ends there; rmw_zenoh keeps
+    # the same ROS_DOMAIN_ID meaning).
+    "domain_id": _in_range(_as_int, 0, 232, "a ROS domain id"),
+    "namespace": _ros_name(rf"/|(/{_ROS_SEGMENT})+",
+                           "'/' or /name[/name...] (letters, digits, '_'; no leading digit)"),
+    "node_name": _ros_name(_ROS_SEGMENT, "letters, digits and '_', not starting with a digit"),
+    "frame_id": _as_str,
+}
 _STATE_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "dir": _optional(_as_str),
 }
@@ -488,6 +555,7 @@ _SECTIONS: dict[str, dict[str, Callable[[Any, str], Any]]] = {
     "fit": FIT_FIELDS,
     "record": _RECORD_FIELDS,
     "zenoh": _ZENOH_FIELDS,
+    "ros2": _ROS2_FIELDS,
     "state": _STATE_FIELDS,
 }
 #: Keys whose relative paths are taken relative to the config file.
@@ -510,7 +578,7 @@ def check_sensor_value(key: str, value: Any, where: str) -> Any:
 # Loading and merging
 
 
-_KEY_RE = re.compile(r"^(?:(server|fit|record|zenoh|state)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
+_KEY_RE = re.compile(r"^(?:(server|fit|record|zenoh|ros2|state)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
 
 
 @dataclass
@@ -518,7 +586,8 @@ class _Raw:
     """The merged, not yet typed configuration, with where each value came from."""
 
     sections: dict[str, dict[str, Any]] = field(
-        default_factory=lambda: {"server": {}, "fit": {}, "record": {}, "zenoh": {}, "state": {}})
+        default_factory=lambda: {"server": {}, "fit": {}, "record": {}, "zenoh": {},
+                                 "ros2": {}, "state": {}})
     sensors: list[dict[str, Any]] = field(default_factory=list)
     origin: dict[str, str] = field(default_factory=dict)  # dotted key -> where it was set
 
@@ -553,6 +622,11 @@ def _suffix(origin: str) -> str:
     return f" (from {origin})" if origin else ""
 
 
+def _is_path(value: Any) -> bool:
+    """A description value naming a file (else a built-in's name)."""
+    return isinstance(value, str) and (value.endswith(".toml") or "/" in value)
+
+
 def _resolve(value: Any, base: Path) -> Any:
     if isinstance(value, str) and value.strip() and not os.path.isabs(value):
         return str(base / value)
@@ -577,7 +651,7 @@ def _read_file(path: Path, raw: _Raw) -> None:
                 raise ConfigError(f"sensor: must be an array of tables ([[sensor]]){_suffix(origin)}")
             for i, table in enumerate(body):
                 for key, value in table.items():
-                    if ("sensor", key) in _PATH_KEYS:
+                    if ("sensor", key) in _PATH_KEYS or (key == "description" and _is_path(value)):
                         value = _resolve(value, base)
                     raw.set(f"sensor[{i}].{key}", value, origin)
         elif top in _SECTIONS:
@@ -589,7 +663,7 @@ def _read_file(path: Path, raw: _Raw) -> None:
                 raw.set(f"{top}.{key}", value, origin)
         else:
             raise ConfigError(f"{top}: unknown section (known: server, sensor, fit, "
-                              f"record, zenoh, state){_suffix(origin)}")
+                              f"record, zenoh, ros2, state){_suffix(origin)}")
 
 
 _ENV_SENSOR_RE = re.compile(r"^SENSOR_(\d+)_([A-Z_]+)$")
@@ -633,12 +707,23 @@ def _build(raw: _Raw) -> Settings:
     fit = typed(FIT_FIELDS, raw.sections["fit"], FitSettings, "fit")
     record = typed(_RECORD_FIELDS, raw.sections["record"], RecordSettings, "record")
     zenoh = typed(_ZENOH_FIELDS, raw.sections["zenoh"], ZenohSettings, "zenoh")
+    ros2 = typed(_ROS2_FIELDS, raw.sections["ros2"], Ros2Settings, "ros2")
     state = typed(_STATE_FIELDS, raw.sections["state"], StateSettings, "state")
     sensor_tables = raw.sensors or [{}]
     sensors = []
     for i, table in enumerate(sensor_tables):
         values = {"name": f"finger{i}", **table}
-        sensors.append(typed(SENSOR_FIELDS, values, SensorSettings, f"sensor[{i}]"))
+        sensor = typed(SENSOR_FIELDS, values, SensorSettings, f"sensor[{i}]")
+        # the description's noise and window, unless the sensor says otherwise
+        if "noise_sigma" not in table or "window" not in table:
+            from tactiled.sensors import load_description
+
+            desc = load_description(sensor.description)
+            if "noise_sigma" not in table:
+                sensor = replace(sensor, noise_sigma=desc.noise_sigma)
+            if "window" not in table:
+                sensor = replace(sensor, window=desc.window)
+        sensors.append(sensor)
     seen: dict[str, int] = {}
     for i, s in enumerate(sensors):
         if s.name in seen:
@@ -659,8 +744,11 @@ def _build(raw: _Raw) -> Settings:
         raise ConfigError("zenoh.connect: a client needs a router to connect to: give its "
                           "endpoint (e.g. [\"tcp/192.168.1.10:7447\"]) or set "
                           "zenoh.multicast_scouting = true to find one")
+    if ros2.enabled and not zenoh.enabled:
+        raise ConfigError("ros2.enabled: the ROS 2 topics go out on the daemon's Zenoh session: "
+                          "set zenoh.enabled = true as well (tactiled run --ros2 does both)")
     return Settings(server=server, sensors=tuple(sensors), fit=fit, record=record, zenoh=zenoh,
-                    state=state)
+                    ros2=ros2, state=state)
 
 
 def load_settings(path: str | os.PathLike[str] | None = None,
@@ -699,6 +787,7 @@ def settings_to_dict(settings: Settings) -> dict[str, Any]:
         "fit": table(settings.fit),
         "record": table(settings.record),
         "zenoh": table(settings.zenoh),
+        "ros2": table(settings.ros2),
         "state": table(settings.state),
         "source": settings.source,
     }

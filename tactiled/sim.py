@@ -31,7 +31,7 @@ from tactiled.calibration.lut import LookupTable
 from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, FingerSpec
 from tactiled.frames import Frame
-from tactiled.physics.contact import Contact
+from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.strain import StrainModel
 
 
@@ -44,12 +44,29 @@ def add_noise(strain: np.ndarray, noise: NoiseModel, rng: np.random.Generator) -
     return out
 
 
-def render(contact: Contact | None, model: StrainModel) -> np.ndarray:
-    """Noise-free strain frame ``(rows, cols)`` for ``contact`` (zeros for ``None``)."""
+def line_length(geometry: Geometry) -> float:
+    """The length (mm) over which a simulated rod on a flat array spreads its force: the
+    array's diagonal plus a pitch at each end (the rod is longer than the array)."""
+    g = geometry
+    return math.hypot(g.span_x, g.span_y) + 2.0 * max(g.dx, g.dy)
+
+
+def as_line(contact: Contact | LineContact, geometry: Geometry) -> Contact | LineContact:
+    """``contact`` as the array feels it: on a flat array a cylinder of force ``F`` is a
+    line contact of load ``F / line_length`` N/mm through its centre; otherwise unchanged."""
+    if not geometry.flat or isinstance(contact, LineContact) or contact.kappa_b != 0.0:
+        return contact
+    return LineContact(contact.r1, contact.psi_deg, contact.force / line_length(geometry),
+                       contact.x0, contact.y0)
+
+
+def render(contact: Contact | LineContact | None, model: StrainModel) -> np.ndarray:
+    """Noise-free strain frame ``(rows, cols)`` for ``contact`` (zeros for ``None``; a
+    cylinder on a flat array: :func:`as_line`)."""
     g = model.sensor.geometry
     if contact is None:
         return np.zeros((g.rows, g.cols))
-    return model.predict(contact)
+    return model.predict(as_line(contact, g))
 
 
 def simulate_frames(
@@ -645,12 +662,13 @@ class FingerSimulator:
 
     def physics(self, contact: Contact | None) -> np.ndarray:
         """Noise-free strain of ``contact`` (read-only; the last prediction is reused while the
-        contact stays the same)."""
+        contact stays the same).  On a flat array a cylinder is a rod longer than the array
+        (:func:`as_line`)."""
         if contact is None:
             return self._zeros
         last, strain = self._cached
         if contact != last:
-            strain = self.model.predict(contact)
+            strain = self.model.predict(as_line(contact, self.sensor.geometry))
             strain.setflags(write=False)
             self._cached = (contact, strain)
             self.predictions += 1

@@ -6,6 +6,9 @@ everything after it) runs exactly as for the hardware.
 
 URL parameters (all optional):
 
+- ``sensor``: the simulated array, a sensor description's built-in name or ``.toml`` path
+  (default ``fearing1988``, the paper's finger; docs/sensors.md); its cover is the finger's
+  unless the parameters below change it;
 - ``scene``: a built-in scene name (default ``demo``; see ``tactiled.sim.SCENES``);
 - ``seed``: integer seed of the noise and drift (default 0): the same seed gives the same bytes;
 - ``rate``: frames per second of device time, Hz (default 1000);
@@ -38,6 +41,7 @@ import logging
 from typing import ClassVar
 
 from tactiled.finger import FingerSpec
+from tactiled.sensors import DEFAULT_NAME, load_description
 from tactiled.frames import FrameDecoder, encode_frame
 from tactiled.sim import (
     DEFAULT_DRIFT,
@@ -62,7 +66,7 @@ class SimSource(FrameSource):
 
     PARAMS: ClassVar[frozenset[str]] = frozenset(
         {"seed", "scene", "rate", "sensor_id", "loop", "speed", "noise", "drift", "hysteresis",
-         *FingerSpec.PARAMS})
+         "sensor", *FingerSpec.PARAMS})
 
     def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
         super().__init__(url, decoder=decoder)
@@ -76,11 +80,15 @@ class SimSource(FrameSource):
         drift = u.get_float("drift", DEFAULT_DRIFT.amplitude, minimum=0.0)
         fraction = u.get_float("hysteresis", DEFAULT_HYSTERESIS.fraction, minimum=0.0, maximum=1.0)
         try:
-            scene = scene_from_spec(u.get_str("scene", "demo"))
-            finger = FingerSpec.from_params(u.params)
+            #: the simulated array (a sensor description: built-in name or .toml path)
+            self.description = load_description(u.get_str("sensor", DEFAULT_NAME))
+            base = self.description.sensor_model()
+            scene = scene_from_spec(u.get_str("scene", "demo"), base.geometry)
+            finger = FingerSpec.from_params(u.params, base)
         except ValueError as err:
             raise ValueError(f"{u.url!r}: {err}") from None
         self.simulator = FingerSimulator(
+            sensor=base,
             scene=scene,
             seed=self.seed,
             rate_hz=self.rate,

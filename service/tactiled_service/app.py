@@ -200,11 +200,13 @@ def create_app(ctx: Context) -> FastAPI:
             out.append({
                 "name": name, "sensor_id": pipe.sensor_id, "url": status.url,
                 "connected": bool(status.connected), "rows": g.rows, "cols": g.cols,
-                "dx_mm": g.dx, "dy_mm": g.dy, "finger_radius_mm": g.finger_radius,
+                "dx_mm": g.dx, "dy_mm": g.dy,
+                "finger_radius_mm": None if g.flat else g.finger_radius,
+                "description": pipe.description.name,
                 "model": pipe.model, "calibration": ctx.calibrations[name],
                 "constants": constants_report(pipe.sensor_model,
                                               pipe.calibration.model if pipe.calibration else None,
-                                              pipe.settings.calibration),
+                                              pipe.settings.calibration, pipe.description.name),
             })
         return {"sensors": out}
 

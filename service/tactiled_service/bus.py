@@ -39,7 +39,6 @@ import json
 import logging
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any, TextIO
 
@@ -49,97 +48,16 @@ from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon, Estimate, ZeroedFrame
 from tactiled.settings import ZenohSettings
 from tactiled_service.messages import Encoder, dumps
+from tactiled_service.sender import QUEUE_SIZE, Sender
 
 log = logging.getLogger(__name__)
 
 JSON = zenoh.Encoding.APPLICATION_JSON
-#: Items the sender may fall behind before the oldest are dropped: 1/3 s of three 1 kHz
-#: sensors, far more than a put ever stalls (1 ms before Zenoh drops, 50 ms for a fragment).
-QUEUE_SIZE = 1024
 HEALTH_PERIOD_S = 1.0  # s between health publications when nothing changes
 HEALTH_TICK_S = 0.1  # s between status checks (a change is published within this)
 QUERY_TIMEOUT_S = 2.0  # s a query waits for the event loop before it is answered with an error
 CLOSE_TIMEOUT_S = 2.0  # s closing the session may take before it is abandoned
 RETRY_MIN_S, RETRY_MAX_S = 0.5, 4.0  # s between attempts to reach a client's router
-
-
-class Sender:
-    """A thread that calls ``put`` for the queued ``(publisher, text)`` pairs, in order.
-
-    :meth:`offer` never blocks: beyond ``maxsize`` queued items it drops the oldest and
-    counts it in ``dropped``.  Counters are written by one thread each and read anywhere
-    (plain ints under the GIL: a reader may see a value one update old).
-    """
-
-    def __init__(self, maxsize: int = QUEUE_SIZE) -> None:
-        self.maxsize = maxsize
-        self.items: deque[tuple[Any, str, str]] = deque()
-        self.dropped = 0  # by the event loop's thread
-        self.sent: dict[str, int] = {"estimate": 0, "frame": 0, "health": 0}  # by the sender
-        self.errors = 0
-        self.last_error = ""
-        self.put_s = 0.0  # total time in put, s
-        self.put_max_s = 0.0  # longest put since the last :meth:`take_max`, s
-        self._wake = threading.Event()
-        self._stop = False
-        self._thread = threading.Thread(target=self._run, name="tactiled-zenoh-send",
-                                        daemon=True)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def offer(self, publisher: Any, kind: str, text: str) -> None:
-        """Queue one put (from the event loop's thread)."""
-        items = self.items
-        items.append((publisher, kind, text))
-        if len(items) > self.maxsize:
-            # Dropping here rather than with deque(maxlen) counts exactly what is lost; if the
-            # sender took one meanwhile, this still removes one item that was never sent.
-            with contextlib.suppress(IndexError):
-                items.popleft()
-                self.dropped += 1
-        if not self._wake.is_set():
-            self._wake.set()
-
-    def _run(self) -> None:
-        items, wake, clock = self.items, self._wake, time.perf_counter
-        while True:
-            wake.wait()
-            wake.clear()  # before draining: an offer after the last popleft sets it again
-            if self._stop:
-                return
-            while items:
-                try:
-                    publisher, kind, text = items.popleft()
-                except IndexError:
-                    break
-                t0 = clock()
-                try:
-                    publisher.put(text)
-                except Exception as err:  # a closed session, an undeclared publisher
-                    self.errors += 1
-                    self.last_error = f"{type(err).__name__}: {err}"
-                    continue
-                dt = clock() - t0
-                self.put_s += dt
-                if dt > self.put_max_s:
-                    self.put_max_s = dt
-                self.sent[kind] += 1
-                if self._stop:
-                    return
-
-    def take_max(self) -> float:
-        """The longest put since the last call (s), and start a new window."""
-        longest, self.put_max_s = self.put_max_s, 0.0
-        return longest
-
-    def stop(self, timeout: float = 2.0) -> None:
-        """Stop after the put in progress; what is still queued is not sent."""
-        self._stop = True
-        self._wake.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout)
-        self.items.clear()
 
 
 # --------------------------------------------------------------------------------------------
@@ -277,6 +195,10 @@ class Bus:
         #: key -> a subscriber matches it (kept by Zenoh's matching listeners).
         self._matching: dict[str, bool] = {}
         self._declared: list[Any] = []  # queryables, listeners, the token: undeclared at stop
+        #: Other front ends sharing this session (the ROS 2 node, tactiled_service.ros2): each
+        #: has ``declare(session) -> list`` (what to undeclare at stop), ``stop()``, and
+        #: ``name`` and ``stats()`` (their section of :meth:`stats`).
+        self.fronts: list[Any] = []
         self._frame_period = (1.0 / settings.frame_rate_hz if settings.frame_rate_hz > 0
                               else None)
         self._frame_due: dict[str, float] = {}
@@ -357,6 +279,8 @@ class Bus:
         self._declared.append(session.declare_queryable(
             self.health_key, zenoh.handlers.Callback(self._on_health_query), complete=True))
         self._declared.append(session.liveliness().declare_token(self.prefix))
+        for front in self.fronts:
+            self._declared.extend(front.declare(session))
         self._remove_listener = self.daemon.hub.add_listener(self._on_item)
         self.state = "open"
         self._open_error = ""
@@ -376,6 +300,8 @@ class Bus:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks.clear()
+        for front in self.fronts:
+            front.stop()
         self.sender.stop()
         session, self.session = self.session, None
         if session is None:
@@ -507,6 +433,7 @@ class Bus:
                 peers, routers = len(info.peers_zid()), len(info.routers_zid())
         sent = dict(s.sent)
         puts = sum(sent.values())
+        fronts = {front.name: front.stats() for front in self.fronts}
         return {
             "state": self.state,
             "mode": self.settings.mode,
@@ -524,6 +451,7 @@ class Bus:
             "queries": self.queries,
             "query_errors": self.query_errors,
             "last_error": self._open_error or s.last_error,
+            **fronts,
         }
 
 

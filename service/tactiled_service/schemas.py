@@ -70,6 +70,17 @@ class Ellipse(BaseModel):
     theta_deg: float
 
 
+class LineInfo(BaseModel):
+    """A line contact (a cylinder on a flat array, docs/model.md): its load per length and its
+    signed distance from the array's centre along the normal of ``angle_deg``, with 1-sigma
+    bounds.  Its total force and its position along the line do not exist."""
+
+    load_n_per_mm: float | None
+    offset_mm: float | None
+    load_n_per_mm_std: float | None
+    offset_mm_std: float | None
+
+
 class EstimateMessage(BaseModel):
     """An estimate (REST and WebSocket): the envelope, every key of a ``tactiled fit`` line
     (contact, model, x_mm, y_mm, force_n, r1_mm, r2_mm, angle_deg, rms, std, fit_ms, label,
@@ -102,6 +113,9 @@ class EstimateMessage(BaseModel):
         description="1-sigma of each value and rate, same keys")
     fit_ms: float | None
     ellipse: Ellipse | None
+    line: LineInfo | None = Field(
+        default=None, description="a line contact's own quantities (a cylinder on a flat array); "
+        "absent otherwise")
     frames_used: int = Field(
         description="frames the estimate rests on (0: no contact; 1: one frame's fit)")
     vx_mm_s: float | None = Field(description="contact centre's rate along x, mm/s")
@@ -151,7 +165,8 @@ class ConstantsInfo(BaseModel):
     modulus: float = Field(description="rubber modulus E, N/mm^2")
     model_error: ModelErrorInfo
     positions_identified: int = Field(description="tactels whose identified position is used")
-    source: str = Field(description="'paper' (docs/model.md) or 'identified: <calibration file>'")
+    source: str = Field(description="'paper' (docs/model.md), 'description: <name>' (a sensor "
+                        "description's nominal cover) or 'identified: <calibration file>'")
     sigma: dict[str, float | None] = Field(description="1-sigma bound of each identified constant (null: not identified or held)")
     held: dict[str, str] = Field(description="constants held at the paper's value, and why")
 
@@ -165,7 +180,8 @@ class SensorInfo(BaseModel):
     cols: int
     dx_mm: float
     dy_mm: float
-    finger_radius_mm: float
+    finger_radius_mm: float | None = Field(description="the surface's radius around y; null: a flat array")
+    description: str = Field(description="the sensor description's name (docs/sensors.md)")
     model: str
     calibration: Calibration
     constants: ConstantsInfo

@@ -22,12 +22,16 @@ socket made here:
 * **Zenoh** (``[zenoh] enabled``): :mod:`tactiled_service.bus`, a second front end on the same
   hub, is imported only then (the ``zenoh`` extra), checked in :meth:`Service.bind`, opened
   before the sensors start and closed first on the way out (its liveliness token goes at once).
+* **ROS 2** (``[ros2] enabled``, needs ``[zenoh] enabled``): :mod:`tactiled_service.ros2`, a
+  guest of the Zenoh front end on its session (``bus.fronts``); and with ``[record] format``
+  "mcap" or "both" an MCAP recorder on the hub, closed after the daemon stops.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib
 import ipaddress
 import logging
 import os
@@ -101,6 +105,29 @@ def load_bus(settings: ZenohSettings) -> ModuleType:
     return bus
 
 
+def load_ros2(settings: Settings) -> tuple[ModuleType | None, ModuleType | None]:
+    """The ROS 2 node module (``[ros2] enabled``) and the MCAP recorder's (``[record] format``
+    "mcap" or "both"), imported now, or None each; :class:`ConfigError` naming the key when
+    the ``ros2`` extra is missing."""
+    want_node = settings.ros2.enabled
+    want_mcap = settings.record.path is not None and settings.record.format != "tact"
+    key = "ros2.enabled" if want_node else "record.format"
+    try:
+        node = importlib.import_module("tactiled_service.ros2.node") if want_node else None
+        mcap = (importlib.import_module("tactiled_service.ros2.mcap_file") if want_mcap
+                else None)
+    except ImportError as err:
+        raise ConfigError(f"{key}: ROS 2 messages need the ros2 extra: pip install "
+                          f"'tactiled[zenoh,ros2]' ({err})") from None
+    if node is not None or mcap is not None:
+        from tactiled_service.ros2.messages import check_segments
+        try:
+            check_segments([s.name for s in settings.sensors])
+        except ValueError as err:
+            raise ConfigError(f"{key}: {err}") from None
+    return node, mcap
+
+
 def format_host(host: str) -> str:
     """``::1`` -> ``[::1]`` (for URLs); names and IPv4 addresses unchanged."""
     return f"[{host}]" if ":" in host and not host.startswith("[") else host
@@ -146,6 +173,8 @@ class Service:
         self.ctx: Context | None = None
         self.bus: Any = None  # tactiled_service.bus.Bus when [zenoh] enabled
         self._bus_module: ModuleType | None = None
+        self._ros2_modules: tuple[ModuleType | None, ModuleType | None] | None = None
+        self.mcap_recorder: Any = None  # tactiled_service.ros2.mcap_file.McapRecorder
         self.server: _Server | None = None
         self.host = settings.server.host
         self.port = settings.server.port
@@ -181,6 +210,8 @@ class Service:
             return
         if self.settings.zenoh.enabled and self._bus_module is None:
             self._bus_module = load_bus(self.settings.zenoh)
+        if self._ros2_modules is None:
+            self._ros2_modules = load_ros2(self.settings)
         server = self.settings.server
         sock = listen_socket(server.host, server.port, self.options.tcp_user_timeout_s,
                              send_buffer=self.options.socket_send_buffer)
@@ -210,7 +241,16 @@ class Service:
                 self.bus = self._bus_module.Bus(self.settings.zenoh, self.daemon,
                                                 self.ctx.encoder, self.ctx.health)
                 self.ctx.health.bus = self.bus
+                node_module = self._ros2_modules[0] if self._ros2_modules else None
+                if node_module is not None:
+                    self.bus.fronts.append(node_module.Ros2Node(self.settings, self.daemon,
+                                                                self.ctx.health))
                 await self.bus.start()
+            mcap_module = self._ros2_modules[1] if self._ros2_modules else None
+            if mcap_module is not None:
+                self.mcap_recorder = mcap_module.McapRecorder(self.settings, self.daemon,
+                                                              self.ctx.health)
+                self.mcap_recorder.start()
             # Fits carry their contact ellipse, so this process never needs the Hertz code
             # (numba: ~1 s and ~100 MB); messages.display_ellipse loads it lazily only for a
             # fit line without one.
@@ -249,6 +289,9 @@ class Service:
         if self.daemon is not None:
             with contextlib.suppress(Exception):
                 await self.daemon.stop(1.0)
+        if self.mcap_recorder is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.to_thread(self.mcap_recorder.stop)
         if self.sock is not None:
             self.sock.close()
         self._stopped.set()
@@ -398,6 +441,9 @@ class Service:
                 stop_timeout = min(self.settings.fit.stop_timeout, 2.0)
                 parts.append(asyncio.ensure_future(self.daemon.stop(stop_timeout)))
             results = await asyncio.gather(*parts, return_exceptions=True)
+            if self.mcap_recorder is not None:  # after the daemon: it writes what came last
+                results.extend(await asyncio.gather(asyncio.to_thread(self.mcap_recorder.stop),
+                                                    return_exceptions=True))
             for result in results:
                 if isinstance(result, BaseException) and not isinstance(
                         result, asyncio.CancelledError):

@@ -46,7 +46,7 @@ import json
 import math
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import replace, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -228,11 +228,16 @@ class Calibration:
     model: FingerModel | None
     source: str
 
-    def sensor_model(self, noise: NoiseModel | None = None, geometry: Geometry | None = None) -> SensorModel:
+    def sensor_model(self, noise: NoiseModel | None = None, geometry: Geometry | None = None,
+                     base: SensorModel | None = None) -> SensorModel:
         """The :class:`SensorModel` the fitter should use for this sensor, on the sensor's
-        ``geometry`` (default: the nominal array; the caller checks the table fits it)."""
-        g = geometry or Geometry()
+        ``geometry`` (default: the nominal array; the caller checks the table fits it): the
+        identified model's cover, or without one ``base``'s (a sensor description's; default
+        the paper's)."""
+        g = geometry or (base.geometry if base is not None else Geometry())
         if self.model is None:
+            if base is not None:
+                return replace(base, geometry=g, noise=noise or base.noise)
             return SensorModel(geometry=g, noise=noise or NoiseModel())
         return self.model.sensor_model(g, noise)
 

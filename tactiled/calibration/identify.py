@@ -385,21 +385,34 @@ def identify(
     knots: int = 8,
     max_iter: int = 40,
     progress: Progress | None = None,
+    nominal: SensorModel | None = None,
+    nominal_name: str = "the paper's",
 ) -> Identification:
     """Identify the finger from ``presses`` (with ``contacts``); see the module docstring.
+
+    ``nominal`` (a sensor description's model; default the paper's finger) gives the cover's
+    constants the search starts from and a constant the presses cannot determine is held at
+    (``nominal_name`` says whose they are in the report).
 
     Raises :class:`CalibrationError` for contacts that contradict themselves or the array, too
     few loaded presses, or an identification that does not converge."""
     say = progress or (lambda _msg: None)
-    g = geometry or Geometry(rows=presses.shape[0], cols=presses.shape[1])
+    g = geometry or (nominal.geometry if nominal is not None
+                     else Geometry(rows=presses.shape[0], cols=presses.shape[1]))
     loaded = check_contacts(presses, g)
     contacts = _contact_list(presses, loaded)
+    if g.flat and any(c is not None and c.kappa_b == 0.0 for c in contacts):
+        raise CalibrationError(
+            "a cylinder pressed on a flat array touches along a line longer than the array, whose "
+            "total force is not defined: identify a flat array from presses of spheres or "
+            "ellipsoids (r2_mm finite)")
     y = presses.counts.reshape(len(presses), -1).astype(float)
     t = y.shape[1]
     prob = _Problem(y, contacts, g)
-    paper = {k: v for k, v in zip(RUBBER, (ImpulseResponse().depth_x, ImpulseResponse().nu_x,
-                                           ImpulseResponse().depth_y, ImpulseResponse().nu_y,
-                                           Material().modulus))}
+    imp0 = nominal.impulse if nominal is not None else ImpulseResponse()
+    mat0 = nominal.material if nominal is not None else Material()
+    paper = {k: v for k, v in zip(RUBBER, (imp0.depth_x, imp0.nu_x, imp0.depth_y, imp0.nu_y,
+                                           mat0.modulus))}
     theta = _internal(paper)
 
     # Start: offsets from the unloaded presses (else the lowest reading), gains by least squares.
@@ -452,7 +465,7 @@ def identify(
                 st.theta[j] = _internal(paper)[j]
                 what = "relative " if _LOG[k] else ""
                 held[k] = (f"not determined by these presses ({what}1-sigma bound "
-                           f"{bound:.3g} > {HOLD_LIMIT[k]:g}): held at the paper's value {paper[k]:g}")
+                           f"{bound:.3g} > {HOLD_LIMIT[k]:g}): held at {nominal_name} value {paper[k]:g}")
                 changed = True
         psd = sd[:4 * t].reshape(t, 4)[:, 2:]
         for i in range(t):

@@ -139,9 +139,11 @@ def _number(v: Any, key: str) -> float:
     return float(v)
 
 
-def constants_report(sensor: SensorModel, model: FingerModel | None, source: str | None) -> dict[str, Any]:
+def constants_report(sensor: SensorModel, model: FingerModel | None, source: str | None,
+                     description: str = "fearing1988") -> dict[str, Any]:
     """What ``/v1/sensors`` says of a sensor's model: the constants in use and where they came
-    from (``source``: the calibration file of an identified ``model``)."""
+    from (``source``: the calibration file of an identified ``model``; else the sensor
+    ``description``'s name, "paper" for the paper's finger)."""
     imp, mat = sensor.impulse, sensor.material
     out: dict[str, Any] = {
         "depth_x": imp.depth_x, "nu_x": imp.nu_x, "depth_y": imp.depth_y, "nu_y": imp.nu_y,
@@ -151,7 +153,8 @@ def constants_report(sensor: SensorModel, model: FingerModel | None, source: str
         else sum(1 for x, y in zip(sensor.positions.ex, sensor.positions.ey) if x or y),
     }
     if model is None:
-        out.update(source="paper", sigma=dict.fromkeys(CONSTANTS), held={})
+        out.update(source="paper" if description == "fearing1988" else f"description: {description}",
+                   sigma=dict.fromkeys(CONSTANTS), held={})
     else:
         out.update(source=f"identified: {source}", sigma={k: model.sigma.get(k) for k in CONSTANTS},
                    held=dict(model.held))

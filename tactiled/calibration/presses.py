@@ -259,6 +259,10 @@ def synthesize_presses(
 #: The indentors of the identification procedure (docs/calibration.md): (r1, r2) in mm.
 IDENTIFY_INDENTORS: tuple[tuple[float, float], ...] = (
     (3.0, 3.0), (6.0, 6.0), (4.0, math.inf), (10.0, math.inf), (2.0, math.inf))
+#: ... on a flat array, where a cylinder is a line whose total force is not defined: spheres
+#: and ellipsoids (the long axis's radius finite).
+FLAT_IDENTIFY_INDENTORS: tuple[tuple[float, float], ...] = (
+    (3.0, 3.0), (6.0, 6.0), (4.0, 12.0), (10.0, 30.0), (2.0, 8.0))
 
 
 #: Cylinder orientations (deg) of the identification presses: away from the finger's axis,
@@ -280,8 +284,9 @@ def synthesize_contact_presses(
     seed: int = 0,
 ) -> PressSet:
     """Presses of known contacts on a simulated finger, as docs/calibration.md's identification
-    procedure records them: indentors from ``indentors`` at random orientations (spheres 0-180
-deg, cylinders within :data:`CYLINDER_ANGLES`),
+    procedure records them: indentors from ``indentors`` (on a flat array, by default
+    :data:`FLAT_IDENTIFY_INDENTORS`) at random orientations (spheres 0-180 deg, cylinders within
+    :data:`CYLINDER_ANGLES`),
     forces uniform in ``force_range``, centres uniform over the array; a fraction unloaded; each
     press the mean of ``frames_averaged`` frames of strain noise ``noise_sigma``, rounded to
     integer counts through the finger's true tactel responses."""
@@ -289,6 +294,8 @@ deg, cylinders within :data:`CYLINDER_ANGLES`),
     from tactiled.physics.strain import StrainModel
 
     g = geometry or Geometry()
+    if g.flat and indentors is IDENTIFY_INDENTORS:
+        indentors = FLAT_IDENTIFY_INDENTORS
     rng = np.random.default_rng(seed)
     model = StrainModel(finger.sensor(g))
     contacts = np.zeros((n, 6))

@@ -17,6 +17,9 @@ Suites (default: all):
               the fit worker count (one run each, side by side)
   foundation  the fitter against its bars: noise-free recovery from the reference integration,
               noisy efficiency (RMS/CRB, 2-sigma coverage), the paper's Table 1, speed
+  sensors     accuracy on every built-in sensor description (or --sensor's): cylinders (line
+              contacts on flat arrays), spheres and edges; RMS error over the Cramer-Rao
+              bound and 2-sigma coverage per parameter, values withheld, fit time
   temporal    the tracker through the whole daemon: a held contact sharpening (radius error
               against the single-frame bound at 100 ms and 1 s, coverage; --plot draws the
               error against time), rolls and rotations (lag, rates), steps, and the CPU per
@@ -44,7 +47,7 @@ import sys
 import time
 
 SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify", "speed",
-          "temporal", "unexplained")
+          "temporal", "sensors", "unexplained")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -60,6 +63,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write a Pareto chart of time against error (needs matplotlib: pip install 'tactiled[plot]')")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar on stderr (default: when stderr is a terminal)")
+    p.add_argument("--sensor", metavar="NAME|FILE.toml", action="append", default=None,
+                   help="sensors suite: score this description (repeatable; default every built-in)")
     acq = p.add_argument_group("acquisition suite")
     acq.add_argument("--scene", default="demo",
                      help="simulator scene the fingers play (default demo; moving: contacts that never rest)")
@@ -209,6 +214,16 @@ def run(args: argparse.Namespace) -> int:
         out += ["", "## Time: held contacts sharpen, moving ones are tracked", "",
                 temporal.run(args.quick, _say if args.progress is not False else None,
                              args.plot if args.suite == "temporal" else None)]
+    if "sensors" in suites:
+        from tactiled.bench import sensors as sensors_bench
+        from tactiled.errors import ConfigError
+
+        try:
+            report = sensors_bench.run(args.quick, args.progress, args.sensor, args.seed)
+        except ConfigError as err:
+            print(f"tactiled bench: error: {err}", file=sys.stderr)
+            return 2
+        out += ["", "## Sensors: accuracy on every description", "", report]
     if "identify" in suites:
         from tactiled.bench import identify
 

@@ -61,6 +61,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--identify", action="store_true",
                         help="presses carry known contacts: identify the finger's rubber "
                         "constants, tactel responses and positions, and model-error floor")
+    parser.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
+                        help="with --identify: the array pressed, a built-in description or a "
+                        "description file (docs/sensors.md); its cover's constants are the start "
+                        "and what the presses cannot determine is held at (default: the paper's finger)")
     parser.add_argument("--strict", action="store_true", help="exit 1 if any tactel is flagged")
     parser.add_argument("--bench", action="store_true",
                         help="print the per-frame cost of the calibration stage and exit")
@@ -137,7 +141,18 @@ def _identify(args: argparse.Namespace, presses) -> int:
     def progress(msg: str) -> None:
         print(f"[{time.monotonic() - t0:5.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    result = identify(presses, knots=args.knots, progress=progress)
+    if args.sensor is not None:
+        from tactiled.sensors import load_description
+
+        desc = load_description(args.sensor)
+        if (desc.rows, desc.cols) != tuple(presses.shape):
+            raise CalibrationError(f"{args.presses}: presses of a {presses.shape[0]}x{presses.shape[1]} "
+                                   f"array, but sensor {desc.name!r} is {desc.rows}x{desc.cols}")
+        base = desc.sensor_model()
+        result = identify(presses, base.geometry, knots=args.knots, progress=progress, nominal=base,
+                          nominal_name=f"description {desc.name}'s")
+    else:
+        result = identify(presses, knots=args.knots, progress=progress)
     build = {"tool": f"tactiled {__version__} calibrate --identify", "presses": len(presses),
              "source": str(args.presses), "knots": args.knots}
     path = save_calibration(result.table, args.output, build=build, model=result.model)

@@ -45,6 +45,7 @@ import os
 import signal
 import sys
 from collections import deque
+from dataclasses import replace
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, TextIO
@@ -58,6 +59,7 @@ from tactiled.errors import TactiledError
 from tactiled.fit.result import FitResult  # light: no numba, no scipy
 from tactiled.framefile import load_frame_file
 from tactiled.progress import Progress
+from tactiled.sensors import load_description
 
 MODELS = ("auto", "cylinder", "sphere", "general")
 #: Inputs at least this long show progress on stderr by default.
@@ -101,10 +103,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("frames", metavar="FRAMES.npz", help="frame file to fit")
     p.add_argument("--model", choices=MODELS, default="cylinder",
                    help="contact model; 'auto' picks by the Bayesian information criterion (default cylinder)")
-    p.add_argument("--window", type=int, default=4, metavar="N",
-                   help="fit an N x N window around the peak, up to the whole array (default 4)")
+    p.add_argument("--window", type=int, default=None, metavar="N",
+                   help="fit an N x N window around the peak, up to the whole array (default: "
+                   "the --sensor description's, else 4)")
     p.add_argument("--sigma", type=float, default=None,
                    help="sensor strain noise (1 sigma) for uncertainties and the contact threshold")
+    p.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
+                   help="the array the frames come from: a built-in description (`tactiled "
+                   "sensors` lists them) or a description file (docs/sensors.md); default: the "
+                   "paper's finger with the frames' shape and any pitch the file gives (dx, dy)")
     p.add_argument("--calibration", metavar="CAL.json", default=None,
                    help="the sensor's calibration file: its identified model (version 2) is used, "
                    "and FRAMES.npz may then hold raw 'counts'")
@@ -122,18 +129,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _sensor(args: argparse.Namespace, shape: tuple[int, int], dx: float | None, dy: float | None,
             extras: dict[str, np.ndarray], calibration: Calibration | None = None) -> SensorModel:
-    geo = Geometry(rows=shape[0], cols=shape[1], dx=dx or Geometry.dx, dy=dy or Geometry.dy)
+    base: SensorModel | None = None
+    if getattr(args, "sensor", None) is not None:
+        desc = load_description(args.sensor)
+        if (desc.rows, desc.cols) != tuple(shape):
+            raise ValueError(f"sensor {desc.name!r} is a {desc.rows}x{desc.cols} array, but the "
+                             f"frames are {shape[0]}x{shape[1]}")
+        base = desc.sensor_model()
+        geo = base.geometry
+    else:
+        geo = Geometry(rows=shape[0], cols=shape[1], dx=dx or Geometry.dx, dy=dy or Geometry.dy)
     if args.sigma is not None:
         noise = NoiseModel(sigma=args.sigma)
     elif "noise_sigma" in extras:
         noise = NoiseModel(sigma=float(extras["noise_sigma"]), quantum=float(extras.get("noise_quantum", 0.0)))
     else:
-        noise = NoiseModel()
+        noise = base.noise if base is not None else NoiseModel()
     if calibration is not None:
         if calibration.table.shape != shape:
             raise ValueError(f"{calibration.source}: calibration for a {calibration.table.shape} "
                              f"array, but the frames are {shape}")
-        return calibration.sensor_model(noise, geo)
+        return calibration.sensor_model(noise, geo, base=base)
+    if base is not None:
+        return replace(base, noise=noise)
     return SensorModel(geometry=geo, noise=noise)
 
 
@@ -263,6 +281,12 @@ def _parallel(sensor: SensorModel, args: argparse.Namespace, strain: np.ndarray,
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.window is None:
+        try:
+            args.window = load_description(args.sensor).window if args.sensor else 4
+        except TactiledError as err:
+            print(f"tactiled fit: error: {err}", file=sys.stderr)
+            return 2
     if args.window < 2:
         print(f"tactiled fit: error: --window must be at least 2, got {args.window}", file=sys.stderr)
         return 2

@@ -10,13 +10,16 @@ released, recordings flushed); a second Ctrl-C exits at once.  Under systemd (Ty
 reports READY=1 once serving, WATCHDOG=1 while frames flow, STOPPING=1 on the way out.
 
 With --zenoh (or [zenoh] enabled) it also publishes the estimates, frames and health on Zenoh
-(needs the zenoh extra: pip install 'tactiled[zenoh]'; docs/zenoh.md).
+(needs the zenoh extra: pip install 'tactiled[zenoh]'; docs/zenoh.md).  With --ros2 (or [ros2]
+enabled) it is also a ROS 2 node on that session, the way rmw_zenoh lays topics out (needs the
+ros2 extra; docs/ros2.md).
 
 examples:
   tactiled run
   tactiled run --config /etc/tactiled/tactiled.toml
   TACTILED_TOKEN=s3cret tactiled run --host 0.0.0.0 --port 9000
   tactiled run --zenoh --zenoh-connect tcp/192.168.1.10:7447
+  tactiled run --ros2 --zenoh-mode client --zenoh-connect tcp/localhost:7447
 """
 
 from __future__ import annotations
@@ -64,6 +67,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "[zenoh] listen)")
     z.add_argument("--zenoh-prefix", default=None, metavar="KEY",
                    help="the key every publication starts with (default tactiled/<hostname>)")
+    r = p.add_argument_group("ROS 2 (docs/ros2.md; flags win over [ros2] and TACTILED_ROS2_*)")
+    r.add_argument("--ros2", action="store_true", default=None,
+                   help="publish ROS 2 topics on the Zenoh session, as rmw_zenoh does ([ros2] "
+                        "enabled = true; turns on [zenoh] enabled too)")
+    r.add_argument("--ros2-domain-id", type=int, default=None, metavar="N",
+                   help="ROS_DOMAIN_ID of the graph to join (default 0)")
     # -v is also accepted after the command name (the top-level parser handles the level).
     p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                    help="more log output")
@@ -86,6 +95,10 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         value = getattr(args, flag, None)
         if value is not None:
             out[f"zenoh.{key}"] = value
+    if getattr(args, "ros2", None):
+        out["ros2.enabled"] = out["zenoh.enabled"] = True
+    if getattr(args, "ros2_domain_id", None) is not None:
+        out["ros2.domain_id"] = args.ros2_domain_id
     return out
 
 

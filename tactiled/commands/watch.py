@@ -16,6 +16,13 @@ liveliness token) with its status and sensors, then exits.  The session is confi
 daemon's [zenoh] (--config FILE, TACTILED_ZENOH_* variables: mode, multicast_scouting,
 connect), --connect replacing connect; it never listens.
 
+With --ros2 it prints what a ROS 2 subscriber of the daemons' ROS 2 topics receives
+(docs/ros2.md; needs the zenoh and ros2 extras): every wrench, contact and markers message
+(with --frames the strain images too, and /diagnostics), decoded, one JSON object per line:
+"topic", "type", "sequence_number" and "source_timestamp_ns" (the rmw_zenoh attachment),
+"message" (the message's fields).  --domain-id picks the ROS domain (default [ros2]
+domain_id, 0).
+
 examples:
   tactiled watch
   tactiled watch ws://robot.local:8765/v1/stream --token "$TACTILED_TOKEN" --sensor thumb
@@ -23,6 +30,7 @@ examples:
   tactiled watch --zenoh
   tactiled watch --zenoh --connect tcp/192.168.1.10:7447 --key 'tactiled/hand1/**'
   tactiled watch --zenoh --list
+  tactiled watch --ros2 --connect tcp/localhost:7447 --count 3
 """
 
 from __future__ import annotations
@@ -65,6 +73,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"key expression to read (default {ZENOH_KEY})")
     z.add_argument("--list", action="store_true",
                    help="list the daemons alive and their sensors, then exit")
+    z.add_argument("--ros2", action="store_true",
+                   help="read the ROS 2 topics (rmw_zenoh's layout) and print them decoded")
+    z.add_argument("--domain-id", type=int, default=None, metavar="N",
+                   help="ROS domain of --ros2 (default [ros2] domain_id, 0)")
     z.add_argument("--config", default=None, metavar="FILE",
                    help="take the Zenoh session's settings from this file's [zenoh] "
                         "(default $TACTILED_CONFIG)")
@@ -154,7 +166,23 @@ def watch_zenoh(args: argparse.Namespace, out: TextIO) -> int:
     overrides: dict[str, Any] = {}
     if args.connect:
         overrides["zenoh.connect"] = list(args.connect)
-    settings = load_settings(args.config, os.environ, overrides).zenoh  # ConfigError: exit 2
+    if args.domain_id is not None:
+        overrides["ros2.domain_id"] = args.domain_id
+    loaded = load_settings(args.config, os.environ, overrides)  # ConfigError: exit 2
+    settings = loaded.zenoh
+    if args.ros2:
+        try:
+            from tactiled_service.ros2 import reader
+        except ImportError as err:
+            print(f"tactiled watch: error: --ros2 needs the zenoh and ros2 extras: pip install "
+                  f"'tactiled[zenoh,ros2]' ({err})", file=sys.stderr)
+            return 2
+        try:
+            return reader.watch(settings, loaded.ros2.domain_id, out, sensors=args.sensor,
+                                frames=args.frames, count=args.count)
+        except Exception as err:  # zenoh.ZError: no router for a client, a refused endpoint
+            print(f"tactiled watch: zenoh: {err}", file=sys.stderr)
+            return 1
     try:
         # Only --zenoh pays for Zenoh (the zenoh extra).
         from tactiled_service import bus
@@ -185,10 +213,13 @@ def watch_zenoh(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.zenoh or args.list or args.connect or args.key:
-        if not args.zenoh:
-            print("tactiled watch: error: --list, --connect and --key go with --zenoh",
-                  file=sys.stderr)
+    if args.domain_id is not None and not args.ros2:
+        print("tactiled watch: error: --domain-id goes with --ros2", file=sys.stderr)
+        return 2
+    if args.zenoh or args.ros2 or args.list or args.connect or args.key:
+        if not (args.zenoh or args.ros2) or (args.ros2 and (args.list or args.key)):
+            print("tactiled watch: error: --list, --connect and --key go with --zenoh "
+                  "(--connect also with --ros2)", file=sys.stderr)
             return 2
         if args.url or args.token or args.rate is not None:
             print("tactiled watch: error: --zenoh reads Zenoh, not a WebSocket stream: no URL, "

@@ -24,6 +24,10 @@ from tactiled.fit import flatfield
 from tactiled.fit.budget import EXHAUSTED, Budget
 from tactiled.fit.flatfield import FlatField
 from tactiled.fit.floor import FloorLearner
+from tactiled.fit.line import FORCE_REASON as LINE_FORCE_REASON
+from tactiled.fit.line import PARAMS as LINE_PARAMS
+from tactiled.fit.line import STEPS as LINE_STEPS
+from tactiled.fit.line import LineProblem
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.params import (
     MAX_ANGLE_SIGMA,
@@ -36,7 +40,7 @@ from tactiled.fit.result import FitResult
 from tactiled.fit.solver import BUDGET_MESSAGE, TIME_BUDGET_EXCEEDED, SolveResult, levenberg_marquardt
 from tactiled.fit.start import StartTable, force_constants, start_point, start_table
 from tactiled.fit.window import choose_window, plain_frame, plain_window
-from tactiled.physics.contact import Contact
+from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.hertz import Ellipse
 from tactiled.physics.kernels import cramer_rao as crb_kernel
 from tactiled.physics.strain import StrainModel, warm_rules
@@ -187,6 +191,27 @@ def _bounds(model: Model) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+#: The line model (a cylinder on a flat array) as the window check sees it.
+_LINE_MODEL = Model("line", LINE_PARAMS)
+_LINE_BOUNDS = (np.array([_LN_R_BOUNDS[0], -np.inf, -np.inf, -np.inf]),
+                np.array([_LN_R_BOUNDS[1], np.inf, np.inf, np.inf]))
+
+
+def _covariance(jraw: np.ndarray, sigma: float) -> tuple[np.ndarray | None, float | None]:
+    """``sigma^2 (J^T J)^-1`` of a Jacobian of strains, and J's condition number; None for a
+    singular J."""
+    try:
+        sv = np.linalg.svd(jraw, compute_uv=False)
+    except np.linalg.LinAlgError:
+        return None, None
+    if not np.all(np.isfinite(sv)) or sv[-1] <= 0.0:
+        return None, None
+    condition = float(sv[0] / sv[-1])
+    if condition > SINGULAR_CONDITION:
+        return None, condition
+    return sigma * sigma * np.linalg.inv(jraw.T @ jraw), condition
+
+
 class Fitter:
     """Fits contact models to strain frames of one sensor."""
 
@@ -234,8 +259,14 @@ class Fitter:
         start_table(self.sensor)
         warm_rules()
         g = self.sensor.geometry
-        frame = self.model.predict(Contact(8.0, math.inf, 80.0, 1.0, g.span_x / 2, g.span_y / 2))
-        for name in ("cylinder", "sphere", "general"):
+        if g.flat:
+            frame = self.model.predict(LineContact(8.0, 80.0, 0.1, g.span_x / 2, g.span_y / 2))
+            self._fit_line(frame, None, None)
+            names: tuple[str, ...] = ("sphere", "general")
+        else:
+            frame = self.model.predict(Contact(8.0, math.inf, 80.0, 1.0, g.span_x / 2, g.span_y / 2))
+            names = ("cylinder", "sphere", "general")
+        for name in names:
             model = get_model(name)
             done = self._fit_model(frame, model, None, None)
             # the Python solver too (contacts past the compiled rules; frames the model cannot
@@ -301,7 +332,8 @@ class Fitter:
                 get_model(model)  # ValueError naming the choices
                 if start is None and warm is not None and warm[0] == model and warm[1]:
                     start = np.asarray(warm[1], dtype=float)
-                res = self._fit_model(strain, get_model(model), start, mask)
+                res = (self._fit_cylinder(strain, start, mask) if model == "cylinder"
+                       else self._fit_model(strain, get_model(model), start, mask))
             if self._budget.exhausted and res.converged:
                 # a converged search, but the fit's other starts or models were cut short
                 res.converged = False
@@ -432,6 +464,105 @@ class Fitter:
         """The fit's budget (iterations, work or wall time) stopped this search."""
         return sol.message is BUDGET_MESSAGE or sol.message is TIME_BUDGET_EXCEEDED or (
             sol.message.startswith(EXHAUSTED))
+    def _fit_cylinder(self, strain: np.ndarray, start: np.ndarray | None,
+                      mask: np.ndarray | None) -> FitResult:
+        """The cylinder model: on a curved finger the Hertz ellipse's; on a flat array a line
+        contact's (:mod:`tactiled.fit.line`), reported as model 'cylinder', label 'line'."""
+        if self.sensor.geometry.flat:
+            return self._fit_line(strain, start, mask)
+        return self._fit_model(strain, get_model("cylinder"), start, mask)
+
+    def _cylinder_as_point(self, cyl: FitResult) -> tuple[float, float, float, float, float]:
+        """A cylinder fit as ``(ln R, psi, ln F, x0, y0)``, a start for the other models: on a
+        flat array the line's point nearest the window's peak, with the load over one cover
+        depth's length (the part of the line a sphere's start should explain)."""
+        p = cyl.params
+        if not self.sensor.geometry.flat:
+            return tuple(p)  # type: ignore[return-value]
+        x, y = cyl.values.get("x_mm"), cyl.values.get("y_mm")
+        load = (cyl.line or {}).get("load_n_per_mm") or 0.1
+        if x is None or y is None:
+            g = self.sensor.geometry
+            x, y = 0.5 * g.span_x, 0.5 * g.span_y
+        if cyl.window is not None:  # slide along the line to the window's centre
+            r0, c0, nr, nc = cyl.window
+            g = self.sensor.geometry
+            wx, wy = (r0 + 0.5 * (nr - 1)) * g.dx, (c0 + 0.5 * (nc - 1)) * g.dy
+            c, s = math.cos(p[1]), math.sin(p[1])
+            t = (wx - x) * c + (wy - y) * s
+            x, y = x + t * c, y + t * s
+        depth = min(self.sensor.impulse.depth_x, self.sensor.impulse.depth_y)
+        return p[0], p[1], math.log(load * 4.0 * depth), x, y
+
+    def _runs_off(self, res: FitResult) -> bool:
+        """On a flat array: ``res`` (a general or sphere fit) is an ellipse whose both ends lie
+        off the array (beyond a pitch of its edge), which within the array is a line contact:
+        the line model says the same with fewer parameters and without a force or ends that
+        nothing measured."""
+        if not self.sensor.geometry.flat or res.params is None or res.model not in compiled.KINDS:
+            return False
+        a, _, theta, _ = compiled.ellipse_at(compiled.KINDS[res.model], np.asarray(res.params),
+                                             self.model._rf, self.model._k)
+        if a < 0.0:
+            return True
+        g = self.sensor.geometry
+        x0, y0 = res.params[-2], res.params[-1]
+        ends = ((x0 + s * a * math.cos(theta), y0 + s * a * math.sin(theta)) for s in (-1.0, 1.0))
+        return all(not (-g.dx <= x <= g.span_x + g.dx and -g.dy <= y <= g.span_y + g.dy)
+                   for x, y in ends)
+
+    def _fit_line(self, strain: np.ndarray, start: np.ndarray | None,
+                  mask: np.ndarray | None) -> FitResult:
+        """A cylinder on a flat array: the line model on this frame's window."""
+        fr = self._line_frame(strain, mask)
+        if isinstance(fr, FitResult):
+            fr.model = "cylinder"
+            return fr
+        peak = fr.peak
+        prob = self._line_problem(fr)
+        if start is not None and np.shape(start) != (len(LINE_PARAMS),):
+            start = None  # a start of another model (a curved finger's cylinder): start cold
+        starts = ([np.asarray(start, dtype=float)] if start is not None
+                  else prob.starts(fr.clean, self.model.xs_full, self.model.ys_full, peak))
+        atol = STOP_CHI2 * (self.sigma / peak) ** 2
+        verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
+        best: SolveResult | None = None
+        tried = 0
+        for p0 in starts:
+            tried += 1
+            sol = levenberg_marquardt(prob.residual_and_jacobian, p0, max_step=LINE_STEPS,
+                                      max_iter=self.options.max_iter, atol=atol,
+                                      deadline=self._deadline, verdict_tol=verdict_tol,
+                                      bounds=_LINE_BOUNDS)
+            if best is None or sol.cost < best.cost:
+                best = sol
+            if self._good_enough(best, peak, fr.n_points) or self._out_of_time():
+                break
+        assert best is not None
+        reasons: dict[str, str] = {}
+        jraw = best.jacobian * peak
+        cov, condition = _covariance(jraw, self.sigma)
+        if cov is None:
+            reasons.update(dict.fromkeys(("x_mm", "y_mm", "r1_mm", "angle_deg"),
+                                         "Jacobian singular: parameter not identifiable from this window"))
+        elif condition > ILL_CONDITION:
+            reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
+        values, std, line = prob.report(best.p, cov)
+        reasons["force_n"] = LINE_FORCE_REASON
+        reasons["r2_mm"] = "infinite: cylinder model"
+        self._unobservable(values, std, reasons)
+        if not best.converged:
+            reasons.setdefault("fit", best.message)
+        label = self._label(values, "line")
+        return FitResult(
+            contact=True, model="cylinder", label="line" if label == "plane" else label,
+            values=values, std=std,
+            rms=math.sqrt(best.cost / max(fr.n_points, 1)),
+            chi2=best.cost * peak * peak / self.sigma**2,
+            iterations=best.iterations, evaluations=best.evaluations, converged=best.converged,
+            condition=condition, peak=peak, n_points=fr.n_points, window=fr.win, starts=tried,
+            message=best.message, reasons=reasons, params=tuple(best.p.tolist()), line=line,
+        )
 
     def _window(self, strain: np.ndarray, model: Model, mask: np.ndarray | None) -> _Frame | FitResult:
         """This frame's window (:meth:`_frame`) when it can hold ``model``, else a FitResult
@@ -781,6 +912,54 @@ class Fitter:
         _, jac = residual(np.asarray(params, dtype=float))
         return self._uncertainty(get_model(model), np.asarray(params, dtype=float), jac * peak, {})[1]
 
+    def line_cramer_rao(self, strain: np.ndarray, contact: LineContact) -> dict[str, float | None]:
+        """1-sigma Cramer-Rao bounds of a line contact (a cylinder on a flat array) at the
+        truth ``contact``, for the window this fitter would choose on ``strain``: ``r1_mm``,
+        ``angle_deg``, ``x_mm``, ``y_mm``, ``load_n_per_mm`` and ``offset_mm``."""
+        fr = self._line_frame(self.flattened(strain), None)
+        keys = ("x_mm", "y_mm", "r1_mm", "angle_deg", "load_n_per_mm", "offset_mm")
+        if isinstance(fr, FitResult):
+            return dict.fromkeys(keys)
+        prob = self._line_problem(fr)
+        psi = contact.psi
+        c = -math.sin(psi) * (contact.x0 - prob.ref[0]) + math.cos(psi) * (contact.y0 - prob.ref[1])
+        p = np.array([math.log(contact.r1), psi, math.log(contact.load), c])
+        _, jac = prob.residual_and_jacobian(p)
+        cov, _ = _covariance(jac * fr.peak, self.sigma)
+        _, std, line = prob.report(p, cov)
+        return {**{k: std[k] for k in keys[:4]}, "load_n_per_mm": line["load_n_per_mm_std"],
+                "offset_mm": line["offset_mm_std"]}
+
+    def _line_frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
+        """The line model's window: on the ridge (tactels above half the peak), where it
+        passes nearest the array's centre.  Along a line every ridge tactel reads about the
+        peak, so the peak's own place is chance; near the centre the window sees the line's
+        position across it with the least leverage of its angle, and the same window every
+        frame."""
+        fr = self._window(strain, _LINE_MODEL, mask)
+        if isinstance(fr, FitResult):
+            return fr
+        clean, ok = self._prepare(strain, mask)
+        g = self.sensor.geometry
+        ridge = ok & (clean >= 0.5 * fr.peak)
+        m, n = np.nonzero(ridge)
+        if m.size == 0:
+            return fr
+        d2 = (m * g.dx - 0.5 * g.span_x) ** 2 + (n * g.dy - 0.5 * g.span_y) ** 2
+        k = int(np.argmin(d2))
+        idx = (int(m[k]), int(n[k]))
+        if idx == fr.peak_idx:
+            return fr
+        out = self._window_arrays(clean, ok, fr.peak_idx, fr.peak,
+                                  choose_window(clean, idx, self.options.window))
+        return out if out.n_points > _LINE_MODEL.size else fr
+
+    def _line_problem(self, fr: _Frame) -> LineProblem:
+        nr, nc = fr.xs.size, fr.ys.size
+        px = np.repeat(fr.xs, nc) + fr.ex
+        py = np.tile(fr.ys, nr) + fr.ey
+        return LineProblem(self.sensor, px, py, fr.target, fr.valid, fr.inv_scale, self.options.tol)
+
     def _unobservable(self, values: dict, std: dict, reasons: dict[str, str]) -> None:
         """Withhold what the data cannot pin down rather than report confident nonsense.
 
@@ -887,15 +1066,17 @@ class Fitter:
         With ``warm`` (the previous frame's model and parameters) only that model is fitted,
         from there, and kept if its chi^2 is consistent with the noise."""
         if warm is not None and warm[0] in ("cylinder", "sphere", "general") and warm[1]:
-            kept = self._fit_model(strain, get_model(warm[0]), np.asarray(warm[1], dtype=float), mask)
+            p_warm = np.asarray(warm[1], dtype=float)
+            kept = (self._fit_cylinder(strain, p_warm, mask) if warm[0] == "cylinder"
+                    else self._fit_model(strain, get_model(warm[0]), p_warm, mask))
             if kept.contact and kept.chi2 is not None and kept.peak and self._consistent(kept):
                 kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
                 return kept
-        cyl = self._fit_model(strain, get_model("cylinder"), None, mask)
+        cyl = self._fit_cylinder(strain, None, mask)
         if not cyl.contact or cyl.chi2 is None or cyl.params is None or self._out_of_time():
             return cyl
         fits = [cyl]
-        ln_r, psi, ln_f, x0, y0 = cyl.params
+        ln_r, psi, ln_f, x0, y0 = self._cylinder_as_point(cyl)
         sph = self._fit_model(strain, get_model("sphere"), np.array([ln_r, ln_f, x0, y0]), mask,
                               scouting=True)
         fits.append(sph)
@@ -912,15 +1093,19 @@ class Fitter:
             return self._cut_short(cyl, [cyl, sph, *gens])
         crit = {}
         for r in fits:
-            k = get_model(r.model).size
+            k = len(r.params) if r.params is not None else get_model(r.model).size
             crit[r.model] = (r.chi2 if r.chi2 is not None else math.inf) + k * math.log(max(r.n_points, 2))
         best = min(fits, key=lambda r: crit[r.model])
+        if best is not cyl and self._runs_off(best):
+            best = cyl  # an ellipse longer than the array is the line the cylinder model fits
         iterations = sum(r.iterations for r in fits)
         evaluations = sum(r.evaluations for r in fits)
         resolved = best is not cyl and best.params is not None
         if resolved:  # scouted: now solve it fully
             best = self._fit_model(strain, get_model(best.model), np.asarray(best.params), mask)
             iterations += best.iterations
+            if self._runs_off(best):
+                best, resolved = cyl, False
         best.criterion = {k: float(v) for k, v in crit.items() if math.isfinite(v)}
         best.iterations = iterations
         best.evaluations = evaluations + (best.evaluations if resolved else 0)

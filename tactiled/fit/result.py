@@ -55,6 +55,9 @@ class FitResult:
     #: the fitted contact ellipse, for display: semi-axes a >= b in mm, major axis direction
     #: theta in degrees from +x toward +y, in [0, 180)
     ellipse: dict[str, float] | None = None
+    #: a line contact's own quantities (a cylinder on a flat array, tactiled.fit.line):
+    #: load_n_per_mm and offset_mm with their 1-sigma bounds (``*_std``); None otherwise
+    line: dict[str, float | None] | None = None
 
     def __post_init__(self) -> None:
         self.sanitise()
@@ -102,4 +105,6 @@ class FitResult:
             message=self.message,
             ellipse=dict(self.ellipse) if self.ellipse else None,
         )
+        if self.line is not None:
+            out["line"] = {k: _finite_or_none(v) for k, v in self.line.items()}
         return out

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from tactiled.config import SensorModel
-from tactiled.physics.contact import Contact
+from tactiled.physics.contact import Contact, LineContact
 from tactiled.fit.window import interpolated_peak, peak_centre
 from tactiled.physics.strain import StrainModel
 
@@ -122,8 +122,11 @@ class StartTable:
                 for f in _FORCES:
                     for ox in _OFFSETS:
                         for oy in _OFFSETS:
-                            c = Contact(float(r), math.inf, float(psi), f,
-                                        (cm + ox) * g.dx, (cn + oy) * g.dy)
+                            x0, y0 = (cm + ox) * g.dx, (cn + oy) * g.dy
+                            # on a flat array a cylinder is a line: its load per length
+                            # about a tenth of the force per mm
+                            c = (LineContact(float(r), float(psi), 0.1 * f, x0, y0) if g.flat
+                                 else Contact(float(r), math.inf, float(psi), f, x0, y0))
                             s = model.predict(c)
                             pk = np.unravel_index(int(np.argmax(s)), s.shape)
                             feats.append(features(s, pk, force_estimate(s, sensor)))

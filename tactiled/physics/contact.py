@@ -48,3 +48,39 @@ class Contact:
     def psi(self) -> float:
         """``psi_deg`` in radians."""
         return math.radians(self.psi_deg)
+
+
+@dataclass(frozen=True)
+class LineContact:
+    """A cylinder pressed on a flat array: a line contact (docs/model.md, "Other arrays").
+
+    ``r1`` is the cylinder's radius in mm; ``psi_deg`` the direction of its axis (the line)
+    from +x toward +y; ``load`` the load per unit length in N/mm; ``(x0, y0)`` any point of
+    the line in array coordinates (mm).  Neither the total force nor the position along the
+    line exists for a line longer than the array.
+    """
+
+    r1: float
+    psi_deg: float = 90.0
+    load: float = 0.1
+    x0: float = 0.0
+    y0: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.r1) and self.r1 > 0):
+            raise ValueError(f"r1 must be a positive finite radius in mm, got {self.r1!r}")
+        if not (math.isfinite(self.load) and self.load > 0):
+            raise ValueError(f"load must be positive and finite in N/mm, got {self.load!r}")
+        for name in ("psi_deg", "x0", "y0"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)!r}")
+
+    @property
+    def psi(self) -> float:
+        """``psi_deg`` in radians."""
+        return math.radians(self.psi_deg)
+
+    def offset_from(self, x: float, y: float) -> float:
+        """Signed distance (mm) of the line from the point ``(x, y)``, along the normal
+        ``n = (-sin psi, cos psi)``."""
+        return -math.sin(self.psi) * (self.x0 - x) + math.cos(self.psi) * (self.y0 - y)

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.special import roots_chebyu, roots_jacobi
 
 from tactiled.config import SensorModel
-from tactiled.physics.contact import Contact
+from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.hertz import Ellipse, contact_ellipse, ellipse_core
 from tactiled.physics.impulse import line_response, line_response_and_slope
 from tactiled.physics.kernels import quadrature, quadrature_points, strain_with_jacobian, window_residual
@@ -320,6 +320,8 @@ class StrainModel:
         tactel where the sensor's ``positions`` put it, further displaced by ``moved``, a
         ``(dx, dy)`` pair of ``(rows, cols)`` arrays in mm, if given), else on the grid
         ``xs x ys``."""
+        if isinstance(contact, LineContact) or (self._rf == math.inf and contact.kappa_b == 0.0):
+            return self._predict_line(contact, xs, ys, moved)
         ell, _ = self.ellipse(contact.kappa_a, contact.kappa_b, contact.psi, contact.force)
         if xs is None and ys is None and (self.shift is not None or moved is not None):
             # tactels off the grid: each evaluated exactly where it sits
@@ -336,6 +338,34 @@ class StrainModel:
         xs = self.xs_full if xs is None else np.ascontiguousarray(xs, dtype=float)
         ys = self.ys_full if ys is None else np.ascontiguousarray(ys, dtype=float)
         return self.strain_from_ellipse(ell, contact.force, contact.x0, contact.y0, xs, ys)
+
+
+    def tactel_points(self, moved: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Every tactel's ``(x, y)`` in mm, ``(rows, cols)`` each, where the sensor's
+        ``positions`` (and ``moved``, if given) put it."""
+        px = np.broadcast_to(self.xs_full[:, None], (self.xs_full.size, self.ys_full.size)).astype(float)
+        py = np.broadcast_to(self.ys_full[None, :], px.shape).astype(float)
+        if self.shift is not None:
+            px, py = px + self.shift[0], py + self.shift[1]
+        if moved is not None:
+            px, py = px + moved[0], py + moved[1]
+        return px, py
+
+    def _predict_line(self, contact, xs, ys, moved) -> np.ndarray:
+        """:meth:`predict` of a line contact (a cylinder on a flat array)."""
+        from tactiled.physics.line import line_strain
+
+        if not isinstance(contact, LineContact):
+            raise ValueError("a cylinder on a flat array is a line contact: give a LineContact "
+                             "(load per length), not a total force")
+        if xs is None and ys is None:
+            px, py = self.tactel_points(moved)
+        else:
+            gx = self.xs_full if xs is None else np.asarray(xs, dtype=float)
+            gy = self.ys_full if ys is None else np.asarray(ys, dtype=float)
+            px, py = np.meshgrid(gx, gy, indexing="ij")
+        return line_strain(contact.load, contact.r1, contact.psi_deg, contact.x0, contact.y0, px, py,
+                           self._imp, self.sensor.material.modulus, self._k, self.tol)
 
 
 def predict_strain(contact: Contact, sensor: SensorModel | None = None) -> np.ndarray:

@@ -34,6 +34,7 @@ from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
 from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.result import FitResult
@@ -152,14 +153,19 @@ class SensorPipeline:
                     f"{settings.calibration}: calibration of sensor {self.table.sensor_id}, "
                     f"but wire_id is {self.expected_id}")
             self.expected_id = self.table.sensor_id
-        # Tactels the calibration found dead or never exercised are left out of every fit.
-        self.mask = (None if self.table is None or not self.table.dead_mask.any()
-                     else ~self.table.dead_mask)
+        #: what the array is: grid, surface, cover, wiring (docs/sensors.md)
+        self.description = load_description(settings.description)
+        # Tactels the description names dead, or the calibration found dead or never
+        # exercised, are left out of every fit.
+        self.mask = self.description.dead_mask()
+        if self.table is not None and self.table.dead_mask.any():
+            self.mask = ~self.table.dead_mask if self.mask is None else self.mask & ~self.table.dead_mask
         noise = NoiseModel(sigma=settings.noise_sigma)
-        # an identified finger's rubber, tactel positions and model-error floor (version 2
-        # calibration files); else the paper's finger
-        self.sensor_model = (SensorModel(noise=noise) if self.calibration is None
-                             else self.calibration.sensor_model(noise))
+        # the description's array; an identified finger's rubber, tactel positions and
+        # model-error floor (version 2 calibration files) in place of its cover's constants
+        base = self.description.sensor_model(settings.noise_sigma)
+        self.sensor_model = (base if self.calibration is None
+                             else self.calibration.sensor_model(noise, base.geometry, base=base))
         g = self.sensor_model.geometry
         if self.table is not None and self.table.shape != (g.rows, g.cols):
             raise CalibrationError(f"{settings.calibration}: table shape {self.table.shape} is "
@@ -367,6 +373,8 @@ class SensorPipeline:
         if frame.shape != (g.rows, g.cols):
             self.bad_shape += 1
             return
+        if self.description.wire_order != "row-major":  # counts in wire order: to the grid
+            frame.raw = self.description.to_grid(frame.raw)
         if self.stage is None:
             self._build_stage(frame.sensor_id)
         assert self.stage is not None

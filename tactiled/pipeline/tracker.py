@@ -218,7 +218,8 @@ class Tracker:
         self._fold()
         self.lin, self.model, self.names = lin, lin.model, names
         if self._esum is None:
-            size = max(int(lin.index.max()) + 1 if lin.index.size else 0, 64)
+            size = max(int(lin.index.max()) + 1 if lin.index.size else 0,
+                       self.geometry.rows * self.geometry.cols)
             self._esum, self._ecount = np.zeros(size), np.zeros(size)
         self._ebuf = np.zeros(lin.index.size)
         self._moving = [n in MOVING for n in names]

@@ -214,3 +214,33 @@ def test_strip_chart_of_a_moving_contact(browser_page, live_server, tmp_path):
                                                          dither=Image.Dither.NONE)
         image.save(target, optimize=True)
     assert not errors, errors
+
+
+def test_the_dashboard_draws_each_array_as_it_is(browser_page, live_server):
+    # a flat 16x16 pad at 2.5 mm and a Robotiq 7x4 fingertip at 4 mm: each map has its
+    # array's aspect, and a cylinder on the pad is drawn and read as a line
+    settings = sim_settings(
+        2, **{"sensor[0].name": "pad", "sensor[0].description": "flat16",
+              "sensor[0].url": "sim://?sensor=flat16&scene=demo&seed=1",
+              "sensor[1].name": "tip", "sensor[1].description": "robotiq_tsf85",
+              "sensor[1].url": "sim://?sensor=robotiq_tsf85&scene=sphere&seed=2&sensor_id=1"})
+    server = live_server(settings)
+    page, errors = browser_page
+    page.goto(server.url + "/")
+    for sensor in ("pad", "tip"):
+        wait_numeric_seq(page, sensor)
+    aspect = page.evaluate("""s => { const c = document.querySelector(`#sensor-${s} canvas`);
+                                     return [c.width, c.height]; }""", "tip")
+    # 7 rows x 4 mm across, 4 cols x 4 mm up, plus a 24 px margin each side
+    w, h = aspect
+    assert (h - 48) / (w - 48) == pytest.approx(16.0 / 28.0, abs=0.02)
+    pad = page.evaluate("""s => { const c = document.querySelector(`#sensor-${s} canvas`);
+                                  return [c.width, c.height]; }""", "pad")
+    assert (pad[1] - 48) / (pad[0] - 48) == pytest.approx(1.0, abs=0.02)
+    page.wait_for_function(
+        "() => { const q = k => document.querySelector(`#sensor-pad [data-k=${k}]`).textContent;"
+        " return q('force_n').startsWith('line: ') && q('force_n').endsWith('N/mm'); }",
+        timeout=60_000)
+    assert "(line)" in page.text_content("#sensor-pad .model-label")
+    assert canvas_colours(page, "tip") > 4 and canvas_colours(page, "pad") > 8
+    assert not errors, errors

@@ -175,6 +175,16 @@ function drawMap(s) {
     ctx.stroke();
     ctx.restore();
   }
+  if (e.line && e.angle_deg !== null && e.angle_deg !== undefined) {
+    // A line contact (a cylinder on a flat array): the line, across the whole array.
+    const len = Math.hypot(w, h) * k, t = -e.angle_deg * Math.PI / 180;
+    ctx.beginPath();
+    ctx.moveTo(-len * Math.cos(t), -len * Math.sin(t));
+    ctx.lineTo(len * Math.cos(t), len * Math.sin(t));
+    ctx.strokeStyle = "#39d353";
+    ctx.lineWidth = 3;
+    ctx.stroke();
+  }
   if (e.angle_deg !== null && e.angle_deg !== undefined) {
     // The curvature axis: the R2 direction (a cylinder's axis).
     const len = Math.max(e.ellipse ? e.ellipse.a_mm * 1.6 : 0, 6) * k;
@@ -205,7 +215,10 @@ function drawReadouts(s) {
   set("r1_mm", fmt(e.r1_mm, std.r1_mm, "mm", 2));
   set("r2_mm", e.contact && e.r2_mm === null && e.model ? "∞" : fmt(e.r2_mm, std.r2_mm, "mm", 2));
   set("angle_deg", fmt(e.angle_deg, std.angle_deg, "°", 1));
-  set("force_n", fmt(e.force_n, std.force_n, "N", 3));
+  // a line contact has no total force: its load per length stands in the force's cell
+  set("force_n", e.line && e.force_n === null
+      ? `line: ${fmt(e.line.load_n_per_mm, e.line.load_n_per_mm_std, "N/mm", 4)}`
+      : fmt(e.force_n, std.force_n, "N", 3));
   set("x_mm", fmt(e.x_mm, std.x_mm, "mm", 2));
   set("y_mm", fmt(e.y_mm, std.y_mm, "mm", 2));
   set("ellipse", e.ellipse ? `${e.ellipse.a_mm.toFixed(2)} × ${e.ellipse.b_mm.toFixed(2)} mm @ ` +

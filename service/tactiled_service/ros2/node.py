@@ -1,0 +1,197 @@
+"""The ROS 2 front end: every sensor's topics on the daemon's Zenoh session (docs/ros2.md).
+
+With ``[ros2] enabled`` the daemon is a ROS 2 node (``<namespace>/<node_name>``, default
+``/tactiled/tactiled``) to any ROS 2 system running rmw_zenoh that its Zenoh session reaches,
+with no ROS installation and no bridge: it declares the liveliness tokens of the node and of
+its publishers (so ``ros2 node list`` and ``ros2 topic list`` show them) and publishes, per
+sensor, with the key expressions, CDR payloads and attachments rmw_zenoh uses
+(:mod:`.rmw`; the messages: :mod:`.messages`):
+
+* ``<namespace>/<sensor>/wrench`` (``geometry_msgs/msg/WrenchStamped``), ``.../contact``
+  (``tactiled_msgs/msg/Contact``), ``.../markers`` (``visualization_msgs/msg/MarkerArray``):
+  one each per estimate;
+* ``.../strain`` (``sensor_msgs/msg/Image``, ``32FC1``): zeroed frames, at most
+  ``[zenoh] frame_rate_hz`` per second per sensor (0: none);
+* ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``): the health, once a second.
+
+Read-only: nothing is subscribed to.  It is a guest of :class:`~tactiled_service.bus.Bus`
+(``bus.fronts``): declared once the session is open, undeclared (tokens first) when it
+closes.  Like the bus, it converts nothing for a topic no subscriber matches, and the
+conversion, serialisation and ``put`` run on a sender thread of its own, never on the event
+loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from tactiled.pipeline import Daemon, Estimate, ZeroedFrame
+from tactiled.settings import Settings
+from tactiled_service.ros2 import messages, rmw
+from tactiled_service.sender import QUEUE_SIZE, Sender
+
+log = logging.getLogger(__name__)
+
+DIAGNOSTICS_PERIOD_S = 1.0
+KINDS = ("wrench", "contact", "markers", "strain", "diagnostics")
+
+
+class Topic:
+    """One ROS publisher: its Zenoh publisher, GID and sequence numbers.  :meth:`put` runs on
+    the sender thread: it builds the message of an item, serialises it and puts it with the
+    rmw_zenoh attachment."""
+
+    def __init__(self, name: str, typename: str, token: str,
+                 build: Callable[[Any], Any]) -> None:
+        self.name = name
+        self.typename = typename
+        self.token = token
+        self.gid = rmw.gid(token)
+        self.build = build
+        self.matched = False  # kept by Zenoh's matching listener
+        self.sequence = 0  # the last sequence number sent (rmw_zenoh's first is 1)
+        self.publisher: Any = None
+
+    def put(self, item: Any) -> None:
+        payload = messages.serialize(self.build(item), self.typename)
+        self.sequence += 1
+        self.publisher.put(payload, attachment=rmw.attachment(self.sequence, time.time_ns(),
+                                                              self.gid))
+
+
+class Ros2Node:
+    """The ROS 2 node of one daemon (see the module docstring); ``health`` has ``report()``
+    (the service's :class:`~tactiled_service.health.HealthMonitor`)."""
+
+    name = "ros2"  # its section in the health document's ``zenoh``
+
+    def __init__(self, settings: Settings, daemon: Daemon, health: Any,
+                 queue_size: int = QUEUE_SIZE) -> None:
+        self.settings = settings.ros2
+        self.daemon = daemon
+        self.health = health
+        self.sender = Sender(queue_size, kinds=KINDS, name="tactiled-ros2-send")
+        self.frame_ids = {s.name: messages.frame_name(self.settings.frame_id, s.name)
+                          for s in settings.sensors}
+        self.hardware_ids = {s.name: s.url for s in settings.sensors}
+        rate = settings.zenoh.frame_rate_hz
+        self._frame_period = 1.0 / rate if rate > 0 else None
+        self._frame_due: dict[str, float] = {}
+        #: Monotonic -> wall-clock seconds: frames carry their arrival in monotonic time.
+        self.clock_offset = time.time() - time.monotonic()
+        self.node: rmw.NodeInfo | None = None
+        self.topics: dict[tuple[str, str], Topic] = {}  # (sensor, kind) -> topic
+        self._remove_listener: Callable[[], None] | None = None
+        self._task: asyncio.Task[None] | None = None
+
+    # -- lifecycle ------------------------------------------------------------------------------
+
+    def declare(self, session: Any) -> list[Any]:
+        """Declare the publishers and tokens on ``session`` (on the event loop) and start
+        publishing; returns what the bus undeclares at stop, tokens last (undeclared first)."""
+        s = self.settings
+        self.node = rmw.NodeInfo(s.domain_id, str(session.zid()), 0, s.namespace, s.node_name)
+        declared: list[Any] = []
+        tokens = [session.liveliness().declare_token(self.node.token())]
+        entity_id = 0
+        plan = [(name, kind) for name in self.daemon.sensors
+                for kind in (*messages.ESTIMATE_KINDS, "strain")
+                if kind != "strain" or self._frame_period is not None]
+        plan.append(("", "diagnostics"))
+        for sensor, kind in plan:
+            entity_id += 1
+            name = messages.topic(s.namespace, sensor, kind)
+            typename = messages.TYPES[kind]
+            type_hash = messages.type_hash(typename)
+            topic = Topic(name, typename,
+                          self.node.publisher_token(entity_id, name, typename, type_hash),
+                          self._builder(sensor, kind))
+            topic.publisher = session.declare_publisher(
+                rmw.topic_key(s.domain_id, name, typename, type_hash),
+                congestion_control=zenoh.CongestionControl.DROP)
+            declared.append(topic.publisher)
+            declared.append(topic.publisher.declare_matching_listener(
+                zenoh.handlers.Callback(self._matcher(topic))))
+            tokens.append(session.liveliness().declare_token(topic.token))
+            self.topics[(sensor, kind)] = topic
+        self.sender.start()
+        self._remove_listener = self.daemon.hub.add_listener(self._on_item)
+        self._task = asyncio.get_running_loop().create_task(self._diagnostics_loop(),
+                                                            name="tactiled-ros2-diagnostics")
+        log.info("ros2: node %s/%s on domain %d, %d topics", s.namespace.rstrip("/"),
+                 s.node_name, s.domain_id, len(self.topics))
+        return declared + tokens
+
+    def stop(self) -> None:
+        """Stop publishing (the bus undeclares and closes the session afterwards)."""
+        if self._remove_listener is not None:
+            self._remove_listener()
+            self._remove_listener = None
+        if self._task is not None:
+            self._task.cancel()
+            self._task = None
+        self.sender.stop()
+
+    # -- publishing -----------------------------------------------------------------------------
+
+    @staticmethod
+    def _matcher(topic: Topic) -> Callable[[Any], None]:
+        def on_status(status: Any) -> None:  # a Zenoh thread: one assignment, atomic
+            topic.matched = bool(status.matching)
+
+        return on_status
+
+    def _builder(self, sensor: str, kind: str) -> Callable[[Any], Any]:
+        """The function that makes ``kind``'s message of a hub item (on the sender thread)."""
+        if kind == "diagnostics":
+            return lambda item: messages.diagnostics(item[0], item[1], self.hardware_ids)
+        frame_id = self.frame_ids[sensor]
+        offset = self.clock_offset
+        if kind == "strain":
+            return lambda frame: messages.strain_image(frame.strain, frame.host_time + offset,
+                                                       frame_id)
+        return lambda est: messages.estimate_message(kind, est.to_json_dict(),
+                                                     est.host_time + offset, frame_id)
+
+    def _on_item(self, item: Estimate | ZeroedFrame) -> None:
+        """The hub's listener (the event loop's thread): queue the item, never wait."""
+        if item.kind == "estimate":
+            for kind in messages.ESTIMATE_KINDS:
+                topic = self.topics.get((item.sensor, kind))
+                if topic is not None and topic.matched:
+                    self.sender.offer(topic, kind, item)
+            return
+        topic = self.topics.get((item.sensor, "strain"))
+        if topic is None or not topic.matched or self._frame_period is None:
+            return
+        now = time.monotonic()
+        due = self._frame_due.get(item.sensor, 0.0)
+        if now < due:
+            return
+        period = self._frame_period  # average rate frame_rate_hz; no burst after a pause
+        self._frame_due[item.sensor] = due + period if now - due < period else now + period
+        self.sender.offer(topic, "strain", item)
+
+    async def _diagnostics_loop(self) -> None:
+        topic = self.topics[("", "diagnostics")]
+        while True:
+            await asyncio.sleep(DIAGNOSTICS_PERIOD_S)
+            if not topic.matched:
+                continue
+            try:
+                self.sender.offer(topic, "diagnostics", (self.health.report(), time.time()))
+            except Exception:  # a health glitch must not stop the diagnostics
+                log.exception("ros2: diagnostics failed")
+
+    def stats(self) -> dict[str, Any]:
+        """The health document's ``zenoh.ros2``: messages put by kind, dropped (the sender
+        fell ``queue_size`` behind), put errors, the last error."""
+        s = self.sender
+        return {"published": dict(s.sent), "dropped": s.dropped, "put_errors": s.errors,
+                "last_error": s.last_error}

@@ -1,0 +1,203 @@
+"""ROS 2 messages of estimates, frames and health, checked with code that is not ours.
+
+The messages are built and serialised by ``tactiled_service.ros2.messages`` with rosbags; here
+every one is decoded by the MCAP project's ROS 2 decoder (``mcap_ros2``, a second CDR
+implementation, fed only the message definition text), and its values are compared with an
+independent computation from the estimate's JSON.  Type hashes are compared with the values
+ROS 2 itself publishes, and the hash of ``tactiled_msgs/msg/Contact`` with the one
+``zenoh-ros2-sdk`` computes on its own from the ``.msg`` text.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap_ros2._dynamic import generate_dynamic
+from zenoh_ros2_sdk.utils import get_type_hash
+
+from tactiled_service.ros2 import messages as m
+
+ROOT = Path(__file__).resolve().parents[2]
+CONTACT_MSG = ROOT / "ros2" / "tactiled_msgs" / "msg" / "Contact.msg"
+
+#: RIHS01 hashes as ROS 2 (Jazzy, Kilted) reports them, hard-coded from outside this project:
+#: sensor_msgs/Image is the "Topic type hash" line of ``ros2 topic info -v`` in the
+#: image_pipeline documentation (docs.ros.org/en/rolling/p/image_pipeline/tutorials, "Using QoS
+#: Overrides"); the four also appear, identically, in the generated type tables of independent
+#: ROS 2 client libraries that copy them from ROS 2's type_description build output.
+ROS2_HASHES = {
+    "geometry_msgs/msg/WrenchStamped":
+        "RIHS01_8dc3deaf06b2ab281f9f9a742a8961c328ca7cec16e3fd6586d3a5c83fa78f77",
+    "sensor_msgs/msg/Image":
+        "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47",
+    "visualization_msgs/msg/MarkerArray":
+        "RIHS01_86cb8800b6fb05b5eff1abd7a56f62a5641d3ae9a1c29e78e67e704f1d067dcf",
+    "diagnostic_msgs/msg/DiagnosticArray":
+        "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e",
+}
+
+#: docs/api.md's example estimate (a held cylinder contact).
+ESTIMATE: dict[str, Any] = {
+    "type": "estimate", "sensor": "finger0", "sensor_id": 0, "seq": 9561,
+    "device_time_us": 9561000, "host_time": 2522.376680267, "time": 1795309645.9224312,
+    "latency_ms": 0.0855, "worker_ms": 0.0, "gate": "unchanged", "fitted_seq": 8442,
+    "contact": True, "model": "cylinder", "x_mm": 11.6135, "y_mm": 13.6789, "force_n": 1.0312,
+    "r1_mm": 12.9935, "r2_mm": None, "angle_deg": 92.967, "rms": 0.0132,
+    "std": {"x_mm": 0.0278, "y_mm": 0.0324, "force_n": 0.0103, "r1_mm": 1.0938, "r2_mm": None,
+            "angle_deg": 2.136, "vx_mm_s": 0.0148, "vy_mm_s": 0.0162,
+            "angle_rate_deg_s": 1.05, "force_rate_n_s": 0.0051},
+    "fit_ms": 5.0119, "label": "cylinder", "converged": True, "iterations": 16,
+    "condition": 1.71, "peak": 0.0312, "reasons": {"r2_mm": "infinite: cylinder model"},
+    "message": "predicted decrease below ftol",
+    "ellipse": {"a_mm": 3.213, "b_mm": 2.9936, "theta_deg": 142.698},
+    "frames_used": 1119, "vx_mm_s": 0.0123, "vy_mm_s": -0.0071, "angle_rate_deg_s": 0.0412,
+    "force_rate_n_s": -0.0009}
+NO_CONTACT: dict[str, Any] = {
+    "type": "estimate", "sensor": "finger0", "sensor_id": 0, "seq": 3, "device_time_us": 3000,
+    "gate": "no_contact", "fitted_seq": None, "contact": False, "model": None, "x_mm": None,
+    "y_mm": None, "force_n": None, "r1_mm": None, "r2_mm": None, "angle_deg": None,
+    "std": {}, "reasons": {"x_mm": "no contact"}, "ellipse": None, "frames_used": 0}
+STAMP = 1795309645.25
+
+
+def decode(kind: str, data: bytes) -> Any:
+    """``data`` decoded by mcap_ros2 from the definition text alone (not rosbags)."""
+    typename = m.TYPES[kind]
+    assert data[:4] == b"\x00\x01\x00\x00", "CDR little-endian encapsulation header"
+    decoders = generate_dynamic(typename.replace("/msg/", "/"), m.definition(typename))
+    return decoders[typename.replace("/msg/", "/")](data)
+
+
+def same(a: float, b: Any) -> bool:
+    """``a`` equals the JSON value ``b`` (null: NaN)."""
+    return math.isnan(a) if b is None else math.isclose(a, b, rel_tol=1e-15, abs_tol=0.0)
+
+
+def test_standard_type_hashes_are_those_ros2_publishes() -> None:
+    for typename, expected in ROS2_HASHES.items():
+        assert m.type_hash(typename) == expected, typename
+
+
+def test_contact_hash_agrees_with_an_independent_implementation() -> None:
+    text = CONTACT_MSG.read_text()
+    deps = {"std_msgs/msg/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
+            "builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n"}
+    ours = m.type_hash(m.CONTACT_TYPE)
+    assert ours == get_type_hash(m.CONTACT_TYPE, msg_definition=text, dependencies=deps)
+    assert ours.startswith("RIHS01_") and len(ours) == 7 + 64
+
+
+def test_wrench_hash_agrees_with_an_independent_implementation() -> None:
+    deps = {"std_msgs/msg/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
+            "builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n",
+            "geometry_msgs/msg/Wrench": "Vector3 force\nVector3 torque\n",
+            "geometry_msgs/msg/Vector3": "float64 x\nfloat64 y\nfloat64 z\n"}
+    typename = "geometry_msgs/msg/WrenchStamped"
+    sdk = get_type_hash(typename, msg_definition="std_msgs/Header header\nWrench wrench\n",
+                        dependencies=deps)
+    assert sdk == m.type_hash(typename) == ROS2_HASHES[typename]
+
+
+def test_the_daemon_publishes_the_message_the_ament_package_builds() -> None:
+    assert m.contact_definition() == CONTACT_MSG.read_text()
+
+
+def test_wrench_is_the_force_on_the_sensor_in_si_units() -> None:
+    msg = decode("wrench", m.serialize(m.wrench(ESTIMATE, STAMP, "finger0"), m.TYPES["wrench"]))
+    assert msg.header.frame_id == "finger0"
+    assert msg.header.stamp.sec == 1795309645 and msg.header.stamp.nanosec == 250_000_000
+    f = np.array([msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z])
+    t = np.array([msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z])
+    np.testing.assert_allclose(f, [0.0, 0.0, -1.0312], rtol=1e-15)
+    r = np.array([ESTIMATE["x_mm"], ESTIMATE["y_mm"], 0.0]) / 1000.0  # m
+    np.testing.assert_allclose(t, np.cross(r, f), rtol=1e-12)
+    none = decode("wrench", m.serialize(m.wrench(NO_CONTACT, STAMP, "f"), m.TYPES["wrench"]))
+    assert none.wrench.force.z == 0.0 and none.wrench.torque.x == 0.0
+
+
+def test_contact_carries_every_value_and_sigma_with_the_json_names() -> None:
+    msg = decode("contact", m.serialize(m.contact(ESTIMATE, STAMP, "finger0"),
+                                        m.TYPES["contact"]))
+    for key in ("x_mm", "y_mm", "force_n", "r1_mm", "r2_mm", "angle_deg", "vx_mm_s", "vy_mm_s",
+                "angle_rate_deg_s", "force_rate_n_s"):
+        assert same(getattr(msg, key), ESTIMATE[key]), key
+        assert same(getattr(msg, f"std_{key}"), ESTIMATE["std"][key]), f"std_{key}"
+    for key in ("rms", "peak", "condition", "latency_ms", "worker_ms", "fit_ms"):
+        assert same(getattr(msg, key), ESTIMATE[key]), key
+    for key in ("sensor", "sensor_id", "seq", "device_time_us", "gate", "fitted_seq", "contact",
+                "model", "label", "converged", "iterations", "message", "frames_used"):
+        assert getattr(msg, key) == ESTIMATE[key], key
+    e = ESTIMATE["ellipse"]
+    assert (msg.ellipse_a_mm, msg.ellipse_b_mm, msg.ellipse_theta_deg) == (
+        e["a_mm"], e["b_mm"], e["theta_deg"])
+    assert dict(zip(msg.reason_keys, msg.reason_texts)) == ESTIMATE["reasons"]
+    none = decode("contact", m.serialize(m.contact(NO_CONTACT, STAMP, "f"), m.TYPES["contact"]))
+    assert none.contact is False and none.fitted_seq == -1 and none.model == ""
+    assert math.isnan(none.force_n) and math.isnan(none.ellipse_a_mm)
+
+
+def test_markers_draw_the_ellipse_and_the_force_arrow_in_metres() -> None:
+    msg = decode("markers", m.serialize(m.markers(ESTIMATE, STAMP, "finger0"),
+                                        m.TYPES["markers"]))
+    ellipse, arrow = msg.markers
+    assert (ellipse.ns, ellipse.id, ellipse.type, ellipse.action) == ("finger0", 0, 3, 0)
+    assert math.isclose(ellipse.scale.x, 2 * 3.213e-3) and math.isclose(ellipse.scale.y,
+                                                                          2 * 2.9936e-3)
+    assert math.isclose(ellipse.pose.position.x, 11.6135e-3)
+    q = ellipse.pose.orientation
+    assert math.isclose(math.degrees(2 * math.atan2(q.z, q.w)), 142.698)
+    assert (arrow.id, arrow.type, arrow.action) == (1, 0, 0)
+    tail, head = arrow.points
+    assert math.isclose(tail.z - head.z, 1.0312 * m.ARROW_M_PER_N)  # into the skin
+    assert (head.x, head.y, head.z) == (ellipse.pose.position.x, ellipse.pose.position.y, 0.0)
+    gone = decode("markers", m.serialize(m.markers(NO_CONTACT, STAMP, "f"), m.TYPES["markers"]))
+    assert [(k.id, k.action) for k in gone.markers] == [(0, 2), (1, 2)]  # DELETE both
+
+
+def test_strain_image_is_32fc1_rows_by_cols() -> None:
+    rng = np.random.default_rng(5)
+    strain = rng.normal(0, 1e-3, size=(8, 6))
+    strain[2, 3] = np.nan  # the zeroer never sends one, but NaN must not reach a viewer
+    msg = decode("strain", m.serialize(m.strain_image(strain, STAMP, "finger0"),
+                                       m.TYPES["strain"]))
+    assert (msg.height, msg.width, msg.encoding, msg.step, msg.is_bigendian) == (
+        8, 6, "32FC1", 24, 0)
+    pixels = np.frombuffer(bytes(msg.data), dtype="<f4").reshape(8, 6)
+    expected = np.where(np.isnan(strain), 0.0, strain).astype(np.float32)
+    np.testing.assert_array_equal(pixels, expected)
+
+
+def test_diagnostics_levels_and_reasons() -> None:
+    report = {"status": "ERROR", "sensors": {
+        "finger0": {"status": "OK", "reason": "", "frame_rate_hz": 1000.0, "connected": True},
+        "thumb": {"status": "DEGRADED", "reason": "frame rate 512 Hz, below the nominal"},
+        "index": {"status": "STALE", "reason": "no estimate for 1.2 s"},
+        "pinky": {"status": "ERROR", "reason": "disconnected"}}}
+    msg = decode("diagnostics", m.serialize(
+        m.diagnostics(report, STAMP, {"finger0": "sim://?seed=1"}), m.TYPES["diagnostics"]))
+    got = {s.name: (s.level, s.message, s.hardware_id) for s in msg.status}
+    assert got == {
+        "tactiled: finger0": (0, "OK", "sim://?seed=1"),
+        "tactiled: thumb": (1, "frame rate 512 Hz, below the nominal", "thumb"),
+        "tactiled: index": (3, "no estimate for 1.2 s", "index"),
+        "tactiled: pinky": (2, "disconnected", "pinky")}
+    values = {kv.key: kv.value for kv in msg.status[0].values}
+    assert values == {"status": "OK", "frame_rate_hz": "1000.0", "connected": "true"}
+
+
+@pytest.mark.parametrize(("sensor", "expected"), [
+    ("finger0", "/tactiled/finger0/wrench"), ("finger-0", "/tactiled/finger_0/wrench"),
+    ("0", "/tactiled/s0/wrench"), ("a.b__c", "/tactiled/a_b_c/wrench")])
+def test_topic_names_are_valid_ros_names(sensor: str, expected: str) -> None:
+    assert m.topic("/tactiled", sensor, "wrench") == expected
+    assert m.topic("/", sensor, "diagnostics") == "/diagnostics"
+
+
+def test_sensors_whose_topics_would_collide_are_refused() -> None:
+    m.check_segments(["finger0", "thumb", "finger-1"])
+    with pytest.raises(ValueError, match="sensors 'finger-0' and 'finger_0' have the same ROS"):
+        m.check_segments(["finger-0", "thumb", "finger_0"])
