@@ -43,7 +43,8 @@ from tactiled.fit.window import choose_window, plain_frame, plain_window
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.hertz import Ellipse
 from tactiled.physics.kernels import cramer_rao as crb_kernel
-from tactiled.physics.strain import StrainModel, warm_rules
+from tactiled.physics.line import half_width
+from tactiled.physics.strain import StrainModel, nodes_for, warm_rules
 
 #: Singular values below this fraction of the largest make J^T J numerically singular.
 SINGULAR_CONDITION = 1e12
@@ -425,7 +426,7 @@ class Fitter:
         exact = self.options.jacobian == "exact"
         residual = None  # the Python solver's residual function, built only if it is needed
         for p0 in starts:
-            max_iter = cap if budget is None else budget.iterations_for(cap)
+            max_iter = self._iterations_for(cap)
             if tried and (max_iter == 0 or self._out_of_time()):
                 break
             tried += 1
@@ -443,9 +444,7 @@ class Fitter:
                                           bounds=bounds)
                 if budget is not None:
                     budget.charge(sol.iterations, 0.0)
-            if budget is not None and max_iter < cap and sol.iterations >= max_iter and not sol.converged:
-                budget.exhausted = True  # the fit's iterations ran out, not this solve's cap
-                sol.message = f"{EXHAUSTED} ({self.options.budget_iterations} iterations)"
+            self._ran_out(sol, max_iter, cap)
             if best is None or sol.cost < best.cost:
                 best = sol
             if self._good_enough(best, peak, n_points) or self._out_of_time():
@@ -458,6 +457,17 @@ class Fitter:
                              starts=tried, message=best.message,
                              params=tuple(best.p.tolist()))
         return self._result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
+
+    def _iterations_for(self, cap: int) -> int:
+        """The iteration cap of the next search: ``cap``, or what the fit's budget has left."""
+        return cap if self._budget is None else self._budget.iterations_for(cap)
+
+    def _ran_out(self, sol: SolveResult, max_iter: int, cap: int) -> None:
+        """Mark a search the fit's iterations stopped (not its own cap) as the budget's."""
+        if self._budget is not None and max_iter < cap and sol.iterations >= max_iter \
+                and not sol.converged:
+            self._budget.exhausted = True
+            sol.message = f"{EXHAUSTED} ({self.options.budget_iterations} iterations)"
 
     @staticmethod
     def _stopped(sol: SolveResult) -> bool:
@@ -528,12 +538,27 @@ class Fitter:
         verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
         best: SolveResult | None = None
         tried = 0
+        budget = self._budget
+        residual = prob.residual_and_jacobian
+        if budget is not None:
+            def residual(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                b = half_width(math.exp(p[2]), math.exp(p[0]), prob.k)
+                nodes = nodes_for(b, prob.dmin, prob.tol)  # ValueError: an invalid point
+                budget.pay(fit_budget.line_work(nodes, fr.n_points))  # or BudgetExhausted
+                return prob.residual_and_jacobian(p)
+
+        cap = self.options.max_iter
         for p0 in starts:
+            max_iter = self._iterations_for(cap)
+            if tried and (max_iter == 0 or self._out_of_time()):
+                break
             tried += 1
-            sol = levenberg_marquardt(prob.residual_and_jacobian, p0, max_step=LINE_STEPS,
-                                      max_iter=self.options.max_iter, atol=atol,
-                                      deadline=self._deadline, verdict_tol=verdict_tol,
+            sol = levenberg_marquardt(residual, p0, max_step=LINE_STEPS, max_iter=max_iter,
+                                      atol=atol, deadline=self._deadline, verdict_tol=verdict_tol,
                                       bounds=_LINE_BOUNDS)
+            if budget is not None:
+                budget.charge(sol.iterations, 0.0)
+            self._ran_out(sol, max_iter, cap)
             if best is None or sol.cost < best.cost:
                 best = sol
             if self._good_enough(best, peak, fr.n_points) or self._out_of_time():
@@ -550,6 +575,10 @@ class Fitter:
         values, std, line = prob.report(best.p, cov)
         reasons["force_n"] = LINE_FORCE_REASON
         reasons["r2_mm"] = "infinite: cylinder model"
+        if self._stopped(best):
+            self._unsettled(best, peak, values, std, reasons)
+            if all(values.get(k) is None for k in VALUE_KEYS):
+                line = None  # the load and offset of a search stopped short are no measurement
         self._unobservable(values, std, reasons)
         if not best.converged:
             reasons.setdefault("fit", best.message)
