@@ -40,12 +40,16 @@ def default_state_dir(env: dict[str, str] | None = None) -> Path:
     return Path(base) / "tactiled"
 
 
-def fingerprint(sensor: SensorModel, calibration: str | os.PathLike[str] | None = None) -> str:
+def fingerprint(sensor: SensorModel, calibration: str | os.PathLike[str] | None = None,
+                description: str = "") -> str:
     """A digest of everything the fits take from the sensor model: every field of ``sensor``
     (geometry, cover, noise, tactel positions, model-error floor, and whatever a SensorModel
-    comes to hold: its ``repr`` is taken whole, floats exactly) and the calibration file's
-    bytes, if any.  Learned state keyed on it is never applied through another model."""
+    comes to hold: its ``repr`` is taken whole, floats exactly), the sensor description's own
+    fingerprint (``SensorDescription.fingerprint()``: its wire order and dead tactels too) and
+    the calibration file's bytes, if any.  Learned state keyed on it is never applied through
+    another model."""
     h = hashlib.sha256(repr(sensor).encode())
+    h.update(b"\0description\0" + description.encode())
     if calibration is not None:
         h.update(b"\0calibration\0")
         h.update(Path(calibration).read_bytes())

@@ -846,7 +846,8 @@ class SensorPipeline:
 
     def _owner(self) -> learned.Owner:
         return learned.Owner(self.name, self.expected_id,
-                             learned.fingerprint(self.sensor_model, self.settings.calibration))
+                             learned.fingerprint(self.sensor_model, self.settings.calibration,
+                                                 self.description.fingerprint()))
 
     def _check_learned(self) -> bool:
         """Whether the state directory holds a flat field this sensor learned through this

@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactiled.config import NoiseModel, SensorModel
 from tactiled.fit.flatfield import FlatField
 from tactiled.pipeline import Daemon, learned
+from tactiled.sensors import load_description
 from tactiled.settings import load_settings
 
 #: A finger whose tactels depart from the model (5 % gains, 0.1 mm positions), pressed over
@@ -93,6 +93,12 @@ def test_a_restarted_daemon_starts_with_the_flat_field_it_learned(tmp_path: Path
     assert worker["shift_rms_um"] == pytest.approx(expected["shift_rms_um"], rel=1e-12, abs=1e-12)
 
 
+def _fingerprint(name: str | None = None, noise_sigma: float = 0.0005) -> str:
+    """The sensor-model fingerprint a pipeline of description ``name`` computes."""
+    d = load_description(name)
+    return learned.fingerprint(d.sensor_model(noise_sigma), None, d.fingerprint())
+
+
 def _saved_state(tmp_path: Path, owner: learned.Owner) -> Path:
     flat = FlatField(8, 8)
     flat.fits, flat.gain = 50, np.full((8, 8), 1.02)
@@ -110,14 +116,17 @@ async def _learned_stats(settings) -> dict:
         await daemon.stop()
 
 
-@pytest.mark.parametrize("change", ["name", "wire_id", "model"])
+@pytest.mark.parametrize("change", ["name", "wire_id", "model", "description"])
 def test_a_flat_field_of_another_sensor_or_model_is_refused(tmp_path: Path, arun, change) -> None:
-    settings = load_settings(None, {}, {"sensor[0].url": "sim://?scene=empty", "fit.workers": 1,
-                                        "state.dir": str(tmp_path)})
-    model = SensorModel(noise=NoiseModel(sigma=settings.sensors[0].noise_sigma))
-    owner = learned.Owner("finger0", None, learned.fingerprint(model))
+    overrides = {"sensor[0].url": "sim://?scene=empty", "fit.workers": 1, "state.dir": str(tmp_path)}
+    if change == "description":  # the file was learned on the paper's finger; this is a pad
+        overrides.update({"sensor[0].description": "flat16",
+                          "sensor[0].url": "sim://?scene=empty&sensor=flat16"})
+    settings = load_settings(None, {}, overrides)
+    owner = learned.Owner("finger0", None, _fingerprint())
     other = {"name": replace(owner, name="finger1"), "wire_id": replace(owner, wire_id=7),
-             "model": replace(owner, fingerprint=learned.fingerprint(replace(model, noise=NoiseModel(sigma=0.001))))}
+             "model": replace(owner, fingerprint=_fingerprint(noise_sigma=0.001)),
+             "description": owner}
     path = _saved_state(tmp_path, other[change])
     if change == "name":  # another sensor's file sits under its own name: make it this one's
         path.rename(learned.state_path(tmp_path, "finger0"))
@@ -130,8 +139,7 @@ def test_a_flat_field_of_another_sensor_or_model_is_refused(tmp_path: Path, arun
 def test_the_right_file_is_applied_and_a_corrupt_one_refused(tmp_path: Path, arun) -> None:
     settings = load_settings(None, {}, {"sensor[0].url": "sim://?scene=empty", "fit.workers": 1,
                                         "state.dir": str(tmp_path)})
-    model = SensorModel(noise=NoiseModel(sigma=settings.sensors[0].noise_sigma))
-    path = _saved_state(tmp_path, learned.Owner("finger0", None, learned.fingerprint(model)))
+    path = _saved_state(tmp_path, learned.Owner("finger0", None, _fingerprint()))
     stats, worker = arun(_learned_stats(settings))
     assert stats["loaded_fits"] == 50 and stats["refused"] == 0
     assert worker["fits"] == 50 and worker["gain_rms"] == pytest.approx(0.02)
