@@ -11,7 +11,9 @@ runs it after its answer):
 - ``hand print``: a palm and four or five fingers' pads on a 32x32 array (2.5 mm pitch);
 - ``random``: every tactel random (uniform strain up to a random level);
 - ``saturated``: contacts clipped flat at 30-70 % of their peak (an array at the end of its
-  range), and rectangular steps of uniform strain.
+  range), and rectangular steps of uniform strain;
+- on the built-in flat 32x32 mat (``flat32``): ``lines``, sums of 2-3 cylinders pressed at once
+  (line contacts), and ``random`` patterns.
 
 Two fitters take turns frame by frame (so a busy spell of a shared machine falls on both):
 one with the default budget, one with none (what every fit did before the budget).  The
@@ -32,7 +34,7 @@ from tactiled.config import Geometry, SensorModel
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.params import VALUE_KEYS
-from tactiled.physics.contact import Contact
+from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.strain import StrainModel
 from tactiled.sim import add_noise
 
@@ -75,6 +77,29 @@ def hand_prints(rng: np.random.Generator, n: int) -> list[np.ndarray]:
     return out
 
 
+def flat32() -> SensorModel:
+    """The built-in flat 32x32 mat with the bench's noise."""
+    from tactiled.sensors import load_description
+
+    return replace(load_description("flat32").sensor_model(), noise=BENCH_NOISE)
+
+
+def lines(sensor: SensorModel, rng: np.random.Generator, n: int) -> list[np.ndarray]:
+    """Sums of 2-3 cylinders pressed at once on a flat array (line contacts across it)."""
+    model = StrainModel(sensor)
+    g = sensor.geometry
+    out = []
+    for _ in range(n):
+        s = sum(model.predict(LineContact(float(np.exp(rng.uniform(0.0, np.log(50.0)))),
+                                          float(rng.uniform(0.0, 180.0)),
+                                          float(rng.uniform(0.02, 0.3)),
+                                          float(rng.uniform(0.2, 0.8) * g.span_x),
+                                          float(rng.uniform(0.2, 0.8) * g.span_y)))
+                for _ in range(int(rng.integers(2, 4))))
+        out.append(add_noise(s, sensor.noise, rng))
+    return out
+
+
 def random_patterns(sensor: SensorModel, rng: np.random.Generator, n: int) -> list[np.ndarray]:
     g = sensor.geometry
     return [rng.uniform(0.0, float(rng.uniform(0.005, 0.2)), (g.rows, g.cols)) for _ in range(n)]
@@ -104,6 +129,7 @@ def frame_sets(quick: bool, seed: int = 5) -> list[tuple[str, SensorModel, list[
     """``(name, sensor, frames)`` of every set the bench fits."""
     n = 20 if quick else 300
     rng = np.random.default_rng(seed)
+    flat = flat32()
     contacts = [bf.strain for bf in build_suite(n // 2, 4, seed=seed,
                                                 sensor=FINGER_8)]
     return [
@@ -115,6 +141,8 @@ def frame_sets(quick: bool, seed: int = 5) -> list[tuple[str, SensorModel, list[
         ("random 32x32", ARRAY_32, random_patterns(ARRAY_32, rng, n)),
         ("saturated 8x8", FINGER_8, saturated(FINGER_8, rng, n)),
         ("saturated 32x32", ARRAY_32, saturated(ARRAY_32, rng, n)),
+        ("lines flat32", flat, lines(flat, rng, n)),
+        ("random flat32", flat, random_patterns(flat, rng, n)),
     ]
 
 

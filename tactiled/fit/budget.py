@@ -31,9 +31,11 @@ from dataclasses import dataclass
 #: converge use at most 95 (the simulated suites, 1200 frames each, auto cold and warm, every
 #: kind of contact) and 87 (the golden replays: an edge held at the array's end).
 DEFAULT_ITERATIONS = 120
-#: The work of one fit (see the module docstring): ~2-2.5 ms of evaluations.  The fits that
-#: converge use at most 342000 (the simulated suites) and 616000 (the golden replays' edge).
-DEFAULT_WORK = 800_000
+#: The work of one fit (see the module docstring): ~3 ms of evaluations.  The fits that
+#: converge use at most 342000 on the paper's finger (the simulated suites), 616000 in the
+#: golden replays (an edge at the end of the array) and 951000 on the built-in flat arrays
+#: (`tactiled bench --suite sensors`' contacts: line fits of a 12x32 mat).
+DEFAULT_WORK = 1_200_000
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
 #: algebra: ~3 us, measured as the intercept of the cost per evaluation).
 EVALUATION_OVERHEAD = 1000
