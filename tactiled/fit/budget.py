@@ -89,6 +89,26 @@ class Budget:
     used_iterations: int = 0
     used_work: float = 0.0
 
+    def hold(self, share: float) -> tuple[int, float]:
+        """Set aside ``share`` of what is left (iterations, work) for later searches; returns
+        it for :meth:`release`.  Auto keeps half for the other models while it fits the
+        cylinder: a frame the cylinder cannot explain must not leave none to the sphere."""
+        held_i = 0 if self.iterations is None else int(self.iterations * share)
+        held_w = 0.0 if self.work is None else float(self.work) * share
+        if self.iterations is not None:
+            self.iterations -= held_i
+        if self.work is not None:
+            self.work -= held_w
+        return held_i, held_w
+
+    def release(self, held: tuple[int, float]) -> None:
+        """Give back what :meth:`hold` set aside (the search it was held from is over)."""
+        if self.iterations is not None:
+            self.iterations += held[0]
+        if self.work is not None:
+            self.work += held[1]
+        self.exhausted = False  # what ran out was the share left to that search
+
     def iterations_for(self, cap: int) -> int:
         """The iteration cap of the next solve: ``cap``, or what is left if less."""
         return cap if self.iterations is None else max(0, min(cap, self.iterations))

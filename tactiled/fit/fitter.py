@@ -1101,7 +1101,10 @@ class Fitter:
             if kept.contact and kept.chi2 is not None and kept.peak and self._consistent(kept):
                 kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
                 return kept
+        held = self._budget.hold(0.5) if self._budget is not None else None
         cyl = self._fit_cylinder(strain, None, mask)
+        if held is not None:
+            self._budget.release(held)
         if not cyl.contact or cyl.chi2 is None or cyl.params is None or self._out_of_time():
             return cyl
         fits = [cyl]
