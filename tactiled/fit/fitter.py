@@ -205,7 +205,7 @@ def _covariance(jraw: np.ndarray, sigma: float) -> tuple[np.ndarray | None, floa
         sv = np.linalg.svd(jraw, compute_uv=False)
     except np.linalg.LinAlgError:
         return None, None
-    if not np.all(np.isfinite(sv)) or sv[-1] <= 0.0:
+    if sv.size == 0 or not np.all(np.isfinite(sv)) or sv[-1] <= 0.0:  # size 0: no evaluation
         return None, None
     condition = float(sv[0] / sv[-1])
     if condition > SINGULAR_CONDITION:

@@ -87,3 +87,23 @@ def test_budget_options_are_checked():
             raise AssertionError(f"{bad} accepted")
     assert FitOptions(budget_iterations=None, budget_work=None).budget_work is None
     assert np.isfinite(FitOptions().budget_work)
+
+
+def test_a_budget_too_small_for_one_evaluation_answers_cleanly():
+    """Every model, on the paper's finger and on a flat pad (its line model): a budget that
+    cannot pay for the first evaluation gives a well-formed, not converged answer."""
+    from tactiled.physics.contact import Contact, LineContact
+    from tactiled.physics.strain import StrainModel
+    from tactiled.sensors import load_description
+
+    for name, contact in (("fearing1988", Contact(6.0, math.inf, 70.0, 1.2, 12.0, 14.0)),
+                          ("flat16", LineContact(8.0, 60.0, 0.08, 17.0, 20.0))):
+        sensor = load_description(name).sensor_model()
+        frame = StrainModel(sensor).predict(contact)
+        fitter = Fitter(sensor, FitOptions(budget_work=1))
+        for model in ("cylinder", "sphere", "general", "auto"):
+            res = fitter.fit(frame, model)
+            assert res.contact and not res.converged, (name, model, res)
+            assert budget_spent(res.reasons), (name, model, res.reasons)
+            assert all(res.values[k] is None for k in VALUE_KEYS), (name, model, res.values)
+            assert fitter.spent[1] <= 1
