@@ -20,6 +20,7 @@ Keys (the documented example is ``deploy/tactiled.toml``)::
                frame_rate_hz = 0, config = (none)
     [ros2]     enabled = false, domain_id = 0, namespace = "/tactiled", node_name = "tactiled",
                frame_id = "{sensor}"
+    [state]    dir = ($STATE_DIRECTORY, else ~/.local/state/tactiled)
 
 With no file and no sensor keys anywhere there is one sensor, ``finger0`` on
 ``sim://?scene=demo&seed=1``.
@@ -185,6 +186,21 @@ class Ros2Settings:
 
 
 @dataclass(frozen=True)
+class StateSettings:
+    """What the daemon keeps across restarts (the flat field each sensor learns from its fits:
+    ``tactiled/pipeline/learned.py``)."""
+
+    #: The state directory; None: ``$STATE_DIRECTORY`` (systemd's ``StateDirectory=``), else
+    #: ``$XDG_STATE_HOME/tactiled`` or ``~/.local/state/tactiled``.
+    dir: str | None = None
+
+    def directory(self) -> Path:
+        from tactiled.pipeline.learned import default_state_dir
+
+        return Path(self.dir) if self.dir is not None else default_state_dir()
+
+
+@dataclass(frozen=True)
 class Settings:
     """The daemon's whole configuration."""
 
@@ -194,6 +210,7 @@ class Settings:
     record: RecordSettings = field(default_factory=RecordSettings)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     ros2: Ros2Settings = field(default_factory=Ros2Settings)
+    state: StateSettings = field(default_factory=StateSettings)
     source: str | None = None  # the config file read, if any
 
     def sensor(self, name: str) -> SensorSettings:
@@ -530,15 +547,19 @@ _ROS2_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "node_name": _ros_name(_ROS_SEGMENT, "letters, digits and '_', not starting with a digit"),
     "frame_id": _as_str,
 }
+_STATE_FIELDS: dict[str, Callable[[Any, str], Any]] = {
+    "dir": _optional(_as_str),
+}
 _SECTIONS: dict[str, dict[str, Callable[[Any, str], Any]]] = {
     "server": _SERVER_FIELDS,
     "fit": FIT_FIELDS,
     "record": _RECORD_FIELDS,
     "zenoh": _ZENOH_FIELDS,
     "ros2": _ROS2_FIELDS,
+    "state": _STATE_FIELDS,
 }
 #: Keys whose relative paths are taken relative to the config file.
-_PATH_KEYS = {("sensor", "calibration"), ("record", "path"), ("zenoh", "config")}
+_PATH_KEYS = {("sensor", "calibration"), ("record", "path"), ("zenoh", "config"), ("state", "dir")}
 
 #: Sensor keys the daemon can change while running (Daemon.update_config).
 RUNTIME_SENSOR_KEYS = ("model", "window", "noise_sigma", "false_rate", "reuse_unchanged",
@@ -557,7 +578,7 @@ def check_sensor_value(key: str, value: Any, where: str) -> Any:
 # Loading and merging
 
 
-_KEY_RE = re.compile(r"^(?:(server|fit|record|zenoh|ros2)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
+_KEY_RE = re.compile(r"^(?:(server|fit|record|zenoh|ros2|state)\.([a-z_]+)|sensor\[(\d+)\]\.([a-z_]+))$")
 
 
 @dataclass
@@ -566,7 +587,7 @@ class _Raw:
 
     sections: dict[str, dict[str, Any]] = field(
         default_factory=lambda: {"server": {}, "fit": {}, "record": {}, "zenoh": {},
-                                 "ros2": {}})
+                                 "ros2": {}, "state": {}})
     sensors: list[dict[str, Any]] = field(default_factory=list)
     origin: dict[str, str] = field(default_factory=dict)  # dotted key -> where it was set
 
@@ -653,7 +674,7 @@ def _read_file(path: Path, raw: _Raw) -> None:
                 raw.set(f"{top}.{key}", value, origin)
         else:
             raise ConfigError(f"{top}: unknown section (known: server, sensor, fit, "
-                              f"record, zenoh, ros2){_suffix(origin)}")
+                              f"record, zenoh, ros2, state){_suffix(origin)}")
 
 
 _ENV_SENSOR_RE = re.compile(r"^SENSOR_(\d+)_([A-Z_]+)$")
@@ -698,6 +719,7 @@ def _build(raw: _Raw) -> Settings:
     record = typed(_RECORD_FIELDS, raw.sections["record"], RecordSettings, "record")
     zenoh = typed(_ZENOH_FIELDS, raw.sections["zenoh"], ZenohSettings, "zenoh")
     ros2 = typed(_ROS2_FIELDS, raw.sections["ros2"], Ros2Settings, "ros2")
+    state = typed(_STATE_FIELDS, raw.sections["state"], StateSettings, "state")
     sensor_tables = raw.sensors or [{}]
     sensors = []
     for i, table in enumerate(sensor_tables):
@@ -743,7 +765,7 @@ def _build(raw: _Raw) -> Settings:
         raise ConfigError("ros2.enabled: the ROS 2 topics go out on the daemon's Zenoh session: "
                           "set zenoh.enabled = true as well (tactiled run --ros2 does both)")
     return Settings(server=server, sensors=tuple(sensors), fit=fit, record=record, zenoh=zenoh,
-                    ros2=ros2)
+                    ros2=ros2, state=state)
 
 
 def load_settings(path: str | os.PathLike[str] | None = None,
@@ -783,5 +805,6 @@ def settings_to_dict(settings: Settings) -> dict[str, Any]:
         "record": table(settings.record),
         "zenoh": table(settings.zenoh),
         "ros2": table(settings.ros2),
+        "state": table(settings.state),
         "source": settings.source,
     }

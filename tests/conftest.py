@@ -22,6 +22,19 @@ from tactiled.frames import Frame
 
 
 # --------------------------------------------------------------------------------------------
+# State
+
+
+@pytest.fixture(autouse=True)
+def _own_state_dir(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every test's daemons keep what they learn (``[state] dir``'s default) in a directory
+    of the test's own, never the user's: a flat field one test learned must not change
+    another's fits."""
+    monkeypatch.delenv("STATE_DIRECTORY", raising=False)
+    monkeypatch.setenv("XDG_STATE_HOME", str(tmp_path_factory.mktemp("xdg-state")))
+
+
+# --------------------------------------------------------------------------------------------
 # Frames
 
 

@@ -70,6 +70,9 @@ SENSOR_COUNTERS: tuple[tuple[str, str, Any], ...] = (
      "estimate was already out.", lambda st: st["stale_dropped"]),
     ("tactiled_fit_errors", "Fits whose fitter raised (the frame is lost, not the worker).",
      lambda st: st["fit_errors"]),
+    ("tactiled_fits_budget_spent", "Fits their budget stopped short of the least-squares "
+     "minimum (not converged: a frame the model cannot explain).",
+     lambda st: st["fits_budget_spent"]),
     ("tactiled_fits_lost", "Fits lost with their worker (died, hung, or stopped).",
      lambda st: st["fit_failed"]),
     ("tactiled_source_errors", "Failures of the sensor's source (open failed, device lost).",

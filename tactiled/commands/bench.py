@@ -24,6 +24,10 @@ Suites (default: all):
               against the single-frame bound at 100 ms and 1 s, coverage; --plot draws the
               error against time), rolls and rotations (lag, rates), steps, and the CPU per
               frame with tracking on and off
+  unexplained the fit's cost on frames the model cannot explain (several contacts at once, a
+              hand print on a 32x32 array, random and saturated patterns) and on the simulated
+              contacts, with the fit budget and without: CPU ms median/p99/max, iterations,
+              the share converged, stopped by the budget, withheld
 
 Output is Markdown on stdout; progress goes to stderr.  --quick runs in about a minute.
 
@@ -43,7 +47,7 @@ import sys
 import time
 
 SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify", "speed",
-          "temporal", "sensors")
+          "temporal", "sensors", "unexplained")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -227,5 +231,10 @@ def run(args: argparse.Namespace) -> int:
         from tactiled.bench import identify
 
         out += ["", "## Identification: a finger that is not the paper's", "", identify.run(args.quick, args.progress)]
+    if "unexplained" in suites:
+        from tactiled.bench import unexplained
+
+        out += ["", "## Frames the model cannot explain: the fit budget", "",
+                unexplained.run(args.quick, args.progress)]
     print("\n".join(out))
     return 0

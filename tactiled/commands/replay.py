@@ -87,7 +87,8 @@ async def _replay(args: argparse.Namespace) -> dict[str, Any]:
     from tactiled.pipeline import TIMING_KEYS, Daemon
 
     settings = load_settings(None, {}, _overrides(args))
-    daemon = Daemon(settings, lossless=args.mode == "lossless")
+    # a replay neither starts from nor overwrites what a live daemon learned of its finger
+    daemon = Daemon(settings, lossless=args.mode == "lossless", keep_learned=False)
     out = sys.stdout
     drop = set(TIMING_KEYS) if args.no_timing else set()
 

@@ -9,10 +9,12 @@ window residual kernels, the same node-count rule and 1-D Gauss rules (packed in
 the same damping loop, operation for operation, so a fit gives the numbers the Python path
 gives.
 
-What it does not do, it hands back: a contact needing more than :data:`MAX_COMPILED_NODES`
-nodes per axis (a contact many rubber depths long, where one evaluation costs milliseconds and
-the fitter's time budget must be able to stop the search) returns :data:`FALLBACK`, and the
-caller runs the Python solver, which checks the budget between evaluations.
+A search with a work budget (:mod:`tactiled.fit.budget`) runs every evaluation here: the
+budget refuses any it cannot pay for, so none runs long.  Without one, what it does not do,
+it hands back: a contact needing more than :data:`MAX_COMPILED_NODES` nodes per axis (a
+contact many rubber depths long, where one evaluation costs milliseconds and the fitter's
+time budget must be able to stop the search) returns :data:`FALLBACK`, and the caller runs the
+Python solver, which checks the wall clock between evaluations.
 """
 
 from __future__ import annotations
@@ -23,31 +25,33 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from tactiled.fit.budget import Budget, evaluation_work
 from tactiled.fit.models import physical_map
-from tactiled.fit.solver import STALLED, WITHIN_TOLERANCE, SolveResult
+from tactiled.fit.solver import BUDGET_MESSAGE, STALLED, WITHIN_TOLERANCE, SolveResult
 from tactiled.physics.hertz import ellipse_core
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
 from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
 
-#: Largest rule (nodes per axis) the compiled search uses; beyond it, the Python solver.
+#: Largest rule (nodes per axis) the compiled search uses without a work budget; beyond it,
+#: the Python solver.
 MAX_COMPILED_NODES = 64
 #: Model kinds (the order of ``tactiled.fit.models``' parameter maps below).
 KINDS = {"cylinder": 0, "sphere": 1, "general": 2}
 
 # status codes of an evaluation and of a search
-_OK, _INVALID_LINE, _INVALID_LONG, FALLBACK = 0, 1, 2, 3
+_OK, _INVALID_LINE, _INVALID_LONG, FALLBACK, _BUDGET = 0, 1, 2, 3, 4
 #: messages, by code, as the Python solver words them
 MESSAGES = ("maximum iterations reached", "step below xtol", "predicted decrease below ftol",
-            "no step reduces the cost (damping exhausted)")
+            "no step reduces the cost (damping exhausted)", BUDGET_MESSAGE)
 
 
 @lru_cache(maxsize=1)
 def rule_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(ladder, offsets, u, wu, s, ws)``: every ladder size up to the compiled limit and its
+    """``(ladder, offsets, u, wu, s, ws)``: every ladder size and its
     Gauss-Jacobi(1, 1) (u) and Gauss-Chebyshev-U (s) rules, packed (from the same cached rules
     the Python path uses, so the nodes are the same numbers)."""
     ladder = np.array(_LADDER, dtype=np.int64)
-    sizes = [n for n in _LADDER if n <= MAX_COMPILED_NODES]
+    sizes = list(_LADDER)
     offsets = np.zeros(len(sizes) + 1, dtype=np.int64)
     us, wus, ss, wss = [], [], [], []
     for i, n in enumerate(sizes):
@@ -78,12 +82,17 @@ def _rule_index(n: int, ladder: np.ndarray) -> int:
     return np.searchsorted(ladder, n)
 
 
+_work = njit(cache=True, nogil=True)(evaluation_work)
+
+
 @njit(cache=True, nogil=True)
 def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey,
-              ladder, offsets, ru, rwu, rs, rws):
-    """One evaluation of the residual closure: ``(status, r, J)``; status ``_OK``, an invalid
-    point (``_INVALID_LINE``: infinite line contact; ``_INVALID_LONG``: too long to integrate,
-    with the semi-axis in ``r[0]``) or ``FALLBACK`` (a rule past the compiled limit)."""
+              ladder, offsets, ru, rwu, rs, rws, work_left, max_nodes):
+    """One evaluation of the residual closure: ``(status, r, J, work)``; status ``_OK``, an
+    invalid point (``_INVALID_LINE``: infinite line contact; ``_INVALID_LONG``: too long to
+    integrate, with the semi-axis in ``r[0]``), ``FALLBACK`` (a rule past the compiled limit)
+    or ``_BUDGET`` (its work, ``tactiled.fit.budget.evaluation_work``, exceeds ``work_left``:
+    not evaluated); ``FALLBACK`` beyond ``max_nodes`` per axis.  ``work`` is what the evaluation cost (0 when none was made)."""
     d = np.zeros((6, k))
     ka, kb, psi, force, x0, y0 = physical_map(kind, p, d)
     hj = np.empty((3, 4))
@@ -91,17 +100,20 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
     empty_r = np.zeros(1)
     empty_j = np.zeros((1, k))
     if a < 0.0:
-        return _INVALID_LINE, empty_r, empty_j
+        return _INVALID_LINE, empty_r, empty_j, 0.0
     nu = _nodes(a, dmin, tol, ladder)
     if nu < 0:
         empty_r[0] = a
-        return _INVALID_LONG, empty_r, empty_j
+        return _INVALID_LONG, empty_r, empty_j, 0.0
     ns = _nodes(b, dmin, tol, ladder)
     if ns < 0:
         empty_r[0] = b
-        return _INVALID_LONG, empty_r, empty_j
-    if nu > MAX_COMPILED_NODES or ns > MAX_COMPILED_NODES:
-        return FALLBACK, empty_r, empty_j
+        return _INVALID_LONG, empty_r, empty_j, 0.0
+    work = _work(nu, ns, target.shape[0])
+    if work > work_left:
+        return _BUDGET, empty_r, empty_j, 0.0
+    if nu > max_nodes or ns > max_nodes:
+        return FALLBACK, empty_r, empty_j, 0.0
     iu, is_ = _rule_index(nu, ladder), _rule_index(ns, ladder)
     ou, os_ = offsets[iu], offsets[is_]
     nq = nu * ns
@@ -119,7 +131,7 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
     geo = np.empty(7)
     geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6] = x0, y0, a, b, theta, force, scale
     r, jac = window_residual(geo, hj, d, u, v, w, xs, ys, imp, target, valid, inv_scale, ex, ey)
-    return _OK, r, jac
+    return _OK, r, jac, float(work)
 
 
 @njit(cache=True, nogil=True)
@@ -162,23 +174,27 @@ def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp, scale, dmin, tol,
-           imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws):
+           imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
+           work_left, max_nodes):
     """``solver.levenberg_marquardt`` for one model and start, compiled (the box ``lo``,
     ``hi`` as its ``bounds``; the verdict is the caller's).  Returns ``(status, p, r, J, cost,
-    iterations, evaluations, converged, message code, remaining)``; status ``_OK``,
-    ``_INVALID_LINE`` / ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``), or
-    ``FALLBACK``; ``remaining`` is ``solver.remaining_decrease`` at the end point (for the
-    caller's verdict; inf where there is none)."""
+    iterations, evaluations, converged, message code, remaining, work)``; status ``_OK``,
+    ``_INVALID_LINE`` / ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``), ``_BUDGET``
+    (the start's evaluation exceeds ``work_left``) or ``FALLBACK``; ``remaining`` is
+    ``solver.remaining_decrease`` at the end point (for the caller's verdict; inf where there
+    is none); ``work`` the evaluations' work (``tactiled.fit.budget``).  A trial point whose
+    evaluation the work left cannot pay for ends the search there (message code 4)."""
     k = p0.shape[0]
     p = _clip(p0, lo, hi)
-    status, r, jac = _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid,
-                               inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws)
+    status, r, jac, work = _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target,
+                                     valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
+                                     work_left, max_nodes)
     if status != _OK:
         extent = r[0] if status == _INVALID_LONG else 0.0
-        return status, p, r, jac, extent, 0, 1, False, -1, math.inf
+        return status, p, r, jac, extent, 0, 1, False, -1, math.inf, work
     cost = finite_cost(r, jac)
-    if not math.isfinite(cost):
-        return _OK, p, r, jac, math.inf, 0, 1, False, -2, math.inf  # non-finite residual at start
+    if not math.isfinite(cost):  # non-finite residual at start
+        return _OK, p, r, jac, math.inf, 0, 1, False, -2, math.inf, work
     lam, nu = lam0, 2.0
     evals = 1
     message = 0
@@ -199,11 +215,15 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
                 converged, message = True, 2
                 break
             trial = _clip(p + step, lo, hi)
-            st, r_new, jac_new = _evaluate(kind, trial, k, rf, comp, scale, dmin, tol, imp, xs, ys,
-                                           target, valid, inv_scale, ex, ey, ladder, offsets, ru,
-                                           rwu, rs, rws)
+            st, r_new, jac_new, w = _evaluate(kind, trial, k, rf, comp, scale, dmin, tol, imp, xs,
+                                              ys, target, valid, inv_scale, ex, ey, ladder, offsets,
+                                              ru, rwu, rs, rws, work_left - work, max_nodes)
             if st == FALLBACK:
-                return FALLBACK, p, r, jac, cost, it, evals, False, 0, math.inf
+                return FALLBACK, p, r, jac, cost, it, evals, False, 0, math.inf, work
+            if st == _BUDGET:
+                message = 4
+                break
+            work += w
             cost_new = finite_cost(r_new, jac_new) if st == _OK else math.inf
             evals += 1
             if cost_new < math.inf:
@@ -215,13 +235,14 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
                     break
             lam *= nu
             nu *= 2.0
-        if converged:
+        if converged or message == 4:
             break
         if not accepted:
             message = 3
             break
         p, r, jac, cost = trial, r_new, jac_new, cost_new
-    return _OK, p, r, jac, cost, it, evals, converged, message, _remaining(jac, r, max_step, p, lo, hi)
+    return (_OK, p, r, jac, cost, it, evals, converged, message,
+            _remaining(jac, r, max_step, p, lo, hi), work)
 
 
 @njit(cache=True, nogil=True)
@@ -240,19 +261,31 @@ def _remaining(jac, r, scale, p, lo, hi) -> float:
 def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: float, model_args: tuple,
           window_args: tuple, tol: float, xtol: float = 1e-9, ftol: float = 1e-10,
           lam0: float = 1e-3, bounds: tuple[np.ndarray, np.ndarray] | None = None,
-          verdict_tol: float | None = None) -> SolveResult | None:
+          verdict_tol: float | None = None, budget: Budget | None = None) -> SolveResult | None:
     """Run :func:`search`; a :class:`SolveResult` worded and judged as the Python solver
     words and judges it (``verdict_tol``, ``bounds``: see ``levenberg_marquardt``), or None
-    when the search must fall back to the Python solver."""
+    when the search must fall back to the Python solver.  ``budget``: the fit's
+    (:mod:`tactiled.fit.budget`), charged with the search's iterations and work (also those
+    spent before a fallback); a search it stops is not converged, whatever the verdict."""
     rf, comp, scale, dmin, imp = model_args
     xs, ys, target, valid, inv_scale, ex, ey = window_args
     p0 = np.asarray(p0, dtype=float)
     lo, hi = bounds if bounds is not None else (np.full(p0.size, -np.inf), np.full(p0.size, np.inf))
-    status, p, r, jac, cost, it, evals, converged, msg, remaining = search(
+    work_left = math.inf if budget is None else float(budget.work_left())
+    status, p, r, jac, cost, it, evals, converged, msg, remaining, work = search(
         kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp,
-        scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables())
+        scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables(),
+        work_left, MAX_NODES if math.isfinite(work_left) else MAX_COMPILED_NODES)
+    if budget is not None:
+        budget.charge(it, work)
     if status == FALLBACK:
         return None
+    if status == _BUDGET or msg == 4:
+        if budget is not None:
+            budget.exhausted = True
+        if status == _BUDGET:
+            return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), math.inf, 0, 0, False,
+                               BUDGET_MESSAGE)
     if status == _INVALID_LINE:
         return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), math.inf, 0, 1, False,
                            "invalid start: infinite line contact")
@@ -263,6 +296,8 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
     if msg == -2:
         return SolveResult(p, r, jac, math.inf, 0, 1, False, "non-finite residual at start")
     message = MESSAGES[msg]
+    if msg == 4:
+        return SolveResult(p, r, jac, cost, it, evals, False, message)
     if verdict_tol is not None:
         close = remaining <= verdict_tol
         if close and not converged:
@@ -279,8 +314,9 @@ def evaluate(kind: int, p: np.ndarray, model_args: tuple, window_args: tuple,
     own, compiled): ``("ok", r, J)``, ``("invalid", ...)`` at a point outside the model's
     domain, or ``("fallback", ...)`` past the compiled rule limit (use the Python residual)."""
     rf, comp, scale, dmin, imp = model_args
-    status, r, jac = _evaluate(kind, np.asarray(p, dtype=float), p.size, rf, comp, scale, dmin,
-                               tol, imp, *window_args, *rule_tables())
+    status, r, jac, _ = _evaluate(kind, np.asarray(p, dtype=float), p.size, rf, comp, scale,
+                                  dmin, tol, imp, *window_args, *rule_tables(), math.inf,
+                                  MAX_COMPILED_NODES)
     if status == _OK:
         return "ok", r, jac
     return ("fallback" if status == FALLBACK else "invalid"), r, jac

@@ -18,8 +18,10 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from tactiled.config import SensorModel
+from tactiled.fit import budget as fit_budget
 from tactiled.fit import compiled
 from tactiled.fit import flatfield
+from tactiled.fit.budget import EXHAUSTED, Budget
 from tactiled.fit.flatfield import FlatField
 from tactiled.fit.floor import FloorLearner
 from tactiled.fit.line import FORCE_REASON as LINE_FORCE_REASON
@@ -35,13 +37,14 @@ from tactiled.fit.params import (
     UNOBSERVABLE_RELATIVE_SIGMA,
 )
 from tactiled.fit.result import FitResult
-from tactiled.fit.solver import SolveResult, levenberg_marquardt
+from tactiled.fit.solver import BUDGET_MESSAGE, TIME_BUDGET_EXCEEDED, SolveResult, levenberg_marquardt
 from tactiled.fit.start import StartTable, force_constants, start_point, start_table
 from tactiled.fit.window import choose_window, plain_frame, plain_window
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.hertz import Ellipse
 from tactiled.physics.kernels import cramer_rao as crb_kernel
-from tactiled.physics.strain import StrainModel, warm_rules
+from tactiled.physics.line import half_width
+from tactiled.physics.strain import StrainModel, nodes_for, warm_rules
 
 #: Singular values below this fraction of the largest make J^T J numerically singular.
 SINGULAR_CONDITION = 1e12
@@ -114,8 +117,17 @@ class FitOptions:
     #: sensor's frames (the daemon); off, each fit stands alone (``tactiled fit``, whose chunks
     #: run in parallel).
     learn_floor: bool = False
+    #: The fit's budget (:mod:`tactiled.fit.budget`): solver iterations summed over every
+    #: start and model, and model-evaluation work (quadrature nodes x window tactels); None:
+    #: unlimited.  A fit that spends either stops there, not converged, and says so.
+    budget_iterations: int | None = fit_budget.DEFAULT_ITERATIONS
+    budget_work: int | None = fit_budget.DEFAULT_WORK
 
     def __post_init__(self) -> None:
+        for name in ("budget_iterations", "budget_work"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{name} must be a positive whole number or None, got {value!r}")
         if self.window < 2:
             raise ValueError(f"window must be at least 2 tactels, got {self.window}")
         if not (0 < self.tol < 1):
@@ -193,7 +205,7 @@ def _covariance(jraw: np.ndarray, sigma: float) -> tuple[np.ndarray | None, floa
         sv = np.linalg.svd(jraw, compute_uv=False)
     except np.linalg.LinAlgError:
         return None, None
-    if not np.all(np.isfinite(sv)) or sv[-1] <= 0.0:
+    if sv.size == 0 or not np.all(np.isfinite(sv)) or sv[-1] <= 0.0:  # size 0: no evaluation
         return None, None
     condition = float(sv[0] / sv[-1])
     if condition > SINGULAR_CONDITION:
@@ -217,6 +229,9 @@ class Fitter:
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
+        self._budget: Budget | None = None  # what is left of the fit's budget, during fit()
+        #: what the last fit spent: ``(iterations, work)`` (:mod:`tactiled.fit.budget`)
+        self.spent: tuple[int, float] = (0, 0.0)
         m = self.model
         self._model_args = (m._rf, m._k, m._scale, m._dmin, m._imp)
         self._in_fit = False
@@ -248,11 +263,20 @@ class Fitter:
         if g.flat:
             frame = self.model.predict(LineContact(8.0, 80.0, 0.1, g.span_x / 2, g.span_y / 2))
             self._fit_line(frame, None, None)
+            names: tuple[str, ...] = ("sphere", "general")
         else:
             frame = self.model.predict(Contact(8.0, math.inf, 80.0, 1.0, g.span_x / 2, g.span_y / 2))
-            self._fit_model(frame, get_model("cylinder"), None, None)
-        for name in ("sphere", "general"):
-            self._fit_model(frame, get_model(name), None, None)
+            names = ("cylinder", "sphere", "general")
+        for name in names:
+            model = get_model(name)
+            done = self._fit_model(frame, model, None, None)
+            # the Python solver too (contacts past the compiled rules; frames the model cannot
+            # explain wander there): its kernels' first load cost 0.1-0.6 s of the first such fit
+            fr = self._frame(frame, None)
+            if not isinstance(fr, FitResult) and done.params is not None:
+                p0 = np.asarray(done.params, dtype=float)
+                levenberg_marquardt(self._residual(fr, model), p0, max_step=_steps(model),
+                                    max_iter=2, bounds=_bounds(model), verdict_tol=1e-12)
         # a made-up frame teaches nothing of this finger
         self.floor.reset()
         if self.flat is not None:
@@ -287,11 +311,15 @@ class Fitter:
         reason "time budget exceeded".  A fit normally takes about a millisecond; a frame far
         outside the model (every tactel saturated: a contact the size of the finger) costs
         ~150 ms per evaluation and would run for seconds.  The overrun is at most one
-        evaluation.
+        evaluation.  Within it, the options' iteration and work budget
+        (:mod:`tactiled.fit.budget`) bounds the fit on every machine alike; a fit either budget
+        stopped is not converged, its ``reasons["fit"]`` begins "fit budget exhausted", and its
+        sigmas are widened by the distance left to the minimum, or its values withheld.
         """
         self.catch_up()  # a worker runs it after its last answer; anyone else, here
         t0 = time.perf_counter()
         self._deadline = None if budget_s is None else t0 + budget_s
+        self._budget = Budget(self.options.budget_iterations, self.options.budget_work)
         self._in_fit = True
         if frames != 1:
             if not (isinstance(frames, int) and frames >= 1):
@@ -307,8 +335,15 @@ class Fitter:
                     start = np.asarray(warm[1], dtype=float)
                 res = (self._fit_cylinder(strain, start, mask) if model == "cylinder"
                        else self._fit_model(strain, get_model(model), start, mask))
+            if self._budget.exhausted and res.converged:
+                # a converged search, but the fit's other starts or models were cut short
+                res.converged = False
+                res.reasons["fit"] = (f"{EXHAUSTED} before the fit ended: the {res.model} fit "
+                                      "kept converged, the other starts or models were not tried out")
         finally:
             self._deadline = None
+            self.spent = (self._budget.used_iterations, self._budget.used_work)
+            self._budget = None
             self._in_fit = False
             self.sigma = self._sigma1
             self._frame_memo = None  # the memo must not outlive the frame (ids are reused)
@@ -343,7 +378,10 @@ class Fitter:
         return ex, ey
 
     def _out_of_time(self) -> bool:
-        return self._deadline is not None and time.perf_counter() > self._deadline
+        """The fit's budget is spent (its iterations, work or wall time): start nothing more."""
+        b = self._budget
+        return (b is not None and b.spent) or (
+            self._deadline is not None and time.perf_counter() > self._deadline)
 
     # ------------------------------------------------------------------------------------
     def _prepare(self, strain: np.ndarray, mask: np.ndarray | None):
@@ -379,7 +417,8 @@ class Fitter:
         starts = [start] if start is not None else self._cold_starts(fr.clean, fr.peak_idx, model)
         best: SolveResult | None = None
         tried = 0
-        max_iter = SCOUT_ITERATIONS if scouting else self.options.max_iter
+        cap = SCOUT_ITERATIONS if scouting else self.options.max_iter
+        budget = self._budget
         # stop once the next step would lower chi^2 by less than STOP_CHI2 (0.01 scouting): a
         # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
         atol = (1e-2 if scouting else STOP_CHI2) * (self.sigma / peak) ** 2
@@ -387,19 +426,25 @@ class Fitter:
         exact = self.options.jacobian == "exact"
         residual = None  # the Python solver's residual function, built only if it is needed
         for p0 in starts:
+            max_iter = self._iterations_for(cap)
+            if tried and (max_iter == 0 or self._out_of_time()):
+                break
             tried += 1
             sol = None
             if exact:  # the whole search compiled (falls back on huge contacts)
                 sol = compiled.solve(
                     compiled.KINDS[model.name], p0, steps, max_iter, atol, self._model_args,
                     (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey), self.options.tol,
-                    bounds=bounds, verdict_tol=verdict_tol)
+                    bounds=bounds, verdict_tol=verdict_tol, budget=budget)
             if sol is None:
                 if residual is None:
                     residual = self._residual(fr, model)
                 sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=max_iter, atol=atol,
                                           deadline=self._deadline, verdict_tol=verdict_tol,
                                           bounds=bounds)
+                if budget is not None:
+                    budget.charge(sol.iterations, 0.0)
+            self._ran_out(sol, max_iter, cap)
             if best is None or sol.cost < best.cost:
                 best = sol
             if self._good_enough(best, peak, n_points) or self._out_of_time():
@@ -413,6 +458,22 @@ class Fitter:
                              params=tuple(best.p.tolist()))
         return self._result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
 
+    def _iterations_for(self, cap: int) -> int:
+        """The iteration cap of the next search: ``cap``, or what the fit's budget has left."""
+        return cap if self._budget is None else self._budget.iterations_for(cap)
+
+    def _ran_out(self, sol: SolveResult, max_iter: int, cap: int) -> None:
+        """Mark a search the fit's iterations stopped (not its own cap) as the budget's."""
+        if self._budget is not None and max_iter < cap and sol.iterations >= max_iter \
+                and not sol.converged:
+            self._budget.exhausted = True
+            sol.message = f"{EXHAUSTED} ({self.options.budget_iterations} iterations)"
+
+    @staticmethod
+    def _stopped(sol: SolveResult) -> bool:
+        """The fit's budget (iterations, work or wall time) stopped this search."""
+        return sol.message is BUDGET_MESSAGE or sol.message is TIME_BUDGET_EXCEEDED or (
+            sol.message.startswith(EXHAUSTED))
     def _fit_cylinder(self, strain: np.ndarray, start: np.ndarray | None,
                       mask: np.ndarray | None) -> FitResult:
         """The cylinder model: on a curved finger the Hertz ellipse's; on a flat array a line
@@ -477,12 +538,27 @@ class Fitter:
         verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
         best: SolveResult | None = None
         tried = 0
+        budget = self._budget
+        residual = prob.residual_and_jacobian
+        if budget is not None:
+            def residual(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                b = half_width(math.exp(p[2]), math.exp(p[0]), prob.k)
+                nodes = nodes_for(b, prob.dmin, prob.tol)  # ValueError: an invalid point
+                budget.pay(fit_budget.line_work(nodes, fr.n_points))  # or BudgetExhausted
+                return prob.residual_and_jacobian(p)
+
+        cap = self.options.max_iter
         for p0 in starts:
+            max_iter = self._iterations_for(cap)
+            if tried and (max_iter == 0 or self._out_of_time()):
+                break
             tried += 1
-            sol = levenberg_marquardt(prob.residual_and_jacobian, p0, max_step=LINE_STEPS,
-                                      max_iter=self.options.max_iter, atol=atol,
-                                      deadline=self._deadline, verdict_tol=verdict_tol,
+            sol = levenberg_marquardt(residual, p0, max_step=LINE_STEPS, max_iter=max_iter,
+                                      atol=atol, deadline=self._deadline, verdict_tol=verdict_tol,
                                       bounds=_LINE_BOUNDS)
+            if budget is not None:
+                budget.charge(sol.iterations, 0.0)
+            self._ran_out(sol, max_iter, cap)
             if best is None or sol.cost < best.cost:
                 best = sol
             if self._good_enough(best, peak, fr.n_points) or self._out_of_time():
@@ -499,6 +575,10 @@ class Fitter:
         values, std, line = prob.report(best.p, cov)
         reasons["force_n"] = LINE_FORCE_REASON
         reasons["r2_mm"] = "infinite: cylinder model"
+        if self._stopped(best):
+            self._unsettled(best, peak, values, std, reasons)
+            if all(values.get(k) is None for k in VALUE_KEYS):
+                line = None  # the load and offset of a search stopped short are no measurement
         self._unobservable(values, std, reasons)
         if not best.converged:
             reasons.setdefault("fit", best.message)
@@ -528,9 +608,11 @@ class Fitter:
         return fr
 
     def _residual(self, fr: _Frame, model: Model):
-        """The residual function of ``model`` on the window ``fr`` (for the Python solver)."""
+        """The residual function of ``model`` on the window ``fr`` (for the Python solver),
+        charging each evaluation to the fit's budget."""
         residual = self.model.window_residual_function(
-            model.physical, fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
+            model.physical, fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey,
+            charge=None if self._budget is None else self._budget.charger())
         if self.options.jacobian == "fd":
             residual = _forward_difference(residual)
         return residual
@@ -661,8 +743,11 @@ class Fitter:
         reasons: dict[str, str] = {}
         values, std, condition = self._uncertainty(model, sol.p, sol.jacobian * peak, reasons)
         chi2 = sol.cost * peak * peak / self.sigma**2
+        stopped = self._stopped(sol)
         if condition is not None and std.get("x_mm") is not None:
-            self._mismatch(model, sol, peak, zdata, chi2, std, reasons, win, valid)
+            self._mismatch(model, sol, peak, zdata, chi2, std, reasons, win, valid, learn=not stopped)
+        if stopped:
+            self._unsettled(sol, peak, values, std, reasons)
         self._unobservable(values, std, reasons)
         if model.name == "cylinder":
             reasons.setdefault("r2_mm", "infinite: cylinder model")
@@ -719,9 +804,41 @@ class Fitter:
             reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
         return values, std, condition
 
+    def _unsettled(self, sol: SolveResult, peak: float, values: dict[str, float | None],
+                   std: dict[str, float | None], reasons: dict[str, str]) -> None:
+        """A fit its budget stopped is not at the least-squares minimum.  How far it is, the
+        Gauss-Newton step at the stopping point says: it would lower chi^2 by ``D``, and moves
+        each value by at most ``sqrt(D)`` of its Cramer-Rao sigma (Cauchy-Schwarz in the
+        metric ``J^T J``).  Within ``MAX_REMAINING_CHI2`` every sigma becomes
+        ``(1 + sqrt(D))`` times itself, covering that distance on top of the minimum's own
+        error; beyond it (where the linear picture that bound rests on fails) the values are
+        withheld."""
+        if sol.jacobian.size == 0 or not math.isfinite(sol.cost):
+            remaining = math.inf
+        else:
+            step = np.linalg.lstsq(sol.jacobian, -sol.residual, rcond=None)[0]
+            moved = sol.jacobian @ step
+            remaining = float(moved @ moved) * (peak / self.sigma) ** 2
+        said = sol.message if sol.message.startswith(EXHAUSTED) else f"{EXHAUSTED} ({sol.message})"
+        why = f"{said}: the fit stopped short of the least-squares minimum"
+        if not math.isfinite(remaining) or remaining > fit_budget.MAX_REMAINING_CHI2:
+            for k in VALUE_KEYS:
+                if values.get(k) is not None:
+                    values[k] = None
+                    std[k] = None
+                    reasons[k] = f"{why} (chi^2 {remaining:.3g} above it): not a measurement"
+            reasons["fit"] = f"{why} (chi^2 {remaining:.3g} above it): values withheld"
+            return
+        widen = 1.0 + math.sqrt(remaining)
+        for k in VALUE_KEYS:
+            if std.get(k) is not None:
+                std[k] *= widen
+        reasons["fit"] = (f"{why} (chi^2 {remaining:.3g} above it): uncertainties widened "
+                          f"{widen:.3g}x to cover the distance")
+
     def _mismatch(self, model: Model, sol: SolveResult, peak: float, zdata: np.ndarray,
                   chi2: float, std: dict[str, float | None], reasons: dict[str, str],
-                  win: tuple[int, int, int, int], valid: np.ndarray) -> None:
+                  win: tuple[int, int, int, int], valid: np.ndarray, learn: bool = True) -> None:
         """Widen the uncertainties of a fit when residuals say the finger departs from its
         model (see :mod:`tactiled.fit.floor`): by what the sensor's recent fits have shown
         together, and by this frame's own excess when its chi^2 is beyond what the noise gives
@@ -757,7 +874,8 @@ class Fitter:
         if not self.options.learn_floor:
             ts = tg = 0.0
         else:
-            if not self.frozen:
+            learning = learn and not self.frozen  # not from a fit its budget stopped short
+            if learning:
                 weight = self._learn(rows, excess_i, excess, s_f, g_f, dof, ts, tg)
             if self.flat is not None:
                 r0, c0, nr, nc = win
@@ -765,7 +883,7 @@ class Fitter:
                 tactels = (r0 + ii) * self.flat.cols + (c0 + jj)
                 args = (tactels, zdata + rz, jz[:, -2], jz[:, -1])
                 corrections = self.flat.error_covariance(*args)  # of the corrections in use
-                if not self.frozen:
+                if learning:
                     self.flat.add(*args[:1], resid_op, *args[1:], rz, weight)
         source = f"the sensor's last ~{self.floor.memory} fits"
         if flagged:
@@ -960,6 +1078,14 @@ class Fitter:
             return "plane"
         return model_name
 
+    def _cut_short(self, cyl: FitResult, fits: list[FitResult]) -> FitResult:
+        """Auto's answer when its budget ran out while it scouted the other models: the
+        cylinder, fully solved, with every search's iterations and evaluations; the scouts,
+        unfinished, cannot be ranked.  ``fit`` says the choice stopped short."""
+        cyl.iterations = sum(r.iterations for r in fits)
+        cyl.evaluations = sum(r.evaluations for r in fits)
+        return cyl
+
     # ------------------------------------------------------------------------------------
     def _fit_auto(self, strain: np.ndarray, mask: np.ndarray | None,
                   warm: tuple[str, tuple[float, ...]] | None = None) -> FitResult:
@@ -975,7 +1101,10 @@ class Fitter:
             if kept.contact and kept.chi2 is not None and kept.peak and self._consistent(kept):
                 kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
                 return kept
+        held = self._budget.hold(0.5) if self._budget is not None else None
         cyl = self._fit_cylinder(strain, None, mask)
+        if held is not None:
+            self._budget.release(held)
         if not cyl.contact or cyl.chi2 is None or cyl.params is None or self._out_of_time():
             return cyl
         fits = [cyl]
@@ -983,6 +1112,8 @@ class Fitter:
         sph = self._fit_model(strain, get_model("sphere"), np.array([ln_r, ln_f, x0, y0]), mask,
                               scouting=True)
         fits.append(sph)
+        if self._out_of_time():
+            return self._cut_short(cyl, fits)
         gen_model = get_model("general")
         gen_starts = [np.array([ln_r, 0.2, psi, ln_f, x0, y0])]
         if sph.params is not None:
@@ -990,6 +1121,8 @@ class Fitter:
             gen_starts.append(np.array([s_ln_r, 0.95, 0.5 * math.pi, s_ln_f, sx, sy]))
         gens = [self._fit_model(strain, gen_model, p0, mask, scouting=True) for p0 in gen_starts]
         fits.append(min(gens, key=lambda r: r.chi2 if r.chi2 is not None else math.inf))
+        if self._out_of_time():
+            return self._cut_short(cyl, [cyl, sph, *gens])
         crit = {}
         for r in fits:
             k = len(r.params) if r.params is not None else get_model(r.model).size

@@ -380,3 +380,56 @@ class FlatField:
     def reset(self) -> None:
         """Forget every fit (a new finger, or a new calibration)."""
         self.__init__(self.rows, self.cols, self.memory)
+
+    def summary(self) -> dict[str, float | int | bool]:
+        """What it holds, in four numbers (for a worker's health figures): fits pooled,
+        whether the correction is on, the gains' RMS departure from 1 and the tactels' RMS
+        displacement (um) it applies."""
+        return {"fits": self.fits, "active": self.active,
+                "gain_rms": float(np.sqrt(np.mean((self.gain - 1.0) ** 2))),
+                "shift_rms_um": 1000.0 * float(np.sqrt(np.mean(self.dx ** 2 + self.dy ** 2)))}
+
+    # -- what survives a restart (tactiled.pipeline.learned) -------------------------------
+    _SCALARS = ("_w", "_sw", "_sw2", "excess", "explained", "fits", "_next_solve", "active",
+                "solve_due")
+    _ARRAYS = ("ata", "atb", "gain", "inverse_gain", "dx", "dy", "_u")
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Everything learned, as named arrays (``numpy.savez``-ready): the pooled normal
+        equations, the estimate the fits run with and its covariance.  The window blocks are
+        folded into the array's sums first (what they hold is kept)."""
+        self._fold()
+        out = {name: np.asarray(getattr(self, name)) for name in self._SCALARS + self._ARRAYS}
+        out["var"] = np.asarray(self._var)
+        out["shape"] = np.asarray((self.rows, self.cols, self.memory))
+        out["note"] = np.asarray(self.note)
+        if self.covariance is not None:
+            out["covariance"] = self.covariance
+        return out
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Carry on from :meth:`state` (of an array of this shape; ``ValueError`` naming
+        what does not fit, the field then as it was)."""
+        rows, cols, memory = (int(v) for v in state["shape"])
+        if (rows, cols) != (self.rows, self.cols):
+            raise ValueError(f"learned for a {rows}x{cols} array, not {self.rows}x{self.cols}")
+        n3 = 3 * rows * cols
+        expect = {"ata": (n3, n3), "atb": (n3,), "_u": (n3,), "gain": (rows, cols),
+                  "inverse_gain": (rows, cols), "dx": (rows, cols), "dy": (rows, cols)}
+        if "covariance" in state:
+            expect["covariance"] = (n3, n3)
+        for name, shape in expect.items():
+            arr = np.asarray(state[name], dtype=float)
+            if arr.shape != shape or not np.all(np.isfinite(arr)):
+                raise ValueError(f"{name}: not {shape} finite numbers")
+        self.reset()
+        self.memory, self._keep = memory, 1.0 - 1.0 / memory
+        for name in ("_w", "_sw", "_sw2", "excess", "explained"):
+            setattr(self, name, float(state[name]))
+        self.fits, self._next_solve = int(state["fits"]), int(state["_next_solve"])
+        self.active, self.solve_due = bool(state["active"]), bool(state["solve_due"])
+        for name in self._ARRAYS:
+            setattr(self, name, np.array(state[name], dtype=float))
+        self._var = tuple(float(v) for v in state["var"])
+        self.note = str(state["note"])
+        self.covariance = np.array(state["covariance"], dtype=float) if "covariance" in state else None

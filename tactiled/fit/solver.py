@@ -17,10 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tactiled.fit.budget import EXHAUSTED, BudgetExhausted
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations
 
 ResidualFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 TIME_BUDGET_EXCEEDED = "time budget exceeded"
+#: The message of a search the fit's budget stopped (tactiled.fit.budget): not converged.
+BUDGET_MESSAGE = f"{EXHAUSTED} (the work of the next model evaluation)"
 #: Added to the message of a search that ended without its stopping rule firing (the
 #: iteration cap) but within ``verdict_tol`` of the minimum: converged.
 WITHIN_TOLERANCE = "within tolerance of the least-squares minimum"
@@ -60,7 +63,9 @@ def levenberg_marquardt(
     decrease of the cost is below ``ftol``.  A residual function that raises ``ValueError`` or
     returns non-finite values rejects the trial step (treated as an infinite cost).
     ``deadline`` (``time.perf_counter()`` seconds) stops the search before the next
-    evaluation once passed: not converged, "time budget exceeded".
+    evaluation once passed: not converged, "time budget exceeded".  A residual function that
+    raises :class:`~tactiled.fit.budget.BudgetExhausted` (the fit's budget cannot pay for that
+    evaluation) stops it the same way: not converged, ``BUDGET_MESSAGE``.
 
     ``verdict_tol`` (cost units) decides ``converged`` on where the search ended, not on which
     stopping rule fired: converged when the Gauss-Newton model at the final point puts the
@@ -79,6 +84,9 @@ def levenberg_marquardt(
         p = np.clip(p, lo, hi)
     try:
         r, jac = fun(p)
+    except BudgetExhausted:
+        return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), float("inf"), 0, 0, False,
+                           BUDGET_MESSAGE)
     except (ValueError, OverflowError) as err:
         return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), float("inf"), 0, 1, False,
                            f"invalid start: {err}")
@@ -115,6 +123,9 @@ def levenberg_marquardt(
             try:
                 r_new, jac_new = fun(trial)
                 cost_new = finite_cost(r_new, jac_new)
+            except BudgetExhausted:
+                message = BUDGET_MESSAGE
+                break
             except (ValueError, OverflowError):  # an invalid trial point: reject the step
                 cost_new = math.inf
             evals += 1
@@ -127,13 +138,13 @@ def levenberg_marquardt(
                     break
             lam *= nu
             nu *= 2.0
-        if converged or message is TIME_BUDGET_EXCEEDED:
+        if converged or message is TIME_BUDGET_EXCEEDED or message is BUDGET_MESSAGE:
             break
         if not accepted:
             message = "no step reduces the cost (damping exhausted)"
             break
         p, r, jac, cost = trial, r_new, jac_new, cost_new
-    if verdict_tol is not None and message is not TIME_BUDGET_EXCEEDED:
+    if verdict_tol is not None and message not in (TIME_BUDGET_EXCEEDED, BUDGET_MESSAGE):
         close = remaining_decrease(jac, r, scale, p, bounds) <= verdict_tol
         if close and not converged:
             message = f"{message}, {WITHIN_TOLERANCE}"

@@ -232,9 +232,12 @@ class StrainModel:
         return self.window_residual_function(physical, xs, ys, target, valid, inv_scale, ex, ey)
 
     def window_residual_function(self, physical, xs: np.ndarray, ys: np.ndarray, target: np.ndarray,
-                                 valid: np.ndarray, inv_scale: np.ndarray, ex: np.ndarray, ey: np.ndarray):
+                                 valid: np.ndarray, inv_scale: np.ndarray, ex: np.ndarray, ey: np.ndarray,
+                                 charge=None):
         """:meth:`residual_function` on arrays already prepared (contiguous, one entry per
-        window tactel, ``valid`` boolean): the fitter's per-frame fast path."""
+        window tactel, ``valid`` boolean): the fitter's per-frame fast path.  ``charge``, if
+        given, is called as ``charge(nodes_u, nodes_s, tactels)`` before each evaluation (the
+        fit's budget; it may raise to refuse it)."""
         ellipse_core_, rf, comp, imp, scale = ellipse_core, self._rf, self._k, self._imp, self._scale
         rule, tol, dmin = disk_rule, self.tol, self._dmin
         hj = np.empty((3, 4))
@@ -244,7 +247,10 @@ class StrainModel:
             a, b, theta, _ = ellipse_core_(ka, kb, psi, force, rf, comp, hj)
             if a < 0.0:
                 raise ValueError("infinite line contact")
-            u, v, w = rule(nodes_for(a, dmin, tol), nodes_for(b, dmin, tol))
+            nu, ns = nodes_for(a, dmin, tol), nodes_for(b, dmin, tol)
+            if charge is not None:
+                charge(nu, ns, target.size)
+            u, v, w = rule(nu, ns)
             geo = np.array((x0, y0, a, b, theta, force, scale))
             return window_residual(geo, hj, dphys, u, v, w, xs, ys, imp, target, valid, inv_scale, ex, ey)
 

@@ -47,13 +47,17 @@ class Daemon:
 
     ``lossless``: every sensor waits for each fit before reading on (replay, regression
     tests); live sensors use latest-frame-wins.  ``sources`` may supply ready-made frame
-    sources by sensor name (tests), instead of opening the configured URLs.  Construction does
+    sources by sensor name (tests), instead of opening the configured URLs.  ``keep_learned``
+    (default: when not lossless) keeps what the fits learn of each finger in the state
+    directory (``[state] dir``; ``tactiled/pipeline/learned.py``) and starts from it: a
+    replay's output must not depend on what a live daemon learned.  Construction does
     no device I/O but loads calibration files: problems raise ``ConfigError`` naming the key.
     """
 
     def __init__(self, settings: Settings | None = None, *, hub: Hub | None = None,
                  lossless: bool = False,
-                 sources: Mapping[str, FrameSource] | None = None) -> None:
+                 sources: Mapping[str, FrameSource] | None = None,
+                 keep_learned: bool | None = None) -> None:
         self.settings = settings or Settings()
         names = [s.name for s in self.settings.sensors]
         self.hub = hub if hub is not None else Hub(names)
@@ -61,6 +65,8 @@ class Daemon:
         self.lossless = lossless
         self.sensors: dict[str, SensorPipeline] = {}
         sources = sources or {}
+        keep = (not lossless) if keep_learned is None else keep_learned
+        state_dir = self.settings.state.directory() if keep else None
         for i, s in enumerate(self.settings.sensors):
             source = sources.get(s.name)
             if source is None:
@@ -77,7 +83,8 @@ class Daemon:
             try:
                 pipe = SensorPipeline(s, pool=self.pool, hub=self.hub,
                                       record_path=record,
-                                      lossless=lossless, source=source)
+                                      lossless=lossless, source=source,
+                                      state_dir=state_dir)
             except CalibrationError as err:
                 raise ConfigError(f"sensor[{i}].calibration: {err}") from err
             self.sensors[s.name] = pipe

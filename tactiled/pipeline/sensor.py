@@ -36,6 +36,7 @@ from tactiled.calibration.zeroing import Zeroer
 from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
+from tactiled.fit.budget import budget_spent
 from tactiled.fit.result import FitResult
 from tactiled.frames import Frame
 from tactiled.pipeline.estimate import (
@@ -48,6 +49,7 @@ from tactiled.pipeline.estimate import (
     plain,
 )
 from tactiled.pipeline.gate import Gate
+from tactiled.pipeline import learned
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
@@ -132,7 +134,7 @@ class SensorPipeline:
 
     def __init__(self, settings: SensorSettings, *, pool: WorkerPool, hub: Hub,
                  record_path: Path | None = None, lossless: bool = False,
-                 source: FrameSource | None = None) -> None:
+                 source: FrameSource | None = None, state_dir: Path | None = None) -> None:
         self.settings = settings
         self.name = settings.name
         self.pool = pool
@@ -168,7 +170,13 @@ class SensorPipeline:
         if self.table is not None and self.table.shape != (g.rows, g.cols):
             raise CalibrationError(f"{settings.calibration}: table shape {self.table.shape} is "
                                    f"not the sensor's {(g.rows, g.cols)}")
-        self.spec = pool.register_spec(self.sensor_model, worker_fit_options(settings.window), self.name)
+        self.state_dir = state_dir
+        #: the learned flat field's file: fits it was loaded with, files refused (and why)
+        self.learned_loaded_fits: int | None = None
+        self.learned_refused = 0
+        self.learned_refusal = ""
+        self._restore = self._check_learned()
+        self.spec = pool.register_spec(self.sensor_model, self._fit_options(), self.name)
         self.model = settings.model
         self.gate = Gate(settings.noise_sigma, settings.unchanged_z, settings.reuse_unchanged)
         self.source: FrameSource = source if source is not None else open_source(settings.url)
@@ -226,6 +234,7 @@ class SensorPipeline:
         self.drift_followed = 0  # times the zeroer followed drift around a held contact
         self.fit_failed = 0
         self.fit_errors = 0
+        self.fits_budget_spent = 0  # fits the fit budget stopped (tactiled.fit.budget)
         self.wrong_sensor = 0
         self.bad_shape = 0
         self.errors = 0
@@ -770,6 +779,8 @@ class SensorPipeline:
                 self.last_error = f"fit of seq {w.seq} failed: {error}"
                 log.error("%s: %s", self.name, self.last_error)
                 return
+            if budget_spent(fit.get("reasons") or {}):
+                self.fits_budget_spent += 1
             now = time.monotonic()
             self.fit_rate.tick(now)
             self.worker_ms.add(now, worker_ms)
@@ -844,7 +855,8 @@ class SensorPipeline:
         self.model = s.model
         if s.noise_sigma != self.sensor_model.noise.sigma:
             self.sensor_model = replace(self.sensor_model, noise=NoiseModel(sigma=s.noise_sigma))
-        self.spec = self.pool.register_spec(self.sensor_model, worker_fit_options(s.window), self.name)
+            self._restore = False  # the file was learned through the model before the change
+        self.spec = self.pool.register_spec(self.sensor_model, self._fit_options(), self.name)
         self.gate.configure(sigma=s.noise_sigma, z=s.unchanged_z,
                             reuse_unchanged=s.reuse_unchanged)
         if self.stage is not None:
@@ -852,6 +864,44 @@ class SensorPipeline:
             self.stage.zeroer.set_hysteresis(s.hysteresis)
         # A fit made under other settings must not be reused for new frames.
         self._end_contact()
+
+    # -- learned state --------------------------------------------------------------------------
+
+    def _owner(self) -> learned.Owner:
+        return learned.Owner(self.name, self.expected_id,
+                             learned.fingerprint(self.sensor_model, self.settings.calibration,
+                                                 self.description.fingerprint()))
+
+    def _check_learned(self) -> bool:
+        """Whether the state directory holds a flat field this sensor learned through this
+        model (then the workers start from it); a file that is not is logged, counted and
+        left alone (the workers overwrite it once this sensor has learned)."""
+        if self.state_dir is None:
+            return False
+        path = learned.state_path(self.state_dir, self.name)
+        try:
+            state = learned.load(path, self._owner())
+        except learned.Refused as err:
+            self.learned_refused += 1
+            self.learned_refusal = str(err)
+            log.warning("%s: learned flat field refused: %s", self.name, err)
+            return False
+        if state is None:
+            return False
+        self.learned_loaded_fits = int(state["fits"])
+        log.info("%s: learned flat field loaded from %s (%d fits)", self.name, path,
+                 self.learned_loaded_fits)
+        return True
+
+    def _fit_options(self) -> tuple[tuple[str, Any], ...]:
+        """The workers' fit options, with where this sensor's flat field is kept."""
+        options = worker_fit_options(self.settings.window)
+        if self.state_dir is None:
+            return options
+        owner = self._owner()
+        path = str(learned.state_path(self.state_dir, self.name))
+        return (*options, ("learned", (path, owner.name, owner.wire_id, owner.fingerprint,
+                                       self._restore)))
 
     # -- reporting ------------------------------------------------------------------------------
 
@@ -881,6 +931,9 @@ class SensorPipeline:
             "decoder": dict(src.decoder),
             "superseded": self.superseded,
             "fitted": self.fitted,
+            "fits_budget_spent": self.fits_budget_spent,
+            "learned_state": {"loaded_fits": self.learned_loaded_fits,
+                              "refused": self.learned_refused, "refusal": self.learned_refusal},
             "published": self.published,
             "skipped": dict(self.skipped),
             "stale_dropped": self.stale_dropped,

@@ -18,7 +18,8 @@ in order (which is what lets the parent give every outstanding request a deadlin
 - ``("ping", rid)`` -> ``("pong", rid)``;
 - ``("memory", rid)`` -> ``("memory", rid, figures)``: where this process's memory is
   (:func:`tactiled.heapstats.worker_figures`: RSS, malloc and pymalloc books, the fitter's
-  caches, fits so far), for the soak and for diagnosing growth;
+  caches, fits so far; ``flat_fields``: each spec's ``FlatField.summary()``), for the soak and
+  for diagnosing growth;
 - ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
 - ``("compile", rid, seconds)`` -> ``("compiled", rid)``: a test hook that holds a numba
   compile event open for ``seconds``, as a first-time kernel compilation does;
@@ -29,7 +30,10 @@ in order (which is what lets the parent give every outstanding request a deadlin
 - ``("stop",)``: exit.
 
 ``spec`` is a small integer naming a (SensorModel, FitOptions arguments) pair the parent
-registered.
+registered.  Its arguments may carry ``("learned", (path, name, wire_id, fingerprint,
+restore))``: the fitter's flat field is then kept in that file (:mod:`tactiled.pipeline.learned`):
+loaded when the fitter is built if ``restore`` (the parent checked the file belongs to the
+sensor), saved after each of its re-solves and when the worker stops.
 The worker exits when told to, or when the parent's end of the pipe closes (EOF): a daemon
 killed with SIGKILL leaves no orphaned workers behind.
 """
@@ -41,6 +45,7 @@ import signal
 import sys
 import time
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
 from tactiled.config import SensorModel
@@ -78,6 +83,58 @@ class _CompileNotice:
         event.register("numba:compile", Listener())
 
 
+class _Keeper:
+    """Where a fitter's flat field is kept (the spec's ``learned`` argument)."""
+
+    def __init__(self, fitter: Any, args: tuple[Any, ...]) -> None:
+        from tactiled.pipeline import learned
+
+        self.fitter = fitter
+        self.path = Path(args[0])
+        self.owner = learned.Owner(args[1], args[2], args[3])
+        self.saved_fits = -1
+        if args[4] and fitter.flat is not None:
+            try:
+                state = learned.load(self.path, self.owner)
+                if state is not None:
+                    fitter.flat.restore(state)
+                    self.saved_fits = fitter.flat.fits
+            except (learned.Refused, ValueError, KeyError) as err:
+                print(f"tactiled worker {os.getpid()}: learned flat field not applied: {err}",
+                      file=sys.stderr, flush=True)
+
+    def save(self) -> None:
+        """Write the flat field if it learned something since it was last written and holds
+        more fits than the file (another worker may keep the same finger)."""
+        from tactiled.pipeline import learned
+
+        flat = self.fitter.flat
+        if flat is None or flat.fits <= self.saved_fits or flat.fits == 0:
+            return
+        try:
+            if learned.saved_fits(self.path) > flat.fits:
+                return
+            learned.save(self.path, self.owner, flat.state())
+            self.saved_fits = flat.fits
+        except OSError as err:
+            print(f"tactiled worker {os.getpid()}: cannot save the learned flat field to "
+                  f"{self.path}: {err}", file=sys.stderr, flush=True)
+
+
+def _build(sensor: SensorModel, options: tuple[tuple[str, Any], ...],
+           keepers: dict[int, _Keeper], spec: int) -> Any:
+    """The fitter of a spec (and its keeper, when its flat field is kept in a file)."""
+    from tactiled.fit.fitter import FitOptions, Fitter
+
+    kwargs = dict(options)
+    keep = kwargs.pop("learned", None)
+    fitter = Fitter(sensor, FitOptions(**kwargs))
+    keepers.pop(spec, None)
+    if keep is not None:
+        keepers[spec] = _Keeper(fitter, keep)
+    return fitter
+
+
 def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     """Entry point of a worker process (the ``target`` of its ``Process``)."""
     # Ctrl-C in a terminal signals the whole process group; the parent decides when a worker
@@ -87,17 +144,17 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     # Here, not at module level: the parent never needs the fitter.
     import numpy as np
 
-    from tactiled.fit.fitter import FitOptions, Fitter
     from tactiled.fit.linearize import linearize
 
     notice = _CompileNotice(conn)
     t0 = time.perf_counter()
     fits = 0
     fitters: dict[int, Any] = {}
+    keepers: dict[int, _Keeper] = {}
     broken: dict[int, str] = {}
     for key, (sensor, options) in specs.items():
         try:
-            fitters[key] = Fitter(sensor, FitOptions(**dict(options)))
+            fitters[key] = _build(sensor, options, keepers, key)
         except Exception as err:
             broken[key] = f"{type(err).__name__}: {err}"
     try:
@@ -138,7 +195,8 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 if fitter is not None:
                     # the learning this fit made due, after its answer and before the next job
                     try:
-                        fitter.catch_up()
+                        if fitter.catch_up() and spec in keepers:
+                            keepers[spec].save()  # a re-solve: what it learned survives a restart
                     except Exception as err:  # the fits go on with what was learnt before
                         print(f"tactiled worker {os.getpid()}: learning the finger failed: "
                               f"{type(err).__name__}: {err}", file=sys.stderr, flush=True)
@@ -149,12 +207,14 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
             elif kind == "memory":
                 from tactiled.heapstats import worker_figures
 
-                conn.send(("memory", msg[1], {**worker_figures(), "fits": fits}))
+                flat = {spec: f.flat.summary() for spec, f in fitters.items() if f.flat is not None}
+                conn.send(("memory", msg[1], {**worker_figures(), "fits": fits,
+                                              "flat_fields": flat}))
             elif kind == "setup":
                 _, rid, spec, sensor, options = msg
                 t = time.perf_counter()
                 try:
-                    fitters[spec] = Fitter(sensor, FitOptions(**dict(options)))
+                    fitters[spec] = _build(sensor, options, keepers, spec)
                 except Exception as err:  # its fits will then answer with an error
                     fitters.pop(spec, None)
                     broken[spec] = f"{type(err).__name__}: {err}"
@@ -179,4 +239,6 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     except (BrokenPipeError, ConnectionResetError, EOFError):
         return  # the parent went away while we answered
     finally:
+        for keeper in keepers.values():
+            keeper.save()
         conn.close()

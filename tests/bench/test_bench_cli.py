@@ -64,3 +64,20 @@ def test_plot_needs_matplotlib_or_writes_a_png(tmp_path):
     else:
         assert proc.returncode == 0, proc.stderr
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_unexplained_quick_table_respects_the_budget():
+    """The fit budget on frames the model cannot explain: every set appears with and without
+    it; with it, no fit exceeds its iterations, and the unexplained sets do run it out."""
+    out = run("--suite", "unexplained", "--quick")
+    rows = table_rows(out, "| frames |")
+    sets = {r[0] for r in rows}
+    for needed in ("contacts 8x8", "blobs 8x8", "blobs 32x32", "hand print 32x32", "random 8x8",
+                   "random 32x32", "saturated 8x8", "saturated 32x32"):
+        assert needed in sets, needed
+    budget = [r for r in rows if r[2] == "budget"]
+    assert len(budget) == len(sets) and len(rows) == 2 * len(sets)
+    assert all(int(r[6]) <= 120 for r in budget), budget  # iterations max within the budget
+    assert all(r[8] == "0 %" for r in rows if r[2] == "none")  # no budget: never spent
+    spent = {r[0]: float(r[8].rstrip(" %")) for r in budget}
+    assert spent["random 32x32"] > 50 and spent["hand print 32x32"] > 50, spent

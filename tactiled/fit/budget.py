@@ -1,0 +1,152 @@
+"""A fit's budget: what one frame may cost before the fitter stops and says so.
+
+A frame the contact model describes converges in a few tens of solver iterations, each a
+model evaluation of a few microseconds.  A frame it cannot describe (several contacts at once,
+a hand print, a saturated patch, noise) has no good minimum: the search wanders until its caps,
+through starts and models, and where it wanders to a contact many rubber depths long, every
+evaluation integrates a quadrature of up to a million nodes.  Unbounded, such a frame cost
+tens to thousands of milliseconds.  The budget bounds it in two counts that do not depend on
+the machine, so a frame gets the same answer on every CPU:
+
+- **iterations**: Levenberg-Marquardt iterations summed over every start and model of the fit;
+- **work**: the model evaluations' cost, each ``EVALUATION_OVERHEAD`` plus its quadrature
+  nodes times the window's tactels (the inner loop's count: 2.3-3.4 ns each, measured from
+  7x7 to 96x40 nodes on a 4x4 window; beyond ``LARGE_RULE_NODES`` nodes the tables leave the
+  cache and a unit costs up to 7 ns, so those count ``LARGE_RULE_FACTOR`` times).
+
+An evaluation that the work left cannot pay for is not started.  A wall-clock ``deadline``
+(``Fitter.fit(budget_s=)``) stays the last resort, checked between evaluations.
+
+The defaults are set from the fits the model explains: every fit that converges on the
+simulated suites and in the golden replays stays within both with a margin (figures below), so
+the budget changes none of them (``tactiled bench --suite unexplained``, docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+#: The solver iterations of one fit, summed over its starts and models.  The fits that
+#: converge use at most 95 (the simulated suites, 1200 frames each, auto cold and warm, every
+#: kind of contact) and 87 (the golden replays: an edge held at the array's end).
+DEFAULT_ITERATIONS = 120
+#: The work of one fit (see the module docstring): ~3 ms of evaluations.  The fits that
+#: converge use at most 342000 on the paper's finger (the simulated suites), 616000 in the
+#: golden replays (an edge at the end of the array) and 951000 on the built-in flat arrays
+#: (`tactiled bench --suite sensors`' contacts: line fits of a 12x32 mat).
+DEFAULT_WORK = 1_200_000
+#: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
+#: algebra: ~3 us, measured as the intercept of the cost per evaluation).
+EVALUATION_OVERHEAD = 1000
+#: Beyond this many quadrature nodes an evaluation's tables (8 bytes x nodes x 4 per window
+#: line) leave the cache and each node costs up to ``LARGE_RULE_FACTOR`` times more.
+LARGE_RULE_NODES = 8192
+LARGE_RULE_FACTOR = 3
+#: One evaluation of a flat array's line model (its residuals and their forward-difference
+#: Jacobian: five strain evaluations, each a rule of n nodes across the line per window
+#: tactel): ~30 us plus ~60 ns per node and tactel of the five, measured from 4 to 320 nodes.
+LINE_OVERHEAD = 11_000
+LINE_WORK_PER_NODE = 110
+
+
+def line_work(nodes: int, points: int) -> int:
+    """Work units of one evaluation of the line model: ``nodes`` across the line, ``points``
+    window tactels."""
+    return LINE_OVERHEAD + LINE_WORK_PER_NODE * nodes * points
+
+#: How a fit the budget stopped begins its ``reasons["fit"]`` (and the solver its message).
+EXHAUSTED = "fit budget exhausted"
+#: A stopped fit whose remaining distance to the least-squares minimum (the Gauss-Newton
+#: step's chi^2 decrease, D) is within this keeps its values with every sigma widened by
+#: sqrt(1 + D); beyond it (the minimum over 3 sigma away: the linear picture no longer holds)
+#: the values are withheld.
+MAX_REMAINING_CHI2 = 9.0
+
+
+class BudgetExhausted(Exception):
+    """Raised by a residual function asked for an evaluation the budget cannot pay for; the
+    Python solver stops at the point it has (``levenberg_marquardt``)."""
+
+
+def evaluation_work(nodes_u: int, nodes_s: int, points: int) -> int:
+    """Work units of one evaluation: ``nodes_u x nodes_s`` quadrature nodes over ``points``
+    window tactels (``LARGE_RULE_FACTOR`` times that for a rule beyond ``LARGE_RULE_NODES``),
+    plus the overhead.  Plain arithmetic: the compiled search compiles this same function."""
+    nodes = nodes_u * nodes_s
+    return EVALUATION_OVERHEAD + nodes * points * (LARGE_RULE_FACTOR if nodes > LARGE_RULE_NODES else 1)
+
+
+@dataclass
+class Budget:
+    """What is left of one fit's budget (None: unlimited)."""
+
+    iterations: int | None = DEFAULT_ITERATIONS
+    work: float | None = DEFAULT_WORK
+    #: set once a solve stopped for want of budget
+    exhausted: bool = False
+    #: what the fit has spent so far
+    used_iterations: int = 0
+    used_work: float = 0.0
+
+    def hold(self, share: float) -> tuple[int, float]:
+        """Set aside ``share`` of what is left (iterations, work) for later searches; returns
+        it for :meth:`release`.  Auto keeps half for the other models while it fits the
+        cylinder: a frame the cylinder cannot explain must not leave none to the sphere."""
+        held_i = 0 if self.iterations is None else int(self.iterations * share)
+        held_w = 0.0 if self.work is None else float(self.work) * share
+        if self.iterations is not None:
+            self.iterations -= held_i
+        if self.work is not None:
+            self.work -= held_w
+        return held_i, held_w
+
+    def release(self, held: tuple[int, float]) -> None:
+        """Give back what :meth:`hold` set aside (the search it was held from is over)."""
+        if self.iterations is not None:
+            self.iterations += held[0]
+        if self.work is not None:
+            self.work += held[1]
+        self.exhausted = False  # what ran out was the share left to that search
+
+    def iterations_for(self, cap: int) -> int:
+        """The iteration cap of the next solve: ``cap``, or what is left if less."""
+        return cap if self.iterations is None else max(0, min(cap, self.iterations))
+
+    def work_left(self) -> float:
+        return math.inf if self.work is None else max(0.0, float(self.work))
+
+    def charge(self, iterations: int, work: float) -> None:
+        self.used_iterations += iterations
+        self.used_work += work
+        if self.iterations is not None:
+            self.iterations -= iterations
+        if self.work is not None:
+            self.work -= work
+
+    @property
+    def spent(self) -> bool:
+        return self.exhausted or (self.iterations is not None and self.iterations <= 0) or (
+            self.work is not None and self.work < EVALUATION_OVERHEAD)
+
+    def pay(self, cost: float) -> None:
+        """Take an evaluation's work, or raise :class:`BudgetExhausted` (marking the budget
+        exhausted) when the work left cannot pay for it."""
+        if self.work is not None:
+            if cost > self.work:
+                self.exhausted = True
+                raise BudgetExhausted(EXHAUSTED)
+            self.work -= cost
+        self.used_work += cost
+
+    def charger(self):
+        """A ``charge(nodes_u, nodes_s, points)`` callable for the Python solver's residual
+        (:meth:`pay` for its evaluation's work)."""
+        def charge(nodes_u: int, nodes_s: int, points: int) -> None:
+            self.pay(evaluation_work(nodes_u, nodes_s, points))
+        return charge
+
+
+def budget_spent(reasons: dict[str, str]) -> bool:
+    """True when a fit's ``reasons`` (as in its JSON) say the budget stopped it."""
+    return reasons.get("fit", "").startswith(EXHAUSTED)

@@ -1,0 +1,122 @@
+"""What the daemon learns of a finger from its own fits, kept across restarts.
+
+The flat field (:mod:`tactiled.fit.flatfield`: each tactel's gain and position, with the
+normal equations they come from) is saved per sensor in the state directory (``[state]
+dir``), one file a sensor, ``flatfield-<name>.npz``.  A file is loaded at start only when it
+was learned by the same sensor (its name and wire id) through the same sensor model (the
+:func:`fingerprint` of the SensorModel the fits use and of the calibration file it came from);
+any other file is refused with one clear reason and never applied.  Files are written whole:
+a temporary file in the same directory, flushed to disk, then renamed over the old one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tactiled.config import SensorModel
+
+#: Bumped when the file's content changes meaning; older files are refused.
+VERSION = 1
+#: What the daemon reads when ``[state] dir`` is not set: the service's state directory, then
+#: the user's (XDG).
+ENV_SYSTEMD = "STATE_DIRECTORY"
+
+
+def default_state_dir(env: dict[str, str] | None = None) -> Path:
+    """``$STATE_DIRECTORY`` (systemd sets it from the unit's ``StateDirectory=``: the first of
+    a colon-separated list), else ``$XDG_STATE_HOME/tactiled``, else
+    ``~/.local/state/tactiled``."""
+    env = dict(os.environ) if env is None else env
+    if env.get(ENV_SYSTEMD):
+        return Path(env[ENV_SYSTEMD].split(":")[0])
+    base = env.get("XDG_STATE_HOME") or str(Path(env.get("HOME") or Path.home()) / ".local" / "state")
+    return Path(base) / "tactiled"
+
+
+def fingerprint(sensor: SensorModel, calibration: str | os.PathLike[str] | None = None,
+                description: str = "") -> str:
+    """A digest of everything the fits take from the sensor model: every field of ``sensor``
+    (geometry, cover, noise, tactel positions, model-error floor, and whatever a SensorModel
+    comes to hold: its ``repr`` is taken whole, floats exactly), the sensor description's own
+    fingerprint (``SensorDescription.fingerprint()``: its wire order and dead tactels too) and
+    the calibration file's bytes, if any.  Learned state keyed on it is never applied through
+    another model."""
+    h = hashlib.sha256(repr(sensor).encode())
+    h.update(b"\0description\0" + description.encode())
+    if calibration is not None:
+        h.update(b"\0calibration\0")
+        h.update(Path(calibration).read_bytes())
+    return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class Owner:
+    """Whose learned state a file holds: the sensor's name and wire id, and the model's
+    :func:`fingerprint`."""
+
+    name: str
+    wire_id: int | None
+    fingerprint: str
+
+    def meta(self) -> dict[str, Any]:
+        return {"version": VERSION, "name": self.name, "wire_id": self.wire_id,
+                "fingerprint": self.fingerprint}
+
+
+def state_path(directory: str | os.PathLike[str], name: str) -> Path:
+    """The flat-field file of sensor ``name`` (names are ``[A-Za-z0-9_.-]``: safe in a path)."""
+    return Path(directory) / f"flatfield-{name}.npz"
+
+
+def save(path: Path, owner: Owner, state: dict[str, np.ndarray]) -> None:
+    """Write ``state`` for ``owner`` to ``path`` whole (temporary file, fsync, rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, meta=np.asarray(json.dumps(owner.meta())), **state)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def saved_fits(path: Path) -> int:
+    """The fits the state at ``path`` was learned from; -1 without a readable file."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return int(data["fits"])
+    except Exception:
+        return -1
+
+
+class Refused(Exception):
+    """A learned-state file that must not be applied; the message says why, in one line."""
+
+
+def load(path: Path, owner: Owner) -> dict[str, np.ndarray] | None:
+    """The state saved for ``owner`` at ``path``; None when there is no file; :class:`Refused`
+    when the file is unreadable or belongs to another sensor or model."""
+    if not path.exists():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            state = {k: data[k] for k in data.files}
+        meta = json.loads(str(state.pop("meta")))
+    except Exception as err:  # a truncated or foreign file: refused, never a traceback
+        raise Refused(f"{path}: not a learned-state file ({type(err).__name__}: {err})") from None
+    if not isinstance(meta, dict) or meta.get("version") != VERSION:
+        raise Refused(f"{path}: unknown format version {meta.get('version') if isinstance(meta, dict) else meta!r}")
+    for key, what in (("name", "sensor"), ("wire_id", "wire id"), ("fingerprint", "sensor model")):
+        if meta.get(key) != getattr(owner, key):
+            raise Refused(f"{path}: learned by another {what} ({meta.get(key)!r}, this one is "
+                          f"{getattr(owner, key)!r}): not applied")
+    return state
