@@ -210,10 +210,11 @@ def budget_check(quick: bool = True) -> list[str]:
             res = fitter.fit(frame, "auto")
             fitter.catch_up()
             its, work = fitter.spent
+            max_its, max_work = fitter.budget_limits  # a flat array's are larger
             where = f"{name} frame {i}"
-            if res.iterations > opts.budget_iterations or its > opts.budget_iterations:
+            if res.iterations > max_its or its > max_its:
                 problems.append(f"{where}: {res.iterations} iterations over the budget")
-            if work > opts.budget_work:
+            if work > max_work:
                 problems.append(f"{where}: work {work:.0f} over the budget")
             if budget_spent(res.reasons) and res.converged:
                 problems.append(f"{where}: budget spent yet converged")

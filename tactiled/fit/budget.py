@@ -36,6 +36,11 @@ DEFAULT_ITERATIONS = 120
 #: golden replays (an edge at the end of the array) and 951000 on the built-in flat arrays
 #: (`tactiled bench --suite sensors`' contacts: line fits of a 12x32 mat).
 DEFAULT_WORK = 1_200_000
+#: A flat array's fits get this many times the work and twice the iterations: its line
+#: model's evaluations cost 10-100 times a curved finger's, and auto's scouts chase a line
+#: towards ever longer ellipses (docs/fitting.md, "The fit's budget").
+FLAT_WORK_FACTOR = 10
+FLAT_ITERATION_FACTOR = 2
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
 #: algebra: ~3 us, measured as the intercept of the cost per evaluation).
 EVALUATION_OVERHEAD = 1000

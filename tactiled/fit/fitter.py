@@ -230,6 +230,13 @@ class Fitter:
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
         self._budget: Budget | None = None  # what is left of the fit's budget, during fit()
+        o = self.options
+        iterations, work = o.budget_iterations, o.budget_work
+        if g.flat:  # dearer models (tactiled.fit.budget.FLAT_WORK_FACTOR)
+            iterations = None if iterations is None else iterations * fit_budget.FLAT_ITERATION_FACTOR
+            work = None if work is None else work * fit_budget.FLAT_WORK_FACTOR
+        #: this sensor's budget of a fit: ``(iterations, work)``
+        self.budget_limits = (iterations, work)
         #: what the last fit spent: ``(iterations, work)`` (:mod:`tactiled.fit.budget`)
         self.spent: tuple[int, float] = (0, 0.0)
         m = self.model
@@ -319,7 +326,7 @@ class Fitter:
         self.catch_up()  # a worker runs it after its last answer; anyone else, here
         t0 = time.perf_counter()
         self._deadline = None if budget_s is None else t0 + budget_s
-        self._budget = Budget(self.options.budget_iterations, self.options.budget_work)
+        self._budget = Budget(*self.budget_limits)
         self._in_fit = True
         if frames != 1:
             if not (isinstance(frames, int) and frames >= 1):
@@ -583,6 +590,8 @@ class Fitter:
         if not best.converged:
             reasons.setdefault("fit", best.message)
         label = self._label(values, "line")
+        if line is None:  # withheld: a search its budget stopped far from any line
+            label = None
         return FitResult(
             contact=True, model="cylinder", label="line" if label == "plane" else label,
             values=values, std=std,

@@ -77,7 +77,8 @@ def test_unexplained_quick_table_respects_the_budget():
         assert needed in sets, needed
     budget = [r for r in rows if r[2] == "budget"]
     assert len(budget) == len(sets) and len(rows) == 2 * len(sets)
-    assert all(int(r[6]) <= 120 for r in budget), budget  # iterations max within the budget
+    # iterations max within the budget (a flat array's is twice the curved finger's)
+    assert all(int(r[6]) <= (240 if "flat" in r[0] else 120) for r in budget), budget
     assert all(r[8] == "0 %" for r in rows if r[2] == "none")  # no budget: never spent
     spent = {r[0]: float(r[8].rstrip(" %")) for r in budget}
     assert spent["random 32x32"] > 50 and spent["hand print 32x32"] > 50, spent
