@@ -254,3 +254,15 @@ def feedable_source(request: pytest.FixtureRequest, tmp_path: Path) -> FeedableS
     its own scenes, so it is not one of them)."""
     device = request.getfixturevalue("pty_device") if request.param == "serial" else None
     return FeedableSource(request.param, tmp_path, device)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Tests marked ``slow`` (long soaks, full benchmarks, fresh environments) run only when
+    asked for (``-m slow``, as the marker's description in pyproject.toml says); the short
+    version of each is always on."""
+    if "slow" in (config.getoption("markexpr") or ""):
+        return
+    skip = pytest.mark.skip(reason="slow: opt in with -m slow")
+    for item in items:
+        if "slow" in item.keywords:
+            item.add_marker(skip)

@@ -887,6 +887,11 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
     return result
 
 
+def _number(v: object) -> bool:
+    """A figure the heap lines print (a count or a size; nested tables are left out)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
 def _markdown(r: dict[str, Any]) -> str:
     sub = r["subscribers"]
     who = (f"{sub['healthy']} healthy + {sub['stalled']} never-reading WebSocket subscribers "
@@ -921,11 +926,11 @@ def _markdown(r: dict[str, Any]) -> str:
             f"{w['anon_first']} -> {w['anon_last']}, file {w['file_first']} -> "
             f"{w['file_last']}), slope after settling {w['slope_after_settle_mb_per_h']} MB/h "
             f"over {w['settled_span_s']:g} s; its heap after settling -> end: " + ", ".join(
-                f"{k} {h0[k]:g} -> {h1[k]:g}" for k in h0 if k in h1) + ".")
+                f"{k} {h0[k]:g} -> {h1[k]:g}" for k in h0 if k in h1 and _number(h0[k])) + ".")
     h0, h1 = r["heap"]["after_warmup"], r["heap"]["end"]
     if h0 and h1:
         lines.append("Heap after warm-up -> end: " + ", ".join(
-            f"{k} {h0[k]:g} -> {h1[k]:g}" for k in h0 if k in h1) + ".")
+            f"{k} {h0[k]:g} -> {h1[k]:g}" for k in h0 if k in h1 and _number(h0[k])) + ".")
     if sub:
         lines.append(f"Subscribers: delivery min {100 * sub['delivery_min']:.2f} %, median "
                      f"{100 * sub['delivery_median']:.2f} % (bar {100 * DELIVERY_BAR:g} %), "

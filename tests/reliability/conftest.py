@@ -29,14 +29,3 @@ def more_ptys(pty_device, tmp_path: Path) -> Iterator[Callable[[str], Any]]:
 
 
 HERE = Path(__file__).parent
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Tests marked ``slow`` here run only when asked for (``-m slow``, as the marker's
-    description in pyproject.toml says); the short version of each is always on."""
-    if "slow" in (config.getoption("markexpr") or ""):
-        return
-    skip = pytest.mark.skip(reason="slow: opt in with -m slow")
-    for item in items:
-        if "slow" in item.keywords and Path(str(item.path)).is_relative_to(HERE):
-            item.add_marker(skip)
