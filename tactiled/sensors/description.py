@@ -369,18 +369,10 @@ def load_description(spec: str | Path | None = None) -> SensorDescription:
     looks_like_path = isinstance(spec, Path) or text_spec.endswith(".toml") or "/" in text_spec
     if not looks_like_path:
         return parse_description_text(builtin_text(text_spec), f"built-in sensor {text_spec!r}")
+    from tactiled.files import read_text
+
     path = Path(text_spec)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such sensor description file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, not a sensor description file") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a text file (a sensor description is TOML)") from None
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot be read ({err.strerror})") from None
-    return parse_description_text(text, str(path))
+    return parse_description_text(read_text(path, "sensor description (TOML)", ConfigError), str(path))
 
 
 def default_description() -> SensorDescription:

@@ -73,7 +73,7 @@ def test_missing_required_keys_and_unreadable_files_are_refused(tmp_path) -> Non
         parse_description_text('name = "x"\nrows = 4\ncols = 4\npitch_x_mm = 2\n', "t")
     with pytest.raises(ConfigError, match="not valid TOML"):
         parse_description_text("rows = = 4", "t")
-    with pytest.raises(ConfigError, match="no such sensor description file"):
+    with pytest.raises(ConfigError, match="none.toml: no such file"):
         load_description(str(tmp_path / "none.toml"))
     with pytest.raises(ConfigError, match="is a directory"):
         load_description(str(tmp_path) + "/")
