@@ -511,6 +511,13 @@ def watch(settings: ZenohSettings, key: str, out: TextIO, *, kinds: Iterable[str
             if count is not None and printed >= count:
                 stop.set()
 
+    return listen_until(settings, key, on_sample, stop)
+
+
+def listen_until(settings: ZenohSettings, key: str, on_sample: Callable[[Any], None],
+                 stop: threading.Event) -> int:
+    """Call ``on_sample`` for every sample published under ``key`` on a reader session until
+    ``stop`` is set (the ``watch`` commands' loop); returns the exit code 0."""
     session = open_reader(settings)
     try:
         sub = session.declare_subscriber(key, zenoh.handlers.Callback(on_sample))

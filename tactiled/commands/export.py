@@ -42,7 +42,7 @@ from tactiled.files import check_input, check_output
 from tactiled.frames import FrameDecoder
 from tactiled.progress import Progress
 from tactiled.recording import RecordingReader
-from tactiled.settings import MODELS, load_settings
+from tactiled.settings import load_settings
 
 FORMATS = (".mcap", ".npz")
 
@@ -51,16 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", metavar="FILE", help="recording made by 'tactiled record' or the daemon")
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="output file: OUT.mcap (ROS 2 messages) or OUT.npz (raw frames)")
-    p.add_argument("--model", choices=MODELS, default="auto",
-                   help="contact model (default auto: chosen per frame by BIC)")
-    p.add_argument("--window", type=int, default=None, metavar="N",
-                   help="fit window side in tactels (default 4)")
-    p.add_argument("--sigma", type=float, default=None,
-                   help="strain noise of a tactel, 1 sigma (default 0.0005)")
-    p.add_argument("--calibration", default=None, metavar="FILE",
-                   help="lookup-table file (default: the nominal linear table)")
-    p.add_argument("--name", default="finger0",
-                   help="sensor name: the topics' <sensor> (default finger0)")
+    replay.add_sensor_arguments(p, "finger0", "sensor name: the topics' <sensor>")
     p.add_argument("--namespace", default="/tactiled",
                    help="ROS namespace of the topics (default /tactiled, as [ros2] namespace)")
     p.add_argument("--frame-id", default="{sensor}",
@@ -123,7 +114,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     times (``clock=recorded``) so that the export does not depend on when it runs."""
     ns = argparse.Namespace(file=args.file, speed=0.0, model=args.model, mode="lossless",
                             window=args.window, sigma=args.sigma,
-                            calibration=args.calibration, name=args.name)
+                            calibration=args.calibration, name=args.name, sensor=args.sensor)
     out = replay._overrides(ns)
     out["sensor[0].url"] += "&clock=recorded"
     return out

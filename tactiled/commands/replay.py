@@ -38,22 +38,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=float, default=0.0, metavar="X",
                    help="pace: 1 = as recorded, 2 = twice as fast, 0 = as fast as possible "
                         "(default 0)")
-    p.add_argument("--model", choices=MODELS, default="auto",
-                   help="contact model (default auto: chosen per frame by BIC)")
     p.add_argument("--mode", choices=("lossless", "live"), default="lossless",
                    help="lossless: fit every frame the gate passes (default); live: latest "
                         "frame wins, as the daemon does")
-    p.add_argument("--window", type=int, default=None, metavar="N",
-                   help="fit window side in tactels (default 4)")
-    p.add_argument("--sigma", type=float, default=None,
-                   help="strain noise of a tactel, 1 sigma (default 0.0005)")
-    p.add_argument("--calibration", default=None, metavar="FILE",
-                   help="lookup-table file (default: the nominal linear table)")
-    p.add_argument("--name", default="replay", help="sensor name in the output (default replay)")
+    add_sensor_arguments(p, "replay", "sensor name in the output")
     p.add_argument("--zeroed-frames", action="store_true",
                    help="also print the zeroed frames (\"class\": \"frame\")")
     p.add_argument("--no-timing", action="store_true",
                    help="omit the keys that vary between runs (for diffing replays)")
+
+
+def add_sensor_arguments(p: argparse.ArgumentParser, name: str, name_help: str) -> None:
+    """The flags that say how a recording's sensor is fitted (replay and export share them)."""
+    p.add_argument("--model", choices=MODELS, default="auto",
+                   help="contact model (default auto: chosen per frame by BIC)")
+    p.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
+                   help="the recorded array: a built-in description or a description file "
+                   "(docs/sensors.md; default fearing1988, the paper's finger)")
+    p.add_argument("--window", type=int, default=None, metavar="N",
+                   help="fit window side in tactels (default: the description's, 4)")
+    p.add_argument("--sigma", type=float, default=None,
+                   help="strain noise of a tactel, 1 sigma (default: the description's, 0.0005)")
+    p.add_argument("--calibration", default=None, metavar="FILE",
+                   help="lookup-table file (default: the nominal linear table)")
+    p.add_argument("--name", default=name, help=f"{name_help} (default {name})")
 
 
 #: fit.timeout of a lossless replay, s (its fits' time budget is half of it).
@@ -80,6 +88,8 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         out["sensor[0].noise_sigma"] = args.sigma
     if args.calibration is not None:
         out["sensor[0].calibration"] = args.calibration
+    if getattr(args, "sensor", None) is not None:
+        out["sensor[0].description"] = args.sensor
     return out
 
 

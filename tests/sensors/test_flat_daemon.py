@@ -137,3 +137,24 @@ def test_a_vendor_url_brings_its_arrays_description(arun) -> None:
     s = load_settings(None, {}, {"sensor[0].url": "lines:///dev/null?rows=4&cols=4"})
     with pytest.raises(ConfigError, match="array is 4x4, but its description 'fearing1988' is 8x8"):
         Daemon(s)
+
+
+def test_a_flat_pads_recording_replays_and_exports_with_its_description(tmp_path) -> None:
+    import json
+
+    rec = tmp_path / "pad.tact"
+    res = subprocess.run([sys.executable, "-m", "tactiled.cli", "record",
+                          "sim://?sensor=flat16&scene=press&rate=200&speed=0&loop=0", "-o", str(rec),
+                          "--frames", "400"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    out = subprocess.run([sys.executable, "-m", "tactiled.cli", "replay", str(rec), "--sensor", "flat16",
+                          "--model", "cylinder"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    lines = [json.loads(x) for x in out.stdout.splitlines() if x.strip()]
+    fits = [x for x in lines if x.get("contact")]
+    assert fits and all(x["label"] == "line" and x["line"]["load_n_per_mm"] > 0 for x in fits
+                        if x.get("converged"))
+    # without the description the 16x16 frames are not the paper's 8x8: none is fitted
+    wrong = subprocess.run([sys.executable, "-m", "tactiled.cli", "replay", str(rec)],
+                           capture_output=True, text=True, timeout=300)
+    assert not any(json.loads(x).get("contact") for x in wrong.stdout.splitlines() if x.strip())

@@ -21,7 +21,7 @@ import zenoh
 from zenoh.ext import Int64, z_deserialize
 
 from tactiled.settings import ZenohSettings
-from tactiled_service.bus import open_reader
+from tactiled_service.bus import listen_until
 from tactiled_service.ros2 import messages, rmw
 
 #: DDS-style type name -> ROS type name, for tactiled's types.
@@ -111,14 +111,4 @@ def watch(settings: ZenohSettings, domain_id: int, out: TextIO, *,
             if count is not None and printed >= count:
                 stop.set()
 
-    session = open_reader(settings)
-    try:
-        sub = session.declare_subscriber(f"{domain_id}/**", zenoh.handlers.Callback(on_sample))
-        try:
-            while not stop.wait(0.2):
-                pass
-        finally:
-            sub.undeclare()
-    finally:
-        session.close()
-    return 0
+    return listen_until(settings, f"{domain_id}/**", on_sample, stop)
