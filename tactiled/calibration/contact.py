@@ -235,9 +235,13 @@ class ContactDetector:
             # scale it down by sqrt(n / average) (the same false-contact rate)
             n = len(recent)
             t = self._sum * (1.0 / n if n == self.average else 1.0 / math.sqrt(n * self.average))
-        stat = float(t[t.argmax()])
         if bad:
             self.nonfinite_frames += 1
+        return self.decide(float(t[t.argmax()]))
+
+    def decide(self, stat: float) -> bool:
+        """Decide one frame whose statistic (``max T``, strain) is ``stat``: the thresholds'
+        hysteresis; returns (and stores in :attr:`in_contact`) the contact state."""
         self.last_statistic = stat
         if self.in_contact:
             self.in_contact = stat >= self.exit_threshold

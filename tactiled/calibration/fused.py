@@ -1,0 +1,126 @@
+"""The calibration stage's per-frame arithmetic in two compiled kernels.
+
+What :class:`~tactiled.calibration.stage.CalibrationStage` does to each frame, as the reference
+objects do it (:class:`~tactiled.calibration.lut.LookupTable` ->
+:class:`~tactiled.calibration.zeroing.Zeroer` with its
+:class:`~tactiled.calibration.hysteresis.HysteresisCompensator` ->
+:class:`~tactiled.calibration.contact.ContactDetector`), is a dozen numpy calls on 64 to 256
+numbers, each costing more in call overhead than in arithmetic.  Here the same arithmetic runs
+in one pass over the tactels:
+
+* :func:`zero_frame`: raw counts -> strain through the table's segments (the same search and
+  the same clamped affine map as :class:`~tactiled.calibration.segments.Segments`), minus the
+  baseline, less the hysteresis residual (updating the compensator's peak-hold), and the
+  matched-filter statistic ``max(Ax z Ay^T)`` of the result;
+* :func:`follow_baseline`: the baseline's step towards an untouched frame, its pull clipped
+  when most tactels are implausibly far out (:data:`~tactiled.calibration.zeroing.MAX_STEP_SIGMAS`).
+
+The decisions (contact, settling, release hold-off, tare) stay in Python, in the stage, with
+the state of the objects above, so either path can take any frame.  Results equal the
+reference path's to rounding (the statistic's sums run in another order than BLAS's);
+tests/calibration/test_fused_stage.py compares them on random frames.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: np.ndarray,
+               baseline: np.ndarray, peak: np.ndarray, fraction: float, decay: float,
+               floor: float, margin: float, active: bool, ax: np.ndarray, ay_t: np.ndarray,
+               z: np.ndarray, residual: np.ndarray) -> tuple[int, float]:
+    """One frame of raw counts ``raw`` (flat, ``T`` tactels, row-major) into ``z`` (flat):
+    linearised, zeroed against ``baseline`` and, with ``fraction`` > 0, compensated for the
+    rubber's hysteresis (the compensator's ``peak`` updated in place; its previous peaks
+    decayed by ``decay`` = ``exp(-dt / tau)``, 1 for none; ``floor`` = MIN_PEAK_SIGMAS sigma,
+    ``margin`` = NOISE_MARGIN sigma; ``active``: some peak was above the floor).
+
+    Returns ``(state, statistic)``: state -1 when a linearised value was not finite (nothing
+    was changed: the caller takes the reference path), else bit 0 set when a residual was
+    taken (it is in ``residual``; otherwise ``residual`` is untouched) and bit 1 set when the
+    compensator is still active; ``statistic`` is ``max(Ax z Ay^T)`` on the compensated frame.
+    """
+    n = raw.size
+    nb = breaks.size
+    for t in range(n):
+        x = float(raw[t])
+        q = x + offset[t]
+        # searchsorted(breaks, q, "right"): the number of breaks <= q
+        lo, hi = 0, nb
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if breaks[mid] <= q:
+                lo = mid + 1
+            else:
+                hi = mid
+        y = x - params[0, lo]
+        y *= params[1, lo]
+        y += params[2, lo]
+        y = min(y, params[3, lo])
+        y = max(y, params[4, lo])
+        if not math.isfinite(y):
+            return -1, 0.0
+        z[t] = y - baseline[t]
+    state = 0
+    if fraction > 0.0:
+        zmax = z[0]
+        for t in range(n):
+            zmax = max(zmax, z[t])
+        if active or zmax >= floor:
+            gain = fraction / (1.0 - fraction)
+            top = 0.0
+            for t in range(n):
+                p = peak[t] * decay
+                zt = z[t]
+                taken = 0.0
+                if zt < p and p > floor:
+                    taken = min((p - zt) * gain, fraction * p)
+                residual[t] = taken
+                p = max(p, zt - margin)
+                peak[t] = p
+                top = max(top, p)
+                z[t] = zt - taken
+            state = 1 | (2 if top > floor else 0)
+    # The matched filter, separable: T = Ax Z Ay^T, Z the (rows, cols) frame.
+    rows, cols = ax.shape[1], ay_t.shape[0]
+    m = np.zeros((ax.shape[0], cols))
+    for u in range(ax.shape[0]):
+        for i in range(rows):
+            a = ax[u, i]
+            if a != 0.0:
+                for j in range(cols):
+                    m[u, j] += a * z[i * cols + j]
+    stat = -math.inf
+    for u in range(ax.shape[0]):
+        for v in range(ay_t.shape[1]):
+            s = 0.0
+            for j in range(cols):
+                s += m[u, j] * ay_t[j, v]
+            stat = max(stat, s)
+    return state, stat
+
+
+@njit(cache=True, nogil=True)
+def follow_baseline(baseline: np.ndarray, z: np.ndarray, weight: float, limit: float,
+                    clip: bool) -> None:
+    """``baseline += weight * z``, in place; with ``clip``, when more than half the tactels
+    lie beyond ``limit`` (an implausible frame), ``z`` is first clipped to ``[-limit, limit]``
+    in place (the frame the zeroer returns, as its pull on the baseline)."""
+    n = z.size
+    if clip:
+        beyond = 0
+        for t in range(n):
+            if abs(z[t]) > limit:
+                beyond += 1
+        if beyond * 2 > n:
+            for t in range(n):
+                z[t] = min(max(z[t], -limit), limit)
+                baseline[t] += weight * z[t]
+            return
+    for t in range(n):
+        baseline[t] += weight * z[t]
