@@ -33,7 +33,7 @@ from numba import njit
 def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: np.ndarray,
                baseline: np.ndarray, peak: np.ndarray, fraction: float, decay: float,
                floor: float, margin: float, active: bool, ax: np.ndarray, ay_t: np.ndarray,
-               z: np.ndarray, residual: np.ndarray) -> tuple[int, float]:
+               z: np.ndarray, residual: np.ndarray, tmap: np.ndarray) -> tuple[int, float]:
     """One frame of raw counts ``raw`` (flat, ``T`` tactels, row-major) into ``z`` (flat):
     linearised, zeroed against ``baseline`` and, with ``fraction`` > 0, compensated for the
     rubber's hysteresis (the compensator's ``peak`` updated in place; its previous peaks
@@ -43,7 +43,8 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: 
     Returns ``(state, statistic)``: state -1 when a linearised value was not finite (nothing
     was changed: the caller takes the reference path), else bit 0 set when a residual was
     taken (it is in ``residual``; otherwise ``residual`` is untouched) and bit 1 set when the
-    compensator is still active; ``statistic`` is ``max(Ax z Ay^T)`` on the compensated frame.
+    compensator is still active; ``statistic`` is ``max(Ax z Ay^T)`` on the compensated frame,
+    whose filter map (flat, row-major) is written to ``tmap``.
     """
     n = raw.size
     nb = breaks.size
@@ -96,13 +97,47 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: 
                 for j in range(cols):
                     m[u, j] += a * z[i * cols + j]
     stat = -math.inf
+    nv = ay_t.shape[1]
     for u in range(ax.shape[0]):
-        for v in range(ay_t.shape[1]):
+        for v in range(nv):
             s = 0.0
             for j in range(cols):
                 s += m[u, j] * ay_t[j, v]
+            tmap[u * nv + v] = s
             stat = max(stat, s)
     return state, stat
+
+
+@njit(cache=True, nogil=True)
+def average_maps(ring: np.ndarray, total: np.ndarray, tmap: np.ndarray, count: int,
+                 head: int) -> tuple[int, int, float]:
+    """The detector's running mean of its last ``ring.shape[0]`` filter maps: ``tmap`` (the
+    newest) added to ``total`` (the sum of the ``count`` maps in ``ring``, the oldest at
+    ``head`` once full), the oldest taken out when the ring is full, ``tmap`` stored in its
+    place.  Until the ring has filled, the mean has more noise than the threshold assumes,
+    so it is scaled by ``1 / sqrt(n * average)`` instead of ``1 / n`` (the same false-contact
+    rate).  Returns ``(count, head, statistic)``: the new count and head, and ``max`` of the
+    scaled sum."""
+    average = ring.shape[0]
+    p = tmap.size
+    if count == 0:
+        for i in range(p):
+            total[i] = tmap[i]
+    else:
+        for i in range(p):
+            total[i] += tmap[i]
+        if count == average:
+            for i in range(p):
+                total[i] -= ring[head, i]
+    for i in range(p):
+        ring[head, i] = tmap[i]
+    head = (head + 1) % average
+    count = min(count + 1, average)
+    factor = 1.0 / count if count == average else 1.0 / math.sqrt(count * average)
+    stat = -math.inf
+    for i in range(p):
+        stat = max(stat, total[i] * factor)
+    return count, head, stat
 
 
 @njit(cache=True, nogil=True)

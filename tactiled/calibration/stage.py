@@ -14,6 +14,7 @@ a detector averaging several frames.
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 
@@ -54,8 +55,9 @@ class CalibrationStage:
         frame.strain = z
         return self.zeroer.in_contact
 
-    #: take the compiled path where it applies (False: the reference path for every frame)
-    compiled = True
+    #: take the compiled path where it applies (False: the reference path for every frame;
+    #: the environment variable TACTILED_STAGE=reference sets False, to measure the difference)
+    compiled = os.environ.get("TACTILED_STAGE", "") != "reference"
 
     def _compiled(self, raw: np.ndarray, t: float) -> np.ndarray | None:
         """:meth:`Zeroer.update` of ``table.to_strain(raw)`` at time ``t`` (s) by the kernels,
@@ -63,7 +65,7 @@ class CalibrationStage:
         zr = self.zeroer
         det = zr.detector
         shape = zr.shape
-        if (zr.baseline is None or zr._pending_tare or det.average != 1 or raw.shape != shape
+        if (zr.baseline is None or zr._pending_tare or raw.shape != shape
                 or raw.dtype.kind not in "ui" or not zr.baseline.flags.c_contiguous):
             return None
         seg = self.table._forward
@@ -75,11 +77,12 @@ class CalibrationStage:
         sigma = det.sigma
         z = np.empty(shape)
         residual = np.empty(shape) if f > 0.0 else z  # (untouched without compensation)
+        tmap = np.empty(det._total.size)
         state, stat = zero_frame(
             raw.reshape(-1), seg._offset, seg._breaks, seg._params, zr.baseline.reshape(-1),
             comp._peak.reshape(-1), f, math.exp(-dt / comp.tau_s) if dt > 0.0 else 1.0,
             MIN_PEAK_SIGMAS * sigma, NOISE_MARGIN * sigma, comp._active,
-            det._ax, det._ay_t, z.reshape(-1), residual.reshape(-1))
+            det._ax, det._ay_t, z.reshape(-1), residual.reshape(-1), tmap)
         if state < 0:
             return None
         zr._frames += 1
@@ -89,7 +92,11 @@ class CalibrationStage:
         if f > 0.0:
             comp._active = bool(state & 2)
         # while the baseline forms, its own noise would raise false contacts: learn only
-        zr._settle_frame(z, t, dt, False if settling else det.decide(stat))
+        if settling:
+            contact = False
+        else:
+            contact = det.decide(det.average_map(tmap) if det.average > 1 else stat)
+        zr._settle_frame(z, t, dt, contact)
         return z
 
     @property
