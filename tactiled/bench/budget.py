@@ -41,6 +41,9 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("event loop", ("asyncio/", "selectors.py")),
 )
 OTHER = "other"
+#: Innermost frames of a thread asleep in a system call, which py-spy's sampler counted as
+#: running: left out (the CPU time they would stand for is not the process's).
+WAITING = ("PortReader._wait (", "EpollSelector.select (", "_PollLikeSelector.select (")
 _LINE = re.compile(r":\d+\)")
 
 
@@ -86,6 +89,8 @@ def breakdown(lines: Iterable[str]) -> tuple[Counter, int]:
     per: Counter = Counter()
     total = 0
     for frames, n in main_process_stacks(lines):
+        if frames and frames[-1].startswith(WAITING):
+            continue
         per[stage_of(frames)] += n
         total += n
     return per, total

@@ -41,7 +41,7 @@ from statistics import NormalDist
 import numpy as np
 from numpy.typing import ArrayLike
 
-from tactiled.calibration.fused import average_maps
+from tactiled.calibration.fused import average_maps, filter_bands
 from tactiled.config import DEFAULT_SENSOR, SensorModel
 from tactiled.physics.impulse import line_response
 
@@ -156,6 +156,7 @@ class ContactDetector:
         # For batches, T = Ax z Ay^T on the row-major flattened frame is one product with
         # kron(Ax, Ay) ((15*15, 64) by default); for one frame two tiny dots are cheaper.
         self._kernel_t = np.ascontiguousarray(np.kron(ax, ay).T)
+        self._bands = filter_bands(self._ax, self._ay_t)  # (the compiled stage's)
         self.in_contact = False
         self.last_statistic = 0.0
         self.nonfinite_frames = 0

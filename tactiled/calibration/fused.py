@@ -33,7 +33,8 @@ from numba import njit
 def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: np.ndarray,
                baseline: np.ndarray, peak: np.ndarray, fraction: float, decay: float,
                floor: float, margin: float, active: bool, ax: np.ndarray, ay_t: np.ndarray,
-               z: np.ndarray, residual: np.ndarray, tmap: np.ndarray) -> tuple[int, float]:
+               bands: np.ndarray, z: np.ndarray, residual: np.ndarray,
+               tmap: np.ndarray) -> tuple[int, float]:
     """One frame of raw counts ``raw`` (flat, ``T`` tactels, row-major) into ``z`` (flat):
     linearised, zeroed against ``baseline`` and, with ``fraction`` > 0, compensated for the
     rubber's hysteresis (the compensator's ``peak`` updated in place; its previous peaks
@@ -44,7 +45,8 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: 
     was changed: the caller takes the reference path), else bit 0 set when a residual was
     taken (it is in ``residual``; otherwise ``residual`` is untouched) and bit 1 set when the
     compensator is still active; ``statistic`` is ``max(Ax z Ay^T)`` on the compensated frame,
-    whose filter map (flat, row-major) is written to ``tmap``.
+    whose filter map (flat, row-major) is written to ``tmap``.  ``bands``: where the filter
+    matrices are not zero (:func:`filter_bands`).
     """
     n = raw.size
     nb = breaks.size
@@ -87,25 +89,40 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: 
                 top = max(top, p)
                 z[t] = zt - taken
             state = 1 | (2 if top > floor else 0)
-    # The matched filter, separable: T = Ax Z Ay^T, Z the (rows, cols) frame.
-    rows, cols = ax.shape[1], ay_t.shape[0]
-    m = np.zeros((ax.shape[0], cols))
-    for u in range(ax.shape[0]):
-        for i in range(rows):
+    # The matched filter, separable: T = Ax Z Ay^T, Z the (rows, cols) frame; each template
+    # row reaches a few tactels only (its band), the rest of the products being zeros.
+    cols = ay_t.shape[0]
+    nu, nv = ax.shape[0], ay_t.shape[1]
+    m = np.zeros((nu, cols))
+    for u in range(nu):
+        for i in range(bands[0, u], bands[1, u]):
             a = ax[u, i]
-            if a != 0.0:
-                for j in range(cols):
-                    m[u, j] += a * z[i * cols + j]
+            for j in range(cols):
+                m[u, j] += a * z[i * cols + j]
     stat = -math.inf
-    nv = ay_t.shape[1]
-    for u in range(ax.shape[0]):
+    for u in range(nu):
         for v in range(nv):
             s = 0.0
-            for j in range(cols):
+            for j in range(bands[2, v], bands[3, v]):
                 s += m[u, j] * ay_t[j, v]
             tmap[u * nv + v] = s
             stat = max(stat, s)
     return state, stat
+
+
+def filter_bands(ax: np.ndarray, ay_t: np.ndarray) -> np.ndarray:
+    """``(4, max(U, V))`` int64: for each row ``u`` of ``Ax`` the first and one past the last
+    column not zero (rows 0, 1), and likewise for each column ``v`` of ``Ay^T`` its rows
+    (rows 2, 3): :func:`zero_frame` multiplies only there."""
+    def span(nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.where(nonzero.any(axis=1), nonzero.argmax(axis=1), 0)
+        hi = np.where(nonzero.any(axis=1), nonzero.shape[1] - nonzero[:, ::-1].argmax(axis=1), 0)
+        return lo, hi
+
+    out = np.zeros((4, max(ax.shape[0], ay_t.shape[1])), dtype=np.int64)
+    out[0, :ax.shape[0]], out[1, :ax.shape[0]] = span(ax != 0.0)
+    out[2, :ay_t.shape[1]], out[3, :ay_t.shape[1]] = span((ay_t != 0.0).T)
+    return out
 
 
 @njit(cache=True, nogil=True)

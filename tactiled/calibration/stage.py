@@ -38,6 +38,7 @@ class CalibrationStage:
     def __init__(self, table: LookupTable, zeroer: Zeroer | None = None) -> None:
         self.table = table
         self.zeroer = Zeroer(table.shape) if zeroer is None else zeroer
+        self.finite = False
         if self.zeroer.shape != table.shape:
             raise ValueError(f"zeroer shape {self.zeroer.shape} != table shape {table.shape}")
 
@@ -50,6 +51,8 @@ class CalibrationStage:
             )
         t = frame.device_time_us * 1e-6
         z = self._compiled(frame.raw, t) if self.compiled else None
+        #: the last frame's strain is known finite (the compiled path checked every value)
+        self.finite = z is not None
         if z is None:  # the reference path
             z = self.zeroer.update(self.table.to_strain(frame.raw), t)
         frame.strain = z
@@ -82,7 +85,7 @@ class CalibrationStage:
             raw.reshape(-1), seg._offset, seg._breaks, seg._params, zr.baseline.reshape(-1),
             comp._peak.reshape(-1), f, math.exp(-dt / comp.tau_s) if dt > 0.0 else 1.0,
             MIN_PEAK_SIGMAS * sigma, NOISE_MARGIN * sigma, comp._active,
-            det._ax, det._ay_t, z.reshape(-1), residual.reshape(-1), tmap)
+            det._ax, det._ay_t, det._bands, z.reshape(-1), residual.reshape(-1), tmap)
         if state < 0:
             return None
         zr._frames += 1
