@@ -14,6 +14,9 @@ Two levels:
   contact, the strain the tactels feel (physics + slow baseline drift + rubber hysteresis +
   Gaussian noise) and the raw ``uint16`` counts through a calibration table's inverse, packed in
   a :class:`~tactiled.frames.Frame`.  ``docs/simulator.md`` documents the model and its numbers.
+* Several contacts on one array: a :class:`MultiScene` plays one scene per indentor on the same
+  clock; the strain is the sum of theirs (:func:`render_sum`) and a tick's truth is the list
+  ``Tick.contacts``.  The hand's six parts (:data:`HAND_PARTS`, ``docs/hand.md``) are such scenes.
 
 Units: mm, N, degrees, seconds; strain is dimensionless and positive under compression.
 """

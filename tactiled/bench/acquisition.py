@@ -803,7 +803,8 @@ def cpu_per_frame(result: RunResult) -> dict[str, float | None]:
     windows = getattr(result, "windows", [])  # (a baseline's result may not have them)
     per = [1e6 * cpu / frames for _, cpu, frames in windows if frames > 0]
     cpu = result.cpu_s.get("daemon")
-    frames = sum(f for _, _, f in windows) or None
+    frames = sum(_delta(result.after["sensors"][n], result.before["sensors"][n], "frames")
+                 for n in result.parts)
     return {"median_us": _q(per, 50), "p99_us": _q(per, 99), "max_us": max(per) if per else None,
             "windows": len(per),
             "whole_us": None if cpu is None or not frames else 1e6 * cpu / frames}

@@ -33,22 +33,11 @@ def test_the_hand_devices_and_their_timeline() -> None:
     assert all(truth(k) is None for k in range(lo, hi + 300))
 
 
-def _rows(out: str, header: str) -> list[list[str]]:
-    lines = out.splitlines()
-    i = next(k for k, line in enumerate(lines) if line.startswith(header))
-    got = []
-    for line in lines[i + 2:]:
-        if not line.startswith("|"):
-            break
-        got.append([c.strip() for c in line.strip("|").split("|")])
-    return got
-
-
 def _cell(value: float | None, fmt: str) -> str:
     return "-" if value is None else fmt.format(value)
 
 
-def test_a_short_hand_run_writes_every_figure_of_its_tables_as_json(tmp_path) -> None:
+def test_a_short_hand_run_writes_every_figure_of_its_tables_as_json(tmp_path, table_rows) -> None:
     out_json = tmp_path / "hand.json"
     proc = subprocess.run([*TACTILED, "--suite", "acquisition", "--scene", "hand", "--quick",
                            "--seconds", "2", "--json", str(out_json)],
@@ -74,10 +63,10 @@ def test_a_short_hand_run_writes_every_figure_of_its_tables_as_json(tmp_path) ->
         assert total[key] == sum(s[key] for s in sensors.values()), key
     assert total["frames"] > 0 and all(s["device_sent"] > 0 for s in sensors.values())
     # ... and the tables say the same
-    (answers,) = _rows(out, "| workers | contact frames |")
+    (answers,) = table_rows(out, "| workers | contact frames |")
     assert int(answers[1]) == total["contact_frames"]
     assert answers[2] == _cell(total["own_fit_pct"], "{:.1f} %")
-    per = _rows(out, "| workers | sensor | contact frames |")
+    per = table_rows(out, "| workers | sensor | contact frames |")
     assert [r[1] for r in per] == [*HAND_PARTS, "all"]
     for r in per:
         s = total if r[1] == "all" else sensors[r[1]]
@@ -85,11 +74,11 @@ def test_a_short_hand_run_writes_every_figure_of_its_tables_as_json(tmp_path) ->
         assert r[3] == _cell(s["answered_pct"], "{:.1f} %")
         lat = s["latency_ms"]
         assert r[6] == " / ".join(_cell(lat[q], "{:.2f}") for q in ("p50", "p99", "max"))
-    (cpu,) = _rows(out, "| workers | main process CPU per frame")
+    (cpu,) = table_rows(out, "| workers | main process CPU per frame")
     c = run["main_process_cpu_per_frame"]
     assert c["windows"] >= 1 and c["median_us"] > 0
     assert cpu[1] == f"{c['median_us']:.1f} / {c['p99_us']:.1f}" and int(cpu[3]) == c["windows"]
-    integrity = _rows(out, "| workers | finger |")
+    integrity = table_rows(out, "| workers | finger |")
     assert [r[1] for r in integrity] == list(HAND_PARTS)
     for r in integrity:
         s = sensors[r[1]]
