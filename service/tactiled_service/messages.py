@@ -24,8 +24,9 @@ from tactiled.pipeline import Estimate, ZeroedFrame
 
 log = logging.getLogger(__name__)
 
-#: Version of the message schemas; bumped on any incompatible change.
-SCHEMA_VERSION = 1
+#: Version of the message schemas, bumped when what a message holds changes (docs/api.md):
+#: 2 added ``contact_id`` and ``contacts`` to the estimate; every key of 1 is unchanged.
+SCHEMA_VERSION = 2
 
 #: ``streams`` a client may ask for -> the hub's item kinds.
 STREAM_KINDS = {"estimates": "estimate", "frames": "frame"}

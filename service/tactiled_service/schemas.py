@@ -12,7 +12,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pydantic.json_schema import SkipJsonSchema
 
-SCHEMA_VERSION = 1  # same as messages.SCHEMA_VERSION (kept import-free for clients)
+SCHEMA_VERSION = 2  # same as messages.SCHEMA_VERSION (kept import-free for clients)
 
 
 def format_validation_error(err: ValidationError, prefix: str = "") -> str:
@@ -81,6 +81,26 @@ class LineInfo(BaseModel):
     offset_mm_std: float | None
 
 
+class ContactInfo(BaseModel):
+    """One contact of an estimate's ``contacts``: the keys of a single contact's estimate
+    (the values, ``std``, ``reasons``, ``ellipse``, ``line``, rates, ...) and its id."""
+
+    model_config = ConfigDict(extra="allow")
+
+    contact_id: int = Field(description="stable while the contact is held (docs/api.md)")
+    contact: bool
+    model: str | None
+    label: str | None
+    x_mm: float | None
+    y_mm: float | None
+    force_n: float | None
+    r1_mm: float | None
+    r2_mm: float | None
+    angle_deg: float | None
+    std: dict[str, float | None]
+    reasons: dict[str, str]
+
+
 class EstimateMessage(BaseModel):
     """An estimate (REST and WebSocket): the envelope, every key of a ``tactiled fit`` line
     (contact, model, x_mm, y_mm, force_n, r1_mm, r2_mm, angle_deg, rms, std, fit_ms, label,
@@ -122,6 +142,10 @@ class EstimateMessage(BaseModel):
     vy_mm_s: float | None = Field(description="contact centre's rate along y, mm/s")
     angle_rate_deg_s: float | None = Field(description="rate of angle_deg, deg/s")
     force_rate_n_s: float | None = Field(description="rate of force_n, N/s")
+    contact_id: int | None = Field(
+        description="the top-level contact's id (the strongest contact); null: no contact")
+    contacts: list[ContactInfo] = Field(
+        description="every contact on the array, the strongest first (empty: no contact)")
 
 
 class FrameMessage(BaseModel):

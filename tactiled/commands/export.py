@@ -124,7 +124,7 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
                        progress: Progress) -> dict[str, Any]:
     """Replay through the pipeline into ``writer``; a recorded host time ``t`` is the Unix
     time ``created + (t - t0)`` (``t0``: the first frame's)."""
-    from tactiled.pipeline import TIMING_KEYS, Daemon
+    from tactiled.pipeline import Daemon, without_timing
 
     daemon = Daemon(settings, lossless=True)
     name = settings.sensors[0].name
@@ -134,9 +134,7 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
     def on_item(item: Any) -> None:
         stamp = created + (item.host_time - t0)
         if item.kind == "estimate":
-            est = item.to_json_dict()
-            for key in TIMING_KEYS:
-                est[key] = None
+            est = without_timing(item.to_json_dict(), blank=True)
             writer.write_estimate(est, stamp)
             return
         writer.write_frame(item.sensor, item.strain, stamp)

@@ -167,7 +167,9 @@ class _Fitting:
     def __init__(self, sensor: SensorModel, window: int, model: str, learned: Any = None) -> None:
         # Imported here: a parent that only hands chunks to workers never loads the fitter.
         from tactiled.fit.fitter import FitOptions, Fitter
+        from tactiled.fit.multi import contacts_json, fit_contacts
 
+        self._contacts = lambda frame: contacts_json(fit_contacts(self.fitter, frame, self.model))
         self.fitter = Fitter(sensor, FitOptions(window=window, learn_floor=learned is not None))
         if learned is not None:
             self.fitter.adopt(*learned)
@@ -179,10 +181,10 @@ class _Fitting:
         out = []
         for i, frame in enumerate(strain, first):
             if self.detector.statistic(frame) > self.detector.enter_threshold:
-                result = self.fitter.fit(frame, self.model)
+                line = self._contacts(frame)
             else:
-                result = FitResult(contact=False, message="no contact: below the noise threshold")
-            out.append(json.dumps(result.to_json_dict(frame=i), allow_nan=False) + "\n")
+                line = FitResult(contact=False, message="no contact: below the noise threshold").to_json_dict()
+            out.append(json.dumps({"frame": i, **line}, allow_nan=False) + "\n")
         return "".join(out)
 
 
@@ -242,6 +244,31 @@ def learn(sensor: SensorModel, window: int, model: str, strain: np.ndarray,
     message = f"{took}: " + "; ".join(said)
     bar.finish(message)
     return (fitter.floor, flat), message
+
+
+class _Identifying:
+    """The output stream, giving each line's contacts their ids as they are written in frame
+    order (:mod:`tactiled.pipeline.association`: consecutive frames of a contact keep its id;
+    a frame without contact ends every id)."""
+
+    def __init__(self, out: TextIO, gate_mm: float) -> None:
+        from tactiled.pipeline.association import ContactIds
+
+        self._out = out
+        self._ids = ContactIds(gate_mm)
+
+    def write(self, text: str) -> None:
+        from tactiled.pipeline.association import identified
+
+        lines = [json.dumps(identified(json.loads(t), self._ids), allow_nan=False)
+                 for t in text.splitlines()]
+        self._out.write("".join(f"{t}\n" for t in lines))
+
+    def flush(self) -> None:
+        self._out.flush()
+
+    def fileno(self) -> int:
+        return self._out.fileno()
 
 
 def chunk_size(frames: int, jobs: int) -> int:
@@ -304,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
     chunk = chunk_size(frames, jobs)
     jobs = max(1, min(jobs, math.ceil(frames / chunk)))  # no worker without a chunk to fit
     show = frames >= LONG_INPUT if args.progress is None else args.progress
-    out = sys.stdout
+    out = _Identifying(sys.stdout, max(sensor.impulse.depth_x, sensor.impulse.depth_y))
     try:
         learned = None
         if args.learn:

@@ -94,21 +94,19 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 async def _replay(args: argparse.Namespace) -> dict[str, Any]:
-    from tactiled.pipeline import TIMING_KEYS, Daemon
+    from tactiled.pipeline import Daemon, without_timing
 
     settings = load_settings(None, {}, _overrides(args))
     # a replay neither starts from nor overwrites what a live daemon learned of its finger
     daemon = Daemon(settings, lossless=args.mode == "lossless", keep_learned=False)
     out = sys.stdout
-    drop = set(TIMING_KEYS) if args.no_timing else set()
 
     def emit(item: Any) -> None:
         if item.kind == "frame" and not args.zeroed_frames:
             return
         line = item.to_json_dict()
-        if drop:
-            for key in drop:
-                line.pop(key, None)
+        if args.no_timing:
+            line = without_timing(line)
         out.write(json.dumps(line, allow_nan=False) + "\n")
 
     daemon.hub.add_listener(emit)

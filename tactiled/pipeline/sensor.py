@@ -50,6 +50,8 @@ from tactiled.pipeline.estimate import (
 )
 from tactiled.pipeline.gate import Gate
 from tactiled.pipeline import learned
+from tactiled.fit.regions import SIGNIFICANT_Z
+from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
@@ -72,6 +74,9 @@ def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     return (("window", window), ("withhold_relative_sigma", WITHHOLD_RELATIVE_SIGMA),
             ("learn_floor", True))
 
+
+#: Why a contact of several carries no rates: each such frame is fitted, none tracked.
+SEVERAL_UNTRACKED = "several contacts on the array: each frame is fitted, not tracked"
 
 #: Warm starts go to the workers rounded to this grid (internal units: ln mm, ln N, rad, mm).
 #: The tracker's state carries the last bits of whatever CPU computed its linearisations;
@@ -191,9 +196,14 @@ class SensorPipeline:
         self.device = device
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
-        self._no_contact_fit = untracked(plain(FitResult(
+        self._no_contact_fit = {**untracked(plain(FitResult(
             contact=False, message="no contact: below the detection threshold").to_json_dict()),
-            0, "no contact")
+            0, "no contact"), "contact_id": None, "contacts": []}
+        #: each contact's id from frame to frame (a contact moves far less than a cover depth
+        #: between frames, and two contacts the detector tells apart lie further apart)
+        self._elsewhere_strain = SIGNIFICANT_Z * settings.noise_sigma
+        self.ids = ContactIds(gate_mm=max(self.sensor_model.impulse.depth_x,
+                                          self.sensor_model.impulse.depth_y))
         #: the contact through time (settings.track), the frames waiting for a fit before it
         #: can measure them (in arrival order), and the fit its estimates build on
         self.tracker = Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA, geometry=g)
@@ -232,6 +242,9 @@ class SensorPipeline:
         self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
         self.relinearize_lost = 0
         self.drift_followed = 0  # times the zeroer followed drift around a held contact
+        #: tracked frames sent to a fit because a tactel outside the contact's window rose
+        #: (another contact pressed)
+        self.pressed_elsewhere = 0
         self.fit_failed = 0
         self.fit_errors = 0
         self.fits_budget_spent = 0  # fits the fit budget stopped (tactiled.fit.budget)
@@ -458,12 +471,27 @@ class SensorPipeline:
             else:
                 self.superseded += 1
             return
+        if self._pressed_elsewhere(w.strain):
+            self.pressed_elsewhere += 1
+            self._wait_for_fit(w)
+            return
         if tracker.step(w.strain.ravel(), w.t) == "refit":
             self._wait_for_fit(w)
             return
         self._publish_tracked(w)
         self._follow_drift(w)
         self._maybe_relinearize(w)
+
+    def _pressed_elsewhere(self, strain: np.ndarray) -> bool:
+        """Outside the tracked contact's window, a tactel stands above what the contact
+        explains there by more than any noise does: another contact (the tracker measures the
+        window only, so a fit must say what the frame holds now)."""
+        ref = self._drift_ref
+        if ref is None:
+            return False
+        predicted, window = ref
+        outside = strain[~window] - predicted[~window]
+        return bool(outside.size) and float(outside.max()) > self._elsewhere_strain
 
     def _reuse_unchanged(self, w: _Waiting) -> bool:
         """With nothing to track (the contact's last fit could not place it: a frame at the
@@ -705,10 +733,14 @@ class SensorPipeline:
             self.superseded += 1
             self._check_settled()
 
+    def _untracked_element(self, c: dict[str, Any]) -> dict[str, Any]:
+        return c if "frames_used" in c else untracked(c, 1, SEVERAL_UNTRACKED)
+
     def _publish(self, w: _Waiting, gate: str, fitted_seq: int | None, worker_ms: float,
                  fit: dict[str, Any]) -> Estimate:
         if fit.get("peak") is not None:  # the frame's own, not that of the fit it rests on
             fit = {**fit, "peak": self._frame_peak(w.strain, fit["peak"])}
+        fit = identified(fit, self.ids, self._untracked_element)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)
@@ -857,6 +889,7 @@ class SensorPipeline:
             self.sensor_model = replace(self.sensor_model, noise=NoiseModel(sigma=s.noise_sigma))
             self._restore = False  # the file was learned through the model before the change
         self.spec = self.pool.register_spec(self.sensor_model, self._fit_options(), self.name)
+        self._elsewhere_strain = SIGNIFICANT_Z * s.noise_sigma
         self.gate.configure(sigma=s.noise_sigma, z=s.unchanged_z,
                             reuse_unchanged=s.reuse_unchanged)
         if self.stage is not None:
@@ -945,6 +978,7 @@ class SensorPipeline:
             "relinearized": self.relinearized,
             "relinearize_lost": self.relinearize_lost,
             "drift_followed": self.drift_followed,
+            "pressed_elsewhere": self.pressed_elsewhere,
             "hysteresis": None if zeroer is None else zeroer.hysteresis_summary(),
             "pending": len(self._pending),
             # frames received and neither answered nor counted yet (waiting for a fit)

@@ -168,7 +168,8 @@ def test_golden_files_are_small_and_reproduce_their_recordings() -> None:
     from tactiled.sim import FingerSimulator
 
     total = sum(p.stat().st_size for p in g.GOLDEN.iterdir())
-    assert total < 512 * 1024, f"{total} bytes of golden data"
+    # (every estimate lists its contacts too: each contact's keys twice on a one-contact line)
+    assert total < 1024 * 1024, f"{total} bytes of golden data"
     for name, url in g.SESSIONS.items():
         q = {k: v[0] for k, v in parse_qs(urlsplit(url).query).items()}
         sim = FingerSimulator(scene=q["scene"], seed=int(q["seed"]), rate_hz=float(q["rate"]),
