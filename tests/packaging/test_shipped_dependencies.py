@@ -165,7 +165,7 @@ def test_a_venv_with_only_the_package(tmp_path: Path) -> None:
                              capture_output=True, text=True, timeout=900)
     assert install.returncode == 0, install.stderr[-3000:]
     check_environment(python, env, tmp_path)
-    # The soak docs/reliability.md quotes, in its quickest form: subscribers, stalled clients
+    # The soak docs/performance/reliability.md quotes, in its quickest form: subscribers, stalled clients
     # and the daemon, every process of it in this environment.
     soak = subprocess.run([python, "-m", "tactiled.bench.reliability", "--quick", "--seconds",
                            "3", "--warmup", "1", "--subscribers", "5", "--stalled", "1"],
