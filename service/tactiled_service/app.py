@@ -185,8 +185,8 @@ def create_app(ctx: Context) -> FastAPI:
                                         "content": {"text/plain": {"schema": {
                                             "type": "string"}}}}})
     async def metrics() -> Response:
-        """Counters, gauges and latency histograms in the Prometheus text format (docs/reference/api.md
-        lists them); the same credentials as the other data endpoints."""
+        """Counters, gauges and latency histograms in the Prometheus text format
+        (docs/reference/metrics.md lists them); the same credentials as the other data endpoints."""
         return Response(ctx.metrics.render(), media_type=METRICS_CONTENT_TYPE)
 
     @app.get("/v1/sensors", response_model=SensorsResponse, responses=ERRORS,

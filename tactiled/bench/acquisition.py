@@ -684,7 +684,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
               "Shares are of the contact frames (frames the detector called contact): answered by a fit of their "
               "own, answered by the last fit because the chi-square test found them unchanged within noise (a "
               "justified reuse; with tracking, measured through the last fit's linearisation, which a test of "
-              "its own admits: docs/concepts/fitting.md, 'Time'), of which predicted (the tracker had to publish the contact "
+              "its own admits: docs/concepts/tracking.md), of which predicted (the tracker had to publish the contact "
               "predicted to the frame's time because its fit came back late: not a justified reuse), superseded "
               "in the one-frame slot by a newer frame before a worker was free, or unanswered otherwise (a fit "
               "result dropped as stale, a fit lost).  Targets (issue 16): own fit + reuse - predicted >= 99 %, "

@@ -17,7 +17,7 @@ constants, tactel positions and model-error floor (docs/howto/calibration.md).  
 may hold 'counts' (N, rows, cols) raw readings (and optionally 'sensor_id', checked against the
 file) in place of 'strain'; they go through the file's tables (strain 0 at the zero-load
 point), then the fit.  Uncertainties also widen when a frame's residuals say the finger departs
-from its model (docs/concepts/fitting.md, "Honest uncertainties").
+from its model (docs/concepts/uncertainty.md).
 
 The finger is learned first (--learn, the default): a first pass fits up to 2000 of the
 file's contact frames, spread over it, in order, learning how far the finger departs from its

@@ -553,7 +553,7 @@ def test_example_configuration_and_docs_show_every_zenoh_key():
     text = example.read_text()
     assert [k for k in keys if f"{k} =" not in text and f"# {k} =" not in text] == []
     docs = (root / "docs" / "howto" / "zenoh.md").read_text()
-    pipeline = (root / "docs" / "concepts" / "pipeline.md").read_text()
+    pipeline = (root / "docs" / "reference" / "configuration.md").read_text()
     for key in keys:
         assert f"`{key}`" in docs and f"`zenoh.{key}`" in pipeline, key
     for key in ("/estimate", "/frame", "/health", "/latest", "liveliness"):
