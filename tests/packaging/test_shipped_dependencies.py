@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 BLOCKER = Path(__file__).resolve().parent / "blocked"
 #: The optional extras' import names (pyproject's optional-dependencies).
 EXTRAS = {"zenoh": ("zenoh",), "ros2": ("rosbags", "mcap", "mcap_ros2", "xxhash"),
-          "plot": ("matplotlib",), "docs": ("mkdocs", "material")}
+          "plot": ("matplotlib",), "docs": ("mkdocs", "material", "mkdocstrings")}
 #: Test-only packages (pyproject's test extra; zenoh-ros2-sdk installs two top-level names)
 #: and the extras'.
 NOT_SHIPPED = ("httpx", "pytest", "_pytest", "playwright", "hypothesis", "mpmath", "PIL",
