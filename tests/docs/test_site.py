@@ -43,3 +43,9 @@ def test_the_command_line_reference_has_every_command() -> None:
                        (ROOT / "docs" / "reference" / "cli.md").read_text())
     assert "" in marks, "the top-level help is missing"
     assert sorted(m for m in marks if m) == sorted(COMMANDS)
+
+
+def test_the_readme_stays_short_and_points_into_the_docs() -> None:
+    readme = (ROOT / "README.md").read_text()
+    assert len(readme.splitlines()) < 120
+    assert "docs/index.md" in readme and "docs/img/dashboard-strip.png" in readme
