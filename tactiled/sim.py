@@ -13,7 +13,7 @@ Two levels:
   :class:`FingerSimulator` turns it, tick by tick, into what the hardware would send: the true
   contact, the strain the tactels feel (physics + slow baseline drift + rubber hysteresis +
   Gaussian noise) and the raw ``uint16`` counts through a calibration table's inverse, packed in
-  a :class:`~tactiled.frames.Frame`.  ``docs/simulator.md`` documents the model and its numbers.
+  a :class:`~tactiled.frames.Frame`.  ``docs/concepts/simulator.md`` documents the model and its numbers.
 
 Units: mm, N, degrees, seconds; strain is dimensionless and positive under compression.
 """

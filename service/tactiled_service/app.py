@@ -119,7 +119,7 @@ def create_app(ctx: Context) -> FastAPI:
     """The ASGI app for ``ctx``."""
     app = FastAPI(title="tactiled", version=__version__,
                   description="Tactile curvature sensing daemon: REST and WebSocket API "
-                              "(docs/api.md).",
+                              "(docs/reference/api.md).",
                   openapi_url="/v1/openapi.json", docs_url=None, redoc_url=None)
     app.state.ctx = ctx
     auth = ctx.auth
@@ -185,8 +185,8 @@ def create_app(ctx: Context) -> FastAPI:
                                         "content": {"text/plain": {"schema": {
                                             "type": "string"}}}}})
     async def metrics() -> Response:
-        """Counters, gauges and latency histograms in the Prometheus text format (docs/api.md
-        lists them); the same credentials as the other data endpoints."""
+        """Counters, gauges and latency histograms in the Prometheus text format
+        (docs/reference/metrics.md lists them); the same credentials as the other data endpoints."""
         return Response(ctx.metrics.render(), media_type=METRICS_CONTENT_TYPE)
 
     @app.get("/v1/sensors", response_model=SensorsResponse, responses=ERRORS,

@@ -71,7 +71,7 @@ class Ellipse(BaseModel):
 
 
 class LineInfo(BaseModel):
-    """A line contact (a cylinder on a flat array, docs/model.md): its load per length and its
+    """A line contact (a cylinder on a flat array, docs/concepts/model.md): its load per length and its
     signed distance from the array's centre along the normal of ``angle_deg``, with 1-sigma
     bounds.  Its total force and its position along the line do not exist."""
 
@@ -180,7 +180,7 @@ class ModelErrorInfo(BaseModel):
 
 
 class ConstantsInfo(BaseModel):
-    """The contact model's constants in use for this sensor (docs/model.md)."""
+    """The contact model's constants in use for this sensor (docs/concepts/model.md)."""
 
     depth_x: float = Field(description="impulse response depth along x, mm")
     nu_x: float = Field(description="impulse response ratio along x")
@@ -189,7 +189,7 @@ class ConstantsInfo(BaseModel):
     modulus: float = Field(description="rubber modulus E, N/mm^2")
     model_error: ModelErrorInfo
     positions_identified: int = Field(description="tactels whose identified position is used")
-    source: str = Field(description="'paper' (docs/model.md), 'description: <name>' (a sensor "
+    source: str = Field(description="'paper' (docs/concepts/model.md), 'description: <name>' (a sensor "
                         "description's nominal cover) or 'identified: <calibration file>'")
     sigma: dict[str, float | None] = Field(description="1-sigma bound of each identified constant (null: not identified or held)")
     held: dict[str, str] = Field(description="constants held at the paper's value, and why")
@@ -205,7 +205,7 @@ class SensorInfo(BaseModel):
     dx_mm: float
     dy_mm: float
     finger_radius_mm: float | None = Field(description="the surface's radius around y; null: a flat array")
-    description: str = Field(description="the sensor description's name (docs/sensors.md)")
+    description: str = Field(description="the sensor description's name (docs/howto/sensors.md)")
     model: str
     calibration: Calibration
     constants: ConstantsInfo
@@ -368,7 +368,7 @@ class SubscribersHealth(BaseModel):
 
 
 class ZenohHealth(BaseModel):
-    """The Zenoh front end (docs/zenoh.md); the health document's ``zenoh`` is null when
+    """The Zenoh front end (docs/howto/zenoh.md); the health document's ``zenoh`` is null when
     ``[zenoh] enabled`` is false."""
 
     model_config = ConfigDict(extra="allow")

@@ -2,7 +2,7 @@
 
 -o OUT.mcap replays the recording through the pipeline exactly as `tactiled replay` does
 (lossless: every frame the gate passes is fitted, so the output depends on the file only)
-and writes what the daemon publishes on ROS 2 (docs/ros2.md), as an MCAP file with the
+and writes what the daemon publishes on ROS 2 (docs/howto/ros2.md), as an MCAP file with the
 ros2 profile that `ros2 bag play` replays and Foxglove opens:
   <namespace>/<sensor>/wrench    geometry_msgs/msg/WrenchStamped  every estimate (N, N*m)
   <namespace>/<sensor>/contact   tactiled_msgs/msg/Contact         every estimate

@@ -13,11 +13,11 @@ set for 1e-4 false contacts per noise-only frame.  Sensor noise sigma: --sigma, 
 stored in the file by 'tactiled simulate', else 0.0005.  A bad file gets one error line, exit 2.
 
 --calibration CAL.json fits with the sensor's calibration: a version 2 file's identified rubber
-constants, tactel positions and model-error floor (docs/calibration.md).  With it, FRAMES.npz
+constants, tactel positions and model-error floor (docs/howto/calibration.md).  With it, FRAMES.npz
 may hold 'counts' (N, rows, cols) raw readings (and optionally 'sensor_id', checked against the
 file) in place of 'strain'; they go through the file's tables (strain 0 at the zero-load
 point), then the fit.  Uncertainties also widen when a frame's residuals say the finger departs
-from its model (docs/fitting.md, "Honest uncertainties").
+from its model (docs/concepts/uncertainty.md).
 
 The finger is learned first (--learn, the default): a first pass fits up to 2000 of the
 file's contact frames, spread over it, in order, learning how far the finger departs from its
@@ -76,7 +76,7 @@ AHEAD = 4
 #: The learning pass fits at most this many contact frames (~1-2 s), spread over the file.
 LEARN_FITS = 2000
 #: Imported once by the forkserver, so the workers forked from it start with numba's kernels
-#: loaded and the default sensor's start table built (docs/pipeline.md, "Workers").
+#: loaded and the default sensor's start table built (docs/concepts/pipeline.md, "Workers").
 PRELOAD_MODULE = "tactiled.pipeline.preload"
 
 
@@ -110,7 +110,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="sensor strain noise (1 sigma) for uncertainties and the contact threshold")
     p.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
                    help="the array the frames come from: a built-in description (`tactiled "
-                   "sensors` lists them) or a description file (docs/sensors.md); default: the "
+                   "sensors` lists them) or a description file (docs/howto/sensors.md); default: the "
                    "paper's finger with the frames' shape and any pitch the file gives (dx, dy)")
     p.add_argument("--calibration", metavar="CAL.json", default=None,
                    help="the sensor's calibration file: its identified model (version 2) is used, "
@@ -122,7 +122,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--learn", action=argparse.BooleanOptionalAction, default=True,
                    help=f"first learn, from up to {LEARN_FITS} of the file's contact frames, how the "
                    "finger departs from its model (its tactels' gains and positions, the residual "
-                   "floor) and fit every frame with it (default on; docs/fitting.md)")
+                   "floor) and fit every frame with it (default on; docs/concepts/fitting.md)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help=f"progress on stderr (default: for inputs of {LONG_INPUT} frames or more)")
 

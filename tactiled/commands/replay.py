@@ -54,7 +54,7 @@ def add_sensor_arguments(p: argparse.ArgumentParser, name: str, name_help: str) 
                    help="contact model (default auto: chosen per frame by BIC)")
     p.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
                    help="the recorded array: a built-in description or a description file "
-                   "(docs/sensors.md; default fearing1988, the paper's finger)")
+                   "(docs/howto/sensors.md; default fearing1988, the paper's finger)")
     p.add_argument("--window", type=int, default=None, metavar="N",
                    help="fit window side in tactels (default: the description's, 4)")
     p.add_argument("--sigma", type=float, default=None,

@@ -1,6 +1,6 @@
 """The acquisition pipeline: per-sensor asyncio loops, the fit worker pool, the hub.
 
-The frame's path (docs/pipeline.md): source bytes -> FrameDecoder -> Frame -> lookup table ->
+The frame's path (docs/concepts/pipeline.md): source bytes -> FrameDecoder -> Frame -> lookup table ->
 zeroing + contact detection -> :class:`Gate` -> worker process fit (latest frame wins) ->
 :class:`Estimate` -> :class:`Hub` (REST cache, subscribers) ; raw frames -> recorder.
 

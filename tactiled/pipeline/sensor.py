@@ -66,7 +66,7 @@ RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing
 
 
 #: The daemon withholds a radius whose Cramer-Rao bound exceeds half of it ("force too low
-#: for curvature"; docs/model.md: radius is not observable at low force).
+#: for curvature"; docs/concepts/model.md: radius is not observable at low force).
 WITHHOLD_RELATIVE_SIGMA = 0.5
 def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
@@ -158,7 +158,7 @@ class SensorPipeline:
                     f"{settings.calibration}: calibration of sensor {self.table.sensor_id}, "
                     f"but wire_id is {self.expected_id}")
             self.expected_id = self.table.sensor_id
-        #: what the array is: grid, surface, cover, wiring (docs/sensors.md)
+        #: what the array is: grid, surface, cover, wiring (docs/howto/sensors.md)
         self.description = load_description(settings.description)
         # Tactels the description names dead, or the calibration found dead or never
         # exercised, are left out of every fit.
@@ -192,7 +192,7 @@ class SensorPipeline:
                 f"sensor {self.name}: the {device.kind} device's array is "
                 f"{device.shape[0]}x{device.shape[1]}, but its description "
                 f"{self.description.name!r} is {g.rows}x{g.cols}: set the sensor's description "
-                "to the array's (docs/sensors.md)")
+                "to the array's (docs/howto/sensors.md)")
         self.device = device
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id

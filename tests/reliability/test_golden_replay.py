@@ -99,7 +99,7 @@ def test_the_host_cpu_changes_nothing_but_last_digits() -> None:
     host CPU, OpenBLAS's and numpy's SIMD kernels, libm's FMA variants), every session must
     give the golden estimates with every verdict, model, gate, iteration count and message the
     same, and every float within a relative 1e-6.  Before the convergence verdict was made
-    robust (docs/fitting.md), an AVX2 host changed 2 verdicts, 8 models and 24 iteration
+    robust (docs/concepts/fitting.md), an AVX2 host changed 2 verdicts, 8 models and 24 iteration
     counts of these sessions against the pinned goldens, and moved values by up to 0.35 sigma.
     An estimate whose fit measured nothing (:func:`unmeasured`) keeps its outline: in the press
     session's release a frame at 2.8 noise sigmas fitted as a line contact with a force sigma

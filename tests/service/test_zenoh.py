@@ -552,8 +552,8 @@ def test_example_configuration_and_docs_show_every_zenoh_key():
     keys = list(settings_to_dict(load_settings(example, {}, {}))["zenoh"])
     text = example.read_text()
     assert [k for k in keys if f"{k} =" not in text and f"# {k} =" not in text] == []
-    docs = (root / "docs" / "zenoh.md").read_text()
-    pipeline = (root / "docs" / "pipeline.md").read_text()
+    docs = (root / "docs" / "howto" / "zenoh.md").read_text()
+    pipeline = (root / "docs" / "reference" / "configuration.md").read_text()
     for key in keys:
         assert f"`{key}`" in docs and f"`zenoh.{key}`" in pipeline, key
     for key in ("/estimate", "/frame", "/health", "/latest", "liveliness"):
