@@ -107,10 +107,11 @@ def test_six_arrays_on_a_laptop_screen(browser_page, live_server, tmp_path):
     assert strip["y"] + strip["height"] <= 768, strip
     target = os.environ.get("TACTILED_DOCS_SCREENSHOT_HAND")
     if target:
-        page.wait_for_function(  # a moment several fingers press (the picture)
-            "() => [...document.querySelectorAll('.card.sensor [data-k=contact]')]"
-            ".filter(e => e.textContent !== 'no').length >= 4", timeout=60_000)
-        page.wait_for_timeout(4000)
+        page.wait_for_timeout(3000)  # some history on the strip chart
+        page.wait_for_function(  # a moment the badge is OK and four arrays are pressed
+            "() => document.querySelector('#overall').textContent === 'OK' && "
+            "[...document.querySelectorAll('.card.sensor [data-k=contact]')]"
+            ".filter(e => e.textContent !== 'no').length >= 4", timeout=60_000, polling=50)
         shot = tmp_path / "hand.png"
         page.screenshot(path=str(shot))
         from PIL import Image  # with matplotlib, in the test extra

@@ -314,11 +314,16 @@ function drawContacts(s, target) {
     };
     if (e.line && angle !== null) {
       // A line contact (a cylinder on a flat array): the line, across the whole array.
+      ctx.save();
+      ctx.beginPath();
+      ctx.rect(MAP_PAD - cx, MAP_PAD - cy, w * k, h * k);
+      ctx.clip();
       segment(Math.hypot(w, h) * k);
       if (followed) { ctx.strokeStyle = "#fff"; ctx.lineWidth = 6; ctx.stroke(); }
       ctx.strokeStyle = "#39d353";
       ctx.lineWidth = 3;
       ctx.stroke();
+      ctx.restore();
     }
     if (angle !== null) {
       // The curvature axis: the R2 direction (a cylinder's axis).
