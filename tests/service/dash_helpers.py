@@ -31,15 +31,25 @@ _MEASURE = """s => {
     const c = document.querySelector(`#sensor-${s} canvas.map`);
     const g = c.dataset.grid, rgb = [1, 3, 5].map(i => parseInt(g.slice(i, i + 2), 16));
     const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-    const grid = (x, y) => { const i = 4 * (y * c.width + x);
-                             return d[i] === rgb[0] && d[i + 1] === rgb[1] && d[i + 2] === rgb[2]; };
+    const grid = (x, y) => {
+        const i = 4 * (y * c.width + x);
+        return d[i] === rgb[0] && d[i + 1] === rgb[1] && d[i + 2] === rgb[2];
+    };
     let x0 = c.width, x1 = -1, y0 = c.height, y1 = -1;
     for (let y = 0; y < c.height; y++) for (let x = 0; x < c.width; x++) {
-        if (grid(x, y)) { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); }
+        if (grid(x, y)) {
+            x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y);
+        }
     }
-    const runs = (n, at) => { let count = 0, inside = false;
-        for (let i = 0; i < n; i++) { const cell = !at(i); if (cell && !inside) count++; inside = cell; }
-        return count; };
+    const runs = (n, at) => {
+        let count = 0, inside = false;
+        for (let i = 0; i < n; i++) {
+            const cell = !at(i);
+            if (cell && !inside) count++;
+            inside = cell;
+        }
+        return count;
+    };
     let rows = 0, cols = 0;
     for (let y = y0; y <= y1; y++) rows = Math.max(rows, runs(x1 - x0 + 1, i => grid(x0 + i, y)));
     for (let x = x0; x <= x1; x++) cols = Math.max(cols, runs(y1 - y0 + 1, i => grid(x, y0 + i)));

@@ -46,11 +46,11 @@ def hand_settings() -> Any:
 
 def boxes(page: Any, selector: str) -> dict[str, dict[str, float]]:
     """Page boxes (CSS px) of the sensors' elements matching ``selector`` inside their tile."""
-    return page.evaluate("""sel => Object.fromEntries([...document.querySelectorAll('.card.sensor')]
-        .map(c => { const r = c.querySelector(sel) || c;
-                    const b = r.getBoundingClientRect();
-                    return [c.dataset.sensor, {x: b.left, y: b.top, r: b.right, b: b.bottom}]; }))""",
-                         selector)
+    return page.evaluate("""sel => Object.fromEntries(
+        [...document.querySelectorAll('.card.sensor')].map(c => {
+            const b = (c.querySelector(sel) || c).getBoundingClientRect();
+            return [c.dataset.sensor, {x: b.left, y: b.top, r: b.right, b: b.bottom}];
+        }))""", selector)
 
 
 def overlap(a: dict[str, float], b: dict[str, float]) -> bool:
@@ -154,7 +154,8 @@ FORCE_PIXELS = """() => {
     const d = c.getContext('2d').getImageData(92, lanes[0][0], c.width - 102,
                                               lanes[0][1] - lanes[0][0]).data;
     let n = 0;
-    for (let i = 0; i < d.length; i += 4) if (d[i] === 0x39 && d[i + 1] === 0xd3 && d[i + 2] === 0x53) n++;
+    for (let i = 0; i < d.length; i += 4)
+        if (d[i] === 0x39 && d[i + 1] === 0xd3 && d[i + 2] === 0x53) n++;
     return n;
 }"""
 
@@ -254,8 +255,8 @@ def test_several_contacts_drawn_with_their_ids(browser_page, live_server, pty_de
         scale = overlay["width"] / float(page.get_attribute("#sensor-pad canvas.overlay", "width"))
         page.mouse.click(overlay["x"] + drawn[7]["x"] * scale, overlay["y"] + drawn[7]["y"] * scale)
         page.wait_for_function("() => { const p = document.querySelector('#follow-panel');"
-                               " return p.dataset.mode === 'contact' && p.dataset.contactId === '7'; }",
-                               timeout=5000)
+                               " return p.dataset.mode === 'contact' &&"
+                               " p.dataset.contactId === '7'; }", timeout=5000)
         assert page.text_content("#follow") == "pad · contact 7 (clicked contact)"
         page.wait_for_function("() => document.querySelector('#follow-panel [data-k=force_n]')"
                                ".textContent === '0.400 ± 0.010 N'", timeout=5000)
@@ -275,7 +276,8 @@ def ellipse_is_green(page: Any, d: dict) -> bool:
         const c = document.querySelector('#sensor-pad canvas.overlay');
         const ctx = c.getContext('2d'), t = d.theta_deg * Math.PI / 180;
         return [1, -1].every(sign => {
-            const x = Math.round(d.x + sign * d.a * Math.cos(t)), y = Math.round(d.y - sign * d.a * Math.sin(t));
+            const x = Math.round(d.x + sign * d.a * Math.cos(t));
+            const y = Math.round(d.y - sign * d.a * Math.sin(t));
             const px = ctx.getImageData(x - 2, y - 2, 5, 5).data;
             for (let i = 0; i < px.length; i += 4)
                 if (px[i + 1] > 150 && px[i] < 120 && px[i + 3] > 200) return true;
@@ -288,9 +290,11 @@ def id_is_written(page: Any, d: dict) -> bool:
     """White text pixels up and to the right of the contact's centre, past its dot."""
     return page.evaluate("""d => {
         const c = document.querySelector('#sensor-pad canvas.overlay');
-        const r = Math.min(d.b, 18), x = Math.round(d.x + r * 0.7 + 3), y = Math.round(d.y - r * 0.7 - 3);
+        const r = Math.min(d.b, 18);
+        const x = Math.round(d.x + r * 0.7 + 3), y = Math.round(d.y - r * 0.7 - 3);
         const px = c.getContext('2d').getImageData(x, y - 10, 16, 11).data;
         let n = 0;
-        for (let i = 0; i < px.length; i += 4) if (px[i] > 220 && px[i + 1] > 220 && px[i + 2] > 220) n++;
+        for (let i = 0; i < px.length; i += 4)
+            if (px[i] > 220 && px[i + 1] > 220 && px[i + 2] > 220) n++;
         return n >= 6;
     }""", d)

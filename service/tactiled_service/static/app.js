@@ -106,7 +106,9 @@ function sensorState(name) {
        drawn: []};
   card.addEventListener("click", (ev) => clickSensor(s, ev));
   card.addEventListener("keydown", (ev) => {
-    if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); followThis({mode: "sensor", sensor: name, id: null}); }
+    if (ev.key !== "Enter" && ev.key !== " ") return;
+    ev.preventDefault();
+    followThis({mode: "sensor", sensor: name, id: null});
   });
   state.sensors.set(name, s);
   if (state.health && state.health.sensors[name]) showStatus(s, state.health.sensors[name]);
@@ -499,10 +501,10 @@ function ringFor(key) {
 }
 
 // -- strip chart: the last STRIP_S seconds of force, R1 and angle --------------------------
-// One sample per estimate (or listed contact) received (time = when it arrived here), kept in a fixed ring.  Each
-// lane draws the value as a line over its 1-sigma band; a null value (withheld, or no contact)
-// breaks the line, and a withheld one is marked under the lane; hovering shows the value with
-// its sigma, or why it is missing (the estimate's `reasons` entry).
+// One sample per estimate (or listed contact) received (time = when it arrived here), kept in
+// a fixed ring.  Each lane draws the value as a line over its 1-sigma band; a null value
+// (withheld, or no contact) breaks the line, and a withheld one is marked under the lane;
+// hovering shows the value with its sigma, or why it is missing (the estimate's `reasons`).
 const LANES = [
   {key: "force_n", label: "force", unit: "N", digits: 3, span: 0.5, colour: "#39d353"},
   {key: "r1_mm", label: "R1", unit: "mm", digits: 2, span: 5, colour: "#58a6ff"},
