@@ -2,7 +2,7 @@
 six simulated arrays (five of the paper's fingertips, a flat 16x16 palm) on one laptop screen,
 each at its own shape and pitch on one scale, measured on the page's canvases; clicking a
 sensor makes the strip chart follow it; several contacts on one array drawn with their ids, a
-clicked contact followed until it ends.
+clicked contact followed until it ends; the strongest contact of any sensor followed by default.
 
 ``TACTILED_DOCS_SCREENSHOT_HAND=docs/img/dashboard-hand.png`` makes
 ``test_six_arrays_on_a_laptop_screen`` also write its 1366x768 screenshot there, in 256
@@ -179,28 +179,30 @@ def contact(contact_id: int, x_mm: float, y_mm: float, force_n: float, r_mm: flo
 
 
 class Injector:
-    """Publishes ``self.contacts`` as the estimate of ``sensor`` into a real server's hub, 20
-    times a second, on the server's own loop (as the sensor pipeline does), until stopped."""
+    """Publishes ``self.contacts[sensor]`` as the estimate of each sensor into a real server's
+    hub, 20 times a second, on the server's own loop (as the sensor pipelines do), until
+    stopped."""
 
-    def __init__(self, server: Any, sensor: str, contacts: list[dict]) -> None:
-        self.server, self.sensor, self.contacts = server, sensor, contacts
+    def __init__(self, server: Any, contacts: dict[str, list[dict]]) -> None:
+        self.server, self.contacts = server, contacts
         self.seq = 0
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True)
 
-    def estimate(self) -> Any:
-        self.seq += 1
-        top = max(self.contacts, key=lambda c: c["force_n"])  # the strongest at the top level
-        return make_estimate(sensor=self.sensor, sensor_id=0, seq=self.seq,
+    def estimate(self, sensor: str, contacts: list[dict]) -> Any:
+        top = max(contacts, key=lambda c: c["force_n"])  # the strongest at the top level
+        return make_estimate(sensor=sensor, sensor_id=0, seq=self.seq,
                              device_time_us=self.seq * 50_000, host_time=time.monotonic(),
                              gate="fit", fitted_seq=self.seq, worker_ms=1.0,
-                             fit={**top, "contacts": list(self.contacts)})
+                             fit={**top, "contacts": list(contacts)})
 
     def run(self) -> None:
         deadline = time.monotonic() + 120
+        hub = self.server.service.daemon.hub
         while not self.stop.is_set() and time.monotonic() < deadline:
-            est = self.estimate()
-            self.server.call(lambda: self.server.service.daemon.hub.publish(est))
+            self.seq += 1
+            items = [self.estimate(name, c) for name, c in list(self.contacts.items())]
+            self.server.call(lambda: [hub.publish(est) for est in items])
             self.stop.wait(0.05)
 
     def __enter__(self) -> Injector:
@@ -212,19 +214,25 @@ class Injector:
         self.thread.join(10)
 
 
+def silent_sensor(name: str, description: str, device: Any, index: int) -> dict[str, Any]:
+    """Settings of a sensor on a serial port that sends nothing: the daemon publishes no
+    estimate of its own for it."""
+    return {f"sensor[{index}].name": name, f"sensor[{index}].description": description,
+            f"sensor[{index}].wire_id": index,
+            f"sensor[{index}].url": f"serial://{quote(device.path)}"}
+
+
 def test_several_contacts_drawn_with_their_ids(browser_page, live_server, pty_device):
     """Injected: estimates of the sensor ``pad`` (a flat 16x16 array on a serial port that
     sends nothing, so the daemon publishes no estimate of its own for it) listing two sphere
     contacts, ids 3 (1.2 N at x 10, y 25 mm) and 7 (0.4 N at x 28, y 8 mm), published into the
     real server's hub at 20 Hz; the daemon encodes them (each contact's ellipse) and streams
     them to the real browser.  Then contact 7 ends (only 3 is listed)."""
-    server = live_server(sim_settings(1, **{
-        "sensor[0].name": "pad", "sensor[0].description": "flat16", "sensor[0].wire_id": 0,
-        "sensor[0].url": f"serial://{quote(pty_device.path)}"}))
+    server = live_server(sim_settings(1, **silent_sensor("pad", "flat16", pty_device, 0)))
     page, errors = browser_page
     page.set_viewport_size({"width": 1366, "height": 768})
     three, seven = contact(3, 10.0, 25.0, 1.2, 8.0), contact(7, 28.0, 8.0, 0.4, 5.0)
-    with Injector(server, "pad", [three, seven]) as injector:
+    with Injector(server, {"pad": [three, seven]}) as injector:
         page.goto(server.url + "/")
         page.wait_for_function(
             "() => JSON.parse(document.querySelector('#sensor-pad canvas.overlay')"
@@ -261,13 +269,54 @@ def test_several_contacts_drawn_with_their_ids(browser_page, live_server, pty_de
         page.wait_for_function("() => document.querySelector('#follow-panel [data-k=force_n]')"
                                ".textContent === '0.400 ± 0.010 N'", timeout=5000)
         # contact 7 ends: back to the strongest (3), saying why
-        injector.contacts = [three]
+        injector.contacts = {"pad": [three]}
         page.wait_for_function("() => document.querySelector('#follow-panel').dataset.mode"
                                " === 'auto'", timeout=10_000)
         label = page.text_content("#follow")
         assert label.startswith("pad · contact 3 (the strongest contact)"), label
         assert "contact 7 on pad ended" in label
     assert not errors, errors
+
+
+def test_following_the_strongest_contact_of_any_sensor(browser_page, live_server, pty_device,
+                                                     tmp_path):
+    """Injected (as in the test above): estimates of two silent sensors, ``pad`` (flat16) and
+    ``tip`` (robotiq_tsf85), each listing its contacts; their forces change step by step and
+    the panel follows the strongest contact of any sensor, changing sensor only for a force 20 %
+    larger than the one it follows."""
+    second = type(pty_device)(tmp_path / "ttyTACT2")
+    try:
+        server = live_server(sim_settings(2, **silent_sensor("pad", "flat16", pty_device, 0),
+                                          **silent_sensor("tip", "robotiq_tsf85", second, 1)))
+        page, errors = browser_page
+        steps = [  # pad's strongest, tip's, the contact followed
+            (1.2, 0.5, "pad · contact 3"),
+            (1.2, 2.0, "tip · contact 1"),   # 2.0 > 1.2 * 1.2: the tip now
+            (1.4, 1.3, "tip · contact 1"),   # the pad is stronger, by less than 20 %: stays
+            (1.7, 1.3, "pad · contact 3"),   # 1.7 > 1.3 * 1.2: the pad again
+        ]
+        def hand(pad_force: float, tip_force: float) -> dict[str, list[dict]]:
+            return {"pad": [contact(3, 10.0, 25.0, pad_force, 8.0),
+                            contact(7, 28.0, 8.0, 0.4, 5.0)],
+                    "tip": [contact(1, 12.0, 6.0, tip_force, 6.0)]}
+
+        with Injector(server, hand(*steps[0][:2])) as injector:
+            page.goto(server.url + "/")
+            for pad_force, tip_force, followed in steps:
+                injector.contacts = hand(pad_force, tip_force)
+                # both sensors show the new forces, then the panel's choice is read
+                page.wait_for_function(
+                    "f => f.every(([s, v]) => document.querySelector("
+                    "`#sensor-${s} [data-k=force_n]`).textContent.startsWith(v))",
+                    arg=[["pad", f"{pad_force:.3f}"], ["tip", f"{tip_force:.3f}"]],
+                    timeout=10_000)
+                page.wait_for_timeout(200)  # a few frames of the page's own loop
+                label = page.text_content("#follow")
+                assert label == f"{followed} (the strongest contact)", (pad_force, tip_force, label)
+                assert page.get_attribute(PANEL, "data-mode") == "auto"
+        assert not errors, errors
+    finally:
+        second.close()
 
 
 def ellipse_is_green(page: Any, d: dict) -> bool:
