@@ -128,7 +128,8 @@ def test_six_arrays_on_a_laptop_screen(browser_page, live_server, tmp_path):
     page.wait_for_function("() => document.querySelector('#follow-panel canvas.strip')"
                            ".dataset.follows === 'sensor|little|null'", timeout=5000)
     page.wait_for_timeout(300)
-    assert force_pixels(page) == 0, "a force line on the untouched finger's chart"
+    # (a lone false detection would draw one 3x3 dot; a followed pressed sensor, hundreds)
+    assert force_pixels(page) < 10, "a force line on the untouched finger's chart"
     assert page.text_content(f"{PANEL} [data-k=contact]") == "no"
     follow(page, "palm")
     page.wait_for_function(f"() => ({FORCE_PIXELS})() > 20", timeout=60_000)
