@@ -206,6 +206,13 @@ class SensorInfo(BaseModel):
     dy_mm: float
     finger_radius_mm: float | None = Field(description="the surface's radius around y; null: a flat array")
     description: str = Field(description="the sensor description's name (docs/howto/sensors.md)")
+    pitch_x_mm: float = Field(description="the description's tactel spacing along x (rows "
+                              "index), mm; the same value as dx_mm")
+    pitch_y_mm: float = Field(description="the description's tactel spacing along y (columns "
+                              "index), mm; the same value as dy_mm")
+    surface_radius_mm: float | None = Field(
+        description="the description's surface radius around y, mm; null: a flat array (the "
+                    "same value as finger_radius_mm)")
     model: str
     calibration: Calibration
     constants: ConstantsInfo
