@@ -203,7 +203,7 @@ def create_app(ctx: Context) -> FastAPI:
                 "dx_mm": g.dx, "dy_mm": g.dy,
                 "finger_radius_mm": None if g.flat else g.finger_radius,
                 "description": pipe.description.name,
-                # the description's own keys (docs/sensors.md), what the dashboard lays out by
+                # the description's own keys (docs/howto/sensors.md), what the dashboard lays out by
                 "pitch_x_mm": pipe.description.pitch_x_mm,
                 "pitch_y_mm": pipe.description.pitch_y_mm,
                 "surface_radius_mm": (None if pipe.description.flat

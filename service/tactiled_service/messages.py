@@ -25,7 +25,7 @@ from tactiled.pipeline import Estimate, ZeroedFrame
 
 log = logging.getLogger(__name__)
 
-#: Version of the message schemas, bumped when what a message holds changes (docs/api.md):
+#: Version of the message schemas, bumped when what a message holds changes (docs/reference/api.md):
 #: 2 added ``contact_id`` and ``contacts`` to the estimate; every key of 1 is unchanged.
 SCHEMA_VERSION = 2
 

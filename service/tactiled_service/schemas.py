@@ -87,7 +87,7 @@ class ContactInfo(BaseModel):
 
     model_config = ConfigDict(extra="allow")
 
-    contact_id: int = Field(description="stable while the contact is held (docs/api.md)")
+    contact_id: int = Field(description="stable while the contact is held (docs/reference/api.md)")
     contact: bool
     model: str | None
     label: str | None

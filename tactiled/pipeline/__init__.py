@@ -12,7 +12,15 @@ Public API: :class:`Daemon` (start/stop, stats, tare, get_config/update_config, 
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # what type checkers and editors see; at run time __getattr__ below
+    from tactiled.pipeline.daemon import Daemon, UnknownSensorError
+    from tactiled.pipeline.estimate import TIMING_KEYS, Estimate, ZeroedFrame, without_timing
+    from tactiled.pipeline.gate import Gate, GateDecision
+    from tactiled.pipeline.hub import Hub, Subscription, SubscriptionClosed
+    from tactiled.pipeline.pool import WorkerPool
+    from tactiled.pipeline.sensor import SensorPipeline
 
 #: What ``from tactiled.pipeline import X`` gives, imported when first asked for: a light
 #: module of the package (the contacts' association, the estimate's records) must not load

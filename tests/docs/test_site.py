@@ -48,4 +48,4 @@ def test_the_command_line_reference_has_every_command() -> None:
 def test_the_readme_stays_short_and_points_into_the_docs() -> None:
     readme = (ROOT / "README.md").read_text()
     assert len(readme.splitlines()) < 120
-    assert "docs/index.md" in readme and "docs/img/dashboard-strip.png" in readme
+    assert "docs/index.md" in readme and "docs/img/dashboard-hand.png" in readme
