@@ -282,6 +282,9 @@ def test_one_subscriber_sees_both_daemons_complete_in_order_and_byte_for_byte(da
         assert h["zenoh"]["routers"] == 1, h["zenoh"]
         for msg in col.of(d.prefix)[:5]:
             assert msg["type"] == "estimate" and msg["sensor"] == "finger0"
+        for msg in col.of(d.prefix):  # every contact listed, with its id
+            assert len(msg["contacts"]) == int(msg["contact"])
+            assert [c["contact_id"] for c in msg["contacts"][:1]] == ([msg["contact_id"]] if msg["contact"] else [])
     # Frames: daemon A only (B's frame_rate_hz is 0), every one a frame message, at most
     # FRAME_RATE_HZ by the daemon's own clock.
     frames = col.of("tactiled/zt-a", "frame")
