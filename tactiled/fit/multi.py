@@ -27,6 +27,7 @@ from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
 from tactiled.fit.regions import Region, find_regions
 from tactiled.fit.result import FitResult
+from tactiled.fit.warm import SEVERAL, nearest_start
 from tactiled.physics.contact import LineContact
 
 #: Passes over the contacts (the first fits each from cold, the second from the first).
@@ -88,17 +89,44 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     ``reasons["contacts"]``; ``budget_s`` bounds them all together.
     """
     regions = find_regions(fitter.flattened(strain), fitter.sigma, mask)
+    starts = [_start_for(fitter, reg, warm) for reg in regions]
     if len(regions) <= 1:
+        if warm is not None and warm[0] == SEVERAL:  # the others lifted: this one's start
+            warm = starts[0] if starts else None
         res = fitter.fit(strain, model, mask=mask, warm=warm, budget_s=budget_s)
         if regions and regions[0].absorbed and res.contact:
             res.label = "merged"
             res.reasons["contacts"] = MERGED_REASON
         return [res]
-    return _fit_several(fitter, np.asarray(strain, dtype=float), model, mask, regions, budget_s)
+    return _fit_several(fitter, np.asarray(strain, dtype=float), model, mask, regions, budget_s,
+                        starts)
+
+
+def _start_for(fitter: Any, region: Region, warm: Any) -> tuple[str, tuple[float, ...]] | None:
+    """The warm start of the last frame's contact at ``region``'s peak, if any: ``warm`` is
+    one contact's ``(model, params)`` or several's ``(SEVERAL, (...))``."""
+    if warm is None or not warm[1]:
+        return None
+    warms = warm[1] if warm[0] == SEVERAL else (warm,)
+    m, n = region.peak_idx
+    imp = fitter.sensor.impulse
+    return nearest_start(tuple(warms), float(fitter.model.xs_full[m]), float(fitter.model.ys_full[n]),
+                         max(imp.depth_x, imp.depth_y))
+
+
+def warm_of(results: list[FitResult]) -> tuple[str, Any] | None:
+    """What the next frame's fit starts from: one contact's ``(model, params)`` when it
+    converged, several's ``(SEVERAL, ((model, params), ...))``."""
+    if len(results) == 1:
+        r = results[0]
+        return (r.model, r.params) if r.converged and r.params is not None and r.model else None
+    each = tuple((r.model, r.params) for r in results if r.contact and r.params is not None and r.model)
+    return (SEVERAL, each) if each else None
 
 
 def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray | None,
-                 regions: list[Region], budget_s: float | None) -> list[FitResult]:
+                 regions: list[Region], budget_s: float | None,
+                 starts: list[tuple[str, tuple[float, ...]] | None]) -> list[FitResult]:
     t0 = time.perf_counter()
     k = len(regions)
     usable = np.ones(strain.shape, bool) if mask is None else np.asarray(mask, dtype=bool)
@@ -126,7 +154,7 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
                     left = max(budget_s - (time.perf_counter() - t0), 0.0) / max(
                         (SWEEPS - sweep) * k - i, 1)
                 prev = results[i]
-                warm = (None if prev is None or prev.params is None or prev.model is None
+                warm = (starts[i] if prev is None else None if prev.params is None or prev.model is None
                         else (prev.model, prev.params))
                 fit_model = model if model == "auto" or prev is None else prev.model or model
                 res = fitter.fit(residual, fit_model, mask=m, warm=warm, budget_s=left)
@@ -302,14 +330,12 @@ def joint_bounds(fitter: Any, contacts: list[tuple[str, tuple[float, ...]]],
 
 
 def _user_std(grad: np.ndarray, cov: np.ndarray) -> dict[str, float | None]:
-    out: dict[str, float | None] = {}
-    for key, g in zip(VALUE_KEYS, grad):
-        if not np.all(np.isfinite(g)):
-            out[key] = None
-            continue
-        var = float(g @ cov @ g)
-        out[key] = math.sqrt(var) if var >= 0.0 and math.isfinite(var) else None
-    return out
+    """1-sigma of each user value (delta method); None for a value the model lacks (its
+    gradient row is NaN) or a negative variance."""
+    with np.errstate(invalid="ignore"):
+        var = np.einsum("ki,ij,kj->k", grad, cov, grad)
+    return {key: math.sqrt(v) if v >= 0.0 and math.isfinite(v) else None
+            for key, v in zip(VALUE_KEYS, var.tolist())}
 
 
 def _widen_by_neighbours(fitter: Any, results: list[FitResult], usable: np.ndarray) -> None:

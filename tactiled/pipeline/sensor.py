@@ -51,6 +51,7 @@ from tactiled.pipeline.estimate import (
 from tactiled.pipeline.gate import Gate
 from tactiled.pipeline import learned
 from tactiled.fit.regions import SIGNIFICANT_Z
+from tactiled.fit.warm import SEVERAL
 from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
@@ -93,6 +94,9 @@ def _warm_start(warm: tuple[str, tuple[float, ...]] | None,
     evaluation outlasts the worker's deadline), on the grid."""
     if warm is None:
         return None
+    if warm[0] == SEVERAL:
+        each = (_warm_start(w, geometry) for w in warm[1])  # type: ignore[arg-type]
+        return SEVERAL, tuple(w for w in each if w is not None)  # type: ignore[return-value]
     p = within_reason(np.asarray(warm[1], dtype=float), geometry)
     return warm[0], tuple(round(float(v) / WARM_GRID) * WARM_GRID for v in p)
 
@@ -629,7 +633,8 @@ class SensorPipeline:
             tracker.clear()
             self._obsolete_lin()
             self._base = self._base_seq = None
-            self._warm = None
+            # several contacts: each next fit starts from this one's (tactiled.fit.multi)
+            self._warm = warm if warm is not None and warm[0] == SEVERAL else None
             later = [p for p in pending if p.ordinal > w.ordinal]
             self.superseded += len(pending) - len(later) - mine
             self._last_fit = None

@@ -145,7 +145,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     import numpy as np
 
     from tactiled.fit.linearize import linearize
-    from tactiled.fit.multi import contacts_json, fit_contacts
+    from tactiled.fit.multi import contacts_json, fit_contacts, warm_of
     from tactiled.fit.result import FitResult
 
     notice = _CompileNotice(conn)
@@ -184,10 +184,9 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                         results = fit_contacts(fitter, strain, model, mask=mask, warm=warm,
                                                budget_s=budget_s)
                         out, error = plain(contacts_json(results)), None
+                        follow = warm_of(results)
                         # several contacts: each frame is fitted (the tracker follows one)
                         result = results[0] if len(results) == 1 else FitResult(contact=False)
-                        if result.converged and result.params is not None and result.model:
-                            follow = (result.model, result.params)
                         if job_kind == "fit+lin" and result.params is not None and result.model:
                             lin = linearize(fitter, strain, result.model,
                                             np.asarray(result.params), mask)

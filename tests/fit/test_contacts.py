@@ -165,3 +165,31 @@ def test_joint_bounds_match_an_independent_fisher_computation() -> None:
         for key in ("x_mm", "y_mm", "force_n", "r1_mm"):
             assert joint[i][key] >= alone[i][key] * (1 - 1e-9)
         assert joint[i]["x_mm"] > 1.01 * alone[i]["x_mm"]
+
+
+def test_a_frame_of_several_starts_each_contact_from_the_last_frames() -> None:
+    from tactiled.fit.multi import warm_of
+    from tactiled.fit.warm import SEVERAL, nearest_start
+
+    sensor, model, fitter = _setup("flat16")
+    truths = [Contact(5.0, 5.0, 0.0, 1.0, 10.0, 11.0), Contact(9.0, 9.0, 0.0, 0.6, 28.0, 27.0)]
+    rng = np.random.default_rng(8)
+    clean = sum(model.predict(c) for c in truths)
+    first = fit_contacts(fitter, clean + rng.normal(0.0, SIGMA, clean.shape), "sphere")
+    warm = warm_of(first)
+    assert warm[0] == SEVERAL and len(warm[1]) == 2
+    # each region takes the start nearest its peak, none further than the gate
+    assert nearest_start(warm[1], 10.2, 11.1, 2.0)[1] == first[0].params
+    assert nearest_start(warm[1], 19.0, 19.0, 2.0) is None
+    # a line contact (a flat array's 4-parameter cylinder) has no centre to be near
+    assert nearest_start((("cylinder", (1.0, 0.5, -2.0, 0.3)),), 0.3, -2.0, 5.0) is None
+    frame = clean + rng.normal(0.0, SIGMA, clean.shape)
+    cold = fit_contacts(fitter, frame, "sphere")
+    warmed = fit_contacts(fitter, frame, "sphere", warm=warm)
+    for a, b in zip(cold, warmed):
+        for key in ("x_mm", "y_mm", "force_n", "r1_mm"):
+            assert a.values[key] == pytest.approx(b.values[key], abs=0.1 * a.std[key])
+    # one contact left: it starts from its own last fit
+    (one,) = fit_contacts(fitter, model.predict(truths[0]) + rng.normal(0.0, SIGMA, clean.shape),
+                          "sphere", warm=warm)
+    assert one.contact and abs(one.values["x_mm"] - 10.0) < 0.2
