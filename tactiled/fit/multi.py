@@ -7,6 +7,8 @@ single contact (:meth:`Fitter.fit`, the same result bit for bit).  With several,
 fitted on the frame less its neighbours' predicted strain (block coordinate descent on the
 joint least-squares problem: ``SWEEPS`` passes, each contact refitted from where the last pass
 left it), with the neighbours' cores left out of its window while their own fits are rough.
+When every contact was there in the last frame (``warm``), their last fits predict the
+neighbours' strain from the start and one pass does.
 
 Each contact's sigmas are those of the joint model: the fitter's own (its window, its
 model-error floor) times the ratio of the joint Cramer-Rao bound, where the neighbours'
@@ -64,11 +66,21 @@ def predicted_strain(fitter: Any, res: FitResult) -> np.ndarray | None:
         contact = LineContact(math.exp(p[0]), math.degrees(p[1]), float(line["load_n_per_mm"]),
                               float(v["x_mm"]), float(v["y_mm"]))
         return m.predict(contact, m.xs_full, m.ys_full)
-    phys = _point_contact(res.model, res.params)
+    return _point_strain(fitter, res.model, res.params)
+
+
+def _point_strain(fitter: Any, model: str, params: tuple[float, ...]) -> np.ndarray | None:
+    """The strain on the whole array of a point contact's internal parameters (None: not a
+    point contact, or no valid contact)."""
+    phys = _point_contact(model, params)
     if phys is None:
         return None
     ka, kb, psi, force, x0, y0 = phys
-    ell, _ = m.ellipse(ka, kb, psi, force)
+    m = fitter.model
+    try:
+        ell, _ = m.ellipse(ka, kb, psi, force)
+    except ValueError:
+        return None
     return m.strain_from_ellipse(ell, force, x0, y0, m.xs_full, m.ys_full)
 
 
@@ -132,10 +144,16 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
     usable = np.ones(strain.shape, bool) if mask is None else np.asarray(mask, dtype=bool)
     preds: list[np.ndarray | None] = [None] * k
     results: list[FitResult | None] = [None] * k
+    # every contact held since the last frame: its neighbours' strain is known from their
+    # last fits at once, and one pass does what the cold start's two do
+    if all(st is not None for st in starts):
+        preds = [_point_strain(fitter, *st) for st in starts]  # type: ignore[misc]
+    warm_all = all(p is not None for p in preds)
+    sweeps = 1 if warm_all else SWEEPS
     frozen = fitter.frozen
     fitter.frozen = True  # a frame less a model is no evidence of the tactels' gains
     try:
-        for sweep in range(SWEEPS):
+        for sweep in range(sweeps):
             for i, reg in enumerate(regions):
                 others = [j for j in range(k) if j != i]
                 residual = strain.copy()
@@ -143,7 +161,7 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
                 for j in others:
                     if preds[j] is not None:
                         residual -= _raw(fitter, preds[j])
-                        if sweep:
+                        if sweep or warm_all:
                             m &= ~(regions[j].tactels & (preds[j] > CORE_SHARE * regions[j].peak))
                         else:
                             m &= ~regions[j].tactels
@@ -152,7 +170,7 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
                 left = None
                 if budget_s is not None:
                     left = max(budget_s - (time.perf_counter() - t0), 0.0) / max(
-                        (SWEEPS - sweep) * k - i, 1)
+                        (sweeps - sweep) * k - i, 1)
                 prev = results[i]
                 warm = (starts[i] if prev is None else None if prev.params is None or prev.model is None
                         else (prev.model, prev.params))
