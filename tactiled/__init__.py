@@ -2,7 +2,7 @@
 
 The method is Fearing & Binford (1988): predict tactel strains by convolving the rubber's
 impulse response with a Hertz contact pressure, and fit the contact parameters to measured
-strains by nonlinear least squares.  ``docs/model.md`` sets out the equations and units.
+strains by nonlinear least squares.  ``docs/concepts/model.md`` sets out the equations and units.
 """
 
 __version__ = "0.1.0"

@@ -1,6 +1,6 @@
 """Typed settings of the sensor: geometry, material, impulse response, noise.
 
-Units follow ``docs/model.md``: millimetres, newtons, N/mm^2; strain is dimensionless and positive
+Units follow ``docs/concepts/model.md``: millimetres, newtons, N/mm^2; strain is dimensionless and positive
 under compression.  These are frozen dataclasses so a model built from them can be cached and
 shared with a worker process safely.
 """
@@ -188,7 +188,7 @@ MAX_POSITION_ERROR = 1.0
 class SensorModel:
     """Everything the physics and the fitter need to know about one sensor.
 
-    The defaults are the paper's finger (docs/model.md); a calibration file written by
+    The defaults are the paper's finger (docs/concepts/model.md); a calibration file written by
     ``tactiled calibrate --identify`` replaces the rubber constants, the tactel positions and
     the model-error floor with the ones measured on the user's finger.
     """

@@ -2,7 +2,7 @@
 
 A vendor driver (``lines://``, ``flexitac://``, ``robotiq://``, ``xela://``) delivers raw counts
 in its array's own shape; what the array is (shape, pitch, surface, cover) is the sensor's
-description (``tactiled/sensors``, docs/sensors.md).  :func:`device_model` is the one place that
+description (``tactiled/sensors``, docs/howto/sensors.md).  :func:`device_model` is the one place that
 says which built-in description each kind of device has; :class:`DeviceArray` adds the nominal
 linear table its counts go through until a calibration file says otherwise.  The simulated
 devices (``tactiled simulate --as KIND``) render their frames from the same
@@ -51,7 +51,7 @@ class DeviceArray:
     counts_per_strain: float
     zero_counts: float
     #: the built-in description of this array; None when the URL's rows/cols make it another
-    #: array (which then needs a description of its own: docs/sensors.md)
+    #: array (which then needs a description of its own: docs/howto/sensors.md)
     description: str | None = None
 
     @property

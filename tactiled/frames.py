@@ -1,7 +1,7 @@
 """Frames: one reading of the tactel array, and (below) the wire-format codec.
 
 No I/O here: the decoder is fed bytes and returns frames, so it is trivially testable and
-fuzzable.  The wire format is documented in ``docs/protocol.md``.  Public codec API:
+fuzzable.  The wire format is documented in ``docs/reference/protocol.md``.  Public codec API:
 :func:`encode_frame`, :class:`FrameDecoder` (with :class:`DecoderStats`), :func:`decode_frame`
 for a single frame, and the :func:`cobs_encode` / :func:`cobs_decode` helpers.
 """
@@ -46,7 +46,7 @@ class Frame:
 
 
 # --------------------------------------------------------------------------------------------
-# Wire format (docs/protocol.md): COBS( header | uint16 LE counts, row-major | CRC-32 LE ) 0x00
+# Wire format (docs/reference/protocol.md): COBS( header | uint16 LE counts, row-major | CRC-32 LE ) 0x00
 # --------------------------------------------------------------------------------------------
 
 VERSION = 1
@@ -165,7 +165,7 @@ class DecoderStats:
 
     Every rejected chunk (the bytes between two 0x00) is counted in exactly one of
     ``crc_errors``, ``length_errors``, ``version_errors``, ``cobs_errors``, ``truncated`` or
-    ``oversize``; see docs/protocol.md for how the kind is chosen.
+    ``oversize``; see docs/reference/protocol.md for how the kind is chosen.
     """
 
     frames: int = 0  # frames delivered

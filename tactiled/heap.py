@@ -7,7 +7,7 @@ collection about every 10 minutes (6 in the 1-hour soak, each up to 85 ms over t
 that start-up leaves: FastAPI, pydantic, numpy, scipy); with never-reading subscribers
 closed every ~1.4 s, ~6 MB of dead sessions piled up in between, and pymalloc's 1 MiB arenas,
 sized for each pile and fragmented, were not all given back: the RSS crept by 9 MB in an
-hour (docs/reliability.md, "Memory").
+hour (docs/performance/reliability.md, "Soak").
 
 :func:`settle` moves what start-up left alive into the permanent generation
 (:func:`gc.freeze`), which the collector never scans again, so a full collection weighs only
@@ -57,7 +57,7 @@ def pin_malloc() -> bool:
     next blocks of that size come from the heap and stay there when freed.  A fit of a large
     contact builds megabytes of quadrature arrays and frees them, so a worker's RSS jumped by
     up to 10 MB at a time between its periodic trims, and its books stayed flat (the fourth
-    soak hour, docs/reliability.md).  Measured in a fresh process: after a 16 MB array, three
+    soak hour, docs/performance/reliability.md).  Measured in a fresh process: after a 16 MB array, three
     of 8 MB and thirty of 0.8 MB, each freed, glibc kept 23.8 MB by default and 0.08 MB pinned.
     The cost is an mmap and a munmap per such block, microseconds against the milliseconds of
     filling it."""
@@ -76,8 +76,8 @@ def trim() -> bool:
 
     Why: after a burst (the loop stalled for seconds on a starved machine, then worked off
     megabytes of buffered frames) malloc keeps what it freed, and its high-water marks showed
-    as steps in a long run's RSS while the bytes in use stayed flat (docs/reliability.md, "The
-    hour").  A few milliseconds a minute."""
+    as steps in a long run's RSS while the bytes in use stayed flat (docs/performance/reliability.md,
+    "Soak").  A few milliseconds a minute."""
     from tactiled.heapstats import _libc
 
     libc = _libc()

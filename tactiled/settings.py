@@ -89,7 +89,7 @@ class SensorSettings:
     """One fingertip: where its frames come from and how they are turned into estimates."""
 
     name: str = "finger0"  # how the API names the sensor
-    #: what the array is (docs/sensors.md): a built-in description's name or a .toml file
+    #: what the array is (docs/howto/sensors.md): a built-in description's name or a .toml file
     description: str = "fearing1988"
     url: str = DEFAULT_URL  # frame source URL (serial://, sim://, replay://)
     wire_id: int | None = None  # sensor_id in the frames; None: the calibration's, else any
@@ -135,7 +135,7 @@ class RecordSettings:
 
     path: str | None = None  # file path; must contain "{sensor}" with several sensors
     #: "tact" (the raw wire frames), "mcap" (the ROS 2 messages, to ``path`` with the suffix
-    #: ``.mcap``; docs/ros2.md) or "both".
+    #: ``.mcap``; docs/howto/ros2.md) or "both".
     format: str = "tact"
 
 
@@ -148,7 +148,7 @@ def default_zenoh_prefix() -> str:
 
 @dataclass(frozen=True)
 class ZenohSettings:
-    """Publishing on Zenoh (``service/tactiled_service/bus.py``, ``docs/zenoh.md``): off by
+    """Publishing on Zenoh (``service/tactiled_service/bus.py``, ``docs/howto/zenoh.md``): off by
     default; needs the ``zenoh`` extra (``pip install 'tactiled[zenoh]'``)."""
 
     enabled: bool = False
@@ -175,7 +175,7 @@ class ZenohSettings:
 @dataclass(frozen=True)
 class Ros2Settings:
     """ROS 2 topics on the daemon's Zenoh session, the way rmw_zenoh lays them out
-    (``service/tactiled_service/ros2/``, ``docs/ros2.md``): off by default; needs
+    (``service/tactiled_service/ros2/``, ``docs/howto/ros2.md``): off by default; needs
     ``zenoh.enabled`` and the ``ros2`` extra (``pip install 'tactiled[zenoh,ros2]'``)."""
 
     enabled: bool = False

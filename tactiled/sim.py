@@ -13,7 +13,7 @@ Two levels:
   :class:`FingerSimulator` turns it, tick by tick, into what the hardware would send: the true
   contact, the strain the tactels feel (physics + slow baseline drift + rubber hysteresis +
   Gaussian noise) and the raw ``uint16`` counts through a calibration table's inverse, packed in
-  a :class:`~tactiled.frames.Frame`.  ``docs/simulator.md`` documents the model and its numbers.
+  a :class:`~tactiled.frames.Frame`.  ``docs/concepts/simulator.md`` documents the model and its numbers.
 * Several contacts on one array: a :class:`MultiScene` plays one scene per indentor on the same
   clock; the strain is the sum of theirs (:func:`render_sum`) and a tick's truth is the list
   ``Tick.contacts``.  The hand's six parts (:data:`HAND_PARTS`, ``docs/hand.md``) are such scenes.

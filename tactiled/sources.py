@@ -6,7 +6,7 @@ A source is named by a URL whose scheme picks the driver::
     sim://?seed=3&scene=press               the scene simulator, encoded to wire bytes
     replay://session.tact?speed=0           a recording (speed 0: as fast as possible)
     flexitac:///dev/ttyUSB0?rows=12&cols=32 a lab's own device: lines://, flexitac://,
-                                            robotiq://, xela:// (docs/drivers.md)
+                                            robotiq://, xela:// (docs/howto/drivers.md)
 
 Drivers are registered by name as ``"module:Class"`` strings (the pattern of python-can's
 ``can/interfaces/__init__.py``) plus the ``tactiled.drivers`` entry-point group, so a third

@@ -7,7 +7,7 @@ pyproject.toml name only files that ship with them.
 * a ``../``-relative path that climbs out of the repository from the file naming it, or that
   names a document or source file (a known extension) that is not there (``../shared/MODEL.md``
   is both, from the README and from ``tactiled/``);
-* a Markdown file named anywhere (``MODEL.md``, ``docs/model.md``) that exists neither
+* a Markdown file named anywhere (``MODEL.md``, ``docs/concepts/model.md``) that exists neither
   beside the file naming it, nor at the repository root, nor in ``docs/``;
 * an absolute path into a workspace (``/work/...``, ``/home/...``, ``/root/...``,
   ``/Users/...``, ``/mnt/...``): somebody's checkout, not the user's.
@@ -96,19 +96,19 @@ def test_the_check_catches_what_it_is_for() -> None:
     assert outside_references(module, "Units follow ``MODEL.md``")
     assert outside_references(readme, "the paper text is in /work/shared/paper.txt")
     assert outside_references(readme, "cd ../other-project && make")
-    assert outside_references(readme, "/home/dev/tactiled/docs/api.md")
-    legit = ("docs/model.md and `docs/api.md`; README.md; serial:///dev/ttyACM0; "
+    assert outside_references(readme, "/home/dev/tactiled/docs/reference/api.md")
+    legit = ("docs/concepts/model.md and `docs/reference/api.md`; README.md; serial:///dev/ttyACM0; "
              "/etc/tactiled/tactiled.toml; /var/lib/tactiled/{sensor}.tact; /usr/bin/chromium; "
              "curl http://127.0.0.1:8765/v1/health; /proc/PID/statm; finger0 -> ../ttyACM0; "
              "tactiled/physics/strain.py; /tmp/ttyTACT")
-    assert outside_references(ROOT / "docs" / "deploy.md", legit) == []
+    assert outside_references(ROOT / "docs" / "howto" / "deploy.md", legit) == []
 
 
 def test_the_model_is_documented_in_the_repository() -> None:
-    text = (ROOT / "docs" / "model.md").read_text()
+    text = (ROOT / "docs" / "concepts" / "model.md").read_text()
     for needle in ("h_x(u) = 2 d_x (d_x^2 - nu_x u^2)", "A'/C' = ( E(m) / (1 - m) - K(m) )",
                    "a^3 = 3 F k (K(m) - E(m)) / (2 pi m C')", "3 F / (2 pi a b)",
                    "strain[m, n] = (1/E)", "12.7 mm", "0.25 N/mm^2", "0.0005", "11.38", "0.037",
                    "positive under compression"):
         assert needle in text, needle
-    assert "docs/model.md" in (ROOT / "README.md").read_text()
+    assert "docs/concepts/model.md" in (ROOT / "README.md").read_text()

@@ -3,7 +3,7 @@
 - ``serial_source.SerialSource``: ``serial:///dev/ttyACM0?baud=...`` (pyserial);
 - ``sim.SimSource``: ``sim://?seed=...&scene=...`` (scene simulator -> encoder -> bytes);
 - ``replay_source.ReplaySource``: ``replay://FILE?speed=1.0&loop=0``;
-- the devices labs own (docs/drivers.md), each a pure framer (``feed(bytes) -> frames``) and
+- the devices labs own (docs/howto/drivers.md), each a pure framer (``feed(bytes) -> frames``) and
   a driver: ``lines.LinesSource`` (``lines://``), ``flexitac.FlexiTacSource``
   (``flexitac://``), ``robotiq.RobotiqSource`` (``robotiq://``), ``xela.XelaSource``
   (``xela://``); ``framing`` holds what their framers share.

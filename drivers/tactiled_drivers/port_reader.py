@@ -5,7 +5,7 @@ buffers little: a pseudo-terminal about 15 KB, a USB CDC-ACM port some 64 KB, th
 0.4 s of a finger streaming 1000 frames/s (152 KB/s).  Read in the event loop, every stall of
 that loop longer than this loses frames at the device, and the loop also serves 50
 WebSocket subscribers, runs garbage collection and waits for the CPU behind other processes:
-the 10-minute soak (docs/reliability.md) saw it wake up to 1.5 s late and lose 1.5-4 % of
+the 10-minute soak (docs/performance/reliability.md) saw it wake up to 1.5 s late and lose 1.5-4 % of
 the frames on full ptys.  This thread does nothing but ``read``: it sleeps in ``select``
 (without the GIL), is woken by the kernel as bytes arrive, takes the GIL for a few
 microseconds to copy them into memory, and so drains the port whatever the loop is busy with
@@ -17,7 +17,7 @@ default: ~27 s of a 1 kHz finger) that the thread reads into (``os.readv`` into 
 allocation per read).  At the limit it stops reading, so the kernel buffer fills and the device
 drops, as it would with no thread at all.  What it holds goes to the loop in pieces of at most
 ``TAKE_LIMIT`` (64 KiB) per :meth:`PortReader.take`.  Both rules come from the 1-hour soaks
-(docs/reliability.md): a backlog handed over as one block of a megabyte, freed after decoding,
+(docs/performance/reliability.md): a backlog handed over as one block of a megabyte, freed after decoding,
 left glibc's heap grown by as much for good (its mmap threshold rises to the largest block
 freed); and a backlog of thousands of few-kilobyte reads, each allocated in the reader thread's
 own malloc arena and freed later from the loop's thread, left that arena fragmented after a

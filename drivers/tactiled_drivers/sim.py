@@ -7,7 +7,7 @@ everything after it) runs exactly as for the hardware.
 URL parameters (all optional):
 
 - ``sensor``: the simulated array, a sensor description's built-in name or ``.toml`` path
-  (default ``fearing1988``, the paper's finger; docs/sensors.md); its cover is the finger's
+  (default ``fearing1988``, the paper's finger; docs/howto/sensors.md); its cover is the finger's
   unless the parameters below change it;
 - ``scene``: a built-in scene name (default ``demo``; see ``tactiled.sim.SCENES``);
 - ``seed``: integer seed of the noise and drift (default 0): the same seed gives the same bytes;

@@ -1,4 +1,4 @@
-"""tactiled's service: the REST API, the WebSocket stream and the dashboard (docs/api.md).
+"""tactiled's service: the REST API, the WebSocket stream and the dashboard (docs/reference/api.md).
 
 Modules: :mod:`~tactiled_service.server` (daemon + uvicorn in one loop, signals, sd_notify),
 :mod:`~tactiled_service.app` (FastAPI routes), :mod:`~tactiled_service.stream` (the WebSocket

@@ -119,7 +119,7 @@ def create_app(ctx: Context) -> FastAPI:
     """The ASGI app for ``ctx``."""
     app = FastAPI(title="tactiled", version=__version__,
                   description="Tactile curvature sensing daemon: REST and WebSocket API "
-                              "(docs/api.md).",
+                              "(docs/reference/api.md).",
                   openapi_url="/v1/openapi.json", docs_url=None, redoc_url=None)
     app.state.ctx = ctx
     auth = ctx.auth
@@ -185,8 +185,8 @@ def create_app(ctx: Context) -> FastAPI:
                                         "content": {"text/plain": {"schema": {
                                             "type": "string"}}}}})
     async def metrics() -> Response:
-        """Counters, gauges and latency histograms in the Prometheus text format (docs/api.md
-        lists them); the same credentials as the other data endpoints."""
+        """Counters, gauges and latency histograms in the Prometheus text format
+        (docs/reference/metrics.md lists them); the same credentials as the other data endpoints."""
         return Response(ctx.metrics.render(), media_type=METRICS_CONTENT_TYPE)
 
     @app.get("/v1/sensors", response_model=SensorsResponse, responses=ERRORS,
@@ -203,6 +203,11 @@ def create_app(ctx: Context) -> FastAPI:
                 "dx_mm": g.dx, "dy_mm": g.dy,
                 "finger_radius_mm": None if g.flat else g.finger_radius,
                 "description": pipe.description.name,
+                # the description's own keys (docs/howto/sensors.md), what the dashboard lays out by
+                "pitch_x_mm": pipe.description.pitch_x_mm,
+                "pitch_y_mm": pipe.description.pitch_y_mm,
+                "surface_radius_mm": (None if pipe.description.flat
+                                      else pipe.description.surface_radius_mm),
                 "model": pipe.model, "calibration": ctx.calibrations[name],
                 "constants": constants_report(pipe.sensor_model,
                                               pipe.calibration.model if pipe.calibration else None,

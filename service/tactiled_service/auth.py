@@ -1,6 +1,6 @@
 """Who may use the API: bearer token, dashboard session cookie, Origin and Host checks.
 
-The model (docs/api.md, "Security"):
+The model (docs/reference/api.md, "Security"):
 
 * **Open mode** (listening on loopback, no token configured): no credentials are needed.
   Browsers are still kept out of other sites' reach: a request whose ``Host`` is not a

@@ -1,4 +1,4 @@
-"""Zenoh: a second front end beside the web server, fed by the same hub (``docs/zenoh.md``).
+"""Zenoh: a second front end beside the web server, fed by the same hub (``docs/howto/zenoh.md``).
 
 Loaded only when ``[zenoh] enabled`` (it imports ``zenoh``, the ``zenoh`` extra).  With
 ``P`` = ``zenoh.prefix`` (default ``tactiled/<hostname>``) it publishes:

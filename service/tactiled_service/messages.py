@@ -5,7 +5,8 @@ and ``seq`` (the sensor's frame sequence number; null for messages about no fram
 estimate message is the pipeline's estimate (``Estimate.to_json_dict()``: the envelope, then
 every key of a ``tactiled fit`` line) with ``type`` in place of ``class``, plus ``ellipse``:
 the contact ellipse to draw, ``{a_mm, b_mm, theta_deg}`` (semi-axes in mm, major axis from +x
-toward +y in degrees), or null.  The REST endpoints return the same objects.
+toward +y in degrees), or null; when the estimate lists several contacts (``contacts``), each
+element gets its own ``ellipse`` too.  The REST endpoints return the same objects.
 
 Encoding is done once per item whatever the number of subscribers (:class:`Encoder`).
 """
@@ -24,8 +25,9 @@ from tactiled.pipeline import Estimate, ZeroedFrame
 
 log = logging.getLogger(__name__)
 
-#: Version of the message schemas; bumped on any incompatible change.
-SCHEMA_VERSION = 1
+#: Version of the message schemas, bumped when what a message holds changes (docs/reference/api.md):
+#: 2 added ``contact_id`` and ``contacts`` to the estimate; every key of 1 is unchanged.
+SCHEMA_VERSION = 2
 
 #: ``streams`` a client may ask for -> the hub's item kinds.
 STREAM_KINDS = {"estimates": "estimate", "frames": "frame"}
@@ -111,19 +113,21 @@ class Encoder:
         self._text: OrderedDict[int, tuple[object, str]] = OrderedDict()
         self._ellipse: OrderedDict[int, tuple[object, dict[str, float] | None]] = OrderedDict()
 
-    def ellipse(self, est: Estimate) -> dict[str, float] | None:
+    def ellipse(self, est: Estimate, fit: dict[str, Any] | None = None) -> dict[str, float] | None:
+        """The ellipse of ``fit``: the estimate's own fit line, or one of its ``contacts``."""
+        fit = est.fit if fit is None else fit
         # "unchanged" estimates share their fit dict with the fitted one: one Hertz solve each.
-        key = id(est.fit)
+        key = id(fit)
         hit = self._ellipse.get(key)
-        if hit is not None and hit[0] is est.fit:
+        if hit is not None and hit[0] is fit:
             return hit[1]
         radius, compliance = self.sensor_physics.get(est.sensor, (12.7, 3.0))
         try:
-            ell = display_ellipse(est.fit, radius, compliance)
+            ell = display_ellipse(fit, radius, compliance)
         except Exception:  # a display aid must never cost the estimate
             log.exception("ellipse of %s seq %d failed", est.sensor, est.seq)
             ell = None
-        self._ellipse[key] = (est.fit, ell)
+        self._ellipse[key] = (fit, ell)
         if len(self._ellipse) > self.size:
             self._ellipse.popitem(last=False)
         return ell
@@ -135,6 +139,10 @@ class Encoder:
         msg: dict[str, Any] = {"type": item.kind, "v": SCHEMA_VERSION, **body}
         if isinstance(item, Estimate):
             msg["ellipse"] = self.ellipse(item)
+            contacts = item.fit.get("contacts")
+            if isinstance(contacts, list):  # each contact of several gets its own ellipse
+                msg["contacts"] = [{**c, "ellipse": self.ellipse(item, c)}
+                                   if isinstance(c, dict) else c for c in contacts]
         else:
             msg["rows"], msg["cols"] = (int(n) for n in item.strain.shape)
         return msg

@@ -9,7 +9,7 @@ several services one after another (the tests do), and each must expose only its
 
 Names follow the Prometheus conventions: a ``tactiled_`` prefix, ``_total`` on counters, the
 unit in the name (``_seconds``, ``_bytes``), labels for the sensor (``sensor``) and for what
-varies inside one quantity (``gate``, ``reason``, ``process``).  docs/api.md lists them all.
+varies inside one quantity (``gate``, ``reason``, ``process``).  docs/reference/metrics.md lists them all.
 """
 
 from __future__ import annotations

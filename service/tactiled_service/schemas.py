@@ -12,7 +12,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pydantic.json_schema import SkipJsonSchema
 
-SCHEMA_VERSION = 1  # same as messages.SCHEMA_VERSION (kept import-free for clients)
+SCHEMA_VERSION = 2  # same as messages.SCHEMA_VERSION (kept import-free for clients)
 
 
 def format_validation_error(err: ValidationError, prefix: str = "") -> str:
@@ -71,7 +71,7 @@ class Ellipse(BaseModel):
 
 
 class LineInfo(BaseModel):
-    """A line contact (a cylinder on a flat array, docs/model.md): its load per length and its
+    """A line contact (a cylinder on a flat array, docs/concepts/model.md): its load per length and its
     signed distance from the array's centre along the normal of ``angle_deg``, with 1-sigma
     bounds.  Its total force and its position along the line do not exist."""
 
@@ -79,6 +79,26 @@ class LineInfo(BaseModel):
     offset_mm: float | None
     load_n_per_mm_std: float | None
     offset_mm_std: float | None
+
+
+class ContactInfo(BaseModel):
+    """One contact of an estimate's ``contacts``: the keys of a single contact's estimate
+    (the values, ``std``, ``reasons``, ``ellipse``, ``line``, rates, ...) and its id."""
+
+    model_config = ConfigDict(extra="allow")
+
+    contact_id: int = Field(description="stable while the contact is held (docs/reference/api.md)")
+    contact: bool
+    model: str | None
+    label: str | None
+    x_mm: float | None
+    y_mm: float | None
+    force_n: float | None
+    r1_mm: float | None
+    r2_mm: float | None
+    angle_deg: float | None
+    std: dict[str, float | None]
+    reasons: dict[str, str]
 
 
 class EstimateMessage(BaseModel):
@@ -122,6 +142,10 @@ class EstimateMessage(BaseModel):
     vy_mm_s: float | None = Field(description="contact centre's rate along y, mm/s")
     angle_rate_deg_s: float | None = Field(description="rate of angle_deg, deg/s")
     force_rate_n_s: float | None = Field(description="rate of force_n, N/s")
+    contact_id: int | None = Field(
+        description="the top-level contact's id (the strongest contact); null: no contact")
+    contacts: list[ContactInfo] = Field(
+        description="every contact on the array, the strongest first (empty: no contact)")
 
 
 class FrameMessage(BaseModel):
@@ -156,7 +180,7 @@ class ModelErrorInfo(BaseModel):
 
 
 class ConstantsInfo(BaseModel):
-    """The contact model's constants in use for this sensor (docs/model.md)."""
+    """The contact model's constants in use for this sensor (docs/concepts/model.md)."""
 
     depth_x: float = Field(description="impulse response depth along x, mm")
     nu_x: float = Field(description="impulse response ratio along x")
@@ -165,7 +189,7 @@ class ConstantsInfo(BaseModel):
     modulus: float = Field(description="rubber modulus E, N/mm^2")
     model_error: ModelErrorInfo
     positions_identified: int = Field(description="tactels whose identified position is used")
-    source: str = Field(description="'paper' (docs/model.md), 'description: <name>' (a sensor "
+    source: str = Field(description="'paper' (docs/concepts/model.md), 'description: <name>' (a sensor "
                         "description's nominal cover) or 'identified: <calibration file>'")
     sigma: dict[str, float | None] = Field(description="1-sigma bound of each identified constant (null: not identified or held)")
     held: dict[str, str] = Field(description="constants held at the paper's value, and why")
@@ -181,7 +205,14 @@ class SensorInfo(BaseModel):
     dx_mm: float
     dy_mm: float
     finger_radius_mm: float | None = Field(description="the surface's radius around y; null: a flat array")
-    description: str = Field(description="the sensor description's name (docs/sensors.md)")
+    description: str = Field(description="the sensor description's name (docs/howto/sensors.md)")
+    pitch_x_mm: float = Field(description="the description's tactel spacing along x (rows "
+                              "index), mm; the same value as dx_mm")
+    pitch_y_mm: float = Field(description="the description's tactel spacing along y (columns "
+                              "index), mm; the same value as dy_mm")
+    surface_radius_mm: float | None = Field(
+        description="the description's surface radius around y, mm; null: a flat array (the "
+                    "same value as finger_radius_mm)")
     model: str
     calibration: Calibration
     constants: ConstantsInfo
@@ -344,7 +375,7 @@ class SubscribersHealth(BaseModel):
 
 
 class ZenohHealth(BaseModel):
-    """The Zenoh front end (docs/zenoh.md); the health document's ``zenoh`` is null when
+    """The Zenoh front end (docs/howto/zenoh.md); the health document's ``zenoh`` is null when
     ``[zenoh] enabled`` is false."""
 
     model_config = ConfigDict(extra="allow")

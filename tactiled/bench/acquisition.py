@@ -699,7 +699,7 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
 
 #: A finger counts as locked in contact when it published fewer "no contact" estimates than
 #: this share of the frames its scene leaves untouched (the release residual or drift held
-#: the detector on: docs/calibration.md, "The rubber's hysteresis is learnt and taken out"
+#: the detector on: docs/howto/calibration.md, "The rubber's hysteresis is learnt and taken out"
 #: and "Drift during a hold"): its run says little of fitting, and is marked so.
 LOCKED_SHARE = 0.1
 
@@ -913,7 +913,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
               "Shares are of the contact frames (frames the detector called contact): answered by a fit of their "
               "own, answered by the last fit because the chi-square test found them unchanged within noise (a "
               "justified reuse; with tracking, measured through the last fit's linearisation, which a test of "
-              "its own admits: docs/fitting.md, 'Time'), of which predicted (the tracker had to publish the contact "
+              "its own admits: docs/concepts/tracking.md), of which predicted (the tracker had to publish the contact "
               "predicted to the frame's time because its fit came back late: not a justified reuse), superseded "
               "in the one-frame slot by a newer frame before a worker was free, or unanswered otherwise (a fit "
               "result dropped as stale, a fit lost).  Targets (issue 16): own fit + reuse - predicted >= 99 %, "
@@ -923,7 +923,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
               "CPU over the measured window in % of one core: the daemon's main process (event loop and serial "
               "reader threads), its fit workers, the simulators.  'Fingers locked in contact': fingers "
               f"that published 'no contact' for under {100 * LOCKED_SHARE:g} % of the frames the scene leaves "
-              "untouched (a release residual or drift held the detector on, docs/calibration.md): their phantom contact frames "
+              "untouched (a release residual or drift held the detector on, docs/howto/calibration.md): their phantom contact frames "
               "count here, so such a run says little of the fitting."]
     # -- the main process's budget, per sensor
     lines += ["", "### The main process's CPU per frame, and each sensor's answers", "",

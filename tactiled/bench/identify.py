@@ -4,10 +4,10 @@ paper's, identified from presses, then fitted.
 1. A truth finger (rubber d_x 5.0, nu_x 0.40, d_y 6.6, nu_y 0.60, E 0.32; 5 % tactel gains,
    0.05 mm tactel displacements, +/-300-count offsets) and ~400 presses of known contacts
    (spheres and cylinders of a few mm at all orientations, 0.25-2 N, centres over the array,
-   10 % unloaded), each the mean of 32 frames, as docs/calibration.md's procedure records them.
+   10 % unloaded), each the mean of 32 frames, as docs/howto/calibration.md's procedure records them.
 2. Identification: each constant against the truth, in units of its own 1-sigma bound.
 3. Cylinder frames (R 2-40 mm, psi 30-150 deg, 0.5-2 N, noise 0.0005 per frame) fitted three
-   ways: the identified model through the identified tables; docs/model.md's constants with ideal
+   ways: the identified model through the identified tables; docs/concepts/model.md's constants with ideal
    zeroing and nominal gain (what a user gets without identifying); and, for reference, the
    paper's ideal finger.  RMS error over the *true* finger's Cramer-Rao bound, 2-sigma
    coverage and the median reported sigma.
@@ -113,7 +113,7 @@ def identified_fitter(ident: Identification) -> tuple[Fitter, object]:
 
 
 def nominal_fitter(spec: FingerSpec) -> tuple[Fitter, object]:
-    """docs/model.md's constants with ideal zeroing (the true zero counts) and nominal gain."""
+    """docs/concepts/model.md's constants with ideal zeroing (the true zero counts) and nominal gain."""
     zero = spec.zero_counts()
     fitter = Fitter(SensorModel(noise=NoiseModel(FRAME_SIGMA)), FitOptions(learn_floor=True))
     return fitter, lambda counts: (counts.astype(float) - zero) / COUNTS_PER_STRAIN
@@ -172,13 +172,13 @@ def run(quick: bool, progress: bool | None) -> str:
     ideal = FingerSpec()
     fit_ideal, lin_ideal = nominal_fitter(ideal)
     rows = [("identified model, identified tables", score_frames(TRUTH, fit_id, lin_id, n_frames, 31, bar)),
-            ("docs/model.md constants, ideal zeroing, nominal gain", score_frames(TRUTH, fit_nom, lin_nom, n_frames, 31, bar)),
+            ("docs/concepts/model.md constants, ideal zeroing, nominal gain", score_frames(TRUTH, fit_nom, lin_nom, n_frames, 31, bar)),
             ("(the paper's ideal finger, its own model)", score_frames(ideal, fit_ideal, lin_ideal, n_frames, 31, bar))]
     lines += [f"### Cylinder fits on the truth finger ({n_frames} frames: R 2-40 mm, psi 30-150 deg, "
               "0.5-2 N, noise 0.0005), against the true finger's Cramer-Rao bound", ""]
     lines += _scores_table(rows)
     lines += ["", "### A mismatched finger nobody identified (paper's rubber, 5 % gains, 0.1 mm "
-              "displacements), fitted with docs/model.md's constants", ""]
+              "displacements), fitted with docs/concepts/model.md's constants", ""]
     mm_rows, flats = [], []
     for seed in ((5,) if quick else (5, 6, 7)):
         spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=seed)

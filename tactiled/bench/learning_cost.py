@@ -1,4 +1,4 @@
-"""What learning the finger costs a daemon worker's fits (docs/benchmarks.md).
+"""What learning the finger costs a daemon worker's fits (docs/performance/benchmarks.md).
 
 A daemon worker's fitter learns its finger as it fits (``FitOptions(learn_floor=True)``: the
 model-error floor, tactiled.fit.floor, and the flat field, tactiled.fit.flatfield).  This

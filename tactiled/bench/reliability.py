@@ -46,7 +46,7 @@ After ``--warmup`` seconds the run is measured for ``--seconds``:
   holds ~125 ms of a 1 kHz finger), and the fraction of the time the service's loop thread
   and each simulator were runnable but waiting for a CPU (``/proc/PID/schedstat``).
 
-Bars (docs/reliability.md), judged whatever the load: RSS growth under 5 MB, and, on runs whose
+Bars (docs/performance/reliability.md), judged whatever the load: RSS growth under 5 MB, and, on runs whose
 samples after the settling span at least 10 minutes, an RSS slope under 1 MB per hour for the
 service and for every fit worker; no frame lost
 through the daemon's fault (``daemon_lost == 0``) and none dropped on a full pty, every frame

@@ -94,7 +94,7 @@ def _truths(desc: SensorDescription, kind: str, n: int, rng: np.random.Generator
     while len(out) < n:
         r = EDGE_RADIUS if kind == "edge" else math.exp(rng.uniform(*np.log(RADII)))
         # on a curved finger a cylinder within 30 deg of its axis is a line contact longer
-        # than the finger, outside the planar model (docs/fitting.md): not drawn
+        # than the finger, outside the planar model (docs/concepts/fitting.md): not drawn
         psi = float(rng.uniform(0.0, 180.0) if g.flat else rng.uniform(30.0, 150.0))
         x0 = g.span_x * rng.uniform(0.25, 0.75)
         y0 = g.span_y * rng.uniform(0.25, 0.75)

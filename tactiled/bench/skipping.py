@@ -29,7 +29,7 @@ from tactiled.physics.strain import StrainModel
 from tactiled.pipeline.gate import Gate
 from tactiled.sim import FingerSimulator, Pose, Scene, SceneBuilder
 
-#: docs/model.md's sensor noise (the paper's +/-0.05 % quantisation bound as a sigma).
+#: docs/concepts/model.md's sensor noise (the paper's +/-0.05 % quantisation bound as a sigma).
 NOISE = NoiseModel(sigma=0.0005)
 DAEMON_AVERAGE = 2  # frames the daemon's contact detector averages (1 ms at 1 kHz)
 
@@ -98,7 +98,7 @@ def no_contact(quick: bool, progress: bool | None) -> str:
         t.append((time.perf_counter() - t0) * 1e6)
     bar.step()
     lines = [
-        f"Noise sigma {NOISE.sigma} (docs/model.md), matched-filter statistic, threshold for 1e-4 false contacts per frame:", "",
+        f"Noise sigma {NOISE.sigma} (docs/concepts/model.md), matched-filter statistic, threshold for 1e-4 false contacts per frame:", "",
         "| measure | single frame | daemon (mean of 2 frames, hysteresis) | bar |", "|---|---|---|---|",
         f"| false contacts per noise-only frame | {false_single / n_noise:.2e} ({false_single} in {n_noise}) | "
         f"{false_daemon / n_stream:.2e} ({false_daemon} in {n_stream}) | <= 1e-4 |",

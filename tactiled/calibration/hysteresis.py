@@ -36,7 +36,7 @@ release.
 
 On the simulated finger (``f`` = 0.05, ``tau`` = 0.5 s) the learner finds ``tau`` = 0.52-0.58 s
 and ``f`` = 0.043-0.045 on the moving scene, and compensates from its third second on
-(docs/calibration.md has the figures, and those on other fingers).
+(docs/howto/calibration.md has the figures, and those on other fingers).
 
 Pure numpy and no I/O.  Strains are on the zeroed scale (strain, no unit); times in seconds.
 """

@@ -156,7 +156,7 @@ def check_contacts(presses: PressSet, geometry: Geometry) -> np.ndarray:
                 f"y {lo_y:g}..{hi_y:g} mm)")
     if int(loaded.sum()) < MIN_LOADED:
         raise CalibrationError(f"only {int(loaded.sum())} loaded presses: identification needs at "
-                               f"least {MIN_LOADED} (docs/calibration.md says how many to record)")
+                               f"least {MIN_LOADED} (docs/howto/calibration.md says how many to record)")
     return loaded
 
 
@@ -428,7 +428,7 @@ def identify(
     if unexercised.all():
         raise CalibrationError(
             f"no tactel's model strain spans {MIN_STRAIN_SPAN:g} over the presses: vary the force "
-            "and the position (docs/calibration.md)")
+            "and the position (docs/howto/calibration.md)")
     med_gain = float(np.median(gain[~unexercised]))
     gain = np.where(unexercised | ~(gain > 0), med_gain, gain)
     st = _State(theta, off, gain, np.zeros(t), np.zeros(t))

@@ -3,7 +3,7 @@
 Conventions
 -----------
 * Raw counts are the sensor's ``uint16`` capacitance readings; they rise with compression.
-* Strain is dimensionless and positive under compression (``docs/model.md``).  The table gives strain
+* Strain is dimensionless and positive under compression (``docs/concepts/model.md``).  The table gives strain
   *before zeroing*: the calibration's zero-load strain is 0, but drift and rubber hysteresis are
   removed later by :class:`~tactiled.calibration.zeroing.Zeroer`.
 * Tactel ``[m, n]`` has knots ``counts`` (strictly increasing) and ``strain`` (non-decreasing);

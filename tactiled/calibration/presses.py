@@ -1,7 +1,7 @@
 """Recorded calibration presses: the builder's input, its file, and a synthesiser for tests.
 
 A press set is ``N`` frames of raw counts, each with the strain frame the lab's reference says
-the sensor should read (``docs/calibration.md`` describes the procedure).  File: an ``.npz`` with
+the sensor should read (``docs/howto/calibration.md`` describes the procedure).  File: an ``.npz`` with
 
 * ``counts``: ``(N, rows, cols)`` integer raw counts in 0..65535 (stored as ``uint16``);
 * ``strain_ref``: ``(N, rows, cols)`` float reference strain (positive under compression);
@@ -243,7 +243,7 @@ def synthesize_presses(
     return PressSet(counts, strain_ref, sensor_id), truth
 
 
-#: The indentors of the identification procedure (docs/calibration.md): (r1, r2) in mm.
+#: The indentors of the identification procedure (docs/howto/calibration.md): (r1, r2) in mm.
 IDENTIFY_INDENTORS: tuple[tuple[float, float], ...] = (
     (3.0, 3.0), (6.0, 6.0), (4.0, math.inf), (10.0, math.inf), (2.0, math.inf))
 #: ... on a flat array, where a cylinder is a line whose total force is not defined: spheres
@@ -253,7 +253,7 @@ FLAT_IDENTIFY_INDENTORS: tuple[tuple[float, float], ...] = (
 
 
 #: Cylinder orientations (deg) of the identification presses: away from the finger's axis,
-#: where a cylinder's contact becomes a line longer than the finger (docs/model.md, limits).
+#: where a cylinder's contact becomes a line longer than the finger (docs/concepts/model.md, limits).
 CYLINDER_ANGLES = (30.0, 150.0)
 
 
@@ -270,7 +270,7 @@ def synthesize_contact_presses(
     sensor_id: int | None = 1,
     seed: int = 0,
 ) -> PressSet:
-    """Presses of known contacts on a simulated finger, as docs/calibration.md's identification
+    """Presses of known contacts on a simulated finger, as docs/howto/calibration.md's identification
     procedure records them: indentors from ``indentors`` (on a flat array, by default
     :data:`FLAT_IDENTIFY_INDENTORS`) at random orientations (spheres 0-180 deg, cylinders within
     :data:`CYLINDER_ANGLES`),

@@ -24,6 +24,10 @@ Suites (default: all):
               against the single-frame bound at 100 ms and 1 s, coverage; --plot draws the
               error against time), rolls and rotations (lag, rates), steps, and the CPU per
               frame with tracking on and off
+  contacts    several contacts on one array (the paper's finger and a flat 16x16, or
+              --sensor's): contacts found, missed and phantom; RMS error over the joint
+              model's Cramer-Rao bound and 2-sigma coverage per parameter; close pairs the
+              cover merges; single contacts unchanged
   unexplained the fit's cost on frames the model cannot explain (several contacts at once, a
               hand print on a 32x32 array, random and saturated patterns) and on the simulated
               contacts, with the fit budget and without: CPU ms median/p99/max, iterations,
@@ -48,7 +52,7 @@ import sys
 import time
 
 SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify", "speed",
-          "temporal", "sensors", "unexplained")
+          "temporal", "sensors", "unexplained", "contacts")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -65,7 +69,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar on stderr (default: when stderr is a terminal)")
     p.add_argument("--sensor", metavar="NAME|FILE.toml", action="append", default=None,
-                   help="sensors suite: score this description (repeatable; default every built-in)")
+                   help="sensors and contacts suites: score this description (repeatable; default "
+                   "every built-in for sensors, fearing1988 and flat16 for contacts)")
     acq = p.add_argument_group("acquisition suite")
     acq.add_argument("--scene", default="demo",
                      help="simulator scene the fingers play (default demo; moving: contacts that never rest; "
@@ -239,6 +244,16 @@ def run(args: argparse.Namespace) -> int:
             print(f"tactiled bench: error: {err}", file=sys.stderr)
             return 2
         out += ["", "## Sensors: accuracy on every description", "", report]
+    if "contacts" in suites:
+        from tactiled.bench import contacts as contacts_bench
+        from tactiled.errors import ConfigError
+
+        try:
+            report = contacts_bench.run(args.quick, args.progress, args.sensor, args.seed)
+        except ConfigError as err:
+            print(f"tactiled bench: error: {err}", file=sys.stderr)
+            return 2
+        out += ["", "## Several contacts on one array", "", report]
     if "identify" in suites:
         from tactiled.bench import identify
 

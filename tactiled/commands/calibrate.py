@@ -1,6 +1,6 @@
 """Build per-tactel lookup tables (raw counts -> strain) from recorded presses with known loads.
 
-PRESSES.npz holds the lab's recording (docs/calibration.md, "Procedure"):
+PRESSES.npz holds the lab's recording (docs/howto/calibration.md, "Procedure"):
   counts      (N, rows, cols) integer raw counts, 0..65535
   strain_ref  (N, rows, cols) float, the strain each tactel should read for that press
   sensor_id   integer scalar (optional here if --sensor-id is given)
@@ -10,7 +10,7 @@ knots, made monotone by pool-adjacent-violators and inverted into the table.  Pr
 residual per tactel as a rows x cols grid (units of 1e-4 strain) with flags D (dead: gain below
 --dead-fraction of the median), N (non-monotone: more than --nonmonotone-fraction of the response
 runs backwards) and U (unexercised: reference strain spans < --min-strain-span), then a summary.
-The calibration file (JSON, format in docs/calibration.md) is written to -o even when tactels are
+The calibration file (JSON, format in docs/howto/calibration.md) is written to -o even when tactels are
 flagged; the flags are stored in it.  --strict makes flagged tactels exit 1.
 
 Exit status: 0 success, 1 flagged tactels with --strict, 2 unusable input (one error line).
@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "constants, tactel responses and positions, and model-error floor")
     parser.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
                         help="with --identify: the array pressed, a built-in description or a "
-                        "description file (docs/sensors.md); its cover's constants are the start "
+                        "description file (docs/howto/sensors.md); its cover's constants are the start "
                         "and what the presses cannot determine is held at (default: the paper's finger)")
     parser.add_argument("--strict", action="store_true", help="exit 1 if any tactel is flagged")
     parser.add_argument("--bench", action="store_true",

@@ -2,7 +2,7 @@
 
 -o OUT.mcap replays the recording through the pipeline exactly as `tactiled replay` does
 (lossless: every frame the gate passes is fitted, so the output depends on the file only)
-and writes what the daemon publishes on ROS 2 (docs/ros2.md), as an MCAP file with the
+and writes what the daemon publishes on ROS 2 (docs/howto/ros2.md), as an MCAP file with the
 ros2 profile that `ros2 bag play` replays and Foxglove opens:
   <namespace>/<sensor>/wrench    geometry_msgs/msg/WrenchStamped  every estimate (N, N*m)
   <namespace>/<sensor>/contact   tactiled_msgs/msg/Contact         every estimate
@@ -124,7 +124,7 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
                        progress: Progress) -> dict[str, Any]:
     """Replay through the pipeline into ``writer``; a recorded host time ``t`` is the Unix
     time ``created + (t - t0)`` (``t0``: the first frame's)."""
-    from tactiled.pipeline import TIMING_KEYS, Daemon
+    from tactiled.pipeline import Daemon, without_timing
 
     daemon = Daemon(settings, lossless=True)
     name = settings.sensors[0].name
@@ -134,9 +134,7 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
     def on_item(item: Any) -> None:
         stamp = created + (item.host_time - t0)
         if item.kind == "estimate":
-            est = item.to_json_dict()
-            for key in TIMING_KEYS:
-                est[key] = None
+            est = without_timing(item.to_json_dict(), blank=True)
             writer.write_estimate(est, stamp)
             return
         writer.write_frame(item.sensor, item.strain, stamp)

@@ -13,11 +13,11 @@ set for 1e-4 false contacts per noise-only frame.  Sensor noise sigma: --sigma, 
 stored in the file by 'tactiled simulate', else 0.0005.  A bad file gets one error line, exit 2.
 
 --calibration CAL.json fits with the sensor's calibration: a version 2 file's identified rubber
-constants, tactel positions and model-error floor (docs/calibration.md).  With it, FRAMES.npz
+constants, tactel positions and model-error floor (docs/howto/calibration.md).  With it, FRAMES.npz
 may hold 'counts' (N, rows, cols) raw readings (and optionally 'sensor_id', checked against the
 file) in place of 'strain'; they go through the file's tables (strain 0 at the zero-load
 point), then the fit.  Uncertainties also widen when a frame's residuals say the finger departs
-from its model (docs/fitting.md, "Honest uncertainties").
+from its model (docs/concepts/uncertainty.md).
 
 The finger is learned first (--learn, the default): a first pass fits up to 2000 of the
 file's contact frames, spread over it, in order, learning how far the finger departs from its
@@ -76,7 +76,7 @@ AHEAD = 4
 #: The learning pass fits at most this many contact frames (~1-2 s), spread over the file.
 LEARN_FITS = 2000
 #: Imported once by the forkserver, so the workers forked from it start with numba's kernels
-#: loaded and the default sensor's start table built (docs/pipeline.md, "Workers").
+#: loaded and the default sensor's start table built (docs/concepts/pipeline.md, "Workers").
 PRELOAD_MODULE = "tactiled.pipeline.preload"
 
 
@@ -110,7 +110,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="sensor strain noise (1 sigma) for uncertainties and the contact threshold")
     p.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
                    help="the array the frames come from: a built-in description (`tactiled "
-                   "sensors` lists them) or a description file (docs/sensors.md); default: the "
+                   "sensors` lists them) or a description file (docs/howto/sensors.md); default: the "
                    "paper's finger with the frames' shape and any pitch the file gives (dx, dy)")
     p.add_argument("--calibration", metavar="CAL.json", default=None,
                    help="the sensor's calibration file: its identified model (version 2) is used, "
@@ -122,7 +122,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--learn", action=argparse.BooleanOptionalAction, default=True,
                    help=f"first learn, from up to {LEARN_FITS} of the file's contact frames, how the "
                    "finger departs from its model (its tactels' gains and positions, the residual "
-                   "floor) and fit every frame with it (default on; docs/fitting.md)")
+                   "floor) and fit every frame with it (default on; docs/concepts/fitting.md)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help=f"progress on stderr (default: for inputs of {LONG_INPUT} frames or more)")
 
@@ -167,7 +167,9 @@ class _Fitting:
     def __init__(self, sensor: SensorModel, window: int, model: str, learned: Any = None) -> None:
         # Imported here: a parent that only hands chunks to workers never loads the fitter.
         from tactiled.fit.fitter import FitOptions, Fitter
+        from tactiled.fit.multi import contacts_json, fit_contacts
 
+        self._contacts = lambda frame: contacts_json(fit_contacts(self.fitter, frame, self.model))
         self.fitter = Fitter(sensor, FitOptions(window=window, learn_floor=learned is not None))
         if learned is not None:
             self.fitter.adopt(*learned)
@@ -179,10 +181,10 @@ class _Fitting:
         out = []
         for i, frame in enumerate(strain, first):
             if self.detector.statistic(frame) > self.detector.enter_threshold:
-                result = self.fitter.fit(frame, self.model)
+                line = self._contacts(frame)
             else:
-                result = FitResult(contact=False, message="no contact: below the noise threshold")
-            out.append(json.dumps(result.to_json_dict(frame=i), allow_nan=False) + "\n")
+                line = FitResult(contact=False, message="no contact: below the noise threshold").to_json_dict()
+            out.append(json.dumps({"frame": i, **line}, allow_nan=False) + "\n")
         return "".join(out)
 
 
@@ -242,6 +244,31 @@ def learn(sensor: SensorModel, window: int, model: str, strain: np.ndarray,
     message = f"{took}: " + "; ".join(said)
     bar.finish(message)
     return (fitter.floor, flat), message
+
+
+class _Identifying:
+    """The output stream, giving each line's contacts their ids as they are written in frame
+    order (:mod:`tactiled.pipeline.association`: consecutive frames of a contact keep its id;
+    a frame without contact ends every id)."""
+
+    def __init__(self, out: TextIO, gate_mm: float) -> None:
+        from tactiled.pipeline.association import ContactIds
+
+        self._out = out
+        self._ids = ContactIds(gate_mm)
+
+    def write(self, text: str) -> None:
+        from tactiled.pipeline.association import identified
+
+        lines = [json.dumps(identified(json.loads(t), self._ids), allow_nan=False)
+                 for t in text.splitlines()]
+        self._out.write("".join(f"{t}\n" for t in lines))
+
+    def flush(self) -> None:
+        self._out.flush()
+
+    def fileno(self) -> int:
+        return self._out.fileno()
 
 
 def chunk_size(frames: int, jobs: int) -> int:
@@ -304,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
     chunk = chunk_size(frames, jobs)
     jobs = max(1, min(jobs, math.ceil(frames / chunk)))  # no worker without a chunk to fit
     show = frames >= LONG_INPUT if args.progress is None else args.progress
-    out = sys.stdout
+    out = _Identifying(sys.stdout, max(sensor.impulse.depth_x, sensor.impulse.depth_y))
     try:
         learned = None
         if args.learn:

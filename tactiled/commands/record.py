@@ -1,4 +1,4 @@
-"""Record the frames of a frame source to a recording file (docs/recording.md).
+"""Record the frames of a frame source to a recording file (docs/reference/file-formats.md).
 
 Every frame the source delivers intact is written with its host receive time; corrupt wire
 data is dropped by the decoder and counted in the summary.  Stops after --seconds or --frames,

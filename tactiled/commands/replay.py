@@ -54,7 +54,7 @@ def add_sensor_arguments(p: argparse.ArgumentParser, name: str, name_help: str) 
                    help="contact model (default auto: chosen per frame by BIC)")
     p.add_argument("--sensor", metavar="NAME|FILE.toml", default=None,
                    help="the recorded array: a built-in description or a description file "
-                   "(docs/sensors.md; default fearing1988, the paper's finger)")
+                   "(docs/howto/sensors.md; default fearing1988, the paper's finger)")
     p.add_argument("--window", type=int, default=None, metavar="N",
                    help="fit window side in tactels (default: the description's, 4)")
     p.add_argument("--sigma", type=float, default=None,
@@ -94,21 +94,19 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 
 
 async def _replay(args: argparse.Namespace) -> dict[str, Any]:
-    from tactiled.pipeline import TIMING_KEYS, Daemon
+    from tactiled.pipeline import Daemon, without_timing
 
     settings = load_settings(None, {}, _overrides(args))
     # a replay neither starts from nor overwrites what a live daemon learned of its finger
     daemon = Daemon(settings, lossless=args.mode == "lossless", keep_learned=False)
     out = sys.stdout
-    drop = set(TIMING_KEYS) if args.no_timing else set()
 
     def emit(item: Any) -> None:
         if item.kind == "frame" and not args.zeroed_frames:
             return
         line = item.to_json_dict()
-        if drop:
-            for key in drop:
-                line.pop(key, None)
+        if args.no_timing:
+            line = without_timing(line)
         out.write(json.dumps(line, allow_nan=False) + "\n")
 
     daemon.hub.add_listener(emit)

@@ -10,9 +10,9 @@ released, recordings flushed); a second Ctrl-C exits at once.  Under systemd (Ty
 reports READY=1 once serving, WATCHDOG=1 while frames flow, STOPPING=1 on the way out.
 
 With --zenoh (or [zenoh] enabled) it also publishes the estimates, frames and health on Zenoh
-(needs the zenoh extra: pip install 'tactiled[zenoh]'; docs/zenoh.md).  With --ros2 (or [ros2]
+(needs the zenoh extra: pip install 'tactiled[zenoh]'; docs/howto/zenoh.md).  With --ros2 (or [ros2]
 enabled) it is also a ROS 2 node on that session, the way rmw_zenoh lays topics out (needs the
-ros2 extra; docs/ros2.md).
+ros2 extra; docs/howto/ros2.md).
 
 examples:
   tactiled run
@@ -54,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-fits-per-worker", type=int, default=None, metavar="N",
                    help="replace a fit worker after N fits, its successor started first (no "
                         "fit lost); 0 never (default: [fit] max_fits_per_worker, 0)")
-    z = p.add_argument_group("Zenoh (docs/zenoh.md; flags win over [zenoh] and TACTILED_ZENOH_*)")
+    z = p.add_argument_group("Zenoh (docs/howto/zenoh.md; flags win over [zenoh] and TACTILED_ZENOH_*)")
     z.add_argument("--zenoh", action="store_true", default=None,
                    help="publish on Zenoh ([zenoh] enabled = true)")
     z.add_argument("--zenoh-mode", choices=("peer", "client"), default=None,
@@ -67,7 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "[zenoh] listen)")
     z.add_argument("--zenoh-prefix", default=None, metavar="KEY",
                    help="the key every publication starts with (default tactiled/<hostname>)")
-    r = p.add_argument_group("ROS 2 (docs/ros2.md; flags win over [ros2] and TACTILED_ROS2_*)")
+    r = p.add_argument_group("ROS 2 (docs/howto/ros2.md; flags win over [ros2] and TACTILED_ROS2_*)")
     r.add_argument("--ros2", action="store_true", default=None,
                    help="publish ROS 2 topics on the Zenoh session, as rmw_zenoh does ([ros2] "
                         "enabled = true; turns on [zenoh] enabled too)")

@@ -2,7 +2,7 @@
 
 A sensor description says what a taxel array is: its grid (rows, cols, pitch), its surface
 (a finger's radius, or flat), its cover (the impulse response's depths and ratios, the modulus),
-its noise and its wiring (docs/sensors.md).  The daemon takes one per sensor
+its noise and its wiring (docs/howto/sensors.md).  The daemon takes one per sensor
 (`[[sensor]] description = "NAME or FILE.toml"`); `fit`, `simulate` and `bench` take
 `--sensor NAME|FILE.toml`.
 
@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
                 surface = "flat" if d.flat else f"R {d.surface_radius_mm:g} mm"
                 pitch = f"{d.pitch_x_mm:g}x{d.pitch_y_mm:g}"
                 print(f"{d.name:<16} {d.rows:>3}x{d.cols:<3} {pitch:>10} {surface:>12}  {d.description}")
-            print("\n`tactiled sensors show NAME` prints one as TOML; docs/sensors.md describes the keys.")
+            print("\n`tactiled sensors show NAME` prints one as TOML; docs/howto/sensors.md describes the keys.")
             return 0
         if not args.name:
             return _error(f"'{args.action}' needs a built-in's name or a .toml file")
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
                               "recommended": recommended(sensor)}))
             return 0
         print(f"{d.name}: share of the {max(info)}x{max(info)} window's Fisher information each "
-              "window keeps (reference contacts: docs/sensors.md, 'The fit window')")
+              "window keeps (reference contacts: docs/howto/sensors.md, 'The fit window')")
         print(f"{'window':>7} " + " ".join(f"{k:>20}" for k in keys))
         for n, row in info.items():
             print(f"{n:>4}x{n:<2} " + " ".join(f"{row[k]:>20.2f}" for k in keys))

@@ -7,14 +7,14 @@ inverts, plus Gaussian noise and quantisation; the true parameters are stored be
 (true_r1, true_r2, true_angle, true_force, true_x, true_y), so a fit can be checked against them.
 
 Presses mode (OUTPUT.npz --presses N): N presses of known contacts on the simulated finger (the
-finger flags below), as docs/calibration.md's identification procedure records them (its
+finger flags below), as docs/howto/calibration.md's identification procedure records them (its
 indentors, forces 0.25-2 N, centres over the whole array, ~10 % unloaded, each press the mean
 of 32 frames of --sigma noise, as raw counts): the press file 'tactiled calibrate --identify'
 reads.  The contact flags (--r1, --force...) do not apply.
 
 Device mode (--pty or --serial): a simulated finger plays a scripted scene (--scene) and streams
 wire-format frames in real time at --rate Hz until SIGINT/SIGTERM, exactly as the hardware would
-(see docs/simulator.md).  --pty makes a pseudo-terminal and prints its path as the first line
+(see docs/concepts/simulator.md).  --pty makes a pseudo-terminal and prints its path as the first line
 on stdout ("pty: /dev/pts/N"); --link PATH also points a symlink at it, a stable path for a
 daemon config.  Frames the reader does not take are dropped (and counted), never queued
 without bound.
@@ -110,7 +110,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--empty", type=float, default=0.0, help="fraction of frames with no contact (default 0)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     fin = p.add_argument_group(
-        "the simulated finger (default: the paper's; docs/simulator.md)",
+        "the simulated finger (default: the paper's; docs/concepts/simulator.md)",
         "A finger whose rubber and tactels differ from the model the fitter assumes: its frames "
         "are what that finger reads, linearised with nominal gains and zeroed at its true zero. "
         "Tactel gains, displacements and offsets are drawn from --finger-seed.")
@@ -129,7 +129,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     prs = p.add_argument_group("presses mode: a press file for tactiled calibrate --identify")
     prs.add_argument("--presses", type=int, default=None, metavar="N",
                      help="write N presses of known contacts (with --sensor-id) instead of frames; "
-                     "docs/calibration.md recommends about 400, identification needs 20 loaded")
+                     "docs/howto/calibration.md recommends about 400, identification needs 20 loaded")
     dev = p.add_argument_group("device mode: stream a scene's wire frames in real time")
     where = dev.add_mutually_exclusive_group()
     where.add_argument("--pty", action="store_true",
@@ -147,7 +147,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     dev.add_argument("--baud", type=int, default=1_000_000,
                      help="with --serial: baud rate (default 1000000; a 1 kHz 8x8 stream needs ~1.6 Mbaud)")
     vendor = p.add_argument_group(
-        "vendor device mode: stream the scene as a lab's sensor does (docs/drivers.md)")
+        "vendor device mode: stream the scene as a lab's sensor does (docs/howto/drivers.md)")
     vendor.add_argument("--as", dest="as_kind", metavar="KIND",
                         help="lines, flexitac, robotiq (a pty) or xela (a WebSocket server)")
     vendor.add_argument("--device", metavar="PATH_OR_PORT",

@@ -9,7 +9,7 @@ printed; an error message from the server goes to stderr.
 Exit status: 0 when the daemon closes the stream normally (or on Ctrl-C), 1 when the
 connection fails or is closed with an error code, 2 for bad arguments or a refused token.
 
-With --zenoh it reads Zenoh instead (docs/zenoh.md; needs the zenoh extra): the estimates of
+With --zenoh it reads Zenoh instead (docs/howto/zenoh.md; needs the zenoh extra): the estimates of
 every daemon it can reach under the key expression --key (default tactiled/**), each line
 tagged with its daemon's "prefix" first; --list prints one line per daemon alive (its
 liveliness token) with its status and sensors, then exits.  The session is configured like a
@@ -17,7 +17,7 @@ daemon's [zenoh] (--config FILE, TACTILED_ZENOH_* variables: mode, multicast_sco
 connect), --connect replacing connect; it never listens.
 
 With --ros2 it prints what a ROS 2 subscriber of the daemons' ROS 2 topics receives
-(docs/ros2.md; needs the zenoh and ros2 extras): every wrench, contact and markers message
+(docs/howto/ros2.md; needs the zenoh and ros2 extras): every wrench, contact and markers message
 (with --frames the strain images too, and /diagnostics), decoded, one JSON object per line:
 "topic", "type", "sequence_number" and "source_timestamp_ns" (the rmw_zenoh attachment),
 "message" (the message's fields).  --domain-id picks the ROS domain (default [ros2]

@@ -19,7 +19,7 @@ An evaluation that the work left cannot pay for is not started.  A wall-clock ``
 
 The defaults are set from the fits the model explains: every fit that converges on the
 simulated suites and in the golden replays stays within both with a margin (figures below), so
-the budget changes none of them (``tactiled bench --suite unexplained``, docs/benchmarks.md).
+the budget changes none of them (``tactiled bench --suite unexplained``, docs/performance/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ DEFAULT_ITERATIONS = 120
 DEFAULT_WORK = 1_200_000
 #: A flat array's fits get this many times the work and twice the iterations: its line
 #: model's evaluations cost 10-100 times a curved finger's, and auto's scouts chase a line
-#: towards ever longer ellipses (docs/fitting.md, "The fit's budget").
+#: towards ever longer ellipses (docs/concepts/fitting.md, "The fit's budget").
 FLAT_WORK_FACTOR = 10
 FLAT_ITERATION_FACTOR = 2
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear

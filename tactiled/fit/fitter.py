@@ -71,7 +71,7 @@ SCOUT_ITERATIONS = 25
 #: A fit is converged when one more solver step (the Gauss-Newton step within the step caps)
 #: could lower chi^2 by less than this: at the minimum's doorstep that puts every parameter
 #: within 0.1 of its 1-sigma bound of it, and rounding (~1e-10 of chi^2) cannot cross it
-#: (levenberg_marquardt's ``verdict_tol``; docs/fitting.md).
+#: (levenberg_marquardt's ``verdict_tol``; docs/concepts/fitting.md).
 CONVERGED_CHI2 = 0.01
 
 #: The solver keeps a radius within these (mm): half and twice RADIUS_LIMITS, beyond which a
@@ -102,7 +102,7 @@ class FitOptions:
     ``tol`` the forward model's quadrature accuracy; ``max_starts`` caps cold starts."""
 
     window: int = 4
-    tol: float = 1e-9  # chosen by `tactiled bench --suite configs` (docs/benchmarks.md)
+    tol: float = 1e-9  # chosen by `tactiled bench --suite configs` (docs/performance/benchmarks.md)
     max_iter: int = 60
     max_starts: int = 3
     #: Withhold (null, with the reason "force too low for curvature") a radius whose Cramer-Rao

@@ -38,7 +38,7 @@ SIGNIFICANCE = 3.0
 #: frames (say, the first frames of a press, fitted with a model the data later rejects) says
 #: more about those frames than about the finger.  Twenty: until then a mismatched finger's
 #: sigmas are a lone frame's, and 50 cost it 5-10 points of coverage over its first 400 fits
-#: (docs/benchmarks.md, issue 13), while the significance test keeps a finger that matches
+#: (measured with `tactiled bench --suite identify`), while the significance test keeps a finger that matches
 #: its model at its Cramer-Rao bounds either way.
 MIN_FITS = 20
 

@@ -1,4 +1,4 @@
-"""The line model: a cylinder on a flat array (docs/model.md, "Other arrays"; docs/fitting.md).
+"""The line model: a cylinder on a flat array (docs/concepts/model.md, "Other arrays"; docs/concepts/fitting.md).
 
 Internal vector ``[ln R, psi, ln P, c]``: the cylinder's radius (mm), the line's direction
 (radians from +x toward +y), its load per length (N/mm) and its signed offset (mm) along the

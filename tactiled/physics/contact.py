@@ -52,7 +52,7 @@ class Contact:
 
 @dataclass(frozen=True)
 class LineContact:
-    """A cylinder pressed on a flat array: a line contact (docs/model.md, "Other arrays").
+    """A cylinder pressed on a flat array: a line contact (docs/concepts/model.md, "Other arrays").
 
     ``r1`` is the cylinder's radius in mm; ``psi_deg`` the direction of its axis (the line)
     from +x toward +y; ``load`` the load per unit length in N/mm; ``(x0, y0)`` any point of

@@ -1,4 +1,4 @@
-"""Eccentricity of a Hertz contact ellipse from its curvature ratio (docs/model.md).
+"""Eccentricity of a Hertz contact ellipse from its curvature ratio (docs/concepts/model.md).
 
 With ``m = e^2`` and K, E the complete elliptic integrals of parameter m, the ratio of the
 relative curvatures fixes m through

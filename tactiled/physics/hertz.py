@@ -154,7 +154,7 @@ def contact_ellipse_radii(
     compliance: float = 3.0,
 ) -> Ellipse:
     """Convenience form with principal radii in mm (``r2 = inf`` for a cylinder) and psi in
-    degrees; defaults are the paper's finger, docs/model.md (R_f = 12.7 mm, k = (1 - 0.5^2)/0.25 mm^2/N)."""
+    degrees; defaults are the paper's finger, docs/concepts/model.md (R_f = 12.7 mm, k = (1 - 0.5^2)/0.25 mm^2/N)."""
     if not (r1 > 0 and r2 > 0):
         raise ValueError(f"radii must be positive, got r1={r1!r}, r2={r2!r}")
     ell, _ = contact_ellipse(

@@ -1,4 +1,4 @@
-"""Impulse response of the finger's rubber skin (paper eqs. 1-4, docs/model.md).
+"""Impulse response of the finger's rubber skin (paper eqs. 1-4, docs/concepts/model.md).
 
 The 2-D response is separable, ``h(x, y) = h_x(x) * h_y(y)``, and each factor is the plane-stress
 strain under a normal line load at depth ``d``:

@@ -1,4 +1,4 @@
-"""Line contact on a flat array: a cylinder pressed on a flat cover (docs/model.md, "Other arrays").
+"""Line contact on a flat array: a cylinder pressed on a flat cover (docs/concepts/model.md, "Other arrays").
 
 On a flat surface a cylinder's relative curvature along its axis is 0, the Hertz ellipse is
 unbounded and the contact is a line.  Across the line the pressure is the 2-D Hertz line

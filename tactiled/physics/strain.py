@@ -59,7 +59,7 @@ def _rule_s(n: int) -> tuple[np.ndarray, np.ndarray]:
 #: template, so the workers share them).  Larger ones (contacts much longer than the rubber is
 #: deep: rare, and each costs far more to integrate than to build) are built on every use and
 #: never kept.  A cache of every pair met instead (an LRU of 512 rules, up to 24 MB each) grew
-#: for hours as fits met new contact sizes: the fit workers' memory creep (docs/reliability.md).
+#: for hours as fits met new contact sizes: the fit workers' memory creep (docs/performance/reliability.md).
 CACHED_RULE_NODES = 2048
 #: The pairs of node counts kept: ``n_u >= n_s`` (the major semi-axis never needs fewer nodes
 #: than the minor), both on the ladder.
@@ -369,5 +369,5 @@ class StrainModel:
 
 
 def predict_strain(contact: Contact, sensor: SensorModel | None = None) -> np.ndarray:
-    """Predicted strain frame ``(rows, cols)`` for ``contact`` on ``sensor`` (default: docs/model.md's)."""
+    """Predicted strain frame ``(rows, cols)`` for ``contact`` on ``sensor`` (default: docs/concepts/model.md's)."""
     return StrainModel(sensor).predict(contact)

@@ -19,6 +19,25 @@ import numpy as np
 #: makes a replay's output reproducible byte for byte (``tactiled replay --no-timing``).
 TIMING_KEYS = ("host_time", "time", "latency_ms", "worker_ms", "fit_ms")
 
+
+def without_timing(line: dict[str, Any], blank: bool = False) -> dict[str, Any]:
+    """An estimate's JSON dict with its ``TIMING_KEYS`` dropped (``blank``: set to None), at
+    the top and in each of its ``contacts``."""
+    def strip(d: dict[str, Any]) -> dict[str, Any]:
+        out = dict(d)
+        for key in TIMING_KEYS:
+            if key in out:
+                if blank:
+                    out[key] = None
+                else:
+                    del out[key]
+        return out
+
+    out = strip(line)
+    if out.get("contacts"):
+        out["contacts"] = [strip(c) for c in out["contacts"]]
+    return out
+
 #: Why an estimate was published without a fit of its own frame (the gate's decisions).
 GATE_FIT = "fit"
 GATE_NO_CONTACT = "no_contact"

@@ -1,7 +1,7 @@
 """The pool of fit worker processes, seen from the event loop: dispatch, health, restarts.
 
 One pool serves every sensor of the daemon (``fit.workers`` processes, by default
-``min(sensors, CPUs)``); docs/pipeline.md gives the reasons.  Nothing here blocks the loop:
+``min(sensors, CPUs)``); docs/concepts/pipeline.md gives the reasons.  Nothing here blocks the loop:
 
 * results arrive through ``loop.add_reader`` on each worker's Connection, and a death through
   ``add_reader`` on the process sentinel, so a SIGKILLed worker is noticed at once;

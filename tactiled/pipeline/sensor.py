@@ -13,6 +13,10 @@ which wraps at 2^32 and restarts when the device does.
 
 In ``lossless`` mode (replay, regression tests) the loop instead waits for each fit before
 reading the next frame: every frame gets its estimate and the output is deterministic.
+
+This module holds the frame's path and the pool's side; what happens to a contact frame with
+tracking on (the tracker, the frames waiting for a fit, relinearisation, drift following) is
+in :mod:`tactiled.pipeline.tracking`.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import contextlib
 import logging
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +37,7 @@ from tactiled.calibration.fileformat import Calibration, load_calibration_file
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
-from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.config import Geometry, NoiseModel
 from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
@@ -50,10 +54,20 @@ from tactiled.pipeline.estimate import (
 )
 from tactiled.pipeline.gate import Gate
 from tactiled.pipeline import learned
+from tactiled.fit.regions import SIGNIFICANT_Z
+from tactiled.fit.warm import SEVERAL
+from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
 from tactiled.pipeline.tracker import Tracker, untracked, within_reason
+from tactiled.pipeline.tracking import (  # noqa: F401  (MAX_*: re-exported for tests)
+    MAX_PENDING,
+    MAX_WAIT_S,
+    MIN_RELINEARIZE_S,
+    ContactTracking,
+    _Waiting,
+)
 from tactiled.recording import Recorder
 from tactiled.settings import SensorSettings
 from tactiled.sources import FrameSource, open_source
@@ -64,7 +78,7 @@ RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing
 
 
 #: The daemon withholds a radius whose Cramer-Rao bound exceeds half of it ("force too low
-#: for curvature"; docs/model.md: radius is not observable at low force).
+#: for curvature"; docs/concepts/model.md: radius is not observable at low force).
 WITHHOLD_RELATIVE_SIGMA = 0.5
 def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
@@ -72,6 +86,9 @@ def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     return (("window", window), ("withhold_relative_sigma", WITHHOLD_RELATIVE_SIGMA),
             ("learn_floor", True))
 
+
+#: Why a contact of several carries no rates: each such frame is fitted, none tracked.
+SEVERAL_UNTRACKED = "several contacts on the array: each frame is fitted, not tracked"
 
 #: Warm starts go to the workers rounded to this grid (internal units: ln mm, ln N, rad, mm).
 #: The tracker's state carries the last bits of whatever CPU computed its linearisations;
@@ -88,44 +105,14 @@ def _warm_start(warm: tuple[str, tuple[float, ...]] | None,
     evaluation outlasts the worker's deadline), on the grid."""
     if warm is None:
         return None
+    if warm[0] == SEVERAL:
+        each = (_warm_start(w, geometry) for w in warm[1])  # type: ignore[arg-type]
+        return SEVERAL, tuple(w for w in each if w is not None)  # type: ignore[return-value]
     p = within_reason(np.asarray(warm[1], dtype=float), geometry)
     return warm[0], tuple(round(float(v) / WARM_GRID) * WARM_GRID for v in p)
 
 
-@dataclass
-class _Waiting:
-    """A frame waiting for (or in) a fit."""
-
-    ordinal: int
-    seq: int
-    sensor_id: int
-    device_time_us: int
-    host_time: float
-    strain: np.ndarray
-    since: float  # monotonic s it started waiting
-    t: float = 0.0  # device time, s
-    #: a fit of the frame ("fit"; "fit+lin" with its linearisation, for the tracker), or only
-    #: its linearisation at ``at`` (the tracker's state, "lin")
-    kind: str = "fit"
-    at: tuple[str, tuple[float, ...]] | None = None
-    #: the contact ended while this job was in flight: its result answers nothing
-    dropped: bool = False
-
-
-#: Frames of a contact that wait for a fit before the tracker can measure them (they left the
-#: linear range); beyond this many the oldest (but the one being fitted) is given up (counted
-#: superseded).
-MAX_PENDING = 64
-#: ... and none waits longer than this (s): past it, the waiting frames get the contact
-#: predicted to their time and go out (counted predicted), so a slow fit (a loaded machine,
-#: a frame far outside the model) costs precision for a while, never latency.  Live only: in
-#: lossless mode every frame waits for its fit.
-MAX_WAIT_S = 0.005
-#: A relinearisation is asked for at most once per this much device time (s).
-MIN_RELINEARIZE_S = 0.004
-
-
-class SensorPipeline:
+class SensorPipeline(ContactTracking):
     """The acquisition loop of one sensor, publishing to ``hub`` and fitting on ``pool``.
 
     Construction loads the calibration file (``CalibrationError``) and builds the source from
@@ -153,7 +140,7 @@ class SensorPipeline:
                     f"{settings.calibration}: calibration of sensor {self.table.sensor_id}, "
                     f"but wire_id is {self.expected_id}")
             self.expected_id = self.table.sensor_id
-        #: what the array is: grid, surface, cover, wiring (docs/sensors.md)
+        #: what the array is: grid, surface, cover, wiring (docs/howto/sensors.md)
         self.description = load_description(settings.description)
         # Tactels the description names dead, or the calibration found dead or never
         # exercised, are left out of every fit.
@@ -187,13 +174,18 @@ class SensorPipeline:
                 f"sensor {self.name}: the {device.kind} device's array is "
                 f"{device.shape[0]}x{device.shape[1]}, but its description "
                 f"{self.description.name!r} is {g.rows}x{g.cols}: set the sensor's description "
-                "to the array's (docs/sensors.md)")
+                "to the array's (docs/howto/sensors.md)")
         self.device = device
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
-        self._no_contact_fit = untracked(plain(FitResult(
+        self._no_contact_fit = {**untracked(plain(FitResult(
             contact=False, message="no contact: below the detection threshold").to_json_dict()),
-            0, "no contact")
+            0, "no contact"), "contact_id": None, "contacts": []}
+        #: each contact's id from frame to frame (a contact moves far less than a cover depth
+        #: between frames, and two contacts the detector tells apart lie further apart)
+        self._elsewhere_strain = SIGNIFICANT_Z * settings.noise_sigma
+        self.ids = ContactIds(gate_mm=max(self.sensor_model.impulse.depth_x,
+                                          self.sensor_model.impulse.depth_y))
         #: the contact through time (settings.track), the frames waiting for a fit before it
         #: can measure them (in arrival order), and the fit its estimates build on
         self.tracker = Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA, geometry=g)
@@ -232,6 +224,9 @@ class SensorPipeline:
         self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
         self.relinearize_lost = 0
         self.drift_followed = 0  # times the zeroer followed drift around a held contact
+        #: tracked frames sent to a fit because a tactel outside the contact's window rose
+        #: (another contact pressed)
+        self.pressed_elsewhere = 0
         self.fit_failed = 0
         self.fit_errors = 0
         self.fits_budget_spent = 0  # fits the fit budget stopped (tactiled.fit.budget)
@@ -432,263 +427,6 @@ class SensorPipeline:
             self._waiting = waiting
             self.pool.wake()
 
-    # -- tracking (settings.track) ----------------------------------------------------------------
-
-    def _track(self, w: _Waiting, contact: bool, nonfinite: bool) -> None:
-        """One frame through the tracker: measured at once when it can be, else it waits for
-        a fit (with the frames after it, so the estimates keep their order)."""
-        tracker = self.tracker
-        if not contact:
-            self._end_contact()
-            self.skipped[GATE_NO_CONTACT] += 1
-            self._publish(w, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
-            return
-        if (self._pending and not self.lossless
-                and w.since - self._pending[0].since > MAX_WAIT_S):
-            self._flush_pending()
-        if self._pending or not tracker.active or not self.settings.reuse_unchanged:
-            if not self._pending and self._reuse_unchanged(w):
-                return
-            self._wait_for_fit(w)
-            return
-        if nonfinite:  # a reading the zeroer had to patch: never let it into the estimate
-            tracker.skip()
-            if tracker.started:
-                self.predicted += 1
-                self._publish_tracked(w, predicted=True)
-            else:
-                self.superseded += 1
-            return
-        if tracker.step(w.strain.ravel(), w.t) == "refit":
-            self._wait_for_fit(w)
-            return
-        self._publish_tracked(w)
-        self._follow_drift(w)
-        self._maybe_relinearize(w)
-
-    def _reuse_unchanged(self, w: _Waiting) -> bool:
-        """With nothing to track (the contact's last fit could not place it: a frame at the
-        noise, a light touch), a frame the gate finds unchanged since that fit is answered
-        with it, as without tracking (a justified reuse): refitting would give the same
-        unplaceable contact, at the price of the slowest fits there are."""
-        last = self._last_fit
-        if last is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
-            return False
-        self._publish_reuse(w, last)
-        return True
-
-    def _publish_reuse(self, w: _Waiting, last: Estimate) -> None:
-        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since)."""
-        self.skipped[GATE_UNCHANGED] += 1
-        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0, last.fit)
-
-    def _flush_pending(self) -> None:
-        """The waiting frames' fit is late: publish each with the contact predicted to its
-        time (the fit, when it comes, still moves the tracker).  Before the contact's first
-        fit there is nothing to predict from: those frames are given up (counted superseded),
-        all but the one being fitted, so what is published stays fresh, as latest-frame-wins
-        keeps it without tracking."""
-        if self.tracker.started:
-            for p in self._pending:
-                self.predicted += 1
-                self._publish_tracked(p, predicted=True)
-            self._pending.clear()
-            return
-        busy = self._in_flight.ordinal if self._in_flight is not None else None
-        keep = [p for p in self._pending if p.ordinal == busy]
-        self.superseded += len(self._pending) - len(keep)
-        self._pending = keep
-
-    def _wait_for_fit(self, w: _Waiting) -> None:
-        self._pending.append(w)
-        if len(self._pending) > MAX_PENDING:
-            # give up the oldest, but never the frame being fitted: its fit may be slow (a
-            # frame far outside the model runs into its time budget) and it is answered
-            busy = self._in_flight.ordinal if self._in_flight is not None else None
-            drop = 1 if self._pending[0].ordinal == busy else 0
-            self._pending.pop(drop)
-            self.superseded += 1
-        # latest frame wins: the newest pending frame is the one to fit (a waiting
-        # relinearisation is no longer wanted); its warm start is computed when it is taken
-        w.kind = "fit+lin"
-        self._waiting = w
-        self.pool.wake()
-
-    def _fit_due(self, before: _Waiting | None) -> bool:
-        """A frame has just started waiting for a fit (it was not ``before``), and no fit of
-        this sensor is in flight: a worker could take it at once."""
-        w = self._waiting
-        return w is not None and w is not before and w.kind != "lin" and self._in_flight is None
-
-    def _maybe_relinearize(self, w: _Waiting) -> None:
-        """The state has moved from the linearisation point (or sharpened well past it):
-        a worker linearises again where the contact now is (no frame waits for it)."""
-        if self._waiting is not None and self._waiting.kind != "lin":
-            return
-        if 0.0 <= w.t - self._lin_asked_t < MIN_RELINEARIZE_S:
-            return  # (a device clock that went back, a restarted device, asks at once)
-        at = self.tracker.wants_linearization()
-        if at is not None:
-            self._lin_asked_t = w.t
-            self._waiting = _Waiting(w.ordinal, w.seq, w.sensor_id, w.device_time_us,
-                                     w.host_time, w.strain, w.since, w.t, "lin",
-                                     (at[0], tuple(map(float, at[1]))))
-            self.pool.wake()
-
-    def _publish_tracked(self, w: _Waiting, gate: str = GATE_UNCHANGED,
-                         worker_ms: float = 0.0, predicted: bool = False) -> None:
-        assert self._base is not None
-        if gate == GATE_UNCHANGED:
-            if not predicted:
-                self.tracked += 1
-                self.tracked_rate.tick(time.monotonic())
-            self.skipped[GATE_UNCHANGED] += 1
-        fit = self.tracker.estimate(self._base, at=w.t if predicted else None)
-        self._publish(w, gate, self._base_seq, worker_ms, fit)
-
-    def _zero_var(self) -> float:
-        return 0.0 if self.stage is None else self.stage.zeroer.baseline_var
-
-    def _end_contact(self) -> None:
-        """The contact ended (or a tare, new settings): forget it; frames still waiting for a
-        fit are given up (counted superseded)."""
-        self.tracker.clear()
-        self.gate.reset()
-        self._last_fit = None
-        self._warm = None
-        self._base = self._base_seq = None
-        self._drift_ref = None
-        self.superseded += len(self._pending)
-        self._pending.clear()
-        if self._waiting is not None:
-            self._waiting = None
-        for busy in (self._in_flight, self._lin_in_flight):
-            if busy is not None:
-                busy.dropped = True
-        self._check_settled()
-
-    def _tracked_result(self, w: _Waiting, job: FitJob, fit: dict[str, Any], worker_ms: float,
-                        warm: tuple[str, tuple[float, ...]] | None, lin: Any) -> None:
-        """A fit (or relinearisation) came back: measure the frames that waited for it."""
-        tracker = self.tracker
-        if job.kind == "lin":
-            # (not a linearisation of a contact that has ended since it was asked for, nor one
-            # a fit's own has replaced meanwhile)
-            if not w.dropped and lin is not None and tracker.active and lin.model == tracker.model:
-                self._adopt(lin)
-                self.relinearized += 1
-            return
-        if w.dropped:
-            return  # the contact ended while it was fitted (its frames were counted then)
-        if self._waiting is not None and self._waiting.kind != "lin":
-            self._waiting = None  # set again below if a frame still needs a fit
-        # ``w`` itself may be gone: given up past MAX_PENDING, or out already with a
-        # prediction (MAX_WAIT_S); its fit still serves the tracker and the frames after it
-        pending, self._pending = self._pending, []
-        mine = any(p.ordinal == w.ordinal for p in pending)
-        usable = fit.get("contact") and lin is not None and all(
-            fit.get(k) is not None for k in ("x_mm", "y_mm"))
-        if not usable and not mine and tracker.started:
-            # a late fit with nothing to give: the tracker goes on predicting; any frame
-            # waiting now needs a fit of its own
-            self._pending = pending
-            if pending:
-                self._wait_for_fit(self._pending.pop())
-            return
-        if not usable:
-            # nothing to track from (no contact in the window, a fit without a linearisation):
-            # the frame gets the fit as it is; those before it are given up; those after it
-            # reuse it while the gate finds them unchanged
-            tracker.clear()
-            self._obsolete_lin()
-            self._base = self._base_seq = None
-            self._warm = None
-            later = [p for p in pending if p.ordinal > w.ordinal]
-            self.superseded += len(pending) - len(later) - mine
-            self._last_fit = None
-            if mine:
-                est = self._publish(w, GATE_FIT, w.seq, worker_ms,
-                                    untracked(fit, 1, "no tracked contact"))
-                if est.contact:
-                    self._last_fit = est
-                    self.gate.fitted(w.strain)
-            while later and self._reuse_unchanged(later[0]):
-                later.pop(0)
-            if later:
-                self._pending = later
-                self._wait_for_fit(self._pending.pop())
-            return
-        self._last_fit = None  # the tracker answers from here
-        self.gate.reset()
-        self._adopt(lin)
-        self._follow_drift(w, fitted=True)
-        self._obsolete_lin()
-        self._base, self._base_seq, self._warm = fit, w.seq, warm
-        if not mine and (tracker.t is None or w.t >= tracker.t):
-            tracker.step(w.strain.ravel(), w.t, fitted=True)  # its estimate went out already
-        if not pending:
-            self._maybe_relinearize(w)
-            return
-        self._pending, last = pending, pending[-1]
-        try:
-            while self._pending:
-                p = self._pending[0]
-                if p.ordinal == w.ordinal:
-                    tracker.step(p.strain.ravel(), p.t, fitted=True)
-                    self._publish_tracked(self._pending.pop(0), GATE_FIT, worker_ms)
-                elif tracker.step(p.strain.ravel(), p.t) != "refit":
-                    self._publish_tracked(self._pending.pop(0))
-                elif p.ordinal > w.ordinal:  # it and those after it wait for the next fit
-                    self._wait_for_fit(self._pending.pop())
-                    return
-                elif tracker.started:
-                    # older than the fit and outside its linear range too (a fast move): the
-                    # contact predicted to its time, not a stale estimate, and not none
-                    self.predicted += 1
-                    self._publish_tracked(self._pending.pop(0), predicted=True)
-                else:  # the contact's first frames, before any estimate: nothing to predict
-                    self._pending.pop(0)
-                    self.superseded += 1
-        except Exception:  # a bug must cost these frames (counted), not the sensor's stream
-            self.errors += len(self._pending)
-            self._pending.clear()
-            log.exception("%s: the frames waiting for the fit of seq %d failed", self.name, w.seq)
-            self._end_contact()
-            return
-        self._maybe_relinearize(last)
-
-    def _adopt(self, lin: Any) -> None:
-        """The tracker measures from the linearisation ``lin`` now; the zeroer follows drift
-        around the contact it predicts."""
-        self.tracker.adopt(lin, self._zero_var())
-        self._drift_ref = None
-        if lin.predicted is not None:
-            window = np.zeros(lin.predicted.size, dtype=bool)
-            window[lin.index] = True
-            self._drift_ref = (lin.predicted, window.reshape(lin.predicted.shape))
-
-    def _follow_drift(self, w: _Waiting, fitted: bool = False) -> None:
-        """A frame the tracker measured as it came (or, ``fitted``, the frame the fit whose
-        linearisation it adopted was of): the zeroer follows drift around the contact where
-        the linearisation's prediction explains the frame (``Zeroer.follow_drift``; a contact
-        held for minutes would otherwise drift off its frozen baseline until the finger never
-        let go)."""
-        ref = self._drift_ref
-        if ref is not None and self.stage is not None:
-            self.drift_followed += self.stage.zeroer.follow_drift(w.strain, w.t, *ref, fitted=fitted)
-
-    def _obsolete_lin(self) -> None:
-        """A relinearisation in flight was asked for at a point the tracker no longer holds (a
-        fit brought its own linearisation, or nothing to track): its answer is ignored."""
-        if self._lin_in_flight is not None:
-            self._lin_in_flight.dropped = True
-
-    def _regate_waiting(self) -> None:
-        """After a new fit is published, a waiting frame unchanged since is answered with it."""
-        w = self._waiting
-        if w is not None and self._reuse_unchanged(w):
-            self._waiting = None
-
     def _build_stage(self, sensor_id: int) -> None:
         g = self.sensor_model.geometry
         table = self.table or (LookupTable.linear(g.rows, g.cols, sensor_id=sensor_id)
@@ -706,10 +444,14 @@ class SensorPipeline:
             self.superseded += 1
             self._check_settled()
 
+    def _untracked_element(self, c: dict[str, Any]) -> dict[str, Any]:
+        return c if "frames_used" in c else untracked(c, 1, SEVERAL_UNTRACKED)
+
     def _publish(self, w: _Waiting, gate: str, fitted_seq: int | None, worker_ms: float,
                  fit: dict[str, Any]) -> Estimate:
         if fit.get("peak") is not None:  # the frame's own, not that of the fit it rests on
             fit = {**fit, "peak": self._frame_peak(w.strain, fit["peak"])}
+        fit = identified(fit, self.ids, self._untracked_element)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)
@@ -826,16 +568,6 @@ class SensorPipeline:
             self.fit_failed += self._drop_pending(w)
         self._check_settled()
 
-    def _drop_pending(self, w: _Waiting) -> int:
-        """The fit of pending frame ``w`` is lost: the frames still waiting get a fit of the
-        newest of them.  1 if ``w`` was still waiting (the caller counts it), else 0 (it was
-        given up before, and counted then)."""
-        before = len(self._pending)
-        self._pending = [p for p in self._pending if p.ordinal != w.ordinal]
-        if self._pending and (self._waiting is None or self._waiting.kind == "lin"):
-            self._wait_for_fit(self._pending.pop())
-        return before - len(self._pending)
-
     # -- control --------------------------------------------------------------------------------
 
     def tare(self) -> None:
@@ -858,6 +590,7 @@ class SensorPipeline:
             self.sensor_model = replace(self.sensor_model, noise=NoiseModel(sigma=s.noise_sigma))
             self._restore = False  # the file was learned through the model before the change
         self.spec = self.pool.register_spec(self.sensor_model, self._fit_options(), self.name)
+        self._elsewhere_strain = SIGNIFICANT_Z * s.noise_sigma
         self.gate.configure(sigma=s.noise_sigma, z=s.unchanged_z,
                             reuse_unchanged=s.reuse_unchanged)
         if self.stage is not None:
@@ -946,6 +679,7 @@ class SensorPipeline:
             "relinearized": self.relinearized,
             "relinearize_lost": self.relinearize_lost,
             "drift_followed": self.drift_followed,
+            "pressed_elsewhere": self.pressed_elsewhere,
             "hysteresis": None if zeroer is None else zeroer.hysteresis_summary(),
             "pending": len(self._pending),
             # frames received and neither answered nor counted yet (waiting for a fit)

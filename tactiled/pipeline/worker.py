@@ -145,6 +145,8 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     import numpy as np
 
     from tactiled.fit.linearize import linearize
+    from tactiled.fit.multi import contacts_json, fit_contacts, warm_of
+    from tactiled.fit.result import FitResult
 
     notice = _CompileNotice(conn)
     t0 = time.perf_counter()
@@ -179,11 +181,12 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                         lin = linearize(fitter, strain, warm[0], np.asarray(warm[1]), mask)
                         error = None
                     else:
-                        result = fitter.fit(strain, model, mask=mask, warm=warm,
-                                            budget_s=budget_s)
-                        out, error = plain(result.to_json_dict()), None
-                        if result.converged and result.params is not None and result.model:
-                            follow = (result.model, result.params)
+                        results = fit_contacts(fitter, strain, model, mask=mask, warm=warm,
+                                               budget_s=budget_s)
+                        out, error = plain(contacts_json(results)), None
+                        follow = warm_of(results)
+                        # several contacts: each frame is fitted (the tracker follows one)
+                        result = results[0] if len(results) == 1 else FitResult(contact=False)
                         if job_kind == "fit+lin" and result.params is not None and result.model:
                             lin = linearize(fitter, strain, result.model,
                                             np.asarray(result.params), mask)

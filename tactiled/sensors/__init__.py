@@ -1,7 +1,7 @@
 """Sensor descriptions: what a taxel array is (grid, surface, cover, noise, wiring).
 
 :func:`load_description` reads a TOML file or a built-in by name; the built-ins are package
-data in ``builtin/``, each number with its source.  docs/sensors.md is the user's guide.
+data in ``builtin/``, each number with its source.  docs/howto/sensors.md is the user's guide.
 """
 
 from tactiled.sensors.description import (

@@ -1,6 +1,6 @@
 """A sensor description: everything the physics needs to know about one taxel array.
 
-A description is one TOML file (docs/sensors.md)::
+A description is one TOML file (docs/howto/sensors.md)::
 
     name = "flat16"
     rows = 16                  # tactels along x
@@ -8,7 +8,7 @@ A description is one TOML file (docs/sensors.md)::
     pitch_x_mm = 2.5
     pitch_y_mm = 2.5
     surface_radius_mm = inf    # the surface's radius around y; inf (or absent): a flat array
-    depth_x_mm = 2.0           # the cover's impulse response (docs/model.md)
+    depth_x_mm = 2.0           # the cover's impulse response (docs/concepts/model.md)
     nu_x = 0.5
     depth_y_mm = 2.0
     nu_y = 0.5
@@ -21,7 +21,7 @@ Units are in the key names.  Built-in descriptions are package data
 (``tactiled/sensors/builtin/NAME.toml``); :func:`load_description` takes a path or a built-in's
 name.  A bad description is a :class:`~tactiled.errors.ConfigError` naming the key.
 
-Conventions (docs/model.md): tactel ``[m, n]`` sits at ``x = m * pitch_x_mm`` (``m < rows``),
+Conventions (docs/concepts/model.md): tactel ``[m, n]`` sits at ``x = m * pitch_x_mm`` (``m < rows``),
 ``y = n * pitch_y_mm``; raw counts arrive in wire order, and :meth:`SensorDescription.to_grid`
 puts them on the ``(rows, cols)`` grid.
 """

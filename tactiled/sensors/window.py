@@ -1,6 +1,6 @@
 """Which fit window suits an array: the Fisher information each window size keeps.
 
-A fit reads a square window of tactels around the contact (docs/fitting.md).  A larger window
+A fit reads a square window of tactels around the contact (docs/concepts/fitting.md).  A larger window
 holds more of the contact's information and costs more per fit.  For an array's reference
 contacts -- a sphere and a cylinder (a line on a flat array) of radius twice the cover's depth,
 pressed at the array's middle to a peak of 60 noise sigmas -- :func:`information` gives, per

@@ -1,6 +1,6 @@
 """The acquisition benchmark on moving contacts: its bookkeeping (shares of contact frames,
 accuracy matched to the truth by seq, the tare) on made-up runs, and one short real run through
-the command line.  Speed is reported by the benchmark (docs/benchmarks.md), never asserted."""
+the command line.  Speed is reported by the benchmark (docs/performance/benchmarks.md), never asserted."""
 
 from __future__ import annotations
 

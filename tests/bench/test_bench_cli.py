@@ -1,5 +1,5 @@
 """`tactiled bench` runs as a user runs it and its tables carry what the issues ask for.
-(Speed itself is shown by the benchmark's output in docs/benchmarks.md, never asserted here.)"""
+(Speed itself is shown by the benchmark's output in docs/performance/benchmarks.md, never asserted here.)"""
 
 import subprocess
 import sys

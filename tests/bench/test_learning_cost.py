@@ -1,6 +1,6 @@
 """The learning-cost probe (python -m tactiled.bench.learning_cost), short: it runs, measures
 both fitters on both fingers, and finds the flat field off on the paper's finger and on on the
-mismatched one.  Its figures are in docs/benchmarks.md, not asserted here (rule 4)."""
+mismatched one.  Its figures are in docs/performance/benchmarks.md, not asserted here (rule 4)."""
 
 import subprocess
 import sys

@@ -1,4 +1,4 @@
-"""docs/calibration.md's identification walkthrough, run as a user pastes it: simulated presses
+"""docs/howto/calibration.md's identification walkthrough, run as a user pastes it: simulated presses
 of a finger whose rubber is not the paper's, ``calibrate --identify``, then ``fit
 --calibration`` on frames of that finger.  The identified constants must hold the truth within
 their bounds, and the fits' force errors must be what their sigmas say (and far from it
@@ -22,7 +22,7 @@ TRUTH = {"depth_x": 5.0, "nu_x": 0.4, "depth_y": 6.0, "nu_y": 0.7, "modulus": 0.
 
 
 def walkthrough() -> list[str]:
-    text = (ROOT / "docs" / "calibration.md").read_text()
+    text = (ROOT / "docs" / "howto" / "calibration.md").read_text()
     section = text.split("**Try it on a simulated finger first.**", 1)[1]
     return re.search(r"```sh\n(.*?)```", section, re.S).group(1).strip().splitlines()
 

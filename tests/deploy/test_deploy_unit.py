@@ -16,10 +16,10 @@ from deploy_helpers import ROOT
 UNIT = ROOT / "deploy" / "tactiled.service"
 RULES = ROOT / "deploy" / "99-tactiled.rules"
 CONFIG = ROOT / "deploy" / "tactiled.toml"
-DOCS = ROOT / "docs" / "deploy.md"
+DOCS = ROOT / "docs" / "howto" / "deploy.md"
 INSTALLED_EXEC = "/opt/tactiled/.venv/bin/tactiled"
 SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
-MAX_EXPOSURE = 2.0  # docs/deploy.md quotes the score; hardening must not silently regress
+MAX_EXPOSURE = 2.0  # docs/howto/deploy.md quotes the score; hardening must not silently regress
 
 
 def parse_unit(text: str) -> dict[str, list[tuple[str, str]]]:

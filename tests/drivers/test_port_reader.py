@@ -118,7 +118,7 @@ def test_a_stall_costs_no_memory_beyond_the_ring(pty_device) -> None:
     """While the loop is stuck, what the thread reads goes into its ring, allocated once: a
     backlog of ~190 KB allocates next to nothing (the 1-hour soak's service grew after stalls
     of minutes by what the reader threads had allocated for their backlog, scattered through
-    their malloc arenas: docs/reliability.md)."""
+    their malloc arenas: docs/performance/reliability.md)."""
     payload = PAYLOAD * 3
 
     async def main() -> None:

@@ -82,7 +82,7 @@ def test_flexitac_clean_stream_any_chunking(stream, cuts) -> None:
 def test_flexitac_garbage_costs_only_its_neighbour(stream, junk, at, cuts) -> None:
     """Garbage between frames.  (With a marker inside the data *and* garbage, a marker that
     happens to lie exactly one period before the first frame after the garbage is a frame to
-    any reader of this format: it has no checksum.  docs/drivers.md says so.)"""
+    any reader of this format: it has no checksum.  docs/howto/drivers.md says so.)"""
     rows, cols, imgs = stream
     junk = junk.replace(b"\xaa", b"\x00")  # garbage without a marker byte
     at = min(at, len(imgs) - 1)

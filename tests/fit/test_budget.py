@@ -1,7 +1,7 @@
 """A fit's budget (tactiled.fit.budget): every fit stays within its iterations and work, a fit
 the budget stopped says so (not converged, a reason, sigmas widened or values withheld), and
 the budget changes no fit that converges without it.  Its cost is measured by ``tactiled bench
---suite unexplained`` (docs/benchmarks.md), never asserted here."""
+--suite unexplained`` (docs/performance/benchmarks.md), never asserted here."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 Golden replays made on an AVX2 machine flipped 13 verdicts on an AVX-512 one, on frames too
 light for curvature: a CPU's vector width and FMA change the last bits of every sum, and the
-verdict hung on them (docs/fitting.md, "The convergence verdict").  Here the same kind of
+verdict hung on them (docs/concepts/fitting.md, "The convergence verdict").  Here the same kind of
 difference is made on purpose: each tactel of a frame is moved by up to a few units in the
 last place, and the fit of every variant must reach the same verdict, the same model and the
 same iteration count, and values that agree far inside their uncertainties.  The frames are

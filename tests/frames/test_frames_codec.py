@@ -1,4 +1,4 @@
-"""COBS, the frame encoder, and the worked example and C sketch in docs/protocol.md."""
+"""COBS, the frame encoder, and the worked example and C sketch in docs/reference/protocol.md."""
 
 from __future__ import annotations
 
@@ -24,9 +24,9 @@ from tactiled.frames import (
     encode_frame,
 )
 
-PROTOCOL_MD = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
+PROTOCOL_MD = Path(__file__).resolve().parents[2] / "docs" / "reference" / "protocol.md"
 
-# The worked example of docs/protocol.md.
+# The worked example of docs/reference/protocol.md.
 EXAMPLE = Frame(seq=258, device_time_us=1_000_000, sensor_id=7,
                 raw=np.array([[0x0000, 0x0102], [0x0300, 0xFFFF]], dtype=np.uint16))
 
@@ -41,7 +41,7 @@ def doc_hex(marker: str) -> bytes:
 
 def doc_c_sketch() -> str:
     match = re.search(r"```c\n(.*?)```", PROTOCOL_MD.read_text(), re.S)
-    assert match, "no C sketch in docs/protocol.md"
+    assert match, "no C sketch in docs/reference/protocol.md"
     return match.group(1)
 
 
@@ -160,7 +160,7 @@ def test_decode_frame_raises_frame_error() -> None:
         decode_frame(encode_frame(EXAMPLE) * 2)
 
 
-# --- the C sketch in docs/protocol.md ---------------------------------------------------------
+# --- the C sketch in docs/reference/protocol.md ---------------------------------------------------------
 
 def c_array(values: np.ndarray) -> str:
     return "{" + ",".join(str(int(v)) for v in values.ravel()) + "}"

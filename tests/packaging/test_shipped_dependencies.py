@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 BLOCKER = Path(__file__).resolve().parent / "blocked"
 #: The optional extras' import names (pyproject's optional-dependencies).
 EXTRAS = {"zenoh": ("zenoh",), "ros2": ("rosbags", "mcap", "mcap_ros2", "xxhash"),
-          "plot": ("matplotlib",)}
+          "plot": ("matplotlib",), "docs": ("mkdocs", "material", "mkdocstrings")}
 #: Test-only packages (pyproject's test extra; zenoh-ros2-sdk installs two top-level names)
 #: and the extras'.
 NOT_SHIPPED = ("httpx", "pytest", "_pytest", "playwright", "hypothesis", "mpmath", "PIL",
@@ -165,7 +165,7 @@ def test_a_venv_with_only_the_package(tmp_path: Path) -> None:
                              capture_output=True, text=True, timeout=900)
     assert install.returncode == 0, install.stderr[-3000:]
     check_environment(python, env, tmp_path)
-    # The soak docs/reliability.md quotes, in its quickest form: subscribers, stalled clients
+    # The soak docs/performance/reliability.md quotes, in its quickest form: subscribers, stalled clients
     # and the daemon, every process of it in this environment.
     soak = subprocess.run([python, "-m", "tactiled.bench.reliability", "--quick", "--seconds",
                            "3", "--warmup", "1", "--subscribers", "5", "--stalled", "1"],

@@ -236,7 +236,8 @@ def test_a_contact_at_the_noise_is_measured_its_values_held_within_reason(kit) -
     The radius's accuracy is not asserted here: averaged in log, a radius this poorly
     determined keeps an upward bias (see the 0.2 N test); these seeds end 2.7-5.7 reported
     sigmas high, and the old code, in the one seed it got through, 4.8.  A known weakness
-    (docs/benchmarks.md, stop 22), not this test's subject."""
+    (measured when frames at the noise stopped being refitted; the history of
+    docs/performance/benchmarks.md in git), not this test's subject."""
     from tactiled.pipeline.tracker import LN_R_BOUNDS
 
     faint = Contact(r1=10.0, psi_deg=60.0, force=0.07, x0=8.0, y0=9.0)

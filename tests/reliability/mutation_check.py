@@ -75,7 +75,7 @@ MUTATIONS = [
   "            self._latest_estimate[item.sensor] = item", "            self._latest_estimate[item.sensor] = item\n            self.__dict__.setdefault('_leak', []).append(item)",
   ["tests/reliability/test_soak.py::test_soak_short"]),
  ("M16 the worker answers a NaN (as a fitter bug would)", "tactiled/pipeline/worker.py",
-  "                    out, error = plain(result.to_json_dict()), None", "                    out, error = dict(plain(result.to_json_dict()), rms=float('nan')), None",
+  "                        out, error = plain(contacts_json(results)), None", "                        out, error = dict(plain(contacts_json(results)), rms=float('nan')), None",
   ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"]),
  ("M17 bytes held between reads are dropped", "tactiled/frames.py",
   "        chunks[0] = bytes(self._buf) + chunks[0]", "        chunks[0] = chunks[0]",

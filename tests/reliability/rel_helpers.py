@@ -134,7 +134,7 @@ def collect(daemon: Daemon, kind: str = "estimate") -> list:
 
 
 def accounted(st: dict[str, Any]) -> int:
-    """docs/pipeline.md: every frame ends in exactly one of these."""
+    """docs/concepts/pipeline.md: every frame ends in exactly one of these."""
     return (st["published"] + st["superseded"] + st["stale_dropped"] + st["fit_failed"]
             + st["fit_errors"] + st["wrong_sensor"] + st["bad_shape"] + st["errors"])
 

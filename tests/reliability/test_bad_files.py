@@ -237,7 +237,7 @@ def test_replay_and_record_commands_refuse_bad_files(tmp_path: Path) -> None:
 
 def test_replay_of_a_recording_cut_short_replays_the_complete_records(tmp_path: Path) -> None:
     """A truncated *last* record is not an error (the recorder was killed): documented in
-    docs/recording.md; the complete records are replayed and the truncation is reported."""
+    docs/reference/file-formats.md; the complete records are replayed and the truncation is reported."""
     data = _recording(tmp_path).read_bytes()
     cut = tmp_path / "cut.tact"
     cut.write_bytes(data[:-50])

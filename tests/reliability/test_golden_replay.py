@@ -99,7 +99,7 @@ def test_the_host_cpu_changes_nothing_but_last_digits() -> None:
     host CPU, OpenBLAS's and numpy's SIMD kernels, libm's FMA variants), every session must
     give the golden estimates with every verdict, model, gate, iteration count and message the
     same, and every float within a relative 1e-6.  Before the convergence verdict was made
-    robust (docs/fitting.md), an AVX2 host changed 2 verdicts, 8 models and 24 iteration
+    robust (docs/concepts/fitting.md), an AVX2 host changed 2 verdicts, 8 models and 24 iteration
     counts of these sessions against the pinned goldens, and moved values by up to 0.35 sigma.
     An estimate whose fit measured nothing (:func:`unmeasured`) keeps its outline: in the press
     session's release a frame at 2.8 noise sigmas fitted as a line contact with a force sigma
@@ -168,7 +168,8 @@ def test_golden_files_are_small_and_reproduce_their_recordings() -> None:
     from tactiled.sim import FingerSimulator
 
     total = sum(p.stat().st_size for p in g.GOLDEN.iterdir())
-    assert total < 512 * 1024, f"{total} bytes of golden data"
+    # (every estimate lists its contacts too: each contact's keys twice on a one-contact line)
+    assert total < 1024 * 1024, f"{total} bytes of golden data"
     for name, url in g.SESSIONS.items():
         q = {k: v[0] for k, v in parse_qs(urlsplit(url).query).items()}
         sim = FingerSimulator(scene=q["scene"], seed=int(q["seed"]), rate_hz=float(q["rate"]),

@@ -8,7 +8,7 @@ frame across reads.
 
 What "delivered" means: the test knows which frames reached the wire intact (their own bytes
 unchanged and the byte before them a ``0x00`` delimiter: a frame glued to unterminated garbage is
-lost by design, docs/protocol.md "Stream rules").  With latest-frame-wins, an intact frame need
+lost by design, docs/reference/protocol.md "Stream rules").  With latest-frame-wins, an intact frame need
 not get an estimate of its own, so delivery is checked where it is defined: at the source, the
 decoder must deliver exactly the intact frames (same seq, device time and counts, in order), and
 the pipeline must account for each of them (``frames = published + superseded + ...``).  In

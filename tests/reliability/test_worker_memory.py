@@ -1,5 +1,5 @@
-"""A fit worker's memory does not grow with the contacts it meets (docs/reliability.md, "Fit
-workers' memory").  The cause found: the quadrature-rule cache kept a rule for every pair of
+"""A fit worker's memory does not grow with the contacts it meets (docs/performance/reliability.md,
+"Soak").  The cause found: the quadrature-rule cache kept a rule for every pair of
 node counts a fit visited, so a worker's heap grew for hours as new contact sizes came; now
 every rule a process keeps is built by ``warm_rules`` at start and nothing is added later.
 

@@ -40,7 +40,7 @@ ROS2_HASHES = {
         "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e",
 }
 
-#: docs/api.md's example estimate (a held cylinder contact).
+#: docs/reference/api.md's example estimate (a held cylinder contact).
 ESTIMATE: dict[str, Any] = {
     "type": "estimate", "sensor": "finger0", "sensor_id": 0, "seq": 9561,
     "device_time_us": 9561000, "host_time": 2522.376680267, "time": 1795309645.9224312,

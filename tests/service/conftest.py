@@ -7,7 +7,8 @@ real daemon on the simulated finger), `tactiled run` as a subprocess, headless C
 * :func:`no_leftovers` (autouse) fails a test that leaves a server, a ``tactiled run``
   process or a fit worker running; it cleans up first so one failure does not cascade.
 * :func:`chromium` installs Debian's ``chromium`` with apt-get when it is missing and we are
-  root (CI has Debian's mirrors), once per session.
+  root (CI has Debian's mirrors), once per session; :func:`browser_page` is a fresh page of it
+  (Playwright) and the errors that page reports.
 """
 
 from __future__ import annotations
@@ -222,6 +223,31 @@ def chromium() -> str:
     if not os.path.exists(CHROMIUM):
         pytest.fail(f"apt-get installed chromium but {CHROMIUM} is still missing")
     return CHROMIUM
+
+
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync"]
+
+
+@pytest.fixture
+def browser_page(chromium: str, tmp_path: Path) -> Iterator[tuple[Any, list[str]]]:
+    """A fresh Chromium profile and page; yields (page, errors seen by the page)."""
+    from playwright.sync_api import sync_playwright
+
+    errors: list[str] = []
+    with sync_playwright() as p:
+        context = p.chromium.launch_persistent_context(
+            str(tmp_path / "profile"), executable_path=chromium, headless=True,
+            args=CHROMIUM_ARGS, viewport={"width": 1400, "height": 1000})
+        try:
+            page = context.pages[0] if context.pages else context.new_page()
+            page.on("pageerror", lambda err: errors.append(f"page error: {err}"))
+            page.on("console", lambda msg: errors.append(f"console: {msg.text}")
+                    if msg.type == "error" else None)
+            yield page, errors
+        finally:
+            context.close()
 
 
 @pytest.fixture

@@ -65,3 +65,21 @@ def test_messages_are_encoded_once_per_item():
     fm = json.loads(enc.text(frame))
     assert (fm["type"], fm["rows"], fm["cols"], fm["seq"]) == ("frame", 8, 8, 8)
 
+
+
+def test_each_of_several_contacts_gets_its_own_ellipse():
+    # an estimate listing two contacts: each element is drawn with its own Hertz ellipse, the
+    # one computed for its values alone; the top level keeps the strongest contact's
+    enc = Encoder({"f": (12.7, 3.0)})
+    strong = {**fit_line(r1_mm=10.0, angle_deg=90.0, force_n=1.0), "contact_id": 3}
+    weak = {**fit_line(r1_mm=6.0, angle_deg=20.0, force_n=0.4), "contact_id": 7}
+    est = make_estimate(sensor="f", sensor_id=0, seq=9, device_time_us=9000, host_time=1.0,
+                        gate="fit", fitted_seq=9, worker_ms=1.0,
+                        fit={**strong, "contacts": [strong, weak]})
+    before = json.dumps(weak)
+    msg = json.loads(enc.text(est))
+    got = [c["ellipse"] for c in msg["contacts"]]
+    assert got == [display_ellipse(strong, 12.7, 3.0), display_ellipse(weak, 12.7, 3.0)]
+    assert got[0] == msg["ellipse"] and got[0] != got[1]
+    assert [c["contact_id"] for c in msg["contacts"]] == [3, 7]
+    assert json.dumps(weak) == before, "the pipeline's fit line is read-only"

@@ -1,5 +1,5 @@
 """``GET /metrics`` against a real server, read with prometheus_client's own parser: every
-family docs/api.md lists is served with the conventions (``tactiled_`` prefix, ``_total``
+family docs/reference/metrics.md lists is served with the conventions (``tactiled_`` prefix, ``_total``
 counters, units in the names), the values agree with the daemon's own counters, the latency
 histograms are well formed and count every estimate once, and each process's memory is there.
 The token rule is tested with the other endpoints (test_security.py)."""
@@ -35,10 +35,9 @@ def value(family, name: str, **labels) -> float:
 
 
 def documented_metrics() -> set[str]:
-    """The metric names docs/api.md lists in its metrics table."""
-    text = (repo_root() / "docs" / "api.md").read_text()
-    section = text.split("### `GET /metrics`", 1)[1].split("\n## ", 1)[0]
-    return set(re.findall(r"^\| `((?:tactiled|process)_[a-z_]+)`", section, re.MULTILINE))
+    """The metric names docs/reference/metrics.md lists in its metrics table."""
+    text = (repo_root() / "docs" / "reference" / "metrics.md").read_text()
+    return set(re.findall(r"^\| `((?:tactiled|process)_[a-z_]+)`", text, re.MULTILINE))
 
 
 def test_every_documented_family_is_served_and_every_served_one_documented(shared_server):
@@ -54,14 +53,14 @@ def test_every_documented_family_is_served_and_every_served_one_documented(share
         if f.type == "counter":
             assert all(s.name.endswith(("_total", "_created")) for s in f.samples), name
     docs = documented_metrics()
-    assert docs, "docs/api.md lists no metric"
+    assert docs, "docs/reference/metrics.md lists no metric"
     # Gauges with no value to give have no sample (no sensor of this server has a rate_hz;
     # the hysteresis is learnt only after seconds of tracked contact).
     served |= {"tactiled_frame_rate_nominal_hertz", "tactiled_hysteresis_fraction",
                "tactiled_hysteresis_tau_seconds"} & docs
     # process_* are the library's standard process metrics; those it serves are listed too.
-    assert served - docs == set(), f"served but not in docs/api.md: {sorted(served - docs)}"
-    assert docs - served == set(), f"in docs/api.md but not served: {sorted(docs - served)}"
+    assert served - docs == set(), f"served but not in docs/reference/metrics.md: {sorted(served - docs)}"
+    assert docs - served == set(), f"in docs/reference/metrics.md but not served: {sorted(docs - served)}"
 
 
 def test_values_agree_with_the_daemons_counters(shared_server):

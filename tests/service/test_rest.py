@@ -62,6 +62,9 @@ def test_sensors_list_geometry_and_calibration(shared_server):
     for s in sensors:
         assert (s["rows"], s["cols"]) == (8, 8)
         assert s["dx_mm"] > 0 and s["dy_mm"] > 0 and s["finger_radius_mm"] > 0
+        # the description's own keys, as its file gives them (the paper's finger)
+        assert (s["description"], s["pitch_x_mm"], s["pitch_y_mm"], s["surface_radius_mm"]) == (
+            "fearing1988", 3.3, 3.9, 12.7)
         assert s["calibration"]["id"] == "nominal"
         assert s["url"].startswith("sim://")
 

@@ -181,7 +181,7 @@ def test_defaults_are_the_demo_finger_on_the_documented_port():
     s = settings_for(run_args(), {})
     assert (s.server.host, s.server.port) == ("127.0.0.1", DEFAULT_PORT)
     assert [x.url for x in s.sensors] == ["sim://?scene=demo&seed=1"]
-    doc = (Path(__file__).resolve().parents[2] / "docs" / "api.md").read_text()
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "reference" / "api.md").read_text()
     assert f"127.0.0.1:{DEFAULT_PORT}" in doc
     assert json.dumps(DEFAULT_PORT) == "8765"
 

@@ -1,4 +1,4 @@
-"""`tactiled watch` against a live server, and the Python client example of docs/api.md run
+"""`tactiled watch` against a live server, and the Python client example of docs/reference/api.md run
 exactly as written."""
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def test_watch_errors(shared_server):
 
 
 def python_example() -> str:
-    text = (ROOT / "docs" / "api.md").read_text()
+    text = (ROOT / "docs" / "reference" / "api.md").read_text()
     section = text.split("## Python client example", 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, re.S)
     assert len(blocks) == 1, "one python block in the section"
@@ -77,7 +77,7 @@ def test_docs_python_client_example_runs_as_written(shared_server, tmp_path):
 
 
 def test_docs_name_every_endpoint_and_message():
-    text = (ROOT / "docs" / "api.md").read_text()
+    text = (ROOT / "docs" / "reference" / "api.md").read_text()
     for needle in ("GET /v1/health", "GET /v1/sensors", "GET /v1/sensors/{name}/estimate",
                    "GET /v1/sensors/{name}/frame", "POST /v1/sensors/{name}/tare",
                    "GET /v1/config", "PATCH /v1/config", "GET /v1/version", "/v1/stream",

@@ -282,6 +282,9 @@ def test_one_subscriber_sees_both_daemons_complete_in_order_and_byte_for_byte(da
         assert h["zenoh"]["routers"] == 1, h["zenoh"]
         for msg in col.of(d.prefix)[:5]:
             assert msg["type"] == "estimate" and msg["sensor"] == "finger0"
+        for msg in col.of(d.prefix):  # every contact listed, with its id
+            assert len(msg["contacts"]) == int(msg["contact"])
+            assert [c["contact_id"] for c in msg["contacts"][:1]] == ([msg["contact_id"]] if msg["contact"] else [])
     # Frames: daemon A only (B's frame_rate_hz is 0), every one a frame message, at most
     # FRAME_RATE_HZ by the daemon's own clock.
     frames = col.of("tactiled/zt-a", "frame")
@@ -552,8 +555,8 @@ def test_example_configuration_and_docs_show_every_zenoh_key():
     keys = list(settings_to_dict(load_settings(example, {}, {}))["zenoh"])
     text = example.read_text()
     assert [k for k in keys if f"{k} =" not in text and f"# {k} =" not in text] == []
-    docs = (root / "docs" / "zenoh.md").read_text()
-    pipeline = (root / "docs" / "pipeline.md").read_text()
+    docs = (root / "docs" / "howto" / "zenoh.md").read_text()
+    pipeline = (root / "docs" / "reference" / "configuration.md").read_text()
     for key in keys:
         assert f"`{key}`" in docs and f"`zenoh.{key}`" in pipeline, key
     for key in ("/estimate", "/frame", "/health", "/latest", "liveliness"):

@@ -1,4 +1,4 @@
-"""tactiled's ROS 2 messages in an MCAP file, the ``ros2`` profile rosbag2 writes (docs/ros2.md).
+"""tactiled's ROS 2 messages in an MCAP file, the ``ros2`` profile rosbag2 writes (docs/howto/ros2.md).
 
 The same topics and types as the live ROS 2 node (:mod:`.node`), so ``ros2 bag play`` replays
 a file onto a ROS graph and Foxglove opens it: one schema per type (encoding ``ros2msg``, the

@@ -1,4 +1,4 @@
-"""Estimates, frames and health as ROS 2 messages: pure conversion, no I/O (docs/ros2.md).
+"""Estimates, frames and health as ROS 2 messages: pure conversion, no I/O (docs/howto/ros2.md).
 
 Every function takes the daemon's own JSON objects (an estimate's ``to_json_dict()``, a zeroed
 frame, the health document) and returns a message object of the ``rosbags`` type store, which

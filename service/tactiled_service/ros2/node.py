@@ -1,4 +1,4 @@
-"""The ROS 2 front end: every sensor's topics on the daemon's Zenoh session (docs/ros2.md).
+"""The ROS 2 front end: every sensor's topics on the daemon's Zenoh session (docs/howto/ros2.md).
 
 With ``[ros2] enabled`` the daemon is a ROS 2 node (``<namespace>/<node_name>``, default
 ``/tactiled/tactiled``) to any ROS 2 system running rmw_zenoh that its Zenoh session reaches,

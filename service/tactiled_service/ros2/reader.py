@@ -1,4 +1,4 @@
-"""Reading ROS 2 samples off Zenoh: ``tactiled watch --ros2`` (docs/ros2.md).
+"""Reading ROS 2 samples off Zenoh: ``tactiled watch --ros2`` (docs/howto/ros2.md).
 
 It subscribes to ``<domain_id>/**``, keeps the samples whose key is a topic of one of
 tactiled's types (:data:`.messages.TYPES`), decodes the CDR payload and the rmw_zenoh

@@ -1,24 +1,44 @@
-// tactiled dashboard: one card per sensor (strain heat map, contact ellipse, curvature axis,
-// readouts with 1-sigma uncertainties, a strip chart of the last 10 s) and the health counters.
+// tactiled dashboard: every sensor's array at once, each at its own shape and pitch on one
+// common scale (px per mm), with its live strain, every contact's ellipse (or line) and id; a
+// panel that follows one contact (the strongest on any sensor, or the sensor or contact the
+// user clicked) with its readouts and a strip chart of its last 10 s; the health counters.
 //
 // Messages come from /v1/stream at a capped rate (MAX_RATE per sensor and stream); each one
-// only replaces the latest state of its sensor (and appends one sample to its strip chart's
-// bounded ring), and drawing happens once per animation frame from that state, so the page
-// never queues work and never falls behind the stream.
+// only replaces the latest state of its sensor (and appends one sample to bounded rings), and
+// drawing happens once per animation frame from that state, so the page never queues work and
+// never falls behind the stream.
 "use strict";
 
 const MAX_RATE = 30;         // Hz per sensor and stream asked of the server
 const HEALTH_PERIOD = 1000;  // ms between /v1/health polls
 const MIN_SCALE = 0.002;     // strain at the top of the colour scale, at least
 const STRIP_S = 10;          // seconds of history in the strip chart
-const STRIP_CAP = 2048;      // samples kept per sensor (10 s at up to 200 Hz): a ring, never grows
+const STRIP_CAP = 2048;      // samples kept per ring (10 s at up to 200 Hz): never grows
 const STRIP_MIN_DT = 1000 / 30;  // ms between strip redraws (it scrolls; 30 Hz is smooth enough)
+const CONTACT_RINGS = 64;    // contacts whose history is kept at once (the oldest goes first)
+const SWITCH = 1.2;          // following the strongest: change only for a force 20 % larger
+// Layout: one scale for every array, the largest that keeps the arrays and the follow panel
+// on the screen (wrapping into lines when that gives more), within [K_MIN, K_MAX] px per mm.
+const K_MIN = 2, K_MAX = 16;
+const MAP_PAD = 12;          // px around each array (axis hints)
+const TILE_MIN_W = 188;      // px: what the brief readouts under a map need
+const TILE_CHROME_W = 26;    // px: a tile's padding and border
+const TILE_CHROME_H = 146;   // px: a tile's title, readouts, padding (until measured)
+const GAP = 12;              // px between tiles (style.css: main's gap)
+const GRID = "#20262d";      // the lines between tactels
 
 const state = {
-  sensors: new Map(),        // name -> {info, est, frame, dirty, el, canvas, scale}
+  sensors: new Map(),        // name -> {name, info, est, frame, dirty, el, canvas, overlay, scale, drawn}
+  rings: new Map(),          // "sensor" or "sensor#contact_id" -> its strip-chart samples
   ws: null,
   retry: 500,
   health: null,              // the last /v1/health answer
+  k: 6,                      // px per mm, the same for every array
+  follow: {mode: "auto", sensor: null, id: null},  // what the user asked to follow
+  auto: null,                // the sensor followed as the strongest (kept unless beaten by SWITCH)
+  note: "", noteUntil: 0,    // why the panel went back to the strongest
+  shown: {key: null, src: null, label: null},
+  strip: null,
 };
 
 const $ = (sel, root = document) => root.querySelector(sel);
@@ -49,6 +69,29 @@ function fmt(value, std, unit, digits) {
   return s + (unit ? " " + unit : "");
 }
 
+// -- contacts --------------------------------------------------------------------------------
+// An estimate lists its contacts in `contacts` (each with the keys of a one-contact estimate
+// and its `contact_id`); a daemon that does not gives the one contact at the top level.
+function contactsOf(e) {
+  if (!e) return [];
+  if (Array.isArray(e.contacts)) return e.contacts.filter((c) => c && c.contact !== false);
+  return e.contact ? [e] : [];
+}
+
+const forceOf = (e) => (e && e.force_n) || 0;
+
+// A contact with its estimate's envelope (seq, gate, latency...), for readouts and samples.
+function withEnvelope(est, c) { return c === est ? est : Object.assign({}, est, {contacts: undefined}, c); }
+
+// The id of an estimate's strongest contact (the top level), or null.
+function topId(e) {
+  if (!e || !e.contact) return null;
+  if (e.contact_id !== undefined && e.contact_id !== null) return e.contact_id;
+  let best = null;
+  for (const c of contactsOf(e)) if (c !== e && (!best || forceOf(c) > forceOf(best))) best = c;
+  return best && best.contact_id !== undefined ? best.contact_id : null;
+}
+
 // -- sensors ---------------------------------------------------------------------------------
 function sensorState(name) {
   let s = state.sensors.get(name);
@@ -58,10 +101,18 @@ function sensorState(name) {
   card.dataset.sensor = name;
   $(".name", card).textContent = name;
   $("#sensors").appendChild(card);
-  s = {info: null, est: null, frame: null, dirty: true, el: card, canvas: $("canvas.map", card),
-       scale: MIN_SCALE, strip: newStrip($("canvas.strip", card), $(".strip-tip", card))};
+  s = {name, info: null, est: null, frame: null, dirty: true, el: card,
+       canvas: $("canvas.map", card), overlay: $("canvas.overlay", card), scale: MIN_SCALE,
+       drawn: []};
+  card.addEventListener("click", (ev) => clickSensor(s, ev));
+  card.addEventListener("keydown", (ev) => {
+    if (ev.key !== "Enter" && ev.key !== " ") return;
+    ev.preventDefault();
+    followThis({mode: "sensor", sensor: name, id: null});
+  });
   state.sensors.set(name, s);
   if (state.health && state.health.sensors[name]) showStatus(s, state.health.sensors[name]);
+  layout();
   return s;
 }
 
@@ -81,6 +132,7 @@ async function loadSensors() {
       s.info = info;
       s.dirty = true;
     }
+    layout();
   } catch (err) { message("cannot load sensors: " + err); }
 }
 
@@ -101,14 +153,15 @@ function connect() {
         ws.send(JSON.stringify({type: "subscribe", streams: ["estimates", "frames"],
                                 max_rate: MAX_RATE}));
         break;
-      case "estimate": {
+      case "estimate": onEstimate(sensorState(msg.sensor), msg); break;
+      case "frame": {
         const s = sensorState(msg.sensor);
-        s.est = msg;
+        const grew = !s.frame && !s.info;
+        s.frame = msg;
         s.dirty = true;
-        stripAdd(s.strip, msg);
+        if (grew) layout();  // the array's shape, until /v1/sensors answers
         break;
       }
-      case "frame": { const s = sensorState(msg.sensor); s.frame = msg; s.dirty = true; break; }
       case "error": message(`server: ${msg.message}`); break;
       default: break;
     }
@@ -120,127 +173,338 @@ function connect() {
   };
 }
 
-// -- drawing ---------------------------------------------------------------------------------
+function onEstimate(s, msg) {
+  s.est = msg;
+  s.dirty = true;
+  ringAdd(ringFor(s.name), msg);
+  if (Array.isArray(msg.contacts)) {
+    for (const c of msg.contacts) {
+      if (c && c.contact_id !== undefined && c.contact_id !== null) {
+        ringAdd(ringFor(`${s.name}#${c.contact_id}`), withEnvelope(msg, c));
+      }
+    }
+  }
+}
+
+// -- layout: one px-per-mm scale for every array -----------------------------------------------
 function geometry(s) {
   const f = s.frame, i = s.info;
   return {
     rows: i ? i.rows : (f ? f.rows : 8), cols: i ? i.cols : (f ? f.cols : 8),
-    dx: i ? i.dx_mm : 3.3, dy: i ? i.dy_mm : 3.9,
+    dx: i ? (i.pitch_x_mm ?? i.dx_mm) : 3.3, dy: i ? (i.pitch_y_mm ?? i.dy_mm) : 3.9,
   };
+}
+
+function layout() {
+  const list = [...state.sensors.values()];
+  if (!list.length) return;
+  const main = $("#sensors"), cs = getComputedStyle(main);
+  const W = main.clientWidth - parseFloat(cs.paddingLeft) - parseFloat(cs.paddingRight);
+  const panel = $("#follow-panel");
+  const below = panel.offsetHeight + parseFloat(getComputedStyle(panel).marginBottom);
+  const H = window.innerHeight - $("header").offsetHeight - parseFloat(cs.paddingTop) -
+            parseFloat(cs.paddingBottom) - below;
+  const first = list[0];
+  const chromeH = first.el.offsetHeight > first.canvas.height ?
+    first.el.offsetHeight - first.canvas.height : TILE_CHROME_H;
+  const dims = list.map((s) => { const g = geometry(s); return [g.rows * g.dx, g.cols * g.dy]; });
+  const fits = (k) => {  // the tiles, packed into lines left to right, fit W x H at k
+    let lineW = 0, lineH = 0, total = 0;
+    for (const [w, h] of dims) {
+      const tw = Math.max(Math.round(w * k) + 2 * MAP_PAD + TILE_CHROME_W, TILE_MIN_W);
+      const th = Math.round(h * k) + 2 * MAP_PAD + chromeH;
+      if (tw > W) return false;
+      if (lineW && lineW + GAP + tw > W) { total += lineH + GAP; lineW = 0; lineH = 0; }
+      lineW += (lineW ? GAP : 0) + tw;
+      lineH = Math.max(lineH, th);
+    }
+    return total + lineH <= H;
+  };
+  let lo = K_MIN, hi = K_MAX;
+  if (fits(hi)) lo = hi;
+  else for (let i = 0; i < 24; i++) { const mid = (lo + hi) / 2; if (fits(mid)) lo = mid; else hi = mid; }
+  state.k = Math.floor(lo * 20) / 20;
+  for (const s of list) sizeMap(s);
+}
+
+function sizeMap(s) {
+  const g = geometry(s), k = state.k;
+  const aw = Math.round(g.rows * g.dx * k), ah = Math.round(g.cols * g.dy * k);
+  const w = aw + 2 * MAP_PAD, h = ah + 2 * MAP_PAD;
+  for (const c of [s.canvas, s.overlay]) {
+    if (c.width !== w) c.width = w;
+    if (c.height !== h) c.height = h;
+  }
+  s.el.style.width = `${Math.max(w + TILE_CHROME_W, TILE_MIN_W)}px`;
+  // what the page drew, for anyone measuring it: the grid and the array's box in canvas px
+  Object.assign(s.el.dataset, {rows: g.rows, cols: g.cols, pitchXMm: g.dx, pitchYMm: g.dy,
+                               pxPerMm: k});
+  s.canvas.dataset.array = JSON.stringify([MAP_PAD, MAP_PAD, aw, ah]);
+  s.canvas.dataset.grid = GRID;
+  s.dirty = true;
+}
+
+// -- drawing ---------------------------------------------------------------------------------
+// x (along the array's rows index) to the right, y (its columns index) upward, the origin at
+// the centre of tactel [0, 0]; one scale (px/mm) for both axes and every array, so shapes,
+// angles and sizes compare across sensors.
+function mapFrame(s) {
+  const g = geometry(s), k = state.k, c = s.canvas;
+  const X = (x) => MAP_PAD + (x + g.dx / 2) * k;
+  const Y = (y) => c.height - MAP_PAD - (y + g.dy / 2) * k;
+  return {g, k, X, Y, w: g.rows * g.dx, h: g.cols * g.dy};
 }
 
 function drawMap(s) {
   const c = s.canvas, ctx = c.getContext("2d");
-  const g = geometry(s);
-  // x (along the finger, rows) to the right, y (around it, columns) upward; one scale (px/mm)
-  // for both, so the ellipse keeps its shape and angle.
-  const pad = 24, w = g.rows * g.dx, h = g.cols * g.dy;
-  const height = Math.round(2 * pad + (c.width - 2 * pad) * h / w);  // the array's aspect
-  if (c.height !== height) c.height = height;
-  const k = (c.width - 2 * pad) / w;
-  const X = (x) => pad + (x + g.dx / 2) * k;
-  const Y = (y) => c.height - pad - (y + g.dy / 2) * k;
+  const {g, X, Y} = mapFrame(s);
   ctx.fillStyle = "#000";
   ctx.fillRect(0, 0, c.width, c.height);
-  const strain = s.frame ? s.frame.strain : null;
+  const strain = s.frame && s.frame.rows === g.rows && s.frame.cols === g.cols ? s.frame.strain : null;
   let peak = 0;
   if (strain) for (const row of strain) for (const v of row) peak = Math.max(peak, v);
   // Scale rises at once and decays slowly: no flicker as the contact fades.
   s.scale = Math.max(MIN_SCALE, peak, 0.97 * s.scale);
+  ctx.fillStyle = GRID;
+  ctx.fillRect(MAP_PAD, MAP_PAD, c.width - 2 * MAP_PAD, c.height - 2 * MAP_PAD);
   for (let m = 0; m < g.rows; m++) {
+    const x0 = Math.round(X((m - 0.5) * g.dx)) + 1, x1 = Math.round(X((m + 0.5) * g.dx)) - 1;
     for (let n = 0; n < g.cols; n++) {
-      const v = strain ? strain[m][n] : 0;
-      ctx.fillStyle = colour(v / s.scale);
-      ctx.fillRect(X(m * g.dx - g.dx / 2) + 1, Y(n * g.dy + g.dy / 2) + 1, g.dx * k - 2,
-                   g.dy * k - 2);
+      const y0 = Math.round(Y((n + 0.5) * g.dy)) + 1, y1 = Math.round(Y((n - 0.5) * g.dy)) - 1;
+      ctx.fillStyle = colour((strain ? strain[m][n] : 0) / s.scale);
+      ctx.fillRect(x0, y0, Math.max(1, x1 - x0), Math.max(1, y1 - y0));
     }
   }
   ctx.fillStyle = "#8b949e";
-  ctx.font = "11px sans-serif";
-  ctx.fillText("x →", c.width - pad - 22, c.height - 6);
-  ctx.fillText("y ↑", 4, pad - 8);
-  ctx.fillText(`scale ${(s.scale * 100).toFixed(2)} % strain`, pad, 14);
-  const e = s.est;
-  if (!e || !e.contact || e.x_mm === null || e.y_mm === null) return;
-  const cx = X(e.x_mm), cy = Y(e.y_mm);
-  ctx.save();
-  ctx.translate(cx, cy);
-  if (e.ellipse) {
-    ctx.save();
-    ctx.rotate(-e.ellipse.theta_deg * Math.PI / 180);  // y is up on screen
-    ctx.beginPath();
-    ctx.ellipse(0, 0, e.ellipse.a_mm * k, e.ellipse.b_mm * k, 0, 0, 2 * Math.PI);
-    ctx.strokeStyle = "#39d353";
-    ctx.lineWidth = 2;
-    ctx.stroke();
-    ctx.restore();
-  }
-  if (e.line && e.angle_deg !== null && e.angle_deg !== undefined) {
-    // A line contact (a cylinder on a flat array): the line, across the whole array.
-    const len = Math.hypot(w, h) * k, t = -e.angle_deg * Math.PI / 180;
-    ctx.beginPath();
-    ctx.moveTo(-len * Math.cos(t), -len * Math.sin(t));
-    ctx.lineTo(len * Math.cos(t), len * Math.sin(t));
-    ctx.strokeStyle = "#39d353";
-    ctx.lineWidth = 3;
-    ctx.stroke();
-  }
-  if (e.angle_deg !== null && e.angle_deg !== undefined) {
-    // The curvature axis: the R2 direction (a cylinder's axis).
-    const len = Math.max(e.ellipse ? e.ellipse.a_mm * 1.6 : 0, 6) * k;
-    const t = -e.angle_deg * Math.PI / 180;
-    ctx.beginPath();
-    ctx.moveTo(-len * Math.cos(t), -len * Math.sin(t));
-    ctx.lineTo(len * Math.cos(t), len * Math.sin(t));
-    ctx.setLineDash([6, 4]);
-    ctx.strokeStyle = "#58a6ff";
-    ctx.lineWidth = 2;
-    ctx.stroke();
-  }
-  ctx.setLineDash([]);
-  ctx.fillStyle = "#fff";
-  ctx.beginPath();
-  ctx.arc(0, 0, 3, 0, 2 * Math.PI);
-  ctx.fill();
-  ctx.restore();
+  ctx.font = "10px sans-serif";
+  ctx.fillText("x →", c.width - MAP_PAD - 18, c.height - 2);
+  ctx.fillText("y ↑", 1, MAP_PAD - 2);
 }
 
-function drawReadouts(s) {
-  const e = s.est, el = s.el;
+// Each contact's ellipse (green) or line, its curvature axis (dashed blue), centre and id; the
+// followed one ringed in white.  What was drawn is kept (s.drawn, and data-contacts on the
+// overlay: canvas px) for clicks and for anyone measuring the page.
+function drawContacts(s, target) {
+  const c = s.overlay, ctx = c.getContext("2d");
+  const {k, X, Y, w, h} = mapFrame(s);
+  ctx.clearRect(0, 0, c.width, c.height);
+  s.drawn = [];
+  for (const e of contactsOf(s.est)) {
+    if (e.x_mm === null || e.x_mm === undefined || e.y_mm === null || e.y_mm === undefined) continue;
+    const id = e.contact_id === undefined ? null : e.contact_id;
+    const followed = target && target.sensor === s.name && target.mode === "contact" && target.id === id;
+    const cx = X(e.x_mm), cy = Y(e.y_mm);
+    const ell = e.ellipse || null;
+    ctx.save();
+    ctx.translate(cx, cy);
+    if (ell) {
+      ctx.save();
+      ctx.rotate(-ell.theta_deg * Math.PI / 180);  // y is up on screen
+      ctx.beginPath();
+      ctx.ellipse(0, 0, ell.a_mm * k, ell.b_mm * k, 0, 0, 2 * Math.PI);
+      if (followed) { ctx.strokeStyle = "#fff"; ctx.lineWidth = 5; ctx.stroke(); }
+      ctx.strokeStyle = "#39d353";
+      ctx.lineWidth = 2;
+      ctx.stroke();
+      ctx.restore();
+    }
+    const angle = e.angle_deg === null || e.angle_deg === undefined ? null : -e.angle_deg * Math.PI / 180;
+    const segment = (len) => {
+      ctx.beginPath();
+      ctx.moveTo(-len * Math.cos(angle), -len * Math.sin(angle));
+      ctx.lineTo(len * Math.cos(angle), len * Math.sin(angle));
+    };
+    if (e.line && angle !== null) {
+      // A line contact (a cylinder on a flat array): the line, across the whole array.
+      ctx.save();
+      ctx.beginPath();
+      ctx.rect(MAP_PAD - cx, MAP_PAD - cy, w * k, h * k);
+      ctx.clip();
+      segment(Math.hypot(w, h) * k);
+      if (followed) { ctx.strokeStyle = "#fff"; ctx.lineWidth = 6; ctx.stroke(); }
+      ctx.strokeStyle = "#39d353";
+      ctx.lineWidth = 3;
+      ctx.stroke();
+      ctx.restore();
+    }
+    if (angle !== null) {
+      // The curvature axis: the R2 direction (a cylinder's axis).
+      segment(Math.max(ell ? ell.a_mm * 1.6 : 0, 6) * k);
+      ctx.setLineDash([6, 4]);
+      ctx.strokeStyle = "#58a6ff";
+      ctx.lineWidth = 2;
+      ctx.stroke();
+      ctx.setLineDash([]);
+    }
+    ctx.fillStyle = "#fff";
+    ctx.beginPath();
+    ctx.arc(0, 0, 3, 0, 2 * Math.PI);
+    ctx.fill();
+    if (id !== null) {
+      const r = ell ? Math.min(ell.b_mm * k, 18) : 4;
+      ctx.font = "bold 12px sans-serif";
+      ctx.lineWidth = 3;
+      ctx.strokeStyle = "#000";
+      ctx.strokeText(String(id), r * 0.7 + 3, -r * 0.7 - 3);
+      ctx.fillStyle = "#fff";
+      ctx.fillText(String(id), r * 0.7 + 3, -r * 0.7 - 3);
+    }
+    ctx.restore();
+    s.drawn.push({id, x: +cx.toFixed(1), y: +cy.toFixed(1),
+                  a: ell ? +(ell.a_mm * k).toFixed(1) : null,
+                  b: ell ? +(ell.b_mm * k).toFixed(1) : null,
+                  theta_deg: ell ? ell.theta_deg : null, line: !!e.line});
+  }
+  c.dataset.contacts = JSON.stringify(s.drawn);
+}
+
+function drawReadouts(root, e) {
   if (!e) return;
   const std = e.std || {};
-  const set = (k, text) => { const td = $(`[data-k="${k}"]`, el); if (td) td.textContent = text; };
-  set("contact", e.contact ? "yes" : "no");
+  const sd = (k) => std[k] ?? e[k + "_std"];
+  const set = (k, text) => { const td = $(`[data-k="${k}"]`, root); if (td) td.textContent = text; };
+  const n = contactsOf(e).length;
+  set("contact", !e.contact ? "no" : Array.isArray(e.contacts) && n > 1 ? `${n} contacts` : "yes");
   set("model", e.model || "—");
-  set("r1_mm", fmt(e.r1_mm, std.r1_mm, "mm", 2));
-  set("r2_mm", e.contact && e.r2_mm === null && e.model ? "∞" : fmt(e.r2_mm, std.r2_mm, "mm", 2));
-  set("angle_deg", fmt(e.angle_deg, std.angle_deg, "°", 1));
+  set("r1_mm", fmt(e.r1_mm, sd("r1_mm"), "mm", 2));
+  set("r2_mm", e.contact && e.r2_mm === null && e.model ? "∞" : fmt(e.r2_mm, sd("r2_mm"), "mm", 2));
+  set("angle_deg", fmt(e.angle_deg, sd("angle_deg"), "°", 1));
   // a line contact has no total force: its load per length stands in the force's cell
   set("force_n", e.line && e.force_n === null
       ? `line: ${fmt(e.line.load_n_per_mm, e.line.load_n_per_mm_std, "N/mm", 4)}`
-      : fmt(e.force_n, std.force_n, "N", 3));
-  set("x_mm", fmt(e.x_mm, std.x_mm, "mm", 2));
-  set("y_mm", fmt(e.y_mm, std.y_mm, "mm", 2));
+      : fmt(e.force_n, sd("force_n"), "N", 3));
+  set("x_mm", fmt(e.x_mm, sd("x_mm"), "mm", 2));
+  set("y_mm", fmt(e.y_mm, sd("y_mm"), "mm", 2));
   set("ellipse", e.ellipse ? `${e.ellipse.a_mm.toFixed(2)} × ${e.ellipse.b_mm.toFixed(2)} mm @ ` +
                              `${e.ellipse.theta_deg.toFixed(0)}°` : "—");
   set("frames_used", e.frames_used === undefined ? "—" : String(e.frames_used));
   set("velocity", e.vx_mm_s === null || e.vx_mm_s === undefined ? "—" :
       `${e.vx_mm_s.toFixed(2)}, ${e.vy_mm_s.toFixed(2)} ± ` +
-      `${Math.hypot(std.vx_mm_s || 0, std.vy_mm_s || 0).toFixed(2)} mm/s`);
-  set("angle_rate_deg_s", fmt(e.angle_rate_deg_s, std.angle_rate_deg_s, "°/s", 1));
-  set("force_rate_n_s", fmt(e.force_rate_n_s, std.force_rate_n_s, "N/s", 3));
+      `${Math.hypot(sd("vx_mm_s") || 0, sd("vy_mm_s") || 0).toFixed(2)} mm/s`);
+  set("angle_rate_deg_s", fmt(e.angle_rate_deg_s, sd("angle_rate_deg_s"), "°/s", 1));
+  set("force_rate_n_s", fmt(e.force_rate_n_s, sd("force_rate_n_s"), "N/s", 3));
   set("gate", e.gate);
   set("seq", String(e.seq));
   set("latency_ms", fmt(e.latency_ms, null, "ms", 2));
   set("peak", e.peak === null || e.peak === undefined ? "—" : (e.peak * 100).toFixed(3) + " %");
-  $(".model-label", el).textContent = e.label ? `(${e.label})` : "";
+  const label = $(".model-label", root);
+  if (label) label.textContent = e.label ? `(${e.label})` : "";
+}
+
+// -- following one contact -------------------------------------------------------------------
+function clickSensor(s, ev) {
+  let id = null;
+  if (ev.target === s.overlay) {
+    const r = s.overlay.getBoundingClientRect();
+    const x = (ev.clientX - r.left) * s.overlay.width / r.width;
+    const y = (ev.clientY - r.top) * s.overlay.height / r.height;
+    let best = Infinity;
+    for (const d of s.drawn) {  // the nearest contact whose ellipse (or 14 px) holds the click
+      const dist = Math.hypot(x - d.x, y - d.y);
+      if (d.id !== null && dist <= Math.max(14, d.a || 0) && dist < best) { best = dist; id = d.id; }
+    }
+  }
+  followThis(id === null ? {mode: "sensor", sensor: s.name, id: null}
+                         : {mode: "contact", sensor: s.name, id});
+}
+
+function followThis(f) {
+  state.follow = f;
+  state.note = "";
+  if (f.mode === "auto") state.auto = null;
+}
+
+// What the panel shows now: {mode, sensor, id, ring, est, src}.  A followed contact that is no
+// longer listed has ended: the panel goes back to the strongest and says so.
+function resolveTarget(now) {
+  const f = state.follow;
+  if (f.mode === "contact") {
+    const s = state.sensors.get(f.sensor);
+    const c = s ? contactsOf(s.est).find((x) => x.contact_id === f.id) : undefined;
+    if (c) return {mode: "contact", sensor: s.name, id: f.id, ring: `${s.name}#${f.id}`,
+                   est: withEnvelope(s.est, c), src: s.est};
+    state.note = `contact ${f.id} on ${f.sensor} ended`;
+    state.noteUntil = now + 5000;
+    state.follow = {mode: "auto", sensor: null, id: null};
+    state.auto = null;
+  } else if (f.mode === "sensor") {
+    const s = state.sensors.get(f.sensor);
+    if (s) return {mode: "sensor", sensor: s.name, id: topId(s.est), ring: s.name, est: s.est,
+                   src: s.est};
+  }
+  state.auto = strongest();
+  const s = state.auto === null ? null : state.sensors.get(state.auto);
+  return {mode: "auto", sensor: state.auto, id: s ? topId(s.est) : null, ring: state.auto,
+          est: s ? s.est : null, src: s ? s.est : null};
+}
+
+// The sensor whose strongest contact has the largest force; the one followed so far unless
+// another is SWITCH times stronger (no flapping between two equal presses); with no contact
+// anywhere, the one followed so far (or the first).
+function strongest() {
+  let best = null;
+  for (const s of state.sensors.values()) {
+    if (s.est && s.est.contact && (!best || forceOf(s.est) > forceOf(best.est))) best = s;
+  }
+  const cur = state.auto === null ? null : state.sensors.get(state.auto);
+  if (cur && cur.est && cur.est.contact && best !== cur &&
+      forceOf(best.est) < SWITCH * forceOf(cur.est)) return cur.name;
+  if (best) return best.name;
+  if (cur) return cur.name;
+  return state.sensors.size ? state.sensors.keys().next().value : null;
+}
+
+function showTarget(t, now) {
+  const panel = $("#follow-panel");
+  const key = `${t.mode}|${t.sensor}|${t.id}`;
+  if (key !== state.shown.key) {
+    const was = state.shown.key ? state.shown.key.split("|")[1] : null;
+    for (const name of [was, t.sensor]) { const s = name && state.sensors.get(name); if (s) s.dirty = true; }
+    for (const s of state.sensors.values()) s.el.classList.toggle("followed", s.name === t.sensor);
+    panel.dataset.mode = t.mode;
+    panel.dataset.sensor = t.sensor || "";
+    panel.dataset.contactId = t.id === null || t.id === undefined ? "" : String(t.id);
+    state.strip.drawn = 0;  // redraw now, from the new ring
+    state.shown.key = key;
+    state.shown.src = null;
+  }
+  const who = t.sensor === null ? "no sensor" :
+    t.id === null || t.id === undefined ? t.sensor : `${t.sensor} · contact ${t.id}`;
+  const why = t.mode === "contact" ? "clicked contact" : t.mode === "sensor" ? "clicked sensor" :
+    t.est && t.est.contact ? "the strongest contact" : "the strongest contact: none now";
+  const note = state.note && now < state.noteUntil ? ` · ${state.note}` : "";
+  const label = `${who} (${why})${note}`;
+  if (label !== state.shown.label) { $("#follow").textContent = label; state.shown.label = label; }
+  if (t.src !== state.shown.src) {
+    state.shown.src = t.src;
+    if (t.est) drawReadouts(panel, t.est);
+  }
+}
+
+// -- strip-chart rings: one per sensor (its strongest contact) and one per listed contact ----
+function newRing() { return {buf: new Array(STRIP_CAP), start: 0, len: 0, last: 0}; }
+
+function ringFor(key) {
+  let ring = state.rings.get(key);
+  if (ring) return ring;
+  ring = newRing();
+  ring.last = performance.now();
+  state.rings.set(key, ring);
+  if (key.includes("#")) {  // a contact's: keep at most CONTACT_RINGS, the latest updated
+    const contacts = [...state.rings.entries()].filter(([k]) => k.includes("#"));
+    if (contacts.length > CONTACT_RINGS) {
+      contacts.sort((a, b) => a[1].last - b[1].last);
+      for (const [k] of contacts.slice(0, contacts.length - CONTACT_RINGS)) state.rings.delete(k);
+    }
+  }
+  return ring;
 }
 
 // -- strip chart: the last STRIP_S seconds of force, R1 and angle --------------------------
-// One sample per estimate received (time = when it arrived here), kept in a fixed ring.  Each
-// lane draws the value as a line over its 1-sigma band; a null value (withheld, or no contact)
-// breaks the line, and a withheld one is marked under the lane; hovering shows the value with
-// its sigma, or why it is missing (the estimate's `reasons` entry).
+// One sample per estimate (or listed contact) received (time = when it arrived here), kept in
+// a fixed ring.  Each lane draws the value as a line over its 1-sigma band; a null value
+// (withheld, or no contact) breaks the line, and a withheld one is marked under the lane;
+// hovering shows the value with its sigma, or why it is missing (the estimate's `reasons`).
 const LANES = [
   {key: "force_n", label: "force", unit: "N", digits: 3, span: 0.5, colour: "#39d353"},
   {key: "r1_mm", label: "R1", unit: "mm", digits: 2, span: 5, colour: "#58a6ff"},
@@ -258,8 +522,7 @@ function stripLanes(c) {
 }
 
 function newStrip(canvas, tip) {
-  const strip = {canvas, tip, buf: new Array(STRIP_CAP), start: 0, len: 0, drawn: 0,
-                 mouse: null};
+  const strip = {canvas, tip, drawn: 0, mouse: null};
   canvas.dataset.lanes = JSON.stringify(stripLanes(canvas));
   canvas.addEventListener("mousemove", (ev) => {
     const r = canvas.getBoundingClientRect();
@@ -273,9 +536,9 @@ function newStrip(canvas, tip) {
   return strip;
 }
 
-function stripAt(strip, i) { return strip.buf[(strip.start + i) % STRIP_CAP]; }
+function stripAt(ring, i) { return ring.buf[(ring.start + i) % STRIP_CAP]; }
 
-function stripAdd(strip, e) {
+function ringAdd(ring, e) {
   const sample = {t: performance.now(), seq: e.seq, gate: e.gate, contact: !!e.contact,
                   v: [], sd: [], why: []};
   const std = e.std || {}, reasons = e.reasons || {};
@@ -286,20 +549,21 @@ function stripAdd(strip, e) {
     sample.why.push(v !== null && v !== undefined ? (reasons[lane.key] || null) :
       !e.contact ? "no contact" : (reasons[lane.key] || "not estimated"));
   }
-  if (strip.len < STRIP_CAP) {
-    strip.buf[(strip.start + strip.len) % STRIP_CAP] = sample;
-    strip.len++;
+  ring.last = sample.t;
+  if (ring.len < STRIP_CAP) {
+    ring.buf[(ring.start + ring.len) % STRIP_CAP] = sample;
+    ring.len++;
   } else {  // full: the oldest sample makes room
-    strip.buf[strip.start] = sample;
-    strip.start = (strip.start + 1) % STRIP_CAP;
+    ring.buf[ring.start] = sample;
+    ring.start = (ring.start + 1) % STRIP_CAP;
   }
 }
 
-function laneRange(strip, k, lane, from) {
+function laneRange(ring, k, lane, from) {
   if (lane.fixed) return lane.fixed;
   const tops = [];
-  for (let i = 0; i < strip.len; i++) {
-    const p = stripAt(strip, i);
+  for (let i = 0; i < ring.len; i++) {
+    const p = stripAt(ring, i);
     if (p.t >= from && p.v[k] !== null) tops.push(p.v[k] + (p.sd[k] || 0));
   }
   // The scale follows most of the window, not its extremes: one wild radius (or a band far
@@ -322,13 +586,14 @@ function fmtSample(lane, k, p) {
   return p.why[k] ? `${text} · ${p.why[k]}` : text;
 }
 
-function drawStrip(strip, now) {
+function drawStrip(strip, ring, now) {
   const c = strip.canvas, ctx = c.getContext("2d");
+  c.dataset.follows = state.shown.key || "";
   const P = STRIP_PAD, from = now - STRIP_S * 1000;
-  while (strip.len && stripAt(strip, 0).t < from - 1000) {  // forget what scrolled off
-    strip.buf[strip.start] = undefined;
-    strip.start = (strip.start + 1) % STRIP_CAP;
-    strip.len--;
+  while (ring.len && stripAt(ring, 0).t < from - 1000) {  // forget what scrolled off
+    ring.buf[ring.start] = undefined;
+    ring.start = (ring.start + 1) % STRIP_CAP;
+    ring.len--;
   }
   const w = c.width - P.left - P.right;
   const lanes = stripLanes(c);
@@ -349,15 +614,15 @@ function drawStrip(strip, now) {
   let hover = null;
   LANES.forEach((lane, k) => {
     const [top, bottom] = lanes[k], laneH = bottom - top;
-    const [lo, hi] = laneRange(strip, k, lane, from);
+    const [lo, hi] = laneRange(ring, k, lane, from);
     const Y = (v) => bottom - (Math.min(Math.max(v, lo), hi) - lo) / (hi - lo) * laneH;
     ctx.strokeStyle = "#2a333c";
     ctx.strokeRect(P.left + 0.5, top + 0.5, w, laneH);
     // runs of consecutive samples with a value: a line, and a band where sigma is known
     const runs = [];
     let run = [];
-    for (let i = 0; i < strip.len; i++) {
-      const p = stripAt(strip, i);
+    for (let i = 0; i < ring.len; i++) {
+      const p = stripAt(ring, i);
       if (p.t < from) continue;
       const prev = run.length ? run[run.length - 1] : null;
       const jump = lane.fold && prev && Math.abs(p.v[k] - prev.v[k]) > lane.fold / 2;
@@ -397,7 +662,7 @@ function drawStrip(strip, now) {
       if (r.length === 1) { ctx.fillStyle = lane.colour; ctx.fillRect(X(r[0].t) - 1.5, Y(r[0].v[k]) - 1.5, 3, 3); }
     }
     // labels: name and unit, scale, the latest value
-    const last = strip.len ? stripAt(strip, strip.len - 1) : null;
+    const last = ring.len ? stripAt(ring, ring.len - 1) : null;
     ctx.fillStyle = lane.colour;
     ctx.font = "bold 12px sans-serif";
     ctx.fillText(`${lane.label} (${lane.unit})`, 6, top + 14);
@@ -409,13 +674,13 @@ function drawStrip(strip, now) {
     ctx.fillText(String(+hi.toPrecision(3)), P.left - 30, top + 10);
     ctx.fillText(String(lo), P.left - 30, bottom - 1);
     const m = strip.mouse;
-    if (m && m.y >= top && m.y <= bottom && m.x >= P.left && strip.len) {
+    if (m && m.y >= top && m.y <= bottom && m.x >= P.left && ring.len) {
       // the sample nearest the pointer in time (samples are in time order: bisect)
       const t = from + (m.x - P.left) / w * STRIP_S * 1000;
-      let a = 0, b = strip.len - 1;
-      while (a < b) { const mid = (a + b) >> 1; if (stripAt(strip, mid).t < t) a = mid + 1; else b = mid; }
-      let best = stripAt(strip, a);
-      if (a > 0 && Math.abs(stripAt(strip, a - 1).t - t) < Math.abs(best.t - t)) best = stripAt(strip, a - 1);
+      let a = 0, b = ring.len - 1;
+      while (a < b) { const mid = (a + b) >> 1; if (stripAt(ring, mid).t < t) a = mid + 1; else b = mid; }
+      let best = stripAt(ring, a);
+      if (a > 0 && Math.abs(stripAt(ring, a - 1).t - t) < Math.abs(best.t - t)) best = stripAt(ring, a - 1);
       if (best.t >= from && Math.abs(X(best.t) - m.x) <= 12) hover = {lane, k, p: best, top, bottom};
     }
   });
@@ -435,17 +700,21 @@ function drawStrip(strip, now) {
 }
 
 function render(now) {
+  const t = resolveTarget(now);
+  showTarget(t, now);
+  const st = state.strip, ring = (t.ring !== null && state.rings.get(t.ring)) || EMPTY_RING;
+  // the strip scrolls, so it is redrawn while it shows anything (or is hovered), ~30 Hz
+  if ((ring.len || st.mouse || !st.drawn) && now - st.drawn >= STRIP_MIN_DT) {
+    st.drawn = now;
+    drawStrip(st, ring, performance.now());
+  }
   for (const s of state.sensors.values()) {
-    const st = s.strip;
-    // the strip scrolls, so it is redrawn while it shows anything (or is hovered), ~30 Hz
-    if ((st.len || st.mouse || !st.drawn) && now - st.drawn >= STRIP_MIN_DT) {
-      st.drawn = now;
-      drawStrip(st, performance.now());
-    }
     if (!s.dirty) continue;
     s.dirty = false;
     drawMap(s);
-    drawReadouts(s);
+    drawContacts(s, t);
+    drawReadouts(s.el, s.est);
+    $('[data-k="scale"]', s.el).textContent = `${(s.scale * 100).toFixed(2)} % strain`;
   }
   requestAnimationFrame(render);
 }
@@ -490,6 +759,10 @@ async function pollHealth() {
   setTimeout(pollHealth, HEALTH_PERIOD);
 }
 
+const EMPTY_RING = newRing();
+state.strip = newStrip($("#follow-panel canvas.strip"), $("#follow-panel .strip-tip"));
+$("#follow-auto").addEventListener("click", () => followThis({mode: "auto", sensor: null, id: null}));
+window.addEventListener("resize", layout);
 loadSensors();
 connect();
 pollHealth();

@@ -1,0 +1,398 @@
+"""Several contacts on one array: each pressed region fitted, the neighbours' strain accounted for.
+
+The physics is linear in the pressure, so the strain of several contacts is the sum of their
+strains.  :func:`fit_contacts` finds the frame's separate regions
+(:func:`tactiled.fit.regions.find_regions`); a frame of one region is fitted exactly as a
+single contact (:meth:`Fitter.fit`, the same result bit for bit).  With several, each contact is
+fitted on the frame less its neighbours' predicted strain (block coordinate descent on the
+joint least-squares problem: ``SWEEPS`` passes, each contact refitted from where the last pass
+left it), with the neighbours' cores left out of its window while their own fits are rough.
+When every contact was there in the last frame (``warm``), their last fits predict the
+neighbours' strain from the start and one pass does.
+
+Each contact's sigmas are those of the joint model: the fitter's own (its window, its
+model-error floor) times the ratio of the joint Cramer-Rao bound, where the neighbours'
+parameters are unknown too, to the bound with them known, both on the union of the contacts'
+windows (:func:`joint_bounds`).  Far apart the ratio is 1; contacts whose strains overlap share
+information and each one's sigmas widen accordingly.  No I/O.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from tactiled.fit.models import get_model
+from tactiled.fit.params import VALUE_KEYS
+from tactiled.fit.regions import Region, find_regions
+from tactiled.fit.result import FitResult
+from tactiled.fit.warm import SEVERAL, nearest_start
+from tactiled.physics.contact import LineContact
+
+#: Passes over the contacts (the first fits each from cold, the second from the first).
+SWEEPS = 2
+#: In the passes after the first, a neighbour's tactels above this share of its peak stay out
+#: of a contact's window (where its model's error would dominate the other's strain).
+CORE_SHARE = 0.5
+#: What a result says when it is one of several.
+SEVERAL_REASON = "one of {n} contacts on this array: fitted with its neighbours' strain removed"
+MERGED_REASON = ("another pressed place within the cover's spread of this one: two contacts too "
+                 "close to tell apart are reported as one")
+
+
+def _point_contact(model: str, params: tuple[float, ...]) -> tuple[float, ...] | None:
+    """``(kappa_a, kappa_b, psi, F, x0, y0)`` of a point contact's internal parameters."""
+    try:
+        phys, _ = get_model(model).physical(np.asarray(params, dtype=float))
+    except (ValueError, KeyError):
+        return None
+    return tuple(float(v) for v in phys)
+
+
+def predicted_strain(fitter: Any, res: FitResult) -> np.ndarray | None:
+    """The strain ``res`` predicts on the whole array, as the fits read frames (after the
+    flat field), or None when it predicts nothing (no contact, a withheld place)."""
+    if not res.contact or res.params is None or res.model is None:
+        return None
+    m = fitter.model
+    if res.line is not None or (fitter.sensor.geometry.flat and res.model == "cylinder"):
+        v, line = res.values, res.line or {}
+        if v.get("x_mm") is None or v.get("y_mm") is None or not line.get("load_n_per_mm"):
+            return None
+        p = res.params
+        contact = LineContact(math.exp(p[0]), math.degrees(p[1]), float(line["load_n_per_mm"]),
+                              float(v["x_mm"]), float(v["y_mm"]))
+        return m.predict(contact, m.xs_full, m.ys_full)
+    return _point_strain(fitter, res.model, res.params)
+
+
+def _point_strain(fitter: Any, model: str, params: tuple[float, ...]) -> np.ndarray | None:
+    """The strain on the whole array of a point contact's internal parameters (None: not a
+    point contact, or no valid contact)."""
+    phys = _point_contact(model, params)
+    if phys is None:
+        return None
+    ka, kb, psi, force, x0, y0 = phys
+    m = fitter.model
+    try:
+        ell, _ = m.ellipse(ka, kb, psi, force)
+    except ValueError:
+        return None
+    return m.strain_from_ellipse(ell, force, x0, y0, m.xs_full, m.ys_full)
+
+
+def _raw(fitter: Any, flat_strain: np.ndarray) -> np.ndarray:
+    """A strain as the fits read it, back to the frame's own scale (the flat field's gains)."""
+    f = fitter.flat
+    return flat_strain / f.inverse_gain if f is not None and f.active else flat_strain
+
+
+def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
+                 mask: np.ndarray | None = None, warm: tuple[str, tuple[float, ...]] | None = None,
+                 budget_s: float | None = None) -> list[FitResult]:
+    """Every contact of a zeroed strain frame, highest peak first (see the module's doc).
+
+    One region (or none): ``[fitter.fit(strain, model, mask=mask, warm=warm,
+    budget_s=budget_s)]``, labelled ``merged`` when the region holds a second maximum the
+    cover merged with the first.  Several: one FitResult each, every one carrying
+    ``reasons["contacts"]``; ``budget_s`` bounds them all together.
+    """
+    regions = find_regions(fitter.flattened(strain), fitter.sigma, mask)
+    starts = [_start_for(fitter, reg, warm) for reg in regions]
+    if len(regions) <= 1:
+        if warm is not None and warm[0] == SEVERAL:  # the others lifted: this one's start
+            warm = starts[0] if starts else None
+        res = fitter.fit(strain, model, mask=mask, warm=warm, budget_s=budget_s)
+        if regions and regions[0].absorbed and res.contact:
+            res.label = "merged"
+            res.reasons["contacts"] = MERGED_REASON
+        return [res]
+    return _fit_several(fitter, np.asarray(strain, dtype=float), model, mask, regions, budget_s,
+                        starts)
+
+
+def _start_for(fitter: Any, region: Region, warm: Any) -> tuple[str, tuple[float, ...]] | None:
+    """The warm start of the last frame's contact at ``region``'s peak, if any: ``warm`` is
+    one contact's ``(model, params)`` or several's ``(SEVERAL, (...))``."""
+    if warm is None or not warm[1]:
+        return None
+    warms = warm[1] if warm[0] == SEVERAL else (warm,)
+    m, n = region.peak_idx
+    imp = fitter.sensor.impulse
+    return nearest_start(tuple(warms), float(fitter.model.xs_full[m]), float(fitter.model.ys_full[n]),
+                         max(imp.depth_x, imp.depth_y))
+
+
+def warm_of(results: list[FitResult]) -> tuple[str, Any] | None:
+    """What the next frame's fit starts from: one contact's ``(model, params)`` when it
+    converged, several's ``(SEVERAL, ((model, params), ...))``."""
+    if len(results) == 1:
+        r = results[0]
+        return (r.model, r.params) if r.converged and r.params is not None and r.model else None
+    each = tuple((r.model, r.params) for r in results if r.contact and r.params is not None and r.model)
+    return (SEVERAL, each) if each else None
+
+
+def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray | None,
+                 regions: list[Region], budget_s: float | None,
+                 starts: list[tuple[str, tuple[float, ...]] | None]) -> list[FitResult]:
+    t0 = time.perf_counter()
+    k = len(regions)
+    usable = np.ones(strain.shape, bool) if mask is None else np.asarray(mask, dtype=bool)
+    preds: list[np.ndarray | None] = [None] * k
+    results: list[FitResult | None] = [None] * k
+    # every contact held since the last frame: its neighbours' strain is known from their
+    # last fits at once, and one pass does what the cold start's two do
+    if all(st is not None for st in starts):
+        preds = [_point_strain(fitter, *st) for st in starts]  # type: ignore[misc]
+    warm_all = all(p is not None for p in preds)
+    sweeps = 1 if warm_all else SWEEPS
+    frozen = fitter.frozen
+    fitter.frozen = True  # a frame less a model is no evidence of the tactels' gains
+    try:
+        for sweep in range(sweeps):
+            for i, reg in enumerate(regions):
+                others = [j for j in range(k) if j != i]
+                residual = strain.copy()
+                m = usable.copy()
+                for j in others:
+                    if preds[j] is not None:
+                        residual -= _raw(fitter, preds[j])
+                        if sweep or warm_all:
+                            m &= ~(regions[j].tactels & (preds[j] > CORE_SHARE * regions[j].peak))
+                        else:
+                            m &= ~regions[j].tactels
+                    else:
+                        m &= ~regions[j].tactels
+                left = None
+                if budget_s is not None:
+                    left = max(budget_s - (time.perf_counter() - t0), 0.0) / max(
+                        (sweeps - sweep) * k - i, 1)
+                prev = results[i]
+                warm = (starts[i] if prev is None else None if prev.params is None or prev.model is None
+                        else (prev.model, prev.params))
+                fit_model = model if model == "auto" or prev is None else prev.model or model
+                res = fitter.fit(residual, fit_model, mask=m, warm=warm, budget_s=left)
+                if prev is not None and not res.contact:
+                    res = prev  # the refinement lost it: keep the first pass's
+                results[i] = res
+                preds[i] = predicted_strain(fitter, res)
+    finally:
+        fitter.frozen = frozen
+    out = [r for r in results if r is not None]
+    deadline = None if budget_s is None else t0 + budget_s
+    for group in _overlapping(fitter, out):
+        _refine_jointly(fitter, strain, usable, out, group, deadline)
+    _widen_by_neighbours(fitter, out, usable)
+    elapsed = (time.perf_counter() - t0) * 1e3
+    for r in out:
+        r.reasons["contacts"] = SEVERAL_REASON.format(n=k)
+        r.fit_ms = elapsed
+    return out
+
+
+# -- neighbours fitted jointly ---------------------------------------------------------------
+
+def _is_point(fitter: Any, r: FitResult) -> bool:
+    return bool(r.contact and r.params is not None and r.model and r.line is None
+                and not (fitter.sensor.geometry.flat and r.model == "cylinder"))
+
+
+def _overlapping(fitter: Any, results: list[FitResult]) -> list[list[int]]:
+    """Groups (indices into ``results``) of two or more point contacts whose windows overlap,
+    directly or through a third."""
+    idx = [i for i, r in enumerate(results) if _is_point(fitter, r) and r.window is not None]
+    parent = {i: i for i in idx}
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for a in idx:
+        for b in idx:
+            if a < b and _windows_meet(results[a].window, results[b].window):
+                parent[find(b)] = find(a)
+    groups: dict[int, list[int]] = {}
+    for i in idx:
+        groups.setdefault(find(i), []).append(i)
+    return [g for g in groups.values() if len(g) > 1]
+
+
+def _windows_meet(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return not (a[0] + a[2] <= b[0] or b[0] + b[2] <= a[0] or a[1] + a[3] <= b[1] or b[1] + b[3] <= a[1])
+
+
+def _refine_jointly(fitter: Any, strain: np.ndarray, usable: np.ndarray, results: list[FitResult],
+                    group: list[int], deadline: float | None) -> None:
+    """Fit the contacts ``group`` together on the union of their windows, the model the sum of
+    their strains (the others' predicted strain removed), and move each to the joint
+    solution: its values from there, its sigmas kept (they are widened for the shared
+    information afterwards)."""
+    from tactiled.fit.fitter import _bounds, _steps
+    from tactiled.fit.solver import levenberg_marquardt
+
+    shape = usable.shape
+    tact = np.zeros(shape, bool)
+    for i in group:
+        tact |= _window_mask(shape, results[i].window)
+    tact &= usable
+    rows = tact.ravel()
+    flat = fitter.flattened(strain)
+    target = flat.ravel()[rows].copy()
+    for j, r in enumerate(results):
+        if j not in group:
+            pred = predicted_strain(fitter, r)
+            if pred is not None:
+                target -= pred.ravel()[rows]
+    sd = fitter._tactel_sd(target)
+    models = [get_model(results[i].model) for i in group]
+    sizes = [m.size for m in models]
+    p0 = np.concatenate([np.asarray(results[i].params, dtype=float) for i in group])
+    lo = np.concatenate([_bounds(m)[0] for m in models])
+    hi = np.concatenate([_bounds(m)[1] for m in models])
+    steps = np.concatenate([_steps(m) for m in models])
+
+    def residual(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pred = np.zeros(target.size)
+        jac = np.empty((target.size, p.size))
+        at = 0
+        for m, n in zip(models, sizes):
+            phys, dphys = m.physical(p[at:at + n])
+            val, j6, _ = fitter.model.strain_and_jacobian(*phys, fitter.model.xs_full, fitter.model.ys_full)
+            pred += np.asarray(val).ravel()[rows]
+            jac[:, at:at + n] = np.asarray(j6).reshape(-1, 6)[rows] @ dphys
+            at += n
+        return (pred - target) / sd, jac / sd[:, None]
+
+    before = float(np.sum(residual(p0)[0] ** 2))
+    sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=30, atol=1e-4,
+                              deadline=deadline, bounds=(lo, hi))
+    if not (np.all(np.isfinite(sol.p)) and sol.cost <= before):
+        return
+    at = 0
+    for i, m, n in zip(group, models, sizes):
+        r = results[i]
+        p = sol.p[at:at + n]
+        at += n
+        values, _ = m.report(p)
+        for key, v in values.items():
+            if r.values.get(key) is not None and v is not None:
+                r.values[key] = v
+        r.params = tuple(float(v) for v in p)
+        r.chi2 = sol.cost
+        phys, _ = m.physical(p)
+        ell, _ = fitter.model.ellipse(*phys[:4])
+        if r.ellipse is not None:
+            r.ellipse = {"a_mm": ell.a, "b_mm": ell.b, "theta_deg": math.degrees(ell.theta) % 180.0}
+
+
+# -- the joint bound -------------------------------------------------------------------------
+
+def _point_jacobian(fitter: Any, model: str, params: tuple[float, ...]) -> np.ndarray | None:
+    """d(strain on the whole array)/d(internal parameters), ``(rows*cols, size)``; None for a
+    contact that is not a point contact of a known model."""
+    phys = _point_contact(model, params)
+    if phys is None:
+        return None
+    m = fitter.model
+    _, dphys = get_model(model).physical(np.asarray(params, dtype=float))
+    _, jac, _ = m.strain_and_jacobian(*phys, m.xs_full, m.ys_full)
+    return np.asarray(jac).reshape(-1, 6) @ dphys
+
+
+def _window_mask(shape: tuple[int, int], win: tuple[int, int, int, int] | None) -> np.ndarray:
+    out = np.zeros(shape, bool)
+    if win is not None:
+        r0, c0, nr, nc = win
+        out[r0:r0 + nr, c0:c0 + nc] = True
+    return out
+
+
+def joint_bounds(fitter: Any, contacts: list[tuple[str, tuple[float, ...]]],
+                 tactels: np.ndarray) -> tuple[list[dict[str, float | None]], list[dict[str, float | None]]] | None:
+    """The Cramer-Rao bounds (user units, ``VALUE_KEYS``) of each point contact
+    ``(model, internal params)`` on the usable ``tactels`` (a boolean frame): ``(joint,
+    alone)``, joint with every contact's parameters unknown, alone with the others' known.
+    None when a contact is not a point contact or the information is singular."""
+    jacs = [_point_jacobian(fitter, m, p) for m, p in contacts]
+    if any(j is None for j in jacs) or not tactels.any():
+        return None
+    rows = tactels.ravel()
+    sd = fitter._tactel_sd(np.zeros(int(rows.sum()))) if hasattr(fitter, "_tactel_sd") else None
+    scale = 1.0 / (sd if sd is not None else fitter.sigma)
+    blocks = [np.asarray(j)[rows] * np.reshape(scale, (-1, 1)) for j in jacs]
+    full = np.hstack(blocks)
+    info = full.T @ full
+    try:
+        cov = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        return None
+    joint, alone = [], []
+    start = 0
+    for (m, p), b in zip(contacts, blocks):
+        n = b.shape[1]
+        c_joint = cov[start:start + n, start:start + n]
+        try:
+            c_alone = np.linalg.inv(b.T @ b)
+        except np.linalg.LinAlgError:
+            return None
+        start += n
+        _, grad = get_model(m).report(np.asarray(p, dtype=float))
+        joint.append(_user_std(grad, c_joint))
+        alone.append(_user_std(grad, c_alone))
+    return joint, alone
+
+
+def _user_std(grad: np.ndarray, cov: np.ndarray) -> dict[str, float | None]:
+    """1-sigma of each user value (delta method); None for a value the model lacks (its
+    gradient row is NaN) or a negative variance."""
+    with np.errstate(invalid="ignore"):
+        var = np.einsum("ki,ij,kj->k", grad, cov, grad)
+    return {key: math.sqrt(v) if v >= 0.0 and math.isfinite(v) else None
+            for key, v in zip(VALUE_KEYS, var.tolist())}
+
+
+def _widen_by_neighbours(fitter: Any, results: list[FitResult], usable: np.ndarray) -> None:
+    """Each contact's sigmas times (joint bound / bound with the neighbours known), on the
+    union of the windows: the information its neighbours' unknowns take from it."""
+    point = [r for r in results if _is_point(fitter, r)]
+    if len(point) < 2:
+        return
+    shape = usable.shape
+    union = np.zeros(shape, bool)
+    for r in point:
+        union |= _window_mask(shape, r.window)
+    bounds = joint_bounds(fitter, [(r.model, r.params) for r in point], union & usable)
+    if bounds is None:
+        return
+    for r, joint, alone in zip(point, *bounds):
+        for key in VALUE_KEYS:
+            s, j, a = r.std.get(key), joint.get(key), alone.get(key)
+            if s is not None and j is not None and a:
+                r.std[key] = s * max(j / a, 1.0)
+
+
+def strongest(results: list[FitResult]) -> int:
+    """Index of the contact with the largest force (a line contact, whose total force does not
+    exist, by its peak strain after every point contact of any force)."""
+    def key(i: int) -> tuple[int, float, float]:
+        r = results[i]
+        f = r.values.get("force_n")
+        return (int(r.contact), -1.0 if f is None else f, r.peak or 0.0)
+    return max(range(len(results)), key=key)
+
+
+def contacts_json(results: list[FitResult]) -> dict[str, Any]:
+    """The ``tactiled fit`` line of a frame's contacts: the strongest contact's keys at the top
+    (what a single-contact client reads), and with several, ``contacts``: every contact's,
+    the strongest first."""
+    first = strongest(results)
+    top = results[first].to_json_dict()
+    if len(results) > 1:
+        rest = [r.to_json_dict() for i, r in enumerate(results) if i != first]
+        top["contacts"] = [dict(top), *rest]
+    return top

@@ -1,0 +1,154 @@
+"""Separate pressed regions of one strain frame: where one array is touched in several places.
+
+A contact's strain is one smooth bump, as wide as the cover spreads it (a few depths).  Two
+contacts are told apart by the dip between them: a region is a contact of its own when its peak
+stands out from the saddle that joins it to a higher one by more than the noise can make
+(``SEPARATION_Z`` sigmas) and by a share of its height (``SEPARATION_SHARE``) that no single
+contact's bump shows (a contact's strain has a single maximum; a flat top or a ridge wobbles by
+the noise and by the model error, a small share of its height).  Two contacts closer than the
+cover spreads them leave no such dip: they are one region, and the region says that it holds a
+second maximum (``absorbed``), so the fit reports one contact labelled ``merged`` rather than
+two guesses.
+
+The search is the topographic prominence of the strain surface: tactels are visited from the
+highest down and joined to their 8-neighbours already visited (a union-find); when two regions
+meet at a saddle, the lower one's prominence decides whether it stays a contact of its own.
+No I/O; a frame of 32x32 tactels costs well under a millisecond.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: A region's peak must stand this many noise sigmas above zero to be a contact of its own
+#: (the largest of 1024 tactels' pure noise is ~3.5 sigma; below ~8 sigma no curvature is
+#: observable anyway).
+SIGNIFICANT_Z = 8.0
+#: ... and stand out from the saddle joining it to a higher region by this many sigmas ...
+SEPARATION_Z = 6.0
+#: ... and by this share of its own height (a single contact's strain never dips by this much
+#: between two of its maxima: its wobble is the noise and the model's few per cent).
+SEPARATION_SHARE = 0.25
+#: A lower maximum joined to a higher one without the dip above is recorded (``absorbed``)
+#: when it stands out by this many sigmas and this share of its height: a second contact the
+#: cover merged with the first, or a sharp feature of one.
+ABSORBED_SHARE = 0.1
+#: Tactels below this many sigmas belong to no region (they are the noise around the contacts).
+SUPPORT_Z = 3.0
+
+
+@dataclass
+class Region:
+    """One pressed region: its peak tactel and strain, and its tactels (a boolean mask)."""
+
+    peak_idx: tuple[int, int]
+    peak: float
+    tactels: np.ndarray
+    #: lower maxima inside it that the cover merged with this one (see ABSORBED_SHARE)
+    absorbed: int = 0
+    #: strain of the saddle to the higher region it meets (None for the highest region)
+    saddle: float | None = None
+    members: list[int] = field(default_factory=list, repr=False)
+
+
+def _local_maxima(s: np.ndarray, floor: float) -> int:
+    """How many tactels exceed ``floor`` and every 8-neighbour (a fast first look)."""
+    p = np.pad(s, 1, constant_values=-np.inf)
+    c = p[1:-1, 1:-1]
+    is_max = c > floor
+    for dr in (-1, 0, 1):
+        for dc in (-1, 0, 1):
+            if dr or dc:
+                is_max &= c >= p[1 + dr:p.shape[0] - 1 + dr, 1 + dc:p.shape[1] - 1 + dc]
+    return int(is_max.sum())
+
+
+def find_regions(strain: np.ndarray, sigma: float, mask: np.ndarray | None = None) -> list[Region]:
+    """The separate pressed regions of a zeroed strain frame, highest peak first.
+
+    ``sigma`` is one tactel's strain noise (1 sigma); ``mask`` marks usable tactels (unusable
+    and non-finite ones belong to no region).  A frame with at most one significant maximum
+    is one region (or none when nothing reaches ``SIGNIFICANT_Z`` sigmas).
+    """
+    s = np.array(strain, dtype=float)
+    ok = np.isfinite(s)
+    if mask is not None:
+        ok &= np.asarray(mask, dtype=bool)
+    s[~ok] = -np.inf
+    rows, cols = s.shape
+    significant = SIGNIFICANT_Z * sigma
+    if _local_maxima(s, significant) <= 1:
+        if not s.size or not float(s.max()) > significant:
+            return []
+        flat = int(np.argmax(s))
+        m, n = divmod(flat, cols)
+        return [Region((m, n), float(s[m, n]), s > SUPPORT_Z * sigma)]
+    return _watershed(s, sigma)
+
+
+def _separable(peak: float, saddle: float, sigma: float) -> bool:
+    rise = peak - saddle
+    return (peak > SIGNIFICANT_Z * sigma and rise > SEPARATION_Z * sigma
+            and rise > SEPARATION_SHARE * peak)
+
+
+def _notable(peak: float, saddle: float, sigma: float) -> bool:
+    rise = peak - saddle
+    return (peak > SIGNIFICANT_Z * sigma and rise > SEPARATION_Z * sigma
+            and rise > ABSORBED_SHARE * peak)
+
+
+def _watershed(s: np.ndarray, sigma: float) -> list[Region]:
+    rows, cols = s.shape
+    flat = s.ravel()
+    support = SUPPORT_Z * sigma
+    order = [int(i) for i in np.argsort(-flat, kind="stable") if flat[i] > support]
+    parent: dict[int, int] = {}
+    # per root: its peak's flat index, its tactels, lower maxima it absorbed
+    regions: dict[int, Region] = {}
+    done: list[Region] = []
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in order:
+        r, c = divmod(i, cols)
+        roots = set()
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                rr, cc = r + dr, c + dc
+                if (dr or dc) and 0 <= rr < rows and 0 <= cc < cols:
+                    j = rr * cols + cc
+                    if j in parent:
+                        roots.add(root(j))
+        if not roots:
+            parent[i] = i
+            regions[i] = Region(divmod(i, cols), float(flat[i]), np.zeros(0), members=[i])
+            continue
+        ranked = sorted(roots, key=lambda k: regions[k].peak, reverse=True)
+        main = ranked[0]
+        level = float(flat[i])
+        for other in ranked[1:]:
+            low = regions.pop(other)
+            parent[other] = main
+            if _separable(low.peak, level, sigma):
+                low.saddle = level
+                done.append(low)  # a contact of its own: its tactels stay its own
+            else:
+                high = regions[main]
+                high.members.extend(low.members)
+                high.absorbed += low.absorbed + int(_notable(low.peak, level, sigma))
+        parent[i] = main
+        regions[main].members.append(i)
+    out = [reg for reg in (*regions.values(), *done) if reg.peak > SIGNIFICANT_Z * sigma]
+    for reg in out:
+        t = np.zeros(rows * cols, dtype=bool)
+        t[reg.members] = True
+        reg.tactels = t.reshape(rows, cols)
+    out.sort(key=lambda reg: reg.peak, reverse=True)
+    return out

@@ -1,0 +1,35 @@
+"""``tactiled bench --suite contacts``: its short run meets the suite's bars loosely (few frames)
+and its report says what it measured."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactiled.bench import contacts
+from tactiled.sensors import load_description
+
+
+@pytest.mark.parametrize("name", ["fearing1988", "flat16"])
+def test_short_run_finds_every_contact_at_the_joint_bound(name: str) -> None:
+    s = contacts.score(load_description(name), frames=10, seed=3)
+    r = s["resolved"]
+    assert r.count["truths"] >= 45
+    assert r.count["missed"] <= 1 and r.count["phantom"] <= 1
+    for key, z in r.z.items():
+        rms = float(np.sqrt(np.mean(np.square(z))))
+        assert 0.5 < rms < 1.6, (key, rms)
+        assert np.mean(r.cov[key]) >= 0.8, key
+    # a single contact is fitted as before, key for key
+    assert s["single"]["same"] == sum(s["single"].values()) == 10
+    # close pairs are one contact (whose strain shows no dip)
+    assert s["close"]["two"] <= 1
+
+
+def test_the_report_names_its_figures(capsys) -> None:
+    from tactiled.cli import main
+
+    assert main(["bench", "--suite", "contacts", "--quick", "--no-progress", "--sensor", "flat16"]) == 0
+    out = capsys.readouterr().out
+    assert "### flat16: 16x16" in out and "missed" in out and "phantom" in out
+    assert "| sphere/force_n |" in out and "same result as the single-contact fitter: 12 of 12" in out

@@ -1,0 +1,64 @@
+"""Several contacts on one array through the whole daemon: a recording of two contacts (one
+held, one pressed beside it, then lifted) replayed by ``tactiled replay`` (real worker
+processes): each estimate lists its contacts with stable ids, the top level is the strongest."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from pipeline_helpers import PERIOD_US, SETTLE_FRAMES, write_recording
+
+from tactiled.calibration.lut import LookupTable
+from tactiled.cli import main as cli
+from tactiled.frames import Frame
+from tactiled.physics.contact import Contact
+from tactiled.physics.strain import StrainModel
+
+SIGMA = 0.0005
+
+
+def _frames() -> tuple[list[Frame], list[list[Contact]]]:
+    model = StrainModel()
+    rng = np.random.default_rng(7)
+    a = lambda k: Contact(5.0, 5.0, 0.0, 1.2, 5.0 + 0.01 * k, 12.0)  # noqa: E731 (rolls slowly)
+    b = Contact(8.0, 8.0, 0.0, 0.6, 18.0, 16.0)
+    scene: list[list[Contact]] = ([[]] * SETTLE_FRAMES + [[a(k)] for k in range(20)]
+                                  + [[a(20 + k), b] for k in range(30)] + [[a(50 + k)] for k in range(20)]
+                                  + [[]] * 10)
+    strain = [sum((model.predict(c) for c in cs), np.zeros((8, 8))) + rng.normal(0.0, SIGMA, (8, 8))
+              for cs in scene]
+    counts = LookupTable.linear().to_counts(np.array(strain))
+    return [Frame(seq=k, device_time_us=k * PERIOD_US, raw=c, sensor_id=0)
+            for k, c in enumerate(counts)], scene
+
+
+def test_each_contact_is_listed_with_a_stable_id(tmp_path: Path, capsys) -> None:
+    frames, scene = _frames()
+    rec = write_recording(tmp_path / "two.tact", frames)
+    assert cli(["replay", str(rec), "--mode", "lossless", "--speed", "0", "--no-timing",
+                "--model", "sphere"]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert len(lines) == len(frames)
+    held_ids, second_ids = set(), set()
+    released = SETTLE_FRAMES + 70  # the first frame after the last contact lifted
+    for line, truth in zip(lines, scene):
+        if not truth:
+            if line["seq"] < SETTLE_FRAMES or line["seq"] >= released + 3:  # (the detector's exit)
+                assert line["contacts"] == [] and line["contact_id"] is None, line["seq"]
+            continue
+        assert len(line["contacts"]) == len(truth), line["seq"]
+        # the top level is the strongest contact, and the first listed
+        assert line["contact_id"] == line["contacts"][0]["contact_id"]
+        assert line["force_n"] == line["contacts"][0]["force_n"]
+        for c in line["contacts"]:
+            true = min(truth, key=lambda t: math.dist((t.x0, t.y0), (c["x_mm"], c["y_mm"])))
+            assert math.dist((true.x0, true.y0), (c["x_mm"], c["y_mm"])) < 0.5
+            (held_ids if true.force > 1.0 else second_ids).add(c["contact_id"])
+        if len(truth) == 2:
+            assert all(c["reasons"]["contacts"].startswith("one of 2 contacts") for c in line["contacts"])
+            assert all(c["frames_used"] == 1 for c in line["contacts"])
+    # the held contact keeps one id through the second's press and lift; the second has its own
+    assert len(held_ids) == 1 and len(second_ids) == 1 and held_ids != second_ids
