@@ -8,7 +8,8 @@ loop and the serial reader threads, not its fit workers nor the simulators) by p
         tactiled bench --suite acquisition --scene hand --seconds 15 --sim-nice 10
     python -m tactiled.bench.budget prof.txt --frames-per-s 6000 --cpu-share 0.46
 
-A sample belongs to the innermost stage its stack passes through (the detector inside the
+``python -m tactiled.bench.budget --stage`` times the calibration stage alone, compiled and
+reference paths.  A sample belongs to the innermost stage its stack passes through (the detector inside the
 calibration stage counts as the detector).  With ``--cpu-share`` (the main process's CPU in
 cores over the window, as the bench's table gives it) and ``--frames-per-s`` the shares become
 microseconds per frame.
@@ -112,13 +113,67 @@ def table(per: Counter, total: int, cpu_share: float | None = None,
     return "\n".join(lines)
 
 
+def stage_cost(description: str, scene: str, compiled: bool, frames: int = 300,
+               repeats: int = 6) -> float:
+    """Microseconds a frame of the calibration stage (table, zeroing, hysteresis, detector as
+    the daemon sets them up: the daemon's default detector averaging, hysteresis compensated)
+    on ``scene``'s frames of the array ``description``, on the compiled path or the reference
+    path: the best of ``repeats`` runs of ``frames`` frames, after 300 frames of warm-up."""
+    import time
+
+    from tactiled.calibration.contact import ContactDetector
+    from tactiled.calibration.lut import LookupTable
+    from tactiled.calibration.stage import CalibrationStage
+    from tactiled.calibration.zeroing import Zeroer
+    from tactiled.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS
+    from tactiled.frames import Frame
+    from tactiled.sensors import load_description
+    from tactiled.settings import SensorSettings
+    from tactiled.sim import FingerSimulator
+
+    sensor = load_description(description).sensor_model()
+    g = sensor.geometry
+    detector = ContactDetector(sensor=sensor, average=SensorSettings().detector_average)
+    zeroer = Zeroer((g.rows, g.cols), detector=detector)
+    zeroer.hysteresis.set(0.05, 0.5)
+    stage = CalibrationStage(LookupTable.linear(g.rows, g.cols, COUNTS_PER_STRAIN,
+                                                ZERO_STRAIN_COUNTS), zeroer)
+    stage.compiled = compiled
+    sim = FingerSimulator(sensor, scene, seed=1)
+    sim.skip(round(0.8 * sim.rate_hz))  # into the contacts
+    ticks = [sim.step() for _ in range(300 + frames * repeats)]
+    batch = [Frame(seq=t.seq, device_time_us=t.device_time_us, raw=t.counts) for t in ticks]
+    for f in batch[:300]:
+        stage.process(f)
+    best = float("inf")
+    for r in range(repeats):
+        part = batch[300 + r * frames:300 + (r + 1) * frames]
+        t0 = time.perf_counter()
+        for f in part:
+            stage.process(f)
+        best = min(best, (time.perf_counter() - t0) / frames)
+    return 1e6 * best
+
+
 def _cli() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("profile", help="py-spy record --format raw output")
+    p.add_argument("profile", nargs="?", help="py-spy record --format raw output")
     p.add_argument("--cpu-share", type=float, default=None,
                    help="the main process's CPU over the window, in cores (e.g. 0.46)")
     p.add_argument("--frames-per-s", type=float, default=None, help="frames handled per second")
+    p.add_argument("--stage", action="store_true",
+                   help="instead: time the calibration stage per frame, compiled and reference "
+                        "paths, on the hand's palm and a fingertip")
     a = p.parse_args()
+    if a.stage:
+        print("| array | scene | compiled path, us per frame | reference path, us per frame |")
+        print("|---|---|---|---|")
+        for description, scene in (("fearing1988", "hand-finger2"), ("flat16", "hand-palm")):
+            print(f"| {description} | {scene} | {stage_cost(description, scene, True):.1f} | "
+                  f"{stage_cost(description, scene, False):.1f} |")
+        return
+    if a.profile is None:
+        p.error("give a profile, or --stage")
     with open(a.profile, encoding="utf-8") as fh:
         per, total = breakdown(fh)
     print(table(per, total, a.cpu_share, a.frames_per_s))

@@ -1,0 +1,29 @@
+"""Splitting a py-spy profile of the daemon's main process by pipeline stage."""
+
+from __future__ import annotations
+
+from tactiled.bench import budget
+
+PROFILE = """\
+process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";<module> (run_baseline.py:5);measure (tactiled/bench/acquisition.py:590);SensorPipeline.on_frame (tactiled/pipeline/sensor.py:351);CalibrationStage.process (tactiled/calibration/stage.py:52);ContactDetector.update (tactiled/calibration/contact.py:230) 30
+process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";<module> (run_baseline.py:5);measure (tactiled/bench/acquisition.py:590);SensorPipeline.on_frame (tactiled/pipeline/sensor.py:351);CalibrationStage.process (tactiled/calibration/stage.py:55) 50
+process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";Thread._bootstrap (threading.py:1002);PortReader._run (tactiled_drivers/port_reader.py:90);PortReader._wait (tactiled_drivers/port_reader.py:123) 400
+process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";<module> (run_baseline.py:5);measure (tactiled/bench/acquisition.py:590);FrameDecoder.feed (tactiled/frames.py:249) 20
+process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";process 12:"python -m tactiled.pipeline.worker";fit (tactiled/fit/fitter.py:300) 999
+process 10:"python -m tactiled.cli bench --suite acquisition";renice_simulators (tactiled/bench/acquisition.py:80) 77
+"""
+
+
+def test_samples_of_the_main_process_by_innermost_stage() -> None:
+    """The worker's and the bench's own samples are left out, so are threads asleep in select;
+    the detector inside the calibration stage counts as the detector."""
+    per, total = budget.breakdown(PROFILE.splitlines())
+    assert total == 100
+    assert per == {"detector": 30, "calibration stage": 50, "decoding and reading": 20}
+    text = budget.table(per, total, cpu_share=0.5, frames_per_s=5000)
+    assert "| calibration stage | 50.0 % | 50.0 |" in text and "| total | 100 % | 100.0 |" in text
+
+
+def test_the_stage_alone_is_timed_on_both_paths() -> None:
+    assert budget.stage_cost("fearing1988", "hand-finger3", True, frames=20, repeats=1) > 0
+    assert budget.stage_cost("flat16", "hand-palm", False, frames=20, repeats=1) > 0
