@@ -48,11 +48,12 @@ EVALUATION_OVERHEAD = 1000
 #: line) leave the cache and each node costs up to ``LARGE_RULE_FACTOR`` times more.
 LARGE_RULE_NODES = 8192
 LARGE_RULE_FACTOR = 3
-#: One evaluation of a flat array's line model (its residuals and their forward-difference
-#: Jacobian: five strain evaluations, each a rule of n nodes across the line per window
-#: tactel): ~30 us plus ~60 ns per node and tactel of the five, measured from 4 to 320 nodes.
-LINE_OVERHEAD = 11_000
-LINE_WORK_PER_NODE = 110
+#: One evaluation of a flat array's line model (its residuals and their exact Jacobian,
+#: compiled: ``tactiled.physics.line.line_residual``): ~2 us plus ~75 ns per node across the
+#: line and window tactel (each a residue and its partials), measured from 4 to 256 nodes on
+#: 16 to 64 tactels; in units of the ellipse's (~2.1 ns each in its kernel).
+LINE_OVERHEAD = EVALUATION_OVERHEAD
+LINE_WORK_PER_NODE = 36
 
 
 def line_work(nodes: int, points: int) -> int:

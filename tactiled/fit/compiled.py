@@ -25,11 +25,12 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from tactiled.fit.budget import Budget, evaluation_work
+from tactiled.fit.budget import Budget, evaluation_work, line_work
 from tactiled.fit.models import physical_map
 from tactiled.fit.solver import BUDGET_MESSAGE, STALLED, WITHIN_TOLERANCE, SolveResult
 from tactiled.physics.hertz import ellipse_core
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
+from tactiled.physics.line import line_points, line_residual
 from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
 
 #: Largest rule (nodes per axis) the compiled search uses without a work budget; beyond it,
@@ -37,6 +38,9 @@ from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rul
 MAX_COMPILED_NODES = 64
 #: Model kinds (the order of ``tactiled.fit.models``' parameter maps below).
 KINDS = {"cylinder": 0, "sphere": 1, "general": 2}
+#: The line model's kind (a cylinder on a flat array, ``tactiled.fit.line``): its own
+#: evaluation, the same search.
+LINE = 3
 
 # status codes of an evaluation and of a search
 _OK, _INVALID_LINE, _INVALID_LONG, FALLBACK, _BUDGET = 0, 1, 2, 3, 4
@@ -83,6 +87,33 @@ def _rule_index(n: int, ladder: np.ndarray) -> int:
 
 
 _work = njit(cache=True, nogil=True)(evaluation_work)
+_line_work = njit(cache=True, nogil=True)(line_work)
+
+
+@njit(cache=True, nogil=True)
+def _evaluate_line(p, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey,
+                   ladder, offsets, rs, rws, work_left, max_nodes):
+    """:func:`_evaluate` for the line model (``tactiled.fit.line``): the rule across the line
+    its half-width needs (``_INVALID_LONG`` beyond ``MAX_NODES``), its work
+    (``tactiled.fit.budget.line_work``), then :func:`tactiled.physics.line.line_residual`.
+    The cover's modulus comes back from ``scale = 3/(2 pi E)``."""
+    empty_r = np.zeros(1)
+    empty_j = np.zeros((1, 4))
+    b = math.sqrt(4.0 * math.exp(p[2]) * math.exp(p[0]) * comp / math.pi)
+    n = _nodes(b, dmin, tol, ladder)
+    if n < 0:
+        empty_r[0] = b
+        return _INVALID_LONG, empty_r, empty_j, 0.0
+    work = _line_work(n, target.shape[0])
+    if work > work_left:
+        return _BUDGET, empty_r, empty_j, 0.0
+    if n > max_nodes:
+        return FALLBACK, empty_r, empty_j, 0.0
+    o = offsets[_rule_index(n, ladder)]
+    px, py, ref_x, ref_y = line_points(xs, ys, ex, ey)
+    r, jac = line_residual(p, px, py, ref_x, ref_y, imp, 3.0 / (2.0 * math.pi * scale), comp,
+                           rs[o:o + n], rws[o:o + n], target, valid, inv_scale)
+    return _OK, r, jac, float(work)
 
 
 @njit(cache=True, nogil=True)
@@ -92,7 +123,11 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
     invalid point (``_INVALID_LINE``: infinite line contact; ``_INVALID_LONG``: too long to
     integrate, with the semi-axis in ``r[0]``), ``FALLBACK`` (a rule past the compiled limit)
     or ``_BUDGET`` (its work, ``tactiled.fit.budget.evaluation_work``, exceeds ``work_left``:
-    not evaluated); ``FALLBACK`` beyond ``max_nodes`` per axis.  ``work`` is what the evaluation cost (0 when none was made)."""
+    not evaluated); ``FALLBACK`` beyond ``max_nodes`` per axis.  ``work`` is what the evaluation cost (0 when none was made).
+    ``kind`` :data:`LINE`: the line model (:func:`_evaluate_line`)."""
+    if kind == LINE:
+        return _evaluate_line(p, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex,
+                              ey, ladder, offsets, rs, rws, work_left, max_nodes)
     d = np.zeros((6, k))
     ka, kb, psi, force, x0, y0 = physical_map(kind, p, d)
     hj = np.empty((3, 4))
