@@ -210,12 +210,13 @@ def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp, scale, dmin, tol,
            imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
-           work_left, max_nodes):
+           work_left, max_nodes, noise_cost):
     """``solver.levenberg_marquardt`` for one model and start, compiled (the box ``lo``,
     ``hi`` as its ``bounds``; the verdict is the caller's).  Returns ``(status, p, r, J, cost,
     iterations, evaluations, converged, message code, remaining, work)``; status ``_OK``,
     ``_INVALID_LINE`` / ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``), ``_BUDGET``
-    (the start's evaluation exceeds ``work_left``) or ``FALLBACK``; ``remaining`` is
+    (the start's evaluation exceeds ``work_left``) or ``FALLBACK``; ``atol`` grows with the
+    cost beyond ``noise_cost`` (``solver.levenberg_marquardt``'s); ``remaining`` is
     ``solver.remaining_decrease`` at the end point (for the caller's verdict; inf where there
     is none); ``work`` the evaluations' work (``tactiled.fit.budget``).  A trial point whose
     evaluation the work left cannot pay for ends the search there (message code 4)."""
@@ -246,7 +247,7 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
             if over < xtol:
                 converged, message = True, 1
                 break
-            if predicted <= ftol * cost + atol:
+            if predicted <= ftol * cost + atol * max(1.0, cost / noise_cost):
                 converged, message = True, 2
                 break
             trial = _clip(p + step, lo, hi)
@@ -296,12 +297,14 @@ def _remaining(jac, r, scale, p, lo, hi) -> float:
 def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: float, model_args: tuple,
           window_args: tuple, tol: float, xtol: float = 1e-9, ftol: float = 1e-10,
           lam0: float = 1e-3, bounds: tuple[np.ndarray, np.ndarray] | None = None,
-          verdict_tol: float | None = None, budget: Budget | None = None) -> SolveResult | None:
+          verdict_tol: float | None = None, budget: Budget | None = None,
+          noise_cost: float = math.inf) -> SolveResult | None:
     """Run :func:`search`; a :class:`SolveResult` worded and judged as the Python solver
     words and judges it (``verdict_tol``, ``bounds``: see ``levenberg_marquardt``), or None
     when the search must fall back to the Python solver.  ``budget``: the fit's
     (:mod:`tactiled.fit.budget`), charged with the search's iterations and work (also those
-    spent before a fallback); a search it stops is not converged, whatever the verdict."""
+    spent before a fallback); a search it stops is not converged, whatever the verdict.
+    ``noise_cost``: see ``levenberg_marquardt``."""
     rf, comp, scale, dmin, imp = model_args
     xs, ys, target, valid, inv_scale, ex, ey = window_args
     p0 = np.asarray(p0, dtype=float)
@@ -310,7 +313,7 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
     status, p, r, jac, cost, it, evals, converged, msg, remaining, work = search(
         kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp,
         scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables(),
-        work_left, MAX_NODES if math.isfinite(work_left) else MAX_COMPILED_NODES)
+        work_left, MAX_NODES if math.isfinite(work_left) else MAX_COMPILED_NODES, noise_cost)
     if budget is not None:
         budget.charge(it, work)
     if status == FALLBACK:
@@ -334,7 +337,7 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
     if msg == 4:
         return SolveResult(p, r, jac, cost, it, evals, False, message)
     if verdict_tol is not None:
-        close = remaining <= verdict_tol
+        close = remaining <= verdict_tol * max(1.0, cost / noise_cost)
         if close and not converged:
             message = f"{message}, {WITHIN_TOLERANCE}"
         elif converged and not close:

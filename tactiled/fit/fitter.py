@@ -436,11 +436,12 @@ class Fitter:
 
     def _search(self, fr: _Frame, kind: int, starts: list[np.ndarray], steps: np.ndarray,
                 bounds: tuple[np.ndarray, np.ndarray], cap: int, stop_chi2: float,
-                python_residual) -> tuple[SolveResult, int]:
+                python_residual, noise_cost: float = math.inf) -> tuple[SolveResult, int]:
         """Search from each start in turn (the compiled search; the Python solver on
         ``python_residual()`` where that hands back) until one explains the window to the
         noise or the budget is spent: ``(best search, starts tried)``.  Each stops once the
-        next step would lower chi^2 by less than ``stop_chi2``."""
+        next step would lower chi^2 by less than ``stop_chi2`` (times the cost over
+        ``noise_cost`` beyond it: ``levenberg_marquardt``)."""
         peak = fr.peak
         budget = self._budget
         atol = stop_chi2 * (self.sigma / peak) ** 2
@@ -459,13 +460,13 @@ class Fitter:
             if exact:  # the whole search compiled (falls back on huge contacts)
                 sol = compiled.solve(kind, p0, steps, max_iter, atol, self._model_args, window,
                                      self.options.tol, bounds=bounds, verdict_tol=verdict_tol,
-                                     budget=budget)
+                                     budget=budget, noise_cost=noise_cost)
             if sol is None:
                 if residual is None:
                     residual = python_residual()
                 sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=max_iter, atol=atol,
                                           deadline=self._deadline, verdict_tol=verdict_tol,
-                                          bounds=bounds)
+                                          bounds=bounds, noise_cost=noise_cost)
                 if budget is not None:
                     budget.charge(sol.iterations, 0.0)
             self._ran_out(sol, max_iter, cap)
@@ -561,9 +562,14 @@ class Fitter:
             start = None  # a start of another model (a curved finger's cylinder): start cold
         starts = ([np.asarray(start, dtype=float)] if start is not None
                   else prob.starts(fr.clean, self.model.xs_full, self.model.ys_full, peak))
+        # a line the window does not show (a sphere's blob, several contacts) is a minimum far
+        # above the noise, which the search would creep towards for tens of iterations, each
+        # step lowering chi^2 by a sliver of it: the stopping rule and the verdict scale with
+        # chi^2 over its degrees of freedom there, as that fit's errors do
+        noise_cost = max(fr.n_points - len(LINE_PARAMS), 1) * (self.sigma / peak) ** 2
         best, tried = self._search(fr, compiled.LINE, starts, LINE_STEPS, _LINE_BOUNDS,
                                    self.options.max_iter, STOP_CHI2,
-                                   lambda: prob.residual_and_jacobian)
+                                   lambda: prob.residual_and_jacobian, noise_cost)
         reasons: dict[str, str] = {}
         jraw = best.jacobian * peak
         cov, condition = _covariance(jraw, self.sigma)
@@ -1098,7 +1104,9 @@ class Fitter:
             p_warm = np.asarray(warm[1], dtype=float)
             kept = (self._fit_cylinder(strain, p_warm, mask) if warm[0] == "cylinder"
                     else self._fit_model(strain, get_model(warm[0]), p_warm, mask))
-            if kept.contact and kept.chi2 is not None and kept.peak and self._consistent(kept):
+            # (an ellipse running off a flat array is the line: chosen afresh, as a cold fit would)
+            if kept.contact and kept.chi2 is not None and kept.peak and self._consistent(kept) \
+                    and not self._runs_off(kept):
                 kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
                 return kept
         held = self._budget.hold(0.5) if self._budget is not None else None
