@@ -41,10 +41,11 @@ DEFAULT_WORK = 900_000
 #: A flat array's fits get this many times the work and twice the iterations: auto fits the
 #: line and then, where the line does not explain the window, the sphere and the general
 #: ellipse, whose searches follow a wide blob or several contacts into large contacts
-#: (docs/fitting.md, "The fit's budget").  At 4x a stopped fit costs ~7 ms on that machine
-#: (~2 ns a unit there), under the 10 ms any frame may cost; the sensors bench's contacts fit
-#: under auto within it but for 1 % of them (docs/fit-time.md).
-FLAT_WORK_FACTOR = 4
+#: (docs/fitting.md, "The fit's budget").  At 3x a stopped fit costs 5-7 ms on the machine
+#: of docs/fit-time.md (~2-2.5 ns a unit there), within the 10 ms any frame may cost; the
+#: sensors bench's contacts fit under auto within it but for a big ball's blob wider than
+#: the window on the 12x32 mat (docs/fit-time.md).
+FLAT_WORK_FACTOR = 3
 FLAT_ITERATION_FACTOR = 2
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
 #: algebra: ~3 us, measured as the intercept of the cost per evaluation).

@@ -436,16 +436,25 @@ class Fitter:
 
     def _search(self, fr: _Frame, kind: int, starts: list[np.ndarray], steps: np.ndarray,
                 bounds: tuple[np.ndarray, np.ndarray], cap: int, stop_chi2: float,
-                python_residual, noise_cost: float = math.inf) -> tuple[SolveResult, int]:
+                python_residual) -> tuple[SolveResult, int]:
         """Search from each start in turn (the compiled search; the Python solver on
         ``python_residual()`` where that hands back) until one explains the window to the
         noise or the budget is spent: ``(best search, starts tried)``.  Each stops once the
-        next step would lower chi^2 by less than ``stop_chi2`` (times the cost over
-        ``noise_cost`` beyond it: ``levenberg_marquardt``)."""
+        next step would lower chi^2 by less than ``stop_chi2``.
+
+        Beyond the chi^2 a right model exceeds ``1 - MISMATCH_LEVEL`` of the time, that
+        tolerance and the verdict's grow with chi^2 over it (``levenberg_marquardt``'s
+        ``noise_cost``): a window the model does not explain (a sphere's blob under the line
+        model, several contacts, a hand print) has its minimum far above the noise, and the
+        search crept towards it for tens of iterations, each step lowering chi^2 by a sliver
+        of it, moving the values by a sliver of the errors such a fit has (its sigmas are
+        widened by that excess: :meth:`_mismatch`).  Fits the model explains are untouched."""
         peak = fr.peak
         budget = self._budget
-        atol = stop_chi2 * (self.sigma / peak) ** 2
-        verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
+        unit = (self.sigma / peak) ** 2  # the cost of chi^2 = 1
+        atol = stop_chi2 * unit
+        verdict_tol = CONVERGED_CHI2 * unit
+        noise_cost = _chi2_limit(max(fr.n_points - len(starts[0]), 1)) * unit
         exact = kind == compiled.LINE or self.options.jacobian == "exact"
         window = (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
         residual = None  # the Python solver's residual function, built only if it is needed
@@ -562,14 +571,9 @@ class Fitter:
             start = None  # a start of another model (a curved finger's cylinder): start cold
         starts = ([np.asarray(start, dtype=float)] if start is not None
                   else prob.starts(fr.clean, self.model.xs_full, self.model.ys_full, peak))
-        # a line the window does not show (a sphere's blob, several contacts) is a minimum far
-        # above the noise, which the search would creep towards for tens of iterations, each
-        # step lowering chi^2 by a sliver of it: the stopping rule and the verdict scale with
-        # chi^2 over its degrees of freedom there, as that fit's errors do
-        noise_cost = max(fr.n_points - len(LINE_PARAMS), 1) * (self.sigma / peak) ** 2
         best, tried = self._search(fr, compiled.LINE, starts, LINE_STEPS, _LINE_BOUNDS,
                                    self.options.max_iter, STOP_CHI2,
-                                   lambda: prob.residual_and_jacobian, noise_cost)
+                                   lambda: prob.residual_and_jacobian)
         reasons: dict[str, str] = {}
         jraw = best.jacobian * peak
         cov, condition = _covariance(jraw, self.sigma)
