@@ -32,12 +32,12 @@ from dataclasses import dataclass
 #: converge use at most 95 (the simulated suites, 1200 frames each, auto cold and warm, every
 #: kind of contact) and 87 (the golden replays: an edge held at the array's end).
 DEFAULT_ITERATIONS = 120
-#: The work of one fit (see the module docstring): ~2.5 ms of a whole fit on the machine of
-#: docs/fit-time.md (2.8 ns a unit there, evaluations and the search's own arithmetic), so a
-#: fit its budget stops stays within the 3 ms of a frame at the 99th percentile.  The fits
-#: that converge use at most 342000 on the paper's finger (the simulated suites) and 616000
-#: in the golden replays (an edge at the end of the array).
-DEFAULT_WORK = 900_000
+#: The work of one fit (see the module docstring).  A fit that spends it costs ~2.4 ms on
+#: the machine of docs/fit-time.md (2.4-3.1 ns a unit in the search, 0.4-0.8 ms of Python
+#: around it), within the 3 ms of a frame at the 99th percentile.  The fits that converge use
+#: at most 342000 on the paper's finger (the simulated suites) and 616000 in the golden
+#: replays (an edge at the end of the array).
+DEFAULT_WORK = 800_000
 #: A flat array's fits get this many times the work and twice the iterations: auto fits the
 #: line and then, where the line does not explain the window, the sphere and the general
 #: ellipse, whose searches follow a wide blob or several contacts into large contacts
