@@ -14,6 +14,9 @@ Two levels:
   contact, the strain the tactels feel (physics + slow baseline drift + rubber hysteresis +
   Gaussian noise) and the raw ``uint16`` counts through a calibration table's inverse, packed in
   a :class:`~tactiled.frames.Frame`.  ``docs/concepts/simulator.md`` documents the model and its numbers.
+* Several contacts on one array: a :class:`MultiScene` plays one scene per indentor on the same
+  clock; the strain is the sum of theirs (:func:`render_sum`) and a tick's truth is the list
+  ``Tick.contacts``.  The hand's six parts (:data:`HAND_PARTS`, ``docs/hand.md``) are such scenes.
 
 Units: mm, N, degrees, seconds; strain is dimensionless and positive under compression.
 """
@@ -24,6 +27,7 @@ import bisect
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Union
 
 import numpy as np
 
@@ -67,6 +71,17 @@ def render(contact: Contact | LineContact | None, model: StrainModel) -> np.ndar
     if contact is None:
         return np.zeros((g.rows, g.cols))
     return model.predict(as_line(contact, g))
+
+
+def render_sum(contacts: Sequence[Contact | LineContact], model: StrainModel) -> np.ndarray:
+    """Noise-free strain frame ``(rows, cols)`` of several contacts pressing at once: the sum
+    of each one's :func:`render` (the strain is linear in the pressure, and the pressures of
+    separate contacts add); zeros for none."""
+    g = model.sensor.geometry
+    out = np.zeros((g.rows, g.cols))
+    for c in contacts:
+        out += render(c, model)
+    return out
 
 
 def simulate_frames(
@@ -207,6 +222,11 @@ class Scene:
         """The true contact at ``t`` seconds, ``None`` when nothing touches."""
         return self.pose_at(t).contact()
 
+    def contacts_at(self, t: float) -> list[Contact]:
+        """The true contacts at ``t`` seconds: this one's, or none (as :class:`MultiScene`)."""
+        c = self.contact_at(t)
+        return [] if c is None else [c]
+
     def segment_start(self, index: int) -> float:
         """Start time in seconds of segment ``index``."""
         return self._starts[index]
@@ -267,6 +287,59 @@ class SceneBuilder:
 
     def build(self, name: str = "") -> Scene:
         return Scene(self.segments, name)
+
+
+class MultiScene:
+    """Several indentors on one array at once: one :class:`Scene` per indentor (a *track*),
+    all played on the same clock.  The strain is the sum of the tracks' strains (the physics
+    is linear in the pressure: :func:`render_sum`).
+
+    ``contacts_at(t)`` is the truth, the touching tracks' contacts in track order;
+    ``contact_at(t)`` the one of them with the largest force (as an estimate's top-level
+    fields).  The scene lasts as long as its longest track; a shorter one holds its last pose
+    (which must then not touch, so that a looping scene starts and ends untouched).
+    """
+
+    def __init__(self, tracks: Sequence[Scene], name: str = "") -> None:
+        if not tracks:
+            raise ValueError("a scene of several contacts needs at least one track")
+        self.tracks: tuple[Scene, ...] = tuple(tracks)
+        self.name = name
+        self.duration: float = max(tr.duration for tr in self.tracks)
+        """Total length in seconds."""
+        for i, tr in enumerate(self.tracks):
+            if tr.duration < self.duration and tr.pose_at(tr.duration).force > 0:
+                raise ValueError(f"track {i} ends at {tr.duration:g} s of {self.duration:g} s "
+                                 "still touching: a shorter track must end released")
+
+    def contacts_at(self, t: float) -> list[Contact]:
+        """The true contacts at ``t`` seconds, in track order (empty when nothing touches)."""
+        return [c for c in (tr.contact_at(t) for tr in self.tracks) if c is not None]
+
+    def contact_at(self, t: float) -> Contact | None:
+        """The touching contact of the largest force at ``t`` seconds (the first of equals),
+        ``None`` when nothing touches."""
+        return max(self.contacts_at(t), key=lambda c: c.force, default=None)
+
+    def idle_spans(self) -> list[tuple[float, float]]:
+        """``(start, end)`` seconds of the spans in which no track touches: the tracks'
+        idle and approach segments intersected."""
+        spans = [(0.0, self.duration)]
+        for tr in self.tracks:
+            free = [(tr.segment_start(i), tr.segment_start(i) + seg.duration)
+                    for i, seg in enumerate(tr.segments) if seg.kind in ("idle", "approach")]
+            if tr.duration < self.duration:
+                free.append((tr.duration, self.duration))
+            spans = [(max(a, c), min(b, d)) for a, b in spans for c, d in free
+                     if min(b, d) > max(a, c)]
+        return sorted(spans)
+
+    def __repr__(self) -> str:
+        return f"MultiScene({self.name!r}, {self.duration:g} s, {len(self.tracks)} tracks)"
+
+
+#: What a simulated finger plays: one contact at a time, or several.
+AnyScene = Union[Scene, MultiScene]
 
 
 # -- built-in scenes (positions relative to the array, so they fit any geometry) -------------
@@ -421,7 +494,93 @@ def _temporal(g: Geometry) -> Scene:
             .release(0.5).idle(0.5).build("temporal"))
 
 
-SCENES: dict[str, Callable[[Geometry], Scene]] = {
+# -- the hand: five fingertips and a palm, each its own device, grasping together ----------
+#
+# Every part plays the same 4 s on its own device's clock: 0.7 s free (the hand opens; long
+# enough to tare in), the grasp closes in 0.3 s, 1.6 s of manipulation (the thumb and the index
+# roll the object between them, the palm takes a third knuckle, the ring finger's contact
+# turns), the grasp opens in 0.3 s, 1.1 s free.  Positions are fractions of the array's span.
+
+HAND_OPEN_S = 0.7  # s free before the grasp closes
+HAND_CLOSE_S = 0.3  # s to press (and to release)
+HAND_MOVE_S = 1.6  # s of manipulation
+HAND_DURATION_S = 4.0  # s per pass; loops
+
+
+def _grasp(g: Geometry, start: tuple[float, float], pose: dict[str, float], force: float,
+           moves: Sequence[tuple[str, float, dict[str, float]]] = (),
+           at: float = HAND_OPEN_S, free_after: float | None = None) -> Scene:
+    """One indentor of the hand: free until ``at`` s, pressed to ``force`` N at ``start``
+    (fractions of the span) in :data:`HAND_CLOSE_S`, then ``moves`` (``(kind, seconds,
+    changes)``, positions as fractions), held until ``free_after`` s (default: the end of the
+    manipulation), released, free to the end of the pass."""
+    def place(changes: dict[str, float]) -> dict[str, float]:
+        out = dict(changes)
+        if "x0" in out:
+            out["x0"] *= g.span_x
+        if "y0" in out:
+            out["y0"] *= g.span_y
+        return out
+
+    b = SceneBuilder(Pose(**pose, x0=start[0] * g.span_x, y0=start[1] * g.span_y))
+    b.idle(at).press(HAND_CLOSE_S, force=force)
+    t = at + HAND_CLOSE_S
+    for kind, seconds, changes in moves:
+        getattr(b, kind)(seconds, **place(changes))
+        t += seconds
+    end = HAND_OPEN_S + HAND_CLOSE_S + HAND_MOVE_S if free_after is None else free_after
+    if end > t + 1e-9:
+        b.hold(end - t)
+    b.release(HAND_CLOSE_S)
+    rest = HAND_DURATION_S - (max(end, t) + HAND_CLOSE_S)
+    if rest > 1e-9:
+        b.idle(rest)
+    return b.build()
+
+
+def _hand_palm(g: Geometry) -> MultiScene:
+    """The palm: two knuckles of the object (6 mm spheres, 2 and 1.5 N, 40 % of the span
+    apart) press at once, the first sliding along y; a third (an 8 mm sphere, 1 N) comes and
+    goes in the middle of the grasp."""
+    knuckle = {"r1": 6.0, "r2": 6.0}
+    return MultiScene([
+        _grasp(g, (0.3, 0.3), knuckle, 2.0, [("roll", HAND_MOVE_S, {"y0": 0.45})]),
+        _grasp(g, (0.7, 0.3), knuckle, 1.5),
+        _grasp(g, (0.5, 0.75), {"r1": 8.0, "r2": 8.0}, 1.0, at=HAND_OPEN_S + 0.6,
+               free_after=HAND_OPEN_S + 1.3),
+    ], "hand-palm")
+
+
+def _hand_finger(k: int) -> Callable[[Geometry], MultiScene]:
+    """Fingertip ``k`` (1 thumb .. 5 little)."""
+    def scene(g: Geometry) -> MultiScene:
+        cyl, sphere = {"r1": 10.0, "psi_deg": 90.0}, {"r1": 8.0, "r2": 8.0}
+        if k == 1:  # the thumb rolls the object along x
+            tracks = [_grasp(g, (0.35, 0.5), cyl, 1.2, [("roll", HAND_MOVE_S, {"x0": 0.65})])]
+        elif k == 2:  # the index rolls it the other way, and an edge of it presses higher up
+            tracks = [_grasp(g, (0.65, 0.3), sphere, 1.0, [("roll", HAND_MOVE_S, {"x0": 0.35})]),
+                      _grasp(g, (0.5, 0.78), {"r1": 0.5, "psi_deg": 30.0}, 0.6,
+                             at=HAND_OPEN_S + 0.4, free_after=HAND_OPEN_S + 1.5)]
+        elif k == 3:  # the middle finger holds
+            tracks = [_grasp(g, (0.5, 0.5), sphere, 1.0)]
+        elif k == 4:  # the ring finger's contact turns under it
+            tracks = [_grasp(g, (0.5, 0.5), {"r1": 10.0, "psi_deg": 45.0}, 0.8,
+                             [("rotate", HAND_MOVE_S, {"psi_deg": 90.0})])]
+        else:  # the little finger touches lightly
+            tracks = [_grasp(g, (0.5, 0.45), sphere, 0.5)]
+        return MultiScene(tracks, f"hand-finger{k}")
+
+    return scene
+
+
+#: The hand's parts: name -> (scene, sensor description of its array).
+HAND_PARTS: dict[str, tuple[str, str]] = {
+    "palm": ("hand-palm", "flat16"),
+    **{f"finger{k}": (f"hand-finger{k}", "fearing1988") for k in range(1, 6)},
+}
+
+
+SCENES: dict[str, Callable[[Geometry], AnyScene]] = {
     "demo": _demo,
     "press": _press,
     "hold": _hold,
@@ -430,10 +589,12 @@ SCENES: dict[str, Callable[[Geometry], Scene]] = {
     "edge": _edge,
     "moving": _moving,
     "temporal": _temporal,
+    "hand-palm": _hand_palm,
+    **{f"hand-finger{k}": _hand_finger(k) for k in range(1, 6)},
 }
 
 
-def named_scene(name: str, geometry: Geometry | None = None) -> Scene:
+def named_scene(name: str, geometry: Geometry | None = None) -> AnyScene:
     """The built-in scene ``name`` laid out on ``geometry`` (default: the 8x8 array).
 
     ``ValueError`` names the known scenes if ``name`` is not one of them.
@@ -444,7 +605,7 @@ def named_scene(name: str, geometry: Geometry | None = None) -> Scene:
     return SCENES[key](geometry or Geometry())
 
 
-def scene_from_spec(spec: str, geometry: Geometry | None = None) -> Scene:
+def scene_from_spec(spec: str, geometry: Geometry | None = None) -> AnyScene:
     """The scene a URL or command line names (``sim://?scene=demo``, ``--scene demo``).
 
     A spec is a built-in scene name (see :data:`SCENES`), case-insensitive.
@@ -547,6 +708,9 @@ class Tick:
     counts: np.ndarray = field(repr=False)
     sensor_id: int = 0
     device_time_us: int = 0
+    #: every contact touching (a :class:`MultiScene`'s truth, in track order); ``contact`` is
+    #: the one of the largest force
+    contacts: tuple[Contact, ...] = ()
 
     @property
     def seq(self) -> int:
@@ -583,7 +747,7 @@ class FingerSimulator:
     def __init__(
         self,
         sensor: SensorModel | None = None,
-        scene: Scene | str = "demo",
+        scene: AnyScene | str = "demo",
         seed: int = 0,
         rate_hz: float = 1000.0,
         noise: float | None = None,
@@ -642,6 +806,10 @@ class FingerSimulator:
         self._peak = np.zeros(self.shape)  # hysteresis peak-hold P
         self._settled = True  # P equals the current load: no residual until the load changes
         self._cached: tuple[Contact | None, np.ndarray] = (None, self._zeros)
+        self._multi = isinstance(self.scene, MultiScene)
+        #: a MultiScene's contacts and their summed strain, reused while none changes
+        self._cached_sum: tuple[tuple[Contact, ...], np.ndarray] = ((), self._zeros)
+        self._track_cache: dict[int, tuple[Contact, np.ndarray]] = {}
         self._last_phys = self._zeros
         self.next_index = 0
         """Index of the tick :meth:`step` produces next."""
@@ -674,6 +842,37 @@ class FingerSimulator:
             self.predictions += 1
         return strain
 
+    def physics_of(self, contacts: Sequence[Contact]) -> np.ndarray:
+        """Noise-free strain of several contacts at once, the sum of each one's
+        (:meth:`physics`; read-only, reused while none of them changes)."""
+        key = tuple(contacts)
+        if not key:
+            return self._zeros
+        if len(key) == 1:
+            return self.physics(key[0])
+        last, strain = self._cached_sum
+        if key != last:
+            strain = np.zeros(self.shape)
+            for c in key:
+                strain += self._track_physics(c)
+            strain.setflags(write=False)
+            self._cached_sum = (key, strain)
+        return strain
+
+    def _track_physics(self, contact: Contact) -> np.ndarray:
+        """One contact's strain, from a cache of the last few (each track's contact repeats
+        while it holds, whatever the others do)."""
+        key = hash(contact)
+        hit = self._track_cache.get(key)
+        if hit is not None and hit[0] == contact:
+            return hit[1]
+        strain = self.model.predict(as_line(contact, self.sensor.geometry))
+        self.predictions += 1
+        if len(self._track_cache) > 16:
+            self._track_cache.clear()
+        self._track_cache[key] = (contact, strain)
+        return strain
+
     def to_counts(self, strain: np.ndarray) -> np.ndarray:
         """Raw ``uint16`` counts the tactels report for ``strain`` (the calibration's inverse)."""
         if not self._affine:
@@ -700,8 +899,14 @@ class FingerSimulator:
         self.next_index = k + 1
         t = k / self.rate_hz
         t_scene = self.scene_time(k)
-        contact = self.scene.contact_at(t_scene)
-        phys = self.physics(contact)
+        if self._multi:
+            contacts = tuple(self.scene.contacts_at(t_scene))
+            contact = max(contacts, key=lambda c: c.force, default=None)
+            phys = self.physics_of(contacts)
+        else:
+            contact = self.scene.contact_at(t_scene)
+            contacts = () if contact is None else (contact,)
+            phys = self.physics(contact)
         drift = self._update_drift(t)
         residual = self._update_hysteresis(phys, dt)
         strain = phys + drift
@@ -710,7 +915,7 @@ class FingerSimulator:
         if self.noise > 0:
             strain += self._noise_rng.normal(0.0, self.noise, self.shape)
         return Tick(k, t, t_scene, contact, phys, drift, residual, strain, self.to_counts(strain),
-                    self.sensor_id, round(k * 1e6 / self.rate_hz))
+                    self.sensor_id, round(k * 1e6 / self.rate_hz), contacts)
 
     def next_frame(self) -> Frame:
         """The next tick as the frame the device sends."""

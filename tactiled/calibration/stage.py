@@ -3,11 +3,25 @@
 ``Frame(raw) -> LookupTable.to_strain -> Zeroer.update (ContactDetector inside) -> frame.strain``,
 one call per frame, no I/O.  Times come from the device clock (``device_time_us``), so the zeroing
 time constants hold whatever the host's scheduling jitter.
+
+A frame of counts takes the compiled path (:mod:`tactiled.calibration.fused`): the same
+arithmetic in two kernel calls instead of a dozen numpy calls, with the decisions and the state
+kept in the objects above.  The objects' own methods (the reference path) take the frames the
+kernels do not cover: the first frame and the one after a tare, a frame with non-finite values,
+a detector averaging several frames.
 """
 
 from __future__ import annotations
 
+import math
+import os
+
+import numpy as np
+
+from tactiled.calibration.fused import zero_frame
+from tactiled.calibration.hysteresis import MIN_PEAK_SIGMAS, NOISE_MARGIN
 from tactiled.calibration.lut import LookupTable
+from tactiled.calibration.segments import Segments
 from tactiled.calibration.zeroing import Zeroer
 from tactiled.errors import CalibrationError
 from tactiled.frames import Frame
@@ -24,6 +38,7 @@ class CalibrationStage:
     def __init__(self, table: LookupTable, zeroer: Zeroer | None = None) -> None:
         self.table = table
         self.zeroer = Zeroer(table.shape) if zeroer is None else zeroer
+        self.finite = False
         if self.zeroer.shape != table.shape:
             raise ValueError(f"zeroer shape {self.zeroer.shape} != table shape {table.shape}")
 
@@ -34,9 +49,58 @@ class CalibrationStage:
                 f"frame from sensor {frame.sensor_id}, but the calibration is for sensor "
                 f"{self.table.sensor_id}"
             )
-        strain = self.table.to_strain(frame.raw)
-        frame.strain = self.zeroer.update(strain, frame.device_time_us * 1e-6)
+        t = frame.device_time_us * 1e-6
+        z = self._compiled(frame.raw, t) if self.compiled else None
+        #: the last frame's strain is known finite (the compiled path checked every value)
+        self.finite = z is not None
+        if z is None:  # the reference path
+            z = self.zeroer.update(self.table.to_strain(frame.raw), t)
+        frame.strain = z
         return self.zeroer.in_contact
+
+    #: take the compiled path where it applies (False: the reference path for every frame;
+    #: the environment variable TACTILED_STAGE=reference sets False, to measure the difference)
+    compiled = os.environ.get("TACTILED_STAGE", "") != "reference"
+
+    def _compiled(self, raw: np.ndarray, t: float) -> np.ndarray | None:
+        """:meth:`Zeroer.update` of ``table.to_strain(raw)`` at time ``t`` (s) by the kernels,
+        or None (nothing changed) where they do not apply."""
+        zr = self.zeroer
+        det = zr.detector
+        shape = zr.shape
+        if (zr.baseline is None or zr._pending_tare or raw.shape != shape
+                or raw.dtype.kind not in "ui" or not zr.baseline.flags.c_contiguous):
+            return None
+        seg = self.table._forward
+        if not isinstance(seg, Segments):
+            return None
+        comp = zr.hysteresis
+        dt = t - zr._last_t if zr._last_t is not None else 0.0
+        f = comp.fraction
+        sigma = det.sigma
+        z = np.empty(shape)
+        residual = np.empty(shape) if f > 0.0 else z  # (untouched without compensation)
+        tmap = np.empty(det._total.size)
+        state, stat = zero_frame(
+            raw.reshape(-1), seg._offset, seg._breaks, seg._params, zr.baseline.reshape(-1),
+            comp._peak.reshape(-1), f, math.exp(-dt / comp.tau_s) if dt > 0.0 else 1.0,
+            MIN_PEAK_SIGMAS * sigma, NOISE_MARGIN * sigma, comp._active,
+            det._ax, det._ay_t, det._bands, z.reshape(-1), residual.reshape(-1), tmap)
+        if state < 0:
+            return None
+        zr._frames += 1
+        settling = t < zr._settle_until
+        zr._last_t = t
+        zr._residual = residual if state & 1 else None
+        if f > 0.0:
+            comp._active = bool(state & 2)
+        # while the baseline forms, its own noise would raise false contacts: learn only
+        if settling:
+            contact = False
+        else:
+            contact = det.decide(det.average_map(tmap) if det.average > 1 else stat)
+        zr._settle_frame(z, t, dt, contact)
+        return z
 
     @property
     def in_contact(self) -> bool:

@@ -80,6 +80,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.fused import follow_baseline
 from tactiled.calibration.hysteresis import HysteresisCompensator, HysteresisLearner
 
 DEFAULT_TAU_DRIFT = 5.0  # s
@@ -182,6 +183,8 @@ class Zeroer:
         if bad is not None:
             x = np.where(bad, self.baseline, x)  # output 0 there, baseline untouched
         z = x - self.baseline
+        if not z.flags.c_contiguous:  # (the baseline's step below reads and clips it flat)
+            z = np.ascontiguousarray(z)
         self._frames += 1
         settling = t < self._settle_until
         dt = t - self._last_t if self._last_t is not None else 0.0
@@ -193,14 +196,22 @@ class Zeroer:
         if contact is None:
             # While the baseline forms, its own noise would raise false contacts: learn only.
             contact = False if settling else self.detector.update(z)
+        self._settle_frame(z, t, dt, contact)
+        return z
+
+    def _settle_frame(self, z: np.ndarray, t: float, dt: float, contact: bool) -> None:
+        """After the zeroed frame ``z`` (time ``t``, ``dt`` s after the last) was decided:
+        the contact state, and the baseline's step towards an untouched frame."""
         if contact:
             self.in_contact = True
-            return z  # frozen: a held contact is never absorbed
+            return  # frozen: a held contact is never absorbed
         if self.in_contact:
             self.in_contact = False
             self._release_until = t + self.holdoff
             self._drift_t = None
         if dt > 0.0:
+            if not self.baseline.flags.c_contiguous:  # (stepped in place, flat)
+                self.baseline = np.ascontiguousarray(self.baseline)
             tau = self.tau_release if t < self._release_until else self.tau_drift
             # -expm1(-dt/tau) = 1 - exp(-dt/tau), accurate for small dt/tau; 1/n makes the first
             # frames after a (re)start a plain running mean (the bias-corrected EMA).
@@ -208,15 +219,13 @@ class Zeroer:
             mean = 1.0 / self._frames
             sigma2 = self.detector.sigma ** 2
             if mean >= ema:  # the running mean of the start-up: take the frame whole
-                self.baseline += mean * z
+                follow_baseline(self.baseline.reshape(-1), z.reshape(-1), mean, 0.0, False)
                 self.baseline_var = sigma2 * mean
             else:
                 self.baseline_var = (1.0 - ema) ** 2 * self.baseline_var + ema * ema * sigma2
-                limit = MAX_STEP_SIGMAS * self.detector.sigma
-                if np.count_nonzero(np.abs(z) > limit) * 2 > z.size:  # implausible: clip
-                    z = np.clip(z, -limit, limit)
-                self.baseline += ema * z
-        return z
+                # an implausible frame (most tactels beyond the limit) pulls clipped
+                follow_baseline(self.baseline.reshape(-1), z.reshape(-1), ema,
+                                MAX_STEP_SIGMAS * self.detector.sigma, True)
 
     def follow_drift(self, zeroed: np.ndarray, t: float, predicted: ArrayLike,
                      window: ArrayLike, *, fitted: bool = False) -> bool:

@@ -41,6 +41,7 @@ examples:
   tactiled bench --suite acquisition --scene moving --workers 1,2,4
   tactiled bench --suite acquisition --scene moving --baseline REV   # this tree against REV
   tactiled bench --suite acquisition --scene moving --sim-nice 10   # devices off the host's CPU
+  tactiled bench --suite acquisition --scene hand --json hand.json   # six devices: a hand
 """
 
 from __future__ import annotations
@@ -72,7 +73,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "every built-in for sensors, fearing1988 and flat16 for contacts)")
     acq = p.add_argument_group("acquisition suite")
     acq.add_argument("--scene", default="demo",
-                     help="simulator scene the fingers play (default demo; moving: contacts that never rest)")
+                     help="simulator scene the fingers play (default demo; moving: contacts that never rest; "
+                          "hand: six devices, five fingertips and a 16x16 palm, grasping several contacts at once)")
+    acq.add_argument("--json", metavar="FILE", default=None,
+                     help="also write every figure of the tables to FILE as JSON")
     acq.add_argument("--workers", type=_worker_list, default=(2,), metavar="N[,N...]",
                      help="fit worker counts, one run each (default 2; e.g. 1,2,4)")
     acq.add_argument("--seconds", type=float, default=None, metavar="S",
@@ -121,12 +125,17 @@ def run(args: argparse.Namespace) -> int:
         check_output(args.plot)  # before the run, not after it
     suites = SUITES if args.suite == "all" else (args.suite,)
     if "acquisition" in suites:
+        from tactiled.bench.acquisition import HAND, known_scene
         from tactiled.sim import SCENES
 
-        if args.scene.strip().lower() not in SCENES:
-            print(f"tactiled bench: error: unknown scene {args.scene!r}; known scenes: {', '.join(SCENES)}",
+        if not known_scene(args.scene.strip().lower()):
+            print(f"tactiled bench: error: unknown scene {args.scene!r}; known scenes: {', '.join(SCENES)}, {HAND}",
                   file=sys.stderr)
             return 2
+        if args.json:
+            from tactiled.files import check_output
+
+            check_output(args.json)  # before the run, not after it
         if args.seconds is not None and not args.seconds > 0:
             print("tactiled bench: error: --seconds must be positive", file=sys.stderr)
             return 2
@@ -208,9 +217,12 @@ def run(args: argparse.Namespace) -> int:
     if "acquisition" in suites:
         from tactiled.bench import acquisition
 
-        out += ["", f"## Acquisition: three fingers at 1 kHz over ptys, scene {args.scene.strip().lower()}", "",
-                acquisition.run(args.quick, scene=args.scene.strip().lower(), workers=args.workers,
-                                seconds=args.seconds, baseline=args.baseline, sim_nice=args.sim_nice)]
+        scene = args.scene.strip().lower()
+        what = "a hand: six devices" if scene == acquisition.HAND else "three fingers"
+        out += ["", f"## Acquisition: {what} at 1 kHz over ptys, scene {scene}", "",
+                acquisition.run(args.quick, scene=scene, workers=args.workers,
+                                seconds=args.seconds, baseline=args.baseline, sim_nice=args.sim_nice,
+                                json_path=args.json)]
     if "speed" in suites and (args.suite == "speed" or args.baseline):
         from tactiled.bench import speed
 

@@ -388,7 +388,8 @@ class SensorPipeline(ContactTracking):
         nonfinite = self.stage.zeroer.nonfinite_frames != nonfinite
         strain = frame.strain
         assert strain is not None
-        if not np.isfinite(strain).all():  # the zeroer never lets NaN out; belt and braces
+        # the zeroer never lets NaN out (the compiled path checks every value); belt and braces
+        if not self.stage.finite and not np.isfinite(strain).all():
             strain = np.nan_to_num(strain, nan=0.0, posinf=0.0, neginf=0.0)
         strain.flags.writeable = False
         self._ordinal += 1

@@ -143,7 +143,7 @@ def test_a_finger_that_never_sees_its_contact_end_is_marked_locked() -> None:
     assert acq.locked_fingers(run, untouched) == ["middle"]
 
 
-def test_the_moving_scene_on_ptys_with_a_workers_sweep() -> None:
+def test_the_moving_scene_on_ptys_with_a_workers_sweep(table_rows) -> None:
     """A short real run: three simulators on ptys, the daemon with 1 and then 2 workers."""
     proc = subprocess.run([*TACTILED, "--suite", "acquisition", "--scene", "moving", "--quick",
                            "--workers", "1,2", "--seconds", "2"],
@@ -153,14 +153,7 @@ def test_the_moving_scene_on_ptys_with_a_workers_sweep() -> None:
     assert "scene moving" in out and "--scene moving" in out
 
     def rows(header: str) -> list[list[str]]:
-        lines = out.splitlines()
-        i = next(k for k, line in enumerate(lines) if line.startswith(header))
-        got = []
-        for line in lines[i + 2:]:
-            if not line.startswith("|"):
-                break
-            got.append([c.strip() for c in line.strip("|").split("|")])
-        return got
+        return table_rows(out, header)
 
     answers = rows("| workers | contact frames |")
     assert [r[0] for r in answers] == ["1", "2"]

@@ -9,7 +9,8 @@ import pytest
 
 from tactiled.config import Geometry
 from tactiled.physics.contact import Contact
-from tactiled.sim import SCENES, Pose, Scene, SceneBuilder, Segment, named_scene, scene_from_spec
+from tactiled.sim import (SCENES, MultiScene, Pose, Scene, SceneBuilder, Segment, named_scene,
+                          scene_from_spec)
 
 CENTRE = (Geometry().span_x / 2, Geometry().span_y / 2)
 
@@ -120,7 +121,7 @@ def test_named_scenes_and_specs() -> None:
     assert {"demo", "press", "hold", "empty"} <= set(SCENES)
     for name in SCENES:
         scene = scene_from_spec(name)
-        assert isinstance(scene, Scene) and scene.name == name and scene.duration > 0
+        assert isinstance(scene, (Scene, MultiScene)) and scene.name == name and scene.duration > 0
     assert scene_from_spec(" Press ").name == "press"
     with pytest.raises(ValueError, match="unknown scene 'nope'.*demo.*press"):
         scene_from_spec("nope")

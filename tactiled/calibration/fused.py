@@ -1,0 +1,178 @@
+"""The calibration stage's per-frame arithmetic in two compiled kernels.
+
+What :class:`~tactiled.calibration.stage.CalibrationStage` does to each frame, as the reference
+objects do it (:class:`~tactiled.calibration.lut.LookupTable` ->
+:class:`~tactiled.calibration.zeroing.Zeroer` with its
+:class:`~tactiled.calibration.hysteresis.HysteresisCompensator` ->
+:class:`~tactiled.calibration.contact.ContactDetector`), is a dozen numpy calls on 64 to 256
+numbers, each costing more in call overhead than in arithmetic.  Here the same arithmetic runs
+in one pass over the tactels:
+
+* :func:`zero_frame`: raw counts -> strain through the table's segments (the same search and
+  the same clamped affine map as :class:`~tactiled.calibration.segments.Segments`), minus the
+  baseline, less the hysteresis residual (updating the compensator's peak-hold), and the
+  matched-filter statistic ``max(Ax z Ay^T)`` of the result;
+* :func:`follow_baseline`: the baseline's step towards an untouched frame, its pull clipped
+  when most tactels are implausibly far out (:data:`~tactiled.calibration.zeroing.MAX_STEP_SIGMAS`).
+
+The decisions (contact, settling, release hold-off, tare) stay in Python, in the stage, with
+the state of the objects above, so either path can take any frame.  Results equal the
+reference path's to rounding (the statistic's sums run in another order than BLAS's);
+tests/calibration/test_fused_stage.py compares them on random frames.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: np.ndarray,
+               baseline: np.ndarray, peak: np.ndarray, fraction: float, decay: float,
+               floor: float, margin: float, active: bool, ax: np.ndarray, ay_t: np.ndarray,
+               bands: np.ndarray, z: np.ndarray, residual: np.ndarray,
+               tmap: np.ndarray) -> tuple[int, float]:
+    """One frame of raw counts ``raw`` (flat, ``T`` tactels, row-major) into ``z`` (flat):
+    linearised, zeroed against ``baseline`` and, with ``fraction`` > 0, compensated for the
+    rubber's hysteresis (the compensator's ``peak`` updated in place; its previous peaks
+    decayed by ``decay`` = ``exp(-dt / tau)``, 1 for none; ``floor`` = MIN_PEAK_SIGMAS sigma,
+    ``margin`` = NOISE_MARGIN sigma; ``active``: some peak was above the floor).
+
+    Returns ``(state, statistic)``: state -1 when a linearised value was not finite (nothing
+    was changed: the caller takes the reference path), else bit 0 set when a residual was
+    taken (it is in ``residual``; otherwise ``residual`` is untouched) and bit 1 set when the
+    compensator is still active; ``statistic`` is ``max(Ax z Ay^T)`` on the compensated frame,
+    whose filter map (flat, row-major) is written to ``tmap``.  ``bands``: where the filter
+    matrices are not zero (:func:`filter_bands`).
+    """
+    n = raw.size
+    nb = breaks.size
+    for t in range(n):
+        x = float(raw[t])
+        q = x + offset[t]
+        # searchsorted(breaks, q, "right"): the number of breaks <= q
+        lo, hi = 0, nb
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if breaks[mid] <= q:
+                lo = mid + 1
+            else:
+                hi = mid
+        y = x - params[0, lo]
+        y *= params[1, lo]
+        y += params[2, lo]
+        y = min(y, params[3, lo])
+        y = max(y, params[4, lo])
+        if not math.isfinite(y):
+            return -1, 0.0
+        z[t] = y - baseline[t]
+    state = 0
+    if fraction > 0.0:
+        zmax = z[0]
+        for t in range(n):
+            zmax = max(zmax, z[t])
+        if active or zmax >= floor:
+            gain = fraction / (1.0 - fraction)
+            top = 0.0
+            for t in range(n):
+                p = peak[t] * decay
+                zt = z[t]
+                taken = 0.0
+                if zt < p and p > floor:
+                    taken = min((p - zt) * gain, fraction * p)
+                residual[t] = taken
+                p = max(p, zt - margin)
+                peak[t] = p
+                top = max(top, p)
+                z[t] = zt - taken
+            state = 1 | (2 if top > floor else 0)
+    # The matched filter, separable: T = Ax Z Ay^T, Z the (rows, cols) frame; each template
+    # row reaches a few tactels only (its band), the rest of the products being zeros.
+    cols = ay_t.shape[0]
+    nu, nv = ax.shape[0], ay_t.shape[1]
+    m = np.zeros((nu, cols))
+    for u in range(nu):
+        for i in range(bands[0, u], bands[1, u]):
+            a = ax[u, i]
+            for j in range(cols):
+                m[u, j] += a * z[i * cols + j]
+    stat = -math.inf
+    for u in range(nu):
+        for v in range(nv):
+            s = 0.0
+            for j in range(bands[2, v], bands[3, v]):
+                s += m[u, j] * ay_t[j, v]
+            tmap[u * nv + v] = s
+            stat = max(stat, s)
+    return state, stat
+
+
+def filter_bands(ax: np.ndarray, ay_t: np.ndarray) -> np.ndarray:
+    """``(4, max(U, V))`` int64: for each row ``u`` of ``Ax`` the first and one past the last
+    column not zero (rows 0, 1), and likewise for each column ``v`` of ``Ay^T`` its rows
+    (rows 2, 3): :func:`zero_frame` multiplies only there."""
+    def span(nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.where(nonzero.any(axis=1), nonzero.argmax(axis=1), 0)
+        hi = np.where(nonzero.any(axis=1), nonzero.shape[1] - nonzero[:, ::-1].argmax(axis=1), 0)
+        return lo, hi
+
+    out = np.zeros((4, max(ax.shape[0], ay_t.shape[1])), dtype=np.int64)
+    out[0, :ax.shape[0]], out[1, :ax.shape[0]] = span(ax != 0.0)
+    out[2, :ay_t.shape[1]], out[3, :ay_t.shape[1]] = span((ay_t != 0.0).T)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def average_maps(ring: np.ndarray, total: np.ndarray, tmap: np.ndarray, count: int,
+                 head: int) -> tuple[int, int, float]:
+    """The detector's running mean of its last ``ring.shape[0]`` filter maps: ``tmap`` (the
+    newest) added to ``total`` (the sum of the ``count`` maps in ``ring``, the oldest at
+    ``head`` once full), the oldest taken out when the ring is full, ``tmap`` stored in its
+    place.  Until the ring has filled, the mean has more noise than the threshold assumes,
+    so it is scaled by ``1 / sqrt(n * average)`` instead of ``1 / n`` (the same false-contact
+    rate).  Returns ``(count, head, statistic)``: the new count and head, and ``max`` of the
+    scaled sum."""
+    average = ring.shape[0]
+    p = tmap.size
+    if count == 0:
+        for i in range(p):
+            total[i] = tmap[i]
+    else:
+        for i in range(p):
+            total[i] += tmap[i]
+        if count == average:
+            for i in range(p):
+                total[i] -= ring[head, i]
+    for i in range(p):
+        ring[head, i] = tmap[i]
+    head = (head + 1) % average
+    count = min(count + 1, average)
+    factor = 1.0 / count if count == average else 1.0 / math.sqrt(count * average)
+    stat = -math.inf
+    for i in range(p):
+        stat = max(stat, total[i] * factor)
+    return count, head, stat
+
+
+@njit(cache=True, nogil=True)
+def follow_baseline(baseline: np.ndarray, z: np.ndarray, weight: float, limit: float,
+                    clip: bool) -> None:
+    """``baseline += weight * z``, in place; with ``clip``, when more than half the tactels
+    lie beyond ``limit`` (an implausible frame), ``z`` is first clipped to ``[-limit, limit]``
+    in place (the frame the zeroer returns, as its pull on the baseline)."""
+    n = z.size
+    if clip:
+        beyond = 0
+        for t in range(n):
+            if abs(z[t]) > limit:
+                beyond += 1
+        if beyond * 2 > n:
+            for t in range(n):
+                z[t] = min(max(z[t], -limit), limit)
+                baseline[t] += weight * z[t]
+            return
+    for t in range(n):
+        baseline[t] += weight * z[t]

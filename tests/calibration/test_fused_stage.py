@@ -1,0 +1,105 @@
+"""The calibration stage's compiled path against its reference path (the objects' own numpy
+methods): the same zeroed frames, contact decisions, statistics and state, frame after frame,
+on simulated fingers (contacts, drift, the rubber's hysteresis compensated), glitch frames and
+a tare in the middle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.lut import LookupTable
+from tactiled.calibration.stage import CalibrationStage
+from tactiled.calibration.zeroing import Zeroer
+from tactiled.frames import Frame
+from tactiled.sensors import load_description
+from tactiled.sim import FingerSimulator
+
+
+def _table(rows: int, cols: int, rng: np.random.Generator) -> LookupTable:
+    """A gently non-linear table per tactel around the simulator's 10000 counts of zero."""
+    counts, strain = [], []
+    for _ in range(rows * cols):
+        c = np.array([0.0, 8000.0, 10000.0, 14000.0, 30000.0, 65535.0]) + rng.uniform(-50, 50, 6)
+        gain = rng.uniform(0.9, 1.1) * (1.0 + np.array([0.0, 0.02, 0.0, -0.03, -0.08, -0.1]))
+        counts.append(c)
+        strain.append((c - 10000.0) / 20000.0 * gain)
+    return LookupTable(rows, cols, counts, strain)
+
+
+def _stage(description: str, seed: int, average: int = 2) -> CalibrationStage:
+    sensor = load_description(description).sensor_model()
+    g = sensor.geometry
+    zeroer = Zeroer((g.rows, g.cols), detector=ContactDetector(sensor=sensor, average=average))
+    zeroer.hysteresis.set(0.05, 0.5)  # compensating, as once learnt
+    return CalibrationStage(_table(g.rows, g.cols, np.random.default_rng(seed)), zeroer)
+
+
+@pytest.mark.parametrize("description, scene, average", [
+    ("fearing1988", "moving", 2), ("fearing1988", "demo", 1), ("flat16", "hand-palm", 2)])
+def test_the_compiled_stage_equals_the_reference_frame_by_frame(description: str, scene: str,
+                                                                 average: int) -> None:
+    """The daemon's detector averages two frames at 1 kHz (detector_average); one frame too."""
+    fast, ref = _stage(description, 7, average), _stage(description, 7, average)
+    ref.compiled = False
+    sensor = load_description(description).sensor_model()
+    sim = FingerSimulator(sensor, scene, seed=3)
+    rng = np.random.default_rng(11)
+    contacts = 0
+    taken = []
+    kernels = fast._compiled
+
+    def counted(raw: np.ndarray, t: float) -> np.ndarray | None:
+        z = kernels(raw, t)
+        taken.append(z is not None)
+        return z
+
+    fast._compiled = counted  # type: ignore[method-assign]
+    for k in range(2500):
+        tick = sim.step()
+        raw = tick.counts
+        if k in (700, 701, 1900):  # a glitch: the ADC returned zeros (an implausible frame)
+            raw = np.zeros_like(raw)
+        elif rng.random() < 0.02:  # a few counts off by one or two: a noisier reading
+            raw = (raw.astype(np.int64) + rng.integers(-2, 3, raw.shape)).clip(0, 65535).astype(np.uint16)
+        if k == 1200:
+            fast.tare()
+            ref.tare()
+        a = Frame(seq=k, device_time_us=tick.device_time_us, raw=raw.copy())
+        b = Frame(seq=k, device_time_us=tick.device_time_us, raw=raw.copy())
+        before = fast.zeroer._frames
+        ca, cb = fast.process(a), ref.process(b)
+        assert ca == cb, k
+        contacts += ca
+        np.testing.assert_allclose(a.strain, b.strain, rtol=1e-12, atol=1e-15, err_msg=str(k))
+        za, zb = fast.zeroer, ref.zeroer
+        assert za._frames == zb._frames == before + 1 or k in (0, 1200)
+        assert za.detector.last_statistic == pytest.approx(zb.detector.last_statistic, rel=1e-12, abs=1e-15)
+        np.testing.assert_allclose(za.baseline, zb.baseline, rtol=1e-12, atol=1e-15)
+        assert za.baseline_var == pytest.approx(zb.baseline_var, rel=1e-12)
+        np.testing.assert_allclose(za.hysteresis._peak, zb.hysteresis._peak, rtol=1e-12, atol=1e-15)
+        assert za.hysteresis._active == zb.hysteresis._active
+        assert (za._residual is None) == (zb._residual is None)
+        if za._residual is not None:
+            np.testing.assert_allclose(za._residual, zb._residual, rtol=1e-12, atol=1e-15)
+        assert (za.in_contact, za._release_until, za._settle_until) == \
+            (zb.in_contact, zb._release_until, zb._settle_until)
+        assert (za.detector._count, za.detector._head) == (zb.detector._count, zb.detector._head)
+        np.testing.assert_allclose(za.detector._total, zb.detector._total, rtol=1e-12, atol=1e-15)
+    # the compiled path took every frame but the first and the one after the tare
+    assert contacts > 300 and sum(taken) == len(taken) - 2
+
+
+def test_frames_the_kernels_do_not_cover_take_the_reference_path() -> None:
+    """A frame of float counts with a NaN: the reference path patches and counts it."""
+    stage = _stage("fearing1988", 1)
+    sim = FingerSimulator(scene="press", seed=2)
+    for k in range(5):
+        tick = sim.step()
+        stage.process(Frame(seq=k, device_time_us=tick.device_time_us, raw=tick.counts))
+    raw = sim.step().counts.astype(np.float64)
+    raw[2, 3] = np.nan
+    f = Frame(seq=5, device_time_us=5000, raw=raw)
+    stage.process(f)
+    assert stage.zeroer.nonfinite_frames == 1 and np.isfinite(f.strain).all() and f.strain[2, 3] == 0.0
