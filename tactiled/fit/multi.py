@@ -1,10 +1,10 @@
 """Several contacts on one array: each pressed region fitted, the neighbours' strain accounted for.
 
 The physics is linear in the pressure, so the strain of several contacts is the sum of their
-strains.  :func:`fit_contacts` finds the frame's separate regions
-(:func:`tactiled.fit.regions.find_regions`); a frame of one region is fitted exactly as a
-single contact (:meth:`Fitter.fit`, the same result bit for bit).  With several, each contact is
-fitted on the frame less its neighbours' predicted strain (block coordinate descent on the
+strains.  :func:`fit_contacts` fits the frame as one contact first (:meth:`Fitter.fit`: a
+one-contact frame gets the same result bit for bit), then looks at the frame's other separate
+regions (:func:`tactiled.fit.regions.find_regions`): those whose peak that contact's strain
+leaves unexplained are contacts of their own.  With several, each contact is fitted on the frame less its neighbours' predicted strain (block coordinate descent on the
 joint least-squares problem: ``SWEEPS`` passes, each contact refitted from where the last pass
 left it), with the neighbours' cores left out of its window while their own fits are rough.
 When every contact was there in the last frame (``warm``), their last fits predict the
