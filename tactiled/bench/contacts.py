@@ -15,7 +15,8 @@ frame of one kind and fitted with that model by :func:`tactiled.fit.multi.fit_co
   sigma.
 * **Close** frames hold two contacts 1-2 depths apart whose noise-free strain shows no dip
   between them: the table says how often they were reported as two, as one (``merged`` or not), or otherwise.
-* **Single** frames: one contact, fitted by ``fit_contacts`` and by the single-contact fitter;
+* **Single** frames: one contact (on a flat array, spheres and line contacts, whose ridge the
+  grid samples as several bumps), fitted by ``fit_contacts`` and by the single-contact fitter;
   the two results must be the same, key for key.
 """
 
@@ -33,7 +34,7 @@ from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.fit.multi import fit_contacts, joint_bounds
 from tactiled.fit.regions import find_regions
-from tactiled.physics.contact import Contact
+from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.strain import StrainModel
 from tactiled.progress import Progress
 from tactiled.sensors import SensorDescription, load_description
@@ -68,6 +69,15 @@ def _contact(kind: str, rng: np.random.Generator, model: StrainModel, xy: tuple[
     else:
         psi = float(rng.uniform(30.0, 150.0))
         make = lambda s: Contact(r, math.inf, psi, s, x0, y0)  # noqa: E731
+    return _scaled(model, make, snr, model.sensor.noise.sigma)
+
+
+def _line(rng: np.random.Generator, model: StrainModel, xy: tuple[float, float]) -> LineContact:
+    """A cylinder on a flat array (a line contact) through ``xy``, at any angle."""
+    r = math.exp(rng.uniform(*np.log(RADII)))
+    psi = float(rng.uniform(0.0, 180.0))
+    snr = float(rng.uniform(*PEAK_SNR))
+    make = lambda s: LineContact(r, psi, 0.1 * s, *xy)  # noqa: E731
     return _scaled(model, make, snr, model.sensor.noise.sigma)
 
 
@@ -193,12 +203,15 @@ def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None 
               else "one" if len(fits) == 1 else f"{len(fits)}"] += 1
         if bar is not None:
             bar.step()
+    singles = ("sphere", "line") if desc.flat else kinds
     for f in range(frames):
-        kind = kinds[f % len(kinds)]
-        c = _contact(kind, rng, model, _places(1, rng, desc, 0.0)[0])  # type: ignore[index]
+        kind = singles[f % len(singles)]
+        place = _places(1, rng, desc, 0.0)[0]  # type: ignore[index]
+        c = _line(rng, model, place) if kind == "line" else _contact(kind, rng, model, place)
         frame = model.predict(c) + rng.normal(0.0, sigma, (desc.rows, desc.cols))
-        a = fit_contacts(fitter, frame, kind)
-        b = fitter.fit(frame, kind)
+        fit_model = "cylinder" if kind == "line" else kind
+        a = fit_contacts(fitter, frame, fit_model)
+        b = fitter.fit(frame, fit_model)
         same = len(a) == 1 and _same(a[0].to_json_dict(), b.to_json_dict())
         single["same" if same else "different"] += 1
         if bar is not None:

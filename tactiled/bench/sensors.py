@@ -7,7 +7,9 @@ the array's middle half, pressed to a peak strain of 40-120 noise sigmas -- are 
 own model under the description's noise, many noise draws each.  Per parameter the table gives
 the RMS error over the Cramer-Rao bound at the truth (1.0 is an efficient estimator), the share
 of errors within twice the fit's own reported sigma (95 % for honest sigmas), and the share of
-values withheld (with their reasons counted); and the fit time per frame.
+values withheld (with their reasons counted); and the fit time per frame (CPU time of the
+fitting thread), of the contact's own model and of ``auto`` (the daemon's choice among the
+models) on the same frame, with the share of auto's fits its budget stopped.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.physics.contact import Contact, LineContact
@@ -50,6 +53,8 @@ class Scores:
     seen: Counter = field(default_factory=Counter)
     reasons: Counter = field(default_factory=Counter)
     fit_ms: list[float] = field(default_factory=list)
+    auto_ms: list[float] = field(default_factory=list)
+    auto_spent: int = 0
 
     def add(self, name: str, err: float | None, crb: float | None, sd: float | None,
             reason: str | None) -> None:
@@ -145,9 +150,13 @@ def score_description(desc: SensorDescription, contacts: int, draws: int, seed: 
                 keys = SPHERE_KEYS if kind == "sphere" else CYLINDER_KEYS
             for _ in range(draws):
                 frame = clean + rng.normal(0.0, sigma, clean.shape)
-                t0 = time.perf_counter()
+                t0 = time.thread_time()
                 res = fitter.fit(frame, fit_model)
-                scores.fit_ms.append((time.perf_counter() - t0) * 1e3)
+                scores.fit_ms.append((time.thread_time() - t0) * 1e3)
+                t0 = time.thread_time()
+                auto = fitter.fit(frame, "auto")
+                scores.auto_ms.append((time.thread_time() - t0) * 1e3)
+                scores.auto_spent += budget_spent(auto.reasons)
                 line = res.line or {}
                 for k in keys:
                     est = line.get(k) if k in ("load_n_per_mm", "offset_mm") else res.values.get(k)
@@ -161,6 +170,11 @@ def score_description(desc: SensorDescription, contacts: int, draws: int, seed: 
     return scores
 
 
+def _times(ms: list[float]) -> str:
+    t = np.array(ms)
+    return f"{np.median(t):.2f} / {np.percentile(t, 99):.2f} / {t.max():.2f}"
+
+
 def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, seed: int = 1) -> str:
     """The suite's Markdown report (one table per description, then a summary line each)."""
     names = list(names) if names else builtin_names()
@@ -171,9 +185,10 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
            f"{PEAK_SNR[0]:g}-{PEAK_SNR[1]:g} noise sigmas, fitted with the contact's own model "
            "(cylinder; sphere; edge = a 0.5 mm cylinder). RMS/CRB: RMS error over the Cramer-Rao "
            "bound at the truth; 2-sigma: errors within twice the fit's own sigma; withheld: "
-           "values the fit withheld with a reason.", ""]
-    summary = ["| description | array | surface | worst RMS/CRB | coverage range | withheld | fit ms p50 / p99 |",
-               "|---|---|---|---|---|---|---|"]
+           "values the fit withheld with a reason. Fit times: CPU ms of the contact's own model "
+           "and of auto on the same frame (auto stopped: its fits the budget stopped).", ""]
+    summary = ["| description | array | surface | worst RMS/CRB | coverage range | withheld | fit ms p50 / p99 / max "
+               "| auto ms p50 / p99 / max | auto stopped |", "|---|---|---|---|---|---|---|---|---|"]
     for desc in descs:
         s = score_description(desc, contacts, draws, seed, bar)
         out += [f"### {desc.name}: {desc.rows}x{desc.cols}, {desc.pitch_x_mm:g} x {desc.pitch_y_mm:g} mm, "
@@ -193,11 +208,11 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
         if s.reasons:
             out += ["", "withheld because: " + "; ".join(f"{k} ({v})" for k, v in s.reasons.most_common())]
         out.append("")
-        ms = np.array(s.fit_ms)
         total = sum(s.seen.values())
         summary.append(
             f"| {desc.name} | {desc.rows}x{desc.cols} | {'flat' if desc.flat else 'curved'} | {worst:.2f} | "
             f"{100 * min(covs):.0f}-{100 * max(covs):.0f} % | {100 * sum(s.withheld.values()) / total:.0f} % | "
-            f"{np.median(ms):.2f} / {np.percentile(ms, 99):.2f} |" if covs else f"| {desc.name} | - |")
+            f"{_times(s.fit_ms)} | {_times(s.auto_ms)} | {100 * s.auto_spent / len(s.auto_ms):.1f} % |"
+            if covs else f"| {desc.name} | - |")
     bar.finish(f"{len(descs)} descriptions scored")
     return "\n".join(["Summary (cylinders and spheres; edges in each table):", "", *summary, "", *out])

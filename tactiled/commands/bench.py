@@ -234,26 +234,22 @@ def run(args: argparse.Namespace) -> int:
         out += ["", "## Time: held contacts sharpen, moving ones are tracked", "",
                 temporal.run(args.quick, _say if args.progress is not False else None,
                              args.plot if args.suite == "temporal" else None)]
-    if "sensors" in suites:
-        from tactiled.bench import sensors as sensors_bench
+    # the suites that take --sensor: a bad description is exit 2 with its one-line message
+    for suite, title in (("sensors", "Sensors: accuracy on every description"),
+                         ("contacts", "Several contacts on one array")):
+        if suite not in suites:
+            continue
+        import importlib
+
         from tactiled.errors import ConfigError
 
+        module = importlib.import_module(f"tactiled.bench.{suite}")
         try:
-            report = sensors_bench.run(args.quick, args.progress, args.sensor, args.seed)
+            report = module.run(args.quick, args.progress, args.sensor, args.seed)
         except ConfigError as err:
             print(f"tactiled bench: error: {err}", file=sys.stderr)
             return 2
-        out += ["", "## Sensors: accuracy on every description", "", report]
-    if "contacts" in suites:
-        from tactiled.bench import contacts as contacts_bench
-        from tactiled.errors import ConfigError
-
-        try:
-            report = contacts_bench.run(args.quick, args.progress, args.sensor, args.seed)
-        except ConfigError as err:
-            print(f"tactiled bench: error: {err}", file=sys.stderr)
-            return 2
-        out += ["", "## Several contacts on one array", "", report]
+        out += ["", f"## {title}", "", report]
     if "identify" in suites:
         from tactiled.bench import identify
 

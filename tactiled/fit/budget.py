@@ -12,7 +12,8 @@ the machine, so a frame gets the same answer on every CPU:
 - **work**: the model evaluations' cost, each ``EVALUATION_OVERHEAD`` plus its quadrature
   nodes times the window's tactels (the inner loop's count: 2.3-3.4 ns each, measured from
   7x7 to 96x40 nodes on a 4x4 window; beyond ``LARGE_RULE_NODES`` nodes the tables leave the
-  cache and a unit costs up to 7 ns, so those count ``LARGE_RULE_FACTOR`` times).
+  cache and a unit costs up to 7 ns, so those count ``LARGE_RULE_FACTOR`` times); a line
+  model's evaluation (a flat array's cylinder) ``line_work``, in the same units.
 
 An evaluation that the work left cannot pay for is not started.  A wall-clock ``deadline``
 (``Fitter.fit(budget_s=)``) stays the last resort, checked between evaluations.
@@ -31,15 +32,20 @@ from dataclasses import dataclass
 #: converge use at most 95 (the simulated suites, 1200 frames each, auto cold and warm, every
 #: kind of contact) and 87 (the golden replays: an edge held at the array's end).
 DEFAULT_ITERATIONS = 120
-#: The work of one fit (see the module docstring): ~3 ms of evaluations.  The fits that
-#: converge use at most 342000 on the paper's finger (the simulated suites), 616000 in the
-#: golden replays (an edge at the end of the array) and 951000 on the built-in flat arrays
-#: (`tactiled bench --suite sensors`' contacts: line fits of a 12x32 mat).
-DEFAULT_WORK = 1_200_000
-#: A flat array's fits get this many times the work and twice the iterations: its line
-#: model's evaluations cost 10-100 times a curved finger's, and auto's scouts chase a line
-#: towards ever longer ellipses (docs/concepts/fitting.md, "The fit's budget").
-FLAT_WORK_FACTOR = 10
+#: The work of one fit (see the module docstring).  A fit that spends it costs ~2.4 ms on
+#: the machine of docs/performance/fit-time.md (2.4-3.1 ns a unit in the search, 0.4-0.8 ms of Python
+#: around it), within the 3 ms of a frame at the 99th percentile.  The fits that converge use
+#: at most 342000 on the paper's finger (the simulated suites) and 616000 in the golden
+#: replays (an edge at the end of the array).
+DEFAULT_WORK = 800_000
+#: A flat array's fits get this many times the work and twice the iterations: auto fits the
+#: line and then, where the line does not explain the window, the sphere and the general
+#: ellipse, whose searches follow a wide blob or several contacts into large contacts
+#: (docs/concepts/fitting.md, "The fit's budget").  At 3x a stopped fit costs 5-7 ms on the machine
+#: of docs/performance/fit-time.md (~2-2.5 ns a unit there), within the 10 ms any frame may cost; the
+#: sensors bench's contacts fit under auto within it but for a big ball's blob wider than
+#: the window on the 12x32 mat (docs/performance/fit-time.md).
+FLAT_WORK_FACTOR = 3
 FLAT_ITERATION_FACTOR = 2
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
 #: algebra: ~3 us, measured as the intercept of the cost per evaluation).
@@ -48,11 +54,12 @@ EVALUATION_OVERHEAD = 1000
 #: line) leave the cache and each node costs up to ``LARGE_RULE_FACTOR`` times more.
 LARGE_RULE_NODES = 8192
 LARGE_RULE_FACTOR = 3
-#: One evaluation of a flat array's line model (its residuals and their forward-difference
-#: Jacobian: five strain evaluations, each a rule of n nodes across the line per window
-#: tactel): ~30 us plus ~60 ns per node and tactel of the five, measured from 4 to 320 nodes.
-LINE_OVERHEAD = 11_000
-LINE_WORK_PER_NODE = 110
+#: One evaluation of a flat array's line model (its residuals and their exact Jacobian,
+#: compiled: ``tactiled.physics.line.line_residual``): ~2 us plus ~75 ns per node across the
+#: line and window tactel (each a residue and its partials), measured from 4 to 256 nodes on
+#: 16 to 64 tactels; in units of the ellipse's (~2.1 ns each in its kernel).
+LINE_OVERHEAD = EVALUATION_OVERHEAD
+LINE_WORK_PER_NODE = 36
 
 
 def line_work(nodes: int, points: int) -> int:

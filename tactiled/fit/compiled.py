@@ -25,11 +25,12 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from tactiled.fit.budget import Budget, evaluation_work
+from tactiled.fit.budget import Budget, evaluation_work, line_work
 from tactiled.fit.models import physical_map
 from tactiled.fit.solver import BUDGET_MESSAGE, STALLED, WITHIN_TOLERANCE, SolveResult
 from tactiled.physics.hertz import ellipse_core
 from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
+from tactiled.physics.line import line_points, line_residual
 from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
 
 #: Largest rule (nodes per axis) the compiled search uses without a work budget; beyond it,
@@ -37,6 +38,9 @@ from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rul
 MAX_COMPILED_NODES = 64
 #: Model kinds (the order of ``tactiled.fit.models``' parameter maps below).
 KINDS = {"cylinder": 0, "sphere": 1, "general": 2}
+#: The line model's kind (a cylinder on a flat array, ``tactiled.fit.line``): its own
+#: evaluation, the same search.
+LINE = 3
 
 # status codes of an evaluation and of a search
 _OK, _INVALID_LINE, _INVALID_LONG, FALLBACK, _BUDGET = 0, 1, 2, 3, 4
@@ -83,6 +87,33 @@ def _rule_index(n: int, ladder: np.ndarray) -> int:
 
 
 _work = njit(cache=True, nogil=True)(evaluation_work)
+_line_work = njit(cache=True, nogil=True)(line_work)
+
+
+@njit(cache=True, nogil=True)
+def _evaluate_line(p, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey,
+                   ladder, offsets, rs, rws, work_left, max_nodes):
+    """:func:`_evaluate` for the line model (``tactiled.fit.line``): the rule across the line
+    its half-width needs (``_INVALID_LONG`` beyond ``MAX_NODES``), its work
+    (``tactiled.fit.budget.line_work``), then :func:`tactiled.physics.line.line_residual`.
+    The cover's modulus comes back from ``scale = 3/(2 pi E)``."""
+    empty_r = np.zeros(1)
+    empty_j = np.zeros((1, 4))
+    b = math.sqrt(4.0 * math.exp(p[2]) * math.exp(p[0]) * comp / math.pi)
+    n = _nodes(b, dmin, tol, ladder)
+    if n < 0:
+        empty_r[0] = b
+        return _INVALID_LONG, empty_r, empty_j, 0.0
+    work = _line_work(n, target.shape[0])
+    if work > work_left:
+        return _BUDGET, empty_r, empty_j, 0.0
+    if n > max_nodes:
+        return FALLBACK, empty_r, empty_j, 0.0
+    o = offsets[_rule_index(n, ladder)]
+    px, py, ref_x, ref_y = line_points(xs, ys, ex, ey)
+    r, jac = line_residual(p, px, py, ref_x, ref_y, imp, 3.0 / (2.0 * math.pi * scale), comp,
+                           rs[o:o + n], rws[o:o + n], target, valid, inv_scale)
+    return _OK, r, jac, float(work)
 
 
 @njit(cache=True, nogil=True)
@@ -92,7 +123,11 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
     invalid point (``_INVALID_LINE``: infinite line contact; ``_INVALID_LONG``: too long to
     integrate, with the semi-axis in ``r[0]``), ``FALLBACK`` (a rule past the compiled limit)
     or ``_BUDGET`` (its work, ``tactiled.fit.budget.evaluation_work``, exceeds ``work_left``:
-    not evaluated); ``FALLBACK`` beyond ``max_nodes`` per axis.  ``work`` is what the evaluation cost (0 when none was made)."""
+    not evaluated); ``FALLBACK`` beyond ``max_nodes`` per axis.  ``work`` is what the evaluation cost (0 when none was made).
+    ``kind`` :data:`LINE`: the line model (:func:`_evaluate_line`)."""
+    if kind == LINE:
+        return _evaluate_line(p, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex,
+                              ey, ladder, offsets, rs, rws, work_left, max_nodes)
     d = np.zeros((6, k))
     ka, kb, psi, force, x0, y0 = physical_map(kind, p, d)
     hj = np.empty((3, 4))
@@ -175,12 +210,13 @@ def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp, scale, dmin, tol,
            imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
-           work_left, max_nodes):
+           work_left, max_nodes, noise_cost):
     """``solver.levenberg_marquardt`` for one model and start, compiled (the box ``lo``,
     ``hi`` as its ``bounds``; the verdict is the caller's).  Returns ``(status, p, r, J, cost,
     iterations, evaluations, converged, message code, remaining, work)``; status ``_OK``,
     ``_INVALID_LINE`` / ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``), ``_BUDGET``
-    (the start's evaluation exceeds ``work_left``) or ``FALLBACK``; ``remaining`` is
+    (the start's evaluation exceeds ``work_left``) or ``FALLBACK``; ``atol`` grows with the
+    cost beyond ``noise_cost`` (``solver.levenberg_marquardt``'s); ``remaining`` is
     ``solver.remaining_decrease`` at the end point (for the caller's verdict; inf where there
     is none); ``work`` the evaluations' work (``tactiled.fit.budget``).  A trial point whose
     evaluation the work left cannot pay for ends the search there (message code 4)."""
@@ -211,7 +247,7 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
             if over < xtol:
                 converged, message = True, 1
                 break
-            if predicted <= ftol * cost + atol:
+            if predicted <= ftol * cost + atol * max(1.0, cost / noise_cost):
                 converged, message = True, 2
                 break
             trial = _clip(p + step, lo, hi)
@@ -261,12 +297,14 @@ def _remaining(jac, r, scale, p, lo, hi) -> float:
 def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: float, model_args: tuple,
           window_args: tuple, tol: float, xtol: float = 1e-9, ftol: float = 1e-10,
           lam0: float = 1e-3, bounds: tuple[np.ndarray, np.ndarray] | None = None,
-          verdict_tol: float | None = None, budget: Budget | None = None) -> SolveResult | None:
+          verdict_tol: float | None = None, budget: Budget | None = None,
+          noise_cost: float = math.inf) -> SolveResult | None:
     """Run :func:`search`; a :class:`SolveResult` worded and judged as the Python solver
     words and judges it (``verdict_tol``, ``bounds``: see ``levenberg_marquardt``), or None
     when the search must fall back to the Python solver.  ``budget``: the fit's
     (:mod:`tactiled.fit.budget`), charged with the search's iterations and work (also those
-    spent before a fallback); a search it stops is not converged, whatever the verdict."""
+    spent before a fallback); a search it stops is not converged, whatever the verdict.
+    ``noise_cost``: see ``levenberg_marquardt``."""
     rf, comp, scale, dmin, imp = model_args
     xs, ys, target, valid, inv_scale, ex, ey = window_args
     p0 = np.asarray(p0, dtype=float)
@@ -275,7 +313,7 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
     status, p, r, jac, cost, it, evals, converged, msg, remaining, work = search(
         kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp,
         scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables(),
-        work_left, MAX_NODES if math.isfinite(work_left) else MAX_COMPILED_NODES)
+        work_left, MAX_NODES if math.isfinite(work_left) else MAX_COMPILED_NODES, noise_cost)
     if budget is not None:
         budget.charge(it, work)
     if status == FALLBACK:
@@ -299,7 +337,7 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
     if msg == 4:
         return SolveResult(p, r, jac, cost, it, evals, False, message)
     if verdict_tol is not None:
-        close = remaining <= verdict_tol
+        close = remaining <= verdict_tol * max(1.0, cost / noise_cost)
         if close and not converged:
             message = f"{message}, {WITHIN_TOLERANCE}"
         elif converged and not close:

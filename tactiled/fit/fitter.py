@@ -43,8 +43,7 @@ from tactiled.fit.window import choose_window, plain_frame, plain_window
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.hertz import Ellipse
 from tactiled.physics.kernels import cramer_rao as crb_kernel
-from tactiled.physics.line import half_width
-from tactiled.physics.strain import StrainModel, nodes_for, warm_rules
+from tactiled.physics.strain import StrainModel, warm_rules
 
 #: Singular values below this fraction of the largest make J^T J numerically singular.
 SINGULAR_CONDITION = 1e12
@@ -420,43 +419,13 @@ class Fitter:
         if isinstance(fr, FitResult):
             return fr
         peak, win, n_points = fr.peak, fr.win, fr.n_points
-        steps, bounds = _steps(model), _bounds(model)
         starts = [start] if start is not None else self._cold_starts(fr.clean, fr.peak_idx, model)
-        best: SolveResult | None = None
-        tried = 0
         cap = SCOUT_ITERATIONS if scouting else self.options.max_iter
-        budget = self._budget
         # stop once the next step would lower chi^2 by less than STOP_CHI2 (0.01 scouting): a
         # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
-        atol = (1e-2 if scouting else STOP_CHI2) * (self.sigma / peak) ** 2
-        verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
-        exact = self.options.jacobian == "exact"
-        residual = None  # the Python solver's residual function, built only if it is needed
-        for p0 in starts:
-            max_iter = self._iterations_for(cap)
-            if tried and (max_iter == 0 or self._out_of_time()):
-                break
-            tried += 1
-            sol = None
-            if exact:  # the whole search compiled (falls back on huge contacts)
-                sol = compiled.solve(
-                    compiled.KINDS[model.name], p0, steps, max_iter, atol, self._model_args,
-                    (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey), self.options.tol,
-                    bounds=bounds, verdict_tol=verdict_tol, budget=budget)
-            if sol is None:
-                if residual is None:
-                    residual = self._residual(fr, model)
-                sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=max_iter, atol=atol,
-                                          deadline=self._deadline, verdict_tol=verdict_tol,
-                                          bounds=bounds)
-                if budget is not None:
-                    budget.charge(sol.iterations, 0.0)
-            self._ran_out(sol, max_iter, cap)
-            if best is None or sol.cost < best.cost:
-                best = sol
-            if self._good_enough(best, peak, n_points) or self._out_of_time():
-                break
-        assert best is not None
+        best, tried = self._search(fr, compiled.KINDS[model.name], starts, _steps(model),
+                                   _bounds(model), cap, 1e-2 if scouting else STOP_CHI2,
+                                   lambda: self._residual(fr, model))
         if scouting:  # only ranked by chi^2, then solved again in full if chosen: no report
             return FitResult(contact=True, model=model.name, chi2=best.cost * peak * peak / self.sigma**2,
                              iterations=best.iterations, evaluations=best.evaluations,
@@ -464,6 +433,58 @@ class Fitter:
                              starts=tried, message=best.message,
                              params=tuple(best.p.tolist()))
         return self._result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
+
+    def _search(self, fr: _Frame, kind: int, starts: list[np.ndarray], steps: np.ndarray,
+                bounds: tuple[np.ndarray, np.ndarray], cap: int, stop_chi2: float,
+                python_residual) -> tuple[SolveResult, int]:
+        """Search from each start in turn (the compiled search; the Python solver on
+        ``python_residual()`` where that hands back) until one explains the window to the
+        noise or the budget is spent: ``(best search, starts tried)``.  Each stops once the
+        next step would lower chi^2 by less than ``stop_chi2``.
+
+        Beyond the chi^2 a right model exceeds ``1 - MISMATCH_LEVEL`` of the time, that
+        tolerance and the verdict's grow with chi^2 over it (``levenberg_marquardt``'s
+        ``noise_cost``): a window the model does not explain (a sphere's blob under the line
+        model, several contacts, a hand print) has its minimum far above the noise, and the
+        search crept towards it for tens of iterations, each step lowering chi^2 by a sliver
+        of it, moving the values by a sliver of the errors such a fit has (its sigmas are
+        widened by that excess: :meth:`_mismatch`).  Fits the model explains are untouched."""
+        peak = fr.peak
+        budget = self._budget
+        unit = (self.sigma / peak) ** 2  # the cost of chi^2 = 1
+        atol = stop_chi2 * unit
+        verdict_tol = CONVERGED_CHI2 * unit
+        noise_cost = _chi2_limit(max(fr.n_points - len(starts[0]), 1)) * unit
+        exact = kind == compiled.LINE or self.options.jacobian == "exact"
+        window = (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
+        residual = None  # the Python solver's residual function, built only if it is needed
+        best: SolveResult | None = None
+        tried = 0
+        for p0 in starts:
+            max_iter = self._iterations_for(cap)
+            if tried and (max_iter == 0 or self._out_of_time()):
+                break
+            tried += 1
+            sol = None
+            if exact:  # the whole search compiled (falls back on huge contacts)
+                sol = compiled.solve(kind, p0, steps, max_iter, atol, self._model_args, window,
+                                     self.options.tol, bounds=bounds, verdict_tol=verdict_tol,
+                                     budget=budget, noise_cost=noise_cost)
+            if sol is None:
+                if residual is None:
+                    residual = python_residual()
+                sol = levenberg_marquardt(residual, p0, max_step=steps, max_iter=max_iter, atol=atol,
+                                          deadline=self._deadline, verdict_tol=verdict_tol,
+                                          bounds=bounds, noise_cost=noise_cost)
+                if budget is not None:
+                    budget.charge(sol.iterations, 0.0)
+            self._ran_out(sol, max_iter, cap)
+            if best is None or sol.cost < best.cost:
+                best = sol
+            if self._good_enough(best, peak, fr.n_points) or self._out_of_time():
+                break
+        assert best is not None
+        return best, tried
 
     def _iterations_for(self, cap: int) -> int:
         """The iteration cap of the next search: ``cap``, or what the fit's budget has left."""
@@ -511,6 +532,15 @@ class Fitter:
         depth = min(self.sensor.impulse.depth_x, self.sensor.impulse.depth_y)
         return p[0], p[1], math.log(load * 4.0 * depth), x, y
 
+    def _line_explains(self, cyl: FitResult) -> bool:
+        """On a flat array: the line fit converged with chi^2 consistent with the noise (the
+        test a warm fit's model is kept by).  Auto then keeps it without scouting the sphere
+        and the general ellipse: where the window shows a line, those can only follow it
+        into ever larger contacts (a circle, an ellipse running off the array), the costliest
+        searches a flat array's fit has, to land on what :meth:`_runs_off` turns back into
+        the line."""
+        return self.sensor.geometry.flat and cyl.converged and self._consistent(cyl)
+
     def _runs_off(self, res: FitResult) -> bool:
         """On a flat array: ``res`` (a general or sphere fit) is an ellipse whose both ends lie
         off the array (beyond a pitch of its edge), which within the array is a line contact:
@@ -541,36 +571,9 @@ class Fitter:
             start = None  # a start of another model (a curved finger's cylinder): start cold
         starts = ([np.asarray(start, dtype=float)] if start is not None
                   else prob.starts(fr.clean, self.model.xs_full, self.model.ys_full, peak))
-        atol = STOP_CHI2 * (self.sigma / peak) ** 2
-        verdict_tol = CONVERGED_CHI2 * (self.sigma / peak) ** 2
-        best: SolveResult | None = None
-        tried = 0
-        budget = self._budget
-        residual = prob.residual_and_jacobian
-        if budget is not None:
-            def residual(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-                b = half_width(math.exp(p[2]), math.exp(p[0]), prob.k)
-                nodes = nodes_for(b, prob.dmin, prob.tol)  # ValueError: an invalid point
-                budget.pay(fit_budget.line_work(nodes, fr.n_points))  # or BudgetExhausted
-                return prob.residual_and_jacobian(p)
-
-        cap = self.options.max_iter
-        for p0 in starts:
-            max_iter = self._iterations_for(cap)
-            if tried and (max_iter == 0 or self._out_of_time()):
-                break
-            tried += 1
-            sol = levenberg_marquardt(residual, p0, max_step=LINE_STEPS, max_iter=max_iter,
-                                      atol=atol, deadline=self._deadline, verdict_tol=verdict_tol,
-                                      bounds=_LINE_BOUNDS)
-            if budget is not None:
-                budget.charge(sol.iterations, 0.0)
-            self._ran_out(sol, max_iter, cap)
-            if best is None or sol.cost < best.cost:
-                best = sol
-            if self._good_enough(best, peak, fr.n_points) or self._out_of_time():
-                break
-        assert best is not None
+        best, tried = self._search(fr, compiled.LINE, starts, LINE_STEPS, _LINE_BOUNDS,
+                                   self.options.max_iter, STOP_CHI2,
+                                   lambda: prob.residual_and_jacobian)
         reasons: dict[str, str] = {}
         jraw = best.jacobian * peak
         cov, condition = _covariance(jraw, self.sigma)
@@ -993,10 +996,8 @@ class Fitter:
         return out if out.n_points > _LINE_MODEL.size else fr
 
     def _line_problem(self, fr: _Frame) -> LineProblem:
-        nr, nc = fr.xs.size, fr.ys.size
-        px = np.repeat(fr.xs, nc) + fr.ex
-        py = np.tile(fr.ys, nr) + fr.ey
-        return LineProblem(self.sensor, px, py, fr.target, fr.valid, fr.inv_scale, self.options.tol)
+        return LineProblem(self.sensor, fr.xs, fr.ys, fr.ex, fr.ey, fr.target, fr.valid,
+                           fr.inv_scale, self.options.tol)
 
     def _unobservable(self, values: dict, std: dict, reasons: dict[str, str]) -> None:
         """Withhold what the data cannot pin down rather than report confident nonsense.
@@ -1107,7 +1108,9 @@ class Fitter:
             p_warm = np.asarray(warm[1], dtype=float)
             kept = (self._fit_cylinder(strain, p_warm, mask) if warm[0] == "cylinder"
                     else self._fit_model(strain, get_model(warm[0]), p_warm, mask))
-            if kept.contact and kept.chi2 is not None and kept.peak and self._consistent(kept):
+            # (an ellipse running off a flat array is the line: chosen afresh, as a cold fit would)
+            if kept.contact and kept.chi2 is not None and kept.peak and self._consistent(kept) \
+                    and not self._runs_off(kept):
                 kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
                 return kept
         held = self._budget.hold(0.5) if self._budget is not None else None
@@ -1115,6 +1118,9 @@ class Fitter:
         if held is not None:
             self._budget.release(held)
         if not cyl.contact or cyl.chi2 is None or cyl.params is None or self._out_of_time():
+            return cyl
+        if self._line_explains(cyl):
+            cyl.message = f"the line explains the window to the noise: no other model tried; {cyl.message}"
             return cyl
         fits = [cyl]
         ln_r, psi, ln_f, x0, y0 = self._cylinder_as_point(cyl)

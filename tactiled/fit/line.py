@@ -18,14 +18,12 @@ import numpy as np
 
 from tactiled.config import SensorModel
 from tactiled.fit.params import wrap_deg
-from tactiled.physics.line import across_rule, along_line, half_width, line_strain_points
+from tactiled.physics.line import (across_rule, along_line, half_width, line_points, line_residual,
+                                   line_strain_points)
 
 PARAMS = ("ln_r", "psi", "ln_p", "c")
 #: Step caps of the solver (ln R, rad, ln P, mm).
 STEPS = np.array([1.0, 0.5, 1.0, 2.0])
-#: Forward-difference steps of the Jacobian (ln R, rad, ln P, mm): the angle's is wide enough
-#: that the forward model's rounding near an axis (tactiled.physics.line) does not show.
-_DIFF_STEPS = (1e-6, 1e-4, 1e-6, 1e-6)
 #: Radii (mm) the cold starts try, smallest first.
 START_RADII = (4.0, 25.0)
 FORCE_REASON = ("line contact: a cylinder on a flat array touches along a line longer than the "
@@ -36,13 +34,17 @@ FORCE_REASON = ("line contact: a cylinder on a flat array touches along a line l
 class LineProblem:
     """The line model on one window: residuals, starts and the report.
 
-    ``px``, ``py`` are the window's tactel positions (mm, flattened), ``target`` their strains,
-    ``valid`` the usable ones, ``inv_scale`` each residual's weight; ``ref`` the reference
-    point of the offset ``c``.
+    ``xs``, ``ys`` are the window's grid (mm) and ``ex``, ``ey`` each tactel's displacement
+    from it (flattened row-major), ``target`` their strains, ``valid`` the usable ones,
+    ``inv_scale`` each residual's weight; the reference point of the offset ``c`` is the
+    tactels' mean position (``ref``).  The fitter's search evaluates the same residual
+    compiled (``tactiled.fit.compiled``, kind ``LINE``); this class serves its Python
+    fallback, the bounds at the truth, the starts and the report.
     """
 
-    def __init__(self, sensor: SensorModel, px: np.ndarray, py: np.ndarray, target: np.ndarray,
-                 valid: np.ndarray, inv_scale: np.ndarray, tol: float = 1e-9) -> None:
+    def __init__(self, sensor: SensorModel, xs: np.ndarray, ys: np.ndarray, ex: np.ndarray,
+                 ey: np.ndarray, target: np.ndarray, valid: np.ndarray, inv_scale: np.ndarray,
+                 tol: float = 1e-9) -> None:
         self.sensor = sensor
         imp = sensor.impulse
         self.imp = np.array((imp.depth_x, imp.nu_x, imp.depth_y, imp.nu_y))
@@ -50,12 +52,13 @@ class LineProblem:
         self.modulus = sensor.material.modulus
         self.k = sensor.material.compliance
         self.tol = tol
-        self.px = np.ascontiguousarray(px, dtype=float)
-        self.py = np.ascontiguousarray(py, dtype=float)
-        self.target = target
-        self.valid = valid
-        self.inv_scale = inv_scale
-        self.ref = (float(self.px.mean()), float(self.py.mean()))
+        f = np.ascontiguousarray
+        px, py, rx, ry = line_points(f(xs, dtype=float), f(ys, dtype=float), f(ex, dtype=float),
+                                     f(ey, dtype=float))
+        self.px, self.py, self.ref = px, py, (rx, ry)
+        self.target = f(target, dtype=float)
+        self.valid = f(valid, dtype=np.bool_)
+        self.inv_scale = f(inv_scale, dtype=float)
         g = sensor.geometry
         self.centre = (0.5 * g.span_x, 0.5 * g.span_y)
 
@@ -68,23 +71,14 @@ class LineProblem:
         cy = self.ref[1] + c * math.cos(psi)
         return line_strain_points(load, b, psi, cx, cy, self.px, self.py, self.imp, self.modulus, u, w)
 
-    def residual(self, p: np.ndarray) -> np.ndarray:
-        r = (self.strains(p) - self.target) * self.inv_scale
-        return np.where(self.valid, r, 0.0)
-
     def residual_and_jacobian(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Residuals and their forward-difference Jacobian (the forward model is exact; its
-        derivatives here are differences of it: 4 extra evaluations, each a few tens of
-        microseconds; relative error ~1e-6, 1e-4 in the angle, far below what moves a fit or
-        its bound)."""
-        r = self.residual(p)
-        jac = np.empty((r.size, p.size))
-        for i in range(p.size):
-            h = _DIFF_STEPS[i] * max(1.0, abs(p[i]))
-            q = p.copy()
-            q[i] += h
-            jac[:, i] = (self.residual(q) - r) / h
-        return r, jac
+        """Residuals ``(strain - target) * inv_scale`` (0 where not valid) and their exact
+        Jacobian in ``p`` (:func:`tactiled.physics.line.line_residual`); ValueError for a
+        line too wide to integrate."""
+        p = np.asarray(p, dtype=float)
+        u, w = across_rule(half_width(math.exp(p[2]), math.exp(p[0]), self.k), self.dmin, self.tol)
+        return line_residual(p, self.px, self.py, self.ref[0], self.ref[1], self.imp, self.modulus,
+                             self.k, u, w, self.target, self.valid, self.inv_scale)
 
     def starts(self, clean: np.ndarray, xs: np.ndarray, ys: np.ndarray, peak: float) -> list[np.ndarray]:
         """Cold starts: the line's direction from the second moments of the pressed region

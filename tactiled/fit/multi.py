@@ -1,10 +1,10 @@
 """Several contacts on one array: each pressed region fitted, the neighbours' strain accounted for.
 
 The physics is linear in the pressure, so the strain of several contacts is the sum of their
-strains.  :func:`fit_contacts` finds the frame's separate regions
-(:func:`tactiled.fit.regions.find_regions`); a frame of one region is fitted exactly as a
-single contact (:meth:`Fitter.fit`, the same result bit for bit).  With several, each contact is
-fitted on the frame less its neighbours' predicted strain (block coordinate descent on the
+strains.  :func:`fit_contacts` fits the frame as one contact first (:meth:`Fitter.fit`: a
+one-contact frame gets the same result bit for bit), then looks at the frame's other separate
+regions (:func:`tactiled.fit.regions.find_regions`): those whose peak that contact's strain
+leaves unexplained are contacts of their own.  With several, each contact is fitted on the frame less its neighbours' predicted strain (block coordinate descent on the
 joint least-squares problem: ``SWEEPS`` passes, each contact refitted from where the last pass
 left it), with the neighbours' cores left out of its window while their own fits are rough.
 When every contact was there in the last frame (``warm``), their last fits predict the
@@ -27,7 +27,13 @@ import numpy as np
 
 from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
-from tactiled.fit.regions import Region, find_regions
+from tactiled.fit.regions import (
+    ABSORBED_SHARE,
+    SEPARATION_SHARE,
+    SIGNIFICANT_Z,
+    Region,
+    find_regions,
+)
 from tactiled.fit.result import FitResult
 from tactiled.fit.warm import SEVERAL, nearest_start
 from tactiled.physics.contact import LineContact
@@ -93,25 +99,69 @@ def _raw(fitter: Any, flat_strain: np.ndarray) -> np.ndarray:
 def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
                  mask: np.ndarray | None = None, warm: tuple[str, tuple[float, ...]] | None = None,
                  budget_s: float | None = None) -> list[FitResult]:
-    """Every contact of a zeroed strain frame, highest peak first (see the module's doc).
+    """Every contact of a zeroed strain frame, the highest peak's first (see the module's doc).
 
-    One region (or none): ``[fitter.fit(strain, model, mask=mask, warm=warm,
-    budget_s=budget_s)]``, labelled ``merged`` when the region holds a second maximum the
-    cover merged with the first.  Several: one FitResult each, every one carrying
-    ``reasons["contacts"]``; ``budget_s`` bounds them all together.
+    The frame is fitted as one contact first, exactly as :meth:`Fitter.fit` does
+    (``fitter.fit(strain, model, mask=mask, warm=warm, budget_s=budget_s)``).  Each other
+    separate region (:func:`find_regions`) whose peak that contact's strain leaves unexplained
+    (:func:`_unexplained`) is a contact of its own: then every contact is fitted with its
+    neighbours' strain removed, one FitResult each, every one carrying ``reasons["contacts"]``,
+    ``budget_s`` bounding them all together.  Otherwise the one fit is the answer, labelled
+    ``merged`` when its region holds a second maximum that the fit does not explain (two
+    contacts closer than the cover spreads them).
     """
-    regions = find_regions(fitter.flattened(strain), fitter.sigma, mask)
+    t0 = time.perf_counter()
+    flat = fitter.flattened(strain)
+    regions = find_regions(flat, fitter.sigma, mask)
     starts = [_start_for(fitter, reg, warm) for reg in regions]
-    if len(regions) <= 1:
-        if warm is not None and warm[0] == SEVERAL:  # the others lifted: this one's start
-            warm = starts[0] if starts else None
-        res = fitter.fit(strain, model, mask=mask, warm=warm, budget_s=budget_s)
-        if regions and regions[0].absorbed and res.contact:
+    first_warm = warm
+    if warm is not None and warm[0] == SEVERAL:  # the last frame's contact at the highest peak
+        first_warm = starts[0] if starts else None
+    res = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=budget_s)
+    others = _unexplained(fitter, flat, res, regions[1:]) if len(regions) > 1 else []
+    if not others:
+        if regions and regions[0].absorbed and res.contact and _merged(fitter, flat, res, regions[0]):
             res.label = "merged"
             res.reasons["contacts"] = MERGED_REASON
         return [res]
-    return _fit_several(fitter, np.asarray(strain, dtype=float), model, mask, regions, budget_s,
-                        starts)
+    kept = [regions[0], *others]
+    left = None if budget_s is None else max(budget_s - (time.perf_counter() - t0), 0.0)
+    first_start = (res.model, res.params) if res.params is not None and res.model else starts[0]
+    return _fit_several(fitter, np.asarray(strain, dtype=float), model, mask, kept, left,
+                        [first_start, *(starts[regions.index(r)] for r in others)])
+
+
+def _merged(fitter: Any, flat: np.ndarray, res: FitResult, region: Region) -> bool:
+    """A second maximum the cover merged into ``region`` that the one contact ``res`` does not
+    explain (its strain there stands out as the maximum did: two contacts fitted as one); a
+    ridge sampled as several bumps is explained by its contact."""
+    pred = predicted_strain(fitter, res)
+    if pred is None:
+        return False
+    floor = SIGNIFICANT_Z * fitter.sigma
+    for (m, n), height in region.absorbed_at:
+        rest = float(flat[m, n] - pred[m, n])
+        if rest > floor and rest > ABSORBED_SHARE * height:
+            return True
+    return False
+
+
+def _unexplained(fitter: Any, flat: np.ndarray, res: FitResult, regions: list[Region]) -> list[Region]:
+    """The ``regions`` whose peak the contact ``res`` does not explain: the frame less its
+    predicted strain still stands, somewhere in the region, as a separate contact's peak would
+    (``SIGNIFICANT_Z`` sigmas and ``SEPARATION_SHARE`` of the region's peak).  A line's or a
+    long contact's ridge, which the grid samples as several bumps, is one contact's strain."""
+    pred = predicted_strain(fitter, res)
+    if pred is None:
+        return list(regions)  # nothing placed: nothing explains them
+    left = flat - pred
+    floor = SIGNIFICANT_Z * fitter.sigma
+    out = []
+    for reg in regions:
+        rest = float(np.max(left[reg.tactels])) if reg.tactels.any() else 0.0
+        if rest > floor and rest > SEPARATION_SHARE * reg.peak:
+            out.append(reg)
+    return out
 
 
 def _start_for(fitter: Any, region: Region, warm: Any) -> tuple[str, tuple[float, ...]] | None:

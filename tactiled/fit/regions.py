@@ -46,8 +46,10 @@ class Region:
     peak_idx: tuple[int, int]
     peak: float
     tactels: np.ndarray
-    #: lower maxima inside it that the cover merged with this one (see ABSORBED_SHARE)
+    #: lower maxima inside it that the cover merged with this one (see ABSORBED_SHARE): how
+    #: many, and each one's tactel and strain
     absorbed: int = 0
+    absorbed_at: list[tuple[tuple[int, int], float]] = field(default_factory=list)
     #: strain of the saddle to the higher region it meets (None for the highest region)
     saddle: float | None = None
     members: list[int] = field(default_factory=list, repr=False)
@@ -142,7 +144,10 @@ def _watershed(s: np.ndarray, sigma: float) -> list[Region]:
             else:
                 high = regions[main]
                 high.members.extend(low.members)
-                high.absorbed += low.absorbed + int(_notable(low.peak, level, sigma))
+                high.absorbed_at += low.absorbed_at
+                if _notable(low.peak, level, sigma):
+                    high.absorbed_at.append((low.peak_idx, low.peak))
+                high.absorbed = len(high.absorbed_at)
         parent[i] = main
         regions[main].members.append(i)
     out = [reg for reg in (*regions.values(), *done) if reg.peak > SIGNIFICANT_Z * sigma]

@@ -55,6 +55,7 @@ def levenberg_marquardt(
     deadline: float | None = None,
     verdict_tol: float | None = None,
     bounds: tuple[np.ndarray, np.ndarray] | None = None,
+    noise_cost: float = math.inf,
 ) -> SolveResult:
     """Minimise ``sum(r(p)^2)`` from ``p0``.
 
@@ -77,6 +78,11 @@ def levenberg_marquardt(
     ``bounds`` (lower, upper arrays; +-inf for none) keep the parameters in a box: a trial
     point is clipped into it, and a parameter on a bound that the descent pushes outwards is
     held there while the others move (see :func:`_pin`).
+
+    ``noise_cost`` (cost units): the cost of a fit whose residuals are the noise (its degrees
+    of freedom).  Beyond it ``atol`` and ``verdict_tol`` grow with ``cost / noise_cost``: a
+    fit its model does not explain has errors that many times larger than the noise's, and a
+    step small against the noise's sigmas is smaller still against those.  Default: never.
     """
     p = np.array(p0, dtype=float)
     if bounds is not None:
@@ -113,7 +119,7 @@ def levenberg_marquardt(
             if over < xtol:
                 converged, message = True, "step below xtol"
                 break
-            if predicted <= ftol * cost + atol:
+            if predicted <= ftol * cost + atol * max(1.0, cost / noise_cost):
                 converged, message = True, "predicted decrease below ftol"
                 break
             if deadline is not None and time.perf_counter() > deadline:
@@ -145,7 +151,7 @@ def levenberg_marquardt(
             break
         p, r, jac, cost = trial, r_new, jac_new, cost_new
     if verdict_tol is not None and message not in (TIME_BUDGET_EXCEEDED, BUDGET_MESSAGE):
-        close = remaining_decrease(jac, r, scale, p, bounds) <= verdict_tol
+        close = remaining_decrease(jac, r, scale, p, bounds) <= verdict_tol * max(1.0, cost / noise_cost)
         if close and not converged:
             message = f"{message}, {WITHIN_TOLERANCE}"
         elif converged and not close:

@@ -106,6 +106,139 @@ def line_strain_points(load: float, half_width: float, psi: float, cx: float, cy
     return out
 
 
+@njit(cache=True, nogil=True)
+def _pair_partials(a1: float, b1: float, d1: float, s1: float, p1: float, q1: float,
+                   a2: float, b2: float, d2: float, s2: float, p2: float, q2: float
+                   ) -> tuple[complex, complex, complex, complex, complex]:
+    """:func:`_pair` off the axes (``q1``, ``q2`` nonzero) and its partials in
+    ``(p1, q1, p2, q2)``: the one residue's closed form, differentiated."""
+    im1 = -s1 * d1 / q1
+    im2 = -s2 * d2 / q2
+    if (im1 > 0.0) == (im2 > 0.0):
+        return 0j, 0j, 0j, 0j, 0j
+    swap = not im1 > 0.0
+    if swap:  # the pole is the second factor's: the same formula with the roles exchanged
+        a1, b1, d1, s1, p1, q1, a2, b2, d2, s2, p2, q2 = a2, b2, d2, s2, p2, q2, a1, b1, d1, s1, p1, q1
+    t = (-1j * s1 * d1 - p1) / q1
+    u2 = p2 + q2 * t
+    alpha = a1 / (-q1 * q1)
+    beta = b1 / (-1j * s1 * q1)
+    w = d2 - 1j * s2 * u2
+    iw = 1.0 / w
+    iw2 = iw * iw
+    g2 = (a2 * iw + b2) * iw
+    dg2 = 1j * s2 * (2.0 * a2 * iw + b2) * iw2
+    ddg2 = -s2 * s2 * (6.0 * a2 * iw + 2.0 * b2) * iw2 * iw
+    k = 2j * math.pi
+    val = k * (alpha * q2 * dg2 + beta * g2)
+    du = k * (alpha * q2 * ddg2 + beta * dg2)  # d value / d u2
+    dp1 = du * (-q2 / q1)
+    dq1 = k * ((2.0 * a1 / (q1 * q1 * q1)) * q2 * dg2 - beta / q1 * g2) + du * (-q2 * t / q1)
+    dp2 = du
+    dq2 = k * alpha * dg2 + du * t
+    if swap:
+        return val, dp2, dq2, dp1, dq1
+    return val, dp1, dq1, dp2, dq2
+
+
+#: Within this of an axis (|cos psi| or |sin psi|) the partials are taken a little off it (at
+#: ``_AXIS_NUDGE`` rad): on the axis the response has a kink in the angle (see ``_AXIS_EPS``),
+#: and this takes its one-sided slope, as a forward difference does.
+_AXIS_NEAR = 1e-7
+_AXIS_NUDGE = 1e-6
+
+
+@njit(cache=True, nogil=True)
+def across_line(dist: float, psi: float, imp: np.ndarray, want: bool) -> tuple[float, float, float]:
+    """``L(d, psi)``: the response (1/mm) at signed distance ``dist`` (mm, along the normal
+    ``(-sin psi, cos psi)``) from an infinite line along ``psi`` (:func:`along_line` at any
+    point of that distance), and, when ``want``, its partials in ``dist`` and ``psi``."""
+    c, s = math.cos(psi), math.sin(psi)
+    near = abs(c) < _AXIS_NEAR or abs(s) < _AXIS_NEAR
+    if near or not want:
+        val = along_line(-dist * s, dist * c, c, s, imp)
+        if not want:
+            return val, 0.0, 0.0
+        psi = psi + _AXIS_NUDGE
+        c, s = math.cos(psi), math.sin(psi)
+    dx, nux, dy, nuy = imp[0], imp[1], imp[2], imp[3]
+    ax, bx = (1.0 + nux) * dx, 1.0 - nux
+    ay, by = (1.0 + nuy) * dy, 1.0 - nuy
+    p1, q1, p2, q2 = -dist * s, -c, dist * c, -s
+    v1, a1, b1, c1, d1 = _pair_partials(ax, bx, dx, 1.0, p1, q1, ay, by, dy, 1.0, p2, q2)
+    v2, a2, b2, c2, d2 = _pair_partials(ax, bx, dx, 1.0, p1, q1, ay, by, dy, -1.0, p2, q2)
+    norm = 1.0 / (2.0 * math.pi * math.pi)
+    if not near:
+        val = (v1 + v2).real * norm
+    dp1, dq1, dp2, dq2 = (a1 + a2).real, (b1 + b2).real, (c1 + c2).real, (d1 + d2).real
+    d_dist = (-s * dp1 + c * dp2) * norm
+    # p1 = -d s, q1 = -c, p2 = d c, q2 = -s
+    d_psi = (-dist * c * dp1 + s * dq1 - dist * s * dp2 - c * dq2) * norm
+    return val, d_dist, d_psi
+
+
+@njit(cache=True, nogil=True)
+def line_residual(p: np.ndarray, px: np.ndarray, py: np.ndarray, ref_x: float, ref_y: float,
+                  imp: np.ndarray, modulus: float, compliance: float, nodes: np.ndarray,
+                  weights: np.ndarray, target: np.ndarray, valid: np.ndarray,
+                  inv_scale: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Scaled residuals ``(strain - target) * inv_scale`` of the line model (internal vector
+    ``p = [ln R, psi, ln P, c]``, ``c`` the line's offset along its normal from
+    ``(ref_x, ref_y)``) at the valid points ``(px, py)``, and their exact Jacobian in ``p``
+    (0 rows of 4 where not valid).  ``nodes``, ``weights``: the rule across the line for the
+    half-width at ``p``.  A tactel's normal distance from node ``u`` of the pressure is
+    ``e - c - b u`` with ``e`` its own from the reference, so with ``L`` of
+    :func:`across_line` the strain is ``2P/(pi E) sum w L(e - c - b u)``: its partials are
+    ``L``'s, through ``b = sqrt(4 P R k / pi)`` (``db/d ln R = db/d ln P = b/2``)."""
+    r_, psi, load, off = math.exp(p[0]), p[1], math.exp(p[2]), p[3]
+    b = math.sqrt(4.0 * load * r_ * compliance / math.pi)
+    c, s = math.cos(psi), math.sin(psi)
+    scale = 2.0 * load / (math.pi * modulus)
+    n = px.shape[0]
+    r = np.zeros(n)
+    jac = np.zeros((n, 4))
+    for k in range(n):
+        if not valid[k]:
+            continue
+        ex, ey = px[k] - ref_x, py[k] - ref_y
+        e = -ex * s + ey * c
+        de = -ex * c - ey * s  # d e / d psi
+        v = dd = du = dpsi = 0.0
+        for i in range(nodes.shape[0]):
+            val, l_d, l_psi = across_line(e - off - b * nodes[i], psi, imp, True)
+            wi = weights[i]
+            v += wi * val
+            dd += wi * l_d
+            du += wi * l_d * nodes[i]
+            dpsi += wi * (l_d * de + l_psi)
+        w = inv_scale[k]
+        r[k] = (scale * v - target[k]) * w
+        jac[k, 0] = -scale * 0.5 * b * du * w
+        jac[k, 1] = scale * dpsi * w
+        jac[k, 2] = (scale * v - scale * 0.5 * b * du) * w
+        jac[k, 3] = -scale * dd * w
+    return r, jac
+
+
+@njit(cache=True, nogil=True)
+def line_points(xs: np.ndarray, ys: np.ndarray, ex: np.ndarray,
+                ey: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """A window's tactel positions (mm, flattened row-major) from its grid ``xs x ys`` and
+    each tactel's displacement ``(ex, ey)``, and their mean: the line's reference point."""
+    nr, nc = xs.shape[0], ys.shape[0]
+    px = np.empty(nr * nc)
+    py = np.empty(nr * nc)
+    sx = sy = 0.0
+    for i in range(nr):
+        for j in range(nc):
+            k = i * nc + j
+            px[k] = xs[i] + ex[k]
+            py[k] = ys[j] + ey[k]
+            sx += px[k]
+            sy += py[k]
+    return px, py, sx / (nr * nc), sy / (nr * nc)
+
+
 def half_width(load: float, radius: float, compliance: float) -> float:
     """Half-width ``b`` (mm) of the Hertz line contact: ``sqrt(4 P R k / pi)``, ``load`` in
     N/mm, ``radius`` in mm, ``compliance`` ``k`` in mm^2/N."""

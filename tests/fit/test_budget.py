@@ -107,3 +107,20 @@ def test_a_budget_too_small_for_one_evaluation_answers_cleanly():
             assert budget_spent(res.reasons), (name, model, res.reasons)
             assert all(res.values[k] is None for k in VALUE_KEYS), (name, model, res.values)
             assert fitter.spent[1] <= 1
+
+
+
+def test_a_frame_the_model_cannot_explain_keeps_its_budget_and_says_so():
+    """A pattern no contact makes (random strains on the paper's finger, as the daemon fits
+    it): the fit stays within its budget, and its sigmas are widened by the residuals' excess
+    or its values withheld, with the reasons."""
+    from tactiled.bench.unexplained import FINGER_8, daemon_options
+
+    fitter = Fitter(FINGER_8, daemon_options())
+    for seed in range(3):
+        frame = np.random.default_rng(seed).uniform(0.0, 0.05, (8, 8))
+        res = fitter.fit(frame, "cylinder")
+        assert res.chi2 > 100 * res.n_points  # nothing like a contact
+        assert res.iterations <= fitter.budget_limits[0] and fitter.spent[1] <= fitter.budget_limits[1]
+        assert "residuals exceed the noise" in res.reasons["uncertainty"]
+        assert res.converged or budget_spent(res.reasons)

@@ -193,3 +193,21 @@ def test_a_frame_of_several_starts_each_contact_from_the_last_frames() -> None:
     (one,) = fit_contacts(fitter, model.predict(truths[0]) + rng.normal(0.0, SIGMA, clean.shape),
                           "sphere", warm=warm)
     assert one.contact and abs(one.values["x_mm"] - 10.0) < 0.2
+
+
+def test_a_line_contacts_ridge_is_one_contact_however_the_grid_samples_it() -> None:
+    from tactiled.config import NoiseModel
+    from tactiled.physics.contact import LineContact
+    from tactiled.sim import add_noise
+
+    sensor, model, fitter = _setup("flat16")
+    rng = np.random.default_rng(9)
+    split_regions = 0
+    for psi in (0.0, 17.0, 30.0, 45.0, 72.0, 90.0, 120.0, 150.0):
+        clean = model.predict(LineContact(8.0, psi, 0.035, 18.0, 18.0))
+        # quantised to 2 sigma, as the simulator's frames are: the ridge breaks into bumps
+        frame = add_noise(clean, NoiseModel(sigma=SIGMA, quantum=0.001), rng)
+        split_regions += len(find_regions(frame, SIGMA)) > 1
+        (res,) = fit_contacts(fitter, frame, "cylinder")
+        assert res.label == "line" and "contacts" not in res.reasons, psi
+    assert split_regions >= 2  # the case this guards: several regions, one contact

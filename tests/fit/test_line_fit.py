@@ -88,3 +88,63 @@ def test_every_flat_builtin_fits_a_line(name: str) -> None:
     res = Fitter(sensor).fit(model.predict(truth), "cylinder")
     assert res.converged and res.values["r1_mm"] == pytest.approx(8.0, rel=1e-3)
     assert res.line["load_n_per_mm"] == pytest.approx(0.2, rel=1e-4)
+
+
+def test_the_compiled_line_search_is_the_python_one(flat16) -> None:
+    """The line model's compiled search (kind LINE) against the Python solver on the same
+    residual and start: the same steps, the same end."""
+    from tactiled.fit import compiled
+    from tactiled.fit.fitter import _LINE_BOUNDS
+    from tactiled.fit.line import STEPS
+    from tactiled.fit.solver import levenberg_marquardt
+
+    sensor, model, fitter = flat16
+    rng = np.random.default_rng(11)
+    frame = model.predict(LineContact(7.0, 50.0, 0.08, 17.0, 20.0)) + rng.normal(0, 5e-4, (16, 16))
+    fr = fitter._line_frame(frame, None)
+    prob = fitter._line_problem(fr)
+    p0 = prob.starts(fr.clean, model.xs_full, model.ys_full, fr.peak)[0]
+    atol = 1e-4 * (fitter.sigma / fr.peak) ** 2
+    window = (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
+    iterations = []
+    for noise_cost in (math.inf, 1e-9):  # the second: every cost beyond it
+        c = compiled.solve(compiled.LINE, p0, STEPS, 60, atol, fitter._model_args, window,
+                           fitter.options.tol, bounds=_LINE_BOUNDS, verdict_tol=100 * atol,
+                           noise_cost=noise_cost)
+        p = levenberg_marquardt(prob.residual_and_jacobian, p0, max_step=STEPS, max_iter=60,
+                                atol=atol, verdict_tol=100 * atol, bounds=_LINE_BOUNDS,
+                                noise_cost=noise_cost)
+        assert (c.iterations, c.evaluations, c.converged, c.message) == \
+            (p.iterations, p.evaluations, p.converged, p.message)
+        assert np.allclose(c.p, p.p, rtol=1e-9, atol=1e-12)
+        iterations.append(c.iterations)
+    # tolerances that grow with the cost end the search no later
+    assert iterations[1] <= iterations[0] and iterations[0] > 1
+
+
+def test_auto_keeps_a_line_that_explains_the_window_without_scouting(flat16) -> None:
+    sensor, model, fitter = flat16
+    rng = np.random.default_rng(5)
+    frame = model.predict(LineContact(9.0, 70.0, 0.1, 19.0, 18.0)) + rng.normal(0, 5e-4, (16, 16))
+    alone = fitter.fit(frame, "cylinder")
+    auto = fitter.fit(frame, "auto")
+    assert auto.model == "cylinder" and auto.label == "line" and auto.converged
+    assert "no other model tried" in auto.message
+    assert auto.params == alone.params and auto.iterations == alone.iterations
+    # a ball is no line: the other models are fitted and the sphere chosen
+    ball = model.predict(Contact(6.0, 6.0, 0.0, 1.0, 15.0, 14.0)) + rng.normal(0, 5e-4, (16, 16))
+    res = fitter.fit(ball, "auto")
+    assert res.model == "sphere" and "no other model tried" not in res.message
+
+
+def test_a_warm_ellipse_running_off_a_flat_array_is_not_kept(flat16) -> None:
+    """auto's warm path: the previous frame's general ellipse, where it runs off the array at
+    both ends, is the line; the choice is made afresh (as a cold fit's is)."""
+    sensor, model, fitter = flat16
+    rng = np.random.default_rng(8)
+    frame = model.predict(LineContact(9.0, 20.0, 0.1, 19.0, 18.0)) + rng.normal(0, 5e-4, (16, 16))
+    gen = fitter.fit(frame, "general")
+    assert fitter._runs_off(gen)  # the premise: the ellipse fitted to a line runs off
+    res = fitter.fit(frame, "auto", warm=("general", gen.params))
+    assert res.model == "cylinder" and res.label == "line"
+    assert "kept from the previous frame" not in res.message

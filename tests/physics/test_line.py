@@ -10,7 +10,8 @@ from scipy.integrate import quad
 
 from tactiled.physics.contact import LineContact
 from tactiled.physics.impulse import line_response
-from tactiled.physics.line import along_line, half_width, line_strain
+from tactiled.fit.line import LineProblem
+from tactiled.physics.line import across_line, along_line, half_width, line_strain
 from tactiled.physics.strain import StrainModel
 from tactiled.sensors import load_description
 
@@ -78,3 +79,57 @@ def test_a_cylinder_on_a_flat_array_must_be_given_as_a_line() -> None:
         model.predict(Contact(5.0, math.inf, 30.0, 1.0, 10.0, 10.0))
     # a sphere is an ordinary Hertz ellipse on a flat array (1/R_f = 0)
     assert model.predict(Contact(5.0, 5.0, 0.0, 1.0, 10.0, 10.0)).max() > 0.0
+
+
+@pytest.mark.parametrize("psi", [0.3, 1.2, 2.0, 3.0, -0.4])
+@pytest.mark.parametrize("dist", [0.0, 0.7, -2.3, 5.0])
+def test_the_partials_across_the_line_are_the_residues_differentiated(psi: float, dist: float) -> None:
+    # against central differences of the value (its own residue formula, checked above
+    # against quadrature); steps where the difference's truncation and rounding are ~1e-9
+    val, d_dist, d_psi = across_line(dist, psi, IMP, True)
+    c, s = math.cos(psi), math.sin(psi)
+    assert val == pytest.approx(along_line(-dist * s + 3.0 * c, dist * c + 3.0 * s, c, s, IMP),
+                                rel=1e-12, abs=1e-15)  # any point at that distance
+    h = 1e-5
+    fd_dist = (across_line(dist + h, psi, IMP, False)[0] - across_line(dist - h, psi, IMP, False)[0]) / (2 * h)
+    fd_psi = (across_line(dist, psi + h, IMP, False)[0] - across_line(dist, psi - h, IMP, False)[0]) / (2 * h)
+    scale = abs(val) + 1e-3  # the partials' natural size: the value's
+    assert d_dist == pytest.approx(fd_dist, abs=1e-7 * scale)
+    assert d_psi == pytest.approx(fd_psi, abs=1e-7 * scale)
+
+
+@pytest.mark.parametrize("psi", [0.0, math.pi / 2, math.pi])
+def test_on_an_axis_the_angle_partial_is_the_one_sided_slope(psi: float) -> None:
+    # the response has a kink in the angle there: the partial is the slope towards +psi
+    _, _, d_psi = across_line(0.7, psi, IMP, True)
+    h = 1e-5
+    fwd = (across_line(0.7, psi + h, IMP, False)[0] - across_line(0.7, psi, IMP, False)[0]) / h
+    assert d_psi == pytest.approx(fwd, rel=1e-3)
+
+
+@pytest.mark.parametrize("p", [(math.log(6.0), 0.4, math.log(0.05), 0.7),
+                               (math.log(20.0), 2.5, math.log(0.2), -1.0),
+                               (math.log(2.0), -1.1, math.log(0.01), 0.1)])
+def test_the_line_residual_and_its_exact_jacobian(p: tuple[float, ...]) -> None:
+    """The compiled residual against the strain of line_strain_points (its value path) and its
+    Jacobian against central differences of that."""
+    rng = np.random.default_rng(7)
+    xs, ys = 10.0 + 2.5 * np.arange(4), 12.0 + 2.5 * np.arange(4)
+    ex, ey = rng.normal(0, 0.05, 16), rng.normal(0, 0.05, 16)
+    sensor = load_description("flat16").sensor_model()
+    target = rng.normal(0, 1e-3, 16)
+    valid = np.ones(16, bool)
+    valid[5] = False
+    inv = np.full(16, 40.0)
+    prob = LineProblem(sensor, xs, ys, ex, ey, target, valid, inv)
+    p = np.array(p)
+
+    def residual(q: np.ndarray) -> np.ndarray:
+        return np.where(valid, (prob.strains(q) - target) * inv, 0.0)
+
+    r, jac = prob.residual_and_jacobian(p)
+    assert np.allclose(r, residual(p), rtol=1e-12, atol=1e-14)
+    h = 1e-6
+    fd = np.stack([(residual(p + h * e) - residual(p - h * e)) / (2 * h) for e in np.eye(4)], axis=1)
+    assert np.abs(jac - fd).max() <= 1e-6 * np.abs(fd).max()
+    assert not jac[5].any()  # an unusable tactel adds nothing
