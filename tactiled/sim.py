@@ -16,7 +16,7 @@ Two levels:
   a :class:`~tactiled.frames.Frame`.  ``docs/concepts/simulator.md`` documents the model and its numbers.
 * Several contacts on one array: a :class:`MultiScene` plays one scene per indentor on the same
   clock; the strain is the sum of theirs (:func:`render_sum`) and a tick's truth is the list
-  ``Tick.contacts``.  The hand's six parts (:data:`HAND_PARTS`, ``docs/hand.md``) are such scenes.
+  ``Tick.contacts``.  The hand's six parts (:data:`HAND_PARTS`, ``docs/performance/hand.md``) are such scenes.
 
 Units: mm, N, degrees, seconds; strain is dimensionless and positive under compression.
 """

@@ -29,7 +29,7 @@ examples:
   tactiled simulate --as flexitac --device /tmp/ttyFLEX --rate 100   (read flexitac:///tmp/ttyFLEX)
   tactiled simulate --pty --link /tmp/ttyPALM --scene hand-palm --sensor flat16   (a hand's palm:
       several contacts at once; its fingertips: --scene hand-finger1 .. hand-finger5, each a
-      device of its own, on the default finger; docs/hand.md)
+      device of its own, on the default finger; docs/performance/hand.md)
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The acquisition bench on the hand: six simulated devices (five fingertips, a 16x16 palm) on
 real ptys into one daemon, every figure of its tables also written as JSON.  Speed is reported
-by the benchmark (docs/hand.md), never asserted."""
+by the benchmark (docs/performance/hand.md), never asserted."""
 
 from __future__ import annotations
 
