@@ -570,9 +570,12 @@ class Fitter:
                    for x, y in ends)
 
     def _fit_line(self, strain: np.ndarray, start: np.ndarray | None,
-                  mask: np.ndarray | None, scouting: bool = False) -> FitResult:
+                  mask: np.ndarray | None, scouting: bool = False,
+                  first: np.ndarray | None = None) -> FitResult:
         """A cylinder on a flat array: the line model on this frame's window.  ``scouting``:
-        with a scout's iteration cap and tolerance (:meth:`_fit_model`), as auto first fits it."""
+        from the first cold start only, with a scout's iteration cap and tolerance
+        (:meth:`_fit_model`), as auto first fits it; ``first``: where that scout stopped, the
+        search's first start in place of the cold one it came from."""
         fr = self._line_frame(strain, mask)
         if isinstance(fr, FitResult):
             fr.model = "cylinder"
@@ -583,6 +586,10 @@ class Fitter:
             start = None  # a start of another model (a curved finger's cylinder): start cold
         starts = ([np.asarray(start, dtype=float)] if start is not None
                   else prob.starts(fr.clean, self.model.xs_full, self.model.ys_full, peak))
+        if scouting:
+            starts = starts[:1]
+        elif first is not None and start is None:
+            starts = [first, *starts[1:]]
         best, tried = self._search(fr, compiled.LINE, starts, LINE_STEPS, _LINE_BOUNDS,
                                    SCOUT_ITERATIONS if scouting else self.options.max_iter,
                                    1e-2 if scouting else STOP_CHI2,
@@ -1104,7 +1111,7 @@ class Fitter:
     def _solve_line(self, strain: np.ndarray, scout: FitResult, mask: np.ndarray | None) -> FitResult:
         """The line fully solved from where its scout stopped, counting the scout's
         iterations and evaluations."""
-        full = self._fit_line(strain, np.asarray(scout.params), mask)
+        full = self._fit_line(strain, None, mask, first=np.asarray(scout.params))
         full.iterations += scout.iterations
         full.evaluations += scout.evaluations
         return full
