@@ -139,6 +139,10 @@ def test_auto_keeps_a_line_that_explains_the_window_without_scouting(flat16) -> 
     ball = model.predict(Contact(6.0, 6.0, 0.0, 1.0, 15.0, 14.0)) + rng.normal(0, 5e-4, (16, 16))
     res = fitter.fit(ball, "auto")
     assert res.model == "sphere" and "no other model tried" not in res.message
+    # there the line's scout sat at a minimum far above the noise: it was not solved on
+    assert fitter._line_scouted and res.criterion["cylinder"] > 2 * res.n_points
+    fitter.fit(frame, "auto")
+    assert not fitter._line_scouted  # a line is solved fully
 
 
 def test_a_warm_ellipse_running_off_a_flat_array_is_not_kept(flat16) -> None:
