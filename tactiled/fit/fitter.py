@@ -219,6 +219,7 @@ class Fitter:
         self, sensor: SensorModel | None = None, options: FitOptions | None = None, warm: bool = True
     ) -> None:
         self.sensor = sensor or SensorModel()
+        self._line_scouted = False  # set by _fit_line: auto's line stayed a scout
         self.options = options or FitOptions()
         self.model = StrainModel(self.sensor, tol=self.options.tol)
         self.sigma = self.sensor.noise.effective_sigma  # of the frame being fitted
@@ -541,6 +542,15 @@ class Fitter:
         the line."""
         return self.sensor.geometry.flat and cyl.converged and self._consistent(cyl)
 
+    def _line_ruled_out(self, converged: bool, chi2: float, n_points: int) -> bool:
+        """The line's scout converged (the next step would lower chi^2 by under its
+        tolerance: it sits at a minimum) with chi^2 over twice the most a right model reaches
+        (:meth:`_consistent`): solving on cannot bring it to the noise, so the window shows
+        no line (a ball's blob: tens to hundreds of times its degrees of freedom) and the
+        line stays a scout, ranked with the others and solved fully only if chosen."""
+        dof = max(n_points - len(LINE_PARAMS), 1)
+        return converged and chi2 > 2.0 * (dof + 3.0 * math.sqrt(2.0 * dof))
+
     def _runs_off(self, res: FitResult) -> bool:
         """On a flat array: ``res`` (a general or sphere fit) is an ellipse whose both ends lie
         off the array (beyond a pitch of its edge), which within the array is a line contact:
@@ -559,8 +569,14 @@ class Fitter:
                    for x, y in ends)
 
     def _fit_line(self, strain: np.ndarray, start: np.ndarray | None,
-                  mask: np.ndarray | None) -> FitResult:
-        """A cylinder on a flat array: the line model on this frame's window."""
+                  mask: np.ndarray | None, scout_first: bool = False) -> FitResult:
+        """A cylinder on a flat array: the line model on this frame's window.
+
+        ``scout_first`` (auto, cold): the first cold start is searched with a scout's iteration
+        cap and tolerance (:meth:`_fit_model`); where that rules the line out
+        (:meth:`_line_ruled_out`) the scout is the answer and ``self._line_scouted`` is set,
+        else the search goes on from where it stopped, as a full fit."""
+        self._line_scouted = False
         fr = self._line_frame(strain, mask)
         if isinstance(fr, FitResult):
             fr.model = "cylinder"
@@ -571,9 +587,22 @@ class Fitter:
             start = None  # a start of another model (a curved finger's cylinder): start cold
         starts = ([np.asarray(start, dtype=float)] if start is not None
                   else prob.starts(fr.clean, self.model.xs_full, self.model.ys_full, peak))
-        best, tried = self._search(fr, compiled.LINE, starts, LINE_STEPS, _LINE_BOUNDS,
-                                   self.options.max_iter, STOP_CHI2,
-                                   lambda: prob.residual_and_jacobian)
+        scout = None
+        if scout_first:
+            scout, _ = self._search(fr, compiled.LINE, starts[:1], LINE_STEPS, _LINE_BOUNDS,
+                                    SCOUT_ITERATIONS, 1e-2, lambda: prob.residual_and_jacobian)
+            chi2 = scout.cost * peak * peak / self.sigma**2
+            self._line_scouted = self._line_ruled_out(scout.converged, chi2, fr.n_points)
+            starts = [scout.p, *starts[1:]]
+        if self._line_scouted:
+            best, tried = scout, 1
+        else:
+            best, tried = self._search(fr, compiled.LINE, starts, LINE_STEPS, _LINE_BOUNDS,
+                                       self.options.max_iter, STOP_CHI2,
+                                       lambda: prob.residual_and_jacobian)
+            if scout is not None:
+                best.iterations += scout.iterations
+                best.evaluations += scout.evaluations
         reasons: dict[str, str] = {}
         jraw = best.jacobian * peak
         cov, condition = _covariance(jraw, self.sigma)
@@ -1088,6 +1117,14 @@ class Fitter:
             return "plane"
         return model_name
 
+    def _solve_line(self, strain: np.ndarray, scout: FitResult, mask: np.ndarray | None) -> FitResult:
+        """The line fully solved from where its scout stopped, counting the scout's
+        iterations and evaluations."""
+        full = self._fit_line(strain, np.asarray(scout.params), mask)
+        full.iterations += scout.iterations
+        full.evaluations += scout.evaluations
+        return full
+
     def _cut_short(self, cyl: FitResult, fits: list[FitResult]) -> FitResult:
         """Auto's answer when its budget ran out while it scouted the other models: the
         cylinder, fully solved, with every search's iterations and evaluations; the scouts,
@@ -1114,7 +1151,10 @@ class Fitter:
                 kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
                 return kept
         held = self._budget.hold(0.5) if self._budget is not None else None
-        cyl = self._fit_cylinder(strain, None, mask)
+        flat = self.sensor.geometry.flat
+        cyl = self._fit_line(strain, None, mask, scout_first=True) if flat \
+            else self._fit_cylinder(strain, None, mask)
+        scouted = flat and self._line_scouted and cyl.params is not None
         if held is not None:
             self._budget.release(held)
         if not cyl.contact or cyl.chi2 is None or cyl.params is None or self._out_of_time():
@@ -1148,6 +1188,10 @@ class Fitter:
         iterations = sum(r.iterations for r in fits)
         evaluations = sum(r.evaluations for r in fits)
         resolved = best is not cyl and best.params is not None
+        if best is cyl and scouted and not self._out_of_time():  # the line, scouted: solve it
+            best = self._solve_line(strain, cyl, mask)
+            iterations += best.iterations - cyl.iterations
+            evaluations += best.evaluations - cyl.evaluations
         if resolved:  # scouted: now solve it fully
             best = self._fit_model(strain, get_model(best.model), np.asarray(best.params), mask)
             iterations += best.iterations

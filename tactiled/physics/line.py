@@ -107,22 +107,36 @@ def line_strain_points(load: float, half_width: float, psi: float, cx: float, cy
 
 
 @njit(cache=True, nogil=True)
-def _pair_partials(a1: float, b1: float, d1: float, s1: float, p1: float, q1: float,
-                   a2: float, b2: float, d2: float, s2: float, p2: float, q2: float
-                   ) -> tuple[complex, complex, complex, complex, complex]:
-    """:func:`_pair` off the axes (``q1``, ``q2`` nonzero) and its partials in
-    ``(p1, q1, p2, q2)``: the one residue's closed form, differentiated."""
+def _pair_setup(a1: float, b1: float, d1: float, s1: float, q1: float,
+                a2: float, b2: float, d2: float, s2: float, q2: float):
+    """What :func:`_pair_partials` needs that depends on the line's angle only (``q1``,
+    ``q2``, both nonzero) and not on the distance: which factor's pole the residue is taken
+    at (the roles exchanged when it is the second's), whether the integral vanishes (both
+    poles on one side), and the residue's coefficients."""
     im1 = -s1 * d1 / q1
     im2 = -s2 * d2 / q2
-    if (im1 > 0.0) == (im2 > 0.0):
-        return 0j, 0j, 0j, 0j, 0j
+    zero = (im1 > 0.0) == (im2 > 0.0)
     swap = not im1 > 0.0
-    if swap:  # the pole is the second factor's: the same formula with the roles exchanged
-        a1, b1, d1, s1, p1, q1, a2, b2, d2, s2, p2, q2 = a2, b2, d2, s2, p2, q2, a1, b1, d1, s1, p1, q1
-    t = (-1j * s1 * d1 - p1) / q1
-    u2 = p2 + q2 * t
+    if swap:
+        a1, b1, d1, s1, q1, a2, b2, d2, s2, q2 = a2, b2, d2, s2, q2, a1, b1, d1, s1, q1
     alpha = a1 / (-q1 * q1)
     beta = b1 / (-1j * s1 * q1)
+    return (zero, swap, a1, d1, s1, q1, a2, b2, d2, s2, q2, alpha, beta,
+            2.0 * a1 / (q1 * q1 * q1), -q2 / q1)
+
+
+@njit(cache=True, nogil=True)
+def _pair_partials(st, p1: float, p2: float
+                   ) -> tuple[complex, complex, complex, complex, complex]:
+    """:func:`_pair` off the axes and its partials in ``(p1, q1, p2, q2)``: the one residue's
+    closed form, differentiated; ``st`` is :func:`_pair_setup` of the angle."""
+    zero, swap, a1, d1, s1, q1, a2, b2, d2, s2, q2, alpha, beta, a1q3, mq21 = st
+    if zero:
+        return 0j, 0j, 0j, 0j, 0j
+    if swap:  # the pole is the second factor's: the same formula with the roles exchanged
+        p1, p2 = p2, p1
+    t = (-1j * s1 * d1 - p1) / q1
+    u2 = p2 + q2 * t
     w = d2 - 1j * s2 * u2
     iw = 1.0 / w
     iw2 = iw * iw
@@ -132,8 +146,8 @@ def _pair_partials(a1: float, b1: float, d1: float, s1: float, p1: float, q1: fl
     k = 2j * math.pi
     val = k * (alpha * q2 * dg2 + beta * g2)
     du = k * (alpha * q2 * ddg2 + beta * dg2)  # d value / d u2
-    dp1 = du * (-q2 / q1)
-    dq1 = k * ((2.0 * a1 / (q1 * q1 * q1)) * q2 * dg2 - beta / q1 * g2) + du * (-q2 * t / q1)
+    dp1 = du * mq21
+    dq1 = k * (a1q3 * q2 * dg2 - beta / q1 * g2) + du * (-q2 * t / q1)
     dp2 = du
     dq2 = k * alpha * dg2 + du * t
     if swap:
@@ -149,32 +163,50 @@ _AXIS_NUDGE = 1e-6
 
 
 @njit(cache=True, nogil=True)
-def across_line(dist: float, psi: float, imp: np.ndarray, want: bool) -> tuple[float, float, float]:
-    """``L(d, psi)``: the response (1/mm) at signed distance ``dist`` (mm, along the normal
-    ``(-sin psi, cos psi)``) from an infinite line along ``psi`` (:func:`along_line` at any
-    point of that distance), and, when ``want``, its partials in ``dist`` and ``psi``."""
+def _line_angle(psi: float, imp: np.ndarray):
+    """What :func:`across_line` needs of the angle ``psi`` (radians), whatever the distance:
+    its cosine and sine, whether it is within ``_AXIS_NEAR`` of an axis, the cosine and sine
+    the partials are taken at (nudged off an axis) and the two residues' setups there."""
     c, s = math.cos(psi), math.sin(psi)
     near = abs(c) < _AXIS_NEAR or abs(s) < _AXIS_NEAR
-    if near or not want:
-        val = along_line(-dist * s, dist * c, c, s, imp)
-        if not want:
-            return val, 0.0, 0.0
-        psi = psi + _AXIS_NUDGE
-        c, s = math.cos(psi), math.sin(psi)
+    cj, sj = c, s
+    if near:
+        cj, sj = math.cos(psi + _AXIS_NUDGE), math.sin(psi + _AXIS_NUDGE)
     dx, nux, dy, nuy = imp[0], imp[1], imp[2], imp[3]
     ax, bx = (1.0 + nux) * dx, 1.0 - nux
     ay, by = (1.0 + nuy) * dy, 1.0 - nuy
-    p1, q1, p2, q2 = -dist * s, -c, dist * c, -s
-    v1, a1, b1, c1, d1 = _pair_partials(ax, bx, dx, 1.0, p1, q1, ay, by, dy, 1.0, p2, q2)
-    v2, a2, b2, c2, d2 = _pair_partials(ax, bx, dx, 1.0, p1, q1, ay, by, dy, -1.0, p2, q2)
+    st1 = _pair_setup(ax, bx, dx, 1.0, -cj, ay, by, dy, 1.0, -sj)
+    st2 = _pair_setup(ax, bx, dx, 1.0, -cj, ay, by, dy, -1.0, -sj)
+    return c, s, near, cj, sj, st1, st2
+
+
+@njit(cache=True, nogil=True)
+def _across_at(dist: float, ang, imp: np.ndarray) -> tuple[float, float, float]:
+    """:func:`across_line` with its partials, ``ang`` = :func:`_line_angle` of the angle."""
+    c, s, near, cj, sj, st1, st2 = ang
+    if near:
+        val = along_line(-dist * s, dist * c, c, s, imp)
+    v1, a1, b1, c1, d1 = _pair_partials(st1, -dist * sj, dist * cj)
+    v2, a2, b2, c2, d2 = _pair_partials(st2, -dist * sj, dist * cj)
     norm = 1.0 / (2.0 * math.pi * math.pi)
     if not near:
         val = (v1 + v2).real * norm
     dp1, dq1, dp2, dq2 = (a1 + a2).real, (b1 + b2).real, (c1 + c2).real, (d1 + d2).real
-    d_dist = (-s * dp1 + c * dp2) * norm
+    d_dist = (-sj * dp1 + cj * dp2) * norm
     # p1 = -d s, q1 = -c, p2 = d c, q2 = -s
-    d_psi = (-dist * c * dp1 + s * dq1 - dist * s * dp2 - c * dq2) * norm
+    d_psi = (-dist * cj * dp1 + sj * dq1 - dist * sj * dp2 - cj * dq2) * norm
     return val, d_dist, d_psi
+
+
+@njit(cache=True, nogil=True)
+def across_line(dist: float, psi: float, imp: np.ndarray, want: bool) -> tuple[float, float, float]:
+    """``L(d, psi)``: the response (1/mm) at signed distance ``dist`` (mm, along the normal
+    ``(-sin psi, cos psi)``) from an infinite line along ``psi`` (:func:`along_line` at any
+    point of that distance), and, when ``want``, its partials in ``dist`` and ``psi``."""
+    if not want:
+        c, s = math.cos(psi), math.sin(psi)
+        return along_line(-dist * s, dist * c, c, s, imp), 0.0, 0.0
+    return _across_at(dist, _line_angle(psi, imp), imp)
 
 
 @njit(cache=True, nogil=True)
@@ -189,10 +221,12 @@ def line_residual(p: np.ndarray, px: np.ndarray, py: np.ndarray, ref_x: float, r
     half-width at ``p``.  A tactel's normal distance from node ``u`` of the pressure is
     ``e - c - b u`` with ``e`` its own from the reference, so with ``L`` of
     :func:`across_line` the strain is ``2P/(pi E) sum w L(e - c - b u)``: its partials are
-    ``L``'s, through ``b = sqrt(4 P R k / pi)`` (``db/d ln R = db/d ln P = b/2``)."""
+    ``L``'s, through ``b = sqrt(4 P R k / pi)`` (``db/d ln R = db/d ln P = b/2``).  What
+    depends on the angle only is computed once (:func:`_line_angle`), not per node."""
     r_, psi, load, off = math.exp(p[0]), p[1], math.exp(p[2]), p[3]
     b = math.sqrt(4.0 * load * r_ * compliance / math.pi)
     c, s = math.cos(psi), math.sin(psi)
+    ang = _line_angle(psi, imp)
     scale = 2.0 * load / (math.pi * modulus)
     n = px.shape[0]
     r = np.zeros(n)
@@ -205,7 +239,7 @@ def line_residual(p: np.ndarray, px: np.ndarray, py: np.ndarray, ref_x: float, r
         de = -ex * c - ey * s  # d e / d psi
         v = dd = du = dpsi = 0.0
         for i in range(nodes.shape[0]):
-            val, l_d, l_psi = across_line(e - off - b * nodes[i], psi, imp, True)
+            val, l_d, l_psi = _across_at(e - off - b * nodes[i], ang, imp)
             wi = weights[i]
             v += wi * val
             dd += wi * l_d

@@ -133,3 +133,30 @@ def test_the_line_residual_and_its_exact_jacobian(p: tuple[float, ...]) -> None:
     fd = np.stack([(residual(p + h * e) - residual(p - h * e)) / (2 * h) for e in np.eye(4)], axis=1)
     assert np.abs(jac - fd).max() <= 1e-6 * np.abs(fd).max()
     assert not jac[5].any()  # an unusable tactel adds nothing
+
+
+@pytest.mark.parametrize("psi", [0.4, 2.5, -1.1, 0.0, math.pi / 2, 1e-8])
+def test_the_residual_sums_the_per_node_response_and_partials(psi: float) -> None:
+    """line_residual computes what depends on the angle once per evaluation; each row is the
+    sum over the rule of across_line (which recomputes it at each node), on and off the axes."""
+    from tactiled.physics.line import line_residual
+    rng = np.random.default_rng(11)
+    n, nodes = 12, 9
+    px, py = rng.uniform(0.0, 10.0, n), rng.uniform(0.0, 10.0, n)
+    u = np.cos(np.arange(1, nodes + 1) * math.pi / (nodes + 1))
+    w = rng.uniform(0.1, 1.0, nodes)
+    p = np.array([math.log(8.0), psi, math.log(0.05), 0.4])
+    comp, modulus = 0.01, 1.0
+    r, jac = line_residual(p, px, py, 5.0, 5.0, IMP, modulus, comp, u, w, np.zeros(n),
+                           np.ones(n, bool), np.ones(n))
+    b = math.sqrt(4.0 * 0.05 * 8.0 * comp / math.pi)
+    scale = 2.0 * 0.05 / (math.pi * modulus)
+    c, s = math.cos(psi), math.sin(psi)
+    for k in range(n):
+        ex, ey = px[k] - 5.0, py[k] - 5.0
+        e, de = -ex * s + ey * c, -ex * c - ey * s
+        parts = np.array([across_line(e - 0.4 - b * ui, psi, IMP, True) for ui in u])
+        assert r[k] == pytest.approx(scale * (w @ parts[:, 0]), rel=1e-12, abs=1e-18)
+        assert jac[k, 3] == pytest.approx(-scale * (w @ parts[:, 1]), rel=1e-12, abs=1e-18)
+        assert jac[k, 1] == pytest.approx(scale * (w @ (parts[:, 1] * de + parts[:, 2])),
+                                          rel=1e-12, abs=1e-18)
