@@ -103,14 +103,14 @@ def test_contacts_are_the_golden_estimates(exported: dict[str, Path]) -> None:
     for c, w, a, e in zip(contacts, wrenches, arrays, golden):
         where = f"seq {e['seq']}"
         assert c.contact_id == (-1 if e["contact_id"] is None else e["contact_id"]), where
-        assert (a.seq, a.sensor) == (e["seq"], e["sensor"]), where
+        assert (a.seq, a.sensor) == (e["seq"], c.sensor), where  # (export names it --name)
         assert [k.contact_id for k in a.contacts] == [k["contact_id"] for k in e["contacts"]]
-        if e["contacts"]:  # the strongest contact is the contact topic's message
-            first = a.contacts[0]
-            assert (first.seq, first.gate, first.model, first.frames_used) == (
-                c.seq, c.gate, c.model, c.frames_used), where
-            for key in ("x_mm", "y_mm", "force_n", "r1_mm", "angle_deg", "std_force_n"):
-                assert getattr(first, key) == getattr(c, key), (where, key)
+        for k, g in zip(a.contacts, e["contacts"]):  # the strongest first, as the contact topic's
+            assert (k.seq, k.gate, k.model, k.frames_used) == (
+                e["seq"], e["gate"], g["model"], g["frames_used"]), where
+            for key in ("x_mm", "y_mm", "force_n", "r1_mm", "angle_deg"):
+                assert same(getattr(k, key), g[key]), (where, key)
+                assert same(getattr(k, f"std_{key}"), g["std"][key]), (where, key)
         assert (c.seq, c.gate, c.contact, c.model, c.converged, c.frames_used) == (
             e["seq"], e["gate"], e["contact"], e["model"] or "", bool(e["converged"]),
             e["frames_used"]), where
