@@ -322,3 +322,18 @@ def test_markers_draw_every_contact_with_ids_from_its_contact_id() -> None:
         assert math.isclose(tail.z - head.z, element["force_n"] * m.ARROW_M_PER_N)
         assert (head.x, head.y) == (ellipse.pose.position.x, ellipse.pose.position.y)
     assert m.marker_ids(2**30) == (0, 1)  # int32 ids, wrapped
+
+
+def test_watch_ros2_prints_every_contact_of_the_array() -> None:
+    from tactiled_service.ros2 import reader, rmw
+
+    est = two_contacts()
+    typename = m.TYPES["contacts"]
+    key = f"0/tactiled/finger0/contacts/{rmw.dds_type(typename)}/{m.type_hash(typename)}"
+    line = reader.decode(key, m.serialize(m.contact_array(est, STAMP, "finger0"), typename),
+                         None)
+    assert line is not None and (line["topic"], line["type"]) == ("/tactiled/finger0/contacts",
+                                                                  typename)
+    listed = line["message"]["contacts"]
+    assert [(c["contact_id"], c["force_n"], c["angle_deg"]) for c in listed] == [
+        (k["contact_id"], k["force_n"], k["angle_deg"]) for k in est["contacts"]]
