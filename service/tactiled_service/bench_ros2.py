@@ -12,7 +12,8 @@ alike, with one Zenoh client session of this process as the subscriber:
 * **json**: every sensor's JSON estimates (``<prefix>/*/estimate``);
 * **ros2**: every sensor's ``tactiled_msgs/Contact`` (one ROS message per estimate, the key
   expressions rmw_zenoh uses);
-* **both**: the JSON estimates and every ROS topic of the estimates (wrench, contact, markers).
+* **both**: the JSON estimates and every ROS topic of the estimates (wrench, contact, contacts,
+  markers).
 
 Per phase: **delivered/s**, estimates the subscriber received per second (for ROS, Contact
 messages), against **published/s** (the pipeline's counters over the phase); **ROS gaps**,
@@ -253,7 +254,7 @@ def report(results: dict[str, Result], args: argparse.Namespace) -> str:
               f"same estimates), ROS 2 Contact / JSON delivered = {ros_n / max(json_n, 1):.4f} "
               f"({ros_n} / {json_n}), ROS messages missing {gaps} of {sent}; added CPU per frame, "
               f"ROS 2 Contact / JSON = {added['ros2'] / added['json']:.2f}, "
-              f"both (JSON + wrench, contact, markers) / JSON = "
+              f"both (JSON + wrench, contact, contacts, markers) / JSON = "
               f"{added['both'] / added['json']:.2f}."
               if added["json"] > 0 else "", ]
     return "\n".join(lines)

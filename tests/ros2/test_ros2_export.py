@@ -71,7 +71,7 @@ def test_mcap_has_the_ros2_profile_topics_and_types(exported: dict[str, Path]) -
     assert header.profile == "ros2"
     topics = {c.topic: c for c in summary.channels.values()}
     expected = {f"/tactiled/finger0/{k}": messages.TYPES[k]
-                for k in ("wrench", "contact", "markers", "strain")}
+                for k in ("wrench", "contact", "contacts", "markers", "strain")}
     expected["/diagnostics"] = messages.TYPES["diagnostics"]
     assert {t: summary.schemas[c.schema_id].name for t, c in topics.items()} == expected
     for topic, channel in topics.items():
@@ -81,7 +81,7 @@ def test_mcap_has_the_ros2_profile_topics_and_types(exported: dict[str, Path]) -
     per_topic: dict[str, list[Any]] = defaultdict(list)
     for channel, msg, _ in decoded:
         per_topic[channel.topic].append(msg)
-    for k in ("wrench", "contact", "markers", "strain"):
+    for k in ("wrench", "contact", "contacts", "markers", "strain"):
         assert len(per_topic[f"/tactiled/finger0/{k}"]) == 90, k  # every frame, every estimate
     for topic, msgs in per_topic.items():
         assert [m.sequence for m in msgs] == list(range(len(msgs))), topic
@@ -94,13 +94,23 @@ def test_contacts_are_the_golden_estimates(exported: dict[str, Path]) -> None:
     _, _, decoded = read(exported["a"])
     contacts = [dec for ch, _, dec in decoded if ch.topic.endswith("/contact")]
     wrenches = [dec for ch, _, dec in decoded if ch.topic.endswith("/wrench")]
-    assert len(contacts) == len(golden) == len(wrenches)
+    arrays = [dec for ch, _, dec in decoded if ch.topic.endswith("/contacts")]
+    assert len(contacts) == len(golden) == len(wrenches) == len(arrays)
 
     def same(a: float, b: Any) -> bool:
         return math.isnan(a) if b is None else math.isclose(a, b, rel_tol=regen_golden.REL_TOL)
 
-    for c, w, e in zip(contacts, wrenches, golden):
+    for c, w, a, e in zip(contacts, wrenches, arrays, golden):
         where = f"seq {e['seq']}"
+        assert c.contact_id == (-1 if e["contact_id"] is None else e["contact_id"]), where
+        assert (a.seq, a.sensor) == (e["seq"], c.sensor), where  # (export names it --name)
+        assert [k.contact_id for k in a.contacts] == [k["contact_id"] for k in e["contacts"]]
+        for k, g in zip(a.contacts, e["contacts"]):  # the strongest first, as the contact topic's
+            assert (k.seq, k.gate, k.model, k.frames_used) == (
+                e["seq"], e["gate"], g["model"], g["frames_used"]), where
+            for key in ("x_mm", "y_mm", "force_n", "r1_mm", "angle_deg"):
+                assert same(getattr(k, key), g[key]), (where, key)
+                assert same(getattr(k, f"std_{key}"), g["std"][key]), (where, key)
         assert (c.seq, c.gate, c.contact, c.model, c.converged, c.frames_used) == (
             e["seq"], e["gate"], e["contact"], e["model"] or "", bool(e["converged"]),
             e["frames_used"]), where

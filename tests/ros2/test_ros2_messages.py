@@ -4,8 +4,8 @@ The messages are built and serialised by ``tactiled_service.ros2.messages`` with
 every one is decoded by the MCAP project's ROS 2 decoder (``mcap_ros2``, a second CDR
 implementation, fed only the message definition text), and its values are compared with an
 independent computation from the estimate's JSON.  Type hashes are compared with the values
-ROS 2 itself publishes, and the hash of ``tactiled_msgs/msg/Contact`` with the one
-``zenoh-ros2-sdk`` computes on its own from the ``.msg`` text.
+ROS 2 itself publishes, and the hashes of ``tactiled_msgs/msg/Contact`` and ``ContactArray``
+with those ``zenoh-ros2-sdk`` computes on its own from the ``.msg`` texts.
 """
 
 from __future__ import annotations
@@ -19,10 +19,20 @@ import pytest
 from mcap_ros2._dynamic import generate_dynamic
 from zenoh_ros2_sdk.utils import get_type_hash
 
+from tactiled.pipeline.association import ContactIds, identified
 from tactiled_service.ros2 import messages as m
 
 ROOT = Path(__file__).resolve().parents[2]
 CONTACT_MSG = ROOT / "ros2" / "tactiled_msgs" / "msg" / "Contact.msg"
+CONTACT_ARRAY_MSG = CONTACT_MSG.with_name("ContactArray.msg")
+#: What the ament package declares: its messages' RIHS01 hashes, which a ROS 2 build of
+#: ros2/tactiled_msgs reports (``ros2 interface show`` / ``ros2 topic info -v``).
+TACTILED_HASHES = {
+    "tactiled_msgs/msg/Contact":
+        "RIHS01_f512bcfeecc8ff647860f7e421155b530aaef896debbe141253b032c5abb22fd",
+    "tactiled_msgs/msg/ContactArray":
+        "RIHS01_adb7fcd120b965c920f83a7bccf51bb3ec9fc0736723245b75c05cac06c4f436",
+}
 
 #: RIHS01 hashes as ROS 2 (Jazzy, Kilted) reports them, hard-coded from outside this project:
 #: sensor_msgs/Image is the "Topic type hash" line of ``ros2 topic info -v`` in the
@@ -82,13 +92,16 @@ def test_standard_type_hashes_are_those_ros2_publishes() -> None:
         assert m.type_hash(typename) == expected, typename
 
 
-def test_contact_hash_agrees_with_an_independent_implementation() -> None:
-    text = CONTACT_MSG.read_text()
+def test_contact_hashes_agree_with_an_independent_implementation() -> None:
     deps = {"std_msgs/msg/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
-            "builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n"}
-    ours = m.type_hash(m.CONTACT_TYPE)
-    assert ours == get_type_hash(m.CONTACT_TYPE, msg_definition=text, dependencies=deps)
-    assert ours.startswith("RIHS01_") and len(ours) == 7 + 64
+            "builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n",
+            m.CONTACT_TYPE: CONTACT_MSG.read_text()}
+    for typename, path in ((m.CONTACT_TYPE, CONTACT_MSG),
+                           (m.CONTACT_ARRAY_TYPE, CONTACT_ARRAY_MSG)):
+        ours = m.type_hash(typename)
+        assert ours == get_type_hash(typename, msg_definition=path.read_text(),
+                                     dependencies=deps), typename
+        assert ours == TACTILED_HASHES[typename], "a message changed: update docs/howto/ros2.md"
 
 
 def test_wrench_hash_agrees_with_an_independent_implementation() -> None:
@@ -102,8 +115,11 @@ def test_wrench_hash_agrees_with_an_independent_implementation() -> None:
     assert sdk == m.type_hash(typename) == ROS2_HASHES[typename]
 
 
-def test_the_daemon_publishes_the_message_the_ament_package_builds() -> None:
+def test_the_daemon_publishes_the_messages_the_ament_package_builds() -> None:
     assert m.contact_definition() == CONTACT_MSG.read_text()
+    assert m.contact_definition(m.CONTACT_ARRAY_TYPE) == CONTACT_ARRAY_MSG.read_text()
+    package = ROOT / "ros2" / "tactiled_msgs"
+    assert '"msg/ContactArray.msg"' in (package / "CMakeLists.txt").read_text()
 
 
 def test_wrench_is_the_force_on_the_sensor_in_si_units() -> None:
@@ -135,15 +151,21 @@ def test_contact_carries_every_value_and_sigma_with_the_json_names() -> None:
     assert (msg.ellipse_a_mm, msg.ellipse_b_mm, msg.ellipse_theta_deg) == (
         e["a_mm"], e["b_mm"], e["theta_deg"])
     assert dict(zip(msg.reason_keys, msg.reason_texts)) == ESTIMATE["reasons"]
+    assert msg.contact_id == -1  # an estimate written before contacts had ids
+    msg = decode("contact", m.serialize(m.contact({**ESTIMATE, "contact_id": 7}, STAMP, "f"),
+                                        m.TYPES["contact"]))
+    assert msg.contact_id == 7
     none = decode("contact", m.serialize(m.contact(NO_CONTACT, STAMP, "f"), m.TYPES["contact"]))
     assert none.contact is False and none.fitted_seq == -1 and none.model == ""
+    assert none.contact_id == -1
     assert math.isnan(none.force_n) and math.isnan(none.ellipse_a_mm)
 
 
 def test_markers_draw_the_ellipse_and_the_force_arrow_in_metres() -> None:
     msg = decode("markers", m.serialize(m.markers(ESTIMATE, STAMP, "finger0"),
                                         m.TYPES["markers"]))
-    ellipse, arrow = msg.markers
+    clear, ellipse, arrow = msg.markers
+    assert (clear.ns, clear.action) == ("finger0", 3)  # DELETEALL of the sensor's namespace
     assert (ellipse.ns, ellipse.id, ellipse.type, ellipse.action) == ("finger0", 0, 3, 0)
     assert math.isclose(ellipse.scale.x, 2 * 3.213e-3) and math.isclose(ellipse.scale.y,
                                                                           2 * 2.9936e-3)
@@ -155,7 +177,7 @@ def test_markers_draw_the_ellipse_and_the_force_arrow_in_metres() -> None:
     assert math.isclose(tail.z - head.z, 1.0312 * m.ARROW_M_PER_N)  # into the skin
     assert (head.x, head.y, head.z) == (ellipse.pose.position.x, ellipse.pose.position.y, 0.0)
     gone = decode("markers", m.serialize(m.markers(NO_CONTACT, STAMP, "f"), m.TYPES["markers"]))
-    assert [(k.id, k.action) for k in gone.markers] == [(0, 2), (1, 2)]  # DELETE both
+    assert [(k.ns, k.action) for k in gone.markers] == [("finger0", 3)]  # DELETEALL alone
 
 
 def test_strain_image_is_32fc1_rows_by_cols() -> None:
@@ -213,3 +235,105 @@ def test_a_line_contacts_table_rides_in_the_contact_message() -> None:
     assert math.isnan(msg.force_n) and msg.label == "line"
     plain = decode("contact", m.serialize(m.contact(ESTIMATE, STAMP, "f"), m.TYPES["contact"]))
     assert math.isnan(plain.line_load_n_per_mm) and math.isnan(plain.line_offset_mm_std)
+
+
+def two_contacts() -> dict[str, Any]:
+    """An estimate of two contacts, its ids given by the daemon's own association: the held
+    cylinder of ESTIMATE and a lighter sphere beside it, after one frame of the cylinder alone
+    (so their ids are 1 and 2, the strongest first)."""
+    envelope = ("type", "sensor", "sensor_id", "seq", "device_time_us", "host_time", "time",
+                "latency_ms", "worker_ms", "gate", "fitted_seq")
+    first = {k: v for k, v in ESTIMATE.items() if k not in envelope and k != "fit_ms"}
+    first["reasons"] = {**first["reasons"], "contacts": "one of 2 contacts on this array"}
+    second = {**first, "model": "sphere", "label": "sphere", "x_mm": 4.25, "y_mm": 6.5,
+              "force_n": 0.4375, "r1_mm": 6.0, "r2_mm": 6.0, "angle_deg": None,
+              "std": {**first["std"], "force_n": 0.02, "angle_deg": None, "r2_mm": 0.9},
+              "ellipse": {"a_mm": 1.5, "b_mm": 1.5, "theta_deg": 0.0},
+              "reasons": {"angle_deg": "undefined: sphere", "contacts": "one of 2 contacts"},
+              "frames_used": 1, "vx_mm_s": None, "line": {"load_n_per_mm": 0.125,
+                                                          "offset_mm": -1.5}}
+    ids = ContactIds(2.0)
+    identified(dict(first), ids)
+    fit = identified({**first, "fit_ms": 7.5, "contacts": [first, second]}, ids)
+    return {**{k: ESTIMATE[k] for k in envelope}, **fit}
+
+
+def check_contact(msg: Any, est: dict[str, Any], element: dict[str, Any]) -> None:
+    """``msg`` (a decoded Contact) is ``element`` of ``est``'s contacts, field by field."""
+    for key in ("sensor", "sensor_id", "seq", "device_time_us", "gate", "fitted_seq"):
+        assert getattr(msg, key) == est[key], key
+    for key in ("latency_ms", "worker_ms", "fit_ms"):
+        assert same(getattr(msg, key), est[key]), key
+    for key in ("contact_id", "model", "label", "converged", "iterations", "message",
+                "frames_used", "contact"):
+        assert getattr(msg, key) == element[key], key
+    for key in ("x_mm", "y_mm", "force_n", "r1_mm", "r2_mm", "angle_deg", "vx_mm_s", "vy_mm_s",
+                "angle_rate_deg_s", "force_rate_n_s"):
+        assert same(getattr(msg, key), element.get(key)), key
+        assert same(getattr(msg, f"std_{key}"), element["std"].get(key)), f"std_{key}"
+    for key in ("rms", "peak", "condition"):
+        assert same(getattr(msg, key), element[key]), key
+    e = element["ellipse"]
+    assert (msg.ellipse_a_mm, msg.ellipse_b_mm, msg.ellipse_theta_deg) == (
+        e["a_mm"], e["b_mm"], e["theta_deg"])
+    line = element.get("line") or {}
+    for key in ("load_n_per_mm", "offset_mm", "load_n_per_mm_std", "offset_mm_std"):
+        assert same(getattr(msg, f"line_{key}"), line.get(key)), key
+    assert dict(zip(msg.reason_keys, msg.reason_texts)) == element["reasons"]
+    assert msg.header.frame_id == "finger0" and msg.header.stamp.nanosec == 250_000_000
+
+
+def test_contact_array_lists_every_contact_the_strongest_first() -> None:
+    est = two_contacts()
+    assert [c["contact_id"] for c in est["contacts"]] == [1, 2] and est["contact_id"] == 1
+    msg = decode("contacts", m.serialize(m.contact_array(est, STAMP, "finger0"),
+                                         m.TYPES["contacts"]))
+    assert (msg.sensor, msg.sensor_id, msg.seq) == ("finger0", 0, 9561)
+    assert msg.header.frame_id == "finger0" and msg.header.stamp.sec == 1795309645
+    assert len(msg.contacts) == 2
+    for got, element in zip(msg.contacts, est["contacts"]):
+        check_contact(got, est, element)
+    # the contact topic carries the strongest, the same message as the array's first
+    top = decode("contact", m.serialize(m.contact(est, STAMP, "finger0"), m.TYPES["contact"]))
+    check_contact(top, est, est["contacts"][0])
+    none = decode("contacts", m.serialize(m.contact_array(
+        {**NO_CONTACT, "contact_id": None, "contacts": []}, STAMP, "f"), m.TYPES["contacts"]))
+    assert none.contacts == [] and none.seq == 3
+    # an estimate written before the contacts list existed is its own one contact
+    old = decode("contacts", m.serialize(m.contact_array(ESTIMATE, STAMP, "f"),
+                                         m.TYPES["contacts"]))
+    assert [(c.contact_id, c.force_n) for c in old.contacts] == [(-1, 1.0312)]
+
+
+def test_markers_draw_every_contact_with_ids_from_its_contact_id() -> None:
+    est = two_contacts()
+    msg = decode("markers", m.serialize(m.markers(est, STAMP, "finger0"), m.TYPES["markers"]))
+    assert (msg.markers[0].action, msg.markers[0].ns) == (3, "finger0")  # DELETEALL first
+    drawn = {(k.id, k.type): k for k in msg.markers[1:]}
+    assert all(k.action == 0 and k.ns == "finger0" for k in drawn.values())
+    assert sorted(drawn) == [(2, 3), (3, 0), (4, 3), (5, 0)]  # ids 2c (ellipse), 2c+1 (arrow)
+    for element in est["contacts"]:
+        cid = element["contact_id"]
+        ellipse, arrow = drawn[(2 * cid, 3)], drawn[(2 * cid + 1, 0)]
+        assert math.isclose(ellipse.pose.position.x, element["x_mm"] * 1e-3)
+        assert math.isclose(ellipse.pose.position.y, element["y_mm"] * 1e-3)
+        assert math.isclose(ellipse.scale.x, 2e-3 * element["ellipse"]["a_mm"])
+        tail, head = arrow.points
+        assert math.isclose(tail.z - head.z, element["force_n"] * m.ARROW_M_PER_N)
+        assert (head.x, head.y) == (ellipse.pose.position.x, ellipse.pose.position.y)
+    assert m.marker_ids(2**30) == (0, 1)  # int32 ids, wrapped
+
+
+def test_watch_ros2_prints_every_contact_of_the_array() -> None:
+    from tactiled_service.ros2 import reader, rmw
+
+    est = two_contacts()
+    typename = m.TYPES["contacts"]
+    key = f"0/tactiled/finger0/contacts/{rmw.dds_type(typename)}/{m.type_hash(typename)}"
+    line = reader.decode(key, m.serialize(m.contact_array(est, STAMP, "finger0"), typename),
+                         None)
+    assert line is not None and (line["topic"], line["type"]) == ("/tactiled/finger0/contacts",
+                                                                  typename)
+    listed = line["message"]["contacts"]
+    assert [(c["contact_id"], c["force_n"], c["angle_deg"]) for c in listed] == [
+        (k["contact_id"], k["force_n"], k["angle_deg"]) for k in est["contacts"]]

@@ -218,6 +218,34 @@ def test_every_payload_decodes_with_another_implementation(heard: dict[str, Any]
         assert got[0][1] == rmw.gid(by_topic[topic]), topic
 
 
+def test_the_contacts_topic_lists_every_contact_of_each_estimate(heard: dict[str, Any]) -> None:
+    """ContactArray payloads off the wire, decoded by mcap_ros2, against the JSON estimates."""
+    def decoded(kind: str) -> dict[int, Any]:
+        typename = messages.TYPES[kind]
+        name = typename.replace("/msg/", "/")
+        decode = generate_dynamic(name, messages.definition(typename))[name]
+        prefix = f"0/tactiled/finger0/{kind}/{rmw.dds_type(typename)}/"
+        return {(msg := decode(payload)).seq: msg for key, payload, _ in heard["samples"]
+                if key.startswith(prefix)}
+
+    arrays, contacts = decoded("contacts"), decoded("contact")
+    span = [e for e in heard["estimates"] if e["seq"] in arrays]
+    assert len(span) > 100, len(span)
+    for e in span:
+        a = arrays[e["seq"]]
+        assert (a.sensor, a.header.frame_id) == ("finger0", "finger0")
+        assert [(c.contact_id, c.seq, c.gate) for c in a.contacts] == [
+            (k["contact_id"], e["seq"], e["gate"]) for k in e["contacts"]], e["seq"]
+        for c, k in zip(a.contacts, e["contacts"]):
+            for key in ("x_mm", "y_mm", "force_n", "r1_mm"):
+                v = getattr(c, key)
+                assert (v != v) if k[key] is None else v == k[key], (e["seq"], key)
+        top = contacts.get(e["seq"])
+        if top is not None:
+            assert top.contact_id == (a.contacts[0].contact_id if a.contacts else -1)
+    assert sum(bool(arrays[e["seq"]].contacts) for e in span) > 0
+
+
 def test_liveliness_tokens_follow_rmw_zenohs_layout(heard: dict[str, Any]) -> None:
     ours = [parse_token(t) for t in heard["tokens"] if parse_token(t)["node"] == "tactiled"]
     nodes = [p for p in ours if p["entity"] == "NN"]
@@ -226,6 +254,7 @@ def test_liveliness_tokens_follow_rmw_zenohs_layout(heard: dict[str, Any]) -> No
     assert {p["topic"]: p["type"] for p in pubs} == {
         "/tactiled/finger0/wrench": "geometry_msgs::msg::dds_::WrenchStamped_",
         "/tactiled/finger0/contact": "tactiled_msgs::msg::dds_::Contact_",
+        "/tactiled/finger0/contacts": "tactiled_msgs::msg::dds_::ContactArray_",
         "/tactiled/finger0/markers": "visualization_msgs::msg::dds_::MarkerArray_",
         "/tactiled/finger0/strain": "sensor_msgs::msg::dds_::Image_",
         "/diagnostics": "diagnostic_msgs::msg::dds_::DiagnosticArray_"}
@@ -237,7 +266,8 @@ def test_health_counts_the_ros2_messages(node: Node, heard: dict[str, Any]) -> N
     import httpx
 
     ros2 = httpx.get(node.url + "v1/health", timeout=10).json()["zenoh"]["ros2"]
-    assert set(ros2["published"]) == {"wrench", "contact", "markers", "strain", "diagnostics"}
+    assert set(ros2["published"]) == {"wrench", "contact", "contacts", "markers", "strain",
+                                      "diagnostics"}
     assert ros2["published"]["contact"] >= len(heard["contacts"])
     assert ros2["put_errors"] == 0 and ros2["last_error"] == ""
 
@@ -252,7 +282,8 @@ def test_watch_ros2_prints_decoded_messages(node: Node) -> None:
     assert len(lines) == 6
     for line in lines:
         assert line["topic"] in ("/tactiled/finger0/wrench", "/tactiled/finger0/contact",
-                                 "/tactiled/finger0/markers", "/diagnostics")
+                                 "/tactiled/finger0/contacts", "/tactiled/finger0/markers",
+                                 "/diagnostics")
         assert line["type"] == messages.TYPES[line["topic"].rsplit("/", 1)[-1]]
         assert line["sequence_number"] >= 1 and isinstance(line["message"], dict)
 

@@ -79,7 +79,8 @@ class McapWriter:
         self.messages += 1
 
     def write_estimate(self, est: dict[str, Any], stamp_s: float) -> None:
-        """The wrench, contact and markers of an estimate (``Estimate.to_json_dict()``)."""
+        """The wrench, contact, contacts and markers of an estimate
+        (``Estimate.to_json_dict()``)."""
         sensor = str(est["sensor"])
         frame_id = messages.frame_name(self.frame_id, sensor)
         for kind in messages.ESTIMATE_KINDS:

@@ -33,13 +33,15 @@ from rosbags.typesys import Stores, get_typestore, get_types_from_msg
 TYPES: dict[str, str] = {
     "wrench": "geometry_msgs/msg/WrenchStamped",
     "contact": "tactiled_msgs/msg/Contact",
+    "contacts": "tactiled_msgs/msg/ContactArray",
     "strain": "sensor_msgs/msg/Image",
     "markers": "visualization_msgs/msg/MarkerArray",
     "diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 CONTACT_TYPE = TYPES["contact"]
+CONTACT_ARRAY_TYPE = TYPES["contacts"]
 #: The kinds published for every estimate (the strain image goes with frames).
-ESTIMATE_KINDS = ("wrench", "contact", "markers")
+ESTIMATE_KINDS = ("wrench", "contact", "contacts", "markers")
 DIAGNOSTICS_TOPIC = "/diagnostics"
 #: The ROS 2 distribution whose message definitions the standard types follow (Jazzy and
 #: Kilted define these four identically: same RIHS01 hashes).
@@ -56,16 +58,19 @@ ARROW_M_PER_N = 0.01  # length of the force arrow, m per N (1 cm per newton)
 ELLIPSE_THICKNESS_M = 0.0005  # height of the flat cylinder drawn as the contact ellipse
 
 
-def contact_definition() -> str:
-    """The text of ``tactiled_msgs/msg/Contact`` (``ros2/tactiled_msgs/msg/Contact.msg``)."""
-    return resources.files("tactiled_service.ros2").joinpath("Contact.msg").read_text("utf-8")
+def contact_definition(typename: str = CONTACT_TYPE) -> str:
+    """The text of a ``tactiled_msgs`` message (``ros2/tactiled_msgs/msg/<Name>.msg``)."""
+    name = typename.rsplit("/", 1)[-1] + ".msg"
+    return resources.files("tactiled_service.ros2").joinpath(name).read_text("utf-8")
 
 
 @functools.cache
 def typestore() -> Any:
-    """The type store: the standard types of ROS 2 Jazzy plus ``tactiled_msgs/msg/Contact``."""
+    """The type store: the standard types of ROS 2 Jazzy plus ``tactiled_msgs/msg/Contact``
+    and ``tactiled_msgs/msg/ContactArray``."""
     store = get_typestore(Stores.ROS2_JAZZY)
     store.register(get_types_from_msg(contact_definition(), CONTACT_TYPE))
+    store.register(get_types_from_msg(contact_definition(CONTACT_ARRAY_TYPE), CONTACT_ARRAY_TYPE))
     return store
 
 
@@ -204,6 +209,7 @@ def contact(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
         "gate": str(est.get("gate", "")),
         "fitted_seq": -1 if est.get("fitted_seq") is None else int(est["fitted_seq"]),
         "contact": bool(est.get("contact")),
+        "contact_id": -1 if est.get("contact_id") is None else int(est["contact_id"]),
         "model": str(est.get("model") or ""),
         "label": str(est.get("label") or ""),
         "frames_used": int(est.get("frames_used") or 0),
@@ -224,6 +230,33 @@ def contact(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
     for key in _FIT_KEYS:
         fields[key] = _num(est.get(key))
     return _cls(CONTACT_TYPE)(**fields)
+
+
+#: An estimate's per-frame keys (the envelope of ``Estimate.to_json_dict()`` and the fitter's
+#: time for the frame), which every contact of the frame shares unless it has its own.
+_FRAME_KEYS = ("sensor", "sensor_id", "seq", "device_time_us", "latency_ms", "worker_ms", "gate",
+               "fitted_seq", "fit_ms")
+
+
+def contact_list(est: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every contact of an estimate, the strongest first, each as a one-contact estimate: the
+    frame's keys and that element of ``contacts`` (``[]`` without contact).  An estimate
+    without ``contacts`` (written before the key existed) is its own one contact."""
+    listed = est.get("contacts")
+    if listed is None:
+        return [est] if est.get("contact") else []
+    frame = {k: est[k] for k in _FRAME_KEYS if k in est}
+    return [{**frame, "contact": True, **c} for c in listed]
+
+
+def contact_array(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
+    """tactiled_msgs/ContactArray: every contact of the frame (:func:`contact` each, the
+    strongest first; ``contacts[0]`` is the ``contact`` topic's message), empty without
+    contact."""
+    return _cls(CONTACT_ARRAY_TYPE)(
+        header=header(stamp_s, frame_id), sensor=str(est.get("sensor", "")),
+        sensor_id=int(est.get("sensor_id") or 0), seq=int(est.get("seq") or 0),
+        contacts=[contact(c, stamp_s, frame_id) for c in contact_list(est)])
 
 
 def _quaternion_z(angle_rad: float) -> Any:
@@ -259,40 +292,48 @@ def _unused_marker_fields() -> dict[str, Any]:
                 filename="", data=np.zeros(0, dtype=np.uint8))}
 
 
+def marker_ids(contact_id: int) -> tuple[int, int]:
+    """The Marker ids of a contact: ``2 * contact_id`` its ellipse, ``2 * contact_id + 1`` its
+    force arrow (modulo 2**31: ``Marker.id`` is an int32), the same for as long as it is held."""
+    base = (2 * contact_id) % 2**31
+    return base, base + 1
+
+
 def markers(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
-    """visualization_msgs/MarkerArray, namespace = the sensor: id 0 the contact ellipse (a flat
-    green cylinder, 2a x 2b, major axis at theta), id 1 the force arrow (red, 1 cm per N,
-    pointing into the skin at the contact centre).  Without contact (or without an ellipse)
-    the markers are deleted (DELETE), so a viewer never shows a stale contact."""
+    """visualization_msgs/MarkerArray, namespace = the sensor: first a DELETEALL of that
+    namespace, then for every contact (the strongest first) its ellipse (a flat green cylinder,
+    2a x 2b, major axis at theta) and its force arrow (red, 1 cm per N, pointing into the skin
+    at the contact centre), with the ids of :func:`marker_ids`.  Each message thus holds the
+    whole picture: no contact leaves a stale marker, even when a message before was dropped
+    or the viewer joined late; without contact it is the DELETEALL alone."""
     hdr = header(stamp_s, frame_id)
     ns = str(est.get("sensor", ""))
     marker_t = _cls("visualization_msgs/msg/Marker")
-    array = _cls("visualization_msgs/msg/MarkerArray")
-    ellipse = est.get("ellipse") or {}
-    have_centre = _present(est.get("x_mm")) and _present(est.get("y_mm"))
-    out = []
-    if est.get("contact") and have_centre and _present(ellipse.get("a_mm")):
-        cx, cy = float(est["x_mm"]) * 1e-3, float(est["y_mm"]) * 1e-3
-        theta = float(ellipse["theta_deg"]) if _present(ellipse.get("theta_deg")) else 0.0
-        out.append(_marker(hdr, ns, 0, marker_t.CYLINDER, marker_t.ADD, position=(cx, cy, 0.0),
-                           yaw_rad=math.radians(theta),
-                           scale=(2e-3 * float(ellipse["a_mm"]), 2e-3 * float(ellipse["b_mm"]),
-                                  ELLIPSE_THICKNESS_M),
-                           rgba=(0.1, 0.8, 0.2, 0.6)))
-    else:
-        out.append(_marker(hdr, ns, 0, marker_t.CYLINDER, marker_t.DELETE))
-    if est.get("contact") and have_centre and _present(est.get("force_n")):
-        cx, cy = float(est["x_mm"]) * 1e-3, float(est["y_mm"]) * 1e-3
-        length = ARROW_M_PER_N * float(est["force_n"])
-        out.append(_marker(hdr, ns, 1, marker_t.ARROW, marker_t.ADD,
-                           scale=(0.0008, 0.0016, 0.002), rgba=(0.9, 0.1, 0.1, 1.0),
-                           points=((cx, cy, length), (cx, cy, 0.0))))
-    else:
-        out.append(_marker(hdr, ns, 1, marker_t.ARROW, marker_t.DELETE))
-    return array(markers=out)
+    out = [_marker(hdr, ns, 0, marker_t.CYLINDER, marker_t.DELETEALL)]
+    for index, c in enumerate(contact_list(est)):
+        if not (_present(c.get("x_mm")) and _present(c.get("y_mm"))):
+            continue
+        cid = c.get("contact_id")
+        ellipse_id, arrow_id = marker_ids(index if cid is None else int(cid))
+        cx, cy = float(c["x_mm"]) * 1e-3, float(c["y_mm"]) * 1e-3
+        ellipse = c.get("ellipse") or {}
+        if _present(ellipse.get("a_mm")) and _present(ellipse.get("b_mm")):
+            theta = float(ellipse["theta_deg"]) if _present(ellipse.get("theta_deg")) else 0.0
+            out.append(_marker(hdr, ns, ellipse_id, marker_t.CYLINDER, marker_t.ADD,
+                               position=(cx, cy, 0.0), yaw_rad=math.radians(theta),
+                               scale=(2e-3 * float(ellipse["a_mm"]),
+                                      2e-3 * float(ellipse["b_mm"]), ELLIPSE_THICKNESS_M),
+                               rgba=(0.1, 0.8, 0.2, 0.6)))
+        if _present(c.get("force_n")):
+            length = ARROW_M_PER_N * float(c["force_n"])
+            out.append(_marker(hdr, ns, arrow_id, marker_t.ARROW, marker_t.ADD,
+                               scale=(0.0008, 0.0016, 0.002), rgba=(0.9, 0.1, 0.1, 1.0),
+                               points=((cx, cy, length), (cx, cy, 0.0))))
+    return _cls("visualization_msgs/msg/MarkerArray")(markers=out)
 
 
-_ESTIMATE_BUILDERS = {"wrench": wrench, "contact": contact, "markers": markers}
+_ESTIMATE_BUILDERS = {"wrench": wrench, "contact": contact, "contacts": contact_array,
+                      "markers": markers}
 
 
 # --------------------------------------------------------------------------------------------

@@ -8,8 +8,9 @@ sensor, with the key expressions, CDR payloads and attachments rmw_zenoh uses
 (:mod:`.rmw`; the messages: :mod:`.messages`):
 
 * ``<namespace>/<sensor>/wrench`` (``geometry_msgs/msg/WrenchStamped``), ``.../contact``
-  (``tactiled_msgs/msg/Contact``), ``.../markers`` (``visualization_msgs/msg/MarkerArray``):
-  one each per estimate;
+  (``tactiled_msgs/msg/Contact``, the strongest contact), ``.../contacts``
+  (``tactiled_msgs/msg/ContactArray``, every contact), ``.../markers``
+  (``visualization_msgs/msg/MarkerArray``, every contact drawn): one each per estimate;
 * ``.../strain`` (``sensor_msgs/msg/Image``, ``32FC1``): zeroed frames, at most
   ``[zenoh] frame_rate_hz`` per second per sensor (0: none);
 * ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``): the health, once a second.
@@ -39,7 +40,7 @@ from tactiled_service.sender import QUEUE_SIZE, Sender
 log = logging.getLogger(__name__)
 
 DIAGNOSTICS_PERIOD_S = 1.0
-KINDS = ("wrench", "contact", "markers", "strain", "diagnostics")
+KINDS = ("wrench", "contact", "contacts", "markers", "strain", "diagnostics")
 
 
 class Topic:
