@@ -229,8 +229,8 @@ def test_the_dashboard_draws_each_array_as_it_is(browser_page, live_server):
         " return q('force_n').startsWith('line: ') && q('force_n').endsWith('N/mm') &&"
         " document.querySelector('#sensor-pad .model-label').textContent.includes('(line)'); }",
         timeout=60_000)
-    # today's daemon lists no `contacts`: the one contact of the top level, drawn without an id
+    # the daemon lists its `contacts`: the pad's one line contact, drawn with its contact_id
     drawn = json.loads(page.get_attribute("#sensor-pad canvas.overlay", "data-contacts"))
-    assert len(drawn) <= 1 and all(d["id"] is None for d in drawn), drawn
+    assert len(drawn) <= 1 and all(isinstance(d["id"], int) and d["id"] >= 1 for d in drawn), drawn
     assert canvas_colours(page, "tip") > 4 and canvas_colours(page, "pad") > 8
     assert not errors, errors
