@@ -20,6 +20,7 @@ import numpy as np
 
 from tactiled.fit import compiled
 from tactiled.fit.models import Model, get_model
+from tactiled.fit.warm import SEVERAL
 from tactiled.physics.contact import Contact
 
 
@@ -149,3 +150,27 @@ def whole_array(fitter, model: Model, p: np.ndarray) -> np.ndarray | None:
         return fitter.model.predict(contact, moved=moved)
     except (ValueError, ZeroDivisionError, OverflowError):
         return None
+
+
+@dataclass(frozen=True)
+class SeveralLinearizations:
+    """The linearisations of several contacts of one frame, each taken on the frame less the
+    others' predicted strain (:func:`tactiled.fit.multi.linearize_several`), in the order of
+    the contacts they were asked for.  The temporal tracker measures each contact through its
+    own (:class:`tactiled.pipeline.several.ContactTrackers`)."""
+
+    lins: tuple[Linearization, ...]
+    #: the tag of several contacts (``tactiled.fit.warm.SEVERAL``)
+    model: str = SEVERAL
+
+    @property
+    def predicted(self) -> np.ndarray | None:
+        """The contacts' strains on the whole array, summed (None if one has none)."""
+        if any(lin.predicted is None for lin in self.lins):
+            return None
+        return np.sum([lin.predicted for lin in self.lins], axis=0)
+
+    @property
+    def index(self) -> np.ndarray:
+        """Every tactel some contact's window measures (flat row-major indices)."""
+        return np.unique(np.concatenate([lin.index for lin in self.lins]))

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from tactiled.fit.linearize import SeveralLinearizations
 from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
 from tactiled.fit.regions import (
@@ -242,6 +243,43 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
         r.reasons["contacts"] = SEVERAL_REASON.format(n=k)
         r.fit_ms = elapsed
     return out
+
+
+# -- the tracker's linearisations --------------------------------------------------------------
+
+def linearize_several(fitter: Any, strain: np.ndarray, contacts: list[tuple[str, tuple[float, ...]]],
+                      mask: np.ndarray | None = None) -> SeveralLinearizations | None:
+    """Each point contact of ``contacts`` (``(model, internal params)``) linearised on the
+    frame less the others' strain at their parameters, with the others' cores (their strain
+    above ``CORE_SHARE`` of its peak) out of its window, as the last pass of
+    :func:`_fit_several` fits it; None when one has no linearisation (a line contact, a
+    singular window): such a frame's contacts are fitted, not tracked."""
+    from tactiled.fit.linearize import linearize, whole_array
+
+    strain = np.asarray(strain, dtype=float)
+    usable = np.ones(strain.shape, bool) if mask is None else np.asarray(mask, dtype=bool)
+    preds = []
+    for model, params in contacts:
+        if model not in ("cylinder", "sphere", "general") or (
+                fitter.sensor.geometry.flat and model == "cylinder"):
+            return None  # a line contact has no centre to track
+        pred = whole_array(fitter, get_model(model), np.asarray(params, dtype=float))
+        if pred is None:
+            return None
+        preds.append(pred)
+    lins = []
+    for i, (model, params) in enumerate(contacts):
+        residual = strain.copy()
+        m = usable.copy()
+        for j, pred in enumerate(preds):
+            if j != i:
+                residual -= _raw(fitter, pred)
+                m &= ~(pred > CORE_SHARE * float(pred.max()))
+        lin = linearize(fitter, residual, model, np.asarray(params, dtype=float), m)
+        if lin is None:
+            return None
+        lins.append(lin)
+    return SeveralLinearizations(tuple(lins))
 
 
 # -- neighbours fitted jointly ---------------------------------------------------------------

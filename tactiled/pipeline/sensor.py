@@ -60,6 +60,7 @@ from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
+from tactiled.pipeline.several import ContactTrackers
 from tactiled.pipeline.tracker import Tracker, untracked, within_reason
 from tactiled.pipeline.tracking import (  # noqa: F401  (MAX_*: re-exported for tests)
     MAX_PENDING,
@@ -188,7 +189,9 @@ class SensorPipeline(ContactTracking):
                                           self.sensor_model.impulse.depth_y))
         #: the contact through time (settings.track), the frames waiting for a fit before it
         #: can measure them (in arrival order), and the fit its estimates build on
-        self.tracker = Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA, geometry=g)
+        self.tracker = ContactTrackers(
+            lambda: Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA, geometry=g),
+            gate_mm=self.ids.gate_mm)
         self._pending: list[_Waiting] = []
         self._base: dict[str, Any] | None = None
         self._base_seq: int | None = None

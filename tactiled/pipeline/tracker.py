@@ -259,49 +259,65 @@ class Tracker:
 
     # -- a frame --------------------------------------------------------------------------------
 
-    def step(self, strain: np.ndarray, t: float, fitted: bool = False) -> str:
+    def step(self, strain: np.ndarray, t: float, fitted: bool = False,
+             measured: tuple[list[float], np.ndarray] | None = None) -> str:
         """Measure one zeroed frame (flattened row-major, strain) taken at device time ``t``
         (s) and update the estimate: ``"tracked"``, ``"reset"`` (a change: the filter restarted
         from this frame) or ``"refit"`` (it needs a fit of its own: outside the linear range,
         or a jump the linearisation would measure poorly; the estimate is unchanged).
         ``fitted``: the frame is the one the current linearisation was fitted on (it is
-        measured exactly there, and a jump restarts the filter)."""
-        lin = self.lin
+        measured exactly there, and a jump restarts the filter).  ``measured``: the frame's
+        :meth:`measure`, when the caller has it already."""
         if fitted:
             z = list(self._p)  # the fit itself: the frame's own measurement
         else:
-            d = strain[lin.index] - lin.strain
-            dp = lin.gain @ d
-            e = d - lin.jacobian @ dp
-            if float((e * e) @ lin.weight) > self._limit:
+            m = self.measure(strain) if measured is None else measured
+            if m is None:
                 return "refit"
-            dz = dp.tolist()
-            # A log radius or force moved by more than a factor e from the point: no linear
-            # range reaches that far (a release: force to zero), whatever the residual says.
-            # Unless the step is within the noise (RESET_SIGMA single-frame sigmas): a value
-            # one frame barely determines (the radius of a light contact, of one at the
-            # noise), which the filter weighs as such; a fit would give as uncertain a value.
-            # The force, though, never by more than a factor e^MAX_LOG_FORCE_STEP: a contact
-            # letting go (its fit may find nothing left to place), or a filter gone astray (a
-            # point so far from the contact that its linearisation measures nothing, and every
-            # step passes as noise: seen as 577 N off the array on a held 1.2 N contact).
-            if not all(math.isfinite(v) for v in dz) or any(
-                    abs(dz[i]) >= 1.0 and (abs(dz[i]) > RESET_SIGMA * self._sd1[i]
-                                           or (i == self._ln_f and abs(dz[i]) > MAX_LOG_FORCE_STEP))
-                    for i in self._logs):
-                return "refit"
-            z = [p + q for p, q in zip(self._p, dz)]
-            # ... and a value the frame does not bound is kept within what a finger carries
-            # (within_reason's box): a radius, force or centre no frame determines (a contact
-            # at the noise, letting go) would otherwise random-walk, to exp() overflow and
-            # centres a kilometre off the array (seen on release residuals)
-            for i, lo, hi in self._bounds:
-                z[i] = min(max(z[i], lo), hi)
+            z, e = m
             self._ebuf += e
             self._eframes += 1
             self._edt += 0.0 if self.t is None else max(t - self.t, 0.0)
             if self._eframes >= MEAN_RESIDUAL_FOLD:
                 self._fold()
+        return self._filter(z, t, fitted)
+
+    def measure(self, strain: np.ndarray) -> tuple[list[float], np.ndarray] | None:
+        """One frame's measurement through the linearisation, ``(z, e)`` (the parameters and
+        the residual ``J dz`` leaves), or None when the frame needs a fit of its own (outside
+        the linear range, or a step no linearisation reaches).  Changes nothing."""
+        lin = self.lin
+        d = strain[lin.index] - lin.strain
+        dp = lin.gain @ d
+        e = d - lin.jacobian @ dp
+        if float((e * e) @ lin.weight) > self._limit:
+            return None
+        dz = dp.tolist()
+        # A log radius or force moved by more than a factor e from the point: no linear
+        # range reaches that far (a release: force to zero), whatever the residual says.
+        # Unless the step is within the noise (RESET_SIGMA single-frame sigmas): a value
+        # one frame barely determines (the radius of a light contact, of one at the
+        # noise), which the filter weighs as such; a fit would give as uncertain a value.
+        # The force, though, never by more than a factor e^MAX_LOG_FORCE_STEP: a contact
+        # letting go (its fit may find nothing left to place), or a filter gone astray (a
+        # point so far from the contact that its linearisation measures nothing, and every
+        # step passes as noise: seen as 577 N off the array on a held 1.2 N contact).
+        if not all(math.isfinite(v) for v in dz) or any(
+                abs(dz[i]) >= 1.0 and (abs(dz[i]) > RESET_SIGMA * self._sd1[i]
+                                       or (i == self._ln_f and abs(dz[i]) > MAX_LOG_FORCE_STEP))
+                for i in self._logs):
+            return None
+        z = [p + q for p, q in zip(self._p, dz)]
+        # ... and a value the frame does not bound is kept within what a finger carries
+        # (within_reason's box): a radius, force or centre no frame determines (a contact
+        # at the noise, letting go) would otherwise random-walk, to exp() overflow and
+        # centres a kilometre off the array (seen on release residuals)
+        for i, lo, hi in self._bounds:
+            z[i] = min(max(z[i], lo), hi)
+        return z, e
+
+    def _filter(self, z: list[float], t: float, fitted: bool) -> str:
+        """The filter's update with measurement ``z`` at ``t`` (see :meth:`step`)."""
         r = self._r
         if self.x is None or self.t is None:
             self._start(z, t)

@@ -177,9 +177,9 @@ class ContactTracking:
         at = self.tracker.wants_linearization()
         if at is not None:
             self._lin_asked_t = w.t
+            point = at if at[0] == SEVERAL else (at[0], tuple(map(float, at[1])))
             self._waiting = _Waiting(w.ordinal, w.seq, w.sensor_id, w.device_time_us,
-                                     w.host_time, w.strain, w.since, w.t, "lin",
-                                     (at[0], tuple(map(float, at[1]))))
+                                     w.host_time, w.strain, w.since, w.t, "lin", point)
             self.pool.wake()
 
     def _publish_tracked(self, w: _Waiting, gate: str = GATE_UNCHANGED,
@@ -221,8 +221,8 @@ class ContactTracking:
         if job.kind == "lin":
             # (not a linearisation of a contact that has ended since it was asked for, nor one
             # a fit's own has replaced meanwhile)
-            if not w.dropped and lin is not None and tracker.active and lin.model == tracker.model:
-                self._adopt(lin)
+            if (not w.dropped and lin is not None and tracker.active and lin.model == tracker.model
+                    and self._adopt(lin)):
                 self.relinearized += 1
             return
         if w.dropped:
@@ -268,7 +268,7 @@ class ContactTracking:
             return
         self._last_fit = None  # the tracker answers from here
         self.gate.reset()
-        self._adopt(lin)
+        self._adopt(lin, fit)
         self._follow_drift(w, fitted=True)
         self._obsolete_lin()
         self._base, self._base_seq, self._warm = fit, w.seq, warm
@@ -305,15 +305,18 @@ class ContactTracking:
             return
         self._maybe_relinearize(last)
 
-    def _adopt(self, lin: Any) -> None:
-        """The tracker measures from the linearisation ``lin`` now; the zeroer follows drift
-        around the contact it predicts."""
-        self.tracker.adopt(lin, self._zero_var())
+    def _adopt(self, lin: Any, fit: dict[str, Any] | None = None) -> bool:
+        """The tracker measures from the linearisation ``lin`` (of the fit ``fit``, or a
+        relinearisation) now; the zeroer follows drift around the contact(s) it predicts.
+        False when a relinearisation no longer fits the contacts held (nothing changes)."""
+        if not self.tracker.adopt(lin, self._zero_var(), fit):
+            return False
         self._drift_ref = None
         if lin.predicted is not None:
             window = np.zeros(lin.predicted.size, dtype=bool)
             window[lin.index] = True
             self._drift_ref = (lin.predicted, window.reshape(lin.predicted.shape))
+        return True
 
     def _follow_drift(self, w: _Waiting, fitted: bool = False) -> None:
         """A frame the tracker measured as it came (or, ``fitted``, the frame the fit whose

@@ -135,6 +135,18 @@ def _build(sensor: SensorModel, options: tuple[tuple[str, Any], ...],
     return fitter
 
 
+def _several_lin(fitter: Any, strain: Any, results: list[Any], mask: Any) -> Any:
+    """The linearisations of a frame's several contacts, in the order ``contacts_json`` lists
+    them (the strongest first), or None when one cannot be tracked."""
+    from tactiled.fit.multi import linearize_several, strongest
+
+    first = strongest(results)
+    order = [results[first], *(r for i, r in enumerate(results) if i != first)]
+    if any(not r.contact or r.params is None or not r.model for r in order):
+        return None
+    return linearize_several(fitter, strain, [(r.model, r.params) for r in order], mask)
+
+
 def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     """Entry point of a worker process (the ``target`` of its ``Process``)."""
     # Ctrl-C in a terminal signals the whole process group; the parent decides when a worker
@@ -145,8 +157,8 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     import numpy as np
 
     from tactiled.fit.linearize import linearize
-    from tactiled.fit.multi import contacts_json, fit_contacts, warm_of
-    from tactiled.fit.result import FitResult
+    from tactiled.fit.multi import contacts_json, fit_contacts, linearize_several, warm_of
+    from tactiled.fit.warm import SEVERAL
 
     notice = _CompileNotice(conn)
     t0 = time.perf_counter()
@@ -177,7 +189,10 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                     if fitter is None:
                         raise LookupError(f"no fitter for this sensor (building it failed: "
                                           f"{broken.get(spec, 'unknown spec')})")
-                    if job_kind == "lin":
+                    if job_kind == "lin" and warm[0] == SEVERAL:
+                        lin = linearize_several(fitter, strain, list(warm[1]), mask)
+                        error = None
+                    elif job_kind == "lin":
                         lin = linearize(fitter, strain, warm[0], np.asarray(warm[1]), mask)
                         error = None
                     else:
@@ -185,11 +200,14 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                                                budget_s=budget_s)
                         out, error = plain(contacts_json(results)), None
                         follow = warm_of(results)
-                        # several contacts: each frame is fitted (the tracker follows one)
-                        result = results[0] if len(results) == 1 else FitResult(contact=False)
-                        if job_kind == "fit+lin" and result.params is not None and result.model:
-                            lin = linearize(fitter, strain, result.model,
-                                            np.asarray(result.params), mask)
+                        if job_kind != "fit+lin":
+                            pass
+                        elif len(results) > 1:
+                            # each contact's, in the order of ``contacts`` (the strongest first)
+                            lin = _several_lin(fitter, strain, results, mask)
+                        elif results[0].params is not None and results[0].model:
+                            lin = linearize(fitter, strain, results[0].model,
+                                            np.asarray(results[0].params), mask)
                 except Exception as err:  # a fitter bug must cost one frame, not the worker
                     out, error = None, f"{type(err).__name__}: {err}"
                 fits += 1

@@ -59,6 +59,21 @@ def test_each_contact_is_listed_with_a_stable_id(tmp_path: Path, capsys) -> None
             (held_ids if true.force > 1.0 else second_ids).add(c["contact_id"])
         if len(truth) == 2:
             assert all(c["reasons"]["contacts"].startswith("one of 2 contacts") for c in line["contacts"])
-            assert all(c["frames_used"] == 1 for c in line["contacts"])
     # the held contact keeps one id through the second's press and lift; the second has its own
     assert len(held_ids) == 1 and len(second_ids) == 1 and held_ids != second_ids
+    # each contact has its own filter: the frames of two contacts are measured without a fit
+    # of their own (the pair's first frame and the refits its own change asks for aside), the
+    # held contact's filter goes on through the second's press and lift, and its velocity is
+    # the scene's (0.01 mm a frame along x)
+    pair = [line for line, truth in zip(lines, scene) if len(truth) == 2]
+    assert sum(line["gate"] == "fit" for line in pair) <= 3
+    last = {c["contact_id"]: c for c in pair[-1]["contacts"]}
+    assert last[next(iter(held_ids))]["frames_used"] >= 45
+    assert last[next(iter(second_ids))]["frames_used"] >= 25
+    speed = 0.01 / (PERIOD_US * 1e-6)
+    held = next(iter(held_ids))
+    for line in pair[10:]:
+        c = next(c for c in line["contacts"] if c["contact_id"] == held)
+        assert abs(c["vx_mm_s"] - speed) < 4 * c["std"]["vx_mm_s"] + 0.1 * speed, line["seq"]
+    after = lines[SETTLE_FRAMES + 50]  # the first frame after the second lifted
+    assert after["contacts"][0]["frames_used"] >= 50
