@@ -77,3 +77,42 @@ def test_each_contact_is_listed_with_a_stable_id(tmp_path: Path, capsys) -> None
         assert abs(c["vx_mm_s"] - speed) < 4 * c["std"]["vx_mm_s"] + 0.1 * speed, line["seq"]
     after = lines[SETTLE_FRAMES + 50]  # the first frame after the second lifted
     assert after["contacts"][0]["frames_used"] >= 50
+
+
+def test_two_held_contacts_average_down_each_within_its_sigma(tmp_path: Path, capsys) -> None:
+    """Two contacts held still: each one's filter averages its frames (measured on the frame
+    less the other's strain), so its sigmas shrink as frames accumulate, and its values stay
+    within them of the truth."""
+    model = StrainModel()
+    rng = np.random.default_rng(11)
+    truth = [Contact(5.0, 5.0, 0.0, 1.2, 7.0, 11.0), Contact(8.0, 8.0, 0.0, 0.6, 18.0, 16.0)]
+    pair = sum((model.predict(c) for c in truth), np.zeros((8, 8)))
+    scene = [None] * SETTLE_FRAMES + [pair] * 80
+    strain = [(np.zeros((8, 8)) if s is None else s) + rng.normal(0.0, SIGMA, (8, 8)) for s in scene]
+    counts = LookupTable.linear().to_counts(np.array(strain))
+    frames = [Frame(seq=k, device_time_us=k * PERIOD_US, raw=c, sensor_id=0) for k, c in enumerate(counts)]
+    rec = write_recording(tmp_path / "held.tact", frames)
+    assert cli(["replay", str(rec), "--mode", "lossless", "--speed", "0", "--no-timing",
+                "--model", "sphere"]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()][SETTLE_FRAMES:]
+    assert sum(line["gate"] == "fit" for line in lines) <= 3
+    first_sd: dict[int, float] = {}
+    checked = 0
+    for line in lines:
+        assert len(line["contacts"]) == 2, line["seq"]
+        for c in line["contacts"]:
+            true = min(truth, key=lambda t: math.dist((t.x0, t.y0), (c["x_mm"], c["y_mm"])))
+            first_sd.setdefault(c["contact_id"], c["std"]["force_n"])
+            if c["frames_used"] >= 10:
+                sd = c["std"]
+                assert abs(c["force_n"] - true.force) < 4 * sd["force_n"], (line["seq"], c)
+                assert abs(c["x_mm"] - true.x0) < 4 * sd["x_mm"], (line["seq"], c)
+                assert abs(c["y_mm"] - true.y0) < 4 * sd["y_mm"], (line["seq"], c)
+                checked += 1
+    assert checked >= 2 * 60
+    last = {c["contact_id"]: c for c in lines[-1]["contacts"]}
+    assert set(last) == set(first_sd)
+    for cid, c in last.items():
+        assert c["frames_used"] >= 70
+        # 80 frames averaged: the force's sigma well under a single frame's
+        assert c["std"]["force_n"] < 0.5 * first_sd[cid], (cid, c["std"], first_sd[cid])
