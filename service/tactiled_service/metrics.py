@@ -222,6 +222,10 @@ class DaemonCollector(Collector):
                                   "Kernels a fit worker compiled for a request (numba's first "
                                   "use on a fresh install; cached from then on).",
                                   value=float(pool.get("compiles", 0)))
+        yield CounterMetricFamily("tactiled_worker_deadline_extended",
+                                  "Requests given more time because their worker, runnable, "
+                                  "was starved of CPU by other processes (not hung).",
+                                  value=float(pool.get("deadline_extended", 0)))
         yield CounterMetricFamily("tactiled_worker_fits", "Fits answered by the pool's "
                                   "workers, every sensor.", value=float(pool["fits"]))
         yield GaugeMetricFamily("tactiled_fit_workers", "Fit worker processes configured.",

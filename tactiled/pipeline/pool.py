@@ -60,6 +60,27 @@ FIT_BUDGET_FRACTION = 0.5
 #: kernel, then cached) gets this much more time for it (s) before it counts as hung.
 COMPILE_GRACE_S = 30.0
 
+#: A worker past a request's deadline that is runnable yet got less than this share of a core
+#: since the deadline is starved (a machine loaded by other processes), not hung: it gets
+#: another deadline, up to ``STARVED_MAX_S`` past its first.  One asleep, stopped or blocked
+#: (a deadlock, a ``sleep``) or computing at full speed through the extension is hung.
+STARVED_CPU_SHARE = 0.5
+STARVED_MAX_S = 10.0
+_CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def cpu_state(pid: int) -> tuple[float, str] | None:
+    """A process's CPU time (user + system, s) and scheduler state (``"R"`` runnable, ``"S"``
+    asleep, ...), from Linux's ``/proc/PID/stat``; None where it cannot be read."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            data = f.read()
+        rest = data.rsplit(b")", 1)[1].split()
+        return (int(rest[11]) + int(rest[12])) / _CLK_TCK, rest[0].decode()
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 #: pid of every worker process any pool started (for tests that check none is left alive).
 SPAWNED_PIDS: list[int] = []
 
@@ -139,6 +160,9 @@ class _Worker:
     #: the worker's last answer to a ``memory`` request (``tactiled.heapstats``), and when
     memory: dict[str, Any] | None = None
     memory_at: float | None = None
+    #: (request id, CPU s, monotonic s at the last extension, first deadline) while a request
+    #: runs past its deadline on a starved worker (``STARVED_CPU_SHARE``)
+    overdue: tuple[int, float, float, float] | None = None
 
     @property
     def busy(self) -> bool:
@@ -197,6 +221,8 @@ class WorkerPool:
         self.restarts = 0
         #: kernels the workers compiled for a request (numba's first use on a fresh install)
         self.compiles = 0
+        #: deadlines extended for a starved worker (``_starved``)
+        self.deadline_extended = 0
         self.restarts_by_reason: dict[str, int] = {}
         self.last_restart: dict[str, Any] | None = None
         self.recycles = 0
@@ -610,11 +636,35 @@ class WorkerPool:
                 elif w.state in ("ready", "retiring"):
                     if w.outstanding:
                         head = w.outstanding[0]
-                        if now - w.head_since > head.timeout:
+                        if now - w.head_since > head.timeout and not self._starved(w, head, now):
                             self._lose(w, "hung", f"no answer to {head.kind!r} within "
                                                   f"{head.timeout:g} s")
                     elif w.state == "ready" and now - w.last_answer >= s.ping_interval:
                         self._send(w, ("ping",), "ping", s.ping_timeout)
+
+    def _starved(self, w: _Worker, head: _Request, now: float) -> bool:
+        """``w`` is past ``head``'s deadline because the machine gives it too little CPU, not
+        because it hangs (``STARVED_CPU_SHARE``): its deadline is extended by one more
+        ``head.timeout`` (counted ``deadline_extended``)."""
+        st = cpu_state(w.pid) if w.pid is not None else None
+        if st is None:
+            return False
+        cpu, state = st
+        if w.overdue is None or w.overdue[0] != head.rid:
+            if state != "R":
+                return False
+            w.overdue = (head.rid, cpu, now, now)
+        else:
+            _, cpu0, t0, first = w.overdue
+            if (state != "R" or now - first > STARVED_MAX_S
+                    or cpu - cpu0 >= STARVED_CPU_SHARE * (now - t0)):
+                return False
+            w.overdue = (head.rid, cpu, now, first)
+        w.head_since = now
+        self.deadline_extended += 1
+        log.info("fit worker %d: %r past its %g s deadline, runnable but starved of CPU by "
+                 "other processes: given %g s more", w.slot, head.kind, head.timeout, head.timeout)
+        return True
 
     def _all(self) -> list[_Worker]:
         """Every worker the pool owns: the slots' workers, successors being started, and
@@ -731,6 +781,7 @@ class WorkerPool:
             "fits": self.fits,
             "restarts": self.restarts,
             "compiles": self.compiles,
+            "deadline_extended": self.deadline_extended,
             "restarts_by_reason": dict(self.restarts_by_reason),
             "last_restart": None if self.last_restart is None else {
                 k: v for k, v in self.last_restart.items() if k != "lost_at"},
