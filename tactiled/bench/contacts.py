@@ -15,6 +15,8 @@ frame of one kind and fitted with that model by :func:`tactiled.fit.multi.fit_co
   sigma.
 * **Close** frames hold two contacts 1-2 depths apart whose noise-free strain shows no dip
   between them: the table says how often they were reported as two, as one (``merged`` or not), or otherwise.
+* **Tracked** through time: the ``hand-palm`` grasp (up to three contacts) through the whole
+  daemon, each contact's filter against the scene's truth (:mod:`tactiled.bench.tracked_contacts`).
 * **Single** frames: one contact (on a flat array, spheres and line contacts, whose ridge the
   grid samples as several bumps), fitted by ``fit_contacts`` and by the single-contact fitter;
   the two results must be the same, key for key.
@@ -30,6 +32,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from tactiled.bench import tracked_contacts
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.fit.multi import fit_contacts, joint_bounds
@@ -258,5 +261,6 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
                 "close pairs reported as: " + ", ".join(f"{k} {v}" for k, v in s["close"].most_common()),
                 f"single contacts, same result as the single-contact fitter: "
                 f"{s['single']['same']} of {sum(s['single'].values())}", ""]
+        out += tracked_contacts.report(desc, tracked_contacts.score(desc, seed))
     bar.finish(f"{len(descs)} descriptions")
     return "\n".join(out)

@@ -33,3 +33,23 @@ def test_the_report_names_its_figures(capsys) -> None:
     out = capsys.readouterr().out
     assert "### flat16: 16x16" in out and "missed" in out and "phantom" in out
     assert "| sphere/force_n |" in out and "same result as the single-contact fitter: 12 of 12" in out
+
+
+def test_tracked_contacts_through_the_daemon_are_filtered_within_their_sigmas() -> None:
+    """The hand's palm grasp through the daemon: the frames of several contacts are measured
+    by each contact's filter, not fitted, and the held contacts' errors match their sigmas."""
+    from tactiled.bench import tracked_contacts
+
+    desc = load_description("flat16")
+    s = tracked_contacts.score(desc, seed=2)
+    n = s["counts"]
+    assert n["several"] >= 1500 and n["several_filtered"] >= 0.9 * n["several"]
+    assert n["fitted"] <= 0.05 * n["contact_frames"]
+    assert n["missed"] <= 0.1 * n["true_contacts"] and n["phantom"] <= 0.02 * n["contact_frames"]
+    for key in ("force_n", "x_mm", "y_mm"):
+        z = np.asarray(s["z"]["held"][key])
+        assert z.size >= 1000, key
+        assert 0.5 < float(np.sqrt(np.mean(z * z))) < 1.4, key
+        assert float(np.mean(np.abs(z) <= 2)) >= 0.9, key
+    lines = tracked_contacts.report(desc, s)
+    assert lines[0].startswith("tracked through time") and "| force_n |" in "\n".join(lines)
