@@ -63,6 +63,9 @@ RESET_SIGMA = 5.0
 DRIFT_ALPHA = 1.0 / 32.0
 #: The drift detector's alarm, in standard deviations of its running mean.
 DRIFT_LIMIT = 5.0
+#: A moving parameter's running mean of normalised innovations beyond this many of its own
+#: sigmas says the filter lags the motion: the lag is added to its reported variance.
+LAG_Z = 2.0
 #: The frames' mean residual is tested for what averaging cannot remove (see
 #: :meth:`Tracker._fold`) on the tactels that this many frames have measured.
 MEAN_RESIDUAL_FRAMES = 16
@@ -457,6 +460,7 @@ class Tracker:
         else:
             x, pxx = self.x, self.pxx
         values, grad = report(self.model, x)
+        pxx = self._with_lag(pxx)
         with np.errstate(over="ignore", invalid="ignore"):  # a runaway value: inf, withheld
             gs = grad * np.sqrt(np.array(pxx) * self.excess)  # the state's covariance
             var_a = (gs @ self._corr) * gs
@@ -492,6 +496,18 @@ class Tracker:
         out["reasons"] = reasons
         out["frames_used"] = self.n
         return out
+
+    def _with_lag(self, pxx: list[float]) -> list[float]:
+        """``pxx`` with each moving parameter's lag behind the truth added, where its
+        innovations run consistently to one side (their running mean, ``drift``, beyond
+        ``LAG_Z`` of its own spread): the motion departs from constant velocity (a press's
+        log-force decelerates) and the filter's estimate trails it by about that mean times
+        the innovations' spread, an error its own variance does not hold."""
+        drift, noise = self.drift, LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA)
+        if not any(m and d * d > noise for m, d in zip(self._moving, drift)):
+            return pxx
+        return [p + (d * d * (p + r) if m and d * d > noise else 0.0)
+                for p, r, m, d in zip(pxx, self._r, self._moving, drift)]
 
     def _withheld(self, key: str, v: float, sd: float) -> str | None:
         """Why ``key`` (value ``v``, 1-sigma ``sd`` over the frames used) is withheld, by the

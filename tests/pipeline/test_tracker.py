@@ -267,3 +267,37 @@ def test_a_centre_no_frame_locates_is_withheld_not_run_off() -> None:
     tr = Tracker()
     assert tr._withheld("x_mm", 3.0, OFF_ARRAY_MM * 1.01).startswith("position not observable")
     assert tr._withheld("y_mm", 3.0, OFF_ARRAY_MM * 0.99) is None
+
+
+def test_a_press_ramp_the_filter_lags_is_covered_by_its_sigma(kit) -> None:
+    """A press whose force rises linearly from near zero (its log decelerates: no constant
+    velocity): the filter trails it, and the reported force sigma holds that lag (the running
+    mean of its innovations).  Measured: 74 % of the errors within 2 sigma, 62 % without the
+    lag term; the rest is the linear measurement's second-order error between
+    relinearisations (docs/concepts/tracking.md)."""
+    def truth(t: float) -> Contact:
+        return Contact(r1=10.0, psi_deg=60.0, force=0.15 + 6.0 * t, x0=8.0, y0=9.0)
+
+    z, z_bare = [], []
+    for seed in range(3):
+        out, tr, _ = play(kit, truth, 300, seed)
+        for _, c, e, status in out[20:]:
+            if e.get("force_n") is not None and e["std"]["force_n"]:
+                z.append((e["force_n"] - c.force) / e["std"]["force_n"])
+    # the same frames with the lag term off
+    from tactiled.pipeline import tracker as tracker_module
+
+    bare = tracker_module.Tracker._with_lag
+    tracker_module.Tracker._with_lag = lambda self, pxx: pxx
+    try:
+        for seed in range(3):
+            out, _, _ = play(kit, truth, 300, seed)
+            for _, c, e, _ in out[20:]:
+                if e.get("force_n") is not None and e["std"]["force_n"]:
+                    z_bare.append((e["force_n"] - c.force) / e["std"]["force_n"])
+    finally:
+        tracker_module.Tracker._with_lag = bare
+    inside = float(np.mean(np.abs(z) <= 2.0))
+    inside_bare = float(np.mean(np.abs(z_bare) <= 2.0))
+    assert inside > inside_bare + 0.02, (inside, inside_bare)
+    assert inside >= 0.7, inside
