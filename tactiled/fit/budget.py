@@ -46,13 +46,17 @@ DEFAULT_WORK = 800_000
 #: ``GRANT_CHI2_FACTOR``.
 FLAT_WORK_FACTOR = 3
 FLAT_ITERATION_FACTOR = 2
-#: A fit earns its allowance when, at the point its base work is spent, its search (or an
-#: earlier search of the same fit) has chi^2 within this many times the most a right model
-#: reaches (``right_model_chi2``: its degrees of freedom plus three standard deviations).
-#: A search on its way to a model that explains the window comes within it long before it
-#: converges; a window no model explains (several contacts, a hand print, a random pattern)
-#: sits at hundreds to thousands of times its degrees of freedom and stops at the base
-#: budget, where it costs ~2.4 ms (docs/performance/fit-time.md).
+#: A search earns the allowance when, at the point the fit's base work is spent, its chi^2
+#: is within this many times the most a right model reaches (``right_model_chi2``: its
+#: degrees of freedom plus three standard deviations), an order of magnitude.  A search on
+#: its way to a model that explains the window is within it: on the simulated contacts of
+#: every built-in description (``tactiled bench --suite sensors``) the searches that reach
+#: the base work stand at up to ~8 times (a sphere's or an ellipse's scout on a ball wider
+#: than the window), bar a rare ellipse scout from a far start (auto then answers with the
+#: line that explains the window).  A window no model explains (several contacts, a random pattern) stands
+#: at hundreds to tens of thousands of times: its searches stop at the base work, where a
+#: fit costs ~2.4 ms (docs/performance/fit-time.md).  A search refused the allowance stops; a
+#: later search of the same fit may still earn it.
 GRANT_CHI2_FACTOR = 10.0
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
 #: algebra: ~3 us, measured as the intercept of the cost per evaluation).
@@ -125,6 +129,8 @@ class Budget:
     used_work: float = 0.0
     #: the reserve was added to ``work``
     granted: bool = False
+    #: a search was refused the reserve (it stopped; the fit goes on)
+    denied: bool = False
 
     def hold(self, share: float) -> tuple[int, float, float]:
         """Set aside ``share`` of what is left (iterations, work and allowance) for later
@@ -185,7 +191,7 @@ class Budget:
     @property
     def spent(self) -> bool:
         return self.exhausted or (self.iterations is not None and self.iterations <= 0) or (
-            self.work is not None and self.work < EVALUATION_OVERHEAD)
+            self.work is not None and self.work < EVALUATION_OVERHEAD and self.reserve <= 0.0)
 
     def pay(self, cost: float) -> None:
         """Take an evaluation's work, or raise :class:`BudgetExhausted` (marking the budget

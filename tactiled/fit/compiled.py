@@ -336,7 +336,10 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
         denied = reserve > 0.0 and budget is not None and not budget.granted and (
             (not start_ok if status == _BUDGET else cost > grant_cost))
         if budget is not None:
-            budget.exhausted = True
+            if denied:  # this search stops; a later one may still earn the allowance
+                budget.denied = True
+            else:
+                budget.exhausted = True
         if status == _BUDGET:
             return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), math.inf, 0, 0, False,
                                DENIED if denied else BUDGET_MESSAGE)
