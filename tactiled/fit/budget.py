@@ -53,10 +53,10 @@ FLAT_ITERATION_FACTOR = 2
 #: every built-in description (``tactiled bench --suite sensors``) the searches that reach
 #: the base work stand at up to ~8 times (a sphere's or an ellipse's scout on a ball wider
 #: than the window), bar a rare ellipse scout from a far start (auto then answers with the
-#: line that explains the window).  A window no model explains (several contacts, a random pattern) stands
-#: at hundreds to tens of thousands of times: its searches stop at the base work, where a
-#: fit costs ~2.4 ms (docs/performance/fit-time.md).  A search refused the allowance stops; a
-#: later search of the same fit may still earn it.
+#: line that explains the window).  A window no model explains (several contacts, a random
+#: pattern) stands at hundreds to tens of thousands of times: its searches stop at the base
+#: work, where a fit costs ~2.4 ms (docs/performance/fit-time.md).  A search refused the
+#: allowance stops; a later search of the same fit may still earn it.
 GRANT_CHI2_FACTOR = 10.0
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
 #: algebra: ~3 us, measured as the intercept of the cost per evaluation).
@@ -90,6 +90,8 @@ def right_model_chi2(dof: int) -> float:
     """The most chi^2 a right model reaches with ``dof`` degrees of freedom, bar three
     standard deviations in a thousand: ``dof + 3 sqrt(2 dof)``."""
     return dof + 3.0 * math.sqrt(2.0 * dof)
+
+
 #: A stopped fit whose remaining distance to the least-squares minimum (the Gauss-Newton
 #: step's chi^2 decrease, D) is within this keeps its values with every sigma widened by
 #: sqrt(1 + D); beyond it (the minimum over 3 sigma away: the linear picture no longer holds)

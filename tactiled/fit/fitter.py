@@ -638,7 +638,7 @@ class Fitter:
         elif condition > ILL_CONDITION:
             reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
         values, std, line = prob.report(best.p, cov)
-        #: where the line passes and its load, even if withheld below (auto's other starts)
+        # where the line passes and its load, even if withheld below (auto's other starts)
         self._line_point = (values["x_mm"], values["y_mm"], line["load_n_per_mm"])
         reasons["force_n"] = LINE_FORCE_REASON
         reasons["r2_mm"] = "infinite: cylinder model"
