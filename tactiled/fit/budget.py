@@ -38,15 +38,26 @@ DEFAULT_ITERATIONS = 120
 #: at most 342000 on the paper's finger (the simulated suites) and 616000 in the golden
 #: replays (an edge at the end of the array).
 DEFAULT_WORK = 800_000
-#: A flat array's fits get this many times the work and twice the iterations: auto fits the
-#: line and then, where the line does not explain the window, the sphere and the general
-#: ellipse, whose searches follow a wide blob or several contacts into large contacts
-#: (docs/concepts/fitting.md, "The fit's budget").  At 3x a stopped fit costs 5-7 ms on the machine
-#: of docs/performance/fit-time.md (~2-2.5 ns a unit there), within the 10 ms any frame may cost; the
-#: sensors bench's contacts fit under auto within it but for a big ball's blob wider than
-#: the window on the 12x32 mat (docs/performance/fit-time.md).
+#: A flat array's fits may spend up to this many times the work, and twice the iterations:
+#: auto fits the line and then, where the line does not explain the window, the sphere and
+#: the general ellipse, whose searches follow a wide blob into large contacts
+#: (docs/concepts/fitting.md, "The fit's budget").  The work beyond the base is an
+#: *allowance* (``Budget.reserve``), granted only to a fit that earns it: see
+#: ``GRANT_CHI2_FACTOR``.
 FLAT_WORK_FACTOR = 3
 FLAT_ITERATION_FACTOR = 2
+#: A search earns the allowance when, at the point the fit's base work is spent, its chi^2
+#: is within this many times the most a right model reaches (``right_model_chi2``: its
+#: degrees of freedom plus three standard deviations), an order of magnitude.  A search on
+#: its way to a model that explains the window is within it: on the simulated contacts of
+#: every built-in description (``tactiled bench --suite sensors``) the searches that reach
+#: the base work stand at up to ~8 times (a sphere's or an ellipse's scout on a ball wider
+#: than the window), bar a rare ellipse scout from a far start (auto then answers with the
+#: line that explains the window).  A window no model explains (several contacts, a random
+#: pattern) stands at hundreds to tens of thousands of times: its searches stop at the base
+#: work, where a fit costs ~2.4 ms (docs/performance/fit-time.md).  A search refused the
+#: allowance stops; a later search of the same fit may still earn it.
+GRANT_CHI2_FACTOR = 10.0
 #: Work units an evaluation costs besides its quadrature (the Hertz solve, the step's linear
 #: algebra: ~3 us, measured as the intercept of the cost per evaluation).
 EVALUATION_OVERHEAD = 1000
@@ -69,6 +80,18 @@ def line_work(nodes: int, points: int) -> int:
 
 #: How a fit the budget stopped begins its ``reasons["fit"]`` (and the solver its message).
 EXHAUSTED = "fit budget exhausted"
+#: The message of a search stopped at its base work, the allowance denied (its chi^2 over
+#: ``GRANT_CHI2_FACTOR`` times a right model's there).
+DENIED = (f"{EXHAUSTED} (the base work; the flat array's allowance is denied: chi^2 is over "
+          f"{GRANT_CHI2_FACTOR:g}x what a right model reaches)")
+
+
+def right_model_chi2(dof: int) -> float:
+    """The most chi^2 a right model reaches with ``dof`` degrees of freedom, bar three
+    standard deviations in a thousand: ``dof + 3 sqrt(2 dof)``."""
+    return dof + 3.0 * math.sqrt(2.0 * dof)
+
+
 #: A stopped fit whose remaining distance to the least-squares minimum (the Gauss-Newton
 #: step's chi^2 decrease, D) is within this keeps its values with every sigma widened by
 #: sqrt(1 + D); beyond it (the minimum over 3 sigma away: the linear picture no longer holds)
@@ -91,35 +114,66 @@ def evaluation_work(nodes_u: int, nodes_s: int, points: int) -> int:
 
 @dataclass
 class Budget:
-    """What is left of one fit's budget (None: unlimited)."""
+    """What is left of one fit's budget (None: unlimited).
+
+    ``work`` is what the fit may spend as of right; ``reserve`` an allowance on top of it (a
+    flat array's, ``FLAT_WORK_FACTOR``), added to ``work`` (:meth:`grant`) only when the
+    search that has spent ``work`` stands at chi^2 within ``GRANT_CHI2_FACTOR`` times a right
+    model's (:meth:`grant_cost`)."""
 
     iterations: int | None = DEFAULT_ITERATIONS
     work: float | None = DEFAULT_WORK
+    reserve: float = 0.0
     #: set once a solve stopped for want of budget
     exhausted: bool = False
     #: what the fit has spent so far
     used_iterations: int = 0
     used_work: float = 0.0
+    #: the reserve was added to ``work``
+    granted: bool = False
+    #: a search was refused the reserve (it stopped; the fit goes on)
+    denied: bool = False
 
-    def hold(self, share: float) -> tuple[int, float]:
-        """Set aside ``share`` of what is left (iterations, work) for later searches; returns
-        it for :meth:`release`.  Auto keeps half for the other models while it fits the
-        cylinder: a frame the cylinder cannot explain must not leave none to the sphere."""
+    def hold(self, share: float) -> tuple[int, float, float]:
+        """Set aside ``share`` of what is left (iterations, work and allowance) for later
+        searches; returns it for :meth:`release`.  Auto keeps half for the other models while
+        it fits the cylinder: a frame the cylinder cannot explain must not leave none to the
+        sphere."""
         held_i = 0 if self.iterations is None else int(self.iterations * share)
         held_w = 0.0 if self.work is None else float(self.work) * share
+        held_r = self.reserve * share
         if self.iterations is not None:
             self.iterations -= held_i
         if self.work is not None:
             self.work -= held_w
-        return held_i, held_w
+        self.reserve -= held_r
+        return held_i, held_w, held_r
 
-    def release(self, held: tuple[int, float]) -> None:
-        """Give back what :meth:`hold` set aside (the search it was held from is over)."""
+    def release(self, held: tuple[int, float, float]) -> None:
+        """Give back what :meth:`hold` set aside (the search it was held from is over); a
+        held allowance joins the work if the allowance was granted meanwhile."""
         if self.iterations is not None:
             self.iterations += held[0]
         if self.work is not None:
-            self.work += held[1]
+            self.work += held[1] + (held[2] if self.granted else 0.0)
+        if not self.granted:
+            self.reserve += held[2]
         self.exhausted = False  # what ran out was the share left to that search
+
+    def grant_cost(self, dof: int, unit: float) -> float:
+        """The cost (``unit``: the cost of chi^2 = 1) at or below which the next search, with
+        ``dof`` degrees of freedom, earns the allowance when it has spent ``work``; -1 when
+        there is none to grant."""
+        if self.reserve <= 0.0:
+            return -1.0
+        return GRANT_CHI2_FACTOR * right_model_chi2(dof) * unit
+
+    def grant(self) -> None:
+        """Add the allowance to the work (a search reached ``work`` within its grant cost)."""
+        if self.work is not None:
+            self.work += self.reserve
+        self.reserve = 0.0
+        self.granted = True
 
     def iterations_for(self, cap: int) -> int:
         """The iteration cap of the next solve: ``cap``, or what is left if less."""
@@ -139,11 +193,12 @@ class Budget:
     @property
     def spent(self) -> bool:
         return self.exhausted or (self.iterations is not None and self.iterations <= 0) or (
-            self.work is not None and self.work < EVALUATION_OVERHEAD)
+            self.work is not None and self.work < EVALUATION_OVERHEAD and self.reserve <= 0.0)
 
     def pay(self, cost: float) -> None:
         """Take an evaluation's work, or raise :class:`BudgetExhausted` (marking the budget
-        exhausted) when the work left cannot pay for it."""
+        exhausted) when the work left cannot pay for it (the Python solver's searches: the
+        allowance is not granted there)."""
         if self.work is not None:
             if cost > self.work:
                 self.exhausted = True

@@ -25,7 +25,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from tactiled.fit.budget import Budget, evaluation_work, line_work
+from tactiled.fit.budget import DENIED, Budget, evaluation_work, line_work
 from tactiled.fit.models import physical_map
 from tactiled.fit.solver import BUDGET_MESSAGE, STALLED, WITHIN_TOLERANCE, SolveResult
 from tactiled.physics.hertz import ellipse_core
@@ -210,7 +210,7 @@ def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True)
 def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp, scale, dmin, tol,
            imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
-           work_left, max_nodes, noise_cost):
+           work_left, max_nodes, noise_cost, reserve, grant_cost, start_ok):
     """``solver.levenberg_marquardt`` for one model and start, compiled (the box ``lo``,
     ``hi`` as its ``bounds``; the verdict is the caller's).  Returns ``(status, p, r, J, cost,
     iterations, evaluations, converged, message code, remaining, work)``; status ``_OK``,
@@ -219,12 +219,17 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
     cost beyond ``noise_cost`` (``solver.levenberg_marquardt``'s); ``remaining`` is
     ``solver.remaining_decrease`` at the end point (for the caller's verdict; inf where there
     is none); ``work`` the evaluations' work (``tactiled.fit.budget``).  A trial point whose
-    evaluation the work left cannot pay for ends the search there (message code 4)."""
+    evaluation the work left cannot pay for ends the search there (message code 4).
+
+    ``reserve``: work beyond ``work_left`` that an evaluation may draw on when the cost of the
+    point it steps from is at most ``grant_cost`` (``tactiled.fit.budget.Budget.grant_cost``),
+    the start's evaluation when ``start_ok`` (a start whose cost is known to be within it).
+    A search that drew on it has ``work`` over ``work_left``: the allowance is granted."""
     k = p0.shape[0]
     p = _clip(p0, lo, hi)
     status, r, jac, work = _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target,
                                      valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
-                                     work_left, max_nodes)
+                                     work_left + (reserve if start_ok else 0.0), max_nodes)
     if status != _OK:
         extent = r[0] if status == _INVALID_LONG else 0.0
         return status, p, r, jac, extent, 0, 1, False, -1, math.inf, work
@@ -251,9 +256,10 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
                 converged, message = True, 2
                 break
             trial = _clip(p + step, lo, hi)
+            avail = work_left + (reserve if cost <= grant_cost or work > work_left else 0.0)
             st, r_new, jac_new, w = _evaluate(kind, trial, k, rf, comp, scale, dmin, tol, imp, xs,
                                               ys, target, valid, inv_scale, ex, ey, ladder, offsets,
-                                              ru, rwu, rs, rws, work_left - work, max_nodes)
+                                              ru, rwu, rs, rws, avail - work, max_nodes)
             if st == FALLBACK:
                 return FALLBACK, p, r, jac, cost, it, evals, False, 0, math.inf, work
             if st == _BUDGET:
@@ -298,32 +304,47 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
           window_args: tuple, tol: float, xtol: float = 1e-9, ftol: float = 1e-10,
           lam0: float = 1e-3, bounds: tuple[np.ndarray, np.ndarray] | None = None,
           verdict_tol: float | None = None, budget: Budget | None = None,
-          noise_cost: float = math.inf) -> SolveResult | None:
+          noise_cost: float = math.inf, grant_cost: float = -1.0,
+          start_ok: bool = False) -> SolveResult | None:
     """Run :func:`search`; a :class:`SolveResult` worded and judged as the Python solver
     words and judges it (``verdict_tol``, ``bounds``: see ``levenberg_marquardt``), or None
     when the search must fall back to the Python solver.  ``budget``: the fit's
     (:mod:`tactiled.fit.budget`), charged with the search's iterations and work (also those
     spent before a fallback); a search it stops is not converged, whatever the verdict.
-    ``noise_cost``: see ``levenberg_marquardt``."""
+    ``noise_cost``: see ``levenberg_marquardt``.  ``grant_cost``: the cost within which the
+    search earns the budget's allowance (``Budget.grant_cost``; -1: none to grant);
+    ``start_ok``: the start's cost is known to be within it (:func:`search`)."""
     rf, comp, scale, dmin, imp = model_args
     xs, ys, target, valid, inv_scale, ex, ey = window_args
     p0 = np.asarray(p0, dtype=float)
     lo, hi = bounds if bounds is not None else (np.full(p0.size, -np.inf), np.full(p0.size, np.inf))
     work_left = math.inf if budget is None else float(budget.work_left())
+    reserve = 0.0 if budget is None or grant_cost < 0.0 else budget.reserve
     status, p, r, jac, cost, it, evals, converged, msg, remaining, work = search(
         kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp,
         scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey, *rule_tables(),
-        work_left, MAX_NODES if math.isfinite(work_left) else MAX_COMPILED_NODES, noise_cost)
+        work_left, MAX_NODES if math.isfinite(work_left) else MAX_COMPILED_NODES, noise_cost,
+        reserve, grant_cost, start_ok and grant_cost >= 0.0)
     if budget is not None:
+        if work > work_left:
+            budget.grant()
         budget.charge(it, work)
     if status == FALLBACK:
         return None
     if status == _BUDGET or msg == 4:
+        # stopped at the base work with the allowance there to grant: the fit did not earn it
+        denied = reserve > 0.0 and budget is not None and not budget.granted and (
+            (not start_ok if status == _BUDGET else cost > grant_cost))
         if budget is not None:
-            budget.exhausted = True
+            if denied:  # this search stops; a later one may still earn the allowance
+                budget.denied = True
+            else:
+                budget.exhausted = True
         if status == _BUDGET:
             return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), math.inf, 0, 0, False,
-                               BUDGET_MESSAGE)
+                               DENIED if denied else BUDGET_MESSAGE)
+        if denied:
+            return SolveResult(p, r, jac, cost, it, evals, False, DENIED)
     if status == _INVALID_LINE:
         return SolveResult(p, np.zeros(0), np.zeros((0, p.size)), math.inf, 0, 1, False,
                            "invalid start: infinite line contact")

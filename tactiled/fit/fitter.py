@@ -220,6 +220,7 @@ class Fitter:
     ) -> None:
         self.sensor = sensor or SensorModel()
         self._line_scouted = False  # set by _fit_line: auto's line stayed a scout
+        self._line_point: tuple[float, float, float] | None = None  # set by _fit_line
         self.options = options or FitOptions()
         self.model = StrainModel(self.sensor, tol=self.options.tol)
         self.sigma = self.sensor.noise.effective_sigma  # of the frame being fitted
@@ -232,11 +233,14 @@ class Fitter:
         self._budget: Budget | None = None  # what is left of the fit's budget, during fit()
         o = self.options
         iterations, work = o.budget_iterations, o.budget_work
-        if g.flat:  # dearer models (tactiled.fit.budget.FLAT_WORK_FACTOR)
+        reserve = 0.0
+        if g.flat:  # dearer models: an allowance for the fits that earn it (FLAT_WORK_FACTOR)
             iterations = None if iterations is None else iterations * fit_budget.FLAT_ITERATION_FACTOR
-            work = None if work is None else work * fit_budget.FLAT_WORK_FACTOR
-        #: this sensor's budget of a fit: ``(iterations, work)``
-        self.budget_limits = (iterations, work)
+            reserve = 0.0 if work is None else float(work * (fit_budget.FLAT_WORK_FACTOR - 1))
+        #: this sensor's budget of a fit: ``(iterations, work)``, the work with its allowance
+        self.budget_limits = (iterations, None if work is None else work + reserve)
+        #: the work a fit may earn on top of the options' (``tactiled.fit.budget.Budget``)
+        self.allowance = reserve
         #: what the last fit spent: ``(iterations, work)`` (:mod:`tactiled.fit.budget`)
         self.spent: tuple[int, float] = (0, 0.0)
         m = self.model
@@ -326,7 +330,7 @@ class Fitter:
         self.catch_up()  # a worker runs it after its last answer; anyone else, here
         t0 = time.perf_counter()
         self._deadline = None if budget_s is None else t0 + budget_s
-        self._budget = Budget(*self.budget_limits)
+        self._budget = Budget(self.budget_limits[0], self.options.budget_work, self.allowance)
         self._in_fit = True
         if frames != 1:
             if not (isinstance(frames, int) and frames >= 1):
@@ -411,11 +415,12 @@ class Fitter:
         start: np.ndarray | None,
         mask: np.ndarray | None,
         scouting: bool = False,
+        start_chi2: float | None = None,
     ) -> FitResult:
         """Fit one model.  ``scouting`` (auto's candidate models) stops at a chi^2 decrease
         below 0.01 and after ``SCOUT_ITERATIONS``: enough to rank models by an information
         criterion, whose differences that matter are units of chi^2; the chosen one is then
-        solved fully."""
+        solved fully.  ``start_chi2``: the chi^2 at ``start``, where a scout left it."""
         fr = self._window(strain, model, mask)
         if isinstance(fr, FitResult):
             return fr
@@ -426,7 +431,7 @@ class Fitter:
         # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
         best, tried = self._search(fr, compiled.KINDS[model.name], starts, _steps(model),
                                    _bounds(model), cap, 1e-2 if scouting else STOP_CHI2,
-                                   lambda: self._residual(fr, model))
+                                   lambda: self._residual(fr, model), start_chi2)
         if scouting:  # only ranked by chi^2, then solved again in full if chosen: no report
             return FitResult(contact=True, model=model.name, chi2=best.cost * peak * peak / self.sigma**2,
                              iterations=best.iterations, evaluations=best.evaluations,
@@ -437,7 +442,7 @@ class Fitter:
 
     def _search(self, fr: _Frame, kind: int, starts: list[np.ndarray], steps: np.ndarray,
                 bounds: tuple[np.ndarray, np.ndarray], cap: int, stop_chi2: float,
-                python_residual) -> tuple[SolveResult, int]:
+                python_residual, start_chi2: float | None = None) -> tuple[SolveResult, int]:
         """Search from each start in turn (the compiled search; the Python solver on
         ``python_residual()`` where that hands back) until one explains the window to the
         noise or the budget is spent: ``(best search, starts tried)``.  Each stops once the
@@ -449,13 +454,19 @@ class Fitter:
         model, several contacts, a hand print) has its minimum far above the noise, and the
         search crept towards it for tens of iterations, each step lowering chi^2 by a sliver
         of it, moving the values by a sliver of the errors such a fit has (its sigmas are
-        widened by that excess: :meth:`_mismatch`).  Fits the model explains are untouched."""
+        widened by that excess: :meth:`_mismatch`).  Fits the model explains are untouched.
+
+        On a flat array a search that has spent the fit's base work goes on into the flat
+        allowance only while its chi^2 is within ``GRANT_CHI2_FACTOR`` times a right model's
+        (``Budget.grant_cost``); ``start_chi2``, the first start's chi^2 where a scout left
+        it, lets its first evaluation draw on the allowance when it is within that."""
         peak = fr.peak
         budget = self._budget
         unit = (self.sigma / peak) ** 2  # the cost of chi^2 = 1
         atol = stop_chi2 * unit
         verdict_tol = CONVERGED_CHI2 * unit
-        noise_cost = _chi2_limit(max(fr.n_points - len(starts[0]), 1)) * unit
+        dof = max(fr.n_points - len(starts[0]), 1)
+        noise_cost = _chi2_limit(dof) * unit
         exact = kind == compiled.LINE or self.options.jacobian == "exact"
         window = (fr.xs, fr.ys, fr.target, fr.valid, fr.inv_scale, fr.ex, fr.ey)
         residual = None  # the Python solver's residual function, built only if it is needed
@@ -468,9 +479,12 @@ class Fitter:
             tried += 1
             sol = None
             if exact:  # the whole search compiled (falls back on huge contacts)
+                grant = -1.0 if budget is None else budget.grant_cost(dof, unit)
                 sol = compiled.solve(kind, p0, steps, max_iter, atol, self._model_args, window,
                                      self.options.tol, bounds=bounds, verdict_tol=verdict_tol,
-                                     budget=budget, noise_cost=noise_cost)
+                                     budget=budget, noise_cost=noise_cost, grant_cost=grant,
+                                     start_ok=tried == 1 and start_chi2 is not None
+                                     and start_chi2 * unit <= grant)
             if sol is None:
                 if residual is None:
                     residual = python_residual()
@@ -520,6 +534,8 @@ class Fitter:
             return tuple(p)  # type: ignore[return-value]
         x, y = cyl.values.get("x_mm"), cyl.values.get("y_mm")
         load = (cyl.line or {}).get("load_n_per_mm") or 0.1
+        if (x is None or y is None) and self._line_point is not None:
+            x, y, load = self._line_point  # a line stopped short: its values withheld, not its place
         if x is None or y is None:
             g = self.sensor.geometry
             x, y = 0.5 * g.span_x, 0.5 * g.span_y
@@ -569,7 +585,8 @@ class Fitter:
                    for x, y in ends)
 
     def _fit_line(self, strain: np.ndarray, start: np.ndarray | None,
-                  mask: np.ndarray | None, scout_first: bool = False) -> FitResult:
+                  mask: np.ndarray | None, scout_first: bool = False,
+                  start_chi2: float | None = None) -> FitResult:
         """A cylinder on a flat array: the line model on this frame's window.
 
         ``scout_first`` (auto, cold): the first cold start is searched with a scout's iteration
@@ -577,6 +594,7 @@ class Fitter:
         (:meth:`_line_ruled_out`) the scout is the answer and ``self._line_scouted`` is set,
         else the search goes on from where it stopped, as a full fit."""
         self._line_scouted = False
+        self._line_point = None
         fr = self._line_frame(strain, mask)
         if isinstance(fr, FitResult):
             fr.model = "cylinder"
@@ -591,16 +609,24 @@ class Fitter:
         if scout_first:
             scout, _ = self._search(fr, compiled.LINE, starts[:1], LINE_STEPS, _LINE_BOUNDS,
                                     SCOUT_ITERATIONS, 1e-2, lambda: prob.residual_and_jacobian)
-            chi2 = scout.cost * peak * peak / self.sigma**2
-            self._line_scouted = self._line_ruled_out(scout.converged, chi2, fr.n_points)
+            start_chi2 = scout.cost * peak * peak / self.sigma**2
+            # (a scout denied the flat allowance is over GRANT_CHI2_FACTOR >= 2 times a right
+            # model's chi^2: as far from a line as a converged scout the test rules out)
+            self._line_scouted = self._line_ruled_out(scout.converged, start_chi2, fr.n_points) \
+                or scout.message == fit_budget.DENIED
             starts = [scout.p, *starts[1:]]
         if self._line_scouted:
             best, tried = scout, 1
         else:
             best, tried = self._search(fr, compiled.LINE, starts, LINE_STEPS, _LINE_BOUNDS,
                                        self.options.max_iter, STOP_CHI2,
-                                       lambda: prob.residual_and_jacobian)
+                                       lambda: prob.residual_and_jacobian,
+                                       start_chi2)
             if scout is not None:
+                if best.jacobian.size == 0 and scout.jacobian.size:
+                    # the budget refused the search's first evaluation: the scout's point stands
+                    best = SolveResult(scout.p, scout.residual, scout.jacobian, scout.cost, 0, 0,
+                                       False, best.message)
                 best.iterations += scout.iterations
                 best.evaluations += scout.evaluations
         reasons: dict[str, str] = {}
@@ -612,6 +638,8 @@ class Fitter:
         elif condition > ILL_CONDITION:
             reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
         values, std, line = prob.report(best.p, cov)
+        # where the line passes and its load, even if withheld below (auto's other starts)
+        self._line_point = (values["x_mm"], values["y_mm"], line["load_n_per_mm"])
         reasons["force_n"] = LINE_FORCE_REASON
         reasons["r2_mm"] = "infinite: cylinder model"
         if self._stopped(best):
@@ -1120,7 +1148,7 @@ class Fitter:
     def _solve_line(self, strain: np.ndarray, scout: FitResult, mask: np.ndarray | None) -> FitResult:
         """The line fully solved from where its scout stopped, counting the scout's
         iterations and evaluations."""
-        full = self._fit_line(strain, np.asarray(scout.params), mask)
+        full = self._fit_line(strain, np.asarray(scout.params), mask, start_chi2=scout.chi2)
         full.iterations += scout.iterations
         full.evaluations += scout.evaluations
         return full
@@ -1170,11 +1198,14 @@ class Fitter:
         if self._out_of_time():
             return self._cut_short(cyl, fits)
         gen_model = get_model("general")
-        gen_starts = [np.array([ln_r, 0.2, psi, ln_f, x0, y0])]
+        gen_starts: list[tuple[np.ndarray, float | None]] = [
+            (np.array([ln_r, 0.2, psi, ln_f, x0, y0]), None)]
         if sph.params is not None:
             s_ln_r, s_ln_f, sx, sy = sph.params
-            gen_starts.append(np.array([s_ln_r, 0.95, 0.5 * math.pi, s_ln_f, sx, sy]))
-        gens = [self._fit_model(strain, gen_model, p0, mask, scouting=True) for p0 in gen_starts]
+            # nearly the sphere's own contact: about the sphere's chi^2 (Budget.grant_cost)
+            gen_starts.append((np.array([s_ln_r, 0.95, 0.5 * math.pi, s_ln_f, sx, sy]), sph.chi2))
+        gens = [self._fit_model(strain, gen_model, p0, mask, scouting=True, start_chi2=c0)
+                for p0, c0 in gen_starts]
         fits.append(min(gens, key=lambda r: r.chi2 if r.chi2 is not None else math.inf))
         if self._out_of_time():
             return self._cut_short(cyl, [cyl, sph, *gens])
@@ -1193,7 +1224,8 @@ class Fitter:
             iterations += best.iterations - cyl.iterations
             evaluations += best.evaluations - cyl.evaluations
         if resolved:  # scouted: now solve it fully
-            best = self._fit_model(strain, get_model(best.model), np.asarray(best.params), mask)
+            best = self._fit_model(strain, get_model(best.model), np.asarray(best.params), mask,
+                                   start_chi2=best.chi2)
             iterations += best.iterations
             if self._runs_off(best):
                 best, resolved = cyl, False
