@@ -62,6 +62,8 @@ class ContactTrackers:
         self.bases: list[dict[str, Any]] = []
         self._ended_resets = 0
         self._ended_skipped = 0
+        #: per contact, the others' strain on its window (``_cross_terms``)
+        self._cross: list[tuple[np.ndarray, list[tuple[int, np.ndarray, np.ndarray]]]] = []
 
     # -- what the pipeline reads ---------------------------------------------------------------
 
@@ -137,6 +139,7 @@ class ContactTrackers:
                 return False
             for tr, one in zip(self.trackers, lins):
                 tr.adopt(one, zero_var)
+            self._cross_terms()
             return True
         elements = base.get("contacts") or []
         if len(elements) != len(lins):
@@ -147,6 +150,7 @@ class ContactTrackers:
         for tr, one in zip(kept, lins):
             tr.adopt(one, zero_var)
         self.bases = [dict(e) for e in elements]
+        self._cross_terms()
         return True
 
     def _nearest(self, centres: list[tuple[float, float]]) -> list[Tracker | None]:
@@ -193,35 +197,52 @@ class ContactTrackers:
         one restarted, else ``"tracked"``."""
         if not self.several:
             return self.trackers[0].step(strain, t, fitted)
-        parts = self._parts(strain)
         if fitted:
-            out = [tr.step(p, t, fitted=True) for tr, p in zip(self.trackers, parts)]
+            out = [tr.step(strain, t, fitted=True) for tr in self.trackers]
         else:
             measured = []
-            for tr, p in zip(self.trackers, parts):
-                m = tr.measure(p)
+            for tr, own in zip(self.trackers, self._windows(strain)):
+                m = tr.measure(own, windowed=True)
                 if m is None:
                     return "refit"
                 measured.append(m)
             # (a jump one filter sees after another has moved is rare: that frame's fit then
             # restarts the filters that moved)
-            out = [tr.step(p, t, measured=m) for tr, p, m in zip(self.trackers, parts, measured)]
+            out = [tr.step(strain, t, measured=m) for tr, m in zip(self.trackers, measured)]
         return "refit" if "refit" in out else "reset" if "reset" in out else "tracked"
 
-    def _parts(self, strain: np.ndarray) -> list[np.ndarray]:
-        nows = [self._strain_now(tr) for tr in self.trackers]
-        total = np.sum(nows, axis=0)
-        return [strain - (total - now) for now in nows]
+    def _windows(self, strain: np.ndarray) -> list[np.ndarray]:
+        """Each contact's window of the frame less the others' strain there now: at their
+        points, and where their own windows overlap it, moved to their filters' states
+        through their Jacobians (outside its own window a contact's strain is taken at its
+        point: it is relinearised as it moves)."""
+        out = []
+        for tr, (others, overlaps) in zip(self.trackers, self._cross):
+            own = strain[tr.lin.index] - others
+            for j, mine, theirs in overlaps:
+                o = self.trackers[j]
+                if o.x is not None:
+                    own[mine] -= o.lin.jacobian[theirs] @ (np.asarray(o.x) - o.lin.p)
+            out.append(own)
+        return out
 
-    @staticmethod
-    def _strain_now(tr: Tracker) -> np.ndarray:
-        """A contact's strain on the whole array (flat) at its filter's state: its point's,
-        moved through the Jacobian over its window."""
-        lin = tr.lin
-        now = lin.predicted.ravel().copy()
-        if tr.x is not None:
-            now[lin.index] = lin.strain + lin.jacobian @ (np.asarray(tr.x) - lin.p)
-        return now
+    def _cross_terms(self) -> None:
+        """Per contact, what ``_windows`` subtracts: the others' strain at their points on
+        its window, and where another's window overlaps it, ``(j, positions in its window,
+        rows of j's window)``."""
+        self._cross = []
+        for i, tr in enumerate(self.trackers):
+            idx = tr.lin.index
+            others = np.zeros(idx.size)
+            overlaps = []
+            for j, o in enumerate(self.trackers):
+                if j == i:
+                    continue
+                others += o.lin.predicted.ravel()[idx]
+                _, mine, theirs = np.intersect1d(idx, o.lin.index, return_indices=True)
+                if mine.size:
+                    overlaps.append((j, mine, theirs))
+            self._cross.append((others, overlaps))
 
     def skip(self) -> None:
         for tr in self.trackers:

@@ -285,12 +285,13 @@ class Tracker:
                 self._fold()
         return self._filter(z, t, fitted)
 
-    def measure(self, strain: np.ndarray) -> tuple[list[float], np.ndarray] | None:
+    def measure(self, strain: np.ndarray, windowed: bool = False) -> tuple[list[float], np.ndarray] | None:
         """One frame's measurement through the linearisation, ``(z, e)`` (the parameters and
         the residual ``J dz`` leaves), or None when the frame needs a fit of its own (outside
-        the linear range, or a step no linearisation reaches).  Changes nothing."""
+        the linear range, or a step no linearisation reaches).  Changes nothing.
+        ``windowed``: ``strain`` is the frame at the linearisation's window only."""
         lin = self.lin
-        d = strain[lin.index] - lin.strain
+        d = (strain if windowed else strain[lin.index]) - lin.strain
         dp = lin.gain @ d
         e = d - lin.jacobian @ dp
         if float((e * e) @ lin.weight) > self._limit:
