@@ -36,8 +36,9 @@ MAX_ANGLE_SIGMA = 45.0
 #: tracker lifts it once the frames it has gathered do).
 TOO_LIGHT = "force too low for curvature"
 #: A force is tied to its radius when more than this share of its variance is the radius's
-#: (the squared correlation of the two estimates): see :func:`radius_tied_force`.
-TIED_FORCE_SHARE = 0.5
+#: (the squared correlation of the two estimates): the radius's uncertainty at least doubles
+#: the force's sigma.  See :func:`radius_tied_force`.
+TIED_FORCE_SHARE = 0.75
 
 
 def radius_tied_force(r: float | None, sd_r: float | None, sd_f: float | None,
@@ -50,10 +51,12 @@ def radius_tied_force(r: float | None, sd_r: float | None, sd_f: float | None,
     radius concentrates the same pressure, and the force that explains the window grows as
     the radius shrinks.  When the radius's own 1-sigma interval reaches zero (``sd_r >= r``:
     the window does not tell the contact from a point) and more than ``TIED_FORCE_SHARE`` of
-    the force's variance is the radius's, the force rests on a radius the array does not
-    resolve: least squares then settles anywhere along that valley, and the force it reports
-    there can lie several of its bounds from the truth.  Where the force does not depend on
-    the radius (a light touch under a cover deep beside the contact), the force is kept."""
+    the force's variance is the radius's (its sigma is over twice what it would be were the
+    radius known), the force rests on a radius the array does not resolve: least squares then
+    settles anywhere along that valley, and the force it reports there can lie several of its
+    bounds from the truth.  Where the force hardly depends on the radius (a light touch under
+    a cover deep beside the contact: the paper's finger, where the share stays near 50-56 %),
+    the force is kept."""
     if r is None or sd_r is None or sd_f is None or not (r > 0.0 and sd_f > 0.0) or sd_r < r:
         return None
     share = cov_rf * cov_rf / (sd_r * sd_r * sd_f * sd_f)
