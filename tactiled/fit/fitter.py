@@ -35,6 +35,7 @@ from tactiled.fit.params import (
     RADIUS_LIMITS,
     TOO_LIGHT,
     UNOBSERVABLE_RELATIVE_SIGMA,
+    radius_tied_force,
 )
 from tactiled.fit.result import FitResult
 from tactiled.fit.solver import BUDGET_MESSAGE, TIME_BUDGET_EXCEEDED, SolveResult, levenberg_marquardt
@@ -817,6 +818,7 @@ class Fitter:
             self._mismatch(model, sol, peak, zdata, chi2, std, reasons, win, valid, learn=not stopped)
         if stopped:
             self._unsettled(sol, peak, values, std, reasons)
+        tied = self._tied_force(model, sol, values, std)  # before the radius may be withheld
         self._unobservable(values, std, reasons)
         if model.name == "cylinder":
             reasons.setdefault("r2_mm", "infinite: cylinder model")
@@ -827,6 +829,9 @@ class Fitter:
         ell = Ellipse(*compiled.ellipse_at(compiled.KINDS[model.name], sol.p, self.model._rf,
                                            self.model._k))
         line = ell.a >= 0.0 and self._line_contact(ell, values, std, reasons)
+        if tied is not None and values.get("force_n") is not None:  # else withheld for another reason
+            values["force_n"] = std["force_n"] = None
+            reasons["force_n"] = tied
         if not sol.converged:
             reasons.setdefault("fit", sol.message)
         rms = math.sqrt(sol.cost / max(n_points, 1))
@@ -872,6 +877,26 @@ class Fitter:
         if condition > ILL_CONDITION:
             reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
         return values, std, condition
+
+    def _tied_force(self, model: Model, sol: SolveResult, values: dict[str, float | None],
+                    std: dict[str, float | None]) -> str | None:
+        """Why the force rests on a radius the window does not resolve
+        (:func:`tactiled.fit.params.radius_tied_force`), or None: the radius's 1-sigma bound
+        as reported, the correlation from the Cramer-Rao covariance at the solution."""
+        r, sd_r, sd_f = values.get("r1_mm"), std.get("r1_mm"), std.get("force_n")
+        if r is None or sd_r is None or sd_f is None or sd_r < r or sol.jacobian.size == 0:
+            return None  # the common case: the radius is bounded away from zero
+        try:
+            cov = np.linalg.inv(sol.jacobian.T @ sol.jacobian)
+        except np.linalg.LinAlgError:
+            return None
+        _, grad = model.report(sol.p)
+        g_f, g_r = grad[VALUE_KEYS.index("force_n")], grad[VALUE_KEYS.index("r1_mm")]
+        # the correlation only: the common scale of the covariance cancels
+        c_ff, c_rr, c_rf = g_f @ cov @ g_f, g_r @ cov @ g_r, g_r @ cov @ g_f
+        if not (c_ff > 0.0 and c_rr > 0.0):
+            return None
+        return radius_tied_force(r, sd_r, sd_f, float(c_rf / math.sqrt(c_rr * c_ff)) * sd_r * sd_f)
 
     def _unsettled(self, sol: SolveResult, peak: float, values: dict[str, float | None],
                    std: dict[str, float | None], reasons: dict[str, str]) -> None:

@@ -35,6 +35,36 @@ MAX_ANGLE_SIGMA = 45.0
 #: The reason a radius is withheld when the data do not pin it down (the fitter's words; the
 #: tracker lifts it once the frames it has gathered do).
 TOO_LIGHT = "force too low for curvature"
+#: A force is tied to its radius when more than this share of its variance is the radius's
+#: (the squared correlation of the two estimates): the radius's uncertainty at least doubles
+#: the force's sigma.  See :func:`radius_tied_force`.
+TIED_FORCE_SHARE = 0.75
+
+
+def radius_tied_force(r: float | None, sd_r: float | None, sd_f: float | None,
+                      cov_rf: float) -> str | None:
+    """Why a force must be withheld with its radius, or None to keep it.
+
+    ``r``, ``sd_r`` the radius (mm) and its 1-sigma bound, ``sd_f`` the force's (N),
+    ``cov_rf`` their covariance (mm N).  Where the contact is not small beside the cover's
+    depth, the strain pattern fixes the force only through the contact's size: a smaller
+    radius concentrates the same pressure, and the force that explains the window grows as
+    the radius shrinks.  When the radius's own 1-sigma interval reaches zero (``sd_r >= r``:
+    the window does not tell the contact from a point) and more than ``TIED_FORCE_SHARE`` of
+    the force's variance is the radius's (its sigma is over twice what it would be were the
+    radius known), the force rests on a radius the array does not resolve: least squares then
+    settles anywhere along that valley, and the force it reports there can lie several of its
+    bounds from the truth.  Where the force hardly depends on the radius (a light touch under
+    a cover deep beside the contact: the paper's finger, where the share stays near 50-56 %),
+    the force is kept."""
+    if r is None or sd_r is None or sd_f is None or not (r > 0.0 and sd_f > 0.0) or sd_r < r:
+        return None
+    share = cov_rf * cov_rf / (sd_r * sd_r * sd_f * sd_f)
+    if not share > TIED_FORCE_SHARE:
+        return None
+    return (f"{TOO_LIGHT}: the force trades with a radius the window does not resolve (the "
+            f"radius's sigma is {100 * sd_r / r:.0f} % of it, {100 * share:.0f} % of the force's "
+            "variance is the radius's)")
 
 #: Parameters that move with the contact (the tracker gives them a rate); the others (the
 #: curvatures) are a property of the object and held constant between changes.

@@ -50,6 +50,7 @@ from tactiled.fit.params import (
     TOO_LIGHT,
     UNOBSERVABLE_RELATIVE_SIGMA,
     VALUE_KEYS,
+    radius_tied_force,
     report,
 )
 
@@ -468,6 +469,12 @@ class Tracker:
             if self._sys is not None:
                 var_a += (grad @ self._sys) * grad
             var = var_a.sum(axis=1).tolist()
+            # the force and the radius together: a force resting on a radius the frames do not
+            # resolve is withheld, as the fitter withholds it in one frame
+            i_f, i_r = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
+            cov_rf = float((gs[i_r] @ self._corr) @ gs[i_f])
+            if self._sys is not None:
+                cov_rf += float(grad[i_r] @ self._sys @ grad[i_f])
         out = dict(base)
         reasons = dict(base.get("reasons") or {})
         std: dict[str, float | None] = {}
@@ -483,6 +490,8 @@ class Tracker:
                 continue
             sd_i = math.sqrt(var[i])
             withheld = self._withheld(key, v, sd_i)
+            if not withheld and key == "force_n" and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
+                withheld = radius_tied_force(values.get("r1_mm"), math.sqrt(var[i_r]), sd_i, cov_rf)
             if withheld:
                 out[key], std[key] = None, None
                 reasons[key] = withheld
