@@ -77,6 +77,15 @@ class Scores:
         return float(np.mean(c)) if c else None
 
 
+def _offset_err(est: float, est_angle: float | None, truth: float, truth_angle: float) -> float:
+    """A line's offset error: the offset is signed along the normal of its own reported angle
+    (modulo 180 deg), so an estimate whose angle wrapped past 0/180 from the truth's has the
+    truth's offset with the other sign."""
+    if est_angle is not None and math.cos(math.radians(est_angle - truth_angle)) < 0.0:
+        truth = -truth
+    return est - truth
+
+
 def _angle_err(est: float, true: float) -> float:
     return (est - true + 90.0) % 180.0 - 90.0
 
@@ -162,7 +171,9 @@ def score_description(desc: SensorDescription, contacts: int, draws: int, seed: 
                     est = line.get(k) if k in ("load_n_per_mm", "offset_mm") else res.values.get(k)
                     sd = line.get(f"{k}_std") if k in ("load_n_per_mm", "offset_mm") else res.std.get(k)
                     err = None
-                    if est is not None:
+                    if est is not None and k == "offset_mm":
+                        err = _offset_err(est, res.values.get("angle_deg"), truth[k], truth["angle_deg"])
+                    elif est is not None:
                         err = _angle_err(est, truth[k]) if k == "angle_deg" else est - truth[k]
                     scores.add(f"{kind}/{k}", err, crb.get(k), sd, res.reasons.get(k))
                 if bar is not None:
