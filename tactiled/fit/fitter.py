@@ -786,8 +786,10 @@ class Fitter:
         return chi2 <= 4.0 * n_points + 1e-4 * n_points * (peak / self.sigma) ** 2
 
     def _consistent(self, res: FitResult) -> bool:
-        """chi^2 within 3 standard deviations of its expectation for a correct model."""
-        n, k = res.n_points, get_model(res.model).size
+        """chi^2 within 3 standard deviations of its expectation for a correct model (its
+        own parameters: a flat array's line contact, reported as a cylinder, has four)."""
+        k = len(res.params) if res.params is not None else get_model(res.model).size
+        n = res.n_points
         dof = max(n - k, 1)
         return res.chi2 <= dof + 3.0 * math.sqrt(2.0 * dof)
 

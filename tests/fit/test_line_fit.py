@@ -156,3 +156,18 @@ def test_a_warm_ellipse_running_off_a_flat_array_is_not_kept(flat16) -> None:
     res = fitter.fit(frame, "auto", warm=("general", gen.params))
     assert res.model == "cylinder" and res.label == "line"
     assert "kept from the previous frame" not in res.message
+
+
+def test_a_line_is_judged_against_its_own_four_parameters() -> None:
+    """A line contact's chi^2 test counts its own parameters (four: ln R, psi, ln load,
+    offset), not the cylinder's five it is reported under."""
+    from tactiled.fit.result import FitResult
+
+    fitter = Fitter(load_description("flat16").sensor_model())
+    n = 16
+    # between the 11- and the 12-degree-of-freedom thresholds (3 sigma above the mean)
+    chi2 = 0.5 * ((11 + 3 * math.sqrt(22)) + (12 + 3 * math.sqrt(24)))
+    line = FitResult(contact=True, model="cylinder", params=(1.0, 0.3, -2.0, 0.1), chi2=chi2, n_points=n)
+    point = FitResult(contact=True, model="cylinder", params=(1.0, 0.3, 0.0, 5.0, 5.0), chi2=chi2, n_points=n)
+    assert fitter._consistent(line)
+    assert not fitter._consistent(point)
