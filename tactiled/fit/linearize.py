@@ -70,10 +70,11 @@ class Linearization:
 
 
 def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
-              mask: np.ndarray | None = None) -> Linearization | None:
+              mask: np.ndarray | None = None, whole: np.ndarray | None = None) -> Linearization | None:
     """The linearisation of ``fitter``'s window on ``strain`` at ``model``'s internal vector
     ``p``; None where there is none (no contact in the frame, too few tactels, a singular
-    Jacobian, a point outside the model's domain)."""
+    Jacobian, a point outside the model's domain).  ``whole``: :func:`whole_array` at ``p``,
+    when the caller has it already."""
     fr = fitter._frame(fitter.flattened(strain), mask)
     m = get_model(model)
     p = np.asarray(p, dtype=float)
@@ -118,7 +119,7 @@ def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
     me = fitter.sensor.model_error  # the floor's variance per tactel, as Fitter._tactel_sd's
     systematic = (gain * (me.strain ** 2 + (me.relative * s) ** 2)) @ gain.T
     flat = fitter.flat
-    predicted = whole_array(fitter, m, p)
+    predicted = whole_array(fitter, m, p) if whole is None else whole
     if flat is not None and flat.active:
         # the flat field's corrections are as wrong in every frame: systematic; and the
         # tracker reads frames as they come, so the same linearisation in their units

@@ -275,7 +275,7 @@ def linearize_several(fitter: Any, strain: np.ndarray, contacts: list[tuple[str,
             if j != i:
                 residual -= _raw(fitter, pred)
                 m &= ~(pred > CORE_SHARE * float(pred.max()))
-        lin = linearize(fitter, residual, model, np.asarray(params, dtype=float), m)
+        lin = linearize(fitter, residual, model, np.asarray(params, dtype=float), m, whole=preds[i])
         if lin is None:
             return None
         lins.append(lin)
