@@ -59,6 +59,7 @@ MAX_DECODED_LEN = HEADER_LEN + 2 * MAX_TACTELS + CRC_LEN  # 8214 bytes
 # not counting its 0x00 delimiter.  Anything longer is garbage and is dropped unread.
 MAX_ENCODED_LEN = MAX_DECODED_LEN + -(-MAX_DECODED_LEN // 254)  # 8247 bytes
 _SEQ_MOD = 1 << 32
+_COUNTS = np.dtype("<u2")  # the wire's counts: uint16, little-endian
 
 
 def cobs_encode(data: bytes) -> bytes:
@@ -303,8 +304,11 @@ def _parse(chunk: bytes) -> Frame | str:
             return "version_errors"
         if not 0 < tactels <= MAX_TACTELS or n != expected:
             return "length_errors"
-        raw = np.frombuffer(data, dtype="<u2", count=tactels, offset=HEADER_LEN)
-        raw = raw.reshape(rows, cols).astype(np.uint16)  # native order, owns its memory
+        # a view of ``data``, which nothing else holds (a copy on a big-endian host only)
+        raw = np.frombuffer(data, dtype=_COUNTS, count=tactels, offset=HEADER_LEN)
+        raw = raw.reshape(rows, cols)
+        if _COUNTS != np.uint16:
+            raw = raw.astype(np.uint16)
         return Frame(seq=seq, device_time_us=t_us, raw=raw, sensor_id=sensor_id)
     # Damaged in transit.  A plausible header promising more bytes than arrived means the
     # frame was cut off (e.g. the device reset mid-frame and sent its start-up 0x00).

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import abc
 import asyncio
+import contextlib
 import importlib
 import logging
 import math
@@ -305,12 +306,27 @@ class FrameSource(abc.ABC):
         ``timeout`` applies to each :meth:`read`, in seconds.  Corrupt wire data never
         raises here: the decoder drops it and counts it in ``decoder.stats``.
         """
+        async with contextlib.aclosing(self._decoded(timeout)) as batches:
+            async for batch in batches:
+                for frame in batch:
+                    yield frame
+
+    def frame_batches(self, timeout: float | None = None) -> AsyncIterator[list[Frame]]:
+        """As :meth:`frames`, a read at a time: the frames decoded from each read's bytes (a
+        list per read that completed any), so a consumer is resumed once per read, not once
+        per frame.  A driver that overrides :meth:`frames` gets its frames one per list."""
+        if type(self).frames is FrameSource.frames:
+            return self._decoded(timeout)
+        return _one_per_list(self.frames(timeout))
+
+    async def _decoded(self, timeout: float | None) -> AsyncIterator[list[Frame]]:
         while True:
             data = await self.read(timeout)
             if not data:
                 return
-            for frame in self.decoder.feed(data, host_time=self.last_read_time):
-                yield frame
+            batch = self.decoder.feed(data, host_time=self.last_read_time)
+            if batch:
+                yield batch
 
     @property
     def read_backlog_now(self) -> int:
@@ -384,6 +400,12 @@ class FrameSource(abc.ABC):
     def __repr__(self) -> str:
         state = "connected" if self.connected else ("open" if self._is_open else "closed")
         return f"<{type(self).__name__} {self.url.url!r} {state}>"
+
+
+async def _one_per_list(frames: AsyncIterator[Frame]) -> AsyncIterator[list[Frame]]:
+    async with contextlib.aclosing(frames):  # type: ignore[type-var]
+        async for frame in frames:
+            yield [frame]
 
 
 # --------------------------------------------------------------------------------------------

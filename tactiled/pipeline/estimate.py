@@ -11,9 +11,11 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
+
+_R = TypeVar("_R")
 
 #: Keys of :meth:`Estimate.to_json_dict` that depend on timing, not on the data; dropping them
 #: makes a replay's output reproducible byte for byte (``tactiled replay --no-timing``).
@@ -64,6 +66,20 @@ def plain(value: Any) -> Any:
 
 def _finite(x: float) -> float | None:
     return x if math.isfinite(x) else None
+
+
+_new = object.__new__
+
+
+def _record(cls: type[_R], fields: dict[str, Any]) -> _R:
+    """An instance of the frozen dataclass ``cls`` holding ``fields`` (every one of its
+    fields, by name), built without its generated ``__init__``: that one sets each field
+    through ``object.__setattr__`` (frozen), ~3 us for an :class:`Estimate` where this takes
+    1, and a frame's path builds a :class:`ZeroedFrame` and an :class:`Estimate` for each of up
+    to 6000 frames a second.  The result is the same object: frozen, equal, hashable alike."""
+    obj = _new(cls)
+    obj.__dict__.update(fields)
+    return obj
 
 
 @dataclass(frozen=True)
@@ -161,8 +177,18 @@ def make_estimate(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
                   host_time: float, gate: str, fitted_seq: int | None, worker_ms: float,
                   fit: dict[str, Any]) -> Estimate:
     """An :class:`Estimate` stamped as published now."""
-    return Estimate(
-        sensor=sensor, sensor_id=sensor_id, seq=seq, device_time_us=device_time_us,
-        host_time=host_time, published_time=time.monotonic(), wall_time=time.time(),
-        gate=gate, fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit,
-    )
+    return _record(Estimate, {
+        "sensor": sensor, "sensor_id": sensor_id, "seq": seq, "device_time_us": device_time_us,
+        "host_time": host_time, "published_time": time.monotonic(), "wall_time": time.time(),
+        "gate": gate, "fitted_seq": fitted_seq, "worker_ms": worker_ms, "fit": fit,
+    })
+
+
+def make_zeroed_frame(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
+                      host_time: float, contact: bool, statistic: float,
+                      strain: np.ndarray) -> ZeroedFrame:
+    """A :class:`ZeroedFrame` (the same as its constructor's, built faster: ``_record``)."""
+    return _record(ZeroedFrame, {
+        "sensor": sensor, "sensor_id": sensor_id, "seq": seq, "device_time_us": device_time_us,
+        "host_time": host_time, "contact": contact, "statistic": statistic, "strain": strain,
+    })

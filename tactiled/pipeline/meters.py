@@ -17,8 +17,11 @@ class RateMeter:
 
     def tick(self, now: float) -> None:
         """Count one event at ``now`` (s)."""
-        self._times.append(now)
-        self._prune(now)
+        times = self._times
+        times.append(now)
+        edge = now - self.window  # _prune, inlined: this runs for every frame
+        while times and times[0] <= edge:
+            times.popleft()
 
     def _prune(self, now: float) -> None:
         edge = now - self.window

@@ -48,8 +48,8 @@ from tactiled.pipeline.estimate import (
     GATE_NO_CONTACT,
     GATE_UNCHANGED,
     Estimate,
-    ZeroedFrame,
     make_estimate,
+    make_zeroed_frame,
     plain,
 )
 from tactiled.pipeline.gate import Gate
@@ -148,6 +148,7 @@ class SensorPipeline(ContactTracking):
         self.mask = self.description.dead_mask()
         if self.table is not None and self.table.dead_mask.any():
             self.mask = ~self.table.dead_mask if self.mask is None else self.mask & ~self.table.dead_mask
+        self._any_usable = self.mask is None or bool(self.mask.any())
         noise = NoiseModel(sigma=settings.noise_sigma)
         # the description's array; an identified finger's rubber, tactel positions and
         # model-error floor (version 2 calibration files) in place of its cover's constants
@@ -155,6 +156,7 @@ class SensorPipeline(ContactTracking):
         self.sensor_model = (base if self.calibration is None
                              else self.calibration.sensor_model(noise, base.geometry, base=base))
         g = self.sensor_model.geometry
+        self._grid_shape = (g.rows, g.cols)  # a frame's raw counts' shape, in grid order
         if self.table is not None and self.table.shape != (g.rows, g.cols):
             raise CalibrationError(f"{settings.calibration}: table shape {self.table.shape} is "
                                    f"not the sensor's {(g.rows, g.cols)}")
@@ -286,16 +288,17 @@ class SensorPipeline(ContactTracking):
                 if not self.source.is_open:
                     await self.source.open()
                 delay = RETRY_MIN
-                async with contextlib.aclosing(self.source.frames()) as frames:
-                    async for frame in frames:
-                        before = self._waiting
-                        self.on_frame(frame)
-                        if self.lossless:
-                            await self.wait_settled()
-                        elif self._fit_due(before):
-                            # the pool sends it now, not after the rest of this read's frames
-                            # and the other sensors' reads the loop holds
-                            self.pool.dispatch_now()
+                async with contextlib.aclosing(self.source.frame_batches()) as batches:
+                    async for batch in batches:  # the frames of one read
+                        for frame in batch:
+                            before = self._waiting
+                            self.on_frame(frame)
+                            if self.lossless:
+                                await self.wait_settled()
+                            elif self._fit_due(before):
+                                # the pool sends it now, not after the rest of this read's
+                                # frames and the other sensors' reads the loop holds
+                                self.pool.dispatch_now()
                 break  # the stream ended (a replay finished)
             except DriverError as err:
                 # A device that failed to open or vanished: it may come back, so retry.
@@ -377,8 +380,7 @@ class SensorPipeline(ContactTracking):
                 log.warning("%s: frame from sensor id %d, expected %d: dropped (miswired?)",
                             self.name, frame.sensor_id, self.expected_id)
             return
-        g = self.sensor_model.geometry
-        if frame.shape != (g.rows, g.cols):
+        if frame.raw.shape != self._grid_shape:
             self.bad_shape += 1
             return
         if self.description.wire_order != "row-major":  # counts in wire order: to the grid
@@ -392,13 +394,14 @@ class SensorPipeline(ContactTracking):
         strain = frame.strain
         assert strain is not None
         # the zeroer never lets NaN out (the compiled path checks every value); belt and braces
-        if not self.stage.finite and not np.isfinite(strain).all():
+        # (a sum is finite unless a value is not, or it overflows: then the copy changes nothing)
+        if not self.stage.finite and not math.isfinite(strain.sum()):
             strain = np.nan_to_num(strain, nan=0.0, posinf=0.0, neginf=0.0)
         strain.flags.writeable = False
         self._ordinal += 1
         ordinal = self._ordinal
         detector = self.stage.zeroer.detector
-        self.hub.publish(ZeroedFrame(
+        self.hub.publish(make_zeroed_frame(
             sensor=self.name, sensor_id=frame.sensor_id, seq=frame.seq,
             device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
             statistic=detector.last_statistic, strain=strain))
@@ -460,17 +463,19 @@ class SensorPipeline(ContactTracking):
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)
         self._last_published = w.ordinal
         self.published += 1
-        if math.isfinite(est.latency_ms):
-            self.latency_ms.add(est.published_time, est.latency_ms)
-            self.latency_hist[gate].observe(est.latency_ms / 1e3)
+        latency_ms = est.latency_ms
+        if math.isfinite(latency_ms):
+            self.latency_ms.add(est.published_time, latency_ms)
+            self.latency_hist[gate].observe(latency_ms / 1e3)
         self.hub.publish(est)
         return est
 
     def _frame_peak(self, strain: np.ndarray, fallback: float) -> float:
-        """The largest finite strain of a frame's usable tactels (``fallback`` if none is)."""
-        s = strain if self.mask is None else strain[self.mask]
-        s = s[np.isfinite(s)]
-        return float(s.max()) if s.size else fallback
+        """The largest strain of a frame's usable tactels (``fallback`` if none is); the
+        frame's strain is finite (_process)."""
+        if self.mask is None:
+            return float(strain.max())
+        return float(strain[self.mask].max()) if self._any_usable else fallback
 
     # -- the pool's side (JobOwner) -------------------------------------------------------------
 

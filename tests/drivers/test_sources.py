@@ -253,6 +253,34 @@ def test_frames_decode_through_the_shared_decoder(memory_scheme, frame_factory,
     asyncio.run(main())
 
 
+def test_frame_batches_hand_each_reads_frames_together(memory_scheme, frame_factory,
+                                                       same_frame) -> None:
+    sent = frame_factory(5)
+    wire = [encode_frame(f) for f in sent]
+    # a read of three whole frames, a read of half a frame, a read of the rest and one more
+    half = len(wire[3]) // 2
+    MemorySource.chunks = [b"".join(wire[:3]), wire[3][:half], wire[3][half:] + wire[4]]
+
+    async def main() -> list[list]:
+        async with open_source("mem://") as src:
+            return [batch async for batch in src.frame_batches()]
+
+    batches = asyncio.run(main())
+    assert [len(b) for b in batches] == [3, 2]
+    assert all(same_frame(a, b) for a, b in zip(sum(batches, []), sent, strict=True))
+
+    class OwnFrames(MemorySource):  # a driver that makes its frames itself: one per list
+        async def frames(self, timeout=None):  # type: ignore[override]
+            for f in sent[:2]:
+                yield f
+
+    async def own() -> list[list]:
+        async with OwnFrames("mem://") as src:
+            return [batch async for batch in src.frame_batches()]
+
+    assert asyncio.run(own()) == [[sent[0]], [sent[1]]]
+
+
 def test_read_requires_open_and_open_twice_fails(memory_scheme) -> None:
     async def main() -> None:
         src = open_source("mem://")
