@@ -20,12 +20,12 @@ finger (drift and hysteresis on) what its model error leaves.  Scenes are played
 
 from __future__ import annotations
 
-import asyncio
 import math
 from pathlib import Path
 
 import numpy as np
 
+from tactiled.bench.lossless import play_lossless
 from tactiled.config import NoiseModel, SensorModel
 from tactiled.physics.contact import Contact
 from tactiled.sim import SCENES, Pose, SceneBuilder, named_scene
@@ -75,23 +75,9 @@ def _register() -> None:
 def _play(scene: str, seed: int, extra: str = "") -> list[tuple[float, dict]]:
     """The daemon on one simulated finger playing ``scene`` once, lossless: its estimates,
     ``(device time s, fit dict)``."""
-    from tactiled.pipeline import Daemon
-    from tactiled.settings import load_settings
-
     url = f"sim://?scene={scene}&seed={seed}&rate={RATE:g}&speed=0&loop=0{extra}"
     overrides = {"sensor[0].url": url, "sensor[0].model": "cylinder", "fit.workers": 2}
-
-    async def main():
-        daemon = Daemon(load_settings(None, {}, overrides), lossless=True)
-        out: list = []
-        daemon.hub.add_listener(lambda it: out.append((it.device_time_us * 1e-6, it.fit))
-                                if it.kind == "estimate" else None)
-        await daemon.start()
-        await daemon.wait_finished(600)
-        await daemon.stop()
-        return out
-
-    return asyncio.run(main())
+    return [(it.device_time_us * 1e-6, it.fit) for it in play_lossless(overrides)]
 
 
 def _crb(c: Contact) -> dict:

@@ -23,12 +23,12 @@ Deterministic (seeded scene noise, lossless): the same figures on every machine.
 
 from __future__ import annotations
 
-import asyncio
 import math
 from typing import Any
 
 import numpy as np
 
+from tactiled.bench.lossless import play_lossless
 from tactiled.sensors import SensorDescription
 
 SCENE = "hand-palm"
@@ -41,25 +41,10 @@ KEYS = ("force_n", "x_mm", "y_mm", "r1_mm")
 
 def _play(desc: SensorDescription, seed: int) -> list[tuple[int, dict[str, Any], str]]:
     """The daemon's estimates of one pass: ``(tick, fit dict, gate)``."""
-    from tactiled.pipeline import Daemon
-    from tactiled.settings import load_settings
-
     url = (f"sim://?scene={SCENE}&sensor={desc.name}&seed={seed}&rate={RATE:g}&speed=0&loop=0"
            "&drift=0&hysteresis=0")
     overrides = {"sensor[0].url": url, "sensor[0].description": desc.name, "fit.workers": 1}
-
-    async def main() -> list:
-        daemon = Daemon(load_settings(None, {}, overrides), lossless=True)
-        out: list = []
-        daemon.hub.add_listener(
-            lambda it: out.append((round(it.device_time_us * 1e-6 * RATE), it.fit, it.gate))
-            if it.kind == "estimate" else None)
-        await daemon.start()
-        await daemon.wait_finished(600)
-        await daemon.stop()
-        return out
-
-    return asyncio.run(main())
+    return [(round(it.device_time_us * 1e-6 * RATE), it.fit, it.gate) for it in play_lossless(overrides)]
 
 
 def _truth(desc: SensorDescription, ticks: int) -> list[list[Any]]:
