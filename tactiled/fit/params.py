@@ -77,62 +77,61 @@ def wrap_deg(psi: float) -> float:
     return 0.0 if d >= 180.0 else d
 
 
-def report(model: str, p: np.ndarray) -> tuple[dict[str, float | None], np.ndarray]:
-    """User-unit values (``VALUE_KEYS``) of ``model``'s internal vector ``p`` and the gradient
-    matrix (6 keys x parameters) for the delta method; a row of NaN marks a value that does
-    not exist in this model (a cylinder's r2, a sphere's angle)."""
+#: A value's gradient as ``(parameter index, d value / d parameter)`` pairs (at most two are
+#: non-zero); None where the value does not exist in the model.
+Terms = tuple[tuple[int, float], ...] | None
+
+
+def report_terms(model: str, p) -> tuple[dict[str, float | None], tuple[Terms, ...]]:
+    """:func:`report` with the gradient as its non-zero terms per value key (in
+    ``VALUE_KEYS`` order): the tracker takes the delta method term by term on every frame,
+    where a dense 6 x k matrix costs a dozen numpy calls."""
     if model == "cylinder":
         r, f = math.exp(p[0]), math.exp(p[2])
         vals = {"x_mm": float(p[3]), "y_mm": float(p[4]), "force_n": f, "r1_mm": r,
                 "r2_mm": None, "angle_deg": wrap_deg(p[1])}
-        g = np.zeros((6, 5))
-        g[0, 3] = 1.0
-        g[1, 4] = 1.0
-        g[2, 2] = f
-        g[3, 0] = r
-        g[4, :] = np.nan
-        g[5, 1] = 180.0 / math.pi
-        return vals, g
+        return vals, (((3, 1.0),), ((4, 1.0),), ((2, f),), ((0, r),), None,
+                      ((1, 180.0 / math.pi),))
     if model == "sphere":
         r, f = math.exp(p[0]), math.exp(p[1])
         vals = {"x_mm": float(p[2]), "y_mm": float(p[3]), "force_n": f, "r1_mm": r,
                 "r2_mm": r, "angle_deg": None}
-        g = np.zeros((6, 4))
-        g[0, 2] = 1.0
-        g[1, 3] = 1.0
-        g[2, 1] = f
-        g[3, 0] = r
-        g[4, 0] = r
-        g[5, :] = np.nan
-        return vals, g
+        return vals, (((2, 1.0),), ((3, 1.0),), ((1, f),), ((0, r),), ((0, r),), None)
     if model != "general":
         raise ValueError(f"unknown model {model!r}; choose one of {sorted(PARAMS)}")
     ra, beta, f = math.exp(p[0]), float(p[1]), math.exp(p[3])
     b2 = beta * beta
-    g = np.zeros((6, 6))
-    g[0, 4] = 1.0
-    g[1, 5] = 1.0
-    g[2, 3] = f
     psi = float(p[2])
+    t_r1: Terms
+    t_r2: Terms
     if b2 <= 1.0:
         # r1 = R_a, r2 = R_a / beta^2 (inf for beta = 0)
         r1 = ra
         r2 = ra / b2 if b2 > 0.0 else None
-        g[3, 0] = ra
-        if r2 is not None:
-            g[4, 0] = r2
-            g[4, 1] = -2.0 * r2 / beta
-        else:
-            g[4, :] = np.nan
+        t_r1 = ((0, ra),)
+        t_r2 = None if r2 is None else ((0, r2), (1, -2.0 * r2 / beta))
     else:
         # axes swapped: the R2 axis is perpendicular to the fitted psi
         r1 = ra / b2
         r2 = ra
-        g[3, 0] = r1
-        g[3, 1] = -2.0 * r1 / beta
-        g[4, 0] = ra
+        t_r1 = ((0, r1), (1, -2.0 * r1 / beta))
+        t_r2 = ((0, ra),)
         psi += 0.5 * math.pi
-    g[5, 2] = 180.0 / math.pi
     vals = {"x_mm": float(p[4]), "y_mm": float(p[5]), "force_n": f, "r1_mm": r1,
             "r2_mm": r2, "angle_deg": wrap_deg(psi)}
+    return vals, (((4, 1.0),), ((5, 1.0),), ((3, f),), t_r1, t_r2, ((2, 180.0 / math.pi),))
+
+
+def report(model: str, p: np.ndarray) -> tuple[dict[str, float | None], np.ndarray]:
+    """User-unit values (``VALUE_KEYS``) of ``model``'s internal vector ``p`` and the gradient
+    matrix (6 keys x parameters) for the delta method; a row of NaN marks a value that does
+    not exist in this model (a cylinder's r2, a sphere's angle)."""
+    vals, terms = report_terms(model, p)
+    g = np.zeros((len(VALUE_KEYS), len(PARAMS[model])))
+    for row, t in zip(g, terms):
+        if t is None:
+            row[:] = np.nan
+        else:
+            for j, d in t:
+                row[j] = d
     return vals, g

@@ -51,8 +51,10 @@ from tactiled.fit.params import (
     UNOBSERVABLE_RELATIVE_SIGMA,
     VALUE_KEYS,
     radius_tied_force,
-    report,
+    report_terms,
 )
+
+_I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
 
 #: The linearity test's threshold: the chi^2 (dof n - k) quantile a frame of the contact
 #: exceeds once in ~3.5 million (a normal deviate of 5, through Wilson-Hilferty).
@@ -191,6 +193,9 @@ class Tracker:
         self._eframes = 0
         self._edt = 0.0
         self._corr: np.ndarray | None = None
+        self._corr_rows: list[list[float]] = []
+        self._sys_rows: list[list[float]] | None = None
+        self._judged_memo: tuple[dict[str, Any], Any] | None = None
         self._lin_sd: list[float] | None = None  # the state's spread when linearised
 
     @property
@@ -238,6 +243,9 @@ class Tracker:
         self._corr = lin.cov / np.outer(sd, sd)
         sys = lin.systematic + (zero_var / (lin.sigma * lin.sigma)) * lin.cov
         self._sys = sys if np.any(sys) else None
+        # ... as nested lists, for the estimate's term-by-term delta method
+        self._corr_rows = self._corr.tolist()
+        self._sys_rows = None if self._sys is None else self._sys.tolist()
         self._rate_of = [(i, _RATE_OF[n], n) for i, n in enumerate(names) if n in _RATE_OF]
         self._lin_sd = None if self.x is None else [math.sqrt(p) for p in self.pxx]
 
@@ -461,28 +469,41 @@ class Tracker:
             pxx = [p + dt * (2.0 * c + dt * w) for p, c, w in zip(self.pxx, self.pxv, self.pvv)]
         else:
             x, pxx = self.x, self.pxx
-        values, grad = report(self.model, x)
+        values, terms = report_terms(self.model, x)
         pxx = self._with_lag(pxx)
-        with np.errstate(over="ignore", invalid="ignore"):  # a runaway value: inf, withheld
-            gs = grad * np.sqrt(np.array(pxx) * self.excess)  # the state's covariance
-            var_a = (gs @ self._corr) * gs
-            if self._sys is not None:
-                var_a += (grad @ self._sys) * grad
-            var = var_a.sum(axis=1).tolist()
-            # the force and the radius together: a force resting on a radius the frames do not
-            # resolve is withheld, as the fitter withholds it in one frame
-            i_f, i_r = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
-            cov_rf = float((gs[i_r] @ self._corr) @ gs[i_f])
-            if self._sys is not None:
-                cov_rf += float(grad[i_r] @ self._sys @ grad[i_f])
+        # The delta method term by term (a value rests on one or two parameters): the
+        # state's covariance is sd_a sd_b corr_ab (the filters' variances, the single
+        # frame's correlation) plus the systematic part.  Plain floats: a runaway value
+        # overflows to inf (withheld) without a warning.
+        excess = self.excess
+        sd = [math.sqrt(q) if q >= 0.0 else math.nan for q in (p * excess for p in pxx)]
+        corr, sys = self._corr_rows, self._sys_rows
+
+        def cov(ta: tuple[tuple[int, float], ...] | None,
+                tb: tuple[tuple[int, float], ...] | None) -> float:
+            if ta is None or tb is None:
+                return math.nan
+            total = 0.0
+            for a, ga in ta:
+                row, gsa = corr[a], ga * sd[a]
+                for b, gb in tb:
+                    total += gsa * (gb * sd[b]) * row[b]
+                    if sys is not None:
+                        total += ga * gb * sys[a][b]
+            return total
+
+        var = [cov(t, t) for t in terms]
+        # the force and the radius together: a force resting on a radius the frames do not
+        # resolve is withheld, as the fitter withholds it in one frame
+        i_f, i_r = _I_FORCE, _I_R1
+        cov_rf = cov(terms[i_r], terms[i_f])
         out = dict(base)
-        reasons = dict(base.get("reasons") or {})
+        soft_keys, soft_reasons, base_reasons, base_std = self._judged(base)
+        reasons = dict(base_reasons)
         std: dict[str, float | None] = {}
-        base_std = base.get("std") or {}
         for i, key in enumerate(VALUE_KEYS):
-            v = values.get(key)
-            soft = base.get(key) is not None or str(reasons.get(key, "")).startswith(_SOFT)
-            if not soft or v is None or not math.isfinite(var[i]):
+            v = values[key]
+            if not soft_keys[i] or v is None or not math.isfinite(var[i]):
                 # not in this model, or withheld by the fit for what frames do not change (a
                 # line contact's radius): stays as the fit said
                 out[key] = base.get(key)
@@ -497,7 +518,7 @@ class Tracker:
                 reasons[key] = withheld
                 continue
             out[key], std[key] = v, sd_i
-            if str(reasons.get(key, "")).startswith(_SOFT):
+            if soft_reasons[i]:
                 del reasons[key]
         rates, rate_sd = self._rates(values, reasons)
         out.update(rates)
@@ -506,6 +527,22 @@ class Tracker:
         out["reasons"] = reasons
         out["frames_used"] = self.n
         return out
+
+    def _judged(self, base: dict[str, Any]) -> tuple[list[bool], list[bool], dict[str, Any],
+                                                       dict[str, Any]]:
+        """What of ``base`` (the fit the estimates rest on) the tracker judges again, per value
+        key: a value the fit gave, or withheld for a reason the frames gathered since may
+        lift (``_SOFT``); which of those reasons to drop once lifted; the fit's reasons and
+        1-sigma.  Kept while the same fit dict is the base (every frame of a contact)."""
+        memo = self._judged_memo
+        if memo is not None and memo[0] is base:
+            return memo[1]
+        reasons = base.get("reasons") or {}
+        why = [str(reasons.get(key, "")).startswith(_SOFT) for key in VALUE_KEYS]
+        soft = [base.get(key) is not None or w for key, w in zip(VALUE_KEYS, why)]
+        judged = (soft, why, reasons, base.get("std") or {})
+        self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
+        return judged
 
     def _with_lag(self, pxx: list[float]) -> list[float]:
         """``pxx`` with each moving parameter's lag behind the truth added, where its
