@@ -1,4 +1,4 @@
-"""A thread that empties a serial port's kernel buffer as soon as bytes arrive.
+"""A reader that empties a serial port's kernel buffer as soon as bytes arrive, in a thread.
 
 Why a thread, when asyncio can watch the descriptor (``loop.add_reader``)?  Because a tty
 buffers little: a pseudo-terminal about 15 KB, a USB CDC-ACM port some 64 KB, that is 0.1 to
@@ -6,10 +6,13 @@ buffers little: a pseudo-terminal about 15 KB, a USB CDC-ACM port some 64 KB, th
 that loop longer than this loses frames at the device, and the loop also serves 50
 WebSocket subscribers, runs garbage collection and waits for the CPU behind other processes:
 the 10-minute soak (docs/performance/reliability.md) saw it wake up to 1.5 s late and lose 1.5-4 % of
-the frames on full ptys.  This thread does nothing but ``read``: it sleeps in ``select``
+the frames on full ptys.  The thread does nothing but ``read``: it sleeps in ``poll``
 (without the GIL), is woken by the kernel as bytes arrive, takes the GIL for a few
 microseconds to copy them into memory, and so drains the port whatever the loop is busy with
-(it waits at most the interpreter's switch interval, 5 ms, for the GIL).  Decoding stays on
+(it waits at most the interpreter's switch interval, 5 ms, for the GIL).  Every port with a
+descriptor is read by one thread of the process
+(:class:`~tactiled_drivers.read_thread.ReadThread`: a hand's six ports in one wake, at most
+every millisecond); a port without one (not POSIX) gets a thread of its own.  Decoding stays on
 the loop, which takes everything read so far in one piece when it gets round to it.
 
 The memory it holds is bounded and allocated once: a ring of ``limit`` bytes (4 MiB by
@@ -31,14 +34,15 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
-import select
 import threading
 import time
 from collections import deque
 
 import serial
 
+from tactiled_drivers import read_thread
 from tactiled_drivers.futures import resolve
+from tactiled_drivers.read_thread import ReadThread
 
 log = logging.getLogger(__name__)
 
@@ -85,27 +89,63 @@ class PortReader:
         self._waiter: asyncio.Future[None] | None = None
         self._room = threading.Event()
         self._room.set()
-        self._thread = threading.Thread(target=self._run, daemon=True,
-                                        name=f"tactiled-read {port.port}")
-        self._thread.start()
+        #: the process's read thread (a port with a descriptor), else a thread of its own
+        self._shared: ReadThread | None = None
+        self._thread: threading.Thread | None = None
+        if self._fd is not None:
+            self._shared = read_thread.register(self)
+        else:
+            self._thread = threading.Thread(target=self._run, daemon=True,
+                                            name=f"tactiled-read {port.port}")
+            self._thread.start()
+
+    @property
+    def fd(self) -> int:
+        """The port's descriptor (a reader of the shared read thread has one)."""
+        assert self._fd is not None
+        return self._fd
+
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop:
+        """The event loop :meth:`take` runs on."""
+        return self._loop
+
+    @property
+    def full(self) -> bool:
+        """The ring holds ``limit`` bytes: nothing more is read until the loop takes some."""
+        return not self._room.is_set()
 
     # -- the thread ---------------------------------------------------------------------------
 
+    def drain_ready(self) -> asyncio.Future[None] | None:
+        """(The read thread's call.)  The port is readable: read what it holds into the
+        ring.  Returns the waiting :meth:`take` to wake, if any.  Raises the port's error."""
+        if self._stopping:
+            return None
+        return self._drain(0)
+
+    def failed(self, err: BaseException) -> asyncio.Future[None] | None:
+        """(The read thread's call.)  Reading raised ``err``: it goes to the consumer after
+        the bytes read before it, and this reader ends.  Returns the take to wake."""
+        if not isinstance(err, (serial.SerialException, OSError)):
+            log.error("reader of %s failed", self._port.port, exc_info=err)
+            self._fail(err)
+        elif not self._stopping:  # the device went away
+            self._fail(err)
+        return self._end()
+
     def _run(self) -> None:
+        """A port without a descriptor, in a thread of its own: pyserial's blocking reads."""
         port = self._port
-        abort = getattr(port, "pipe_abort_read_r", None)
         try:
             while not self._stopping:
                 if not self._room.is_set():  # at the limit: let the kernel buffer hold it
                     self._room.wait()
                     continue
-                if self._fd is not None and isinstance(abort, int):
-                    pending = self._wait(self._fd, abort)
-                else:
-                    pending = self._read_one()
+                pending = self._read_one()
                 if pending is None:  # cancelled by stop()
                     continue
-                self._drain(pending)
+                self._wake(self._drain(pending))
         except (serial.SerialException, OSError) as err:  # the device went away
             if not self._stopping:
                 self._fail(err)
@@ -113,18 +153,7 @@ class PortReader:
             log.exception("reader of %s failed", port.port)
             self._fail(err)
         finally:
-            self._finish()
-
-    def _wait(self, fd: int, abort: int) -> int | None:
-        """Sleep in ``select`` (without the GIL) until the device has bytes (0: none read
-        yet) or :meth:`stop` cancels (None).  pyserial's own ``read(1)`` does the same and
-        more (a timeout object, a one-byte read, then an ``in_waiting`` ioctl for the rest):
-        at 1000 wakes a second per finger that was ~50 us of Python each."""
-        ready, _, _ = select.select((fd, abort), (), ())
-        if abort in ready:
-            os.read(abort, 1000)  # pyserial's cancel_read() wrote here
-            return None
-        return 0
+            self._wake(self._end())
 
     def _read_one(self) -> int | None:
         """A port without a descriptor (not POSIX): block in pyserial's ``read(1)``; the byte
@@ -136,16 +165,17 @@ class PortReader:
         self._ring[pos] = data[0]
         return 1
 
-    def _drain(self, pending: int) -> None:
+    def _drain(self, pending: int) -> asyncio.Future[None] | None:
         """Read what the device holds into the ring after ``pending`` bytes of this wake, and
         commit them (made the loop's, one mark per piece); a mark never crosses the ring's end
-        nor TAKE_LIMIT.  ``pending`` 0: ``select`` said readable, so the first read must
-        return something."""
+        nor TAKE_LIMIT.  ``pending`` 0: ``poll`` said readable, so the first read must
+        return something.  Returns the waiting take to wake, if any."""
         woke = pending == 0
+        waiter = None
         while not self._stopping:
             pos, room = self._room_at(pending)
             if pending and (pos == 0 or pending >= TAKE_LIMIT):
-                self._commit(pending)
+                waiter = self._commit(pending) or waiter
                 pending = 0
                 continue
             n = min(room, TAKE_LIMIT - pending)
@@ -161,7 +191,8 @@ class PortReader:
             if got < n:
                 break  # the kernel had no more: back to waiting
         if pending:
-            self._commit(pending)
+            waiter = self._commit(pending) or waiter
+        return waiter
 
     def _room_at(self, pending: int) -> tuple[int, int]:
         """Where the byte after ``pending`` uncommitted ones goes in the ring, and how many
@@ -186,7 +217,7 @@ class PortReader:
         self._ring[pos:pos + len(data)] = data
         return len(data)
 
-    def _commit(self, n: int) -> None:
+    def _commit(self, n: int) -> asyncio.Future[None] | None:
         now = time.monotonic()
         with self._lock:
             self._written += n
@@ -196,17 +227,18 @@ class PortReader:
             if held >= self.limit:
                 self._room.clear()
             waiter, self._waiter = self._waiter, None
-        self._wake(waiter)
+        return waiter
 
     def _fail(self, err: BaseException) -> None:
         with self._lock:
             self._error = err
 
-    def _finish(self) -> None:
+    def _end(self) -> asyncio.Future[None] | None:
+        """Nothing more will be read; returns the waiting take to wake."""
         with self._lock:
             self._ended = True
             waiter, self._waiter = self._waiter, None
-        self._wake(waiter)
+        return waiter
 
     def _wake(self, waiter: asyncio.Future[None] | None) -> None:
         if waiter is None:
@@ -240,8 +272,11 @@ class PortReader:
                         end, self.arrival = marks.popleft()
                     piece = bytes(self._view[pos:pos + end - start])
                     self._taken = end
-                    if end - start and self._written - end < self.limit:
+                    if (end - start and self._written - end < self.limit
+                            and not self._room.is_set()):
                         self._room.set()
+                        if self._shared is not None and not self._stopping:
+                            self._shared.resume(self)
                     return piece
                 if self._error is not None:
                     err, self._error = self._error, None
@@ -262,14 +297,22 @@ class PortReader:
         was read and then ``b""``.  The port stays open: the caller closes it."""
         self._stopping = True
         self._room.set()
-        try:
-            self._port.cancel_read()
-        except (OSError, serial.SerialException, AttributeError):
-            pass  # the port is already closed: its read has failed or will
-        self._thread.join(JOIN_TIMEOUT)
-        if self._thread.is_alive():
-            log.warning("reader thread of %s did not stop within %g s", self._port.port,
-                        JOIN_TIMEOUT)
+        if self._shared is not None:
+            if not self._shared.remove(self, JOIN_TIMEOUT):
+                log.warning("the read thread did not let go of %s within %g s",
+                            self._port.port, JOIN_TIMEOUT)
+            with self._lock:
+                self._ended = True
+        else:
+            assert self._thread is not None
+            try:
+                self._port.cancel_read()
+            except (OSError, serial.SerialException, AttributeError):
+                pass  # the port is already closed: its read has failed or will
+            self._thread.join(JOIN_TIMEOUT)
+            if self._thread.is_alive():
+                log.warning("reader thread of %s did not stop within %g s", self._port.port,
+                            JOIN_TIMEOUT)
         with self._lock:
             waiter, self._waiter = self._waiter, None
         if waiter is not None:
@@ -282,5 +325,8 @@ class PortReader:
 
     @property
     def alive(self) -> bool:
-        """True while the thread runs."""
+        """True while the port is read (until :meth:`stop` or its error)."""
+        if self._shared is not None:
+            return not self._ended and self._shared.alive
+        assert self._thread is not None
         return self._thread.is_alive()

@@ -4,8 +4,9 @@ URL parameters: ``baud`` (bits/s, default 1000000; ignored by USB CDC-ACM device
 ``exclusive`` (default 1: take an ``flock`` on the port so a second daemon cannot interleave
 reads with ours).
 
-**Reads in a thread of its own** (:class:`~tactiled_drivers.port_reader.PortReader`): it
-sleeps in ``select`` until bytes arrive and moves them into memory at once, and the event loop
+**Read in a thread** (:class:`~tactiled_drivers.port_reader.PortReader`; one thread reads
+every port of the process, :mod:`tactiled_drivers.read_thread`): it sleeps in ``poll`` until
+bytes arrive and moves them into memory at once, and the event loop
 takes them from there (``await``, so read timeouts and shutdown are ordinary cancellation).
 An earlier version read in the event loop (``loop.add_reader``, no thread); the soak showed why
 that is not enough: a tty buffers 0.1-0.4 s of a 1 kHz finger, and the loop, which also serves

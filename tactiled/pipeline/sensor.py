@@ -76,6 +76,8 @@ from tactiled.sources import FrameSource, open_source
 log = logging.getLogger(__name__)
 
 RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing source
+#: Longest a sensor handles one read's frames before it lets the loop's other tasks run (s).
+SLICE_S = 0.01
 
 
 #: The daemon withholds a radius whose Cramer-Rao bound exceeds half of it ("force too low
@@ -290,15 +292,22 @@ class SensorPipeline(ContactTracking):
                 delay = RETRY_MIN
                 async with contextlib.aclosing(self.source.frame_batches()) as batches:
                     async for batch in batches:  # the frames of one read
+                        began = time.monotonic()
                         for frame in batch:
                             before = self._waiting
                             self.on_frame(frame)
                             if self.lossless:
                                 await self.wait_settled()
-                            elif self._fit_due(before):
+                                continue
+                            if self._fit_due(before):
                                 # the pool sends it now, not after the rest of this read's
                                 # frames and the other sensors' reads the loop holds
                                 self.pool.dispatch_now()
+                            if time.monotonic() - began > SLICE_S:
+                                # a read of many frames (after a stall): the other sensors
+                                # and the fit results get the loop between slices of it
+                                await asyncio.sleep(0)
+                                began = time.monotonic()
                 break  # the stream ended (a replay finished)
             except DriverError as err:
                 # A device that failed to open or vanished: it may come back, so retry.

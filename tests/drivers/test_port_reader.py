@@ -223,3 +223,68 @@ def test_limit_must_be_positive(pty_device) -> None:
             port.close()
 
     asyncio.run(main())
+
+
+def test_every_port_is_read_by_one_thread_that_wakes_each_loop_once(tmp_path) -> None:
+    """Three ports, one read thread: bytes written to all three at once are read in one wake
+    of it (one poll over every port), each port's bytes arriving whole and in order; the
+    thread ends when the last port stops."""
+    from conftest import PtyDevice
+
+    from tactiled_drivers import read_thread
+
+    devices = [PtyDevice(tmp_path / f"tty{i}") for i in range(3)]
+
+    async def main() -> None:
+        ports = [open_port(d.path) for d in devices]
+        readers = [PortReader(p) for p in ports]
+        try:
+            names = [t.name for t in threading.enumerate() if t.name.startswith("tactiled-read")]
+            assert names == ["tactiled-read"], names
+            thread = readers[0]._shared
+            assert thread is not None and all(r._shared is thread for r in readers)
+            await asyncio.sleep(0.05)
+            # held in the kernel while the thread is asleep in its interval, then one wake
+            # takes all three: the interval is long enough to write them all first
+            thread.interval = 0.2
+            before = thread.wakes
+            for i, d in enumerate(devices):
+                d.write(bytes([i + 1]) * 100)
+            got = await asyncio.gather(*(take_all(r, 100) for r in readers))
+            assert got == [bytes([i + 1]) * 100 for i in range(3)]
+            assert thread.wakes - before <= 2  # (the first may have been the interval's end)
+            thread.interval = read_thread.READ_INTERVAL_S
+        finally:
+            for r in readers:
+                r.stop()
+            for p in ports:
+                p.close()
+        assert not any(t.name == "tactiled-read" for t in threading.enumerate())
+
+    try:
+        asyncio.run(main())
+    finally:
+        for d in devices:
+            d.close()
+
+
+def test_a_full_ring_is_not_polled_until_the_loop_takes(pty_device) -> None:
+    """At its limit a port leaves the poll (its bytes wait in the kernel): the read thread
+    sleeps, rather than waking at every interval to find no room."""
+
+    async def main() -> None:
+        with reading(pty_device.path, limit=4096) as (_port, reader):
+            writer = Writer(pty_device.master, PAYLOAD, deadline=5.0)
+            writer.start()
+            time.sleep(0.2)  # (the loop is stuck: the ring fills)
+            assert reader.full
+            thread = reader._shared
+            assert thread is not None
+            before = thread.wakes
+            time.sleep(0.3)
+            assert thread.wakes - before <= 2, thread.wakes - before  # 300 if it spun
+            got = await take_all(reader, len(PAYLOAD))
+            writer.join()
+            assert got == PAYLOAD
+
+    asyncio.run(main())

@@ -123,14 +123,14 @@ MUTATIONS = [
   "        self._buf = bytearray(chunks.pop())\n        self._check_bound()\n",
   ["tests/reliability/test_decoder_fuzz.py::"
    "test_an_oversize_tail_after_a_good_frame_is_not_a_resync"]),
- ("M28 (bug 9) the port is read only when the event loop asks", "drivers/tactiled_drivers/port_reader.py",
-  "        ready, _, _ = select.select((fd, abort), (), ())",
-  "        while self._waiter is None and not self._stopping:\n"
-  "            threading.Event().wait(0.001)\n"
-  "        ready, _, _ = select.select((fd, abort), (), ())",
+ ("M28 (bug 9) the port is read only when the event loop asks", "drivers/tactiled_drivers/read_thread.py",
+  "                    waiter = reader.drain_ready()",
+  "                    while reader._waiter is None and not reader._stopping:\n"
+  "                        threading.Event().wait(0.001)\n"
+  "                    waiter = reader.drain_ready()",
   ["tests/drivers/test_port_reader.py::test_drains_the_device_while_the_event_loop_is_stuck"]),
- ("M29 the reader thread's memory is unbounded", "drivers/tactiled_drivers/port_reader.py",
-  "            if held >= self.limit:", "            if False:",
+ ("M29 the reader thread reads into its ring over bytes not yet taken", "drivers/tactiled_drivers/port_reader.py",
+  "        free = self.limit - (at - self._taken)", "        free = self.limit",
   ["tests/drivers/test_port_reader.py::test_stops_reading_at_its_limit_and_loses_nothing"]),
  ("M30 (bug 10) the service leaves its collector to its thresholds", "tactiled/heap.py",
   "        await asyncio.sleep(period_s)\n        gc.collect()",
