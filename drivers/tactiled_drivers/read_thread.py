@@ -144,13 +144,17 @@ class ReadThread:
                     wake.setdefault(reader.loop, []).append(waiter)
             for loop, waiters in wake.items():
                 self._wake_loop(loop, waiters)
-            rest = self.interval - (time.monotonic() - began)
-            if rest > 0.0:
-                time.sleep(rest)
+            self._pause(self.interval - (time.monotonic() - began))
 
     def _wait(self) -> list[tuple[int, int]]:
         """Sleep in ``poll`` (without the GIL) until a port has bytes or a request came."""
         return self._poll.poll()
+
+    @staticmethod
+    def _pause(seconds: float) -> None:
+        """Sleep out the rest of the interval (the ports' bytes wait in the kernel)."""
+        if seconds > 0.0:
+            time.sleep(seconds)
 
     @staticmethod
     def _wake_loop(loop: asyncio.AbstractEventLoop, waiters: list[asyncio.Future[None]]) -> None:

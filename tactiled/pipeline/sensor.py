@@ -212,6 +212,8 @@ class SensorPipeline(ContactTracking):
         #: (strain on the whole array, window mask) of the tracker's linearisation: what the
         #: zeroer follows drift around while the contact is held (_follow_drift)
         self._drift_ref: tuple[np.ndarray, np.ndarray] | None = None
+        #: (flat indices outside the linearisation's window, its strain there)
+        self._outside: tuple[np.ndarray, np.ndarray] | None = None
         self._lin_asked_t = -math.inf  # device time (s) a relinearisation was last asked for
         self._settled = asyncio.Event()
         self._task: asyncio.Task[None] | None = None

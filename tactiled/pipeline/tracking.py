@@ -106,12 +106,11 @@ class ContactTracking:
         """Outside the tracked contact's window, a tactel stands above what the contact
         explains there by more than any noise does: another contact (the tracker measures the
         window only, so a fit must say what the frame holds now)."""
-        ref = self._drift_ref
+        ref = self._outside
         if ref is None:
             return False
-        predicted, window = ref
-        outside = strain[~window] - predicted[~window]
-        return bool(outside.size) and float(outside.max()) > self._elsewhere_strain
+        index, predicted = ref
+        return float((strain.ravel()[index] - predicted).max()) > self._elsewhere_strain
 
     def _reuse_unchanged(self, w: _Waiting) -> bool:
         """With nothing to track (the contact's last fit could not place it: a frame at the
@@ -204,7 +203,7 @@ class ContactTracking:
         self._last_fit = None
         self._warm = None
         self._base = self._base_seq = None
-        self._drift_ref = None
+        self._drift_ref = self._outside = None
         self.superseded += len(self._pending)
         self._pending.clear()
         if self._waiting is not None:
@@ -311,11 +310,16 @@ class ContactTracking:
         False when a relinearisation no longer fits the contacts held (nothing changes)."""
         if not self.tracker.adopt(lin, self._zero_var(), fit):
             return False
-        self._drift_ref = None
+        self._drift_ref = self._outside = None
         if lin.predicted is not None:
             window = np.zeros(lin.predicted.size, dtype=bool)
             window[lin.index] = True
             self._drift_ref = (lin.predicted, window.reshape(lin.predicted.shape))
+            # (the tactels outside the window, and what the contact gives there: each frame
+            # is tested there by _pressed_elsewhere)
+            index = np.flatnonzero(~window)
+            if index.size:
+                self._outside = (index, lin.predicted.ravel()[index])
         return True
 
     def _follow_drift(self, w: _Waiting, fitted: bool = False) -> None:
