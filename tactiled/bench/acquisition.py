@@ -512,7 +512,7 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
         return None if not per or None in per else sum(per)  # type: ignore[arg-type]
 
     def cpu() -> dict[str, float | None]:
-        return {"daemon": time.process_time(),  # this process: the loop and the reader threads
+        return {"daemon": time.process_time(),  # this process: the loop and the serial read thread
                 "workers": total([p for p in daemon.pool.pids() if p is not None]),
                 "simulators": total(sim_pids)}
 
@@ -557,7 +557,7 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
 
 async def _cpu_windows(daemon: Daemon, seconds: float, step: float = 1.0) -> list[tuple[float, float, int]]:
     """Sleep ``seconds``, noting every ``step`` s the daemon's main process's CPU (this
-    process: its loop and the serial reader threads; not its fit workers) and the frames its
+    process: its loop and the serial read thread; not its fit workers) and the frames its
     sensors handled: ``(seconds, CPU seconds, frames)`` per window."""
     out = []
     end = time.monotonic() + seconds
@@ -921,7 +921,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
               "published estimate.  fit_ms: the fitter's own time per fit in the worker (wall).  'auto kept the "
               "model': own fits where auto refitted only the previous frame's model, warm (one model, not three).  "
               "CPU over the measured window in % of one core: the daemon's main process (event loop and serial "
-              "reader threads), its fit workers, the simulators.  'Fingers locked in contact': fingers "
+              "read thread), its fit workers, the simulators.  'Fingers locked in contact': fingers "
               f"that published 'no contact' for under {100 * LOCKED_SHARE:g} % of the frames the scene leaves "
               "untouched (a release residual or drift held the detector on, docs/howto/calibration.md): their phantom contact frames "
               "count here, so such a run says little of the fitting."]
@@ -947,7 +947,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
               "measurement included), less those only predicted; target >= 99 %.  Contacts reported: the "
               "estimates' `contacts` lists' lengths where they carry one, else their top-level contact (0 or "
               "1).  Main process CPU per frame: the CPU time of the daemon's main process (its event loop and "
-              "serial reader threads, not its fit workers) in each window of about a second, divided by the "
+              "serial read thread, not its fit workers) in each window of about a second, divided by the "
               "frames all its sensors handled in that window; target <= 40 us at the median."]
     # -- accuracy
     if scene != HAND:

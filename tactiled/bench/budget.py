@@ -2,7 +2,7 @@
 
 Record a running acquisition bench with py-spy (``--format raw``: one collapsed stack per
 line, its sample count last) and split the samples of the daemon's main process (the event
-loop and the serial reader threads, not its fit workers nor the simulators) by pipeline stage::
+loop and the serial read thread, not its fit workers nor the simulators) by pipeline stage::
 
     py-spy record --subprocesses --nonblocking --format raw -r 250 -o prof.txt -- \\
         tactiled bench --suite acquisition --scene hand --seconds 15 --sim-nice 10

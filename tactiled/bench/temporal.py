@@ -281,7 +281,7 @@ def cost(quick: bool, progress) -> str:
                      f"{100 * shown:.1f} % | {int(v['superseded'])} | {p50:.2f} / {p99:.2f} |")
     lines += ["", f"The ``moving`` scene: three simulated fingers at 1 kHz over real ptys (the "
               f"acquisition bench's set-up), 2 fit workers, {seconds:g} s measured twice per "
-              "setting, alternating.  The daemon's CPU counts its loop and reader threads, not "
+              "setting, alternating.  The daemon's CPU counts its loop and serial read thread, not "
               "the simulators.  'contact frames answered': estimates in contact over those plus "
               "the frames superseded (given up unanswered).  Bar (issue 17): no more than 1.5x "
               "the untracked daemon's CPU per frame."]
