@@ -208,6 +208,23 @@ def pty_device(tmp_path: Path) -> Iterator[PtyDevice]:
         device.close()
 
 
+@pytest.fixture
+def pty_devices(tmp_path: Path) -> Iterator[Callable[[str], PtyDevice]]:
+    """Makes plugged :class:`PtyDevice` s, ``make(name)`` at ``tmp_path/name``; all closed
+    after the test."""
+    made: list[PtyDevice] = []
+
+    def make(name: str) -> PtyDevice:
+        made.append(PtyDevice(tmp_path / name))
+        return made[-1]
+
+    try:
+        yield make
+    finally:
+        for device in made:
+            device.close()
+
+
 # --------------------------------------------------------------------------------------------
 # One suite, every source that can be made to deliver given frames
 

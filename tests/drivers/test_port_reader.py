@@ -225,15 +225,13 @@ def test_limit_must_be_positive(pty_device) -> None:
     asyncio.run(main())
 
 
-def test_every_port_is_read_by_one_thread_that_wakes_each_loop_once(tmp_path) -> None:
+def test_every_port_is_read_by_one_thread_that_wakes_each_loop_once(pty_devices) -> None:
     """Three ports, one read thread: bytes written to all three at once are read in one wake
     of it (one poll over every port), each port's bytes arriving whole and in order; the
     thread ends when the last port stops."""
-    from conftest import PtyDevice
-
     from tactiled_drivers import read_thread
 
-    devices = [PtyDevice(tmp_path / f"tty{i}") for i in range(3)]
+    devices = [pty_devices(f"tty{i}") for i in range(3)]
 
     async def main() -> None:
         ports = [open_port(d.path) for d in devices]
@@ -261,11 +259,7 @@ def test_every_port_is_read_by_one_thread_that_wakes_each_loop_once(tmp_path) ->
                 p.close()
         assert not any(t.name == "tactiled-read" for t in threading.enumerate())
 
-    try:
-        asyncio.run(main())
-    finally:
-        for d in devices:
-            d.close()
+    asyncio.run(main())
 
 
 def test_a_full_ring_is_not_polled_until_the_loop_takes(pty_device) -> None:
