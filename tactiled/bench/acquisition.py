@@ -21,6 +21,7 @@ rate)``, recomputed here without talking to the simulator.
 from __future__ import annotations
 
 import asyncio
+import gc
 import math
 import os
 import pickle
@@ -247,6 +248,9 @@ class RunResult:
     #: the measured window in windows of about a second: (seconds, the daemon's main process's
     #: CPU seconds, frames every sensor handled)
     windows: list[tuple[float, float, int]] = field(default_factory=list)
+    #: the duration (s) of every garbage collection the daemon's process ran in the measured
+    #: window, of any generation
+    gc_s: list[float] = field(default_factory=list)
 
     @property
     def who(self) -> str:
@@ -516,7 +520,18 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
                 "workers": total([p for p in daemon.pool.pids() if p is not None]),
                 "simulators": total(sim_pids)}
 
+    collections: list[float] = []
+    gc_began = [0.0]
+
+    def collected(phase: str, _info: dict[str, Any]) -> None:
+        # in whichever thread collects; a float appended, nothing the collector tracks
+        if phase == "start":
+            gc_began[0] = time.perf_counter()
+        elif counting:
+            collections.append(time.perf_counter() - gc_began[0])
+
     daemon.hub.add_listener(listen)
+    gc.callbacks.append(collected)
     await daemon.start()
     # The heap policy of the process that serves (tactiled run): the start-up heap frozen, a
     # full collection every few seconds.  Without it, CPython's own full collections walked
@@ -544,6 +559,7 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
         cpu1 = cpu()
         elapsed = time.monotonic() - t0
     finally:
+        gc.callbacks.remove(collected)
         gc_task.cancel()
         await asyncio.gather(gc_task, return_exceptions=True)
         await daemon.stop()
@@ -552,7 +568,7 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
     return RunResult(workers, before, after, elapsed,
                      [Seen.from_record(s) for s in seen], used,
                      tares=0 if tarer is None else tarer.tares,
-                     parts=tuple(dev.name for dev in parts), windows=windows)
+                     parts=tuple(dev.name for dev in parts), windows=windows, gc_s=collections)
 
 
 async def _cpu_windows(daemon: Daemon, seconds: float, step: float = 1.0) -> list[tuple[float, float, int]]:
@@ -810,6 +826,16 @@ def cpu_per_frame(result: RunResult) -> dict[str, float | None]:
             "whole_us": None if cpu is None or not frames else 1e6 * cpu / frames}
 
 
+def garbage_collection(result: RunResult) -> dict[str, float | int | None]:
+    """The daemon's process's garbage collections in the measured window: how many, their
+    total and their longest (ms); None where the run did not record them (a baseline's)."""
+    times = getattr(result, "gc_s", None)
+    if times is None:
+        return {"collections": None, "total_ms": None, "max_ms": None}
+    return {"collections": len(times), "total_ms": 1e3 * sum(times),
+            "max_ms": 1e3 * max(times) if times else 0.0}
+
+
 def figures(result: RunResult, scene: str, rate: float) -> dict[str, Any]:
     """Every figure of one run's tables, machine-readable: totals, and per sensor."""
     truth = scene_truth(scene, rate)
@@ -834,6 +860,7 @@ def figures(result: RunResult, scene: str, rate: float) -> dict[str, Any]:
         "cpu_pct_of_a_core": {k: None if v is None else 100.0 * v / result.elapsed
                               for k, v in result.cpu_s.items()},
         "main_process_cpu_per_frame": cpu_per_frame(result),
+        "garbage_collection": garbage_collection(result),
         "locked_in_contact": locked_fingers(result, untouched),
         "total": total, "sensors": sensors,
     }
@@ -936,19 +963,23 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
             lines.append(f"| {r.who} | {name} | {s['contact_frames']} | {_share(s['answered_pct'])} | "
                          f"{s['contacts_reported']} | {s['estimates_with_several_contacts']} | "
                          f"{_num(lat['p50'])} / {_num(lat['p99'])} / {_num(lat['max'])} |")
-    lines += ["", f"| {col} | main process CPU per frame, us: median / p99 of ~1 s windows | whole window | windows |",
-              "|---|---|---|---|"]
+    lines += ["", f"| {col} | main process CPU per frame, us: median / p99 of ~1 s windows | whole window | windows "
+              "| garbage collections: count / total ms / longest ms |",
+              "|---|---|---|---|---|"]
     for r, f in zip(results, figs):
-        c = f["main_process_cpu_per_frame"]
+        c, g = f["main_process_cpu_per_frame"], f["garbage_collection"]
         lines.append(f"| {r.who} | {_num(c['median_us'], '{:.1f}')} / {_num(c['p99_us'], '{:.1f}')} | "
-                     f"{_num(c['whole_us'], '{:.1f}')} | {c['windows']} |")
+                     f"{_num(c['whole_us'], '{:.1f}')} | {c['windows']} | {_num(g['collections'], '{}')} / "
+                     f"{_num(g['total_ms'], '{:.1f}')} / {_num(g['max_ms'], '{:.1f}')} |")
     lines += ["",
               "Answered: the contact frames answered by their own fit or a justified reuse (the tracker's "
               "measurement included), less those only predicted; target >= 99 %.  Contacts reported: the "
               "estimates' `contacts` lists' lengths where they carry one, else their top-level contact (0 or "
               "1).  Main process CPU per frame: the CPU time of the daemon's main process (its event loop and "
               "serial read thread, not its fit workers) in each window of about a second, divided by the "
-              "frames all its sensors handled in that window; target <= 40 us at the median."]
+              "frames all its sensors handled in that window; target <= 40 us at the median.  Garbage "
+              "collections: those the daemon's process ran in the measured window, of any generation "
+              "(the start-up heap is frozen before the run: tactiled.heap)."]
     # -- accuracy
     if scene != HAND:
         lines += ["", "### Accuracy of the streamed estimates against the scene's truth", "",

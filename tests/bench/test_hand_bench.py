@@ -78,12 +78,26 @@ def test_a_short_hand_run_writes_every_figure_of_its_tables_as_json(tmp_path, ta
     c = run["main_process_cpu_per_frame"]
     assert c["windows"] >= 1 and c["median_us"] > 0
     assert cpu[1] == f"{c['median_us']:.1f} / {c['p99_us']:.1f}" and int(cpu[3]) == c["windows"]
+    # the collector's young generations run many times a second in any Python process
+    g = run["garbage_collection"]
+    assert g["collections"] > 0 and g["total_ms"] >= g["max_ms"] > 0
+    assert cpu[4] == f"{g['collections']} / {g['total_ms']:.1f} / {g['max_ms']:.1f}"
     integrity = table_rows(out, "| workers | finger |")
     assert [r[1] for r in integrity] == list(HAND_PARTS)
     for r in integrity:
         s = sensors[r[1]]
         assert int(r[3]) == s["gaps_seen"] and r[5] == str(s["lost_in_acquisition"])
         assert int(r[-1]) == s["unaccounted"]
+
+
+def test_a_run_without_collections_recorded_says_so() -> None:
+    """A baseline's code records no collections: its figures are None, not 0."""
+    from types import SimpleNamespace
+
+    assert acq.garbage_collection(SimpleNamespace()) == {  # type: ignore[arg-type]
+        "collections": None, "total_ms": None, "max_ms": None}
+    assert acq.garbage_collection(SimpleNamespace(gc_s=[0.002, 0.0005])) == {  # type: ignore[arg-type]
+        "collections": 2, "total_ms": pytest.approx(2.5), "max_ms": pytest.approx(2.0)}
 
 
 @pytest.mark.parametrize("argv, message", [
