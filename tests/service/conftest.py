@@ -262,6 +262,3 @@ def arun() -> Callable[[Coroutine[Any, Any, Any]], Any]:
 
     return run
 
-
-def repo_root() -> Path:
-    return Path(__file__).resolve().parents[2]

@@ -7,6 +7,7 @@ The token rule is tested with the other endpoints (test_security.py)."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
@@ -14,7 +15,7 @@ from svc_helpers import http, wait_for
 
 from tactiled_service.metrics import CONTENT_TYPE
 
-from conftest import repo_root
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def scrape(server) -> dict:
@@ -36,7 +37,7 @@ def value(family, name: str, **labels) -> float:
 
 def documented_metrics() -> set[str]:
     """The metric names docs/reference/metrics.md lists in its metrics table."""
-    text = (repo_root() / "docs" / "reference" / "metrics.md").read_text()
+    text = (ROOT / "docs" / "reference" / "metrics.md").read_text()
     return set(re.findall(r"^\| `((?:tactiled|process)_[a-z_]+)`", text, re.MULTILINE))
 
 
