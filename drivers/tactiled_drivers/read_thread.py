@@ -9,9 +9,10 @@ began before it polls again.
 Why one thread and an interval.  A hand is six arrays at 1 kHz: with a thread per port that
 was 6000 wakes a second, each taking the GIL from the event loop for a few microseconds, and
 each waking the loop through its self-pipe.  The handoffs, not the reads, were the cost (the
-hand's runs against the code before this thread: docs/performance/hand.md).  One thread that wakes at most every ``READ_INTERVAL_S`` takes the GIL
-at most 1000 times a second whatever the number of ports, reads every port that has bytes in
-that wake, and wakes each event loop once per wake.  The price is latency: a frame may wait
+hand's runs against the code before this thread: docs/performance/hand.md).  One thread that
+wakes at most every ``READ_INTERVAL_S`` takes the GIL at most 1000 times a second whatever the
+number of ports, reads every port that has bytes in that wake, and wakes each event loop once
+per wake.  The price is latency: a frame may wait
 in the kernel's buffer up to ``READ_INTERVAL_S`` before it is read (and stamped: a frame's
 ``host_time`` is when it was read).
 
