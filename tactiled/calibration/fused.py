@@ -30,12 +30,14 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: np.ndarray,
-               baseline: np.ndarray, peak: np.ndarray, fraction: float, decay: float,
-               floor: float, margin: float, active: bool, ax: np.ndarray, ay_t: np.ndarray,
-               bands: np.ndarray, z: np.ndarray, residual: np.ndarray,
+def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, first: np.ndarray,
+               params: np.ndarray, baseline: np.ndarray, peak: np.ndarray, fraction: float,
+               decay: float, floor: float, margin: float, active: bool, ax: np.ndarray,
+               ay_t: np.ndarray, bands: np.ndarray, z: np.ndarray, residual: np.ndarray,
                tmap: np.ndarray) -> tuple[int, float]:
-    """One frame of raw counts ``raw`` (flat, ``T`` tactels, row-major) into ``z`` (flat):
+    """One frame of raw counts ``raw`` (flat, ``T`` tactels, row-major) into ``z`` (flat),
+    through the table's :class:`~tactiled.calibration.segments.Segments` (``offset``,
+    ``breaks``, ``first``, ``params``):
     linearised, zeroed against ``baseline`` and, with ``fraction`` > 0, compensated for the
     rubber's hysteresis (the compensator's ``peak`` updated in place; its previous peaks
     decayed by ``decay`` = ``exp(-dt / tau)``, 1 for none; ``floor`` = MIN_PEAK_SIGMAS sigma,
@@ -53,8 +55,15 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, params: 
     for t in range(n):
         x = float(raw[t])
         q = x + offset[t]
-        # searchsorted(breaks, q, "right"): the number of breaks <= q
-        lo, hi = 0, nb
+        # searchsorted(breaks, q, "right"): the number of breaks <= q.  A query between its
+        # tactel's sentinel and the next tactel's (any count in the table's domain) is
+        # searched among its tactel's own entries (``first``: where each tactel's begin),
+        # one step or none for a linear table; any other, among all
+        lo, hi = first[t], first[t + 1]
+        if breaks[lo] <= q and (hi == nb or q < breaks[hi]):
+            lo += 1
+        else:
+            lo, hi = 0, nb
         while lo < hi:
             mid = (lo + hi) >> 1
             if breaks[mid] <= q:

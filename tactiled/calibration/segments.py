@@ -68,6 +68,10 @@ class Segments:
                 for t, s in enumerate(starts)
             ]
         )
+        #: where each channel's entries (its sentinel, then its interior breakpoints) begin
+        #: in ``_breaks``, and where the last ends, (T + 1,): the compiled stage searches a
+        #: tactel's own entries only (tactiled.calibration.fused)
+        self._first = np.cumsum([0] + [len(s) for s in starts]).astype(np.int64)
         x0 = np.concatenate([np.asarray(s, dtype=np.float64) for s in starts])
         y0_all = np.concatenate([np.asarray(v, dtype=np.float64) for v in y0])
         # Floor: a segment's own start value, except the first of each channel, which

@@ -82,7 +82,7 @@ class CalibrationStage:
         residual = np.empty(shape) if f > 0.0 else z  # (untouched without compensation)
         tmap = np.empty(det._total.size)
         state, stat = zero_frame(
-            raw.reshape(-1), seg._offset, seg._breaks, seg._params, zr.baseline.reshape(-1),
+            raw.reshape(-1), seg._offset, seg._breaks, seg._first, seg._params, zr.baseline.reshape(-1),
             comp._peak.reshape(-1), f, math.exp(-dt / comp.tau_s) if dt > 0.0 else 1.0,
             MIN_PEAK_SIGMAS * sigma, NOISE_MARGIN * sigma, comp._active,
             det._ax, det._ay_t, det._bands, z.reshape(-1), residual.reshape(-1), tmap)

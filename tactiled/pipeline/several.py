@@ -201,8 +201,8 @@ class ContactTrackers:
             out = [tr.step(strain, t, fitted=True) for tr in self.trackers]
         else:
             measured = []
-            for tr, own in zip(self.trackers, self._windows(strain)):
-                m = tr.measure(own, windowed=True)
+            for tr, (index, at) in zip(self.trackers, self._windows(strain)):
+                m = tr.measure_at(strain, index, at)
                 if m is None:
                     return "refit"
                 measured.append(m)
@@ -211,25 +211,29 @@ class ContactTrackers:
             out = [tr.step(strain, t, measured=m) for tr, m in zip(self.trackers, measured)]
         return "refit" if "refit" in out else "reset" if "reset" in out else "tracked"
 
-    def _windows(self, strain: np.ndarray) -> list[np.ndarray]:
-        """Each contact's window of the frame less the others' strain there now: at their
-        points, and where their own windows overlap it, moved to their filters' states
-        through their Jacobians (outside its own window a contact's strain is taken at its
-        point: it is relinearised as it moves)."""
+    def _windows(self, strain: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """What each contact's filter measures, as :meth:`Tracker.measure_at` takes it
+        (``strain[index] - at``): its window of the frame less its linearisation's strains
+        and the others' strain there now: at their points, and where their own windows
+        overlap it, moved to their filters' states through their Jacobians (outside its own
+        window a contact's strain is taken at its point: it is relinearised as it moves)."""
         out = []
-        for tr, (others, overlaps) in zip(self.trackers, self._cross):
-            own = strain[tr.lin.index] - others
+        for tr, (at, overlaps) in zip(self.trackers, self._cross):
+            if not overlaps:
+                out.append((tr._index, at))
+                continue
+            own = at.copy()
             for j, mine, theirs in overlaps:
                 o = self.trackers[j]
                 if o.x is not None:
-                    own[mine] -= o.lin.jacobian[theirs] @ (np.asarray(o.x) - o.lin.p)
-            out.append(own)
+                    own[mine] += o.lin.jacobian[theirs] @ (np.asarray(o.x) - o.lin.p)
+            out.append((tr._index, own))
         return out
 
     def _cross_terms(self) -> None:
-        """Per contact, what ``_windows`` subtracts: the others' strain at their points on
-        its window, and where another's window overlaps it, ``(j, positions in its window,
-        rows of j's window)``."""
+        """Per contact, what ``_windows`` subtracts: its linearisation's strains plus the
+        others' strain at their points on its window, and where another's window overlaps
+        it, ``(j, positions in its window, rows of j's window)``."""
         self._cross = []
         for i, tr in enumerate(self.trackers):
             idx = tr.lin.index
@@ -242,7 +246,7 @@ class ContactTrackers:
                 _, mine, theirs = np.intersect1d(idx, o.lin.index, return_indices=True)
                 if mine.size:
                     overlaps.append((j, mine, theirs))
-            self._cross.append((others, overlaps))
+            self._cross.append((tr._at + others, overlaps))
 
     def skip(self) -> None:
         for tr in self.trackers:

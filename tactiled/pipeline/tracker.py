@@ -53,6 +53,7 @@ from tactiled.fit.params import (
     radius_tied_force,
     report_terms,
 )
+from tactiled.pipeline.kernels import measure_window
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
 
@@ -231,6 +232,13 @@ class Tracker:
                        self.geometry.rows * self.geometry.cols)
             self._esum, self._ecount = np.zeros(size), np.zeros(size)
         self._ebuf = np.zeros(lin.index.size)
+        # the linearisation as the measuring kernel takes it (contiguous, its dtypes)
+        self._at = np.ascontiguousarray(lin.strain, dtype=np.float64)
+        self._index = np.ascontiguousarray(lin.index, dtype=np.intp)
+        self._in_window = np.arange(lin.index.size, dtype=np.intp)
+        self._gain = np.asarray(lin.gain, dtype=np.float64)
+        self._jacobian = np.asarray(lin.jacobian, dtype=np.float64)
+        self._weight = np.ascontiguousarray(lin.weight, dtype=np.float64)
         self._moving = [n in MOVING for n in names]
         self._logs = [i for i, n in enumerate(names) if n.startswith("ln_")]
         self._bounds = reasonable_bounds(names, self.geometry)
@@ -299,11 +307,15 @@ class Tracker:
         the residual ``J dz`` leaves), or None when the frame needs a fit of its own (outside
         the linear range, or a step no linearisation reaches).  Changes nothing.
         ``windowed``: ``strain`` is the frame at the linearisation's window only."""
-        lin = self.lin
-        d = (strain if windowed else strain[lin.index]) - lin.strain
-        dp = lin.gain @ d
-        e = d - lin.jacobian @ dp
-        if float((e * e) @ lin.weight) > self._limit:
+        frame = np.ascontiguousarray(strain, dtype=np.float64)
+        return self.measure_at(frame, self._in_window if windowed else self._index, self._at)
+
+    def measure_at(self, frame: np.ndarray, index: np.ndarray,
+                   at: np.ndarray) -> tuple[list[float], np.ndarray] | None:
+        """:meth:`measure` of ``frame[index]`` (``frame`` flat, float64) less ``at`` (the
+        linearisation's strains on its window, and whatever else the caller takes out)."""
+        chi2, dp, e = measure_window(frame, index, at, self._gain, self._jacobian, self._weight)
+        if chi2 > self._limit:
             return None
         dz = dp.tolist()
         # A log radius or force moved by more than a factor e from the point: no linear

@@ -22,6 +22,7 @@ import numpy as np
 
 from tactiled.fit.warm import SEVERAL
 from tactiled.pipeline.estimate import GATE_FIT, GATE_NO_CONTACT, GATE_UNCHANGED, Estimate
+from tactiled.pipeline.kernels import largest_excess
 from tactiled.pipeline.tracker import untracked
 
 if TYPE_CHECKING:
@@ -110,7 +111,7 @@ class ContactTracking:
         if ref is None:
             return False
         index, predicted = ref
-        return float((strain.ravel()[index] - predicted).max()) > self._elsewhere_strain
+        return largest_excess(strain.ravel(), index, predicted) > self._elsewhere_strain
 
     def _reuse_unchanged(self, w: _Waiting) -> bool:
         """With nothing to track (the contact's last fit could not place it: a frame at the
@@ -317,9 +318,10 @@ class ContactTracking:
             self._drift_ref = (lin.predicted, window.reshape(lin.predicted.shape))
             # (the tactels outside the window, and what the contact gives there: each frame
             # is tested there by _pressed_elsewhere)
-            index = np.flatnonzero(~window)
+            index = np.flatnonzero(~window).astype(np.intp)
             if index.size:
-                self._outside = (index, lin.predicted.ravel()[index])
+                self._outside = (index, np.ascontiguousarray(lin.predicted.ravel()[index],
+                                                             dtype=np.float64))
         return True
 
     def _follow_drift(self, w: _Waiting, fitted: bool = False) -> None:

@@ -158,3 +158,31 @@ def test_frames_the_kernels_do_not_cover_take_the_reference_path() -> None:
     f = Frame(seq=5, device_time_us=5000, raw=raw)
     stage.process(f)
     assert stage.zeroer.nonfinite_frames == 1 and np.isfinite(f.strain).all() and f.strain[2, 3] == 0.0
+
+
+def test_every_count_maps_as_the_table_does_at_every_segment_and_edge() -> None:
+    """The kernel searches a tactel's own breakpoints: every count of the 16-bit range, at
+    and around each tactel's breakpoints, and beyond them, gives the table's own value."""
+    from tactiled.calibration.fused import zero_frame
+
+    rows, cols = 4, 4
+    table = _table(rows, cols, np.random.default_rng(5))
+    seg = table._forward
+    n = rows * cols
+    counts = [np.arange(0, 65536, 997, dtype=np.int64)]
+    for t in range(n):  # each tactel's breakpoints, and a count either side of each
+        edges = np.round(table._counts[t]).astype(np.int64)
+        counts.append(np.clip(np.concatenate([edges - 1, edges, edges + 1]), 0, 65535))
+    queries = np.concatenate(counts)
+    for q in queries:
+        raw = np.full(n, q, dtype=np.uint16)
+        raw[::3] = 65535 - raw[::3]  # neighbouring tactels far apart in the range
+        z = np.empty(n)
+        ax = np.zeros((1, rows))
+        ay_t = np.zeros((cols, 1))
+        bands = np.zeros((4, 1), dtype=np.int64)
+        state, _ = zero_frame(raw, seg._offset, seg._breaks, seg._first, seg._params,
+                              np.zeros(n), np.zeros(n), 0.0, 1.0, 0.0, 0.0, False, ax, ay_t,
+                              bands, z, z, np.empty(1))
+        assert state == 0
+        np.testing.assert_array_equal(z, seg(raw.astype(np.float64)))

@@ -1,0 +1,66 @@
+"""The tracker's compiled kernels against the numpy arithmetic they replace."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tactiled.pipeline.kernels import largest_excess, measure_window
+
+
+def _case(rng: np.random.Generator, size: int, n: int, k: int):
+    frame = rng.normal(0.0, 1e-3, size)
+    index = np.sort(rng.choice(size, n, replace=False)).astype(np.intp)
+    at = rng.normal(0.0, 1e-3, n)
+    jacobian = rng.normal(0.0, 1.0, (n, k))
+    gain = np.linalg.pinv(jacobian)
+    weight = rng.uniform(0.5, 2.0, n) * 1e6
+    return frame, index, at, gain, jacobian, weight
+
+
+@pytest.mark.parametrize("size,n,k", [(64, 25, 5), (256, 100, 6), (64, 8, 8)])
+def test_measure_window_matches_numpy(size: int, n: int, k: int) -> None:
+    rng = np.random.default_rng(size + n + k)
+    for _ in range(20):
+        frame, index, at, gain, jacobian, weight = _case(rng, size, n, k)
+        d = frame[index] - at
+        dp = gain @ d
+        e = d - jacobian @ dp
+        chi2 = float((e * e) @ weight)
+        got_chi2, got_dp, got_e = measure_window(frame, index, at, gain, jacobian, weight)
+        np.testing.assert_allclose(got_dp, dp, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(got_e, e, rtol=1e-9, atol=1e-15)
+        assert got_chi2 == pytest.approx(chi2, rel=1e-9)
+
+
+def test_measure_window_takes_read_only_frames_and_any_matrix_layout() -> None:
+    """The pipeline's frames are read-only; a linearisation's matrices come back from a worker
+    in whatever layout it pickled them."""
+    rng = np.random.default_rng(3)
+    frame, index, at, gain, jacobian, weight = _case(rng, 64, 30, 5)
+    frame.flags.writeable = False
+    expected = measure_window(frame.copy(), index, at, gain, jacobian, weight)
+    got = measure_window(frame, index, at, np.asfortranarray(gain), jacobian.T.copy().T, weight)
+    assert got[0] == pytest.approx(expected[0], rel=1e-12)
+    np.testing.assert_allclose(got[1], expected[1], rtol=1e-12)
+    np.testing.assert_allclose(got[2], expected[2], rtol=1e-12)
+
+
+def test_measure_window_lets_nan_through_to_the_caller() -> None:
+    """A NaN is the caller's to judge (Tracker.measure refuses a non-finite step): the kernel
+    must not turn it into a number."""
+    rng = np.random.default_rng(4)
+    frame, index, at, gain, jacobian, weight = _case(rng, 64, 20, 5)
+    frame[index[3]] = np.nan
+    chi2, dp, _ = measure_window(frame, index, at, gain, jacobian, weight)
+    assert np.isnan(chi2) and np.isnan(dp).all()
+
+
+def test_largest_excess_matches_numpy() -> None:
+    rng = np.random.default_rng(5)
+    frame = rng.normal(size=256)
+    frame.flags.writeable = False
+    index = np.flatnonzero(rng.random(256) < 0.7).astype(np.intp)
+    expected = rng.normal(size=index.size)
+    assert largest_excess(frame, index, expected) == float((frame[index] - expected).max())
+    assert largest_excess(frame, index[:0], expected[:0]) == -np.inf
