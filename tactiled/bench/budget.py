@@ -9,7 +9,8 @@ loop and the serial read thread, not its fit workers nor the simulators) by pipe
     python -m tactiled.bench.budget prof.txt --frames-per-s 6000 --cpu-share 0.46
 
 ``python -m tactiled.bench.budget --stage`` times the calibration stage alone, compiled and
-reference paths.  A sample belongs to the innermost stage its stack passes through (the detector inside the
+reference paths; ``--replay`` the whole main process on the hand's parts replayed lossless,
+nothing else competing (:func:`replay_cost`).  A sample belongs to the innermost stage its stack passes through (the detector inside the
 calibration stage counts as the detector).  With ``--cpu-share`` (the main process's CPU in
 cores over the window, as the bench's table gives it) and ``--frames-per-s`` the shares become
 microseconds per frame.
@@ -21,6 +22,7 @@ import argparse
 import re
 from collections import Counter
 from collections.abc import Iterable
+from typing import Any
 
 #: Stage -> substrings of a stack frame ``function (file)`` that put a sample in it; matched
 #: from the innermost frame outwards, so the first stage met wins.
@@ -156,6 +158,65 @@ def stage_cost(description: str, scene: str, compiled: bool, frames: int = 300,
     return 1e6 * best
 
 
+#: The hand's parts as :func:`replay_cost` plays them: (sensor name, scene, description).
+HAND_PARTS = (("palm", "hand-palm", "flat16"),
+              *((f"finger{i}", f"hand-finger{i}", "fearing1988") for i in range(1, 6)))
+
+
+def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: int = 4000,
+                workers: int = 2, passes: int = 2) -> list[dict[str, Any]]:
+    """The main process's CPU per frame with nothing else competing: each part's ``frames``
+    frames (its scene from the start, seed 1, at 1 kHz) recorded, then replayed as fast as
+    the daemon takes them, every part at once, lossless (each frame waits for what it
+    needs, so every run does the same work), fitted by ``workers`` worker processes.  The
+    CPU time of this process (the daemon's event loop; replay has no read thread) divided by
+    the frames: unlike the live bench, no device competes for the CPU and no frame is
+    answered late, so two versions of the code compare to a few percent.  One dict per
+    pass (the first loads what the kernels cache): ``us_per_frame``, ``frames``,
+    ``relinearized`` and ``fits`` per part."""
+    import asyncio
+    import tempfile
+    import time
+    from pathlib import Path
+
+    from tactiled.pipeline import Daemon
+    from tactiled.recording import Recorder
+    from tactiled.sensors import load_description
+    from tactiled.settings import load_settings
+    from tactiled.sim import FingerSimulator
+
+    async def play(paths: dict[str, Path]) -> dict[str, Any]:
+        over: dict[str, Any] = {"fit.workers": workers}
+        for i, (name, _scene, description) in enumerate(parts):
+            over[f"sensor[{i}].url"] = f"replay://{paths[name]}?speed=0"
+            over[f"sensor[{i}].name"] = name
+            over[f"sensor[{i}].description"] = description
+        daemon = Daemon(load_settings(None, {}, over), lossless=True)
+        await daemon.start()
+        try:
+            cpu = time.process_time()
+            await daemon.wait_finished(600)
+            cpu = time.process_time() - cpu
+        finally:
+            await daemon.stop()
+        pipes = daemon.sensors
+        total = sum(p.frames for p in pipes.values())
+        return {"us_per_frame": 1e6 * cpu / max(total, 1), "frames": total,
+                "relinearized": {n: p.relinearized for n, p in pipes.items()},
+                "fits": {n: p.fitted for n, p in pipes.items()}}
+
+    with tempfile.TemporaryDirectory(prefix="tactiled-budget-") as d:
+        paths = {}
+        for name, scene, description in parts:
+            sim = FingerSimulator(load_description(description).sensor_model(), scene, seed=1)
+            paths[name] = Path(d) / f"{name}.tact"
+            rec = Recorder(paths[name])
+            for k in range(frames):
+                rec.record(sim.next_frame(), host_time=1.0 + k / sim.rate_hz)
+            rec.close()
+        return [asyncio.run(play(paths)) for _ in range(passes)]
+
+
 def _cli() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("profile", nargs="?", help="py-spy record --format raw output")
@@ -165,7 +226,17 @@ def _cli() -> None:
     p.add_argument("--stage", action="store_true",
                    help="instead: time the calibration stage per frame, compiled and reference "
                         "paths, on the hand's palm and a fingertip")
+    p.add_argument("--replay", action="store_true",
+                   help="instead: the main process's CPU per frame on the hand's six parts "
+                        "replayed lossless, nothing else competing (replay_cost)")
     a = p.parse_args()
+    if a.replay:
+        print("| pass | frames | main process CPU per frame, us | relinearisations | fits |")
+        print("|---|---|---|---|---|")
+        for i, r in enumerate(replay_cost(), 1):
+            print(f"| {i} | {r['frames']} | {r['us_per_frame']:.1f} | "
+                  f"{sum(r['relinearized'].values())} | {sum(r['fits'].values())} |")
+        return
     if a.stage:
         print("| array | scene | compiled path, us per frame | reference path, us per frame |")
         print("|---|---|---|---|")

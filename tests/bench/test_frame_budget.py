@@ -27,3 +27,16 @@ def test_samples_of_the_main_process_by_innermost_stage() -> None:
 def test_the_stage_alone_is_timed_on_both_paths() -> None:
     assert budget.stage_cost("fearing1988", "hand-finger3", True, frames=20, repeats=1) > 0
     assert budget.stage_cost("flat16", "hand-palm", False, frames=20, repeats=1) > 0
+
+
+def test_the_replayed_hand_counts_every_frame_and_its_relinearisations() -> None:
+    """Two parts, 300 frames each, replayed lossless through a real daemon with a real
+    worker: every frame handled, the CPU per frame measured, the moving contact (finger1's
+    roll, from 0.7 s: so 1000 frames) relinearised."""
+    parts = (budget.HAND_PARTS[0], budget.HAND_PARTS[1])
+    runs = budget.replay_cost(parts, frames=1000, workers=1, passes=1)
+    (r,) = runs
+    assert r["frames"] == 2000
+    assert 0.0 < r["us_per_frame"] < 1e5
+    assert set(r["relinearized"]) == {"palm", "finger1"}
+    assert r["relinearized"]["finger1"] > 0 and r["fits"]["finger1"] > 0
