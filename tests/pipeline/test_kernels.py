@@ -64,3 +64,45 @@ def test_largest_excess_matches_numpy() -> None:
     expected = rng.normal(size=index.size)
     assert largest_excess(frame, index, expected) == float((frame[index] - expected).max())
     assert largest_excess(frame, index[:0], expected[:0]) == -np.inf
+
+
+def test_several_contacts_with_overlapping_windows_measure_as_the_plain_arithmetic() -> None:
+    """ContactTrackers hands each filter its window less its own point's strain and the
+    others' (moved to their states where windows overlap) through the kernel: the same
+    measurement as the numpy arithmetic written out."""
+    from tactiled.fit.linearize import Linearization, SeveralLinearizations
+    from tactiled.pipeline.several import ContactTrackers
+    from tactiled.pipeline.tracker import Tracker
+
+    rng = np.random.default_rng(8)
+    size, k = 64, 4
+    lins = []
+    for lo, centre in ((0, 2.0), (20, 6.0)):  # windows 0..39 and 20..59: 20 tactels shared
+        index = np.arange(lo, lo + 40)
+        jacobian = rng.normal(0.0, 1e-3, (40, k))
+        lins.append(Linearization(
+            model="sphere", p=np.array([1.0, 0.0, centre, centre]), index=index,
+            strain=rng.normal(0.0, 1e-3, 40), jacobian=jacobian,
+            gain=np.linalg.pinv(jacobian), weight=np.full(40, 1e6), cov=np.eye(k) * 1e-4,
+            sigma=1e-3, systematic=np.zeros((k, k)),
+            predicted=rng.normal(0.0, 1e-3, size).reshape(8, 8)))
+    trackers = ContactTrackers(Tracker, gate_mm=3.0)
+    base = {"contacts": [{"x_mm": 2.0, "y_mm": 2.0}, {"x_mm": 6.0, "y_mm": 6.0}]}
+    assert trackers.adopt(SeveralLinearizations(tuple(lins)), 0.0, base)
+    for i, tr in enumerate(trackers.trackers):  # each filter a little off its point
+        tr.x = list(lins[i].p + rng.normal(0.0, 1e-2, k))
+    frame = rng.normal(0.0, 1e-3, size)
+    frame.flags.writeable = False
+    for i, (tr, (index, at)) in enumerate(zip(trackers.trackers, trackers._windows(frame))):
+        j = 1 - i
+        other = lins[j]
+        own = frame[lins[i].index] - other.predicted.ravel()[lins[i].index]
+        _, mine, theirs = np.intersect1d(lins[i].index, other.index, return_indices=True)
+        assert mine.size == 20
+        own[mine] -= other.jacobian[theirs] @ (np.asarray(trackers.trackers[j].x) - other.p)
+        d = own - lins[i].strain
+        dp = lins[i].gain @ d
+        _, got_dp, got_e = measure_window(frame, index, at, tr._gain, tr._jacobian,
+                                          tr._weight)
+        np.testing.assert_allclose(got_dp, dp, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(got_e, d - lins[i].jacobian @ dp, rtol=1e-9, atol=1e-15)
