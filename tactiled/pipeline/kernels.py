@@ -61,3 +61,28 @@ def largest_excess(frame: np.ndarray, index: np.ndarray, expected: np.ndarray) -
     for j in range(index.size):
         top = max(top, frame[index[j]] - expected[j])
     return top
+
+
+@njit([types.Tuple((types.int64, types.float64))(_VECTOR, _VECTOR, _INDEX, _VECTOR, types.float64,
+                                                 types.float64, types.float64)], cache=True)
+def fold_residuals(total: np.ndarray, count: np.ndarray, index: np.ndarray, buffered: np.ndarray,
+                   frames: float, fade: float, least: float) -> tuple[int, float]:
+    """The tracker's per-tactel residual sums (``total``, ``count``: the whole array, flat)
+    faded by ``fade``, then ``buffered`` (the sum of ``frames`` frames' residuals on the
+    window ``index``) added in, and ``buffered`` zeroed, all in place.  Returns the tactels
+    whose count is at least ``least`` and the sum of ``total^2 / count`` over them (the mean
+    residual's chi^2 times sigma^2)."""
+    for i in range(total.size):
+        total[i] *= fade
+        count[i] *= fade
+    for j in range(index.size):
+        total[index[j]] += buffered[j]
+        count[index[j]] += frames
+        buffered[j] = 0.0
+    used = 0
+    chi2 = 0.0
+    for i in range(total.size):
+        if count[i] >= least:
+            used += 1
+            chi2 += total[i] * total[i] / count[i]
+    return used, chi2

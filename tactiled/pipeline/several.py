@@ -235,18 +235,26 @@ class ContactTrackers:
         others' strain at their points on its window, and where another's window overlaps
         it, ``(j, positions in its window, rows of j's window)``."""
         self._cross = []
+        # each window as a map from tactel to its row there (-1: not in it)
+        size = max(tr.lin.predicted.size for tr in self.trackers)
+        rows = []
+        for tr in self.trackers:
+            row = np.full(size, -1, dtype=np.intp)
+            row[tr.lin.index] = np.arange(tr.lin.index.size)
+            rows.append(row)
         for i, tr in enumerate(self.trackers):
             idx = tr.lin.index
-            others = np.zeros(idx.size)
+            at = tr._at.copy()
             overlaps = []
             for j, o in enumerate(self.trackers):
                 if j == i:
                     continue
-                others += o.lin.predicted.ravel()[idx]
-                _, mine, theirs = np.intersect1d(idx, o.lin.index, return_indices=True)
+                at += o.lin.predicted.ravel()[idx]
+                theirs = rows[j][idx]
+                mine = np.flatnonzero(theirs >= 0)
                 if mine.size:
-                    overlaps.append((j, mine, theirs))
-            self._cross.append((tr._at + others, overlaps))
+                    overlaps.append((j, mine, theirs[mine]))
+            self._cross.append((at, overlaps))
 
     def skip(self) -> None:
         for tr in self.trackers:

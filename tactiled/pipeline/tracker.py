@@ -53,7 +53,7 @@ from tactiled.fit.params import (
     radius_tied_force,
     report_terms,
 )
-from tactiled.pipeline.kernels import measure_window
+from tactiled.pipeline.kernels import fold_residuals, measure_window
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
 
@@ -390,19 +390,14 @@ class Tracker:
         lin, m = self.lin, self._eframes
         if lin is None or m == 0:
             return
-        idx = lin.index
-        fade = math.exp(-self._edt / MEAN_RESIDUAL_S)
-        self._esum *= fade
-        self._ecount *= fade
-        self._esum[idx] += self._ebuf
-        self._ecount[idx] += m
-        self._ebuf[:] = 0.0
+        used, chi2 = fold_residuals(self._esum, self._ecount, self._index, self._ebuf, float(m),
+                                    math.exp(-self._edt / MEAN_RESIDUAL_S),
+                                    float(MEAN_RESIDUAL_FRAMES))
         self._eframes, self._edt = 0, 0.0
-        used = self._ecount >= MEAN_RESIDUAL_FRAMES
-        dof = int(used.sum()) - lin.p.size
+        dof = used - lin.p.size
         if dof < 1:
             return
-        chi2 = float(np.sum(self._esum[used] ** 2 / self._ecount[used])) / (lin.sigma * lin.sigma)
+        chi2 /= lin.sigma * lin.sigma
         self.excess = chi2 / dof if chi2 > chi2_limit(dof, MEAN_RESIDUAL_Z) else 1.0
 
     def _start(self, z: list[float], t: float, keep: list[bool] | None = None) -> None:

@@ -312,15 +312,16 @@ class ContactTracking:
         if not self.tracker.adopt(lin, self._zero_var(), fit):
             return False
         self._drift_ref = self._outside = None
-        if lin.predicted is not None:
-            window = np.zeros(lin.predicted.size, dtype=bool)
+        predicted = lin.predicted  # (several contacts': their sum, computed on each access)
+        if predicted is not None:
+            window = np.zeros(predicted.size, dtype=bool)
             window[lin.index] = True
-            self._drift_ref = (lin.predicted, window.reshape(lin.predicted.shape))
+            self._drift_ref = (predicted, window.reshape(predicted.shape))
             # (the tactels outside the window, and what the contact gives there: each frame
             # is tested there by _pressed_elsewhere)
             index = np.flatnonzero(~window).astype(np.intp)
             if index.size:
-                self._outside = (index, np.ascontiguousarray(lin.predicted.ravel()[index],
+                self._outside = (index, np.ascontiguousarray(predicted.ravel()[index],
                                                              dtype=np.float64))
         return True
 

@@ -106,3 +106,24 @@ def test_several_contacts_with_overlapping_windows_measure_as_the_plain_arithmet
                                           tr._weight)
         np.testing.assert_allclose(got_dp, dp, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(got_e, d - lins[i].jacobian @ dp, rtol=1e-9, atol=1e-15)
+
+
+def test_fold_residuals_matches_numpy() -> None:
+    from tactiled.pipeline.kernels import fold_residuals
+
+    rng = np.random.default_rng(9)
+    total, count = rng.normal(size=256), rng.uniform(0.0, 40.0, 256)
+    index = np.sort(rng.choice(256, 60, replace=False)).astype(np.intp)
+    buffered = rng.normal(size=60)
+    t, c, b = total.copy(), count.copy(), buffered.copy()
+    t *= 0.9
+    c *= 0.9
+    t[index] += b
+    c[index] += 8.0
+    used = c >= 16.0
+    used_n, chi2 = fold_residuals(total, count, index, buffered, 8.0, 0.9, 16.0)
+    np.testing.assert_allclose(total, t, rtol=1e-15)
+    np.testing.assert_allclose(count, c, rtol=1e-15)
+    assert not buffered.any()
+    assert used_n == int(used.sum()) and 0 < used_n < 256
+    assert chi2 == pytest.approx(float(np.sum(t[used] ** 2 / c[used])), rel=1e-12)
