@@ -34,7 +34,7 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, first: n
                params: np.ndarray, baseline: np.ndarray, peak: np.ndarray, fraction: float,
                decay: float, floor: float, margin: float, active: bool, ax: np.ndarray,
                ay_t: np.ndarray, bands: np.ndarray, z: np.ndarray, residual: np.ndarray,
-               tmap: np.ndarray) -> tuple[int, float]:
+               tmap: np.ndarray) -> tuple[int, float, float]:
     """One frame of raw counts ``raw`` (flat, ``T`` tactels, row-major) into ``z`` (flat),
     through the table's :class:`~tactiled.calibration.segments.Segments` (``offset``,
     ``breaks``, ``first``, ``params``):
@@ -43,11 +43,12 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, first: n
     decayed by ``decay`` = ``exp(-dt / tau)``, 1 for none; ``floor`` = MIN_PEAK_SIGMAS sigma,
     ``margin`` = NOISE_MARGIN sigma; ``active``: some peak was above the floor).
 
-    Returns ``(state, statistic)``: state -1 when a linearised value was not finite (nothing
-    was changed: the caller takes the reference path), else bit 0 set when a residual was
-    taken (it is in ``residual``; otherwise ``residual`` is untouched) and bit 1 set when the
-    compensator is still active; ``statistic`` is ``max(Ax z Ay^T)`` on the compensated frame,
-    whose filter map (flat, row-major) is written to ``tmap``.  ``bands``: where the filter
+    Returns ``(state, statistic, peak)``: state -1 when a linearised value was not finite
+    (nothing was changed: the caller takes the reference path), else bit 0 set when a
+    residual was taken (it is in ``residual``; otherwise ``residual`` is untouched) and bit 1
+    set when the compensator is still active; ``statistic`` is ``max(Ax z Ay^T)`` on the
+    compensated frame, whose filter map (flat, row-major) is written to ``tmap``; ``peak``
+    is ``max(z)``.  ``bands``: where the filter
     matrices are not zero (:func:`filter_bands`).
     """
     n = raw.size
@@ -76,7 +77,7 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, first: n
         y = min(y, params[3, lo])
         y = max(y, params[4, lo])
         if not math.isfinite(y):
-            return -1, 0.0
+            return -1, 0.0, 0.0
         z[t] = y - baseline[t]
     state = 0
     if fraction > 0.0:
@@ -116,7 +117,10 @@ def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, first: n
                 s += m[u, j] * ay_t[j, v]
             tmap[u * nv + v] = s
             stat = max(stat, s)
-    return state, stat
+    peak = z[0]
+    for t in range(1, n):
+        peak = max(peak, z[t])
+    return state, stat, peak
 
 
 def filter_bands(ax: np.ndarray, ay_t: np.ndarray) -> np.ndarray:

@@ -39,6 +39,10 @@ class CalibrationStage:
         self.table = table
         self.zeroer = Zeroer(table.shape) if zeroer is None else zeroer
         self.finite = False
+        #: the last frame's largest strain, as the compiled path returned it (NaN: the frame
+        #: took the reference path); a frame whose contact ends may be changed after it
+        #: (the baseline's pull clips an implausible frame), a contact frame never is
+        self.peak = math.nan
         if self.zeroer.shape != table.shape:
             raise ValueError(f"zeroer shape {self.zeroer.shape} != table shape {table.shape}")
 
@@ -54,6 +58,7 @@ class CalibrationStage:
         #: the last frame's strain is known finite (the compiled path checked every value)
         self.finite = z is not None
         if z is None:  # the reference path
+            self.peak = math.nan
             z = self.zeroer.update(self.table.to_strain(frame.raw), t)
         frame.strain = z
         return self.zeroer.in_contact
@@ -81,13 +86,14 @@ class CalibrationStage:
         z = np.empty(shape)
         residual = np.empty(shape) if f > 0.0 else z  # (untouched without compensation)
         tmap = np.empty(det._total.size)
-        state, stat = zero_frame(
+        state, stat, peak = zero_frame(
             raw.reshape(-1), seg._offset, seg._breaks, seg._first, seg._params, zr.baseline.reshape(-1),
             comp._peak.reshape(-1), f, math.exp(-dt / comp.tau_s) if dt > 0.0 else 1.0,
             MIN_PEAK_SIGMAS * sigma, NOISE_MARGIN * sigma, comp._active,
             det._ax, det._ay_t, det._bands, z.reshape(-1), residual.reshape(-1), tmap)
         if state < 0:
             return None
+        self.peak = peak
         zr._frames += 1
         settling = t < zr._settle_until
         zr._last_t = t

@@ -417,7 +417,8 @@ class SensorPipeline(ContactTracking):
             device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
             statistic=detector.last_statistic, strain=strain))
         waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
-                           frame.host_time, strain, now, frame.device_time_us * 1e-6)
+                           frame.host_time, strain, now, frame.device_time_us * 1e-6,
+                           peak=self.stage.peak if contact else math.nan)
         if self.settings.track:
             self._track(waiting, contact, nonfinite)
             return
@@ -467,7 +468,7 @@ class SensorPipeline(ContactTracking):
     def _publish(self, w: _Waiting, gate: str, fitted_seq: int | None, worker_ms: float,
                  fit: dict[str, Any]) -> Estimate:
         if fit.get("peak") is not None:  # the frame's own, not that of the fit it rests on
-            fit = {**fit, "peak": self._frame_peak(w.strain, fit["peak"])}
+            fit = {**fit, "peak": self._frame_peak(w, fit["peak"])}
         fit = identified(fit, self.ids, self._untracked_element)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
@@ -481,12 +482,13 @@ class SensorPipeline(ContactTracking):
         self.hub.publish(est)
         return est
 
-    def _frame_peak(self, strain: np.ndarray, fallback: float) -> float:
-        """The largest strain of a frame's usable tactels (``fallback`` if none is); the
-        frame's strain is finite (_process)."""
+    def _frame_peak(self, w: _Waiting, fallback: float) -> float:
+        """The largest strain of a frame's usable tactels (``fallback`` if none is): the
+        calibration stage's when every tactel is usable; the frame's strain is finite
+        (_process)."""
         if self.mask is None:
-            return float(strain.max())
-        return float(strain[self.mask].max()) if self._any_usable else fallback
+            return w.peak if w.peak == w.peak else float(w.strain.max())
+        return float(w.strain[self.mask].max()) if self._any_usable else fallback
 
     # -- the pool's side (JobOwner) -------------------------------------------------------------
 

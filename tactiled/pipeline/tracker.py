@@ -35,6 +35,7 @@ it for every frame, in tens of microseconds.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from typing import Any
@@ -138,6 +139,18 @@ def within_reason(p: np.ndarray, geometry) -> np.ndarray:
     return q
 
 
+@functools.lru_cache(maxsize=64)
+def _model_constants(names: tuple[str, ...], geometry) -> tuple[
+        list[bool], list[int], list[tuple[int, float, float]], int, list[tuple[int, str, str]]]:
+    """What the tracker reads of a model's parameters ``names`` on ``geometry``, the same at
+    every linearisation: which move, which are logarithms, the box each is kept in, the
+    force's index, and which carry a rate (index, estimate key, name).  (Read only.)"""
+    return ([n in MOVING for n in names], [i for i, n in enumerate(names) if n.startswith("ln_")],
+            reasonable_bounds(names, geometry), names.index("ln_f"),
+            [(i, _RATE_OF[n], n) for i, n in enumerate(names) if n in _RATE_OF])
+
+
+@functools.lru_cache(maxsize=1024)
 def chi2_limit(dof: int, z: float = LINEAR_Z) -> float:
     """The chi^2 quantile of ``dof`` degrees of freedom at the normal deviate ``z``
     (Wilson-Hilferty: 5 % above the exact one at 5 degrees of freedom, 1 % at 30)."""
@@ -193,7 +206,6 @@ class Tracker:
         self._ebuf: np.ndarray | None = None  # residuals not yet folded into the sums
         self._eframes = 0
         self._edt = 0.0
-        self._corr: np.ndarray | None = None
         self._corr_rows: list[list[float]] = []
         self._sys_rows: list[list[float]] | None = None
         self._judged_memo: tuple[dict[str, Any], Any] | None = None
@@ -239,22 +251,22 @@ class Tracker:
         self._gain = np.asarray(lin.gain, dtype=np.float64)
         self._jacobian = np.asarray(lin.jacobian, dtype=np.float64)
         self._weight = np.ascontiguousarray(lin.weight, dtype=np.float64)
-        self._moving = [n in MOVING for n in names]
-        self._logs = [i for i, n in enumerate(names) if n.startswith("ln_")]
-        self._bounds = reasonable_bounds(names, self.geometry)
-        self._ln_f = names.index("ln_f")
+        (self._moving, self._logs, self._bounds, self._ln_f,
+         self._rate_of) = _model_constants(names, self.geometry)
         self._limit = chi2_limit(max(lin.dof, 1))
         self._p = lin.p.tolist()
-        self._r = np.diag(lin.cov).tolist()
-        self._sd1 = [math.sqrt(r) for r in self._r]
-        sd = np.sqrt(np.diag(lin.cov))
-        self._corr = lin.cov / np.outer(sd, sd)
-        sys = lin.systematic + (zero_var / (lin.sigma * lin.sigma)) * lin.cov
-        self._sys = sys if np.any(sys) else None
-        # ... as nested lists, for the estimate's term-by-term delta method
-        self._corr_rows = self._corr.tolist()
-        self._sys_rows = None if self._sys is None else self._sys.tolist()
-        self._rate_of = [(i, _RATE_OF[n], n) for i, n in enumerate(names) if n in _RATE_OF]
+        # The single frame's covariance as variances and correlations, and the systematic
+        # part, in nested lists for the estimate's term-by-term delta method (k <= 6: plain
+        # floats cost less than a dozen numpy calls, once per relinearisation)
+        cov = lin.cov.tolist()
+        k = len(cov)
+        self._r = [cov[i][i] for i in range(k)]
+        self._sd1 = sd = [math.sqrt(r) for r in self._r]
+        self._corr_rows = [[cov[i][j] / (sd[i] * sd[j]) for j in range(k)] for i in range(k)]
+        share = zero_var / (lin.sigma * lin.sigma)
+        sys = [[a + share * c for a, c in zip(row, cov_row)]
+               for row, cov_row in zip(lin.systematic.tolist(), cov)]
+        self._sys_rows = sys if any(v != 0.0 for row in sys for v in row) else None
         self._lin_sd = None if self.x is None else [math.sqrt(p) for p in self.pxx]
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:

@@ -14,6 +14,7 @@ constructor.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -49,6 +50,8 @@ class _Waiting:
     at: tuple[str, tuple[float, ...]] | None = None
     #: the contact ended while this job was in flight: its result answers nothing
     dropped: bool = False
+    #: the frame's largest strain, when the calibration stage gave it (NaN: not known)
+    peak: float = math.nan
 
 
 #: Frames of a contact that wait for a fit before the tracker can measure them (they left the
