@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -67,6 +68,64 @@ class Linearization:
     def dof(self) -> int:
         """Degrees of freedom of the linearity test (usable tactels minus parameters)."""
         return int(self.index.size - self.p.size)
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        """Pickled as two buffers (:func:`_pack`): a worker sends the daemon hundreds of
+        linearisations a second, and unpickling costs per array, not per byte."""
+        return _unpack_one, _pack((self,))
+
+
+#: The float arrays of a Linearization packed into one buffer, in this order (then
+#: ``predicted``, when there is one).
+_PACKED = ("p", "strain", "jacobian", "gain", "weight", "cov", "systematic")
+
+
+def _pack(lins: tuple[Linearization, ...]) -> tuple[Any, ...]:
+    """``lins`` as ``(heads, floats, indices)``: per linearisation its model, sigma and its
+    arrays' shapes; every float array of every one in one float64 buffer, every window's
+    indices in one int64 buffer."""
+    heads, floats, indices = [], [], []
+    for lin in lins:
+        arrays = [getattr(lin, name) for name in _PACKED]
+        if lin.predicted is not None:
+            arrays.append(lin.predicted)
+        heads.append((lin.model, float(lin.sigma), tuple(a.shape for a in arrays)))
+        floats.extend(np.asarray(a, dtype=np.float64).ravel() for a in arrays)
+        indices.append(np.asarray(lin.index, dtype=np.int64))
+    return tuple(heads), np.concatenate(floats), np.concatenate(indices)
+
+
+def _unpack(heads: tuple[Any, ...], floats: np.ndarray,
+            indices: np.ndarray) -> list[Linearization]:
+    """The linearisations :func:`_pack` packed (arrays are views of the buffers,
+    C-contiguous)."""
+    lins, start, at = [], 0, 0
+    for model, sigma, shapes in heads:
+        arrays = []
+        for shape in shapes:
+            size = math.prod(shape)
+            arrays.append(floats[start:start + size].reshape(shape))
+            start += size
+        fields = dict(zip(_PACKED, arrays))
+        n = arrays[1].size  # (strain: one per window tactel)
+        fields.update(model=model, sigma=sigma, index=indices[at:at + n],
+                      predicted=arrays[len(_PACKED)] if len(arrays) > len(_PACKED) else None)
+        at += n
+        # (as pickle restores any object: the fields as they were, without the frozen
+        # dataclass's __init__, which sets each through object.__setattr__)
+        lin = object.__new__(Linearization)
+        lin.__dict__.update(fields)
+        lins.append(lin)
+    return lins
+
+
+def _unpack_one(heads: tuple[Any, ...], floats: np.ndarray, indices: np.ndarray) -> Linearization:
+    return _unpack(heads, floats, indices)[0]
+
+
+def _unpack_several(model: str, heads: tuple[Any, ...], floats: np.ndarray,
+                    indices: np.ndarray) -> SeveralLinearizations:
+    return SeveralLinearizations(tuple(_unpack(heads, floats, indices)), model)
 
 
 def linearize(fitter, strain: np.ndarray, model: str, p: np.ndarray,
@@ -164,12 +223,19 @@ class SeveralLinearizations:
     #: the tag of several contacts (``tactiled.fit.warm.SEVERAL``)
     model: str = SEVERAL
 
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        """Pickled as every contact's arrays in two buffers (:func:`_pack`)."""
+        return _unpack_several, (self.model, *_pack(self.lins))
+
     @property
     def predicted(self) -> np.ndarray | None:
         """The contacts' strains on the whole array, summed (None if one has none)."""
         if any(lin.predicted is None for lin in self.lins):
             return None
-        return np.sum([lin.predicted for lin in self.lins], axis=0)
+        total = self.lins[0].predicted + 0.0
+        for lin in self.lins[1:]:
+            total += lin.predicted
+        return total
 
     @property
     def index(self) -> np.ndarray:

@@ -525,7 +525,16 @@ class WorkerPool:
     def _on_readable(self, w: _Worker) -> None:
         try:
             while w.conn is not None and w.conn.poll():
-                self._handle(w, w.conn.recv())
+                try:
+                    msg = w.conn.recv()
+                except (EOFError, OSError):
+                    raise
+                except Exception as err:  # noqa: BLE001 - a message this process cannot read
+                    # (a worker of other code than this process's: an upgrade under a
+                    # running daemon): the worker is replaced, its job counted as failed
+                    self._lose(w, "protocol", f"unreadable answer: {type(err).__name__}: {err}")
+                    return
+                self._handle(w, msg)
         except (EOFError, OSError) as err:
             self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")
 
@@ -683,6 +692,16 @@ class WorkerPool:
         if w.state != "ready":
             return None
         self._send(w, ("sleep", float(seconds)), "sleep", self.settings.timeout)
+        return w.pid
+
+    def debug_garble(self, slot: int) -> int | None:
+        """Make worker ``slot`` answer with bytes that do not unpickle (test hook: the worker
+        is replaced, as for any answer this process cannot read).  Returns its pid, or None
+        if it is not ready."""
+        w = self._workers[slot]
+        if w.state != "ready":
+            return None
+        self._send(w, ("garble",), "garble", self.settings.timeout)
         return w.pid
 
     def debug_compile(self, slot: int, seconds: float) -> int | None:

@@ -318,7 +318,8 @@ class ContactTracking:
         predicted = lin.predicted  # (several contacts': their sum, computed on each access)
         if predicted is not None:
             window = np.zeros(predicted.size, dtype=bool)
-            window[lin.index] = True
+            for one in getattr(lin, "lins", (lin,)):  # (several: each one's window)
+                window[one.index] = True
             self._drift_ref = (predicted, window.reshape(predicted.shape))
             # (the tactels outside the window, and what the contact gives there: each frame
             # is tested there by _pressed_elsewhere)

@@ -21,6 +21,8 @@ in order (which is what lets the parent give every outstanding request a deadlin
   caches, fits so far; ``flat_fields``: each spec's ``FlatField.summary()``), for the soak and
   for diagnosing growth;
 - ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
+- ``("garble", rid)`` -> bytes that do not unpickle: a test hook for an answer the parent
+  cannot read;
 - ``("compile", rid, seconds)`` -> ``("compiled", rid)``: a test hook that holds a numba
   compile event open for ``seconds``, as a first-time kernel compilation does;
 - ``("compiling", rid)``, unasked, before the answer to request ``rid``: numba is compiling a
@@ -255,6 +257,8 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                     time.sleep(msg[2])
                 notice.rid = None
                 conn.send(("compiled", msg[1]))
+            elif kind == "garble":
+                conn.send_bytes(b"\x80\x05not a pickle")  # test hook: an unreadable answer
             elif kind == "stop":
                 return
     except (BrokenPipeError, ConnectionResetError, EOFError):

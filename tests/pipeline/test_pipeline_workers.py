@@ -409,3 +409,37 @@ def test_workers_run_without_a_blas_thread_pool(tmp_path) -> None:
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, env=env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["1", "1", "1"], out.stdout
+
+
+def test_a_worker_answer_that_does_not_unpickle_replaces_the_worker(arun) -> None:
+    """An answer this process cannot read (bytes that are no pickle; a worker of other code,
+    an upgrade under a running daemon, would send one) costs that worker, counted as a
+    protocol loss, not the event loop's callback: the replacement answers the next fit."""
+    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+
+    async def main() -> tuple[int | None, dict[str, int], list[int | None], Owner]:
+        pool = WorkerPool(1, FitSettings())
+        owner = Owner(pool.register_spec(DEFAULT_SENSOR, (("window", 4),)))
+        pool.attach(owner)
+        await pool.start()
+        pid = pool.debug_garble(0)
+        t0 = time.monotonic()
+        while pool.restarts == 0:
+            assert time.monotonic() - t0 < 5, "the unreadable answer went unnoticed"
+            await asyncio.sleep(0.005)
+        assert await pool.wait_ready(10.0)
+        owner.todo = [clean]
+        pool.wake()
+        while not owner.results:
+            assert time.monotonic() - t0 < 15, "the replacement answered no fit"
+            await asyncio.sleep(0.005)
+        pids = pool.pids()
+        reasons = dict(pool.restarts_by_reason)
+        await pool.stop()
+        return pid, reasons, pids, owner
+
+    pid, reasons, pids, owner = arun(main())
+    assert pid is not None and pids != [pid]
+    assert reasons == {"protocol": 1}
+    (fit, error), = owner.results
+    assert error is None and fit["contact"]
