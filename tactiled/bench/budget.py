@@ -217,6 +217,31 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
         return [asyncio.run(play(paths)) for _ in range(passes)]
 
 
+def replay_at(tree: str, passes: int = 2, frames: int = 4000,
+              parts: tuple[tuple[str, str, str], ...] = HAND_PARTS) -> list[dict[str, Any]]:
+    """:func:`replay_cost` on the code of checkout ``tree`` (its daemon and its workers), in
+    a subprocess: this module's own ``replay_cost`` runs there, so a revision from before it
+    existed is measured the same way."""
+    import inspect
+    import json
+    import os
+    import subprocess
+    import sys
+
+    path = os.pathsep.join([tree, os.path.join(tree, "drivers"), os.path.join(tree, "service")])
+    source = "\n".join(["from typing import Any", f"HAND_PARTS = {HAND_PARTS!r}",
+                        inspect.getsource(replay_cost),
+                        "if __name__ == '__main__':",
+                        "    import json",
+                        f"    print(json.dumps(replay_cost({parts!r}, {frames!r}, "
+                        f"passes={passes!r})))"])
+    out = subprocess.run([sys.executable, "-c", source], cwd=tree, capture_output=True,
+                         text=True, env={**os.environ, "PYTHONPATH": path})
+    if out.returncode != 0:
+        raise RuntimeError(f"the replay on {tree} failed:\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def _cli() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("profile", nargs="?", help="py-spy record --format raw output")
@@ -229,13 +254,34 @@ def _cli() -> None:
     p.add_argument("--replay", action="store_true",
                    help="instead: the main process's CPU per frame on the hand's six parts "
                         "replayed lossless, nothing else competing (replay_cost)")
+    p.add_argument("--baseline", metavar="REV", default=None,
+                   help="with --replay: also the code of git revision REV, in turn with this "
+                        "tree's (two rounds of two passes each)")
     a = p.parse_args()
+    if a.baseline is not None and not a.replay:
+        p.error("--baseline goes with --replay")
     if a.replay:
-        print("| pass | frames | main process CPU per frame, us | relinearisations | fits |")
-        print("|---|---|---|---|---|")
-        for i, r in enumerate(replay_cost(), 1):
-            print(f"| {i} | {r['frames']} | {r['us_per_frame']:.1f} | "
-                  f"{sum(r['relinearized'].values())} | {sum(r['fits'].values())} |")
+        print("| code | pass | frames | main process CPU per frame, us | relinearisations | fits |")
+        print("|---|---|---|---|---|---|")
+        rows: list[tuple[str, list[dict[str, Any]]]] = []
+        if a.baseline is None:
+            rows.append(("this tree", replay_cost()))
+        else:
+            import tempfile
+            from pathlib import Path
+
+            from tactiled.bench.speed import _checkout
+
+            here = str(Path(__file__).resolve().parents[2])
+            with tempfile.TemporaryDirectory(prefix="tactiled-budget-base-") as tmp:
+                tree = _checkout(a.baseline, tmp)
+                for _ in range(2):
+                    rows.append(("this tree", replay_at(here)))
+                    rows.append((f"baseline {a.baseline}", replay_at(tree)))
+        for code, runs in rows:
+            for i, r in enumerate(runs, 1):
+                print(f"| {code} | {i} | {r['frames']} | {r['us_per_frame']:.1f} | "
+                      f"{sum(r['relinearized'].values())} | {sum(r['fits'].values())} |")
         return
     if a.stage:
         print("| array | scene | compiled path, us per frame | reference path, us per frame |")

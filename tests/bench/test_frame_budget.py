@@ -40,3 +40,14 @@ def test_the_replayed_hand_counts_every_frame_and_its_relinearisations() -> None
     assert 0.0 < r["us_per_frame"] < 1e5
     assert set(r["relinearized"]) == {"palm", "finger1"}
     assert r["relinearized"]["finger1"] > 0 and r["fits"]["finger1"] > 0
+
+
+def test_a_checkout_is_replayed_in_its_own_process_with_this_measure() -> None:
+    """``--replay --baseline REV`` runs this module's replay_cost on another checkout's code
+    (here this tree's own, in a subprocess that imports it from the given path)."""
+    from pathlib import Path
+
+    tree = str(Path(budget.__file__).resolve().parents[2])
+    (r,) = budget.replay_at(tree, passes=1, frames=300, parts=budget.HAND_PARTS[3:4])
+    assert r["frames"] == 300 and r["us_per_frame"] > 0.0
+    assert set(r["relinearized"]) == {"finger3"}
