@@ -23,10 +23,11 @@ tests/calibration/test_fused_stage.py compares them on random frames.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 
 @njit(cache=True, nogil=True)
@@ -189,3 +190,56 @@ def follow_baseline(baseline: np.ndarray, z: np.ndarray, weight: float, limit: f
             return
     for t in range(n):
         baseline[t] += weight * z[t]
+
+
+def _vectors(dtype: types.Type, writable: bool) -> list[types.Array]:
+    """Contiguous 1-d arrays of ``dtype`` (any flat ``reshape(-1)`` of an array is one),
+    read-only too unless ``writable`` (the daemon's frames are read-only)."""
+    return [types.Array(dtype, 1, "C")] + ([] if writable else
+                                            [types.Array(dtype, 1, "C", readonly=True)])
+
+
+# Explicit signatures: compiled (or loaded from numba's cache) at import, never at a held
+# contact's first drift step.
+@njit([types.Tuple((types.int64, types.float64, types.boolean))(z, p, i, e)
+       for z, p, i in itertools.product(_vectors(types.float64, False),
+                                        _vectors(types.float64, False),
+                                        _vectors(types.boolean, False))
+       for e in _vectors(types.float64, True)], cache=True)
+def drift_error(zeroed: np.ndarray, predicted: np.ndarray, inside: np.ndarray,
+                error: np.ndarray) -> tuple[int, float, bool]:
+    """``error = zeroed - predicted`` (flat, in place) for the zeroer's drift following under
+    a held contact; returns the tactels ``inside`` the contact's window, the sum of the
+    squared error there, and whether every error is finite."""
+    n_in = 0
+    miss = 0.0
+    finite = True
+    for t in range(zeroed.size):
+        e = zeroed[t] - predicted[t]
+        error[t] = e
+        if inside[t]:
+            n_in += 1
+            miss += e * e
+        if not math.isfinite(e):
+            finite = False
+    return n_in, miss, finite
+
+
+@njit([types.none(b, e, i, types.float64, types.float64, types.int64)
+       for b in _vectors(types.float64, True) for e in _vectors(types.float64, True)
+       for i in _vectors(types.boolean, False)], cache=True)
+def pull_baseline(baseline: np.ndarray, error: np.ndarray, inside: np.ndarray, limit: float,
+                  weight: float, outside: int) -> None:
+    """The baseline's step under a held contact, in place (all flat): outside the window
+    each tactel moves by ``weight`` times its error clipped to ``[-limit, limit]``; inside,
+    by the mean of those moves over the ``outside`` tactels (the drift common to all)."""
+    common = 0.0
+    for t in range(error.size):
+        if not inside[t]:
+            common += min(max(error[t], -limit), limit) * weight
+    common /= outside
+    for t in range(error.size):
+        if inside[t]:
+            baseline[t] += common
+        else:
+            baseline[t] += min(max(error[t], -limit), limit) * weight

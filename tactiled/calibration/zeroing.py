@@ -80,7 +80,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from tactiled.calibration.contact import ContactDetector
-from tactiled.calibration.fused import follow_baseline
+from tactiled.calibration.fused import drift_error, follow_baseline, pull_baseline
 from tactiled.calibration.hysteresis import HysteresisCompensator, HysteresisLearner
 
 DEFAULT_TAU_DRIFT = 5.0  # s
@@ -246,27 +246,28 @@ class Zeroer:
         elapsed = t - self._drift_t
         if elapsed < DRIFT_STEP_S - 1e-9:  # (frames DRIFT_STEP_S apart differ by a rounding)
             return False
-        inside = np.asarray(window, dtype=bool)
-        outside = ~inside
-        n_in = int(np.count_nonzero(inside))
+        # (the arithmetic in two compiled passes: tactiled.calibration.fused)
+        shape = np.shape(zeroed)
+        inside = np.asarray(window, dtype=bool).reshape(-1)
+        error = np.empty(inside.size)
+        n_in, miss, finite = drift_error(np.asarray(zeroed, dtype=np.float64).reshape(-1),
+                                         np.asarray(predicted, dtype=np.float64).reshape(-1),
+                                         inside, error)
         n_out = inside.size - n_in
         if n_in == 0 or n_out == 0:
             return False
-        error = np.asarray(zeroed, dtype=np.float64) - np.asarray(predicted, dtype=np.float64)
         sigma = self.detector.sigma
-        miss = error[inside]
-        if not (fitted or float(miss @ miss) <= DRIFT_EXPLAINED * n_in * sigma * sigma):
+        if not (fitted or miss <= DRIFT_EXPLAINED * n_in * sigma * sigma):
             return False  # (a NaN fails the test too)
-        if not np.all(np.isfinite(error)):
+        if not finite:
             return False
         self._drift_t = t
         if self.learns_hysteresis and t == self._last_t:  # (the latest frame: _residual is its)
-            self._learn_hysteresis(error, predicted, outside, t, sigma)
-        limit = DRIFT_CLIP_SIGMAS * sigma
-        pull = np.clip(error, -limit, limit)
-        pull *= -math.expm1(-min(elapsed, MAX_DRIFT_STEP_S) / self.tau_drift)
-        common = float(pull[outside].sum()) / n_out
-        self.baseline += np.where(outside, pull, common)
+            self._learn_hysteresis(error.reshape(shape), predicted, ~inside, t, sigma)
+        if not self.baseline.flags.c_contiguous:  # (stepped in place, flat)
+            self.baseline = np.ascontiguousarray(self.baseline)
+        pull_baseline(self.baseline.reshape(-1), error, inside, DRIFT_CLIP_SIGMAS * sigma,
+                      -math.expm1(-min(elapsed, MAX_DRIFT_STEP_S) / self.tau_drift), n_out)
         return True
 
     def _learn_hysteresis(self, error: np.ndarray, predicted: ArrayLike, outside: np.ndarray,

@@ -191,3 +191,27 @@ def test_every_count_maps_as_the_table_does_at_every_segment_and_edge() -> None:
         assert state == 0
         np.testing.assert_array_equal(z, seg(raw.astype(np.float64)))
         assert peak == z.max()
+
+
+def test_the_drift_following_kernels_match_the_numpy_arithmetic() -> None:
+    """Zeroer.follow_drift's two passes against the arithmetic written out: the error and
+    its sums, then the baseline's step (clipped pulls outside the window, their mean inside)."""
+    from tactiled.calibration.fused import drift_error, pull_baseline
+
+    rng = np.random.default_rng(12)
+    zeroed, predicted = rng.normal(0.0, 1e-3, 64), rng.normal(0.0, 1e-3, 64)
+    inside = rng.random(64) < 0.4
+    error = np.empty(64)
+    n_in, miss, finite = drift_error(zeroed, predicted, inside, error)
+    expected = zeroed - predicted
+    np.testing.assert_array_equal(error, expected)
+    assert n_in == int(inside.sum()) and finite
+    assert miss == pytest.approx(float(expected[inside] @ expected[inside]), rel=1e-12)
+    baseline = rng.normal(0.0, 1e-3, 64)
+    limit, weight = 1e-3, 0.01  # about a third of the errors beyond the limit: clipped
+    pull = np.clip(expected, -limit, limit) * weight
+    want = baseline + np.where(~inside, pull, float(pull[~inside].sum()) / (64 - n_in))
+    pull_baseline(baseline, error, inside, limit, weight, 64 - n_in)
+    np.testing.assert_allclose(baseline, want, rtol=1e-12, atol=1e-18)
+    zeroed[5] = np.nan
+    assert not drift_error(zeroed, predicted, inside, error)[2]
