@@ -247,7 +247,6 @@ class Tracker:
         # the linearisation as the measuring kernel takes it (contiguous, its dtypes)
         self._at = np.ascontiguousarray(lin.strain, dtype=np.float64)
         self._index = np.ascontiguousarray(lin.index, dtype=np.intp)
-        self._in_window = np.arange(lin.index.size, dtype=np.intp)
         self._gain = np.asarray(lin.gain, dtype=np.float64)
         self._jacobian = np.asarray(lin.jacobian, dtype=np.float64)
         self._weight = np.ascontiguousarray(lin.weight, dtype=np.float64)
@@ -314,13 +313,12 @@ class Tracker:
                 self._fold()
         return self._filter(z, t, fitted)
 
-    def measure(self, strain: np.ndarray, windowed: bool = False) -> tuple[list[float], np.ndarray] | None:
+    def measure(self, strain: np.ndarray) -> tuple[list[float], np.ndarray] | None:
         """One frame's measurement through the linearisation, ``(z, e)`` (the parameters and
         the residual ``J dz`` leaves), or None when the frame needs a fit of its own (outside
-        the linear range, or a step no linearisation reaches).  Changes nothing.
-        ``windowed``: ``strain`` is the frame at the linearisation's window only."""
+        the linear range, or a step no linearisation reaches).  Changes nothing."""
         frame = np.ascontiguousarray(strain, dtype=np.float64)
-        return self.measure_at(frame, self._in_window if windowed else self._index, self._at)
+        return self.measure_at(frame, self._index, self._at)
 
     def measure_at(self, frame: np.ndarray, index: np.ndarray,
                    at: np.ndarray) -> tuple[list[float], np.ndarray] | None:
