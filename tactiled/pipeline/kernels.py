@@ -4,8 +4,11 @@ A tracked contact's frame is measured through its linearisation
 (:meth:`tactiled.pipeline.tracker.Tracker.measure`) and tested for another contact pressed
 beside it (:meth:`tactiled.pipeline.tracking.ContactTracking._pressed_elsewhere`): a gather,
 two small matrix products and a weighted sum of squares on 20 to 100 tactels, which as numpy
-calls cost more in call overhead than in arithmetic, on every frame of every array.  Here each
-is one pass.  Results equal numpy's to rounding (the sums run in another order than BLAS's);
+calls cost more in call overhead than in arithmetic, on every frame of every array; its
+measurement then goes through the per-parameter Kalman filters
+(:meth:`~tactiled.pipeline.tracker.Tracker.step`), a few dozen float operations per parameter
+that cost as Python far more than as machine code.  Here each is one pass, on the tracker's
+state and constants as two small tables (the ``X .. DRIFT`` and ``C_R .. C_LIN_SD`` rows).  Results equal numpy's to rounding (the sums run in another order than BLAS's);
 tests/pipeline/test_kernels.py compares them.
 
 The signatures are explicit: the kernels load from numba's cache (or compile) when this module
@@ -86,3 +89,129 @@ def fold_residuals(total: np.ndarray, count: np.ndarray, index: np.ndarray, buff
             used += 1
             chi2 += total[i] * total[i] / count[i]
     return used, chi2
+
+
+# -- the tracker's filter ------------------------------------------------------------------------
+
+#: Rows of a tracker's state (``Tracker._s``, shape (6, k), a column per parameter): value,
+#: rate, the covariance [[pxx, pxv], [pxv, pvv]], the drift detector.
+X, V, PXX, PXV, PVV, DRIFT = range(6)
+#: Rows of a tracker's constants between linearisations (``Tracker._c``, shape (8, k)): one
+#: frame's variance, moving (1) or held (0), the linearisation point, one frame's sigma, the
+#: box a measurement is kept in, a logarithm (1) or not (0), the state's sigma when
+#: linearised (NaN: there was no state then).
+C_R, C_MOVING, C_POINT, C_SD1, C_LOW, C_HIGH, C_LOG, C_LIN_SD = range(8)
+
+_TABLE = types.Array(types.float64, 2, "C")
+
+
+@njit([types.Tuple((types.boolean, _VECTOR, _VECTOR))(
+    frame, _INDEX, _VECTOR, _MATRIX, _MATRIX, _VECTOR, _TABLE, types.float64, types.int64,
+    types.float64, types.float64) for frame in _FRAMES], cache=True)
+def measure_point(frame: np.ndarray, index: np.ndarray, at: np.ndarray, gain: np.ndarray,
+                  jacobian: np.ndarray, weight: np.ndarray, const: np.ndarray, limit: float,
+                  ln_f: int, reset_sigma: float, max_log_force_step: float
+                  ) -> tuple[bool, np.ndarray, np.ndarray]:
+    """:func:`measure_window`, then the tracker's tests of the step (see
+    :meth:`tactiled.pipeline.tracker.Tracker.measure_at`): ``(ok, z, e)``, ``z`` the measured
+    parameters (the point plus the step, clipped to the box), ``e`` the residual; ``ok``
+    False when the frame needs a fit of its own (``chi2`` beyond ``limit``, a non-finite step,
+    a logarithm moved by more than 1 and beyond ``reset_sigma`` single-frame sigmas, or the
+    log force (row ``ln_f``) by more than ``max_log_force_step``).  ``const``: the rows
+    ``C_R .. C_LIN_SD``."""
+    chi2, dz, e = measure_window(frame, index, at, gain, jacobian, weight)
+    if chi2 > limit:
+        return False, dz, e
+    k = dz.size
+    for i in range(k):
+        if not np.isfinite(dz[i]):
+            return False, dz, e
+    for i in range(k):
+        step = abs(dz[i])
+        if const[C_LOG, i] != 0.0 and step >= 1.0 and (
+                step > reset_sigma * const[C_SD1, i] or (i == ln_f and step > max_log_force_step)):
+            return False, dz, e
+    for i in range(k):
+        dz[i] = min(max(const[C_POINT, i] + dz[i], const[C_LOW, i]), const[C_HIGH, i])
+    return True, dz, e
+
+
+@njit([types.int64(_VECTOR, _TABLE, _TABLE, types.float64, types.float64, types.float64,
+                   types.boolean, types.float64, types.float64, types.float64)], cache=True)
+def filter_frame(z: np.ndarray, s: np.ndarray, const: np.ndarray, dt: float, acc_scale: float,
+                 walk: float, fitted: bool, reset_sigma: float, drift_alpha: float,
+                 drift_limit: float) -> int:
+    """One measurement ``z`` through the per-parameter filters ``s`` (rows ``X .. DRIFT``, in
+    place), ``dt`` (s) after the last: predicted (a moving parameter: constant velocity with
+    white acceleration of density ``acc_scale`` R; a held one: a random walk of ``walk`` R per
+    frame), then updated, and the drift detector (running mean ``drift_alpha``, alarm
+    ``drift_limit``) widening what lags.  Returns 0 when updated; when a parameter's
+    innovation is beyond ``reset_sigma`` of its predicted spread, -1 with ``s`` unchanged (not
+    ``fitted``: the frame needs a fit), or (``fitted``) the predicted state kept and a bit
+    mask of the parameters that jumped (bit i: parameter i), for the caller to restart them."""
+    k = z.size
+    xp = np.empty(k)
+    pxxp = np.empty(k)
+    pxvp = np.empty(k)
+    pvvp = np.empty(k)
+    u = np.empty(k)
+    dt2, dt3 = dt * dt, dt * dt * dt
+    jumped = 0
+    for i in range(k):
+        ri = const[C_R, i]
+        x, pxx, pxv, pvv = s[X, i], s[PXX, i], s[PXV, i], s[PVV, i]
+        if const[C_MOVING, i] != 0.0:
+            acc = acc_scale * ri
+            x += s[V, i] * dt
+            pxx += 2.0 * dt * pxv + dt2 * pvv + acc * dt3 / 3.0
+            pxv += dt * pvv + acc * dt2 / 2.0
+            pvv += acc * dt
+        else:
+            pxx += ri * walk
+        xp[i], pxxp[i], pxvp[i], pvvp[i] = x, pxx, pxv, pvv
+        u[i] = (z[i] - x) / np.sqrt(pxx + ri)
+        if abs(u[i]) > reset_sigma:
+            jumped |= 1 << i
+    if jumped and not fitted:
+        return -1
+    for i in range(k):
+        s[X, i], s[PXX, i], s[PXV, i], s[PVV, i] = xp[i], pxxp[i], pxvp[i], pvvp[i]
+    if jumped:
+        return jumped
+    for i in range(k):
+        ri = const[C_R, i]
+        x, v, pxx, pxv, pvv, drift = s[X, i], s[V, i], s[PXX, i], s[PXV, i], s[PVV, i], s[DRIFT, i]
+        total = pxx + ri
+        k1, k2 = pxx / total, pxv / total
+        nu = z[i] - x
+        x += k1 * nu
+        v += k2 * nu
+        pvv -= k2 * pxv
+        pxx *= 1.0 - k1
+        pxv *= 1.0 - k1
+        drift += drift_alpha * (u[i] - drift)
+        if abs(drift) > drift_limit:
+            # the parameter runs away from the model (it accelerates, or the object changes
+            # slowly): widen what is uncertain so the filter catches up
+            if const[C_MOVING, i] != 0.0:
+                window = dt / drift_alpha
+                lag = drift * np.sqrt(total) / window
+                pvv = max(pvv, 16.0 * (lag * lag))
+            else:
+                pxx = max(pxx, total)
+            drift = 0.0
+        s[X, i], s[V, i], s[PXX, i], s[PXV, i], s[PVV, i], s[DRIFT, i] = x, v, pxx, pxv, pvv, drift
+    return 0
+
+
+@njit([types.boolean(_TABLE, _TABLE, types.float64, types.float64)], cache=True)
+def moved_from_point(s: np.ndarray, const: np.ndarray, sigmas: float, sharpen: float) -> bool:
+    """The state ``s`` has moved from the linearisation point by more than ``sigmas``
+    single-frame sigmas in some parameter, or its spread has shrunk below 1/``sharpen`` of
+    what it was when linearised (or there was no state then)."""
+    for i in range(s.shape[1]):
+        lin_sd = const[C_LIN_SD, i]
+        if (abs(s[X, i] - const[C_POINT, i]) > sigmas * const[C_SD1, i] or not lin_sd == lin_sd
+                or sharpen * sharpen * s[PXX, i] < lin_sd * lin_sd):
+            return True
+    return False

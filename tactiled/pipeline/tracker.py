@@ -54,7 +54,25 @@ from tactiled.fit.params import (
     radius_tied_force,
     report_terms,
 )
-from tactiled.pipeline.kernels import fold_residuals, measure_window
+from tactiled.pipeline.kernels import (
+    C_HIGH,
+    C_LIN_SD,
+    C_LOG,
+    C_LOW,
+    C_MOVING,
+    C_POINT,
+    C_R,
+    C_SD1,
+    DRIFT,
+    PVV,
+    PXX,
+    V,
+    X,
+    filter_frame,
+    fold_residuals,
+    measure_point,
+    moved_from_point,
+)
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
 
@@ -68,6 +86,9 @@ RESET_SIGMA = 5.0
 DRIFT_ALPHA = 1.0 / 32.0
 #: The drift detector's alarm, in standard deviations of its running mean.
 DRIFT_LIMIT = 5.0
+#: ... which is this, in units of the normalised innovation (the running mean's spread is
+#: sqrt(alpha / (2 - alpha)) of one innovation's)
+_DRIFT_ALARM = DRIFT_LIMIT * math.sqrt(DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
 #: A moving parameter's running mean of normalised innovations beyond this many of its own
 #: sigmas says the filter lags the motion: the lag is added to its reported variance.
 LAG_Z = 2.0
@@ -163,8 +184,9 @@ class Tracker:
 
     ``memory_s``: how far back the moving parameters' filter looks (s); ``hold_s``: the same
     for the curvatures.  Times are the device's clock in seconds.  The per-parameter state is
-    kept in plain Python floats: for five or six parameters that is several times faster than
-    numpy's small-array calls, and it runs on every frame in the daemon's loop.
+    one small array (``_s``, rows ``kernels.X .. DRIFT``) that the compiled kernels of
+    :mod:`tactiled.pipeline.kernels` measure, filter and test in one call each per frame; the
+    estimate reads it as plain floats.
     """
 
     def __init__(self, memory_s: float = 0.1, hold_s: float = 30.0,
@@ -191,13 +213,9 @@ class Tracker:
         self.names: tuple[str, ...] = ()
         self.t: float | None = None
         self.n = 0  # frames the estimate rests on since the filter (re)started
-        # per parameter: value, rate, covariance [[pxx, pxv], [pxv, pvv]], drift detector
-        self.x: list[float] | None = None
-        self.v: list[float] = []
-        self.pxx: list[float] = []
-        self.pxv: list[float] = []
-        self.pvv: list[float] = []
-        self.drift: list[float] = []
+        # per parameter (a column): value, rate, covariance [[pxx, pxv], [pxv, pvv]], drift
+        # detector; None until the filter starts
+        self._s: np.ndarray | None = None
         #: how far the mean of the frames departs from the model beyond their noise: the
         #: reported variances are multiplied by it (1: not at all)
         self.excess = 1.0
@@ -209,7 +227,21 @@ class Tracker:
         self._corr_rows: list[list[float]] = []
         self._sys_rows: list[list[float]] | None = None
         self._judged_memo: tuple[dict[str, Any], Any] | None = None
-        self._lin_sd: list[float] | None = None  # the state's spread when linearised
+
+    @property
+    def x(self) -> np.ndarray | None:
+        """The filter's parameters (the model's internal vector), None before it starts."""
+        return None if self._s is None else self._s[X]
+
+    @property
+    def v(self) -> np.ndarray | None:
+        """The parameters' rates (per s), None before the filter starts."""
+        return None if self._s is None else self._s[V]
+
+    @property
+    def pxx(self) -> np.ndarray | None:
+        """The parameters' variances, None before the filter starts."""
+        return None if self._s is None else self._s[PXX]
 
     @property
     def active(self) -> bool:
@@ -219,7 +251,7 @@ class Tracker:
     @property
     def started(self) -> bool:
         """True when the filter holds an estimate."""
-        return self.x is not None
+        return self._s is not None
 
     def adopt(self, lin, zero_var: float = 0.0) -> None:
         """Measure the following frames through ``lin`` (a new fit's, or a relinearisation's).
@@ -227,12 +259,12 @@ class Tracker:
         variance (strain^2) of each tactel's zero (``Zeroer.baseline_var``), an error every
         frame of the contact shares: systematic, ``zero_var / sigma^2`` times ``lin.cov``."""
         if self.model is not None and lin.model != self.model:
-            self.x, self.t, self.n = None, None, 0
+            self._s, self.t, self.n = None, None, 0
         names = PARAMS[lin.model]
-        if self.x is not None and "psi" in names:
+        if self._s is not None and "psi" in names:
             # psi is periodic by pi: take the linearisation's psi next to the state's
             i = names.index("psi")
-            turns = round((self.x[i] - float(lin.p[i])) / math.pi)
+            turns = round((float(self._s[X, i]) - float(lin.p[i])) / math.pi)
             if turns:
                 p = lin.p.copy()
                 p[i] += turns * math.pi
@@ -253,45 +285,50 @@ class Tracker:
         (self._moving, self._logs, self._bounds, self._ln_f,
          self._rate_of) = _model_constants(names, self.geometry)
         self._limit = chi2_limit(max(lin.dof, 1))
-        self._p = lin.p.tolist()
         # The single frame's covariance as variances and correlations, and the systematic
         # part, in nested lists for the estimate's term-by-term delta method (k <= 6: plain
         # floats cost less than a dozen numpy calls, once per relinearisation)
         cov = lin.cov.tolist()
         k = len(cov)
         self._r = [cov[i][i] for i in range(k)]
-        self._sd1 = sd = [math.sqrt(r) for r in self._r]
+        sd = [math.sqrt(r) for r in self._r]
         self._corr_rows = [[cov[i][j] / (sd[i] * sd[j]) for j in range(k)] for i in range(k)]
         share = zero_var / (lin.sigma * lin.sigma)
         sys = [[a + share * c for a, c in zip(row, cov_row)]
                for row, cov_row in zip(lin.systematic.tolist(), cov)]
         self._sys_rows = sys if any(v != 0.0 for row in sys for v in row) else None
-        self._lin_sd = None if self.x is None else [math.sqrt(p) for p in self.pxx]
+        c = np.empty((C_LIN_SD + 1, k))
+        c[C_R], c[C_POINT], c[C_SD1] = self._r, lin.p, sd
+        c[C_MOVING], c[C_LOG] = self._moving, 0.0
+        c[C_LOG, self._logs] = 1.0
+        c[C_LOW], c[C_HIGH] = -math.inf, math.inf
+        for i, lo, hi in self._bounds:
+            c[C_LOW, i], c[C_HIGH, i] = lo, hi
+        c[C_LIN_SD] = math.nan if self._s is None else np.sqrt(self._s[PXX])
+        self._c = c
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:
         """``(model, p)``: where to linearise again, when the state has moved from the
         linearisation point, or has sharpened well past it; None while the point serves."""
-        if self.lin is None or self.x is None:
+        if self.lin is None or self._s is None:
             return None
-        lin_sd = self._lin_sd
-        for i, (x, p, sd1) in enumerate(zip(self.x, self._p, self._sd1)):
-            if (abs(x - p) > RELINEARIZE_SIGMA * sd1
-                    or lin_sd is None or SHARPEN * SHARPEN * self.pxx[i] < lin_sd[i] * lin_sd[i]):
-                return self.model, np.array(self.x)
+        if moved_from_point(self._s, self._c, RELINEARIZE_SIGMA, SHARPEN):
+            return self.model, self._s[X].copy()
         return None
 
     def predicted(self, t: float) -> tuple[str, tuple[float, ...]] | None:
         """``(model, params)`` of the contact predicted at ``t``: a warm start for a fit."""
-        if self.x is None or self.t is None:
+        if self._s is None or self.t is None:
             return None
         dt = t - self.t
         dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
-        return self.model, tuple(x + v * dt for x, v in zip(self.x, self.v))
+        x, v = self._s[X].tolist(), self._s[V].tolist()
+        return self.model, tuple(xi + vi * dt for xi, vi in zip(x, v))
 
     # -- a frame --------------------------------------------------------------------------------
 
     def step(self, strain: np.ndarray, t: float, fitted: bool = False,
-             measured: tuple[list[float], np.ndarray] | None = None) -> str:
+             measured: tuple[np.ndarray, np.ndarray] | None = None) -> str:
         """Measure one zeroed frame (flattened row-major, strain) taken at device time ``t``
         (s) and update the estimate: ``"tracked"``, ``"reset"`` (a change: the filter restarted
         from this frame) or ``"refit"`` (it needs a fit of its own: outside the linear range,
@@ -300,7 +337,7 @@ class Tracker:
         measured exactly there, and a jump restarts the filter).  ``measured``: the frame's
         :meth:`measure`, when the caller has it already."""
         if fitted:
-            z = list(self._p)  # the fit itself: the frame's own measurement
+            z = self._c[C_POINT].copy()  # the fit itself: the frame's own measurement
         else:
             m = self.measure(strain) if measured is None else measured
             if m is None:
@@ -313,7 +350,7 @@ class Tracker:
                 self._fold()
         return self._filter(z, t, fitted)
 
-    def measure(self, strain: np.ndarray) -> tuple[list[float], np.ndarray] | None:
+    def measure(self, strain: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """One frame's measurement through the linearisation, ``(z, e)`` (the parameters and
         the residual ``J dz`` leaves), or None when the frame needs a fit of its own (outside
         the linear range, or a step no linearisation reaches).  Changes nothing."""
@@ -321,40 +358,31 @@ class Tracker:
         return self.measure_at(frame, self._index, self._at)
 
     def measure_at(self, frame: np.ndarray, index: np.ndarray,
-                   at: np.ndarray) -> tuple[list[float], np.ndarray] | None:
+                   at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """:meth:`measure` of ``frame[index]`` (``frame`` flat, float64) less ``at`` (the
         linearisation's strains on its window, and whatever else the caller takes out)."""
-        chi2, dp, e = measure_window(frame, index, at, self._gain, self._jacobian, self._weight)
-        if chi2 > self._limit:
-            return None
-        dz = dp.tolist()
-        # A log radius or force moved by more than a factor e from the point: no linear
-        # range reaches that far (a release: force to zero), whatever the residual says.
-        # Unless the step is within the noise (RESET_SIGMA single-frame sigmas): a value
-        # one frame barely determines (the radius of a light contact, of one at the
-        # noise), which the filter weighs as such; a fit would give as uncertain a value.
-        # The force, though, never by more than a factor e^MAX_LOG_FORCE_STEP: a contact
-        # letting go (its fit may find nothing left to place), or a filter gone astray (a
-        # point so far from the contact that its linearisation measures nothing, and every
-        # step passes as noise: seen as 577 N off the array on a held 1.2 N contact).
-        if not all(math.isfinite(v) for v in dz) or any(
-                abs(dz[i]) >= 1.0 and (abs(dz[i]) > RESET_SIGMA * self._sd1[i]
-                                       or (i == self._ln_f and abs(dz[i]) > MAX_LOG_FORCE_STEP))
-                for i in self._logs):
-            return None
-        z = [p + q for p, q in zip(self._p, dz)]
-        # ... and a value the frame does not bound is kept within what a finger carries
-        # (within_reason's box): a radius, force or centre no frame determines (a contact
-        # at the noise, letting go) would otherwise random-walk, to exp() overflow and
-        # centres a kilometre off the array (seen on release residuals)
-        for i, lo, hi in self._bounds:
-            z[i] = min(max(z[i], lo), hi)
-        return z, e
+        # The kernel's tests of the step (kernels.measure_point): a log radius or force moved
+        # by more than a factor e from the point: no linear range reaches that far (a
+        # release: force to zero), whatever the residual says.  Unless the step is within
+        # the noise (RESET_SIGMA single-frame sigmas): a value one frame barely determines
+        # (the radius of a light contact, of one at the noise), which the filter weighs as
+        # such; a fit would give as uncertain a value.  The force, though, never by more
+        # than a factor e^MAX_LOG_FORCE_STEP: a contact letting go (its fit may find nothing
+        # left to place), or a filter gone astray (a point so far from the contact that its
+        # linearisation measures nothing, and every step passes as noise: seen as 577 N off
+        # the array on a held 1.2 N contact).  And a value the frame does not bound is kept
+        # within what a finger carries (within_reason's box): a radius, force or centre no
+        # frame determines (a contact at the noise, letting go) would otherwise random-walk,
+        # to exp() overflow and centres a kilometre off the array (seen on release residuals).
+        ok, z, e = measure_point(frame, index, at, self._gain, self._jacobian, self._weight,
+                                 self._c, self._limit, self._ln_f, RESET_SIGMA,
+                                 MAX_LOG_FORCE_STEP)
+        return (z, e) if ok else None
 
-    def _filter(self, z: list[float], t: float, fitted: bool) -> str:
-        """The filter's update with measurement ``z`` at ``t`` (see :meth:`step`)."""
-        r = self._r
-        if self.x is None or self.t is None:
+    def _filter(self, z: np.ndarray, t: float, fitted: bool) -> str:
+        """The filter's update with measurement ``z`` at ``t`` (see :meth:`step`): predicted,
+        innovations tested, updated (:func:`~tactiled.pipeline.kernels.filter_frame`)."""
+        if self._s is None or self.t is None:
             self._start(z, t)
             return "tracked"
         dt = t - self.t
@@ -362,22 +390,21 @@ class Tracker:
             self._start(z, t)
             self.resets += 1
             return "reset"
-        before = (self.x[:], self.pxx[:], self.pxv[:], self.pvv[:])
-        self._predict(dt)
-        u = [(zi - xi) / math.sqrt(p + ri) for zi, xi, p, ri in zip(z, self.x, self.pxx, r)]
-        jumped = [abs(ui) > RESET_SIGMA for ui in u]
-        if any(jumped):
-            if not fitted:
-                # the estimate is unchanged: back to the state before this frame (its fit
-                # will be measured from there, not from a state predicted twice)
-                self.x, self.pxx, self.pxv, self.pvv = before
-                return "refit"
+        # white acceleration of density 36 R dt / tau^4 for a moving parameter: an alpha-beta
+        # filter with a window of about tau s (R: one frame's noise variance, dt: the frame
+        # period); a random walk with a memory of hold_s for a curvature
+        jumped = filter_frame(z, self._s, self._c, dt, 36.0 * dt / self.memory_s ** 4,
+                              dt * dt / (self.hold_s * self.hold_s), fitted, RESET_SIGMA,
+                              DRIFT_ALPHA, _DRIFT_ALARM)
+        if jumped < 0:
+            # the estimate is unchanged (its fit will be measured from there)
+            return "refit"
+        if jumped:
             # a change: the moving parameters start again from this frame; a curvature only
             # if it changed itself (a force step does not change the object)
-            self._start(z, t, keep=[not (m or j) for m, j in zip(self._moving, jumped)])
+            self._start(z, t, keep=[not (m or jumped >> i & 1) for i, m in enumerate(self._moving)])
             self.resets += 1
             return "reset"
-        self._update(z, u, dt)
         self.t = t
         self.n += 1
         return "tracked"
@@ -410,66 +437,29 @@ class Tracker:
         chi2 /= lin.sigma * lin.sigma
         self.excess = chi2 / dof if chi2 > chi2_limit(dof, MEAN_RESIDUAL_Z) else 1.0
 
-    def _start(self, z: list[float], t: float, keep: list[bool] | None = None) -> None:
+    def _start(self, z: np.ndarray | list[float], t: float,
+               keep: list[bool] | None = None) -> None:
         """(Re)start the filter at measurement ``z``; ``keep`` marks parameters whose filter
         goes on (updated with this frame)."""
-        r, k = self._r, len(z)
-        old = None if self.x is None else (self.x, self.pxx)
-        self.x, self.pxx = list(z), list(r)
-        # The rate is unknown: a prior wide enough for any contact the scenes move (it is
-        # learnt from the next frames; velocities are reported after MIN_RATE_FRAMES).
-        self.v, self.pxv = [0.0] * k, [0.0] * k
-        self.pvv = [1e6 * ri if m else 0.0 for ri, m in zip(r, self._moving)]
-        self.drift = [0.0] * k
+        r = self._r
+        z = [float(zi) for zi in z]
+        old = None if self._s is None else (self._s[X].tolist(), self._s[PXX].tolist())
+        x, pxx = list(z), list(r)
         if old is not None and keep is not None:
             for i, kept in enumerate(keep):
                 if kept:
                     x0, p0 = old[0][i], old[1][i]
                     gain = p0 / (p0 + r[i])
-                    self.x[i] = x0 + gain * (z[i] - x0)
-                    self.pxx[i] = p0 * (1.0 - gain)
+                    x[i] = x0 + gain * (z[i] - x0)
+                    pxx[i] = p0 * (1.0 - gain)
+        s = np.zeros((DRIFT + 1, len(z)))
+        s[X], s[PXX] = x, pxx
+        # The rate is unknown: a prior wide enough for any contact the scenes move (it is
+        # learnt from the next frames; velocities are reported after MIN_RATE_FRAMES).
+        s[PVV] = [1e6 * ri if m else 0.0 for ri, m in zip(r, self._moving)]
+        self._s = s
         self.t, self.n = t, 1
-        self._lin_sd = [math.sqrt(p) for p in self.pxx]
-
-    def _predict(self, dt: float) -> None:
-        x, v, pxx, pxv, pvv = self.x, self.v, self.pxx, self.pxv, self.pvv
-        acc_scale = 36.0 * dt / self.memory_s ** 4
-        walk = dt * dt / (self.hold_s * self.hold_s)
-        dt2, dt3 = dt * dt, dt * dt * dt
-        for i, (moving, ri) in enumerate(zip(self._moving, self._r)):
-            if moving:
-                # white acceleration of density 36 R dt / tau^4: an alpha-beta filter with a
-                # window of about tau s (R: one frame's noise variance, dt: the frame period)
-                acc = acc_scale * ri
-                x[i] += v[i] * dt
-                pxx[i] += 2.0 * dt * pxv[i] + dt2 * pvv[i] + acc * dt3 / 3.0
-                pxv[i] += dt * pvv[i] + acc * dt2 / 2.0
-                pvv[i] += acc * dt
-            else:
-                pxx[i] += ri * walk  # a random walk with a memory of hold_s
-
-    def _update(self, z: list[float], u: list[float], dt: float) -> None:
-        x, v, pxx, pxv, pvv, drift = self.x, self.v, self.pxx, self.pxv, self.pvv, self.drift
-        limit = DRIFT_LIMIT * math.sqrt(DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
-        for i, ri in enumerate(self._r):
-            s = pxx[i] + ri
-            k1, k2 = pxx[i] / s, pxv[i] / s
-            nu = z[i] - x[i]
-            x[i] += k1 * nu
-            v[i] += k2 * nu
-            pvv[i] -= k2 * pxv[i]
-            pxx[i] *= 1.0 - k1
-            pxv[i] *= 1.0 - k1
-            drift[i] += DRIFT_ALPHA * (u[i] - drift[i])
-            if abs(drift[i]) > limit:
-                # the parameter runs away from the model (it accelerates, or the object
-                # changes slowly): widen what is uncertain so the filter catches up
-                if self._moving[i]:
-                    window = dt / DRIFT_ALPHA
-                    pvv[i] = max(pvv[i], 16.0 * (drift[i] * math.sqrt(s) / window) ** 2)
-                else:
-                    pxx[i] = max(pxx[i], s)
-                drift[i] = 0.0
+        self._c[C_LIN_SD] = np.sqrt(s[PXX])
 
     # -- the estimate ---------------------------------------------------------------------------
 
@@ -478,16 +468,15 @@ class Tracker:
         gives the keys the tracker does not estimate: label, rms, ellipse, ...) with the
         tracked values, their 1-sigma, ``frames_used`` and the rates.  ``at``: predicted to
         that device time (s) from the last frame measured (a frame it could not measure)."""
-        assert self.x is not None and self.model is not None
+        assert self._s is not None and self.model is not None
+        x, rate, pxx, pxv, pvv, drift = self._s.tolist()
         dt = 0.0 if at is None or self.t is None else at - self.t
         dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
         if dt:
-            x = [xi + vi * dt for xi, vi in zip(self.x, self.v)]
-            pxx = [p + dt * (2.0 * c + dt * w) for p, c, w in zip(self.pxx, self.pxv, self.pvv)]
-        else:
-            x, pxx = self.x, self.pxx
+            x = [xi + vi * dt for xi, vi in zip(x, rate)]
+            pxx = [p + dt * (2.0 * c + dt * w) for p, c, w in zip(pxx, pxv, pvv)]
         values, terms = report_terms(self.model, x)
-        pxx = self._with_lag(pxx)
+        pxx = self._with_lag(pxx, drift)
         # The delta method term by term (a value rests on one or two parameters): the
         # state's covariance is sd_a sd_b corr_ab (the filters' variances, the single
         # frame's correlation) plus the systematic part.  Plain floats: a runaway value
@@ -537,7 +526,7 @@ class Tracker:
             out[key], std[key] = v, sd_i
             if soft_reasons[i]:
                 del reasons[key]
-        rates, rate_sd = self._rates(values, reasons)
+        rates, rate_sd = self._rates(values, reasons, rate, pvv)
         out.update(rates)
         std.update(rate_sd)
         out["std"] = std
@@ -561,13 +550,13 @@ class Tracker:
         self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
         return judged
 
-    def _with_lag(self, pxx: list[float]) -> list[float]:
+    def _with_lag(self, pxx: list[float], drift: list[float]) -> list[float]:
         """``pxx`` with each moving parameter's lag behind the truth added, where its
         innovations run consistently to one side (their running mean, ``drift``, beyond
         ``LAG_Z`` of its own spread): the motion departs from constant velocity (a press's
         log-force decelerates) and the filter's estimate trails it by about that mean times
         the innovations' spread, an error its own variance does not hold."""
-        drift, noise = self.drift, LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA)
+        noise = LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA)
         if not any(m and d * d > noise for m, d in zip(self._moving, drift)):
             return pxx
         return [p + (d * d * (p + r) if m and d * d > noise else 0.0)
@@ -596,8 +585,8 @@ class Tracker:
                     f"{self.n} frame(s) is {100 * rel:.0f} % of it")
         return None
 
-    def _rates(self, values: dict[str, float | None],
-               reasons: dict[str, str]) -> tuple[dict[str, float | None], dict[str, float | None]]:
+    def _rates(self, values: dict[str, float | None], reasons: dict[str, str], v: list[float],
+               pvv: list[float]) -> tuple[dict[str, float | None], dict[str, float | None]]:
         rates: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
         sds: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
         if self.n < MIN_RATE_FRAMES:
@@ -605,7 +594,7 @@ class Tracker:
             for _, key, _ in self._rate_of:
                 reasons[key] = why
         else:
-            v, pvv, excess = self.v, self.pvv, self.excess
+            excess = self.excess
             for i, key, name in self._rate_of:
                 scale = (180.0 / math.pi if name == "psi"
                          else (values["force_n"] or 0.0) if name == "ln_f" else 1.0)

@@ -90,7 +90,7 @@ def test_several_contacts_with_overlapping_windows_measure_as_the_plain_arithmet
     base = {"contacts": [{"x_mm": 2.0, "y_mm": 2.0}, {"x_mm": 6.0, "y_mm": 6.0}]}
     assert trackers.adopt(SeveralLinearizations(tuple(lins)), 0.0, base)
     for i, tr in enumerate(trackers.trackers):  # each filter a little off its point
-        tr.x = list(lins[i].p + rng.normal(0.0, 1e-2, k))
+        tr._start(lins[i].p + rng.normal(0.0, 1e-2, k), 0.0)
     frame = rng.normal(0.0, 1e-3, size)
     frame.flags.writeable = False
     for i, (tr, (index, at)) in enumerate(zip(trackers.trackers, trackers._windows(frame))):
@@ -127,3 +127,140 @@ def test_fold_residuals_matches_numpy() -> None:
     assert not buffered.any()
     assert used_n == int(used.sum()) and 0 < used_n < 256
     assert chi2 == pytest.approx(float(np.sum(t[used] ** 2 / c[used])), rel=1e-12)
+
+
+def _filter_reference(z, x, v, pxx, pxv, pvv, drift, r, moving, dt, acc_scale, walk, fitted,
+                      reset_sigma, alpha, limit):
+    """The tracker's filter step written out in plain floats (predict, test, update): what
+    kernels.filter_frame must give.  Returns (code, state lists) as the kernel does."""
+    import math
+
+    x, v, pxx, pxv, pvv, drift = (list(a) for a in (x, v, pxx, pxv, pvv, drift))
+    before = (x[:], pxx[:], pxv[:], pvv[:])
+    for i, m in enumerate(moving):
+        if m:
+            acc = acc_scale * r[i]
+            x[i] += v[i] * dt
+            pxx[i] += 2.0 * dt * pxv[i] + dt * dt * pvv[i] + acc * dt * dt * dt / 3.0
+            pxv[i] += dt * pvv[i] + acc * dt * dt / 2.0
+            pvv[i] += acc * dt
+        else:
+            pxx[i] += r[i] * walk
+    u = [(zi - xi) / math.sqrt(p + ri) for zi, xi, p, ri in zip(z, x, pxx, r)]
+    mask = sum(1 << i for i, ui in enumerate(u) if abs(ui) > reset_sigma)
+    if mask and not fitted:
+        x, pxx, pxv, pvv = before
+        return -1, (x, v, pxx, pxv, pvv, drift)
+    if mask:
+        return mask, (x, v, pxx, pxv, pvv, drift)
+    for i, ri in enumerate(r):
+        s = pxx[i] + ri
+        k1, k2 = pxx[i] / s, pxv[i] / s
+        nu = z[i] - x[i]
+        x[i] += k1 * nu
+        v[i] += k2 * nu
+        pvv[i] -= k2 * pxv[i]
+        pxx[i] *= 1.0 - k1
+        pxv[i] *= 1.0 - k1
+        drift[i] += alpha * (u[i] - drift[i])
+        if abs(drift[i]) > limit:
+            if moving[i]:
+                pvv[i] = max(pvv[i], 16.0 * (drift[i] * math.sqrt(s) / (dt / alpha)) ** 2)
+            else:
+                pxx[i] = max(pxx[i], s)
+            drift[i] = 0.0
+    return 0, (x, v, pxx, pxv, pvv, drift)
+
+
+@pytest.mark.parametrize("case", ["update", "drift alarm", "jump", "jump of the fitted frame"])
+def test_filter_frame_matches_the_plain_arithmetic(case: str) -> None:
+    from tactiled.pipeline.kernels import C_LIN_SD, C_MOVING, C_R, filter_frame
+
+    rng = np.random.default_rng(11)
+    k = 6
+    moving = [False, True, True, True, True, True]
+    r = rng.uniform(1e-4, 1e-2, k)
+    s = np.vstack([rng.normal(size=k), rng.normal(size=k), rng.uniform(1e-4, 1e-2, k),
+                   rng.normal(0.0, 1e-4, k), rng.uniform(1e-3, 1e-1, k),
+                   rng.normal(0.0, 0.1, k)])
+    z = s[0] + rng.normal(0.0, 0.05, k)
+    fitted = case == "jump of the fitted frame"
+    if case == "drift alarm":
+        s[5] = [0.9, -0.9, 0.9, 0.1, 0.2, -0.9]  # past the alarm after this frame
+        z = s[0] + np.sign(s[5]) * 0.2
+    if case.startswith("jump"):
+        z[3] += 10.0  # a moving parameter, far beyond its spread
+    const = np.zeros((C_LIN_SD + 1, k))
+    const[C_R], const[C_MOVING] = r, moving
+    args = (1e-3, 36.0 * 1e-3 / 0.1 ** 4, 1e-6 / 900.0, fitted, 5.0, 1.0 / 32.0, 0.9)
+    want_code, want = _filter_reference(z.tolist(), *s.tolist(), r.tolist(), moving, *args)
+    got = s.copy()
+    code = filter_frame(z, got, const, *args)
+    assert code == want_code
+    assert code == {"update": 0, "drift alarm": 0, "jump": -1, "jump of the fitted frame": 8}[case]
+    np.testing.assert_allclose(got, np.array(want), rtol=1e-14, atol=0.0)
+    if case == "drift alarm":
+        assert (got[5] == 0.0).sum() >= 3  # the alarm reset the detectors it fired on
+
+
+def test_measure_point_refuses_what_the_tracker_must_fit() -> None:
+    """kernels.measure_point: the window's step from the point, clipped to its box; None-worthy
+    frames (beyond the chi^2 limit, a log step past the noise, a non-finite value) refused."""
+    from tactiled.pipeline.kernels import (C_HIGH, C_LIN_SD, C_LOG, C_LOW, C_POINT, C_SD1,
+                                           measure_point)
+
+    rng = np.random.default_rng(12)
+    n, k = 30, 4
+    index = np.arange(n, dtype=np.intp)
+    jacobian = rng.normal(0.0, 1.0, (n, k))
+    gain = np.linalg.pinv(jacobian)
+    weight = np.ones(n)
+    const = np.zeros((C_LIN_SD + 1, k))
+    const[C_POINT] = [0.5, 0.0, 1.0, 2.0]
+    const[C_SD1] = 0.1
+    const[C_LOG] = [1.0, 0.0, 0.0, 0.0]
+    const[C_LOW], const[C_HIGH] = -np.inf, np.inf
+    const[C_LOW, 3], const[C_HIGH, 3] = -1.0, 2.05
+    at = np.zeros(n)
+
+    def measure(step, limit=1e9, noise=0.0):
+        frame = jacobian @ np.asarray(step, dtype=float) + rng.normal(0.0, noise, n) if noise \
+            else jacobian @ np.asarray(step, dtype=float)
+        return measure_point(frame, index, at, gain, jacobian, weight, const, limit, 0, 5.0, 3.0)
+
+    ok, z, e = measure([0.05, 0.3, -0.2, 0.01])
+    assert ok
+    np.testing.assert_allclose(z, [0.55, 0.3, 0.8, 2.01], atol=1e-12)
+    np.testing.assert_allclose(e, 0.0, atol=1e-12)
+    ok, z, _ = measure([0.05, 0.3, -0.2, 0.2])
+    assert ok and z[3] == 2.05  # clipped to its box
+    assert measure([1.2, 0.0, 0.0, 0.0])[0] is False  # a log step of 1.2 > 5 sigmas (0.5)
+    assert measure([0.0, 1.2, 0.0, 0.0])[0] is True  # ... but not a step of a linear one
+    assert measure([0.05, 0.0, 0.0, 0.0], limit=1e-6, noise=0.1)[0] is False  # chi^2 > limit
+    const[C_SD1, 0] = 1.0
+    assert measure([1.2, 0.0, 0.0, 0.0])[0] is True  # within 5 sigmas: the filter weighs it
+    assert measure([3.5, 0.0, 0.0, 0.0])[0] is False  # ... but never a factor e^3 in force
+    bad = np.full(n, np.nan)
+    assert measure_point(bad, index, at, gain, jacobian, weight, const, np.inf, 0, 5.0,
+                         3.0)[0] is False
+
+
+def test_moved_from_point() -> None:
+    from tactiled.pipeline.kernels import C_LIN_SD, C_POINT, C_SD1, moved_from_point
+
+    k = 3
+    s = np.zeros((6, k))
+    s[2] = 0.01  # variances
+    const = np.zeros((C_LIN_SD + 1, k))
+    const[C_SD1], const[C_LIN_SD] = 0.1, 0.1
+    assert not moved_from_point(s, const, 1.0, 2.0)
+    s[0, 1] = 0.11  # one sigma away
+    assert moved_from_point(s, const, 1.0, 2.0)
+    s[0, 1] = 0.0
+    s[2, 2] = 0.0024  # spread 0.049 < 0.1 / 2: sharpened
+    assert moved_from_point(s, const, 1.0, 2.0)
+    s[2, 2] = 0.01
+    const[C_LIN_SD, 0] = np.nan  # no state when linearised
+    assert moved_from_point(s, const, 1.0, 2.0)
+    const[C_LIN_SD, 0], const[C_POINT, 0] = 0.1, 0.05
+    assert not moved_from_point(s, const, 1.0, 2.0)

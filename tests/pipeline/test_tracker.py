@@ -288,7 +288,7 @@ def test_a_press_ramp_the_filter_lags_is_covered_by_its_sigma(kit) -> None:
     from tactiled.pipeline import tracker as tracker_module
 
     bare = tracker_module.Tracker._with_lag
-    tracker_module.Tracker._with_lag = lambda self, pxx: pxx
+    tracker_module.Tracker._with_lag = lambda self, pxx, drift: pxx
     try:
         for seed in range(3):
             out, _, _ = play(kit, truth, 300, seed)
