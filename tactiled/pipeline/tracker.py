@@ -162,13 +162,21 @@ def within_reason(p: np.ndarray, geometry) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def _model_constants(names: tuple[str, ...], geometry) -> tuple[
-        list[bool], list[int], list[tuple[int, float, float]], int, list[tuple[int, str, str]]]:
+        list[bool], int, list[tuple[int, str, str]], np.ndarray]:
     """What the tracker reads of a model's parameters ``names`` on ``geometry``, the same at
-    every linearisation: which move, which are logarithms, the box each is kept in, the
-    force's index, and which carry a rate (index, estimate key, name).  (Read only.)"""
-    return ([n in MOVING for n in names], [i for i, n in enumerate(names) if n.startswith("ln_")],
-            reasonable_bounds(names, geometry), names.index("ln_f"),
-            [(i, _RATE_OF[n], n) for i, n in enumerate(names) if n in _RATE_OF])
+    every linearisation: which move, the force's index, which carry a rate (index, estimate
+    key, name), and the kernels' constants table with the rows that depend on the model only
+    filled in (which move, which are logarithms, the box each is kept in).  (Read only.)"""
+    moving = [n in MOVING for n in names]
+    table = np.full((C_LIN_SD + 1, len(names)), math.nan)
+    table[C_MOVING] = moving
+    table[C_LOG] = [n.startswith("ln_") for n in names]
+    table[C_LOW], table[C_HIGH] = -math.inf, math.inf
+    for i, lo, hi in reasonable_bounds(names, geometry):
+        table[C_LOW, i], table[C_HIGH, i] = lo, hi
+    table.flags.writeable = False
+    return (moving, names.index("ln_f"),
+            [(i, _RATE_OF[n], n) for i, n in enumerate(names) if n in _RATE_OF], table)
 
 
 @functools.lru_cache(maxsize=1024)
@@ -282,30 +290,22 @@ class Tracker:
         self._gain = np.asarray(lin.gain, dtype=np.float64)
         self._jacobian = np.asarray(lin.jacobian, dtype=np.float64)
         self._weight = np.ascontiguousarray(lin.weight, dtype=np.float64)
-        (self._moving, self._logs, self._bounds, self._ln_f,
-         self._rate_of) = _model_constants(names, self.geometry)
+        self._moving, self._ln_f, self._rate_of, table = _model_constants(names, self.geometry)
         self._limit = chi2_limit(max(lin.dof, 1))
         # The single frame's covariance as variances and correlations, and the systematic
         # part, in nested lists for the estimate's term-by-term delta method (k <= 6: plain
-        # floats cost less than a dozen numpy calls, once per relinearisation)
-        cov = lin.cov.tolist()
-        k = len(cov)
-        self._r = [cov[i][i] for i in range(k)]
-        sd = [math.sqrt(r) for r in self._r]
-        self._corr_rows = [[cov[i][j] / (sd[i] * sd[j]) for j in range(k)] for i in range(k)]
-        share = zero_var / (lin.sigma * lin.sigma)
-        sys = [[a + share * c for a, c in zip(row, cov_row)]
-               for row, cov_row in zip(lin.systematic.tolist(), cov)]
-        self._sys_rows = sys if any(v != 0.0 for row in sys for v in row) else None
-        c = np.empty((C_LIN_SD + 1, k))
-        c[C_R], c[C_POINT], c[C_SD1] = self._r, lin.p, sd
-        c[C_MOVING], c[C_LOG] = self._moving, 0.0
-        c[C_LOG, self._logs] = 1.0
-        c[C_LOW], c[C_HIGH] = -math.inf, math.inf
-        for i, lo, hi in self._bounds:
-            c[C_LOW, i], c[C_HIGH, i] = lo, hi
+        # floats cost less there than numpy's calls)
+        cov = lin.cov
+        c = table.copy()
+        c[C_R] = r = np.diagonal(cov)
+        c[C_SD1] = sd = np.sqrt(r)
+        c[C_POINT] = lin.p
         c[C_LIN_SD] = math.nan if self._s is None else np.sqrt(self._s[PXX])
         self._c = c
+        self._r = r.tolist()
+        self._corr_rows = (cov / np.outer(sd, sd)).tolist()
+        sys = lin.systematic + (zero_var / (lin.sigma * lin.sigma)) * cov
+        self._sys_rows = sys.tolist() if sys.any() else None
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:
         """``(model, p)``: where to linearise again, when the state has moved from the
