@@ -45,6 +45,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from tactiled.config import SensorModel
+from tactiled.pipeline.messages import dumps, pack_array
 from tactiled.settings import FitSettings
 
 log = logging.getLogger(__name__)
@@ -515,7 +516,7 @@ class WorkerPool:
         w.outstanding.append(_Request(kind, self._rid, timeout, job))
         try:
             # Small messages on a socketpair, at most a few outstanding: never blocks.
-            w.conn.send((message[0], self._rid, *message[1:]))
+            w.conn.send_bytes(dumps((message[0], self._rid, *message[1:])))
         except (OSError, ValueError) as err:
             w.outstanding.pop()
             self._lose(w, "died", f"send failed: {err}")
@@ -627,8 +628,9 @@ class WorkerPool:
             # The fitter stops itself at half the deadline (FIT_BUDGET_FRACTION), so a frame
             # far outside the model costs a non-converged estimate, not a killed worker.
             budget = FIT_BUDGET_FRACTION * self.settings.timeout
-            if not self._send(w, ("fit", job.spec, job.strain, job.model, job.mask, job.warm,
-                                  budget, job.kind), "fit", self.settings.timeout, job):
+            if not self._send(w, ("fit", job.spec, pack_array(job.strain), job.model,
+                                  pack_array(job.mask), job.warm, budget, job.kind), "fit",
+                              self.settings.timeout, job):
                 continue  # _lose has failed the job already
 
     # -- supervision ------------------------------------------------------------------------------

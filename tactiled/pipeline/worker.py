@@ -8,7 +8,8 @@ in order (which is what lets the parent give every outstanding request a deadlin
 - started with its initial specs, it answers ``("ready", pid, warm_up_s, broken)``, where
   ``broken`` maps a spec whose fitter could not be built to the error (its fits then answer
   with that error: one sensor's bad model must not keep the worker from serving the others);
-- ``("fit", rid, spec, strain, model, mask, warm, budget_s, kind)`` -> ``("result", rid,
+- ``("fit", rid, spec, strain, model, mask, warm, budget_s, kind)`` (``strain`` and ``mask``
+  packed by :func:`tactiled.pipeline.messages.pack_array`) -> ``("result", rid,
   fit_json_dict | None, compute_s, error | None, warm | None, lin | None)`` (the fitter
   raising costs one frame, never the worker); ``warm`` is ``(model, params)`` of a converged
   fit, the next frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
@@ -53,6 +54,7 @@ from typing import Any
 from tactiled.config import SensorModel
 from tactiled.heap import pin_malloc, trim
 from tactiled.pipeline.estimate import plain
+from tactiled.pipeline.messages import unpack_array
 
 #: A worker gives malloc's free memory back to the system every this many fits (tactiled.heap
 #: .trim: about a minute of steady fitting, a few milliseconds each time).
@@ -183,6 +185,7 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
             kind = msg[0]
             if kind == "fit":
                 _, rid, spec, strain, model, mask, warm, budget_s, job_kind = msg
+                strain, mask = unpack_array(strain), unpack_array(mask)
                 notice.rid = rid
                 t = time.perf_counter()
                 follow = lin = out = None
