@@ -215,3 +215,125 @@ def moved_from_point(s: np.ndarray, const: np.ndarray, sigmas: float, sharpen: f
                 or sharpen * sharpen * s[PXX, i] < lin_sd * lin_sd):
             return True
     return False
+
+
+@njit(cache=True)
+def _delta_cov(idx: np.ndarray, grad: np.ndarray, ka: int, kb: int, sd: np.ndarray,
+               corr: np.ndarray, sys: np.ndarray, has_sys: bool) -> float:
+    """The covariance of values ``ka`` and ``kb`` from their gradient terms (in the order
+    :meth:`Tracker.estimate`'s plain-float version summed them)."""
+    total = 0.0
+    for ia in range(2):
+        a = idx[ka, ia]
+        if a < 0:
+            break
+        ga = grad[ka, ia]
+        gsa = ga * sd[a]
+        for ib in range(2):
+            b = idx[kb, ib]
+            if b < 0:
+                break
+            gb = grad[kb, ib]
+            total += gsa * (gb * sd[b]) * corr[a, b]
+            if has_sys:
+                total += ga * gb * sys[a, b]
+    return total
+
+
+#: The models :func:`estimate_numbers` knows, by the code it takes.
+MODEL_CODES = {"cylinder": 0, "sphere": 1, "general": 2}
+_RAD_TO_DEG = 180.0 / np.pi
+
+
+@njit([types.Tuple((_VECTOR, _VECTOR, types.float64, types.int64))(
+    types.int64, _TABLE, _TABLE, types.float64, types.float64, _TABLE, _TABLE, types.boolean,
+    types.float64)], cache=True)
+def estimate_numbers(model: int, s: np.ndarray, const: np.ndarray, dt: float, excess: float,
+                     corr: np.ndarray, sys: np.ndarray, has_sys: bool,
+                     lag_noise: float) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """The numbers of a tracker's estimate (:meth:`~tactiled.pipeline.tracker.Tracker.estimate`):
+    the state ``s`` predicted ``dt`` s ahead (0: as it is), each value of
+    ``tactiled.fit.params.VALUE_KEYS`` (:func:`~tactiled.fit.params.report_terms` of
+    ``model``, a :data:`MODEL_CODES` code; the orientation as psi in radians, for the caller
+    to wrap) and its variance by the delta method term by term: the state's variances (each
+    moving parameter's lag added where its drift detector's mean, squared, is beyond
+    ``lag_noise``; times ``excess``) with the single frame's correlations ``corr``, plus the
+    systematic covariance ``sys`` when ``has_sys``; the covariance of r1 and the force.
+    Returns ``(values, variances, cov_r1_force, absent)``, ``absent`` a bit mask of the
+    values the model does not have (bit i: key i; their value and variance NaN)."""
+    k = s.shape[1]
+    x = np.empty(k)
+    pxx = np.empty(k)
+    for i in range(k):
+        if dt != 0.0:
+            x[i] = s[X, i] + s[V, i] * dt
+            pxx[i] = s[PXX, i] + dt * (2.0 * s[PXV, i] + dt * s[PVV, i])
+        else:
+            x[i] = s[X, i]
+            pxx[i] = s[PXX, i]
+    for i in range(k):
+        d = s[DRIFT, i]
+        if const[C_MOVING, i] != 0.0 and d * d > lag_noise:
+            pxx[i] = pxx[i] + d * d * (pxx[i] + const[C_R, i])
+    sd = np.empty(k)
+    for i in range(k):
+        q = pxx[i] * excess
+        sd[i] = np.sqrt(q) if q >= 0.0 else np.nan
+    values = np.full(6, np.nan)
+    # each value's gradient: up to two (parameter, derivative) terms; none: absent
+    idx = np.full((6, 2), -1, dtype=np.int64)
+    grad = np.zeros((6, 2))
+    absent = 0
+    if model == 0:  # cylinder: ln_r, psi, ln_f, x0, y0
+        r, f = np.exp(x[0]), np.exp(x[2])
+        values[0], values[1], values[2], values[3], values[5] = x[3], x[4], f, r, x[1]
+        idx[0, 0], grad[0, 0] = 3, 1.0
+        idx[1, 0], grad[1, 0] = 4, 1.0
+        idx[2, 0], grad[2, 0] = 2, f
+        idx[3, 0], grad[3, 0] = 0, r
+        idx[5, 0], grad[5, 0] = 1, _RAD_TO_DEG
+        absent = 1 << 4
+    elif model == 1:  # sphere: ln_r, ln_f, x0, y0
+        r, f = np.exp(x[0]), np.exp(x[1])
+        values[0], values[1], values[2], values[3], values[4] = x[2], x[3], f, r, r
+        idx[0, 0], grad[0, 0] = 2, 1.0
+        idx[1, 0], grad[1, 0] = 3, 1.0
+        idx[2, 0], grad[2, 0] = 1, f
+        idx[3, 0], grad[3, 0] = 0, r
+        idx[4, 0], grad[4, 0] = 0, r
+        absent = 1 << 5
+    else:  # general: ln_ra, beta, psi, ln_f, x0, y0
+        ra, beta, f = np.exp(x[0]), x[1], np.exp(x[3])
+        b2 = beta * beta
+        psi = x[2]
+        values[0], values[1], values[2] = x[4], x[5], f
+        idx[0, 0], grad[0, 0] = 4, 1.0
+        idx[1, 0], grad[1, 0] = 5, 1.0
+        idx[2, 0], grad[2, 0] = 3, f
+        if b2 <= 1.0:  # r1 = R_a, r2 = R_a / beta^2 (none for beta = 0)
+            values[3] = ra
+            idx[3, 0], grad[3, 0] = 0, ra
+            if b2 > 0.0:
+                r2 = ra / b2
+                values[4] = r2
+                idx[4, 0], grad[4, 0] = 0, r2
+                idx[4, 1], grad[4, 1] = 1, -2.0 * r2 / beta
+            else:
+                absent = 1 << 4
+        else:  # axes swapped: the R2 axis is perpendicular to the fitted psi
+            r1 = ra / b2
+            values[3], values[4] = r1, ra
+            idx[3, 0], grad[3, 0] = 0, r1
+            idx[3, 1], grad[3, 1] = 1, -2.0 * r1 / beta
+            idx[4, 0], grad[4, 0] = 0, ra
+            psi += 0.5 * np.pi
+        values[5] = psi
+        idx[5, 0], grad[5, 0] = 2, _RAD_TO_DEG
+    var = np.full(6, np.nan)
+    for key in range(6):
+        if idx[key, 0] >= 0:
+            var[key] = _delta_cov(idx, grad, key, key, sd, corr, sys, has_sys)
+    cov_rf = np.nan
+    if idx[3, 0] >= 0:
+        cov_rf = _delta_cov(idx, grad, 3, 2, sd, corr, sys, has_sys)
+    return values, var, cov_rf, absent

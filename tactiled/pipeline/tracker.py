@@ -52,7 +52,7 @@ from tactiled.fit.params import (
     UNOBSERVABLE_RELATIVE_SIGMA,
     VALUE_KEYS,
     radius_tied_force,
-    report_terms,
+    wrap_deg,
 )
 from tactiled.pipeline.kernels import (
     C_HIGH,
@@ -64,10 +64,12 @@ from tactiled.pipeline.kernels import (
     C_R,
     C_SD1,
     DRIFT,
+    MODEL_CODES,
     PVV,
     PXX,
     V,
     X,
+    estimate_numbers,
     filter_frame,
     fold_residuals,
     measure_point,
@@ -90,7 +92,10 @@ DRIFT_LIMIT = 5.0
 #: sqrt(alpha / (2 - alpha)) of one innovation's)
 _DRIFT_ALARM = DRIFT_LIMIT * math.sqrt(DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
 #: A moving parameter's running mean of normalised innovations beyond this many of its own
-#: sigmas says the filter lags the motion: the lag is added to its reported variance.
+#: sigmas says the filter lags the motion (it departs from constant velocity: a press's
+#: log-force decelerates) and its estimate trails the truth by about that mean times the
+#: innovations' spread, an error its own variance does not hold: that lag is added to its
+#: reported variance.
 LAG_Z = 2.0
 #: The frames' mean residual is tested for what averaging cannot remove (see
 #: :meth:`Tracker._fold`) on the tactels that this many frames have measured.
@@ -232,8 +237,6 @@ class Tracker:
         self._ebuf: np.ndarray | None = None  # residuals not yet folded into the sums
         self._eframes = 0
         self._edt = 0.0
-        self._corr_rows: list[list[float]] = []
-        self._sys_rows: list[list[float]] | None = None
         self._judged_memo: tuple[dict[str, Any], Any] | None = None
 
     @property
@@ -303,9 +306,10 @@ class Tracker:
         c[C_LIN_SD] = math.nan if self._s is None else np.sqrt(self._s[PXX])
         self._c = c
         self._r = r.tolist()
-        self._corr_rows = (cov / np.outer(sd, sd)).tolist()
-        sys = lin.systematic + (zero_var / (lin.sigma * lin.sigma)) * cov
-        self._sys_rows = sys.tolist() if sys.any() else None
+        self._corr = cov / np.outer(sd, sd)
+        self._sys = np.ascontiguousarray(lin.systematic + (zero_var / (lin.sigma * lin.sigma)) * cov)
+        self._has_sys = bool(self._sys.any())
+        self._model_code = MODEL_CODES[lin.model]
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:
         """``(model, p)``: where to linearise again, when the state has moved from the
@@ -469,40 +473,25 @@ class Tracker:
         tracked values, their 1-sigma, ``frames_used`` and the rates.  ``at``: predicted to
         that device time (s) from the last frame measured (a frame it could not measure)."""
         assert self._s is not None and self.model is not None
-        x, rate, pxx, pxv, pvv, drift = self._s.tolist()
         dt = 0.0 if at is None or self.t is None else at - self.t
         dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
-        if dt:
-            x = [xi + vi * dt for xi, vi in zip(x, rate)]
-            pxx = [p + dt * (2.0 * c + dt * w) for p, c, w in zip(pxx, pxv, pvv)]
-        values, terms = report_terms(self.model, x)
-        pxx = self._with_lag(pxx, drift)
         # The delta method term by term (a value rests on one or two parameters): the
-        # state's covariance is sd_a sd_b corr_ab (the filters' variances, the single
-        # frame's correlation) plus the systematic part.  Plain floats: a runaway value
-        # overflows to inf (withheld) without a warning.
-        excess = self.excess
-        sd = [math.sqrt(q) if q >= 0.0 else math.nan for q in (p * excess for p in pxx)]
-        corr, sys = self._corr_rows, self._sys_rows
-
-        def cov(ta: tuple[tuple[int, float], ...] | None,
-                tb: tuple[tuple[int, float], ...] | None) -> float:
-            if ta is None or tb is None:
-                return math.nan
-            total = 0.0
-            for a, ga in ta:
-                row, gsa = corr[a], ga * sd[a]
-                for b, gb in tb:
-                    total += gsa * (gb * sd[b]) * row[b]
-                    if sys is not None:
-                        total += ga * gb * sys[a][b]
-            return total
-
-        var = [cov(t, t) for t in terms]
-        # the force and the radius together: a force resting on a radius the frames do not
-        # resolve is withheld, as the fitter withholds it in one frame
+        # state's covariance is sd_a sd_b corr_ab (the filters' variances, each moving
+        # parameter's lag behind the truth added where its innovations run consistently to
+        # one side, the single frame's correlation) plus the systematic part.  A runaway
+        # value overflows to inf (withheld).
+        numbers, var, cov_rf, absent = estimate_numbers(
+            self._model_code, self._s, self._c, dt, self.excess, self._corr, self._sys,
+            self._has_sys, LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
+        numbers, var = numbers.tolist(), var.tolist()
+        values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
+        if absent:
+            for i, key in enumerate(VALUE_KEYS):
+                if absent >> i & 1:
+                    values[key] = None
+        if values["angle_deg"] is not None:
+            values["angle_deg"] = wrap_deg(values["angle_deg"])
         i_f, i_r = _I_FORCE, _I_R1
-        cov_rf = cov(terms[i_r], terms[i_f])
         out = dict(base)
         soft_keys, soft_reasons, base_reasons, base_std = self._judged(base)
         reasons = dict(base_reasons)
@@ -526,7 +515,8 @@ class Tracker:
             out[key], std[key] = v, sd_i
             if soft_reasons[i]:
                 del reasons[key]
-        rates, rate_sd = self._rates(values, reasons, rate, pvv)
+        rows = self._s.tolist()
+        rates, rate_sd = self._rates(values, reasons, rows[V], rows[PVV])
         out.update(rates)
         std.update(rate_sd)
         out["std"] = std
@@ -549,18 +539,6 @@ class Tracker:
         judged = (soft, why, reasons, base.get("std") or {})
         self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
         return judged
-
-    def _with_lag(self, pxx: list[float], drift: list[float]) -> list[float]:
-        """``pxx`` with each moving parameter's lag behind the truth added, where its
-        innovations run consistently to one side (their running mean, ``drift``, beyond
-        ``LAG_Z`` of its own spread): the motion departs from constant velocity (a press's
-        log-force decelerates) and the filter's estimate trails it by about that mean times
-        the innovations' spread, an error its own variance does not hold."""
-        noise = LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA)
-        if not any(m and d * d > noise for m, d in zip(self._moving, drift)):
-            return pxx
-        return [p + (d * d * (p + r) if m and d * d > noise else 0.0)
-                for p, r, m, d in zip(pxx, self._r, self._moving, drift)]
 
     def _withheld(self, key: str, v: float, sd: float) -> str | None:
         """Why ``key`` (value ``v``, 1-sigma ``sd`` over the frames used) is withheld, by the

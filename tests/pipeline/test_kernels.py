@@ -264,3 +264,55 @@ def test_moved_from_point() -> None:
     assert moved_from_point(s, const, 1.0, 2.0)
     const[C_LIN_SD, 0], const[C_POINT, 0] = 0.1, 0.05
     assert not moved_from_point(s, const, 1.0, 2.0)
+
+
+@pytest.mark.parametrize("model,p", [
+    ("cylinder", [1.2, 0.4, -0.5, 3.0, 4.0]),
+    ("sphere", [0.8, 0.1, 2.0, 5.0]),
+    ("general", [1.0, 0.6, 0.3, -0.2, 6.0, 7.0]),  # beta^2 <= 1
+    ("general", [1.0, 1.7, 0.3, -0.2, 6.0, 7.0]),  # axes swapped
+    ("general", [1.0, 0.0, 0.3, -0.2, 6.0, 7.0]),  # no r2
+])
+def test_estimate_numbers_match_the_dense_delta_method(model: str, p: list[float]) -> None:
+    """kernels.estimate_numbers: the values of tactiled.fit.params.report and the delta
+    method's variances G C G^T with C = D corr D + sys (D the state's sigmas, lag added),
+    computed densely with numpy."""
+    from tactiled.fit.params import PARAMS, VALUE_KEYS, report, wrap_deg
+    from tactiled.pipeline.kernels import (C_LIN_SD, C_MOVING, C_R, DRIFT, MODEL_CODES, PVV,
+                                           PXV, PXX, V, X, estimate_numbers)
+
+    rng = np.random.default_rng(13)
+    k = len(PARAMS[model])
+    a = rng.normal(size=(k, k))
+    cov1 = a @ a.T * 1e-3 + np.eye(k) * 1e-3  # one frame's covariance
+    sd1 = np.sqrt(np.diag(cov1))
+    corr = cov1 / np.outer(sd1, sd1)
+    sys = np.eye(k) * 2e-5
+    s = np.zeros((6, k))
+    s[X], s[V] = p, rng.normal(0.0, 0.5, k)
+    s[PXX], s[PXV], s[PVV] = rng.uniform(1e-4, 1e-3, k), rng.normal(0.0, 1e-5, k), 1e-2
+    s[DRIFT] = [0.0, 0.5, 0.0, 0.6, 0.1, 0.0][:k]  # two past the lag threshold below
+    moving = np.array([n in ("psi", "ln_f", "x0", "y0") for n in PARAMS[model]], dtype=float)
+    const = np.zeros((C_LIN_SD + 1, k))
+    const[C_R], const[C_MOVING] = np.diag(cov1), moving
+    dt, excess, noise = 0.002, 1.7, 0.1
+
+    values, var, cov_rf, absent = estimate_numbers(MODEL_CODES[model], s, const, dt, excess,
+                                                   corr, sys, True, noise)
+    x = s[X] + s[V] * dt
+    pxx = s[PXX] + dt * (2.0 * s[PXV] + dt * s[PVV])
+    lagging = (moving > 0) & (s[DRIFT] ** 2 > noise)
+    pxx = np.where(lagging, pxx + s[DRIFT] ** 2 * (pxx + np.diag(cov1)), pxx)
+    d = np.sqrt(pxx * excess)
+    want_vals, g = report(model, x)
+    c = np.outer(d, d) * corr + sys
+    for i, key in enumerate(VALUE_KEYS):
+        if want_vals[key] is None or np.isnan(g[i]).any():
+            assert absent >> i & 1 and np.isnan(values[i]) and np.isnan(var[i]), key
+            continue
+        assert not absent >> i & 1
+        got = wrap_deg(values[i]) if key == "angle_deg" else values[i]
+        assert got == pytest.approx(want_vals[key], rel=1e-12), key
+        assert var[i] == pytest.approx(g[i] @ c @ g[i], rel=1e-10), key
+    assert lagging.any()
+    assert cov_rf == pytest.approx(g[3] @ c @ g[2], rel=1e-10)
