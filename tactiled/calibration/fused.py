@@ -15,6 +15,10 @@ in one pass over the tactels:
 * :func:`follow_baseline`: the baseline's step towards an untouched frame, its pull clipped
   when most tactels are implausibly far out (:data:`~tactiled.calibration.zeroing.MAX_STEP_SIGMAS`).
 
+and under a held contact (:meth:`~tactiled.calibration.zeroing.Zeroer.follow_drift`), every
+``DRIFT_STEP_S``: :func:`drift_error` and :func:`pull_baseline`, the baseline following drift
+around the contact, and :func:`learn_hysteresis`, a step of the hysteresis learner.
+
 The decisions (contact, settling, release hold-off, tare) stay in Python, in the stage, with
 the state of the objects above, so either path can take any frame.  Results equal the
 reference path's to rounding (the statistic's sums run in another order than BLAS's);
@@ -199,6 +203,12 @@ def _vectors(dtype: types.Type, writable: bool) -> list[types.Array]:
                                             [types.Array(dtype, 1, "C", readonly=True)])
 
 
+_PEAKS = types.Array(types.float64, 2, "C")
+_TAUS = types.Array(types.float64, 1, "C")
+_NORMAL = types.Array(types.float64, 3, "C")
+_MOMENT = types.Array(types.float64, 2, "C")
+
+
 # Explicit signatures: compiled (or loaded from numba's cache) at import, never at a held
 # contact's first drift step.
 @njit([types.Tuple((types.int64, types.float64, types.boolean))(z, p, i, e)
@@ -243,3 +253,79 @@ def pull_baseline(baseline: np.ndarray, error: np.ndarray, inside: np.ndarray, l
             baseline[t] += common
         else:
             baseline[t] += min(max(error[t], -limit), limit) * weight
+
+
+@njit([types.boolean(_PEAKS, _TAUS, types.float64, p, u, o, types.float64, _NORMAL, _MOMENT,
+                     types.float64)
+       for p, u, o in itertools.product(_vectors(types.float64, False),
+                                        _vectors(types.float64, False),
+                                        _vectors(types.boolean, False))], cache=True)
+def learn_hysteresis(peaks: np.ndarray, taus: np.ndarray, dt: float, predicted: np.ndarray,
+                     unexplained: np.ndarray, outside: np.ndarray, floor: float,
+                     normal: np.ndarray, moment: np.ndarray, forget: float) -> bool:
+    """One step of :class:`~tactiled.calibration.hysteresis.HysteresisLearner` (all flat per
+    tactel): each time constant's peak-hold of the compressive ``predicted`` strain
+    (``peaks``, one row per ``taus`` s) decayed over ``dt`` s (none when ``dt <= 0``) and
+    raised to the load, in place; on the ``outside`` tactels, the regressors ``q_k`` (what a
+    peak-hold above ``floor`` held beyond the load now) and the normal equations of
+    ``unexplained ~ f q_k + a load + c`` added to ``normal`` (k, 3, 3) and ``moment`` (k, 3)
+    after both are multiplied by ``forget``.  False (the sums untouched) when no tactel
+    outside holds anything: no trail to learn from."""
+    kk, n = peaks.shape
+    if dt > 0.0:
+        for k in range(kk):
+            decay = math.exp(-dt / taus[k])
+            for j in range(n):
+                peaks[k, j] *= decay
+    for j in range(n):
+        load = max(predicted[j], 0.0)
+        for k in range(kk):
+            if load > peaks[k, j]:
+                peaks[k, j] = load
+    qq = np.zeros(kk)
+    ql = np.zeros(kk)
+    q1 = np.zeros(kk)
+    qe = np.zeros(kk)
+    ll = l1 = le = e1 = 0.0
+    count = 0
+    trail = False
+    for j in range(n):
+        if not outside[j]:
+            continue
+        load = max(predicted[j], 0.0)
+        e = unexplained[j]
+        count += 1
+        ll += load * load
+        l1 += load
+        le += load * e
+        e1 += e
+        for k in range(kk):
+            held = peaks[k, j]
+            if held > floor:
+                q = held - load
+                if q != 0.0:
+                    trail = True
+                qq[k] += q * q
+                ql[k] += q * load
+                q1[k] += q
+                qe[k] += q * e
+    if not trail:
+        return False
+    for k in range(kk):
+        for a in range(3):
+            moment[k, a] *= forget
+            for b in range(3):
+                normal[k, a, b] *= forget
+        normal[k, 0, 0] += qq[k]
+        normal[k, 0, 1] += ql[k]
+        normal[k, 1, 0] += ql[k]
+        normal[k, 0, 2] += q1[k]
+        normal[k, 2, 0] += q1[k]
+        normal[k, 1, 1] += ll
+        normal[k, 1, 2] += l1
+        normal[k, 2, 1] += l1
+        normal[k, 2, 2] += count
+        moment[k, 0] += qe[k]
+        moment[k, 1] += le
+        moment[k, 2] += e1
+    return True

@@ -38,7 +38,8 @@ On the simulated finger (``f`` = 0.05, ``tau`` = 0.5 s) the learner finds ``tau`
 and ``f`` = 0.043-0.045 on the moving scene, and compensates from its third second on
 (docs/howto/calibration.md has the figures, and those on other fingers).
 
-Pure numpy and no I/O.  Strains are on the zeroed scale (strain, no unit); times in seconds.
+Numpy, a compiled kernel for the learner's step (:func:`tactiled.calibration.fused.learn_hysteresis`)
+and no I/O.  Strains are on the zeroed scale (strain, no unit); times in seconds.
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from tactiled.calibration.fused import learn_hysteresis
 
 #: The time constants (s) the learner tries: log-spaced, 0.1-5 s.  An estimate at either end
 #: is no estimate (a model that misfits on a finger the fit does not match, drift, leans
@@ -146,34 +149,15 @@ class HysteresisLearner:
         """One step at time ``t`` (s): ``predicted`` is the model's strain on the whole array,
         ``unexplained`` the frame (before compensation) less ``predicted``, learnt from on the
         ``outside`` tactels (boolean; noise sigma ``sigma``)."""
-        load = np.maximum(predicted.reshape(-1), 0.0)
-        peaks = self._peaks
-        if self._t is not None and t > self._t:
-            peaks *= np.exp(-(t - self._t) / TAUS_S)[:, None]
+        # (the peak-holds and the normal equations' sums in one compiled pass)
+        dt = 0.0 if self._t is None else t - self._t
         self._t = t
-        np.maximum(peaks, load, out=peaks)
-        out = outside.reshape(-1)
-        held = peaks[:, out]
-        q = np.where(held > MIN_PEAK_SIGMAS * sigma, held - load[out], 0.0)
-        if not q.any():
+        if not learn_hysteresis(self._peaks, TAUS_S, dt,
+                                np.ascontiguousarray(predicted, dtype=np.float64).reshape(-1),
+                                np.ascontiguousarray(unexplained, dtype=np.float64).reshape(-1),
+                                np.ascontiguousarray(outside, dtype=bool).reshape(-1),
+                                MIN_PEAK_SIGMAS * sigma, self._normal, self._moment, FORGET):
             return
-        e = unexplained.reshape(-1)[out]
-        lo = load[out]
-        # the normal equations of e ~ f q_k + a load + c, one per tau, from dot products
-        qq, ql, q1, qe = np.einsum("kn,kn->k", q, q), q @ lo, q.sum(axis=1), q @ e
-        normal = np.empty((TAUS_S.size, 3, 3))
-        normal[:, 0, 0] = qq
-        normal[:, 0, 1] = normal[:, 1, 0] = ql
-        normal[:, 0, 2] = normal[:, 2, 0] = q1
-        normal[:, 1, 1] = float(lo @ lo)
-        normal[:, 1, 2] = normal[:, 2, 1] = float(lo.sum())
-        normal[:, 2, 2] = float(e.size)
-        self._normal *= FORGET
-        self._normal += normal
-        self._moment *= FORGET
-        self._moment[:, 0] += qe
-        self._moment[:, 1] += float(lo @ e)
-        self._moment[:, 2] += float(e.sum())
         self.steps += 1
         if self.steps % SOLVE_EVERY == 0 or self.estimate is None:
             self.estimate = self._solve(sigma)
