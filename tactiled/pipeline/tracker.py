@@ -238,6 +238,7 @@ class Tracker:
         self._eframes = 0
         self._edt = 0.0
         self._judged_memo: tuple[dict[str, Any], Any] | None = None
+        self._constants: tuple[tuple[str, ...], Any] = ((), None)
 
     @property
     def x(self) -> np.ndarray | None:
@@ -293,11 +294,12 @@ class Tracker:
         self._gain = np.asarray(lin.gain, dtype=np.float64)
         self._jacobian = np.asarray(lin.jacobian, dtype=np.float64)
         self._weight = np.ascontiguousarray(lin.weight, dtype=np.float64)
-        self._moving, self._ln_f, self._rate_of, table = _model_constants(names, self.geometry)
+        if self._constants[0] is not names:  # (a relinearisation keeps the model)
+            self._constants = (names, _model_constants(names, self.geometry))
+        self._moving, self._ln_f, self._rate_of, table = self._constants[1]
         self._limit = chi2_limit(max(lin.dof, 1))
         # The single frame's covariance as variances and correlations, and the systematic
-        # part, in nested lists for the estimate's term-by-term delta method (k <= 6: plain
-        # floats cost less there than numpy's calls)
+        # part, for the estimate's delta method (kernels.estimate_numbers)
         cov = lin.cov
         c = table.copy()
         c[C_R] = r = np.diagonal(cov)
@@ -306,9 +308,9 @@ class Tracker:
         c[C_LIN_SD] = math.nan if self._s is None else np.sqrt(self._s[PXX])
         self._c = c
         self._r = r.tolist()
-        self._corr = cov / np.outer(sd, sd)
+        self._corr = cov / (sd[:, None] * sd)
         self._sys = np.ascontiguousarray(lin.systematic + (zero_var / (lin.sigma * lin.sigma)) * cov)
-        self._has_sys = bool(self._sys.any())
+        self._has_sys = np.count_nonzero(self._sys) > 0
         self._model_code = MODEL_CODES[lin.model]
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:
