@@ -408,7 +408,7 @@ class SensorPipeline(ContactTracking):
         # (a sum is finite unless a value is not, or it overflows: then the copy changes nothing)
         if not self.stage.finite and not math.isfinite(strain.sum()):
             strain = np.nan_to_num(strain, nan=0.0, posinf=0.0, neginf=0.0)
-        strain.flags.writeable = False
+        strain.setflags(write=False)
         self._ordinal += 1
         ordinal = self._ordinal
         detector = self.stage.zeroer.detector
