@@ -284,32 +284,28 @@ def estimate_numbers(model: int, s: np.ndarray, const: np.ndarray, dt: float, ex
     idx = np.full((6, 2), -1, dtype=np.int64)
     grad = np.zeros((6, 2))
     absent = 0
+    # every model ends with ln_f, x0, y0
+    f = np.exp(x[k - 3])
+    values[0], values[1], values[2] = x[k - 2], x[k - 1], f
+    idx[0, 0], grad[0, 0] = k - 2, 1.0
+    idx[1, 0], grad[1, 0] = k - 1, 1.0
+    idx[2, 0], grad[2, 0] = k - 3, f
     if model == 0:  # cylinder: ln_r, psi, ln_f, x0, y0
-        r, f = np.exp(x[0]), np.exp(x[2])
-        values[0], values[1], values[2], values[3], values[5] = x[3], x[4], f, r, x[1]
-        idx[0, 0], grad[0, 0] = 3, 1.0
-        idx[1, 0], grad[1, 0] = 4, 1.0
-        idx[2, 0], grad[2, 0] = 2, f
+        r = np.exp(x[0])
+        values[3], values[5] = r, x[1]
         idx[3, 0], grad[3, 0] = 0, r
         idx[5, 0], grad[5, 0] = 1, _RAD_TO_DEG
         absent = 1 << 4
     elif model == 1:  # sphere: ln_r, ln_f, x0, y0
-        r, f = np.exp(x[0]), np.exp(x[1])
-        values[0], values[1], values[2], values[3], values[4] = x[2], x[3], f, r, r
-        idx[0, 0], grad[0, 0] = 2, 1.0
-        idx[1, 0], grad[1, 0] = 3, 1.0
-        idx[2, 0], grad[2, 0] = 1, f
+        r = np.exp(x[0])
+        values[3], values[4] = r, r
         idx[3, 0], grad[3, 0] = 0, r
         idx[4, 0], grad[4, 0] = 0, r
         absent = 1 << 5
     else:  # general: ln_ra, beta, psi, ln_f, x0, y0
-        ra, beta, f = np.exp(x[0]), x[1], np.exp(x[3])
+        ra, beta = np.exp(x[0]), x[1]
         b2 = beta * beta
         psi = x[2]
-        values[0], values[1], values[2] = x[4], x[5], f
-        idx[0, 0], grad[0, 0] = 4, 1.0
-        idx[1, 0], grad[1, 0] = 5, 1.0
-        idx[2, 0], grad[2, 0] = 3, f
         if b2 <= 1.0:  # r1 = R_a, r2 = R_a / beta^2 (none for beta = 0)
             values[3] = ra
             idx[3, 0], grad[3, 0] = 0, ra
