@@ -198,8 +198,8 @@ class Tracker:
     ``memory_s``: how far back the moving parameters' filter looks (s); ``hold_s``: the same
     for the curvatures.  Times are the device's clock in seconds.  The per-parameter state is
     one small array (``_s``, rows ``kernels.X .. DRIFT``) that the compiled kernels of
-    :mod:`tactiled.pipeline.kernels` measure, filter and test in one call each per frame; the
-    estimate reads it as plain floats.
+    :mod:`tactiled.pipeline.kernels` measure, filter, test and report in one call each per
+    frame; the rules that withhold a value stay here, in Python.
     """
 
     def __init__(self, memory_s: float = 0.1, hold_s: float = 30.0,
@@ -244,16 +244,6 @@ class Tracker:
     def x(self) -> np.ndarray | None:
         """The filter's parameters (the model's internal vector), None before it starts."""
         return None if self._s is None else self._s[X]
-
-    @property
-    def v(self) -> np.ndarray | None:
-        """The parameters' rates (per s), None before the filter starts."""
-        return None if self._s is None else self._s[V]
-
-    @property
-    def pxx(self) -> np.ndarray | None:
-        """The parameters' variances, None before the filter starts."""
-        return None if self._s is None else self._s[PXX]
 
     @property
     def active(self) -> bool:
