@@ -20,7 +20,11 @@ and under a held contact (:meth:`~tactiled.calibration.zeroing.Zeroer.follow_dri
 around the contact, and :func:`learn_hysteresis`, a step of the hysteresis learner.
 
 The decisions (contact, settling, release hold-off, tare) stay in Python, in the stage, with
-the state of the objects above, so either path can take any frame.  Results equal the
+the state of the objects above, so either path can take any frame.  The kernels keep the
+interpreter's lock: released for the few microseconds of a frame, it went to the serial read
+thread, and the loop then waited to take it back (live on the simulated hand, niced: 105-115
+us a frame with the lock kept, 113-122 released, four runs each alternating,
+docs/performance/hand.md).  Results equal the
 reference path's to rounding (the statistic's sums run in another order than BLAS's);
 tests/calibration/test_fused_stage.py compares them on random frames.
 """
@@ -34,7 +38,7 @@ import numpy as np
 from numba import njit, types
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def zero_frame(raw: np.ndarray, offset: np.ndarray, breaks: np.ndarray, first: np.ndarray,
                params: np.ndarray, baseline: np.ndarray, peak: np.ndarray, fraction: float,
                decay: float, floor: float, margin: float, active: bool, ax: np.ndarray,
@@ -143,7 +147,7 @@ def filter_bands(ax: np.ndarray, ay_t: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def average_maps(ring: np.ndarray, total: np.ndarray, tmap: np.ndarray, count: int,
                  head: int) -> tuple[int, int, float]:
     """The detector's running mean of its last ``ring.shape[0]`` filter maps: ``tmap`` (the
@@ -175,7 +179,7 @@ def average_maps(ring: np.ndarray, total: np.ndarray, tmap: np.ndarray, count: i
     return count, head, stat
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def follow_baseline(baseline: np.ndarray, z: np.ndarray, weight: float, limit: float,
                     clip: bool) -> None:
     """``baseline += weight * z``, in place; with ``clip``, when more than half the tactels
