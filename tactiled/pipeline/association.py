@@ -92,21 +92,38 @@ class ContactIds:
 
 
 def identified(fit: dict[str, Any], ids: ContactIds,
-               element: Callable[[dict[str, Any]], dict[str, Any]] | None = None) -> dict[str, Any]:
+               element: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
+               fresh: bool = False) -> dict[str, Any]:
     """An estimate's (or a ``tactiled fit`` line's) dict with its contacts' ids:
     ``contact_id``, the top-level contact's (the strongest), and ``contacts``, every contact's
     keys and id, the strongest first (``[]``: no contact).  A fit of one contact lists it; a
-    fit of several already lists them (the worker's), each passed through ``element``."""
+    fit of several already lists them (the worker's), each passed through ``element``.
+    ``fresh``: ``fit`` and its contacts are the caller's own, made for this estimate (a
+    tracker's): they are completed in place rather than copied."""
     if not fit.get("contact"):
         ids.clear()
         return fit if "contacts" in fit else {**fit, "contact_id": None, "contacts": []}
     several = fit.get("contacts")
     if several is None or len(several) == 1:  # one contact: the top level is all of it
-        one = fit if several is None else {k: v for k, v in fit.items() if k != "contacts"}
+        if fresh:
+            one = fit
+            one.pop("contacts", None)
+        else:
+            one = fit if several is None else {k: v for k, v in fit.items() if k != "contacts"}
         (cid,) = ids.assign((one,))
-        one = {**one, "contact_id": cid}
+        if fresh:
+            one["contact_id"] = cid
+        else:
+            one = {**one, "contact_id": cid}
         return {**one, "contacts": [one]}
     numbers = ids.assign(several)
+    if fresh:
+        for n, i in enumerate(numbers):
+            c = several[n] if element is None else element(several[n])
+            c["contact_id"] = i
+            several[n] = c
+        fit["contact_id"] = numbers[0]
+        return fit
     listed = [{**(c if element is None else element(c)), "contact_id": i}
               for c, i in zip(several, numbers)]
     return {**fit, "contact_id": numbers[0], "contacts": listed}

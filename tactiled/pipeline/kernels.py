@@ -105,6 +105,40 @@ C_R, C_MOVING, C_POINT, C_SD1, C_LOW, C_HIGH, C_LOG, C_LIN_SD = range(8)
 _TABLE = types.Array(types.float64, 2, "C")
 
 
+
+@njit([types.Tuple((_TABLE, _TABLE, _TABLE, types.boolean))(
+    table, _MATRIX, _VECTOR, _TABLE, _MATRIX, types.float64)
+    for table in (_TABLE, types.Array(types.float64, 2, "C", readonly=True))], cache=True)
+def linearization_constants(table: np.ndarray, cov: np.ndarray, p: np.ndarray, s: np.ndarray,
+                            systematic: np.ndarray, zero_scale: float
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """A tracker's constants for a new linearisation (``Tracker.adopt``): ``table`` (the
+    model's rows of ``C_R .. C_LIN_SD``) with one frame's variances (the diagonal of ``cov``)
+    and sigmas, the point ``p`` and the state's sigma then (from ``s``'s ``PXX`` row; NaN
+    when ``s`` has no column per parameter: no state yet); the single frame's correlations
+    ``cov / (sd sd^T)``; the systematic covariance ``systematic + zero_scale * cov``, and
+    whether any of it is nonzero.  The same arithmetic as numpy's, element by element."""
+    k = p.size
+    c = table.copy()
+    with_state = s.shape[1] == k
+    for i in range(k):
+        r = cov[i, i]
+        c[C_R, i] = r
+        c[C_SD1, i] = np.sqrt(r)
+        c[C_POINT, i] = p[i]
+        c[C_LIN_SD, i] = np.sqrt(s[PXX, i]) if with_state else np.nan
+    corr = np.empty((k, k))
+    sys = np.empty((k, k))
+    nonzero = False
+    for i in range(k):
+        for j in range(k):
+            corr[i, j] = cov[i, j] / (c[C_SD1, i] * c[C_SD1, j])
+            v = systematic[i, j] + zero_scale * cov[i, j]
+            sys[i, j] = v
+            nonzero = nonzero or v != 0.0
+    return c, corr, sys, nonzero
+
+
 @njit([types.Tuple((types.boolean, _VECTOR, _VECTOR))(
     frame, _INDEX, _VECTOR, _MATRIX, _MATRIX, _VECTOR, _TABLE, types.float64, types.int64,
     types.float64, types.float64) for frame in _FRAMES], cache=True)

@@ -35,6 +35,7 @@ import concurrent.futures
 import logging
 import multiprocessing
 import os
+import select
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -146,6 +147,9 @@ class _Worker:
     state: str = "spawning"
     process: BaseProcess | None = None
     conn: Connection | None = None
+    #: ``conn``'s descriptor in a poll object of its own: whether another answer is waiting,
+    #: asked after each one (``Connection.poll`` builds a selector at every call)
+    readable: Any = None
     pid: int | None = None
     exited: asyncio.Future[int | None] | None = None
     outstanding: deque[_Request] = field(default_factory=deque)
@@ -333,6 +337,8 @@ class WorkerPool:
             child_conn.close()  # the child has its own copy; ours would hide its EOF
         SPAWNED_PIDS.append(process.pid or 0)
         w.process, w.conn, w.pid = process, parent_conn, process.pid
+        w.readable = select.poll()
+        w.readable.register(parent_conn.fileno(), select.POLLIN)
         w.exited = self._loop.create_future()
         now = time.monotonic()
         w.started_at = w.last_answer = w.head_since = now
@@ -363,7 +369,7 @@ class WorkerPool:
             except (OSError, ValueError):
                 pass
             w.conn.close()
-            w.conn = None
+            w.conn = w.readable = None
 
     def _on_sentinel(self, w: _Worker) -> None:
         assert self._loop is not None and w.process is not None
@@ -525,7 +531,7 @@ class WorkerPool:
 
     def _on_readable(self, w: _Worker) -> None:
         try:
-            while w.conn is not None and w.conn.poll():
+            while w.conn is not None and w.readable.poll(0):
                 try:
                     msg = w.conn.recv()
                 except (EOFError, OSError):

@@ -111,8 +111,8 @@ def _warm_start(warm: tuple[str, tuple[float, ...]] | None,
     if warm[0] == SEVERAL:
         each = (_warm_start(w, geometry) for w in warm[1])  # type: ignore[arg-type]
         return SEVERAL, tuple(w for w in each if w is not None)  # type: ignore[return-value]
-    p = within_reason(np.asarray(warm[1], dtype=float), geometry)
-    return warm[0], tuple(round(float(v) / WARM_GRID) * WARM_GRID for v in p)
+    p = within_reason(warm[1], geometry)
+    return warm[0], tuple([round(v / WARM_GRID) * WARM_GRID for v in p])
 
 
 class SensorPipeline(ContactTracking):
@@ -466,10 +466,17 @@ class SensorPipeline(ContactTracking):
         return c if "frames_used" in c else untracked(c, 1, SEVERAL_UNTRACKED)
 
     def _publish(self, w: _Waiting, gate: str, fitted_seq: int | None, worker_ms: float,
-                 fit: dict[str, Any]) -> Estimate:
+                 fit: dict[str, Any], fresh: bool = False) -> Estimate:
+        """Publish ``fit`` as the estimate of frame ``w``.  ``fresh``: ``fit`` (and its
+        contacts) were made for this estimate alone (a tracker's), so they are completed in
+        place; any other (a worker's fit, reused for later frames) is copied."""
         if fit.get("peak") is not None:  # the frame's own, not that of the fit it rests on
-            fit = {**fit, "peak": self._frame_peak(w, fit["peak"])}
-        fit = identified(fit, self.ids, self._untracked_element)
+            peak = self._frame_peak(w, fit["peak"])
+            if fresh:
+                fit["peak"] = peak
+            else:
+                fit = {**fit, "peak": peak}
+        fit = identified(fit, self.ids, self._untracked_element, fresh)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)

@@ -38,6 +38,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import replace
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -62,7 +63,6 @@ from tactiled.pipeline.kernels import (
     C_MOVING,
     C_POINT,
     C_R,
-    C_SD1,
     DRIFT,
     MODEL_CODES,
     PVV,
@@ -72,11 +72,14 @@ from tactiled.pipeline.kernels import (
     estimate_numbers,
     filter_frame,
     fold_residuals,
+    linearization_constants,
     measure_point,
     moved_from_point,
 )
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
+#: the state a linearisation is adopted with before the filter has started (no column)
+_NO_STATE = np.empty((DRIFT + 1, 0))
 
 #: The linearity test's threshold: the chi^2 (dof n - k) quantile a frame of the contact
 #: exceeds once in ~3.5 million (a normal deviate of 5, through Wilson-Hilferty).
@@ -155,12 +158,19 @@ def reasonable_bounds(names: tuple[str, ...], geometry) -> list[tuple[int, float
     return [(i, *box[n]) for i, n in enumerate(names) if n in box]
 
 
-def within_reason(p: np.ndarray, geometry) -> np.ndarray:
+@functools.lru_cache(maxsize=64)
+def _vector_bounds(size: int, geometry) -> tuple[tuple[int, float, float], ...]:
+    """:func:`reasonable_bounds` of a model's internal vector of ``size`` parameters
+    (``(ln_r.., .., ln_f, x0, y0)``)."""
+    names = ("ln_r",) + ("",) * (size - 4) + ("ln_f", "x0", "y0")
+    return tuple(reasonable_bounds(names, geometry))
+
+
+def within_reason(p: Sequence[float], geometry) -> list[float]:
     """A model's internal vector ``p`` (``(ln_r.., .., ln_f, x0, y0)``) with its radius, force
     and centre clipped to what a finger carries on ``geometry`` (a ``config.Geometry``)."""
-    q = np.array(p, dtype=float)
-    names = ("ln_r",) + ("",) * (q.size - 4) + ("ln_f", "x0", "y0")
-    for i, lo, hi in reasonable_bounds(names, geometry):
+    q = [float(v) for v in p]
+    for i, lo, hi in _vector_bounds(len(q), geometry):
         q[i] = min(max(q[i], lo), hi)
     return q
 
@@ -290,17 +300,12 @@ class Tracker:
         self._limit = chi2_limit(max(lin.dof, 1))
         # The single frame's covariance as variances and correlations, and the systematic
         # part, for the estimate's delta method (kernels.estimate_numbers)
-        cov = lin.cov
-        c = table.copy()
-        c[C_R] = r = np.diagonal(cov)
-        c[C_SD1] = sd = np.sqrt(r)
-        c[C_POINT] = lin.p
-        c[C_LIN_SD] = math.nan if self._s is None else np.sqrt(self._s[PXX])
-        self._c = c
-        self._r = r.tolist()
-        self._corr = cov / (sd[:, None] * sd)
-        self._sys = np.ascontiguousarray(lin.systematic + (zero_var / (lin.sigma * lin.sigma)) * cov)
-        self._has_sys = np.count_nonzero(self._sys) > 0
+        self._c, self._corr, self._sys, self._has_sys = linearization_constants(
+            table, np.asarray(lin.cov, dtype=np.float64),
+            np.ascontiguousarray(lin.p, dtype=np.float64),
+            _NO_STATE if self._s is None else self._s,
+            np.asarray(lin.systematic, dtype=np.float64), zero_var / (lin.sigma * lin.sigma))
+        self._r = self._c[C_R].tolist()
         self._model_code = MODEL_CODES[lin.model]
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:

@@ -194,7 +194,7 @@ class ContactTracking:
                 self.tracked_rate.tick(time.monotonic())
             self.skipped[GATE_UNCHANGED] += 1
         fit = self.tracker.estimate(self._base, at=w.t if predicted else None)
-        self._publish(w, gate, self._base_seq, worker_ms, fit)
+        self._publish(w, gate, self._base_seq, worker_ms, fit, fresh=True)
 
     def _zero_var(self) -> float:
         return 0.0 if self.stage is None else self.stage.zeroer.baseline_var

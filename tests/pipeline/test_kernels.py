@@ -316,3 +316,35 @@ def test_estimate_numbers_match_the_dense_delta_method(model: str, p: list[float
         assert var[i] == pytest.approx(g[i] @ c @ g[i], rel=1e-10), key
     assert lagging.any()
     assert cov_rf == pytest.approx(g[3] @ c @ g[2], rel=1e-10)
+
+
+@pytest.mark.parametrize("with_state", [False, True])
+def test_linearization_constants_equal_the_numpy_arithmetic(with_state: bool) -> None:
+    """A new linearisation's constants, bit for bit as numpy computes them: the table's
+    rows of one frame's variance, sigma, point and the state's sigma then (NaN before any
+    state), the correlations, and the systematic covariance plus the zeros' share."""
+    from tactiled.pipeline.kernels import (C_LIN_SD, C_POINT, C_R, C_SD1, DRIFT, PXX,
+                                           linearization_constants)
+
+    rng = np.random.default_rng(3)
+    k = 5
+    a = rng.normal(size=(k, k))
+    cov = a @ a.T + k * np.eye(k)
+    systematic = np.zeros((k, k)) if not with_state else 0.1 * (cov + cov.T)
+    p = rng.normal(size=k)
+    table = np.full((C_LIN_SD + 1, k), np.nan)
+    table[:3] = 7.0
+    table.flags.writeable = False
+    s = np.abs(rng.normal(size=(DRIFT + 1, k))) if with_state else np.empty((DRIFT + 1, 0))
+    scale = 0.0 if not with_state else 0.37
+    c, corr, sys, nonzero = linearization_constants(table, cov, p, s, systematic, scale)
+    want = table.copy()
+    want[C_R] = r = np.diagonal(cov)
+    want[C_SD1] = sd = np.sqrt(r)
+    want[C_POINT] = p
+    want[C_LIN_SD] = np.sqrt(s[PXX]) if with_state else np.nan
+    assert np.array_equal(c, want, equal_nan=True)
+    assert np.array_equal(corr, cov / (sd[:, None] * sd))
+    assert np.array_equal(sys, systematic + scale * cov)
+    assert nonzero == bool(np.count_nonzero(systematic + scale * cov))
+    assert table[C_R, 0] == 7.0  # the model's table is copied, never written

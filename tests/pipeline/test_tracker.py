@@ -263,7 +263,7 @@ def test_a_centre_no_frame_locates_is_withheld_not_run_off() -> None:
     assert set(box) == {0, 2, 3, 4}  # the angle is free
     assert box[3] == (-OFF_ARRAY_MM, (g.rows - 1) * g.dx + OFF_ARRAY_MM)
     q = within_reason(np.array([80.0, 9.0, -90.0, 1e6, -1e6]), g)
-    assert q.tolist() == [box[0][1], 9.0, box[2][0], box[3][1], box[4][0]]
+    assert q == [box[0][1], 9.0, box[2][0], box[3][1], box[4][0]]
     tr = Tracker()
     assert tr._withheld("x_mm", 3.0, OFF_ARRAY_MM * 1.01).startswith("position not observable")
     assert tr._withheld("y_mm", 3.0, OFF_ARRAY_MM * 0.99) is None
