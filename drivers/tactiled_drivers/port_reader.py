@@ -1,24 +1,20 @@
-"""A reader that empties a serial port's kernel buffer as soon as bytes arrive, in a thread.
+"""A reader that empties a serial port's kernel buffer as soon as bytes arrive.
 
-Why a thread, when asyncio can watch the descriptor (``loop.add_reader``)?  Because a tty
-buffers little: a pseudo-terminal about 15 KB, a USB CDC-ACM port some 64 KB, that is 0.1 to
-0.4 s of a finger streaming 1000 frames/s (152 KB/s).  Read in the event loop, every stall of
-that loop longer than this loses frames at the device, and the loop also serves 50
-WebSocket subscribers, runs garbage collection and waits for the CPU behind other processes:
-the 10-minute soak (docs/performance/reliability.md) saw it wake up to 1.5 s late and lose 1.5-4 % of
-the frames on full ptys.  The thread does nothing but ``read``: it sleeps in ``poll``
-(without the GIL), is woken by the kernel as bytes arrive, takes the GIL for a few
-microseconds to copy them into memory, and so drains the port whatever the loop is busy with
-(it waits at most the interpreter's switch interval, 5 ms, for the GIL).  Every port with a
-descriptor is read by one thread of the process
-(:class:`~tactiled_drivers.read_thread.ReadThread`: a hand's six ports in one wake, at most
-every millisecond); a port without one (not POSIX) gets a thread of its own.  Decoding stays on
-the loop, which takes everything read so far in one piece when it gets round to it.
+A tty buffers little: a pseudo-terminal about 15 KB, a USB CDC-ACM port some 64 KB, that is 30
+ms to 0.4 s of an array streaming at 1 kHz.  A reader with a descriptor (pyserial's POSIX
+ports) is read by the event loop as bytes arrive (``loop.add_reader``), and guarded by the
+process's read thread (:class:`~tactiled_drivers.read_thread.ReadThread`), which reads the
+port itself whenever the loop has not for a few milliseconds: every stall of the loop (the
+10-minute soak, docs/performance/reliability.md, saw it wake up to 1.5 s late and, read by the
+loop alone, lose 1.5-4 % of the frames on full ptys) is bridged by the thread, and while the
+loop keeps up no thread stands between a frame and its decoding.  A port without a descriptor
+(not POSIX) gets a thread of its own that blocks in pyserial's reads.  Decoding stays on the
+loop, which takes everything read so far in one piece when it gets round to it.
 
 The memory it holds is bounded and allocated once: a ring of ``limit`` bytes (4 MiB by
-default: ~27 s of a 1 kHz finger) that the thread reads into (``os.readv`` into the ring, no
-allocation per read).  At the limit it stops reading, so the kernel buffer fills and the device
-drops, as it would with no thread at all.  What it holds goes to the loop in pieces of at most
+default: ~27 s of a 1 kHz finger) that the loop and the thread read into (``os.readv`` into
+the ring, no allocation per read).  At the limit nobody reads the port, so the kernel buffer
+fills and the device drops.  What it holds goes to the loop in pieces of at most
 ``TAKE_LIMIT`` (64 KiB) per :meth:`PortReader.take`.  Both rules come from the 1-hour soaks
 (docs/performance/reliability.md): a backlog handed over as one block of a megabyte, freed after decoding,
 left glibc's heap grown by as much for good (its mmap threshold rises to the largest block
@@ -34,6 +30,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import select
 import threading
 import time
 from collections import deque
@@ -51,12 +48,21 @@ TAKE_LIMIT = 64 << 10  # bytes handed to the loop per take() (a larger read come
 JOIN_TIMEOUT = 2.0  # seconds stop() waits for the thread
 
 
-class PortReader:
-    """Reads ``port`` in a thread of its own; :meth:`take` hands the bytes to the event loop.
+def _hung_up(fd: int) -> bool:
+    """``fd`` polls hung up or in error, now."""
+    poller = select.poll()
+    poller.register(fd, select.POLLIN)
+    return any(ev & (select.POLLHUP | select.POLLERR) for _fd, ev in poller.poll(0))
 
-    ``port`` must be open with ``timeout=None`` (blocking reads that :meth:`stop` interrupts
-    with pyserial's ``cancel_read``).  Create it from the event loop's thread; :meth:`take`
-    and :meth:`stop` are called from that thread too.
+
+class PortReader:
+    """Reads ``port`` as bytes arrive (see the module's doc); :meth:`take` hands them to the
+    event loop.
+
+    ``port`` must be open with ``timeout=None`` (a port without a descriptor is read in
+    blocking reads that :meth:`stop` interrupts with pyserial's ``cancel_read``).  Create it
+    from the event loop's thread; :meth:`take` and :meth:`stop` are called from that thread
+    too.
     """
 
     def __init__(self, port: serial.Serial, *, limit: int = DEFAULT_LIMIT) -> None:
@@ -89,10 +95,20 @@ class PortReader:
         self._waiter: asyncio.Future[None] | None = None
         self._room = threading.Event()
         self._room.set()
+        #: held while the port is read (by the loop or the read thread): one read at a time
+        self.read_lock = threading.Lock()
+        #: ``time.monotonic()`` when the loop last read the port (s): the read thread reads it
+        #: when this is too old (read_thread.STALL_S)
+        self.last_read = time.monotonic()
+        #: the read thread took bytes since the loop's last read: a readiness the loop then
+        #: finds empty was the thread's doing, not a vanished device
+        self._guard_took = False
+        self._watched = False  # the loop calls _on_readable when the port has bytes
         #: the process's read thread (a port with a descriptor), else a thread of its own
         self._shared: ReadThread | None = None
         self._thread: threading.Thread | None = None
         if self._fd is not None:
+            self._watch()
             self._shared = read_thread.register(self)
         else:
             self._thread = threading.Thread(target=self._run, daemon=True,
@@ -115,17 +131,72 @@ class PortReader:
         """The ring holds ``limit`` bytes: nothing more is read until the loop takes some."""
         return not self._room.is_set()
 
-    # -- the thread ---------------------------------------------------------------------------
+    # -- reading: the loop's side --------------------------------------------------------------
 
-    def drain_ready(self) -> asyncio.Future[None] | None:
-        """(The read thread's call.)  The port is readable: read what it holds into the
-        ring.  Returns the waiting :meth:`take` to wake, if any.  Raises the port's error."""
-        if self._stopping:
-            return None
-        return self._drain(0)
+    def _watch(self) -> None:
+        if not self._watched:
+            self._loop.add_reader(self.fd, self._on_readable)
+            self._watched = True
+
+    def _unwatch(self) -> None:
+        if self._watched:
+            self._watched = False
+            try:
+                self._loop.remove_reader(self.fd)
+            except (OSError, ValueError, RuntimeError):  # closed already: nothing to remove
+                pass
+
+    def _on_readable(self) -> None:
+        """(The loop's callback.)  The port has bytes: read them into the ring and wake the
+        waiting :meth:`take`, if any."""
+        if self._stopping or self._ended:
+            self._unwatch()
+            return
+        error = None
+        with self.read_lock:
+            self.last_read = time.monotonic()
+            strict, self._guard_took = not self._guard_took, False
+            try:
+                waiter = self._drain(0, woke=strict)
+            except Exception as err:  # noqa: BLE001 (the device went away, or a bug)
+                waiter, error = None, err
+        if error is not None:
+            self._unwatch()
+            if self._shared is not None:
+                self._shared.remove(self, 0.0)
+            waiter = self.failed(error)
+        elif self.full:
+            self._unwatch()  # until take() makes room: the kernel buffer holds the rest
+        if waiter is not None and not waiter.done():
+            waiter.set_result(None)
+
+    # -- reading: the guard's side and the thread of a port without a descriptor -------------
+
+    def guard_drain(self) -> tuple[int, asyncio.Future[None] | None]:
+        """(The read thread's call.)  The loop has not read the port for a while: read what
+        it holds into the ring, unless the loop is reading it now.  Returns the bytes read
+        and the waiting :meth:`take` to wake, if any.  Raises the port's error."""
+        if not self.read_lock.acquire(blocking=False):
+            return 0, None  # the loop is at it
+        try:
+            if self._stopping or self._ended or self.full:
+                return 0, None
+            before = self._written
+            waiter = self._drain(0, woke=False)
+            read = self._written - before
+            if not read and _hung_up(self.fd):
+                # (what the loop's readiness would say: a pty whose master closed, an
+                # unplugged adapter, reads b"" and polls hung up)
+                raise serial.SerialException(
+                    "device reports readiness to read but returned no data "
+                    "(device disconnected or multiple access on port?)")
+            self._guard_took = self._guard_took or read > 0
+            return read, waiter
+        finally:
+            self.read_lock.release()
 
     def failed(self, err: BaseException) -> asyncio.Future[None] | None:
-        """(The read thread's call.)  Reading raised ``err``: it goes to the consumer after
+        """(The reading side's call.)  Reading raised ``err``: it goes to the consumer after
         the bytes read before it, and this reader ends.  Returns the take to wake."""
         if not isinstance(err, (serial.SerialException, OSError)):
             log.error("reader of %s failed", self._port.port, exc_info=err)
@@ -165,12 +236,11 @@ class PortReader:
         self._ring[pos] = data[0]
         return 1
 
-    def _drain(self, pending: int) -> asyncio.Future[None] | None:
+    def _drain(self, pending: int, woke: bool = False) -> asyncio.Future[None] | None:
         """Read what the device holds into the ring after ``pending`` bytes of this wake, and
         commit them (made the loop's, one mark per piece); a mark never crosses the ring's end
-        nor TAKE_LIMIT.  ``pending`` 0: ``poll`` said readable, so the first read must
-        return something.  Returns the waiting take to wake, if any."""
-        woke = pending == 0
+        nor TAKE_LIMIT.  ``woke``: the port said readable, so the first read must return
+        something.  Returns the waiting take to wake, if any."""
         waiter = None
         while not self._stopping:
             pos, room = self._room_at(pending)
@@ -275,8 +345,8 @@ class PortReader:
                     if (end - start and self._written - end < self.limit
                             and not self._room.is_set()):
                         self._room.set()
-                        if self._shared is not None and not self._stopping:
-                            self._shared.resume(self)
+                        if self._fd is not None and not self._stopping and not self._ended:
+                            self._watch()
                     return piece
                 if self._error is not None:
                     err, self._error = self._error, None
@@ -293,10 +363,13 @@ class PortReader:
                         self._waiter = None
 
     def stop(self) -> None:
-        """End the thread (within ~ms) and wake a pending :meth:`take`, which returns what
-        was read and then ``b""``.  The port stays open: the caller closes it."""
+        """Stop reading (the read thread lets go within ~ms) and wake a pending :meth:`take`,
+        which returns what was read and then ``b""``.  The port stays open: the caller closes
+        it."""
         self._stopping = True
         self._room.set()
+        if self._fd is not None:
+            self._unwatch()
         if self._shared is not None:
             if not self._shared.remove(self, JOIN_TIMEOUT):
                 log.warning("the read thread did not let go of %s within %g s",
@@ -326,7 +399,7 @@ class PortReader:
     @property
     def alive(self) -> bool:
         """True while the port is read (until :meth:`stop` or its error)."""
-        if self._shared is not None:
-            return not self._ended and self._shared.alive
+        if self._fd is not None:
+            return not self._ended and not self._stopping
         assert self._thread is not None
         return self._thread.is_alive()

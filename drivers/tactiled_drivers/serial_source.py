@@ -4,22 +4,22 @@ URL parameters: ``baud`` (bits/s, default 1000000; ignored by USB CDC-ACM device
 ``exclusive`` (default 1: take an ``flock`` on the port so a second daemon cannot interleave
 reads with ours).
 
-**Read in a thread** (:class:`~tactiled_drivers.port_reader.PortReader`; one thread reads
-every port of the process, :mod:`tactiled_drivers.read_thread`): it sleeps in ``poll`` until
-bytes arrive and moves them into memory at once, and the event loop
-takes them from there (``await``, so read timeouts and shutdown are ordinary cancellation).
-An earlier version read in the event loop (``loop.add_reader``, no thread); the soak showed why
-that is not enough: a tty buffers 0.1-0.4 s of a 1 kHz finger, and the loop, which also serves
-the WebSocket subscribers, stalled for longer than that under load and frames were lost at
-the device.  See that module for the details and the bound on memory.  POSIX only, which
+**Read as bytes arrive** (:class:`~tactiled_drivers.port_reader.PortReader`): the event loop
+reads the port when it has bytes (``loop.add_reader``) into a bounded ring, and one thread of the
+process (:mod:`tactiled_drivers.read_thread`) reads any port the loop has not read for a few
+milliseconds, so a stalled loop never leaves the device waiting: a tty buffers 30 ms to 0.4 s of
+an array at 1 kHz, and the loop, which also serves the WebSocket subscribers, can stall for
+longer than that under load (the soak lost frames at the device when the loop alone read).  The
+consumer takes the bytes with ``await``, so read timeouts and shutdown are ordinary
+cancellation.  See those modules for the details and the bound on memory.  POSIX only, which
 suits a daemon deployed with systemd and udev.
 
 **A vanishing device** shows in two ways, both handled: pyserial raises ``SerialException``
 for ``EIO`` ("read failed"), and for a descriptor that polls readable but reads ``b""`` (what a
 Linux pty gives once its master is closed, and a USB serial adapter once unplugged).  ``OSError``
 (e.g. ``EIO`` from the ``TIOCINQ`` ioctl behind ``in_waiting``) is treated the same.  The reader
-thread hands the error over after the bytes it read before it; the driver then stops the
-thread, closes the port (releasing its descriptor and pyserial's two abort pipes, so nothing leaks),
+hands the error over after the bytes it read before it; the driver then stops the
+reader, closes the port (releasing its descriptor and pyserial's two abort pipes, so nothing leaks),
 sets ``connected = False`` and ``last_error``, counts a disconnect, logs one warning, and retries
 opening the same path with backoff: 0.1 s, doubling, capped at 2 s.  A successful re-open logs,
 counts a reconnect and resumes reading; the decoder's half-received frame is dropped.

@@ -46,7 +46,7 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
 OTHER = "other"
 #: Innermost frames of a thread asleep in a system call, which py-spy's sampler counted as
 #: running: left out (the CPU time they would stand for is not the process's).
-WAITING = ("ReadThread._wait (", "ReadThread._pause (", "PortReader._wait (",
+WAITING = ("Condition.wait (", "PortReader._wait (",
            "EpollSelector.select (", "_PollLikeSelector.select (")
 _LINE = re.compile(r":\d+\)")
 

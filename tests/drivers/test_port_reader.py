@@ -225,12 +225,11 @@ def test_limit_must_be_positive(pty_device) -> None:
     asyncio.run(main())
 
 
-def test_every_port_is_read_by_one_thread_that_wakes_each_loop_once(pty_devices) -> None:
-    """Three ports, one read thread: bytes written to all three at once are read in one wake
-    of it (one poll over every port), each port's bytes arriving whole and in order; the
-    thread ends when the last port stops."""
-    from tactiled_drivers import read_thread
-
+def test_the_loop_reads_every_port_and_one_thread_stands_guard(pty_devices) -> None:
+    """Three ports: while the loop is free, the loop reads each port's bytes as they arrive
+    (whole and in order) and the one guard thread of the process reads nothing; while the
+    loop is held up, the thread reads them (the device never waits), and the loop then gets
+    them in order.  The thread ends when the last port stops."""
     devices = [pty_devices(f"tty{i}") for i in range(3)]
 
     async def main() -> None:
@@ -242,43 +241,60 @@ def test_every_port_is_read_by_one_thread_that_wakes_each_loop_once(pty_devices)
             thread = readers[0]._shared
             assert thread is not None and all(r._shared is thread for r in readers)
             await asyncio.sleep(0.05)
-            # held in the kernel while the thread is asleep in its interval, then one wake
-            # takes all three: the interval is long enough to write them all first
-            thread.interval = 0.2
-            before = thread.wakes
+            before = thread.drains
+            for k in range(20):  # the loop free between the writes
+                for i, d in enumerate(devices):
+                    d.write(bytes([i + 1, k]) * 50)
+                got = await asyncio.gather(*(take_all(r, 100) for r in readers))
+                assert got == [bytes([i + 1, k]) * 50 for i in range(3)]
+                await asyncio.sleep(0.001)
+            assert thread.drains == before  # the loop read it all
             for i, d in enumerate(devices):
                 d.write(bytes([i + 1]) * 100)
-            got = await asyncio.gather(*(take_all(r, 100) for r in readers))
-            assert got == [bytes([i + 1]) * 100 for i in range(3)]
-            assert thread.wakes - before <= 2  # (the first may have been the interval's end)
-            thread.interval = read_thread.READ_INTERVAL_S
+            time.sleep(0.1)  # the loop is stuck: the guard reads
+            assert thread.drains > before
+            assert all(r.held == 100 for r in readers)
+            for i, d in enumerate(devices):
+                d.write(bytes([i + 7]) * 100)
+            got = await asyncio.gather(*(take_all(r, 200) for r in readers))
+            assert got == [bytes([i + 1]) * 100 + bytes([i + 7]) * 100 for i in range(3)]
         finally:
             for r in readers:
                 r.stop()
             for p in ports:
                 p.close()
+        await asyncio.sleep(0.05)
         assert not any(t.name == "tactiled-read" for t in threading.enumerate())
 
     asyncio.run(main())
 
 
-def test_a_full_ring_is_not_polled_until_the_loop_takes(pty_device) -> None:
-    """At its limit a port leaves the poll (its bytes wait in the kernel): the read thread
-    sleeps, rather than waking at every interval to find no room."""
+def test_a_full_ring_is_not_read_until_the_loop_takes(pty_device, monkeypatch) -> None:
+    """At its limit a port is read by nobody (its bytes wait in the kernel): the loop stops
+    watching it, rather than being called at every turn to find no room, until it takes."""
+    calls = 0
+    on_readable = PortReader._on_readable
+
+    def counted(self: PortReader) -> None:
+        nonlocal calls
+        calls += 1
+        on_readable(self)
+
+    monkeypatch.setattr(PortReader, "_on_readable", counted)
 
     async def main() -> None:
         with reading(pty_device.path, limit=4096) as (_port, reader):
             writer = Writer(pty_device.master, PAYLOAD, deadline=5.0)
             writer.start()
-            time.sleep(0.2)  # (the loop is stuck: the ring fills)
+            time.sleep(0.2)  # (the loop is stuck: the guard fills the ring)
             assert reader.full
-            thread = reader._shared
-            assert thread is not None
-            before = thread.wakes
-            time.sleep(0.3)
-            assert thread.wakes - before <= 2, thread.wakes - before  # 300 if it spun
+            before = calls
+            await asyncio.sleep(0.3)  # the loop free, the ring full, the port readable
+            assert reader.full and not reader._watched
+            assert calls - before <= 1, calls - before  # thousands if it spun
             got = await take_all(reader, len(PAYLOAD))
             writer.join()
             assert got == PAYLOAD
+            assert calls > before  # (the loop read the rest once it had room)
 
     asyncio.run(main())
