@@ -230,6 +230,8 @@ def test_the_loop_reads_every_port_and_one_thread_stands_guard(pty_devices) -> N
     (whole and in order) and the one guard thread of the process reads nothing; while the
     loop is held up, the thread reads them (the device never waits), and the loop then gets
     them in order.  The thread ends when the last port stops."""
+    from tactiled_drivers import read_thread
+
     devices = [pty_devices(f"tty{i}") for i in range(3)]
 
     async def main() -> None:
@@ -240,6 +242,9 @@ def test_the_loop_reads_every_port_and_one_thread_stands_guard(pty_devices) -> N
             assert names == ["tactiled-read"], names
             thread = readers[0]._shared
             assert thread is not None and all(r._shared is thread for r in readers)
+            # the guard looking rarely (an idle port is one the loop has not read for a
+            # while, so a guard at its 4 ms might happen on a write before the loop's call)
+            thread.interval = 0.5
             await asyncio.sleep(0.05)
             before = thread.drains
             for k in range(20):  # the loop free between the writes
@@ -249,6 +254,8 @@ def test_the_loop_reads_every_port_and_one_thread_stands_guard(pty_devices) -> N
                 assert got == [bytes([i + 1, k]) * 50 for i in range(3)]
                 await asyncio.sleep(0.001)
             assert thread.drains == before  # the loop read it all
+            thread.interval = read_thread.GUARD_INTERVAL_S
+            await asyncio.sleep(0.6)  # (the guard's long wait ends)
             for i, d in enumerate(devices):
                 d.write(bytes([i + 1]) * 100)
             time.sleep(0.1)  # the loop is stuck: the guard reads
