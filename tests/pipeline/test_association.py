@@ -70,3 +70,26 @@ def test_a_gate_must_be_a_distance() -> None:
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="gate_mm"):
             ContactIds(bad)
+
+
+@pytest.mark.parametrize("several", [False, True])
+def test_identified_in_place_equals_identified_by_copy(several: bool) -> None:
+    """``fresh=True`` (a tracker's estimate, completed in place) gives the very dict the
+    copying path gives, frame after frame, and the ids move alike."""
+    import copy
+
+    def fit(k: int) -> dict:
+        one = {"contact": True, "x_mm": 3.0 + 0.1 * k, "y_mm": 4.0, "r1_mm": 5.0,
+               "std": {"r1_mm": 0.1}, "frames_used": 3}
+        if not several:
+            return {**one, "contacts": [dict(one)]} if k % 2 else one
+        other = {**one, "x_mm": 12.0 - 0.1 * k}
+        return {**one, "contacts": [one, other]}
+
+    by_copy, in_place = ContactIds(gate_mm=3.8), ContactIds(gate_mm=3.8)
+    for k in range(5):
+        original = fit(k)
+        want = identified(copy.deepcopy(original), by_copy)
+        got = identified(copy.deepcopy(original), in_place, fresh=True)
+        assert got == want
+        assert got["contacts"][0]["contact_id"] == want["contact_id"]
