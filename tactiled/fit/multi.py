@@ -70,9 +70,12 @@ def predicted_strain(fitter: Any, res: FitResult) -> np.ndarray | None:
         if v.get("x_mm") is None or v.get("y_mm") is None or not line.get("load_n_per_mm"):
             return None
         p = res.params
-        contact = LineContact(math.exp(p[0]), math.degrees(p[1]), float(line["load_n_per_mm"]),
-                              float(v["x_mm"]), float(v["y_mm"]))
-        return m.predict(contact, m.xs_full, m.ys_full)
+        try:
+            contact = LineContact(math.exp(p[0]), math.degrees(p[1]),
+                                  float(line["load_n_per_mm"]), float(v["x_mm"]), float(v["y_mm"]))
+            return m.predict(contact, m.xs_full, m.ys_full)
+        except (ValueError, OverflowError):
+            return None  # a line too wide to integrate (a radius the frame leaves open)
     return _point_strain(fitter, res.model, res.params)
 
 

@@ -4,6 +4,7 @@ tactiled.fit.multi).  Frames are the physics' own (sums of predict_strain) plus 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.fit.multi import contacts_json, fit_contacts, joint_bounds, predicted_strain
 from tactiled.fit.regions import find_regions
-from tactiled.physics.contact import Contact
+from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.strain import StrainModel
 from tactiled.sensors import load_description
 
@@ -126,6 +127,21 @@ def test_predicted_strain_is_the_physics_of_the_fitted_contact() -> None:
     fitted = Contact(res.values["r1_mm"], res.values["r1_mm"], 0.0, res.values["force_n"],
                      res.values["x_mm"], res.values["y_mm"])
     np.testing.assert_allclose(pred, model.predict(fitted), rtol=1e-6, atol=1e-9)
+
+
+def test_a_line_too_wide_to_integrate_predicts_nothing_rather_than_failing_the_fit() -> None:
+    # A light line whose radius the frame leaves open can take a radius at which the Hertz
+    # half-width is hundreds of mm: its strain cannot be integrated, and the fit of its
+    # neighbours must go on without it (a ValueError here failed a palm's whole fit).
+    sensor, model, fitter = _setup("flat16")
+    cx, cy = _centre(sensor)
+    truth = LineContact(10.0, 30.0, 0.05, cx, cy)
+    res = fitter.fit(model.predict(truth), "cylinder")
+    assert res.line is not None and predicted_strain(fitter, res) is not None
+    wide = replace(res, params=(math.log(1e9), *res.params[1:]))
+    with pytest.raises(ValueError, match="too long"):  # the physics itself refuses it
+        model.predict(LineContact(1e9, 30.0, res.line["load_n_per_mm"], cx, cy))
+    assert predicted_strain(fitter, wide) is None
 
 
 def _fd_fisher(model: StrainModel, contacts: list[Contact], tactels: np.ndarray, sigma: float) -> np.ndarray:
