@@ -72,7 +72,8 @@ def score(desc: SensorDescription, seed: int = 1) -> dict[str, Any]:
         if not 0 <= tick < len(truth):
             continue
         true = truth[tick]
-        listed = [c for c in fit.get("contacts") or [] if c.get("x_mm") is not None]
+        listed = [c for c in fit.get("contacts") or []
+                  if c.get("x_mm") is not None and c.get("y_mm") is not None]
         n["true_contacts"] += len(true)
         if not fit.get("contact"):
             n["missed"] += len(true)
