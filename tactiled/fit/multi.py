@@ -105,7 +105,10 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
                  budget_s: float | None = None) -> list[FitResult]:
     """Every contact of a zeroed strain frame, the highest peak's first (see the module's doc).
 
-    The frame is fitted as one contact first, exactly as :meth:`Fitter.fit` does
+    When every separate region (:func:`find_regions`) is a different one of the contacts
+    the last frame held (``warm`` of several, each region's peak within the cover's spread of
+    one), they are fitted as several at once, each from where it was.  Otherwise the frame is
+    fitted as one contact first, exactly as :meth:`Fitter.fit` does
     (``fitter.fit(strain, model, mask=mask, warm=warm, budget_s=budget_s)``).  Each other
     separate region (:func:`find_regions`) whose peak that contact's strain leaves unexplained
     (:func:`_unexplained`) is a contact of its own: then every contact is fitted with its
@@ -118,6 +121,9 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     flat = fitter.flattened(strain)
     regions = find_regions(flat, fitter.sigma, mask)
     starts = [_start_for(fitter, reg, warm) for reg in regions]
+    if _all_held(warm, starts):
+        return _fit_several(fitter, np.asarray(strain, dtype=float), model, mask, regions,
+                            budget_s, starts)
     first_warm = warm
     if warm is not None and warm[0] == SEVERAL:  # the last frame's contact at the highest peak
         first_warm = starts[0] if starts else None
@@ -133,6 +139,17 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     first_start = (res.model, res.params) if res.params is not None and res.model else starts[0]
     return _fit_several(fitter, np.asarray(strain, dtype=float), model, mask, kept, left,
                         [first_start, *(starts[regions.index(r)] for r in others)])
+
+
+def _all_held(warm: Any, starts: list[tuple[str, tuple[float, ...]] | None]) -> bool:
+    """Every pressed region is a contact of the last frame's several (``warm``), each a
+    different one: the frame holds the same contacts, to be fitted as several at once from
+    where they were.  (Fitted first as one contact, such a frame's model search runs cold
+    on a window the neighbours' strain makes inconsistent with any one contact, only to find
+    the others again.)"""
+    return (warm is not None and warm[0] == SEVERAL and len(starts) > 1
+            and all(st is not None for st in starts)
+            and len({id(st) for st in starts}) == len(starts))
 
 
 def _merged(fitter: Any, flat: np.ndarray, res: FitResult, region: Region) -> bool:

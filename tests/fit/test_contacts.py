@@ -211,6 +211,48 @@ def test_a_frame_of_several_starts_each_contact_from_the_last_frames() -> None:
     assert one.contact and abs(one.values["x_mm"] - 10.0) < 0.2
 
 
+def test_contacts_held_since_the_last_frame_are_fitted_as_several_at_once(monkeypatch) -> None:
+    # Every region a different contact of the last frame's: one fit per contact, from where
+    # each was, and not first the frame as one contact (whose model search runs cold on a
+    # window its neighbours spoil) -- with the same answer, within a tenth of a sigma.  A
+    # region no contact held (a new contact) takes the full path and is found.
+    from tactiled.fit import multi
+    from tactiled.fit.multi import warm_of
+
+    sensor, model, fitter = _setup("flat16")
+    truths = [Contact(5.0, 5.0, 0.0, 1.0, 10.0, 11.0), Contact(9.0, 9.0, 0.0, 0.6, 28.0, 27.0)]
+    rng = np.random.default_rng(11)
+    clean = sum(model.predict(c) for c in truths)
+    warm = warm_of(fit_contacts(fitter, clean + rng.normal(0.0, SIGMA, clean.shape), "auto"))
+    moved = [Contact(5.0, 5.0, 0.0, 1.05, 10.1, 11.0), Contact(9.0, 9.0, 0.0, 0.6, 28.0, 27.1)]
+    frame = sum(model.predict(c) for c in moved) + rng.normal(0.0, SIGMA, clean.shape)
+
+    calls = []
+    fit = fitter.fit
+    monkeypatch.setattr(fitter, "fit", lambda strain, *a, **k: calls.append(strain) or fit(strain, *a, **k))
+    held = fit_contacts(fitter, frame, "auto", warm=warm)
+    assert len(calls) == 2  # one per contact, each on the frame less the other
+    assert all(c is not frame for c in calls)
+    monkeypatch.setattr(multi, "_all_held", lambda warm, starts: False)
+    calls.clear()
+    full = fit_contacts(fitter, frame, "auto", warm=warm)
+    assert len(calls) == 3 and calls[0] is frame  # the frame as one contact, then each
+    assert len(held) == len(full) == 2
+    for a, b, truth in zip(held, full, moved):
+        for key, value in (("x_mm", truth.x0), ("y_mm", truth.y0), ("force_n", truth.force),
+                           ("r1_mm", truth.r1)):
+            assert a.values[key] == pytest.approx(b.values[key], abs=0.1 * b.std[key])
+            assert abs(a.values[key] - value) < 4.0 * a.std[key]
+    monkeypatch.undo()
+
+    # a third contact comes: its region has no start, so the frame takes the full path
+    third = Contact(4.0, 4.0, 0.0, 0.8, 10.0, 30.0)
+    frame3 = frame + model.predict(third)
+    out = fit_contacts(fitter, frame3, "auto", warm=warm)
+    assert len(out) == 3
+    assert min(math.hypot(r.values["x_mm"] - 10.0, r.values["y_mm"] - 30.0) for r in out) < 0.5
+
+
 def test_a_line_contacts_ridge_is_one_contact_however_the_grid_samples_it() -> None:
     from tactiled.config import NoiseModel
     from tactiled.physics.contact import LineContact
