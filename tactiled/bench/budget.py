@@ -10,7 +10,8 @@ loop and the serial read thread, not its fit workers nor the simulators) by pipe
 
 ``python -m tactiled.bench.budget --stage`` times the calibration stage alone, compiled and
 reference paths; ``--replay`` the whole main process on the hand's parts replayed lossless,
-nothing else competing (:func:`replay_cost`).  A sample belongs to the innermost stage its stack passes through (the detector inside the
+nothing else competing (:func:`replay_cost`); ``--fits`` a fit worker's time per job on the
+palm's and a fingertip's frames (:func:`fit_cost`).  A sample belongs to the innermost stage its stack passes through (the detector inside the
 calibration stage counts as the detector).  With ``--cpu-share`` (the main process's CPU in
 cores over the window, as the bench's table gives it) and ``--frames-per-s`` the shares become
 microseconds per frame.
@@ -19,9 +20,10 @@ microseconds per frame.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import re
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 #: Stage -> substrings of a stack frame ``function (file)`` that put a sample in it; matched
@@ -217,11 +219,61 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
         return [asyncio.run(play(paths)) for _ in range(passes)]
 
 
-def replay_at(tree: str, passes: int = 2, frames: int = 4000,
-              parts: tuple[tuple[str, str, str], ...] = HAND_PARTS) -> list[dict[str, Any]]:
-    """:func:`replay_cost` on the code of checkout ``tree`` (its daemon and its workers), in
-    a subprocess: this module's own ``replay_cost`` runs there, so a revision from before it
-    existed is measured the same way."""
+#: The arrays whose fits :func:`fit_cost` times: (description, scene), the palm's several
+#: contacts and a fingertip's two.
+FIT_PARTS = (("flat16", "hand-palm"), ("fearing1988", "hand-finger2"))
+
+
+def fit_cost(description: str, scene: str, every: int = 20, frames: int = 1200,
+             repeats: int = 2) -> dict[str, Any]:
+    """A worker's time per fit job (``fit+lin``) on ``scene``'s frames of the array
+    ``description`` with nothing else competing: every ``every``-th frame of ``frames`` from
+    1 s into the scene (seed 1, its contacts held and moving) fitted as a worker fits a frame
+    the tracker hands it (:func:`tactiled.fit.multi.fit_contacts`, model ``auto``, a warm
+    start from the fit before, a 50 ms budget), then linearised (each contact's, as the
+    worker does for the tracker).  The last of ``repeats`` passes counts (the first loads
+    what the kernels cache).  ``fit_ms`` and ``lin_ms``: ``p50`` and ``p90``; ``jobs``."""
+    import time
+
+    from tactiled.fit.fitter import FitOptions, Fitter
+    from tactiled.fit.multi import fit_contacts, warm_of
+    from tactiled.pipeline.worker import _several_lin
+    from tactiled.sensors import load_description
+    from tactiled.sim import FingerSimulator
+
+    desc = load_description(description)
+    sensor = desc.sensor_model()
+    fitter = Fitter(sensor, FitOptions(window=desc.window))
+    sim = FingerSimulator(sensor, scene, seed=1)
+    sim.skip(round(sim.rate_hz))
+    strains = [sim.step().strain for _ in range(frames)][::every]
+    fit_ms: list[float] = []
+    lin_ms: list[float] = []
+    for _ in range(repeats):
+        fit_ms.clear()
+        lin_ms.clear()
+        warm = None
+        for strain in strains:
+            t0 = time.perf_counter()
+            results = fit_contacts(fitter, strain, "auto", warm=warm, budget_s=0.05)
+            t1 = time.perf_counter()
+            _several_lin(fitter, strain, results, None)
+            lin_ms.append(1e3 * (time.perf_counter() - t1))
+            fit_ms.append(1e3 * (t1 - t0))
+            warm = warm_of(results)
+
+    def q(v: list[float], p: float) -> float:
+        return sorted(v)[int(p * (len(v) - 1))]
+
+    return {"jobs": len(fit_ms), "fit_ms": {"p50": q(fit_ms, 0.5), "p90": q(fit_ms, 0.9)},
+            "lin_ms": {"p50": q(lin_ms, 0.5), "p90": q(lin_ms, 0.9)}}
+
+
+def _run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> Any:
+    """``call`` (an expression calling ``func``, a self-contained function of this module)
+    evaluated on the code of checkout ``tree``, in a subprocess: this module's own ``func``
+    runs there, so a revision from before it existed is measured the same way.  Its result
+    must be JSON."""
     import inspect
     import json
     import os
@@ -229,17 +281,48 @@ def replay_at(tree: str, passes: int = 2, frames: int = 4000,
     import sys
 
     path = os.pathsep.join([tree, os.path.join(tree, "drivers"), os.path.join(tree, "service")])
-    source = "\n".join(["from typing import Any", f"HAND_PARTS = {HAND_PARTS!r}",
-                        inspect.getsource(replay_cost),
+    source = "\n".join(["from typing import Any", *preamble, inspect.getsource(func),
                         "if __name__ == '__main__':",
                         "    import json",
-                        f"    print(json.dumps(replay_cost({parts!r}, {frames!r}, "
-                        f"passes={passes!r})))"])
+                        f"    print(json.dumps({call}))"])
     out = subprocess.run([sys.executable, "-c", source], cwd=tree, capture_output=True,
                          text=True, env={**os.environ, "PYTHONPATH": path})
     if out.returncode != 0:
-        raise RuntimeError(f"the replay on {tree} failed:\n{out.stderr[-2000:]}")
+        raise RuntimeError(f"{func.__name__} on {tree} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def replay_at(tree: str, passes: int = 2, frames: int = 4000,
+              parts: tuple[tuple[str, str, str], ...] = HAND_PARTS) -> list[dict[str, Any]]:
+    """:func:`replay_cost` on the code of checkout ``tree`` (its daemon and its workers)."""
+    return _run_at(tree, replay_cost, f"replay_cost({parts!r}, {frames!r}, passes={passes!r})",
+                   (f"HAND_PARTS = {HAND_PARTS!r}",))
+
+
+def fits_at(tree: str, description: str, scene: str) -> dict[str, Any]:
+    """:func:`fit_cost` on the code of checkout ``tree``."""
+    return _run_at(tree, fit_cost, f"fit_cost({description!r}, {scene!r})")
+
+
+def _here() -> Any:
+    """This checkout's top directory."""
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[2]
+
+
+@contextlib.contextmanager
+def _baseline_tree(rev: str | None) -> Iterator[str | None]:
+    """A temporary checkout of git revision ``rev`` (None: no baseline, None)."""
+    if rev is None:
+        yield None
+        return
+    import tempfile
+
+    from tactiled.bench.speed import _checkout
+
+    with tempfile.TemporaryDirectory(prefix="tactiled-budget-base-") as tmp:
+        yield _checkout(rev, tmp)
 
 
 def _cli() -> None:
@@ -254,29 +337,39 @@ def _cli() -> None:
     p.add_argument("--replay", action="store_true",
                    help="instead: the main process's CPU per frame on the hand's six parts "
                         "replayed lossless, nothing else competing (replay_cost)")
+    p.add_argument("--fits", action="store_true",
+                   help="instead: a worker's time per fit job (the fit, then its "
+                        "linearisation) on the palm's and a fingertip's frames (fit_cost)")
     p.add_argument("--baseline", metavar="REV", default=None,
-                   help="with --replay: also the code of git revision REV, in turn with this "
-                        "tree's (two rounds of two passes each)")
+                   help="with --replay or --fits: also the code of git revision REV, in turn "
+                        "with this tree's (two rounds)")
     a = p.parse_args()
-    if a.baseline is not None and not a.replay:
-        p.error("--baseline goes with --replay")
+    if a.baseline is not None and not (a.replay or a.fits):
+        p.error("--baseline goes with --replay or --fits")
+    if a.fits:
+        print("| code | array | scene | fit jobs | fit, ms p50 / p90 | linearisation, ms p50 / p90 |")
+        print("|---|---|---|---|---|---|")
+        codes: list[tuple[str, str]] = [("this tree", str(_here()))]
+        with _baseline_tree(a.baseline) as tree:
+            if tree is not None:
+                codes = [*codes, (f"baseline {a.baseline}", tree)] * 2
+            for code, where in codes:
+                for description, scene in FIT_PARTS:
+                    r = fits_at(where, description, scene)
+                    print(f"| {code} | {description} | {scene} | {r['jobs']} | "
+                          f"{r['fit_ms']['p50']:.2f} / {r['fit_ms']['p90']:.2f} | "
+                          f"{r['lin_ms']['p50']:.2f} / {r['lin_ms']['p90']:.2f} |")
+        return
     if a.replay:
         print("| code | pass | frames | main process CPU per frame, us | relinearisations | fits |")
         print("|---|---|---|---|---|---|")
         rows: list[tuple[str, list[dict[str, Any]]]] = []
-        if a.baseline is None:
-            rows.append(("this tree", replay_cost()))
-        else:
-            import tempfile
-            from pathlib import Path
-
-            from tactiled.bench.speed import _checkout
-
-            here = str(Path(__file__).resolve().parents[2])
-            with tempfile.TemporaryDirectory(prefix="tactiled-budget-base-") as tmp:
-                tree = _checkout(a.baseline, tmp)
+        with _baseline_tree(a.baseline) as tree:
+            if tree is None:
+                rows.append(("this tree", replay_cost()))
+            else:
                 for _ in range(2):
-                    rows.append(("this tree", replay_at(here)))
+                    rows.append(("this tree", replay_at(str(_here()))))
                     rows.append((f"baseline {a.baseline}", replay_at(tree)))
         for code, runs in rows:
             for i, r in enumerate(runs, 1):
@@ -291,7 +384,7 @@ def _cli() -> None:
                   f"{stage_cost(description, scene, False):.1f} |")
         return
     if a.profile is None:
-        p.error("give a profile, or --stage")
+        p.error("give a profile, or --stage, --replay or --fits")
     with open(a.profile, encoding="utf-8") as fh:
         per, total = breakdown(fh)
     print(table(per, total, a.cpu_share, a.frames_per_s))

@@ -51,3 +51,17 @@ def test_a_checkout_is_replayed_in_its_own_process_with_this_measure() -> None:
     (r,) = budget.replay_at(tree, passes=1, frames=300, parts=budget.HAND_PARTS[3:4])
     assert r["frames"] == 300 and r["us_per_frame"] > 0.0
     assert set(r["relinearized"]) == {"finger3"}
+
+
+def test_fit_jobs_are_timed_as_a_worker_does_them_here_and_on_a_checkout() -> None:
+    """``--fits``: the palm's frames fitted and linearised, each job's time; the same on a
+    checkout's code in a process of its own (here this tree's)."""
+    from pathlib import Path
+
+    r = budget.fit_cost("flat16", "hand-palm", every=50, frames=200, repeats=1)
+    assert r["jobs"] == 4
+    assert 0.0 < r["fit_ms"]["p50"] <= r["fit_ms"]["p90"] < 1e4
+    assert 0.0 < r["lin_ms"]["p50"] <= r["lin_ms"]["p90"]
+    tree = str(Path(budget.__file__).resolve().parents[2])
+    there = budget.fits_at(tree, "fearing1988", "hand-finger2")
+    assert there["jobs"] == 60 and there["fit_ms"]["p50"] > 0.0
