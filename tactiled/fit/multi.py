@@ -149,7 +149,7 @@ def _all_held(warm: Any, starts: list[tuple[str, tuple[float, ...]] | None]) -> 
     the others again.)"""
     return (warm is not None and warm[0] == SEVERAL and len(starts) > 1
             and all(st is not None for st in starts)
-            and len({id(st) for st in starts}) == len(starts))
+            and len({(st[0], tuple(st[1])) for st in starts}) == len(starts))
 
 
 def _merged(fitter: Any, flat: np.ndarray, res: FitResult, region: Region) -> bool:

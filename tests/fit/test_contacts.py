@@ -245,6 +245,15 @@ def test_contacts_held_since_the_last_frame_are_fitted_as_several_at_once(monkey
             assert abs(a.values[key] - value) < 4.0 * a.std[key]
     monkeypatch.undo()
 
+    # two regions that the same contact of the last frame is nearest to are not two held
+    # contacts (whatever split its strain): the full path
+    from tactiled.fit.multi import _all_held
+
+    one = warm[1][0]
+    assert _all_held(warm, [one, warm[1][1]])
+    assert not _all_held(warm, [one, (one[0], tuple(one[1]))])
+    assert not _all_held(warm, [one, None]) and not _all_held(one, [one])
+
     # a third contact comes: its region has no start, so the frame takes the full path
     third = Contact(4.0, 4.0, 0.0, 0.8, 10.0, 30.0)
     frame3 = frame + model.predict(third)
