@@ -304,11 +304,11 @@ def fits_at(tree: str, description: str, scene: str) -> dict[str, Any]:
     return _run_at(tree, fit_cost, f"fit_cost({description!r}, {scene!r})")
 
 
-def _here() -> Any:
+def _here() -> str:
     """This checkout's top directory."""
     from pathlib import Path
 
-    return Path(__file__).resolve().parents[2]
+    return str(Path(__file__).resolve().parents[2])
 
 
 @contextlib.contextmanager
@@ -349,7 +349,7 @@ def _cli() -> None:
     if a.fits:
         print("| code | array | scene | fit jobs | fit, ms p50 / p90 | linearisation, ms p50 / p90 |")
         print("|---|---|---|---|---|---|")
-        codes: list[tuple[str, str]] = [("this tree", str(_here()))]
+        codes: list[tuple[str, str]] = [("this tree", _here())]
         with _baseline_tree(a.baseline) as tree:
             if tree is not None:
                 codes = [*codes, (f"baseline {a.baseline}", tree)] * 2
@@ -369,7 +369,7 @@ def _cli() -> None:
                 rows.append(("this tree", replay_cost()))
             else:
                 for _ in range(2):
-                    rows.append(("this tree", replay_at(str(_here()))))
+                    rows.append(("this tree", replay_at(_here())))
                     rows.append((f"baseline {a.baseline}", replay_at(tree)))
         for code, runs in rows:
             for i, r in enumerate(runs, 1):
