@@ -676,12 +676,14 @@ COMPILE_HAND = COMPILE_KERNELS.replace(
 
 
 def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str,
-               workers: int, sim_nice: int = 0) -> RunResult:
+               workers: int, sim_nice: int = 0, compile_kernels: bool = True) -> RunResult:
     """:func:`measure` with the code of checkout ``tree`` (its own daemon, workers and
     simulators; this one's too, for a fresh process), in a subprocess; its result comes back
     pickled.  ``sim_nice``: the simulators' niceness (a device has a processor of its own:
     niced, they take only the CPU the daemon leaves), set from here as they appear, so a
-    baseline's harness need not know the option."""
+    baseline's harness need not know the option.  ``compile_kernels``: first fill the
+    checkout's numba cache (:data:`COMPILE_KERNELS`; False when an earlier run of this
+    invocation did: the cache stays in the checkout)."""
     path = os.pathsep.join([tree, os.path.join(tree, "drivers"), os.path.join(tree, "service")])
     env = {**os.environ, "PYTHONPATH": path}
     with tempfile.TemporaryDirectory(prefix="tactiled-acq-base-") as d:
@@ -689,8 +691,9 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
         code = ("import pickle, sys\n"
                 "from tactiled.bench.acquisition import measure\n"
                 "if __name__ == '__main__':\n"
-                f"    exec({(COMPILE_HAND if scene == HAND else COMPILE_KERNELS)!r})\n"
-                f"    r = measure({seconds!r}, {warmup!r}, {rate!r}, {scene!r}, {workers!r})\n"
+                + (f"    exec({(COMPILE_HAND if scene == HAND else COMPILE_KERNELS)!r})\n"
+                   if compile_kernels else "")
+                + f"    r = measure({seconds!r}, {warmup!r}, {rate!r}, {scene!r}, {workers!r})\n"
                 f"    open({out!r}, 'wb').write(pickle.dumps(r))\n")
         script = os.path.join(d, "run_baseline.py")
         Path(script).write_text(code)
@@ -1049,8 +1052,15 @@ def run(quick: bool, rate: float = 1000.0, scene: str = "demo", workers: Sequenc
     # 82 % of the contact frames where the first answered 95 %, and three first runs in
     # fresh processes all 95 %), which made the baseline's always-fresh runs look better.
     here = str(Path(__file__).resolve().parents[2])
+    compiled: set[str] = set()  # checkouts whose kernels a run of this invocation compiled
+
+    def measure_in(tree: str, w: int) -> RunResult:
+        first = tree not in compiled
+        compiled.add(tree)
+        return measure_at(tree, seconds, warmup, rate, scene, w, sim_nice, compile_kernels=first)
+
     if baseline is None:
-        results = [measure_at(here, seconds, warmup, rate, scene, w, sim_nice) for w in workers]
+        results = [measure_in(here, w) for w in workers]
     else:
         from tactiled.bench.speed import _checkout
 
@@ -1059,7 +1069,7 @@ def run(quick: bool, rate: float = 1000.0, scene: str = "demo", workers: Sequenc
             tree = _checkout(baseline, tmp)
             for w in workers:
                 for mine in (True, False, False, True):
-                    r = measure_at(here if mine else tree, seconds, warmup, rate, scene, w, sim_nice)
+                    r = measure_in(here if mine else tree, w)
                     r.label = "this tree" if mine else f"baseline {baseline}"
                     results.append(r)
     figs = [figures(r, scene, rate) for r in results]
