@@ -1,0 +1,9 @@
+// The stages' binding entry points. A stage adds its `bind_<stage>(py::module_&)` here and to
+// bind_all in stages.cpp.
+#pragma once
+#include <pybind11/pybind11.h>
+
+namespace tactiled {
+void bind_impulse(pybind11::module_& m);
+void bind_all(pybind11::module_& m);
+}  // namespace tactiled

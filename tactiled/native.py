@@ -1,0 +1,45 @@
+"""Which implementation of the frame path runs: the compiled core or the Python reference.
+
+``tactiled._core`` is the C++ extension built by ``pip install`` (CMakeLists.txt, core/).  The
+Python code it mirrors stays the reference; ``TACTILED_CORE=python`` selects it for a whole
+process (its children inherit the variable), so every test can run against both.
+"""
+
+from __future__ import annotations
+
+import os
+from types import ModuleType
+
+#: the bindings' version this Python expects (core/module.cpp's ``ABI``)
+ABI = 1
+
+
+def _load() -> ModuleType | None:
+    choice = os.environ.get("TACTILED_CORE", "native").strip().lower()
+    if choice not in ("native", "python"):
+        raise ValueError(f"TACTILED_CORE={choice!r}: expected 'native' or 'python'")
+    if choice == "python":
+        return None
+    try:
+        from tactiled import _core
+    except ImportError as err:  # an install that skipped the build: say how to mend it
+        raise ImportError(
+            "tactiled's compiled core (tactiled._core) is missing: reinstall with "
+            "`pip install -e .` (it needs a C++ compiler), or set TACTILED_CORE=python "
+            "to run the slower Python reference"
+        ) from err
+    if getattr(_core, "ABI", None) != ABI:
+        raise ImportError(
+            f"tactiled._core has ABI {getattr(_core, 'ABI', None)}, this Python expects {ABI}: "
+            "rebuild it with `pip install -e .`"
+        )
+    return _core
+
+
+#: the compiled core, or None where the Python reference was asked for
+core: ModuleType | None = _load()
+
+
+def name() -> str:
+    """``"native"`` or ``"python"``: what this process runs (health and bench output say it)."""
+    return "python" if core is None else "native"
