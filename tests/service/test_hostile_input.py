@@ -316,6 +316,46 @@ def test_slow_drip_sockets_are_answered_408_and_closed(daemon):
     daemon.assert_clean_log()
 
 
+def test_slow_body_is_answered_408_and_a_stream_outlives_the_read_timeout(daemon):
+    """Headers in, then a body dripping: 408 once ``read_timeout`` has passed since the
+    headers.  A WebSocket session is not a request being read: it stays open past it."""
+    with connect(daemon.ws_url, compression=None, open_timeout=10) as ws:
+        assert json.loads(ws.recv(10))["type"] == "version"
+        with socket.create_connection(("127.0.0.1", daemon.port), timeout=10) as sock:
+            sock.sendall(b"PATCH /v1/config HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
+                         b"application/json\r\nContent-Length: 100\r\n\r\n")
+            start = time.monotonic()
+            answer = b""
+            sock.setblocking(False)
+            n = 0
+            while time.monotonic() - start < READ_TIMEOUT_S + 8:
+                try:
+                    data = sock.recv(4096)
+                    if not data:
+                        break
+                    answer += data
+                except BlockingIOError:
+                    pass
+                except OSError:
+                    break
+                try:
+                    sock.send(b" ")  # a byte every 0.2 s: 100 would take 20 s
+                except OSError:
+                    break
+                # The stream answers all along.
+                ws.send(json.dumps({"type": "ping", "id": n}))
+                assert json.loads(ws.recv(10))["id"] == n
+                n += 1
+                time.sleep(0.2)
+            took = time.monotonic() - start
+        assert answer.startswith(b"HTTP/1.1 408 "), answer[:300]
+        assert b"body not received within 2 s (server.read_timeout)" in answer
+        assert took >= READ_TIMEOUT_S - 0.1
+        ws.send(json.dumps({"type": "ping", "id": "after"}))
+        assert json.loads(ws.recv(10))["id"] == "after"
+    daemon.assert_clean_log()
+
+
 # --------------------------------------------------------------------------------------------
 # CORS
 
