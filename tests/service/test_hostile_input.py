@@ -21,7 +21,6 @@ import json
 import re
 import signal
 import socket
-import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -75,15 +74,9 @@ def daemon(daemon_process: Any) -> Iterator[Daemon]:
     proc = daemon_process(["--port", "0", "--allow-origin", ALLOWED],
                           env={"TACTILED_SERVER_READ_TIMEOUT": str(READ_TIMEOUT_S)})
     try:
-        d = Daemon(proc)
-        yield d
+        yield Daemon(proc)
     finally:
-        if proc.proc.poll() is None:
-            proc.proc.send_signal(signal.SIGTERM)
-            try:
-                proc.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        proc.terminate()
 
 
 def patch(daemon: Daemon, body: bytes, **headers: str) -> Any:
