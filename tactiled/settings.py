@@ -8,7 +8,8 @@ command line).  Everything is validated once, here, and every problem is a
 Keys (the documented example is ``deploy/tactiled.toml``)::
 
     [server]   host = "127.0.0.1", port = 8765, token = (none), max_subscribers = 64,
-               allow_origins = [] (browser origins besides the server's own)
+               allow_origins = [] (browser origins besides the server's own),
+               read_timeout = 10 (s to send a request's headers, and its body)
     [[sensor]] name, url, wire_id, calibration, model, window, noise_sigma, false_rate,
                detector_average, reuse_unchanged, unchanged_z, track, hysteresis,
                rate_hz
@@ -82,6 +83,9 @@ class ServerSettings:
     max_subscribers: int = 64  # WebSocket stream connections at once; one more gets 1013
     #: Browser origins ("scheme://host[:port]") allowed besides the server's own.
     allow_origins: tuple[str, ...] = ()
+    #: s a client has to send a request's headers (from connecting, or from the previous
+    #: answer), and then its body; a slower one is answered 408 and disconnected.
+    read_timeout: float = 10.0
 
 
 @dataclass(frozen=True)
@@ -274,7 +278,11 @@ def _as_float(value: Any, key: str) -> float:
             raise _fail(key, f"expected a number, got {value!r}") from None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise _fail(key, f"expected a number, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:  # an int past a double's range (a JSON body may hold one)
+        raise _fail(key, "expected a finite number, got an integer too large for a double") \
+            from None
     if not math.isfinite(value):
         raise _fail(key, f"expected a finite number, got {value!r}")
     return value
@@ -475,6 +483,7 @@ _SERVER_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "token": _optional(_as_str),
     "max_subscribers": _in_range(_as_int, 1, 100_000, "a connection count"),
     "allow_origins": _origins,
+    "read_timeout": _in_range(_as_float, 0.1, 3600.0, "a time in s"),
 }
 def _description(value: Any, key: str) -> str:
     """A sensor description: a built-in's name or a .toml file, read and checked now."""

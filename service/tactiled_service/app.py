@@ -2,14 +2,14 @@
 
 Every handler is ``async def`` so it runs on the loop that runs the pipeline (the daemon's
 objects are not thread-safe).  Errors are ``{"detail": "<precise message>"}``: 404 for an
-unknown sensor, 400/415/422 for a malformed request (422 names the offending key), 401/403 for
-credentials; never a 5xx for anything a client sent.
+unknown sensor, 400/415/422 for a malformed request (the message starts with the offending
+key), 408/413 for a body too slow or too large, 401/403 for credentials; never a 5xx for
+anything a client sent.  Bodies are read and decoded by :mod:`tactiled_service.inbound`.
 """
 
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,14 +28,21 @@ from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon, UnknownSensorError
 from tactiled.settings import Settings
 from tactiled_service import dashboard
-from tactiled_service.auth import AuthPolicy, Denial, HostGuard
+from tactiled_service.auth import AuthPolicy, Cors, Denial, HostGuard
 from tactiled_service.health import HealthMonitor
+from tactiled_service.inbound import (
+    BadJson,
+    ClientGone,
+    HttpStats,
+    decode_json,
+    encodable,
+    read_body,
+)
 from tactiled_service.messages import Encoder
 from tactiled_service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
 from tactiled_service.metrics import Metrics
 from tactiled_service.options import ServiceOptions
 from tactiled_service.schemas import (
-    ConfigPatch,
     ConfigResponse,
     ErrorResponse,
     EstimateMessage,
@@ -44,7 +51,7 @@ from tactiled_service.schemas import (
     SensorsResponse,
     TareResponse,
     VersionResponse,
-    inline_json_schema,
+    config_patch_schema,
 )
 from tactiled_service.stream import StreamEndpoint, StreamManager
 
@@ -64,6 +71,7 @@ class Context:
     health: HealthMonitor
     calibrations: dict[str, dict[str, Any]]
     metrics: Metrics
+    http: HttpStats
 
 
 def _calibration(path: str | None, table: Any) -> dict[str, Any]:
@@ -90,8 +98,9 @@ def build_context(daemon: Daemon, options: ServiceOptions, auth: AuthPolicy) -> 
     encoder = Encoder(physics)
     manager = StreamManager(daemon, options, auth, encoder)
     health = HealthMonitor(daemon, manager, options)
+    http = HttpStats()
     return Context(daemon, daemon.settings, options, auth, encoder, manager, health,
-                   calibrations, Metrics(daemon, manager, health))
+                   calibrations, Metrics(daemon, manager, health, http), http)
 
 
 def _raise(denial: Denial | None) -> None:
@@ -106,13 +115,14 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorResponse} for code in (400, 401, 403, 404, 415, 422)}
 
 
-def _json_number(text: str) -> int | float:
-    """A JSON number written with a fraction or exponent: an int when integral.  JSON has one
-    number type and the documented schema's ``integer`` includes ``185.0`` (JSON Schema), so a
-    ``window`` of 185.0 is 185; the daemon's checks want an int for it, and take ints for
-    float keys."""
-    value = float(text)
-    return int(value) if value.is_integer() else value
+def path_methods(app: FastAPI, scope: dict[str, Any]) -> set[str]:
+    """Every method some route serves at the request's path (empty: no such path)."""
+    allowed: set[str] = set()
+    for route in app.router.routes:
+        methods = getattr(route, "methods", None)
+        if methods and route.matches(scope)[0] != Match.NONE:
+            allowed |= methods
+    return allowed
 
 
 def create_app(ctx: Context) -> FastAPI:
@@ -144,20 +154,24 @@ def create_app(ctx: Context) -> FastAPI:
         for e in exc.errors():
             loc = ".".join(str(p) for p in e.get("loc", ()))
             parts.append(f"{loc}: {e.get('msg', 'invalid')}")
-        return JSONResponse({"detail": "; ".join(parts) or "invalid request"}, status_code=422)
+        return JSONResponse({"detail": encodable("; ".join(parts) or "invalid request")},
+                            status_code=422)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http_error(request: Request, exc: StarletteHTTPException) -> Response:
         if exc.status_code == 405:
             # Starlette's Allow names the methods of the first route of the path only, and
             # /v1/config has one route per method: RFC 9110 wants all the path's methods.
-            allowed: set[str] = set()
-            for route in app.router.routes:
-                methods = getattr(route, "methods", None)
-                if methods and route.matches(request.scope)[0] != Match.NONE:
-                    allowed |= methods
+            allowed = path_methods(app, request.scope)
             exc.headers = {**(exc.headers or {}), "Allow": ", ".join(sorted(allowed))}
+        if isinstance(exc.detail, str):
+            exc.detail = encodable(exc.detail)  # whatever a message echoes, it encodes
         return await http_exception_handler(request, exc)
+
+    @app.exception_handler(ClientGone)
+    async def _client_gone(request: Request, exc: ClientGone) -> Response:
+        # Counted and logged by read_body; nobody is left to read this.
+        return Response(status_code=400)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
@@ -165,7 +179,8 @@ def create_app(ctx: Context) -> FastAPI:
         return JSONResponse({"detail": f"internal error: {type(exc).__name__}"},
                             status_code=500)
 
-    app.add_middleware(HostGuard, auth=auth)
+    app.add_middleware(Cors, auth=auth, methods=lambda scope: path_methods(app, scope))
+    app.add_middleware(HostGuard, auth=auth)  # added last: runs first
 
     # -- REST -----------------------------------------------------------------------------------
 
@@ -254,31 +269,27 @@ def create_app(ctx: Context) -> FastAPI:
         """Thresholds and model choice, as PATCH accepts them."""
         return ctx.daemon.get_config()
 
+    patch_schema = config_patch_schema(list(ctx.daemon.sensors))
+
     @app.patch("/v1/config", response_model=ConfigResponse,
-               responses={**ERRORS, 413: {"model": ErrorResponse}},
+               responses={**ERRORS, 408: {"model": ErrorResponse},
+                          413: {"model": ErrorResponse}},
                dependencies=[Depends(control_access)], tags=["control"],
                openapi_extra={"requestBody": {"required": True, "content": {
-                   "application/json": {"schema": inline_json_schema(ConfigPatch)},
-                   "application/merge-patch+json": {
-                       "schema": inline_json_schema(ConfigPatch)}}}})
+                   "application/json": {"schema": patch_schema},
+                   "application/merge-patch+json": {"schema": patch_schema}}}})
     async def patch_config(request: Request) -> dict[str, Any]:
         """Change thresholds / model choice at run time, all or nothing; 422 names the key."""
         ctype = request.headers.get("content-type", "").split(";")[0].strip().lower()
         if ctype not in ("application/json", "application/merge-patch+json"):
             raise HTTPException(415, "Content-Type must be application/json, got "
                                      f"{ctype or 'none'!r}")
-        length = request.headers.get("content-length", "")
-        if length.isdigit() and int(length) > MAX_BODY:
-            raise HTTPException(413, f"body larger than {MAX_BODY} bytes")
-        raw = await request.body()
-        if len(raw) > MAX_BODY:
-            raise HTTPException(413, f"body larger than {MAX_BODY} bytes")
+        raw = await read_body(request, MAX_BODY, ctx.options.read_timeout_s, ctx.http)
         try:
-            patch = json.loads(raw, parse_float=_json_number)
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as err:
-            where = (f": {err.msg} at line {err.lineno} column {err.colno}"
-                     if isinstance(err, json.JSONDecodeError) else "")
-            raise HTTPException(400, f"body is not valid JSON{where}") from None
+            patch = decode_json(raw, "body", integral_floats=True)
+        except BadJson as err:
+            ctx.http.refused["bad_json"] += 1
+            raise HTTPException(400, str(err)) from None
         if not isinstance(patch, dict):
             raise HTTPException(422, "body: expected a JSON object like {\"sensors\": "
                                      "{\"<name>\": {\"model\": \"sphere\"}}}, got "
@@ -287,7 +298,7 @@ def create_app(ctx: Context) -> FastAPI:
             return ctx.daemon.update_config(patch)
         except ConfigError as err:
             raise HTTPException(422, str(err)) from None
-        except (TypeError, ValueError) as err:  # a value the checks did not foresee
+        except (TypeError, ValueError, ArithmeticError) as err:  # not foreseen by the checks
             raise HTTPException(422, f"config: {err}") from None
 
     # -- stream and dashboard -------------------------------------------------------------------

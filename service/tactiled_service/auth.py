@@ -13,6 +13,10 @@ The model (docs/reference/api.md, "Security"):
 * The dashboard logs in by being loaded once as ``/?token=<token>``: the server sets an
   HttpOnly, SameSite=Strict session cookie and redirects to ``/``, so the token leaves the
   address bar and page scripts never see it.
+* CORS (:class:`Cors`): a page of an origin on the allow-list (``[server] allow_origins``)
+  may call the REST API with ``fetch`` (a JSON ``PATCH``, a bearer token): its preflight is
+  answered and its answers carry ``Access-Control-Allow-Origin``.  Other origins get no CORS
+  header at all, so browsers keep their pages from reading any answer.
 
 Everything here works on raw ASGI scopes, so REST routes and the raw WebSocket endpoint share
 it.
@@ -26,7 +30,7 @@ import ipaddress
 import secrets
 import time
 from collections import OrderedDict
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from http.cookies import CookieError, SimpleCookie
 from typing import Any
@@ -113,6 +117,10 @@ class AuthPolicy:
         self.allowed_origins = frozenset(o.rstrip("/").lower() for o in allowed_origins)
         self.sessions = Sessions()
 
+    def listed_origin(self, origin: str) -> bool:
+        """True when ``origin`` is on the configured allow-list (not merely same-origin)."""
+        return origin.rstrip("/").lower() in self.allowed_origins
+
     @property
     def open(self) -> bool:
         """No credentials needed (loopback, no token)."""
@@ -139,9 +147,9 @@ class AuthPolicy:
         origin = header(scope, b"origin")
         if origin is None:
             return None
-        origin_l = origin.rstrip("/").lower()
-        if origin_l in self.allowed_origins:
+        if self.listed_origin(origin):
             return None
+        origin_l = origin.rstrip("/").lower()
         host = header(scope, b"host")
         if host is not None:
             scheme = scope.get("scheme", "http")
@@ -226,3 +234,57 @@ class HostGuard:
                 await send({"type": "http.response.body", "body": body})
                 return
         await self.app(scope, receive, send)
+
+
+#: What a preflight allows a listed origin's page to send besides the simple headers, and how
+#: long (s) the browser may keep the answer.
+CORS_ALLOW_HEADERS = b"Authorization, Content-Type"
+CORS_MAX_AGE_S = 600
+
+
+class Cors:
+    """ASGI middleware: CORS for the origins of :attr:`AuthPolicy.allowed_origins` on the REST
+    API (``/v1/...`` and ``/metrics``).
+
+    A preflight (``OPTIONS`` with ``Access-Control-Request-Method``) from a listed origin to a
+    path that exists is answered 204 with the path's methods (``methods(scope)``), the
+    headers a page may send (``Authorization``, ``Content-Type``) and a max age; its other
+    requests are served as usual (credentials and Origin checked as for anyone) and answered
+    with ``Access-Control-Allow-Origin``.  A request from any other origin passes through
+    untouched: a preflight gets the path's 405, no CORS header, and the browser stops there.
+    """
+
+    def __init__(self, app: Any, auth: AuthPolicy,
+                 methods: Callable[[dict[str, Any]], set[str]]) -> None:
+        self.app = app
+        self.auth = auth
+        self.methods = methods
+
+    async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
+        if scope["type"] != "http" or not (scope["path"].startswith("/v1/")
+                                           or scope["path"] == "/metrics"):
+            await self.app(scope, receive, send)
+            return
+        origin = header(scope, b"origin")
+        if origin is None or not self.auth.listed_origin(origin):
+            await self.app(scope, receive, send)
+            return
+        allow = [(b"access-control-allow-origin", origin.encode("latin-1")),
+                 (b"vary", b"Origin")]
+        if (scope["method"] == "OPTIONS"
+                and header(scope, b"access-control-request-method") is not None):
+            methods = self.methods(scope)
+            if methods:
+                await send({"type": "http.response.start", "status": 204, "headers": allow + [
+                    (b"access-control-allow-methods", ", ".join(sorted(methods)).encode()),
+                    (b"access-control-allow-headers", CORS_ALLOW_HEADERS),
+                    (b"access-control-max-age", str(CORS_MAX_AGE_S).encode())]})
+                await send({"type": "http.response.body", "body": b""})
+                return
+
+        async def send_allowed(message: dict[str, Any]) -> None:
+            if message["type"] == "http.response.start":
+                message = {**message, "headers": [*message.get("headers", ()), *allow]}
+            await send(message)
+
+        await self.app(scope, receive, send_allowed)

@@ -34,6 +34,7 @@ from tactiled.heapstats import rss_mb
 from tactiled.pipeline import Daemon
 from tactiled.pipeline.meters import Histogram
 from tactiled_service.health import REJECTED_KEYS, SEVERITY, HealthMonitor
+from tactiled_service.inbound import HttpStats
 from tactiled_service.stream import StreamManager
 
 #: Content type of the exposition (text format 0.0.4).
@@ -96,10 +97,11 @@ class DaemonCollector(Collector):
     """Reads the daemon's (and the service's) counters when Prometheus scrapes."""
 
     def __init__(self, daemon: Daemon, manager: StreamManager | None = None,
-                 health: HealthMonitor | None = None) -> None:
+                 health: HealthMonitor | None = None, http: HttpStats | None = None) -> None:
         self.daemon = daemon
         self.manager = manager
         self.health = health
+        self.http = http
 
     def collect(self) -> Iterator[Metric]:
         daemon = self.daemon
@@ -111,6 +113,8 @@ class DaemonCollector(Collector):
         yield from self._memory(daemon)
         if self.manager is not None:
             yield from self._subscribers(self.manager)
+        if self.http is not None:
+            yield from self._http(self.http)
 
     # -- sensors --------------------------------------------------------------------------------
 
@@ -271,15 +275,29 @@ class DaemonCollector(Collector):
                                 "Messages waiting in the subscribers' queues.",
                                 value=float(sum(c.get("queued", 0) for c in st["clients"])))
 
+    # -- HTTP requests --------------------------------------------------------------------------
+
+    @staticmethod
+    def _http(http: HttpStats) -> Iterator[Metric]:
+        yield CounterMetricFamily("tactiled_http_client_disconnects",
+                                  "HTTP requests whose client went away before sending the "
+                                  "whole body.", value=float(http.disconnects))
+        refused = CounterMetricFamily("tactiled_http_refused",
+                                      "HTTP requests refused for what arrived, by reason "
+                                      "(too_large, read_timeout, bad_json).", labels=["reason"])
+        for reason, n in http.refused.items():
+            refused.add_metric([reason], float(n))
+        yield refused
+
 
 class Metrics:
     """The registry of one service: the daemon's collector and the standard process metrics
     of this process (``process_*``: CPU seconds, resident memory, descriptors, start time)."""
 
     def __init__(self, daemon: Daemon, manager: StreamManager | None = None,
-                 health: HealthMonitor | None = None) -> None:
+                 health: HealthMonitor | None = None, http: HttpStats | None = None) -> None:
         self.registry = CollectorRegistry(auto_describe=False)
-        self.registry.register(DaemonCollector(daemon, manager, health))
+        self.registry.register(DaemonCollector(daemon, manager, health, http))
         ProcessCollector(registry=self.registry)
 
     def render(self) -> bytes:

@@ -34,6 +34,10 @@ class ServiceOptions:
     #: would let it take megabytes, on loopback especially) and so how much is sent to it
     #: before it is noticed; a reading subscriber, even over a network, needs far less.
     socket_send_buffer: int = 128 * 1024
+    #: A connection must deliver its request's headers within this long (from opening, or
+    #: from the previous answer), and a request body the endpoint reads within this long from
+    #: its headers; else 408 and the connection closes (slow-drip clients).
+    read_timeout_s: float = 10.0
     #: Browser origins allowed to open the stream besides the server's own (same-origin).
     allowed_origins: tuple[str, ...] = ()
     #: A connected sensor with no frame for this long is ERROR ("silent").
@@ -59,7 +63,7 @@ class ServiceOptions:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name in ("send_timeout_s", "close_timeout_s", "tcp_user_timeout_s",
+        for name in ("send_timeout_s", "close_timeout_s", "tcp_user_timeout_s", "read_timeout_s",
                      "silent_after_s", "stale_after_s", "warn_window_s", "shutdown_timeout_s",
                      "max_rate_hz"):
             value = getattr(self, name)

@@ -9,6 +9,14 @@ without waiting, closes the transport (it still flushes if the peer resumes read
 ``linger`` seconds later resets the connection (SO_LINGER 0: RST, nothing left in the kernel).
 Connections that end otherwise are bounded by the listening socket's TCP_USER_TIMEOUT (see
 :mod:`tactiled_service.server`).
+
+The HTTP side (:func:`http_protocol_class`) is uvicorn's h11 protocol with a read deadline,
+which uvicorn lacks (its keep-alive timeout only runs between requests, and any byte resets
+it): a connection must deliver its request's headers within ``read_timeout`` of opening, or
+of the end of the previous response, or it is answered 408 (if it sent anything) and closed;
+a client still sending a body after its answer (413, 401, a body the endpoint does not read)
+is disconnected rather than read to the end.  A body the endpoint reads has its own deadline
+(:func:`tactiled_service.inbound.read_body`).
 """
 
 from __future__ import annotations
@@ -18,7 +26,11 @@ import socket
 import struct
 from typing import Any
 
+import h11
+from uvicorn.protocols.http.h11_impl import H11Protocol
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
+
+from tactiled_service.inbound import HttpStats
 
 #: Scope extension: ``scope["extensions"][FORCE_CLOSE]["close"](code, reason, linger_s)``;
 #: ``...["closing"]()`` is True once the transport is closing or lost (writes would be
@@ -109,3 +121,73 @@ def protocol_class(close_timeout: float) -> type[asyncio.Protocol]:
 
     StreamProtocol.__name__ = StreamProtocol.__qualname__ = "StreamProtocol"
     return StreamProtocol
+
+
+def _timeout_response(read_timeout: float) -> bytes:
+    body = (f'{{"detail":"request not received within {read_timeout:g} s '
+            f'(server.read_timeout)"}}').encode()
+    return (b"HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\n"
+            b"content-length: " + str(len(body)).encode() + b"\r\nconnection: close\r\n\r\n"
+            + body)
+
+
+def http_protocol_class(read_timeout: float,
+                        stats: HttpStats | None = None) -> type[asyncio.Protocol]:
+    """The HTTP protocol class to give uvicorn (``Config(http=...)``): h11 with the request
+    read deadline of the module docstring, ``read_timeout`` seconds; timeouts are counted and
+    logged (at most once a minute) by ``stats``."""
+
+    class HttpProtocol(H11Protocol):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self._read_deadline: asyncio.TimerHandle | None = None
+
+        def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+            super().connection_made(transport)
+            self._arm()
+
+        def connection_lost(self, exc: Exception | None) -> None:
+            self._disarm()
+            super().connection_lost(exc)
+
+        def _arm(self) -> None:
+            self._disarm()
+            self._read_deadline = self.loop.call_later(read_timeout, self._timed_out)
+
+        def _disarm(self) -> None:
+            if self._read_deadline is not None:
+                self._read_deadline.cancel()
+                self._read_deadline = None
+
+        def handle_events(self) -> None:
+            super().handle_events()
+            if self.conn.their_state is not h11.IDLE:  # the headers are in (or an upgrade)
+                self._disarm()
+
+        def on_response_complete(self) -> None:
+            unread_body = self.conn.their_state is h11.SEND_BODY
+            super().on_response_complete()
+            if self.transport.is_closing():
+                return
+            if unread_body:
+                # Answered while the client still sends: reading a body nobody wants (150 MB,
+                # or a byte a second) would only cost time; the answer is already out.
+                self.transport.close()
+            elif self.conn.their_state is h11.IDLE:
+                self._arm()
+
+        def _timed_out(self) -> None:
+            self._read_deadline = None
+            if self.transport.is_closing() or self.conn.their_state is not h11.IDLE:
+                return
+            started = bool(self.conn.trailing_data[0])
+            if stats is not None:
+                peer = "%s:%d" % self.client if self.client else "?"
+                stats.timed_out(peer, "its request's headers" if started else "a request",
+                                read_timeout)
+            if started:
+                self.transport.write(_timeout_response(read_timeout))
+            self.transport.close()
+
+    HttpProtocol.__name__ = HttpProtocol.__qualname__ = "HttpProtocol"
+    return HttpProtocol

@@ -314,6 +314,19 @@ def inline_json_schema(model: type[BaseModel]) -> dict[str, Any]:
     return resolve(schema)
 
 
+def config_patch_schema(sensor_names: list[str]) -> dict[str, Any]:
+    """The JSON schema of a ``PATCH /v1/config`` body on a daemon with ``sensor_names``:
+    :class:`ConfigPatch` with ``sensors`` keyed by those names only (an enum of the names, and
+    each one's keys), so a generated request that validates is one the daemon accepts."""
+    schema = inline_json_schema(ConfigPatch)
+    sensors = schema["properties"]["sensors"]
+    one = sensors.pop("additionalProperties")
+    sensors["properties"] = {name: one for name in sensor_names}
+    sensors["propertyNames"] = {"enum": list(sensor_names)}
+    sensors["additionalProperties"] = False
+    return schema
+
+
 Status = Literal["OK", "WARN", "DEGRADED", "STALE", "ERROR"]
 
 

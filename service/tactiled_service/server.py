@@ -53,7 +53,7 @@ from tactiled.systemd import Notifier, WatchdogGate, watchdog_interval, watchdog
 from tactiled_service.app import Context, build_context, create_app
 from tactiled_service.auth import AuthPolicy
 from tactiled_service.options import ServiceOptions
-from tactiled_service.protocol import protocol_class
+from tactiled_service.protocol import http_protocol_class, protocol_class
 
 log = logging.getLogger(__name__)
 
@@ -256,7 +256,7 @@ class Service:
             # fit line without one.
             await self.daemon.start()
             self.ctx.manager.start()
-            self.server = _Server(self._uvicorn_config(create_app(self.ctx)))
+            self.server = _Server(self._uvicorn_config(create_app(self.ctx), self.ctx))
             self._serve_task = asyncio.create_task(self.server.serve(sockets=[self.sock]),
                                                    name="tactiled-uvicorn")
             while not self.server.started:
@@ -296,11 +296,12 @@ class Service:
             self.sock.close()
         self._stopped.set()
 
-    def _uvicorn_config(self, app: Any) -> uvicorn.Config:
+    def _uvicorn_config(self, app: Any, ctx: Context) -> uvicorn.Config:
         o = self.options
         return uvicorn.Config(
             app,
             lifespan="off",
+            http=http_protocol_class(o.read_timeout_s, ctx.http),
             ws=protocol_class(o.close_timeout_s),
             ws_max_size=o.max_message_bytes,
             ws_per_message_deflate=False,  # CPU per subscriber and message; and CRIME-like leaks

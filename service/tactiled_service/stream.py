@@ -37,6 +37,7 @@ from pydantic import ValidationError
 from tactiled import __version__
 from tactiled.pipeline import Daemon, Estimate, Subscription, SubscriptionClosed, ZeroedFrame
 from tactiled_service.auth import AuthPolicy, Denial
+from tactiled_service.inbound import BadJson, decode_json, shown
 from tactiled_service.messages import STREAM_KINDS, Encoder, control, dumps, error
 from tactiled_service.options import ServiceOptions
 from tactiled_service.protocol import FORCE_CLOSE
@@ -293,12 +294,9 @@ class Session:
     async def handle(self, text: str) -> None:
         """One client message (a JSON object with a ``type``)."""
         try:
-            msg = json.loads(text)
-        except (json.JSONDecodeError, RecursionError) as err:
-            detail = err.msg if isinstance(err, json.JSONDecodeError) else "nested too deeply"
-            where = (f" at line {err.lineno} column {err.colno}"
-                     if isinstance(err, json.JSONDecodeError) else "")
-            await self._error("bad_message", f"not valid JSON: {detail}{where}")
+            msg = decode_json(text, "message")
+        except BadJson as err:  # not JSON, or what no reply could echo (NaN, "\ud800", ...)
+            await self._error("bad_message", str(err))
             return
         if not isinstance(msg, dict):
             await self._error("bad_message", "a message must be a JSON object with a \"type\", "
@@ -316,10 +314,10 @@ class Session:
             await self._error("bad_message", "missing \"type\" (one of: subscribe, "
                                              "unsubscribe, ping)")
         else:
-            shown = kind if isinstance(kind, str) else json.dumps(kind)
-            await self._error("bad_message", f"unknown message type {shown!r} (known: "
+            text = kind if isinstance(kind, str) else json.dumps(kind)
+            await self._error("bad_message", f"unknown message type {shown(text)} (known: "
                                              "subscribe, unsubscribe, ping)",
-                              shown if isinstance(kind, str) else None)
+                              text[:64] if isinstance(kind, str) else None)
 
     async def _on_subscribe(self, msg: dict[str, Any]) -> None:
         try:

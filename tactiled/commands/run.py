@@ -115,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     # The flags override the [server] keys of the configuration (the usual precedence).
     kwargs: dict[str, Any] = {"max_subscribers": settings.server.max_subscribers,
-                              "allowed_origins": settings.server.allow_origins}
+                              "allowed_origins": settings.server.allow_origins,
+                              "read_timeout_s": settings.server.read_timeout}
     if args.max_subscribers is not None:
         kwargs["max_subscribers"] = args.max_subscribers
     if args.allow_origin:

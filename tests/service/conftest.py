@@ -110,6 +110,16 @@ class DaemonProcess:
         """Pids of live processes carrying this daemon's marker (it and its workers)."""
         return marked_processes(self.marker)
 
+    def terminate(self, timeout: float = 15.0) -> None:
+        """SIGTERM if still running, SIGKILL (it and its workers) if that takes longer than
+        ``timeout`` s: the end of a module fixture's daemon."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.kill()
+
     def kill(self) -> None:
         for pid in self.processes():
             with _suppress():

@@ -102,12 +102,7 @@ def node(daemon_process: Callable[..., Any],
         url = proc.wait_url()
         yield Node(proc, port, record, url)
     finally:
-        if proc.proc.poll() is None:
-            proc.proc.send_signal(signal.SIGTERM)
-            try:
-                proc.proc.wait(15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+        proc.terminate()
 
 
 @pytest.fixture(scope="module")

@@ -10,6 +10,11 @@ pass :data:`CHECKS`: never a 5xx (the main bar), the status code documented, the
 headers as documented, invalid input refused with a 4xx.  Generation is derandomised, so a run
 is reproducible.
 
+``PATCH /v1/config`` also gets bodies no schema can describe: a generated body with one of its
+values (or keys) written as JSON Python's parser takes but the daemon refuses (``NaN``,
+``Infinity``, ``1e999``, integers past 4300 digits, lone surrogates ``"\ud800"``), sent as raw
+bytes; each must be a 400 naming the key.
+
 Passes: a loopback server without a token (everything open), and a server with a token, fuzzed
 once without credentials (every protected operation must answer 401, never reach its body) and
 once with them (the control endpoints' bodies exercised).  No operation can stop the server
@@ -107,21 +112,22 @@ class Pass:
 
     def strategy(self, operation: Any, mode: GenerationMode) -> st.SearchStrategy[Case]:
         """Cases of ``operation``; a path's sensor ``name`` is also drawn from the real ones
-        (random names only ever reach the 404), and so are a positive PATCH's sensor keys."""
+        (random names only ever reach the 404); PATCH bodies also with a hostile literal."""
         cases = operation.as_strategy(generation_mode=mode)
         if "{name}" in operation.path:
             cases = st.one_of(cases, *[
                 operation.as_strategy(generation_mode=mode, path_parameters={"name": name})
                 for name in SENSORS])
-        if operation.label == "PATCH /v1/config" and mode is GenerationMode.POSITIVE:
-            cases = st.one_of(cases, cases.map(with_known_sensors))
+        if operation.label == "PATCH /v1/config":
+            cases = st.one_of(cases, st.builds(with_hostile_literal, cases,
+                                               st.sampled_from(HOSTILE_LITERALS),
+                                               st.integers(0, 40)))
         return cases
 
     def checks_for(self, case: Case) -> list[Any]:
-        """:data:`CHECKS`, plus "a schema-valid request is accepted" unless the request names a
-        sensor the daemon does not have: the schema, the same for every deployment, cannot
-        list the names, and an unknown one is a 422 naming it."""
-        if names_unknown_sensor(case):
+        """:data:`CHECKS`, plus "a schema-valid request is accepted" (the schema names the
+        server's sensors), except for a body made hostile (raw bytes, refused by design)."""
+        if is_hostile(case):
             return CHECKS
         return [*CHECKS, POSITIVE_DATA_ACCEPTANCE]
 
@@ -136,6 +142,11 @@ class Pass:
         case.validate_response(response, checks=self.checks_for(case), headers=self.headers)
         # not_a_server_error says it too; this is the bar, so it is said plainly.
         assert response.status_code < 500, f"{label}: {response.status_code} {response.text}"
+        if is_hostile(case) and response.status_code not in (401, 403, 415):
+            assert response.status_code == 400, (case.body[:200], response.text)
+            detail = response.json()["detail"]
+            assert any(w in detail for w in ("surrogate", "JSON number", "double", "digits")), (
+                case.body[:200], detail)
 
     def run(self) -> Pass:
         start = time.monotonic()
@@ -175,23 +186,46 @@ class Pass:
                 seconds=round(self.seconds, 1))
 
 
-def with_known_sensors(case: Case) -> Case:
-    """``case`` with the keys of its body's ``sensors`` replaced by real sensor names."""
-    body = case.body
-    if isinstance(body, dict) and isinstance(body.get("sensors"), dict):
-        renamed = {}
-        for i, value in enumerate(body["sensors"].values()):
-            renamed[SENSORS[i % len(SENSORS)]] = value
-        case.body = {**body, "sensors": renamed}
+#: JSON Python's parser takes that the daemon refuses (400 naming the key): non-finite numbers,
+#: integers past the int-string limit, lone surrogates (as values, and the first two as keys).
+HOSTILE_LITERALS = ('"\\ud800"', '"finger0\\udfff"', "NaN", "Infinity", "-Infinity", "1e999",
+                    "-1e999", "9" * 4301, "-" + "7" * 5000, '"a\\udbff\\u0041"')
+MARK = "\x00hostile\x00"
+_HOSTILE_BODIES: set[bytes] = set()
+
+
+def is_hostile(case: Case) -> bool:
+    """``case``'s body was made by :func:`with_hostile_literal`."""
+    return isinstance(case.body, bytes) and case.body in _HOSTILE_BODIES
+
+
+def with_hostile_literal(case: Case, literal: str, where: int) -> Case:
+    """``case`` with its body as raw bytes in which one value (the ``where``-th of its
+    containers' slots, in document order; the body itself if it has none) is ``literal``, or
+    for a string literal, one key."""
+    body = case.body if isinstance(case.body, (dict, list)) else {"fit": {"timeout": 1.0}}
+    body = json.loads(json.dumps(body))  # a copy to change
+    slots: list[tuple[Any, Any]] = []
+    stack = [body]
+    while stack:
+        node = stack.pop()
+        items = list(node.items() if isinstance(node, dict) else enumerate(node))
+        for key, value in items:
+            slots.append((node, key))
+            if isinstance(value, (dict, list)):
+                stack.append(value)
+    if not slots:
+        text = literal
+    else:
+        node, key = slots[where % len(slots)]
+        if literal.startswith('"') and isinstance(node, dict) and where % 2:
+            node[MARK] = node.pop(key)  # the key itself
+        else:
+            node[key] = MARK
+        text = json.dumps(body).replace(json.dumps(MARK), literal)
+    case.body = text.encode()
+    _HOSTILE_BODIES.add(case.body)
     return case
-
-
-def names_unknown_sensor(case: Case) -> bool:
-    body = case.body
-    if case.operation.label != "PATCH /v1/config" or not isinstance(body, dict):
-        return False
-    sensors = body.get("sensors")
-    return isinstance(sensors, dict) and not set(sensors) <= set(SENSORS)
 
 
 def wait_until_published(base: str, headers: dict[str, str] | None = None) -> None:
@@ -277,11 +311,17 @@ def test_config_patch_schema_documents_what_the_daemon_accepts(shared_server):
     """Found by positive_data_acceptance: the PATCH body was documented as free-form objects,
     ``null`` allowed (``{"fit": null}`` is a 422).  It now lists the run-time keys with the
     daemon's own bounds; this keeps the two in step (the same keys, the enum, and each bound
-    accepted or refused by the daemon's field checks as the schema says)."""
+    accepted or refused by the daemon's field checks as the schema says).  The sensors are the
+    server's own, by name (a generated request never names one the daemon does not have)."""
     schema = config_patch_schema(shared_server.url)
     assert set(schema["properties"]) == {"sensors", "fit"}
     assert schema["additionalProperties"] is False
-    sensor = schema["properties"]["sensors"]["additionalProperties"]
+    sensors = schema["properties"]["sensors"]
+    assert sensors["propertyNames"] == {"enum": list(SENSORS)}
+    assert list(sensors["properties"]) == list(SENSORS)
+    assert sensors["additionalProperties"] is False
+    sensor = sensors["properties"]["finger0"]
+    assert sensors["properties"]["finger1"] == sensor
     fit = schema["properties"]["fit"]
     assert set(sensor["properties"]) == set(RUNTIME_SENSOR_KEYS)
     assert set(fit["properties"]) == set(RUNTIME_FIT_KEYS)
@@ -306,7 +346,8 @@ def test_config_patch_schema_documents_what_the_daemon_accepts(shared_server):
                     value = int(prop[bound]) if prop["type"] == "integer" else prop[bound]
                     assert accepted(section, key, value) is inside, (key, bound, prop)
     for body in ({"fit": None}, {"sensors": None}, {"sensors": {"finger0": None}},
-                 {"sensors": {"finger0": {"model": None}}}, {"other": {}}):
+                 {"sensors": {"finger0": {"model": None}}}, {"other": {}},
+                 {"sensors": {"finger9": {"model": "auto"}}}):
         r = http(shared_server.url, "PATCH", "/v1/config", json=body)
         assert r.status_code == 422, (body, r.text)
 
