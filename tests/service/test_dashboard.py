@@ -63,7 +63,15 @@ def test_dashboard_shows_live_estimates(browser_page, shared_server, tmp_path):
         ".textContent; return Number(q('frames_used')) > 10 && q('velocity').endsWith('mm/s')"
         " && q('force_rate_n_s').endsWith('N/s'); }", timeout=40_000)
     velocity = page.text_content(f"{PANEL} [data-k=velocity]")
-    assert re.fullmatch(r"-?\d+\.\d{2}, -?\d+\.\d{2} ± \d+\.\d{2} mm/s", velocity), velocity
+    # each component with its own sigma, named
+    assert re.fullmatch(r"x -?\d+\.\d{2} ± \d+\.\d{2}, y -?\d+\.\d{2} ± \d+\.\d{2} mm/s",
+                        velocity), velocity
+    # the colour legend: the strain map's own colours, from 0 to the array's scale
+    assert page.is_visible("#legend .ramp")
+    assert " ".join(page.text_content("#legend").split()) == "strain 0 to the array's scale"
+    ramp = page.eval_on_selector("#legend .ramp", "e => getComputedStyle(e).backgroundImage")
+    assert ramp.startswith("linear-gradient") and "rgb(0, 0, 4)" in ramp, ramp
+    assert ramp.endswith("rgb(252, 255, 164))"), ramp
     assert page.text_content(f"{PANEL} [data-k=model]") in ("cylinder", "sphere", "general")
     assert canvas_colours(page, "finger0") > 8, "the strain map is not drawn"
     # Health counters from /v1/health.

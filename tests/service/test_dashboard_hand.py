@@ -25,10 +25,10 @@ from tactiled.fit.result import FitResult
 from tactiled.pipeline.estimate import make_estimate
 from tactiled.sensors.description import load_description
 
-FINGERS = ["thumb", "index", "middle", "ring", "little"]
-# Each finger plays its own scene; "little" stays untouched, so following it shows no force.
-SCENES = {"thumb": "demo", "index": "press", "middle": "sphere", "ring": "moving",
-          "little": "empty"}
+FINGERS = ["finger1", "finger2", "finger3", "finger4", "finger5"]  # as deploy/hand.toml names them
+# Each finger plays its own scene; finger5 stays untouched, so following it shows no force.
+SCENES = {"finger1": "demo", "finger2": "press", "finger3": "sphere", "finger4": "moving",
+          "finger5": "empty"}
 
 
 def hand_settings() -> Any:
@@ -122,15 +122,17 @@ def test_six_arrays_on_a_laptop_screen(browser_page, live_server, tmp_path):
 
     # Clicking a sensor: the panel and its strip chart follow it.  The untouched finger's
     # chart has no force line; the palm's (pressed by its scene) has one.
-    follow(page, "little")
-    assert page.text_content("#follow").startswith("little (clicked sensor)")
-    assert "followed" in page.get_attribute("#sensor-little", "class")
+    follow(page, "finger5")
+    assert page.text_content("#follow").startswith("finger5 (clicked sensor)")
+    assert "followed" in page.get_attribute("#sensor-finger5", "class")
     page.wait_for_function("() => document.querySelector('#follow-panel canvas.strip')"
-                           ".dataset.follows === 'sensor|little|null'", timeout=5000)
+                           ".dataset.follows === 'sensor|finger5|null'", timeout=5000)
     page.wait_for_timeout(300)
     # (a lone false detection would draw one 3x3 dot; a followed pressed sensor, hundreds)
     assert force_pixels(page) < 10, "a force line on the untouched finger's chart"
     assert page.text_content(f"{PANEL} [data-k=contact]") == "no"
+    # an untouched array shows its scale's floor, 0.5 %: its noise (0.05 %) stays dark
+    assert page.text_content("#sensor-finger5 [data-k=scale]") == "0.50 % strain"
     follow(page, "palm")
     page.wait_for_function(f"() => ({FORCE_PIXELS})() > 20", timeout=60_000)
     assert page.text_content("#follow").startswith("palm")
