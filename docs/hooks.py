@@ -16,7 +16,7 @@ import re
 from typing import Any
 
 MARK = re.compile(r"<!-- tactiled-help(?: ([a-z0-9_-]+))? -->(?:\n\n```text\n.*?\n```)?", re.S)
-PAGE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "reference", "cli.md")
+PAGE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "reference/cli.md")
 COLUMNS = "100"
 
 
