@@ -25,9 +25,13 @@ constant is printed with its 1-sigma bound; one the presses cannot determine is 
 nominal value (the --sensor description's cover; the paper's finger's without --sensor), and
 the report says why.  The file written is a version 2 calibration file.
 
+The file belongs to the sensor id in the presses (or --sensor-id): the id the sensor's frames
+carry (a lines or FlexiTac device sends 0, a Robotiq finger its number, a XELA sensor its
+number; docs/howto/calibration.md).  The daemon refuses at start a calibration of another id.
+
 Example:
-  tactiled calibrate presses.npz -o sensor3.json --knots 8
-  tactiled calibrate contacts.npz -o sensor3.json --identify
+  tactiled calibrate presses.npz -o pad.json --knots 8
+  tactiled calibrate contacts.npz -o pad.json --identify --sensor flat16
   tactiled calibrate --bench          # per-frame cost of linearisation, zeroing, detection
 """
 

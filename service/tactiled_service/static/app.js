@@ -382,9 +382,9 @@ function drawReadouts(root, e) {
   set("ellipse", e.ellipse ? `${e.ellipse.a_mm.toFixed(2)} × ${e.ellipse.b_mm.toFixed(2)} mm @ ` +
                              `${e.ellipse.theta_deg.toFixed(0)}°` : "—");
   set("frames_used", e.frames_used === undefined ? "—" : String(e.frames_used));
-  // each component with its own 1-sigma, so no reader wonders which value a sigma belongs to
-  set("velocity", e.vx_mm_s === null || e.vx_mm_s === undefined ? "—" :
-      `x ${fmt(e.vx_mm_s, sd("vx_mm_s"), "", 2)}, y ${fmt(e.vy_mm_s, sd("vy_mm_s"), "", 2)} mm/s`);
+  // each component on its own line with its own 1-sigma: no doubt which value a sigma is of
+  set("vx_mm_s", fmt(e.vx_mm_s, sd("vx_mm_s"), "mm/s", 2));
+  set("vy_mm_s", fmt(e.vy_mm_s, sd("vy_mm_s"), "mm/s", 2));
   set("angle_rate_deg_s", fmt(e.angle_rate_deg_s, sd("angle_rate_deg_s"), "°/s", 1));
   set("force_rate_n_s", fmt(e.force_rate_n_s, sd("force_rate_n_s"), "N/s", 3));
   set("gate", e.gate);
