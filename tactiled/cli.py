@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "simulate": "write simulated frames with known contact parameters (or act as a serial device)",
     "bench": "benchmark run time against error over a seeded suite of simulated scenes",
     "calibrate": "build per-tactel lookup tables from recorded presses with known loads",
+    "presses": "make a press file from a recorded session and the known contacts pressed",
     "record": "record raw frames from a frame source to a file",
     "replay": "replay a recording through the pipeline",
     "export": "export a recording: its ROS 2 messages to MCAP, or its raw frames to npz",
@@ -39,8 +40,10 @@ def _load(name: str):  # -> module
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="tactiled",
-        description="Tactile curvature sensing for a cylindrical fingertip array "
-        "(Fearing & Binford 1988). Units: mm, N, degrees.",
+        description="Real-time tactile sensing for robot hands: contact curvature, force and "
+        "location from any taxel array under an elastic cover (text lines, FlexiTac, Robotiq "
+        "TSF-85, XELA uSkin, or the simulated finger), by the Fearing & Binford 1988 contact "
+        "model. Units: mm, N, degrees.",
     )
     parser.add_argument("--version", action="version", version=f"tactiled {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
@@ -66,12 +69,23 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _parser_of(parser: argparse.ArgumentParser, command: str | None) -> argparse.ArgumentParser:
+    """The sub-command's parser (``parser`` itself when no command was given)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and command in action.choices:
+            return action.choices[command]
+    return parser
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     # Import only the command being run (fast start, isolated optional dependencies).
     chosen = next((a for a in argv if a in COMMANDS), None)
     parser = build_parser(only=chosen)
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # said by the command's own parser, with its usage, not the top level's
+        _parser_of(parser, getattr(args, "command", None)).error(
+            f"unrecognized arguments: {' '.join(extra)}")
     logging.basicConfig(
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

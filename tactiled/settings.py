@@ -779,8 +779,11 @@ def _build(raw: _Raw) -> Settings:
 
 def load_settings(path: str | os.PathLike[str] | None = None,
                   env: Mapping[str, str] | None = None,
-                  overrides: Mapping[str, Any] | None = None) -> Settings:
+                  overrides: Mapping[str, Any] | None = None,
+                  origins: Mapping[str, str] | None = None) -> Settings:
     """Defaults < TOML file ``path`` < ``env`` (``TACTILED_*``) < ``overrides`` (dotted keys).
+
+    ``origins``: what an error names as an override's origin (``{"server.port": "--port"}``).
 
     ``path`` None: ``env["TACTILED_CONFIG"]`` if set, else no file.  ``env`` None: no
     environment (pass ``os.environ`` explicitly; tests pass dicts).  Raises
@@ -794,7 +797,8 @@ def load_settings(path: str | os.PathLike[str] | None = None,
         _read_file(Path(path), raw)
     _read_env(env, raw)
     for dotted, value in (overrides or {}).items():
-        raw.set(dotted, _Text(value) if isinstance(value, str) else value, "overrides")
+        raw.set(dotted, _Text(value) if isinstance(value, str) else value,
+                (origins or {}).get(dotted, "overrides"))
     settings = _build(raw)
     return replace(settings, source=None if path is None else str(path))
 

@@ -363,6 +363,12 @@ class FrameSource(abc.ABC):
         """
         await asyncio.sleep(delay)
 
+    def sent_id(self) -> int | None:
+        """The sensor id every frame of this source carries when the driver fixes it (a vendor
+        device's finger or sensor number, 0 for a device that sends none), so a calibration of
+        another sensor is refused at start; ``None`` (the default): only the frames say."""
+        return None
+
     def device_array(self) -> DeviceArray | None:
         """The array this driver's device has (its built-in description's model and its
         nominal counts -> strain scaling), when the driver knows it; ``None`` (the default):

@@ -147,6 +147,9 @@ class FlexiTacSource(SerialSource):
         except ValueError as err:
             raise ValueError(f"{self.url.url!r}: {err}") from None
 
+    def sent_id(self) -> int:
+        return 0  # a FlexiTac frame carries no id
+
     def device_array(self) -> DeviceArray:
         return device_array("flexitac", self.url.get_int("rows", DEFAULT_ROWS),
                             self.url.get_int("cols", DEFAULT_COLS))

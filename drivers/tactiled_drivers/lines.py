@@ -161,3 +161,6 @@ class LinesSource(SerialSource):
 
     def device_array(self) -> DeviceArray:
         return device_array("lines", self.rows, self.cols)
+
+    def sent_id(self) -> int:
+        return 0  # a line carries no id

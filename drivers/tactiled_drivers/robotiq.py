@@ -352,6 +352,9 @@ class RobotiqSource(FrameSource):
     def device_array(self) -> DeviceArray:
         return device_array("robotiq")
 
+    def sent_id(self) -> int:
+        return self.finger
+
     def give(self, data: bytes) -> None:
         """Bytes another source read from the shared port (dropped beyond PENDING_LIMIT: the
         framer then resynchronises and counts the torn packet)."""

@@ -104,6 +104,9 @@ class SimSource(FrameSource):
         self._schedule: FrameSchedule | None = None
         self._waker: asyncio.Future[None] | None = None
 
+    def sent_id(self) -> int:
+        return self.sensor_id
+
     async def _open_internal(self) -> None:
         self._schedule = None  # the device starts on the first read
 

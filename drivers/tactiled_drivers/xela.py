@@ -171,6 +171,9 @@ class XelaSource(FrameSource):
         self.layout = (rows, cols) if rows and cols else None
         return XelaFramer(self.sensor, rows, cols)
 
+    def sent_id(self) -> int:
+        return self.sensor & 0xFFFF
+
     def device_array(self) -> DeviceArray:
         rows, cols = self.layout or (None, None)
         return device_array("xela", rows, cols)

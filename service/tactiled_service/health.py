@@ -10,7 +10,8 @@ A sensor is, worst first:
 * ``DEGRADED``: the sensor has a nominal rate (``rate_hz``) and has delivered less than
   ``RATE_TOLERANCE`` (0.9) of it, measured over the last second, for more than
   ``RATE_GRACE_S`` (2 s) on end: a device or a link that slows down;
-* ``WARN``: data flows, but error counters (CRC and other rejected chunks, lost or duplicated
+* ``WARN``: connecting: the source's first open is under way (no frame and no error yet; a
+  driver's open times out into an error); or data flows, but error counters (CRC and other rejected chunks, lost or duplicated
   frames, fit errors, lost fits, worker restarts, source errors) grew within the last
   ``warn_window_s``;
 * ``OK`` otherwise.
@@ -200,6 +201,9 @@ class HealthMonitor:
         if c["finished"]:
             return "ERROR", "source ended" + (f": {c['last_error']}" if c["last_error"] else "")
         if not c["connected"]:
+            if not c["last_error"] and c["last_frame_age_s"] is None:
+                # its first open is under way (a driver's open times out into an error)
+                return "WARN", "connecting"
             return "ERROR", "disconnected" + (f": {c['last_error']}" if c["last_error"] else "")
         age = c["last_frame_age_s"]
         if age is None:

@@ -338,7 +338,8 @@ class Service:
         def on_signal(sig: signal.Signals) -> None:
             if self._stop_requested.is_set() and sig == signal.SIGINT:
                 self.force_exit(130, "second interrupt: exiting now")
-            log.warning("%s: shutting down (interrupt again to force)", sig.name)
+            # an asked-for stop is no fault: INFO (the journal shows systemd's own line)
+            log.info("%s: shutting down (interrupt again to force)", sig.name)
             self.request_stop()
 
         for sig in (signal.SIGTERM, signal.SIGINT):

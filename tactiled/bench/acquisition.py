@@ -718,7 +718,7 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
 
 #: A finger counts as locked in contact when it published fewer "no contact" estimates than
 #: this share of the frames its scene leaves untouched (the release residual or drift held
-#: the detector on: docs/howto/calibration.md, "The rubber's hysteresis is learnt and taken out"
+#: the detector on: docs/concepts/calibration.md, "The rubber's hysteresis is learnt and taken out"
 #: and "Drift during a hold"): its run says little of fitting, and is marked so.
 LOCKED_SHARE = 0.1
 
@@ -953,7 +953,7 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
               "CPU over the measured window in % of one core: the daemon's main process (event loop and serial "
               "read thread), its fit workers, the simulators.  'Fingers locked in contact': fingers "
               f"that published 'no contact' for under {100 * LOCKED_SHARE:g} % of the frames the scene leaves "
-              "untouched (a release residual or drift held the detector on, docs/howto/calibration.md): their phantom contact frames "
+              "untouched (a release residual or drift held the detector on, docs/concepts/calibration.md): their phantom contact frames "
               "count here, so such a run says little of the fitting."]
     # -- the main process's budget, per sensor
     lines += ["", "### The main process's CPU per frame, and each sensor's answers", "",

@@ -1,7 +1,8 @@
 """Calibration: lookup-table linearisation, drift/hysteresis zeroing, contact detection.
 
 Pure numpy; the only I/O is reading and writing calibration and press files.  See
-``docs/howto/calibration.md`` for the file format, the lab procedure and the time constants.
+``docs/howto/calibration.md`` for the lab procedure, ``docs/reference/file-formats.md`` for the
+files and ``docs/concepts/calibration.md`` for the estimation and the time constants.
 """
 
 from tactiled.calibration.builder import CalibrationReport, build_table, format_report

@@ -1,6 +1,6 @@
 """The calibration file: a versioned JSON document holding one sensor's lookup tables.
 
-Format (``docs/howto/calibration.md`` is the reference)::
+Format (``docs/reference/file-formats.md`` is the reference)::
 
     {
       "format": "tactiled-calibration",

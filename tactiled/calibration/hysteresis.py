@@ -36,7 +36,7 @@ release.
 
 On the simulated finger (``f`` = 0.05, ``tau`` = 0.5 s) the learner finds ``tau`` = 0.52-0.58 s
 and ``f`` = 0.043-0.045 on the moving scene, and compensates from its third second on
-(docs/howto/calibration.md has the figures, and those on other fingers).
+(docs/concepts/calibration.md has the figures, and those on other fingers).
 
 Numpy, a compiled kernel for the learner's step (:func:`tactiled.calibration.fused.learn_hysteresis`)
 and no I/O.  Strains are on the zeroed scale (strain, no unit); times in seconds.

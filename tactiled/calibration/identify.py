@@ -18,7 +18,8 @@ from the inverse of the weighted normal matrix: the Cramer-Rao bound of the pres
 
 What the presses cannot determine is held rather than guessed:
 
-* a rubber constant whose 1-sigma bound exceeds :data:`HOLD_LIMIT` is held at the paper's value
+* a rubber constant whose 1-sigma bound exceeds :data:`HOLD_LIMIT` is held at the nominal value
+  (the sensor description's cover; the paper's finger's by default)
   (the report says so, with the bound it would have had);
 * a tactel's position whose 1-sigma bound exceeds :data:`POSITION_SIGMA_LIMIT` stays on the grid;
 * a tactel whose model strain never spans :data:`MIN_STRAIN_SPAN` keeps the median gain and is
@@ -60,7 +61,7 @@ from tactiled.physics.strain import StrainModel
 RUBBER = ("depth_x", "nu_x", "depth_y", "nu_y", "modulus")
 #: Constants estimated in logarithm (positive, scale-like); the others directly.
 _LOG = {"depth_x": True, "nu_x": False, "depth_y": True, "nu_y": False, "modulus": True}
-#: A constant whose 1-sigma bound exceeds this is held at the paper's value: relative for
+#: A constant whose 1-sigma bound exceeds this is held at the nominal value: relative for
 #: depths and modulus (10 %), absolute for the ratios nu (0.1).
 HOLD_LIMIT = {"depth_x": 0.1, "nu_x": 0.1, "depth_y": 0.1, "nu_y": 0.1, "modulus": 0.1}
 #: A tactel's position is used when the presses pin it to better than this (1 sigma, mm).
@@ -571,7 +572,7 @@ def format_report(res: Identification) -> str:
     """The human report ``tactiled calibrate --identify`` prints."""
     units = {"depth_x": "mm", "nu_x": "", "depth_y": "mm", "nu_y": "", "modulus": "N/mm^2"}
     lines = [f"identified from {res.presses_loaded} loaded and {res.presses_unloaded} unloaded presses "
-             f"in {res.iterations} iterations", "", "| constant | value | 1-sigma | |", "|---|---|---|---|"]
+             f"in {res.iterations} iterations", "", "| constant | value | 1-sigma | held because |", "|---|---|---|---|"]
     for k in RUBBER:
         sd = res.sigma.get(k)
         note = res.held.get(k, "")

@@ -1,6 +1,7 @@
 """Build per-tactel lookup tables (raw counts -> strain) from recorded presses with known loads.
 
-PRESSES.npz holds the lab's recording (docs/howto/calibration.md, "Procedure"):
+PRESSES.npz holds the lab's presses (docs/howto/calibration.md; `tactiled presses` makes one
+from a recorded session):
   counts      (N, rows, cols) integer raw counts, 0..65535
   strain_ref  (N, rows, cols) float, the strain each tactel should read for that press
   sensor_id   integer scalar (optional here if --sensor-id is given)
@@ -10,7 +11,7 @@ knots, made monotone by pool-adjacent-violators and inverted into the table.  Pr
 residual per tactel as a rows x cols grid (units of 1e-4 strain) with flags D (dead: gain below
 --dead-fraction of the median), N (non-monotone: more than --nonmonotone-fraction of the response
 runs backwards) and U (unexercised: reference strain spans < --min-strain-span), then a summary.
-The calibration file (JSON, format in docs/howto/calibration.md) is written to -o even when tactels are
+The calibration file (JSON, format in docs/reference/file-formats.md) is written to -o even when tactels are
 flagged; the flags are stored in it.  --strict makes flagged tactels exit 1.
 
 Exit status: 0 success, 1 flagged tactels with --strict, 2 unusable input (one error line).
@@ -21,11 +22,16 @@ With --identify, the press file carries each press's known contact instead of st
 and the rubber's constants (depth_x, nu_x, depth_y, nu_y, modulus), every tactel's response
 and position, and the model-error floor are estimated together by maximum likelihood.  Each
 constant is printed with its 1-sigma bound; one the presses cannot determine is held at the
-paper's value, and the report says why.  The file written is a version 2 calibration file.
+nominal value (the --sensor description's cover; the paper's finger's without --sensor), and
+the report says why.  The file written is a version 2 calibration file.
+
+The file belongs to the sensor id in the presses (or --sensor-id): the id the sensor's frames
+carry (a lines or FlexiTac device sends 0, a Robotiq finger its number, a XELA sensor its
+number; docs/howto/calibration.md).  The daemon refuses at start a calibration of another id.
 
 Example:
-  tactiled calibrate presses.npz -o sensor3.json --knots 8
-  tactiled calibrate contacts.npz -o sensor3.json --identify
+  tactiled calibrate presses.npz -o pad.json --knots 8
+  tactiled calibrate contacts.npz -o pad.json --identify --sensor flat16
   tactiled calibrate --bench          # per-frame cost of linearisation, zeroing, detection
 """
 

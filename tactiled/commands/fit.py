@@ -127,6 +127,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"progress on stderr (default: for inputs of {LONG_INPUT} frames or more)")
 
 
+def _check_default_shape(shape: tuple[int, int], dx: float | None, dy: float | None) -> None:
+    """Frames named by no description and giving no pitch are fitted as the paper's finger
+    only if they are its 8x8 shape: another array fitted with its 3.3 x 3.9 mm pitch would
+    give wrong positions and radii without a word (ValueError, naming the built-in
+    descriptions of that shape if there are any)."""
+    if dx is not None and dy is not None or tuple(shape) == (Geometry.rows, Geometry.cols):
+        return
+    from tactiled.sensors import builtin_names
+
+    same = [n for n in builtin_names()
+            if (load_description(n).rows, load_description(n).cols) == tuple(shape)]
+    hint = f" ({', '.join(same)} {'is' if len(same) == 1 else 'are'} {shape[0]}x{shape[1]})" if same else ""
+    raise ValueError(f"{shape[0]}x{shape[1]} frames, but no sensor says what array they come "
+                     f"from and the file gives no pitch (dx, dy): name it with --sensor "
+                     f"NAME|FILE.toml{hint}; `tactiled sensors` lists the built-in arrays")
+
+
 def _sensor(args: argparse.Namespace, shape: tuple[int, int], dx: float | None, dy: float | None,
             extras: dict[str, np.ndarray], calibration: Calibration | None = None) -> SensorModel:
     base: SensorModel | None = None
@@ -138,6 +155,7 @@ def _sensor(args: argparse.Namespace, shape: tuple[int, int], dx: float | None, 
         base = desc.sensor_model()
         geo = base.geometry
     else:
+        _check_default_shape(shape, dx, dy)
         geo = Geometry(rows=shape[0], cols=shape[1], dx=dx or Geometry.dx, dy=dy or Geometry.dy)
     if args.sigma is not None:
         noise = NoiseModel(sigma=args.sigma)

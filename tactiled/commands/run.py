@@ -78,6 +78,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="more log output")
 
 
+#: key -> the flag (or variable) that sets it, as an error names it
+FLAGS: dict[str, str] = {
+    "server.token": "--token or $TACTILED_TOKEN", "server.host": "--host", "server.port": "--port",
+    "fit.max_fits_per_worker": "--max-fits-per-worker", "zenoh.enabled": "--zenoh or --ros2",
+    "zenoh.mode": "--zenoh-mode", "zenoh.connect": "--zenoh-connect",
+    "zenoh.listen": "--zenoh-listen", "zenoh.prefix": "--zenoh-prefix",
+    "ros2.enabled": "--ros2", "ros2.domain_id": "--ros2-domain-id",
+}
+
+
 def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     out: dict[str, Any] = {}
     token = args.token if args.token is not None else os.environ.get("TACTILED_TOKEN")
@@ -105,7 +115,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     from tactiled.settings import load_settings
 
-    settings = load_settings(args.config, os.environ, _overrides(args))  # ConfigError: exit 2
+    settings = load_settings(args.config, os.environ, _overrides(args), FLAGS)  # ConfigError: exit 2
     try:
         # The service pulls in FastAPI and uvicorn: only this command pays for them.
         from tactiled_service.options import ServiceOptions

@@ -4,6 +4,9 @@ The scene simulator renders frames on the device's array (:func:`tactiled.device
 its shape, pitch and nominal counts scaling) and streams them in the vendor's own format, so
 ``tactiled run`` and ``tactiled record`` can be tried on each driver without hardware:
 
+``--sensor NAME|FILE.toml`` plays another array on the device: any shape for ``lines`` and
+``flexitac`` (the daemon's URL then gives ``rows`` and ``cols``), 4x6 for ``xela``.
+
 - ``lines``, ``flexitac``, ``robotiq``: a pseudo-terminal in raw mode; ``--device PATH`` is made a
   symlink to it.  Prints ``pty: /dev/pts/N`` and ``link: PATH``.  The Robotiq device streams both
   fingers, and only between the auto-send command that starts it and the one that stops it, as
@@ -24,10 +27,12 @@ import os
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
-from tactiled.devices import KINDS, device_array
+from tactiled.devices import KINDS, DeviceArray, device_array
+from tactiled.errors import TactiledError
 from tactiled.sim import DriftModel, FingerSimulator, FrameSchedule, HysteresisModel
 
 MAX_BATCH = 32
@@ -37,9 +42,35 @@ XELA_REST = 0x8000
 XELA_SHEAR_SD = 40.0
 
 
+#: kind -> the array shapes its device can have, None: any (the URL's rows and cols say)
+SHAPES: dict[str, tuple[tuple[int, int], ...] | None] = {
+    "lines": None, "flexitac": None, "robotiq": ((7, 4),), "xela": ((4, 4), (4, 6))}
+#: XELA's model names, as xela_server sends them, by array shape
+XELA_MODELS = {(4, 4): "XR1944", (4, 6): "XR1946"}
+
+
+def simulated_array(args: argparse.Namespace) -> DeviceArray:
+    """The ``--as`` device's array: its own built-in description's, or ``--sensor``'s when
+    given (any shape for a text-lines pad or a FlexiTac mat, the shapes the device has
+    otherwise: ValueError naming them)."""
+    kind, name = args.as_kind, getattr(args, "sensor", None)
+    if name is None:
+        return device_array(kind)
+    from tactiled.sensors import load_description
+
+    desc = load_description(name)
+    shapes = SHAPES[kind]
+    if shapes is not None and (desc.rows, desc.cols) not in shapes:
+        have = " or ".join(f"{r}x{c}" for r, c in shapes)
+        raise ValueError(f"--sensor {desc.name} is {desc.rows}x{desc.cols}, but a {kind} "
+                         f"device's array is {have}")
+    array = device_array(kind, desc.rows, desc.cols)
+    return replace(array, model=desc.sensor_model(), description=desc.name)
+
+
 def simulators(args: argparse.Namespace, count: int) -> list[FingerSimulator]:
     """``count`` simulated arrays of the ``--as`` kind (seeds ``--seed``, ``--seed + 1``...)."""
-    array = device_array(args.as_kind)
+    array = simulated_array(args)
     return [FingerSimulator(
         sensor=array.model, scene=args.scene, seed=args.seed + k, rate_hz=args.rate,
         noise=args.sigma,
@@ -65,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         return _error(f"--seed must be >= 0, got {args.seed}")
     try:
         sims = simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1)
-    except ValueError as err:
+    except (ValueError, TactiledError) as err:
         return _error(str(err))
     from tactiled.commands.simulate import until_signal
 
@@ -187,7 +218,8 @@ async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port
 
     clients: set = set()
     rng = np.random.default_rng(args.seed)
-    model = "XR1944"
+    g = sims[0].sensor.geometry
+    model = XELA_MODELS[(g.rows, g.cols)]
 
     async def handler(ws) -> None:  # noqa: ANN001 (a websockets connection)
         await ws.send(WELCOME)

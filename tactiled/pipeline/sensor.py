@@ -181,6 +181,14 @@ class SensorPipeline(ContactTracking):
                 f"{self.description.name!r} is {g.rows}x{g.cols}: set the sensor's description "
                 "to the array's (docs/howto/sensors.md)")
         self.device = device
+        sent = self.source.sent_id()
+        if sent is not None and self.expected_id is not None and sent != self.expected_id:
+            said, fix = ((f"its calibration {settings.calibration} is of sensor id "
+                          f"{self.expected_id}", f"calibrate with --sensor-id {sent}")
+                         if settings.wire_id is None else
+                         (f"its wire_id is {self.expected_id}", f"set wire_id = {sent}"))
+            raise ConfigError(f"sensor {self.name}: {settings.url} sends sensor id {sent}, but "
+                              f"{said}: every frame would be dropped ({fix})")
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
         self._no_contact_fit = {**untracked(plain(FitResult(

@@ -73,7 +73,7 @@ def test_idle_drift_is_tracked_with_lag_rate_times_tau_at_any_frame_rate():
         assert late.mean() == pytest.approx(drift * DEFAULT_TAU_DRIFT, rel=0.05)
     assert lags[0] == pytest.approx(lags[1], rel=0.05)  # rate independent
     # With the detector deciding: the uniform lag lifts the matched filter's mean by ~0.44 sigma,
-    # so false contacts rise from 1e-4 to ~1e-3 per frame (docs/howto/calibration.md), no more.
+    # so false contacts rise from 1e-4 to ~1e-3 per frame (docs/concepts/calibration.md), no more.
     z, contacts = _idle_run(400.0, drift, 40.0, detect=True)
     assert contacts <= 3e-3 * len(z)
 

@@ -49,3 +49,19 @@ def test_the_readme_stays_short_and_points_into_the_docs() -> None:
     readme = (ROOT / "README.md").read_text()
     assert len(readme.splitlines()) < 120
     assert "docs/index.md" in readme and "docs/img/dashboard-hand.png" in readme
+
+
+def test_the_committed_command_line_reference_is_the_parsers_text() -> None:
+    """docs/reference/cli.md holds each command's --help as the parser prints it, so the page
+    reads whole where no hook runs (GitHub); `python docs/hooks.py` rewrites it."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("docs_hooks", ROOT / "docs" / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    page = (ROOT / "docs" / "reference" / "cli.md").read_text()
+    assert page == hooks.render(page), "docs/reference/cli.md is stale: run python docs/hooks.py"
+    from tactiled.cli import COMMANDS
+
+    assert page.count("usage: tactiled") == len(COMMANDS) + 1
+    assert hooks.render(page.replace("usage: tactiled presses", "usage: old")) == page

@@ -60,10 +60,18 @@ def test_dashboard_shows_live_estimates(browser_page, shared_server, tmp_path):
     # The tracker's readouts: frames the estimate rests on, and the contact's rates.
     page.wait_for_function(
         "() => { const q = k => document.querySelector(`#follow-panel [data-k=${k}]`)"
-        ".textContent; return Number(q('frames_used')) > 10 && q('velocity').endsWith('mm/s')"
+        ".textContent; return Number(q('frames_used')) > 10 && q('vx_mm_s').endsWith('mm/s')"
         " && q('force_rate_n_s').endsWith('N/s'); }", timeout=40_000)
-    velocity = page.text_content(f"{PANEL} [data-k=velocity]")
-    assert re.fullmatch(r"-?\d+\.\d{2}, -?\d+\.\d{2} ± \d+\.\d{2} mm/s", velocity), velocity
+    # each component on its own line, with its own sigma
+    for k in ("vx_mm_s", "vy_mm_s"):
+        velocity = page.text_content(f"{PANEL} [data-k={k}]")
+        assert re.fullmatch(r"-?\d+\.\d{2} ± \d+\.\d{2} mm/s", velocity), (k, velocity)
+    # the colour legend: the strain map's own colours, from 0 to the array's scale
+    assert page.is_visible("#legend .ramp")
+    assert " ".join(page.text_content("#legend").split()) == "strain 0 to the array's scale"
+    ramp = page.eval_on_selector("#legend .ramp", "e => getComputedStyle(e).backgroundImage")
+    assert ramp.startswith("linear-gradient") and "rgb(0, 0, 4)" in ramp, ramp
+    assert ramp.endswith("rgb(252, 255, 164))"), ramp
     assert page.text_content(f"{PANEL} [data-k=model]") in ("cylinder", "sphere", "general")
     assert canvas_colours(page, "finger0") > 8, "the strain map is not drawn"
     # Health counters from /v1/health.
@@ -188,7 +196,7 @@ def test_strip_chart_of_a_moving_contact(browser_page, live_server, tmp_path):
         page.wait_for_function(
             "() => { const q = s => document.querySelector(s).textContent;"
             " return q('#sensor-finger0 .status') === 'OK' && "
-            "q('#follow-panel [data-k=velocity]').endsWith('mm/s'); }",
+            "q('#follow-panel [data-k=vx_mm_s]').endsWith('mm/s'); }",
             timeout=60_000)
     box, lanes = strip_lanes(page)
     page.mouse.move(box["x"] + box["width"] * 0.62, (lanes[1][0] + lanes[1][1]) / 2)

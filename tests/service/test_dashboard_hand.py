@@ -25,10 +25,10 @@ from tactiled.fit.result import FitResult
 from tactiled.pipeline.estimate import make_estimate
 from tactiled.sensors.description import load_description
 
-FINGERS = ["thumb", "index", "middle", "ring", "little"]
-# Each finger plays its own scene; "little" stays untouched, so following it shows no force.
-SCENES = {"thumb": "demo", "index": "press", "middle": "sphere", "ring": "moving",
-          "little": "empty"}
+FINGERS = ["finger1", "finger2", "finger3", "finger4", "finger5"]  # as deploy/hand.toml names them
+# Each finger plays its own scene; finger5 stays untouched, so following it shows no force.
+SCENES = {"finger1": "demo", "finger2": "press", "finger3": "sphere", "finger4": "moving",
+          "finger5": "empty"}
 
 
 def hand_settings() -> Any:
@@ -67,6 +67,10 @@ def check_hand_fits(page: Any, width: int, height: int) -> float:
             f"{name} is not on the {width}x{height} screen: {box}")
         assert page.text_content(f"#sensor-{name} h2 .name") == name
         assert page.is_visible(f"#sensor-{name} h2 .name")
+    # no label cut short: every tile's heading shows whole (no ellipsis), the header too
+    cut = page.evaluate("""() => [...document.querySelectorAll('.card.sensor h2, header > *')]
+        .filter(e => e.scrollWidth > e.clientWidth + 1).map(e => e.textContent.trim())""")
+    assert cut == [], f"labels cut at {width}x{height}: {cut}"
     names = sorted(tiles)
     for i, a in enumerate(names):
         for b in names[i + 1:]:
@@ -102,9 +106,11 @@ def test_six_arrays_on_a_laptop_screen(browser_page, live_server, tmp_path):
     small = check_hand_fits(page, 1366, 768)
     # a fingertip's tactel is big enough to see: 3.3 mm at the scale chosen
     assert 3.3 * small >= 12, small
-    # the strip chart, under the arrays, is on the screen too
+    # the strip chart, under the arrays, is on the screen too, and the readouts beside it
     strip = page.locator(f"{PANEL} canvas.strip").bounding_box()
     assert strip["y"] + strip["height"] <= 768, strip
+    readouts = page.locator(f"{PANEL} dl.readouts").bounding_box()
+    assert readouts["x"] >= strip["x"] + strip["width"] and readouts["y"] < 768, readouts
     target = os.environ.get("TACTILED_DOCS_SCREENSHOT_HAND")
     if target:
         page.wait_for_timeout(3000)  # some history on the strip chart
@@ -120,17 +126,26 @@ def test_six_arrays_on_a_laptop_screen(browser_page, live_server, tmp_path):
                                                          dither=Image.Dither.NONE)
         image.save(target, optimize=True)
 
+    # every label whole once the arrays are pressed and their models shown
+    page.wait_for_function("() => [...document.querySelectorAll('.card.sensor .model-label')]"
+                           ".filter(e => e.textContent).length >= 3", timeout=60_000)
+    cut = page.evaluate("""() => [...document.querySelectorAll('.card.sensor h2, header > *')]
+        .filter(e => e.scrollWidth > e.clientWidth + 1).map(e => e.textContent.trim())""")
+    assert cut == [], f"labels cut at 1366x768: {cut}"
+    check_hand_fits(page, 1366, 768)
     # Clicking a sensor: the panel and its strip chart follow it.  The untouched finger's
     # chart has no force line; the palm's (pressed by its scene) has one.
-    follow(page, "little")
-    assert page.text_content("#follow").startswith("little (clicked sensor)")
-    assert "followed" in page.get_attribute("#sensor-little", "class")
+    follow(page, "finger5")
+    assert page.text_content("#follow").startswith("finger5 (clicked sensor)")
+    assert "followed" in page.get_attribute("#sensor-finger5", "class")
     page.wait_for_function("() => document.querySelector('#follow-panel canvas.strip')"
-                           ".dataset.follows === 'sensor|little|null'", timeout=5000)
+                           ".dataset.follows === 'sensor|finger5|null'", timeout=5000)
     page.wait_for_timeout(300)
     # (a lone false detection would draw one 3x3 dot; a followed pressed sensor, hundreds)
     assert force_pixels(page) < 10, "a force line on the untouched finger's chart"
     assert page.text_content(f"{PANEL} [data-k=contact]") == "no"
+    # an untouched array shows its scale's floor, 0.5 %: its noise (0.05 %) stays dark
+    assert page.text_content("#sensor-finger5 [data-k=scale]") == "0.50 % strain"
     follow(page, "palm")
     page.wait_for_function(f"() => ({FORCE_PIXELS})() > 20", timeout=60_000)
     assert page.text_content("#follow").startswith("palm")

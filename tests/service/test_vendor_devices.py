@@ -22,11 +22,11 @@ PLUGIN = Path(__file__).resolve().parent.parent / "plugin_pkg"
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
 
 
-def launch_device(kind: str, device: str) -> subprocess.Popen:
-    """``tactiled simulate --as KIND --device DEVICE`` at 100 Hz."""
+def launch_device(kind: str, device: str, *extra: str) -> subprocess.Popen:
+    """``tactiled simulate --as KIND --device DEVICE [EXTRA...]`` at 100 Hz."""
     return subprocess.Popen(
         [sys.executable, "-m", "tactiled.cli", "simulate", "--as", kind, "--device", device,
-         "--rate", "100", "--seed", "3"],
+         "--rate", "100", "--seed", "3", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -37,8 +37,8 @@ def first_line(proc: subprocess.Popen) -> str:
     return line
 
 
-def start_device(kind: str, device: str) -> tuple[subprocess.Popen, str]:
-    proc = launch_device(kind, device)
+def start_device(kind: str, device: str, *extra: str) -> tuple[subprocess.Popen, str]:
+    proc = launch_device(kind, device, *extra)
     return proc, first_line(proc)
 
 
@@ -105,6 +105,39 @@ def test_daemon_estimates_contacts_on_every_simulated_device(daemon_process, tmp
             dev.terminate()
             dev.wait(30)
     assert all(dev.returncode == 0 for dev, _ in devices)
+
+
+def test_a_16x16_pad_rehearsed_on_the_simulated_lines_device(daemon_process, tmp_path) -> None:
+    """`simulate --as lines --sensor flat16` prints 16x16 frames, and a daemon configured for a
+    16x16 pad (the text-lines device page's configuration) reads every one and fits them."""
+    device, line = start_device("lines", str(tmp_path / "ttyPAD"), "--sensor", "flat16")
+    try:
+        assert line.startswith("pty: ")
+        config = write_config(tmp_path / "pad.toml",
+                              {"pad": f"lines://{tmp_path}/ttyPAD?rows=16&cols=16"},
+                              {"pad": "flat16"})
+        proc = daemon_process(["--config", str(config)])
+        url = proc.wait_url()
+        seen: dict[str, dict] = {}
+
+        def fitted() -> bool:
+            seen.update(estimates_with_contact(url, ["pad"]))
+            return "pad" in seen
+
+        wait_for(fitted, 120.0, poll=0.2, what="an estimate with a contact on the 16x16 pad")
+        frame = http(url, "GET", "/v1/sensors/pad/frame").json()
+        assert (frame["rows"], frame["cols"]) == (16, 16), {k: frame[k] for k in ("rows", "cols")}
+        health = http(url, "GET", "/v1/health").json()["sensors"]["pad"]
+        assert health["frames"] > 0 and health["published"] > 0, health
+        assert health["rejected_chunks"] <= 1 and health["wrong_sensor"] == 0, health
+        # the contact lies on the pad, 16 tactels of 2.5 mm a side
+        assert 0 <= seen["pad"]["x_mm"] <= 37.5 and 0 <= seen["pad"]["y_mm"] <= 37.5, seen["pad"]
+        proc.proc.terminate()
+        assert proc.proc.wait(15) == 0
+    finally:
+        device.terminate()
+        device.wait(30)
+    assert device.returncode == 0
 
 
 def test_record_from_each_simulated_device(tmp_path, capsys) -> None:

@@ -11,7 +11,8 @@
 
 const MAX_RATE = 30;         // Hz per sensor and stream asked of the server
 const HEALTH_PERIOD = 1000;  // ms between /v1/health polls
-const MIN_SCALE = 0.002;     // strain at the top of the colour scale, at least
+const MIN_SCALE = 0.005;     // strain at the top of the colour scale, at least: ten noise sigmas of
+                             // the default sensor, so an untouched array's noise stays dark
 const STRIP_S = 10;          // seconds of history in the strip chart
 const STRIP_CAP = 2048;      // samples kept per ring (10 s at up to 200 Hz): never grows
 const STRIP_MIN_DT = 1000 / 30;  // ms between strip redraws (it scrolls; 30 Hz is smooth enough)
@@ -54,6 +55,9 @@ function setConn(text, up) {
 // -- colour map (inferno-like, 0..1) ---------------------------------------------------------
 const STOPS = [[0, 0, 4], [40, 11, 84], [101, 21, 110], [159, 42, 99], [212, 72, 66],
                [245, 125, 21], [250, 193, 39], [252, 255, 164]];
+// The legend in the header: the same colours, from 0 to each array's scale.
+document.querySelector("#legend .ramp").style.background =
+  `linear-gradient(to right, ${STOPS.map(c => `rgb(${c.join(",")})`).join(", ")})`;
 function colour(t) {
   t = Math.min(1, Math.max(0, t)) * (STOPS.length - 1);
   const i = Math.min(STOPS.length - 2, Math.floor(t)), f = t - i;
@@ -378,9 +382,9 @@ function drawReadouts(root, e) {
   set("ellipse", e.ellipse ? `${e.ellipse.a_mm.toFixed(2)} × ${e.ellipse.b_mm.toFixed(2)} mm @ ` +
                              `${e.ellipse.theta_deg.toFixed(0)}°` : "—");
   set("frames_used", e.frames_used === undefined ? "—" : String(e.frames_used));
-  set("velocity", e.vx_mm_s === null || e.vx_mm_s === undefined ? "—" :
-      `${e.vx_mm_s.toFixed(2)}, ${e.vy_mm_s.toFixed(2)} ± ` +
-      `${Math.hypot(sd("vx_mm_s") || 0, sd("vy_mm_s") || 0).toFixed(2)} mm/s`);
+  // each component on its own line with its own 1-sigma: no doubt which value a sigma is of
+  set("vx_mm_s", fmt(e.vx_mm_s, sd("vx_mm_s"), "mm/s", 2));
+  set("vy_mm_s", fmt(e.vy_mm_s, sd("vy_mm_s"), "mm/s", 2));
   set("angle_rate_deg_s", fmt(e.angle_rate_deg_s, sd("angle_rate_deg_s"), "°/s", 1));
   set("force_rate_n_s", fmt(e.force_rate_n_s, sd("force_rate_n_s"), "N/s", 3));
   set("gate", e.gate);

@@ -1,0 +1,38 @@
+"""What `tactiled run` logs when nothing is wrong: a XELA sensor whose WebSocket is still
+connecting at the first health sample is not logged as an ERROR (it is `WARN connecting`),
+and Ctrl-C, an asked-for stop, is logged at INFO, not as a warning.  A real daemon process on a
+real simulated xela_server (`tactiled simulate --as xela`), stopped with a real SIGINT."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+from svc_helpers import http, wait_for
+
+
+def test_a_xela_sensor_starts_quietly_and_ctrl_c_is_no_warning(daemon_process, tmp_path) -> None:
+    device = subprocess.Popen(
+        [sys.executable, "-m", "tactiled.cli", "simulate", "--as", "xela", "--device", "0",
+         "--rate", "100", "--seed", "3"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = device.stdout.readline().strip()
+        assert line.startswith("xela: ws://"), device.stderr.read()
+        (tmp_path / "xela.toml").write_text(
+            '[server]\nport = 0\n[[sensor]]\nname = "xela"\ndescription = "xela_uskin_4x4"\n'
+            f'url = "xela://{line.removeprefix("xela: ws://")}?sensor=1"\n')
+        proc = daemon_process(["--config", str(tmp_path / "xela.toml"), "-v"])  # INFO shown
+        url = proc.wait_url()
+        wait_for(lambda: http(url, "GET", "/v1/health").json()["sensors"]["xela"]["status"] == "OK",
+                 60.0, poll=0.2, what="the xela sensor OK")
+        proc.proc.send_signal(signal.SIGINT)
+        assert proc.proc.wait(30) == 0
+        log = proc.proc.stderr.read().splitlines()
+    finally:
+        device.terminate()
+        device.wait(30)
+    assert not [l for l in log if "-> ERROR" in l or "None ->" in l], log
+    stops = [l for l in log if "SIGINT: shutting down" in l]
+    assert len(stops) == 1 and " INFO " in stops[0], log
+    assert not [l for l in log if " WARNING " in l], log
