@@ -50,6 +50,10 @@ class Gate:
     def __init__(self, sigma: float, z: float = 3.0, reuse_unchanged: bool = True) -> None:
         self.configure(sigma=sigma, z=z, reuse_unchanged=reuse_unchanged)
         self._reference: np.ndarray | None = None
+        #: the last ``decide``'s change since the reference, ``|delta s|^2 / sigma^2``
+        #: estimated as ``2 (chi2 - n)`` (never below 0; inf before a test): what an estimate
+        #: carried to that frame must cover (:func:`tactiled.fit.verdict.carried`)
+        self.change = math.inf
 
     def configure(self, *, sigma: float | None = None, z: float | None = None,
                   reuse_unchanged: bool | None = None) -> None:
@@ -72,6 +76,7 @@ class Gate:
 
     def decide(self, strain: np.ndarray, in_contact: bool) -> GateDecision:
         """The decision for one zeroed frame (finite strain) and its contact flag."""
+        self.change = math.inf
         if not in_contact:
             return GateDecision(GATE_NO_CONTACT)
         ref = self._reference
@@ -80,6 +85,7 @@ class Gate:
         d = strain - ref
         n = d.size
         chi2 = float(np.dot(d.ravel(), d.ravel())) / (2.0 * self.sigma * self.sigma)
+        self.change = max(2.0 * (chi2 - n), 0.0)
         if chi2 <= n + self.z * math.sqrt(2.0 * n):
             return GateDecision(GATE_UNCHANGED, chi2)
         return GateDecision(GATE_FIT, chi2)
