@@ -45,13 +45,12 @@ import numpy as np
 
 from tactiled.config import Geometry
 from tactiled.fit.profile import FLAT, TEST_RELATIVE_SIGMA
+from tactiled.fit.verdict import sigma_reason
 from tactiled.fit.params import (
-    MAX_ANGLE_SIGMA,
     MOVING,
     PARAMS,
     RADIUS_LIMITS,
     TOO_LIGHT,
-    UNOBSERVABLE_RELATIVE_SIGMA,
     VALUE_KEYS,
     radius_tied_force,
     wrap_deg,
@@ -588,27 +587,16 @@ class Tracker:
         ``flat``: the fit found the likelihood flat below this radius
         (:mod:`tactiled.fit.profile`): reported only once the frames give it a relative sigma
         within ``TEST_RELATIVE_SIGMA``, where its sigma is not in question."""
-        if key == "angle_deg":
-            if sd > MAX_ANGLE_SIGMA:
-                return "orientation not observable: sigma above 45 deg"
-            return None
         if key in ("x_mm", "y_mm"):
             if sd > OFF_ARRAY_MM:
                 return f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
             return None
-        if key not in ("r1_mm", "r2_mm", "force_n") or v <= 0.0:
+        if key not in ("r1_mm", "r2_mm", "force_n", "angle_deg") or (key != "angle_deg" and v <= 0.0):
             return None
-        rel = sd / v
-        radius = key != "force_n"
-        limit = self.withhold if radius and self.withhold is not None else math.inf
-        if radius and flat:
-            limit = min(limit, TEST_RELATIVE_SIGMA)
-        if (rel > UNOBSERVABLE_RELATIVE_SIGMA or rel > limit
-                or (radius and not RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1])):
-            what = "radius" if radius else "force"
-            return (f"{TOO_LIGHT if radius else 'not observable'}: the sigma of the {what} over "
-                    f"{self.n} frame(s) is {100 * rel:.0f} % of it")
-        return None
+        limit = self.withhold
+        if flat and key != "force_n":
+            limit = min(limit if limit is not None else math.inf, TEST_RELATIVE_SIGMA)
+        return sigma_reason(key, v, sd, None, limit, f" over {self.n} frame(s)")
 
     def _rates(self, values: dict[str, float | None], reasons: dict[str, str], v: list[float],
                pvv: list[float]) -> tuple[dict[str, float | None], dict[str, float | None]]:
