@@ -190,10 +190,21 @@ def judge(fit: dict[str, Any], limits: ArrayLimits, *,
     ``fit``."""
     if not fit.get("contact"):
         return fit
+    before = ({k: fit.get(k) for k in VALUE_KEYS}, fit.get("std"), fit.get("reasons"),
+              fit.get("label"))
     _judge_one(fit, limits, withhold_relative_sigma)
     for c in fit.get("contacts") or ():
-        if c is not fit and isinstance(c, dict):
-            _judge_one(c, limits, withhold_relative_sigma)
+        if c is fit or not isinstance(c, dict):
+            continue
+        if (c.get("std") == before[1] and c.get("reasons") == before[2]
+                and c.get("label") == before[3] and all(c.get(k) == v for k, v in before[0].items())):
+            # the top level's own contact (one contact: the same dict's copy): judged already
+            c.update({k: fit.get(k) for k in VALUE_KEYS})
+            c["std"], c["reasons"] = dict(fit["std"]), dict(fit["reasons"])
+            if "ellipse" in fit:
+                c["ellipse"] = fit["ellipse"]
+            continue
+        _judge_one(c, limits, withhold_relative_sigma)
     return fit
 
 
