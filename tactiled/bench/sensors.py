@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tactiled.bench import live_sensors
+from tactiled.bench.live_sensors import FAR_SIGMAS
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
@@ -49,6 +51,7 @@ class Scores:
 
     z: dict[str, list[float]] = field(default_factory=dict)  # error / CRB at the truth
     covered: dict[str, list[bool]] = field(default_factory=dict)  # |error| <= 2 reported sigma
+    far: dict[str, list[bool]] = field(default_factory=dict)  # |error| > 4 reported sigma
     withheld: Counter = field(default_factory=Counter)
     seen: Counter = field(default_factory=Counter)
     reasons: Counter = field(default_factory=Counter)
@@ -67,10 +70,16 @@ class Scores:
         if crb is not None and crb > 0:
             self.z.setdefault(name, []).append(err / crb)
         self.covered.setdefault(name, []).append(sd is not None and abs(err) <= 2.0 * sd)
+        self.far.setdefault(name, []).append(sd is None or abs(err) > FAR_SIGMAS * sd)
 
     def rms_over_crb(self, name: str) -> float | None:
         z = self.z.get(name)
         return float(np.sqrt(np.mean(np.square(z)))) if z else None
+
+    def beyond(self, name: str) -> float | None:
+        """The share of published values further than ``FAR_SIGMAS`` of their sigma."""
+        c = self.far.get(name)
+        return float(np.mean(c)) if c else None
 
     def coverage(self, name: str) -> float | None:
         c = self.covered.get(name)
@@ -186,44 +195,64 @@ def _times(ms: list[float]) -> str:
     return f"{np.median(t):.2f} / {np.percentile(t, 99):.2f} / {t.max():.2f}"
 
 
-def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, seed: int = 1) -> str:
-    """The suite's Markdown report (one table per description, then a summary line each)."""
+def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, seed: int = 1,
+        live: bool = True) -> str:
+    """The suite's Markdown report: per description, its fits (one table each, then a summary
+    line each) and, ``live``, the daemon's own estimates of the demo scene against the truth
+    (:mod:`tactiled.bench.live_sensors`)."""
     names = list(names) if names else builtin_names()
     contacts, draws = (4, 10) if quick else (12, 25)
+    rate = 100.0 if quick else 200.0
     descs = [load_description(n) for n in names]
     bar = Progress(len(descs) * len(KINDS) * contacts * draws, "sensors", progress)
     out = [f"Each description: {contacts} contacts of each kind x {draws} noise draws, peak strain "
            f"{PEAK_SNR[0]:g}-{PEAK_SNR[1]:g} noise sigmas, fitted with the contact's own model "
            "(cylinder; sphere; edge = a 0.5 mm cylinder). RMS/CRB: RMS error over the Cramer-Rao "
-           "bound at the truth; 2-sigma: errors within twice the fit's own sigma; withheld: "
-           "values the fit withheld with a reason. Fit times: CPU ms of the contact's own model "
+           "bound at the truth; 2-sigma: errors within twice the fit's own sigma; beyond 4 sigma: "
+           "published values further than four of their sigmas; withheld: values the fit "
+           "withheld with a reason. Fit times: CPU ms of the contact's own model "
            "and of auto on the same frame (auto stopped: its fits the budget stopped).", ""]
-    summary = ["| description | array | surface | worst RMS/CRB | coverage range | withheld | fit ms p50 / p99 / max "
-               "| auto ms p50 / p99 / max | auto stopped |", "|---|---|---|---|---|---|---|---|---|"]
+    summary = ["| description | array | surface | worst RMS/CRB | coverage range | beyond 4 sigma | withheld "
+               "| fit ms p50 / p99 / max | auto ms p50 / p99 / max | auto stopped |",
+               "|---|---|---|---|---|---|---|---|---|---|"]
+    live_rows = list(live_sensors.SUMMARY_HEAD)
     for desc in descs:
         s = score_description(desc, contacts, draws, seed, bar)
         out += [f"### {desc.name}: {desc.rows}x{desc.cols}, {desc.pitch_x_mm:g} x {desc.pitch_y_mm:g} mm, "
                 f"{'flat' if desc.flat else f'radius {desc.surface_radius_mm:g} mm'}", "",
-                "| parameter | RMS/CRB | 2-sigma | withheld | n |", "|---|---|---|---|---|"]
-        worst, covs = 0.0, []
+                "| parameter | RMS/CRB | 2-sigma | beyond 4 sigma | withheld | n |",
+                "|---|---|---|---|---|---|"]
+        worst, covs, fars = 0.0, [], []
         for name in s.seen:
-            r, c = s.rms_over_crb(name), s.coverage(name)
+            r, c, b = s.rms_over_crb(name), s.coverage(name), s.beyond(name)
             kind = name.split("/")[0]
             if r is not None and kind != "edge":  # an edge's radius is below what any array resolves
                 worst = max(worst, r)
             if c is not None and kind != "edge":
                 covs.append(c)
+            fars += s.far.get(name, [])
             out.append(f"| {name} | {'-' if r is None else f'{r:.2f}'} | "
                        f"{'-' if c is None else f'{100 * c:.0f} %'} | "
+                       f"{'-' if b is None else f'{100 * b:.1f} %'} | "
                        f"{100 * s.withheld[name] / s.seen[name]:.0f} % | {s.seen[name]} |")
         if s.reasons:
             out += ["", "withheld because: " + "; ".join(f"{k} ({v})" for k, v in s.reasons.most_common())]
         out.append("")
+        if live:
+            ls = live_sensors.score(desc, rate, seed)
+            out += live_sensors.report(desc, ls, rate)
+            live_rows.append(live_sensors.summary_row(desc, ls))
         total = sum(s.seen.values())
         summary.append(
             f"| {desc.name} | {desc.rows}x{desc.cols} | {'flat' if desc.flat else 'curved'} | {worst:.2f} | "
-            f"{100 * min(covs):.0f}-{100 * max(covs):.0f} % | {100 * sum(s.withheld.values()) / total:.0f} % | "
+            f"{100 * min(covs):.0f}-{100 * max(covs):.0f} % | {100 * float(np.mean(fars)):.1f} % | "
+            f"{100 * sum(s.withheld.values()) / total:.0f} % | "
             f"{_times(s.fit_ms)} | {_times(s.auto_ms)} | {100 * s.auto_spent / len(s.auto_ms):.1f} % |"
             if covs else f"| {desc.name} | - |")
     bar.finish(f"{len(descs)} descriptions scored")
-    return "\n".join(["Summary (cylinders and spheres; edges in each table):", "", *summary, "", *out])
+    head = ["Summary (cylinders and spheres; edges in each table):", "", *summary, ""]
+    if live:
+        head += [f"The daemon's own estimates (`{live_sensors.SCENE}` scene at {rate:g} Hz through the "
+                 "daemon with the description's simulated finger, lossless; every published value "
+                 "against the truth):", "", *live_rows, ""]
+    return "\n".join([*head, *out])

@@ -37,7 +37,9 @@ from tactiled.fit.params import (
     UNOBSERVABLE_RELATIVE_SIGMA,
     radius_tied_force,
 )
+from tactiled.fit.profile import flat_below, withhold_flat
 from tactiled.fit.result import FitResult
+from tactiled.fit.verdict import ArrayLimits, judge_values
 from tactiled.fit.solver import BUDGET_MESSAGE, TIME_BUDGET_EXCEEDED, SolveResult, levenberg_marquardt
 from tactiled.fit.start import StartTable, force_constants, start_point, start_table
 from tactiled.fit.window import choose_window, plain_frame, plain_window
@@ -228,6 +230,7 @@ class Fitter:
         self._sigma1 = self.sigma  # of one frame
         g = self.sensor.geometry
         self._span = max(g.span_x, g.span_y)
+        self.limits = ArrayLimits.of(self.sensor)
         self._all_ok = np.ones((g.rows, g.cols), bool)
         self._all_ok.setflags(write=False)
         self._deadline: float | None = None  # time.perf_counter() s; set by fit(budget_s=)
@@ -359,6 +362,12 @@ class Fitter:
             self._in_fit = False
             self.sigma = self._sigma1
             self._frame_memo = None  # the memo must not outlive the frame (ids are reused)
+        if res.contact:
+            # the one rule before anything leaves the fitter (tactiled.fit.verdict)
+            judge_values(res.values, res.std, res.reasons, self.limits, label=res.label,
+                         withhold_relative_sigma=self.options.withhold_relative_sigma)
+            if "ellipse" in res.reasons:
+                res.ellipse = None
         res.fit_ms = (time.perf_counter() - t0) * 1e3
         return res
 
@@ -439,7 +448,15 @@ class Fitter:
                              converged=best.converged, peak=peak, n_points=n_points, window=win,
                              starts=tried, message=best.message,
                              params=tuple(best.p.tolist()))
-        return self._result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
+        res = self._result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
+        r1 = res.values.get("r1_mm")
+        if best.converged and r1 is not None and abs(math.log(r1) - best.p[0]) < 1e-9:
+            # every model's first parameter is a log radius: r1's, or the general's r_a
+            withhold_flat(res.values, res.std, res.reasons, flat_below(
+                self, fr, compiled.KINDS[model.name], best.p, _steps(model), _bounds(model),
+                lambda: self._residual(fr, model), res.chi2, res.values.get("r1_mm"),
+                res.std.get("r1_mm")))
+        return res
 
     def _search(self, fr: _Frame, kind: int, starts: list[np.ndarray], steps: np.ndarray,
                 bounds: tuple[np.ndarray, np.ndarray], cap: int, stop_chi2: float,
@@ -648,7 +665,12 @@ class Fitter:
             if all(values.get(k) is None for k in VALUE_KEYS):
                 line = None  # the load and offset of a search stopped short are no measurement
         self._unobservable(values, std, reasons)
-        if not best.converged:
+        if best.converged:
+            withhold_flat(values, std, reasons, flat_below(
+                self, fr, compiled.LINE, best.p, LINE_STEPS, _LINE_BOUNDS,
+                lambda: prob.residual_and_jacobian, best.cost * peak * peak / self.sigma**2,
+                values.get("r1_mm"), std.get("r1_mm")))
+        else:
             reasons.setdefault("fit", best.message)
         label = self._label(values, "line")
         if line is None:  # withheld: a search its budget stopped far from any line

@@ -5,7 +5,8 @@ Fitting costs milliseconds in a worker process; most frames of a hand at rest ne
 * **no contact** (the contact detector says so): publish a no-contact estimate at once;
 * **unchanged**: the frame differs from the last *fitted* frame only by noise, so a new fit
   would return the same contact within its uncertainty: republish that estimate under the new
-  frame's seq (``gate = "unchanged"``, ``fitted_seq`` = the frame actually fitted);
+  frame's seq (``gate = "unchanged"``, ``fitted_seq`` = the frame actually fitted), for at
+  most ``MAX_CARRIED`` frames;
 * otherwise **fit**.
 
 "Within noise" is a chi-square test.  With i.i.d. strain noise of standard deviation sigma on
@@ -31,6 +32,12 @@ import numpy as np
 from tactiled.pipeline.estimate import GATE_FIT, GATE_NO_CONTACT, GATE_UNCHANGED
 
 
+#: At most this many frames answered with one fit: a contact that moves slower than the
+#: test sees (a roll within the noise) is fitted again after it, so no value stays
+#: bit-identical for longer while its contact moves (one fit in 50 frames of a held contact).
+MAX_CARRIED = 50
+
+
 @dataclass(frozen=True)
 class GateDecision:
     """What to do with one frame: ``action`` is "fit", "no_contact" or "unchanged";
@@ -50,6 +57,11 @@ class Gate:
     def __init__(self, sigma: float, z: float = 3.0, reuse_unchanged: bool = True) -> None:
         self.configure(sigma=sigma, z=z, reuse_unchanged=reuse_unchanged)
         self._reference: np.ndarray | None = None
+        self._carried = 0  # frames answered "unchanged" since the reference was fitted
+        #: the last ``decide``'s change since the reference, ``|delta s|^2 / sigma^2``
+        #: estimated as ``2 (chi2 - n)`` (never below 0; inf before a test): what an estimate
+        #: carried to that frame must cover (:func:`tactiled.fit.verdict.carried`)
+        self.change = math.inf
 
     def configure(self, *, sigma: float | None = None, z: float | None = None,
                   reuse_unchanged: bool | None = None) -> None:
@@ -72,6 +84,7 @@ class Gate:
 
     def decide(self, strain: np.ndarray, in_contact: bool) -> GateDecision:
         """The decision for one zeroed frame (finite strain) and its contact flag."""
+        self.change = math.inf
         if not in_contact:
             return GateDecision(GATE_NO_CONTACT)
         ref = self._reference
@@ -80,13 +93,16 @@ class Gate:
         d = strain - ref
         n = d.size
         chi2 = float(np.dot(d.ravel(), d.ravel())) / (2.0 * self.sigma * self.sigma)
-        if chi2 <= n + self.z * math.sqrt(2.0 * n):
+        self.change = max(2.0 * (chi2 - n), 0.0)
+        if chi2 <= n + self.z * math.sqrt(2.0 * n) and self._carried < MAX_CARRIED:
+            self._carried += 1
             return GateDecision(GATE_UNCHANGED, chi2)
         return GateDecision(GATE_FIT, chi2)
 
     def fitted(self, strain: np.ndarray) -> None:
         """Make ``strain`` (the frame whose fit was just published) the reference."""
         self._reference = np.array(strain, dtype=np.float64, copy=True)
+        self._carried = 0
 
     def reset(self) -> None:
         """Forget the reference (contact lost, tare): the next contact frame is fitted."""

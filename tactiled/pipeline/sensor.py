@@ -42,6 +42,7 @@ from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.result import FitResult
+from tactiled.fit.verdict import ArrayLimits, judge
 from tactiled.frames import Frame
 from tactiled.pipeline.estimate import (
     GATE_FIT,
@@ -197,6 +198,7 @@ class SensorPipeline(ContactTracking):
         #: each contact's id from frame to frame (a contact moves far less than a cover depth
         #: between frames, and two contacts the detector tells apart lie further apart)
         self._elsewhere_strain = SIGNIFICANT_Z * settings.noise_sigma
+        self._limits = ArrayLimits.of(self.sensor_model)
         self.ids = ContactIds(gate_mm=max(self.sensor_model.impulse.depth_x,
                                           self.sensor_model.impulse.depth_y))
         #: the contact through time (settings.track), the frames waiting for a fit before it
@@ -484,7 +486,9 @@ class SensorPipeline(ContactTracking):
                 fit["peak"] = peak
             else:
                 fit = {**fit, "peak": peak}
-        fit = identified(fit, self.ids, self._untracked_element, fresh)
+        fit = identified(fit, self.ids, self._untracked_element, fresh)  # (a copy unless fresh)
+        # the one rule before anything is published, whatever made it (tactiled.fit.verdict)
+        judge(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)

@@ -44,13 +44,13 @@ from typing import Any
 import numpy as np
 
 from tactiled.config import Geometry
+from tactiled.fit.profile import FLAT, TEST_RELATIVE_SIGMA
+from tactiled.fit.verdict import sigma_reason
 from tactiled.fit.params import (
-    MAX_ANGLE_SIGMA,
     MOVING,
     PARAMS,
     RADIUS_LIMITS,
     TOO_LIGHT,
-    UNOBSERVABLE_RELATIVE_SIGMA,
     VALUE_KEYS,
     radius_tied_force,
     wrap_deg,
@@ -61,6 +61,7 @@ from tactiled.pipeline.kernels import (
     C_LOG,
     C_LOW,
     C_MOVING,
+    PXV,
     C_POINT,
     C_R,
     DRIFT,
@@ -78,6 +79,14 @@ from tactiled.pipeline.kernels import (
 )
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
+#: the value each moving parameter's lag widens (see Tracker._innovation_excess)
+_LAG_KEY = {"x0": "x_mm", "y0": "y_mm", "psi": "angle_deg", "ln_f": "force_n"}
+#: the running mean's weight of the newest frame's innovation excess: about the last two
+#: frames, as quick as a lag appears (a release at 30 frames/s lasts 15)
+LAG_WEIGHT = 0.5
+#: ... counted where it is beyond this many of its noise's sigmas (0.3 % of a held contact's
+#: frames: a held contact still averages down)
+LAG_SIGNIFICANT = 3.0
 #: the state a linearisation is adopted with before the filter has started (no column)
 _NO_STATE = np.empty((DRIFT + 1, 0))
 
@@ -394,6 +403,7 @@ class Tracker:
         # white acceleration of density 36 R dt / tau^4 for a moving parameter: an alpha-beta
         # filter with a window of about tau s (R: one frame's noise variance, dt: the frame
         # period); a random walk with a memory of hold_s for a curvature
+        lagged = self._innovation_excess(z, dt)
         jumped = filter_frame(z, self._s, self._c, dt, 36.0 * dt / self.memory_s ** 4,
                               dt * dt / (self.hold_s * self.hold_s), fitted, RESET_SIGMA,
                               DRIFT_ALPHA, _DRIFT_ALARM)
@@ -408,7 +418,30 @@ class Tracker:
             return "reset"
         self.t = t
         self.n += 1
+        self._lag += LAG_WEIGHT * (np.stack(lagged) - self._lag)
         return "tracked"
+
+    def _innovation_excess(self, z: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per parameter, this frame's innovation (the measurement less the constant-velocity
+        prediction) ``nu`` and its predicted variance ``S`` (the prediction's plus one
+        frame's); zero for a held parameter.  See :meth:`_lag_variance`."""
+        s, r = self._s, self._c[C_R]
+        moving = self._c[C_MOVING] != 0.0
+        nu = z - (s[X] + s[V] * dt)
+        spread = s[PXX] + 2.0 * dt * s[PXV] + dt * dt * s[PVV] + r
+        return np.where(moving, nu, 0.0), np.where(moving, spread, 0.0)
+
+    def _lag_variance(self) -> np.ndarray:
+        """What the filter lags a contact that accelerates by, per parameter (its variance):
+        the running mean of the innovations (weight ``LAG_WEIGHT``: about the last two
+        frames) squared, where it is significant (beyond ``LAG_SIGNIFICANT`` of the spread the noise
+        gives that mean, ``S w / (2 - w)``).  Zero on average where the contact moves as the
+        filter's model says, so a held contact still averages down; where it accelerates (a
+        release: the log force falls ever faster as the force goes to zero) the innovations
+        run to one side and the estimate lags by about their mean."""
+        m, spread = self._lag
+        noise = spread * LAG_WEIGHT / (2.0 - LAG_WEIGHT)
+        return np.where(m * m > LAG_SIGNIFICANT * LAG_SIGNIFICANT * noise, m * m, 0.0)
 
     def skip(self) -> None:
         """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""
@@ -459,6 +492,7 @@ class Tracker:
         # learnt from the next frames; velocities are reported after MIN_RATE_FRAMES).
         s[PVV] = [1e6 * ri if m else 0.0 for ri, m in zip(r, self._moving)]
         self._s = s
+        self._lag = np.zeros((2, len(z)))  # running means of the innovations, their variances
         self.t, self.n = t, 1
         self._c[C_LIN_SD] = np.sqrt(s[PXX])
 
@@ -481,6 +515,15 @@ class Tracker:
             self._model_code, self._s, self._c, dt, self.excess, self._corr, self._sys,
             self._has_sys, LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
         numbers, var = numbers.tolist(), var.tolist()
+        lag = self._lag_variance()
+        for i, name in enumerate(self.names):  # what the filter lags an accelerating contact by
+            extra = float(lag[i]) if i < lag.size else 0.0
+            key = _LAG_KEY.get(name)
+            if extra > 0.0 and key is not None:
+                j = VALUE_KEYS.index(key)
+                unit = (numbers[j] or 0.0) if name == "ln_f" else (
+                    180.0 / math.pi if name == "psi" else 1.0)
+                var[j] += extra * unit * unit
         values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
         if absent:
             for i, key in enumerate(VALUE_KEYS):
@@ -490,7 +533,7 @@ class Tracker:
             values["angle_deg"] = wrap_deg(values["angle_deg"])
         i_f, i_r = _I_FORCE, _I_R1
         out = dict(base)
-        soft_keys, soft_reasons, base_reasons, base_std = self._judged(base)
+        soft_keys, soft_reasons, base_reasons, base_std, flat = self._judged(base)
         reasons = dict(base_reasons)
         std: dict[str, float | None] = {}
         for i, key in enumerate(VALUE_KEYS):
@@ -502,7 +545,7 @@ class Tracker:
                 std[key] = base_std.get(key)
                 continue
             sd_i = math.sqrt(var[i])
-            withheld = self._withheld(key, v, sd_i)
+            withheld = self._withheld(key, v, sd_i, flat[i])
             if not withheld and key == "force_n" and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
                 withheld = radius_tied_force(values.get("r1_mm"), math.sqrt(var[i_r]), sd_i, cov_rf)
             if withheld:
@@ -522,7 +565,7 @@ class Tracker:
         return out
 
     def _judged(self, base: dict[str, Any]) -> tuple[list[bool], list[bool], dict[str, Any],
-                                                       dict[str, Any]]:
+                                                       dict[str, Any], list[bool]]:
         """What of ``base`` (the fit the estimates rest on) the tracker judges again, per value
         key: a value the fit gave, or withheld for a reason the frames gathered since may
         lift (``_SOFT``); which of those reasons to drop once lifted; the fit's reasons and
@@ -533,32 +576,27 @@ class Tracker:
         reasons = base.get("reasons") or {}
         why = [str(reasons.get(key, "")).startswith(_SOFT) for key in VALUE_KEYS]
         soft = [base.get(key) is not None or w for key, w in zip(VALUE_KEYS, why)]
-        judged = (soft, why, reasons, base.get("std") or {})
+        flat = [FLAT in str(reasons.get(key, "")) for key in VALUE_KEYS]
+        judged = (soft, why, reasons, base.get("std") or {}, flat)
         self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
         return judged
 
-    def _withheld(self, key: str, v: float, sd: float) -> str | None:
+    def _withheld(self, key: str, v: float, sd: float, flat: bool = False) -> str | None:
         """Why ``key`` (value ``v``, 1-sigma ``sd`` over the frames used) is withheld, by the
-        fitter's rules (tactiled.fit.fitter.Fitter._unobservable); None to report it."""
-        if key == "angle_deg":
-            if sd > MAX_ANGLE_SIGMA:
-                return "orientation not observable: sigma above 45 deg"
-            return None
+        fitter's rules (tactiled.fit.fitter.Fitter._unobservable); None to report it.
+        ``flat``: the fit found the likelihood flat below this radius
+        (:mod:`tactiled.fit.profile`): reported only once the frames give it a relative sigma
+        within ``TEST_RELATIVE_SIGMA``, where its sigma is not in question."""
         if key in ("x_mm", "y_mm"):
             if sd > OFF_ARRAY_MM:
                 return f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
             return None
-        if key not in ("r1_mm", "r2_mm", "force_n") or v <= 0.0:
+        if key not in ("r1_mm", "r2_mm", "force_n", "angle_deg") or (key != "angle_deg" and v <= 0.0):
             return None
-        rel = sd / v
-        radius = key != "force_n"
-        limit = self.withhold if radius and self.withhold is not None else math.inf
-        if (rel > UNOBSERVABLE_RELATIVE_SIGMA or rel > limit
-                or (radius and not RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1])):
-            what = "radius" if radius else "force"
-            return (f"{TOO_LIGHT if radius else 'not observable'}: the sigma of the {what} over "
-                    f"{self.n} frame(s) is {100 * rel:.0f} % of it")
-        return None
+        limit = self.withhold
+        if flat and key != "force_n":
+            limit = min(limit if limit is not None else math.inf, TEST_RELATIVE_SIGMA)
+        return sigma_reason(key, v, sd, None, limit, f" over {self.n} frame(s)")
 
     def _rates(self, values: dict[str, float | None], reasons: dict[str, str], v: list[float],
                pvv: list[float]) -> tuple[dict[str, float | None], dict[str, float | None]]:

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactiled.fit.verdict import carried
 from tactiled.fit.warm import SEVERAL
 from tactiled.pipeline.estimate import GATE_FIT, GATE_NO_CONTACT, GATE_UNCHANGED, Estimate
 from tactiled.pipeline.kernels import largest_excess
@@ -130,7 +131,9 @@ class ContactTracking:
     def _publish_reuse(self, w: _Waiting, last: Estimate) -> None:
         """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since)."""
         self.skipped[GATE_UNCHANGED] += 1
-        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0, last.fit)
+        frames = w.seq - last.fitted_seq if last.fitted_seq is not None else 0
+        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0,
+                      carried(last.fit, self.gate.change, frames), fresh=True)
 
     def _flush_pending(self) -> None:
         """The waiting frames' fit is late: publish each with the contact predicted to its

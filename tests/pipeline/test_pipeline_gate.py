@@ -9,7 +9,7 @@ import pytest
 
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import predict_strain
-from tactiled.pipeline.gate import Gate
+from tactiled.pipeline.gate import MAX_CARRIED, Gate
 
 SIGMA = 0.0005
 
@@ -27,12 +27,28 @@ def test_first_contact_frame_is_fitted_then_noise_only_changes_are_reused() -> N
     first = clean + rng.normal(0, SIGMA, clean.shape)
     assert gate.decide(first, True).action == "fit"
     gate.fitted(first)
-    actions = [gate.decide(clean + rng.normal(0, SIGMA, clean.shape), True).action
-               for _ in range(2000)]
+    actions = []
+    for _ in range(2000):
+        frame = clean + rng.normal(0, SIGMA, clean.shape)
+        actions.append(gate.decide(frame, True).action)
+        if actions[-1] == "fit":
+            gate.fitted(frame)  # as the pipeline does with the frame it fits
     refits = actions.count("fit") / len(actions)
-    # chi-square(64) beyond 64 + 3 sqrt(128): 0.4 % in theory.
-    assert refits < 0.015, refits
-    assert actions.count("unchanged") > 0.98 * len(actions)
+    # chi-square(64) beyond 64 + 3 sqrt(128): 0.4 % in theory; and one fit after every
+    # MAX_CARRIED frames answered unchanged
+    assert refits < 1.0 / (MAX_CARRIED + 1) + 0.015, refits
+    assert actions.count("unchanged") > (1.0 - 1.0 / MAX_CARRIED - 0.02) * len(actions)
+
+
+def test_no_fit_is_carried_past_max_carried_frames() -> None:
+    clean = predict_strain(Contact(10.0, math.inf, 90.0, 1.0, 11.0, 13.0))
+    gate = Gate(SIGMA)
+    gate.fitted(clean)
+    actions = [gate.decide(clean, True).action for _ in range(MAX_CARRIED + 1)]
+    assert actions == ["unchanged"] * MAX_CARRIED + ["fit"]
+    assert gate.change == 0.0  # the frame is the fitted one: no change to cover
+    gate.fitted(clean)
+    assert gate.decide(clean, True).action == "unchanged"
 
 
 def test_a_change_the_fit_could_see_is_fitted() -> None:

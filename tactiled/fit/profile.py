@@ -1,0 +1,114 @@
+"""Is a radius's linearised sigma valid?  One point of its profile likelihood says.
+
+The Cramer-Rao sigma is the curvature of chi^2 at the solution: it is the error bar only
+where chi^2 stays quadratic over the interval it spans.  A radius under a cover that is
+thick beside the contact is not: below some size every contact is a point (a line: a knife
+edge) to the tactels, and chi^2 is flat from there down to zero (measured on a 4x6 pad of
+4.7 mm pitch under a 2.5-3 mm cover: a 10 mm cylinder at 1 N fits anywhere from 1 to 30 mm
+within a chi^2 of 1, and sometimes lands at 120-450 mm with a linearised sigma of 15 %, 25
+of its sigmas above the truth).  So where the radius's relative sigma is large enough for
+the question to matter (``TEST_RELATIVE_SIGMA``), chi^2 is minimised again with the log
+radius held at two of its sigmas below the solution.  Were chi^2 quadratic it would rise by
+4 there; if it rises by less than ``FLAT_CHI2`` (1: the likelihood's own 1-sigma interval
+reaches past the linearised 2-sigma point, so the sigma understates that side over two-fold)
+the value is not a measurement and is withheld, with the reason and the profile's figure;
+between that and 4 its sigma is widened so the tested point lies ``sqrt(rise)`` sigmas away,
+as the profile says.
+The test costs one search, started at the solution, within the fit's budget; a search the
+budget cuts short is not used (its chi^2 only overstates the rise: never a withholding).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from tactiled.fit.params import TOO_LIGHT
+
+#: The radius's relative 1-sigma (of its log) above which its lower side is tested.
+TEST_RELATIVE_SIGMA = 0.1
+#: How far below the solution the profile is evaluated, in the radius's linearised sigmas.
+PROFILE_SIGMAS = 2.0
+#: A rise of chi^2 below this there (a quadratic rises by PROFILE_SIGMAS^2 = 4): flat.
+FLAT_CHI2 = 1.0
+#: A contact of this radius (mm) is an edge (the paper's Table 2 label: r1 < 1 mm): a radius
+#: that an edge explains as well, within two sigmas, is not resolved.
+EDGE_MM = 1.0
+#: The words of the reason (the tracker keeps such a radius withheld until the frames it
+#: pools give it a relative sigma of at most ``TEST_RELATIVE_SIGMA``, where it is not tested).
+FLAT = "the likelihood is flat below it"
+
+
+def flat_below(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
+               bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
+               r: float | None, sd_r: float | None) -> str | float | None:
+    """The radius ``r`` (mm; 1-sigma ``sd_r``) at the solution ``p`` (its first entry the log
+    radius, chi^2 ``chi2``) on its profile likelihood: the reason to withhold it (flat
+    below it), or its honest sigma where the profile rises more slowly than the linearised
+    sigma says but by at least ``FLAT_CHI2`` (the distance to the tested point over the
+    square root of the rise: that point lies ``sqrt(rise)`` sigmas away), or None to keep it
+    as it is.  ``fitter`` searches (``Fitter._search``) the window ``fr`` of the model
+    ``kind`` with the log radius pinned by ``bounds``."""
+    if r is None or sd_r is None or not (r > 0.0 and sd_r > 0.0):
+        return None
+    s = sd_r / r  # the log radius's sigma
+    if s <= TEST_RELATIVE_SIGMA:
+        return None
+    lo, hi = np.array(bounds[0], dtype=float), np.array(bounds[1], dtype=float)
+    at = float(p[0]) - PROFILE_SIGMAS * s
+    if not at > lo[0]:
+        return None
+    rise = _rise(fitter, fr, kind, p, steps, (lo, hi), python_residual, chi2, at)
+    if rise is None:
+        return None
+    if rise >= PROFILE_SIGMAS ** 2:
+        # quadratic where it was tested; but a likelihood with a second valley at a point
+        # contact (a line's radius on a coarse pad: 700 mm fitted, 10 mm true) rises there
+        # and falls again below: a point contact within two sigmas is no resolved radius
+        edge = math.log(EDGE_MM)
+        if r > 2.0 * EDGE_MM and edge > lo[0]:
+            rise_edge = _rise(fitter, fr, kind, p, steps, (lo, hi), python_residual, chi2, edge)
+            if rise_edge is not None and rise_edge < PROFILE_SIGMAS ** 2:
+                return (f"{TOO_LIGHT}: {FLAT} (an edge, {EDGE_MM:g} mm, explains the frame "
+                        f"within two sigmas: chi^2 {max(rise_edge, 0.0):.2g} above): its sigma "
+                        "does not hold")
+        return None
+    if rise >= FLAT_CHI2:
+        return r * (1.0 - math.exp(at - float(p[0]))) / math.sqrt(rise)
+    return (f"{TOO_LIGHT}: {FLAT} (chi^2 rises by {max(rise, 0.0):.2g}, "
+            f"not {PROFILE_SIGMAS ** 2:g}, at a radius {PROFILE_SIGMAS:g} sigmas smaller, "
+            f"{r * math.exp(-PROFILE_SIGMAS * s):.3g} mm): its sigma does not hold")
+
+
+def _rise(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
+          bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
+          at: float) -> float | None:
+    """chi^2 minimised with the log radius held at ``at``, less ``chi2``; None where the
+    search did not converge."""
+    lo, hi = bounds[0].copy(), bounds[1].copy()
+    lo[0] = hi[0] = at
+    start = np.array(p, dtype=float)
+    start[0] = at
+    sol, _ = fitter._search(fr, kind, [start], steps, (lo, hi), fitter.options.max_iter,
+                            1e-2, python_residual)
+    if not sol.converged or not math.isfinite(sol.cost):
+        return None
+    return sol.cost * (fr.peak / fitter.sigma) ** 2 - chi2
+
+
+def withhold_flat(values: dict, std: dict, reasons: dict[str, str], why: str | float | None) -> None:
+    """Apply :func:`flat_below`'s answer ``why`` to the radius (``r1_mm``): withhold it for a
+    reason, widen its sigma to a figure, leave it for None."""
+    if why is None or values.get("r1_mm") is None:
+        return
+    if isinstance(why, float):
+        if why > (std.get("r1_mm") or 0.0):
+            std["r1_mm"] = why
+            reasons.setdefault("r1_mm", "poorly determined: its sigma widened to its profile "
+                               "likelihood, which rises more slowly below it than its curvature says")
+        return
+    values["r1_mm"] = None
+    std["r1_mm"] = None
+    reasons["r1_mm"] = why
