@@ -135,7 +135,7 @@ class FlexiTacFramer(FramerBase):
     def _frame(self, payload: bytes, host_time: float) -> Frame:
         raw = np.frombuffer(payload, dtype=np.uint8).reshape(self.shape).astype(np.uint16)
         return self._accept(Frame(seq=self._next_seq(), device_time_us=self._host_clock_us(host_time),
-                                  raw=raw, host_time=host_time))
+                                  raw=raw, host_time=host_time, clocked=False))
 
 
 def encode(raw: np.ndarray) -> bytes:

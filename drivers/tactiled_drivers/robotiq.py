@@ -271,7 +271,7 @@ class RobotiqFramer(FramerBase):
         else:
             t_us = self._host_clock_us(host_time)
         return Frame(seq=self._next_seq(), device_time_us=t_us, raw=raw, sensor_id=self.finger,
-                     host_time=host_time, extras=extras)
+                     host_time=host_time, extras=extras, clocked=self._stamp_ms is not None)
 
     def _stamp(self, value: int, width: int) -> None:
         """A timestamp field: uint16 ms is unwrapped (it wraps every 65.536 s)."""

@@ -154,11 +154,12 @@ class Ros2Node:
             return lambda item: messages.diagnostics(item[0], item[1], self.hardware_ids)
         frame_id = self.frame_ids[sensor]
         offset = self.clock_offset
+        stamp = messages.item_stamp
         if kind == "strain":
-            return lambda frame: messages.strain_image(frame.strain, frame.host_time + offset,
+            return lambda frame: messages.strain_image(frame.strain, stamp(frame, offset),
                                                        frame_id)
         return lambda est: messages.estimate_message(kind, est.to_json_dict(),
-                                                     est.host_time + offset, frame_id)
+                                                     stamp(est, offset), frame_id)
 
     def _on_item(self, item: Estimate | ZeroedFrame) -> None:
         """The hub's listener (the event loop's thread): queue the item, never wait."""
