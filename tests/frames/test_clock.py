@@ -108,3 +108,17 @@ def test_no_device_clock_spreads_a_read_over_its_frames(rate_hz: float | None) -
     assert abs(np.median(inside) - 1e-3) < 2e-5
     # the error is the read's delay, no more: the arrival spread back by the period
     assert np.abs(err[2000:]).max() < arrival.max() - send.max() + 5e-3
+
+
+def test_framers_say_whether_the_device_sent_a_clock() -> None:
+    from tactiled_drivers import flexitac, lines, robotiq
+
+    assert not flexitac.FlexiTacFramer(1, 2).feed(
+        flexitac.encode(np.ones((1, 2))) * 3)[0].clocked
+    assert not lines.LinesFramer(1, 2).feed(b"1,2\n")[0].clocked
+    assert lines.LinesFramer(1, 2, time_col=True).feed(b"5,1,2\n")[0].clocked
+    raw = np.zeros((7, 4), dtype=np.uint16)
+    static_only = robotiq.encode_finger(0, raw)[4 + 19:]  # the static packet, no timestamp
+    got = robotiq.RobotiqFramer(0).feed(static_only + robotiq.encode_finger(0, raw,
+                                                                          timestamp_ms=9))
+    assert [f.clocked for f in got] == [False, True]
