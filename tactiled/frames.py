@@ -30,6 +30,9 @@ class Frame:
     ``time.monotonic()`` seconds when the host finished receiving the frame.  ``extras``: what a
     vendor format sends beside the array (a Robotiq finger's accelerometer, a XELA taxel's shear
     components...), by name; ``None`` for formats with nothing more (not sent on the wire).
+    ``clocked``: ``device_time_us`` is the device's own clock (False: the format sends none and
+    the framer made it from arrival times).  ``time``: when the device measured the frame, Unix
+    seconds, set by :class:`tactiled.clock.FrameClock` (None until then; host-side only).
     """
 
     seq: int
@@ -39,6 +42,8 @@ class Frame:
     host_time: float = 0.0
     strain: np.ndarray | None = field(default=None, repr=False)
     extras: dict[str, Any] | None = field(default=None, repr=False)
+    clocked: bool = field(default=True, repr=False)
+    time: float | None = field(default=None, repr=False)
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -20,7 +20,8 @@ Keys (the documented example is ``deploy/tactiled.toml``)::
                multicast_scouting = (on in peer mode), prefix = "tactiled/<hostname>",
                frame_rate_hz = 0, config = (none)
     [ros2]     enabled = false, domain_id = 0, namespace = "/tactiled", node_name = "tactiled",
-               frame_id = "{sensor}"
+               frame_id = "{sensor}", middleware = "auto" ("dds", "zenoh", "both"),
+               distro = "jazzy" ("humble", "kilted", "rolling")
     [state]    dir = ($STATE_DIRECTORY, else ~/.local/state/tactiled)
 
 With no file and no sensor keys anywhere there is one sensor, ``finger0`` on
@@ -178,15 +179,27 @@ class ZenohSettings:
 
 @dataclass(frozen=True)
 class Ros2Settings:
-    """ROS 2 topics on the daemon's Zenoh session, the way rmw_zenoh lays them out
-    (``service/tactiled_service/ros2/``, ``docs/howto/ros2.md``): off by default; needs
-    ``zenoh.enabled`` and the ``ros2`` extra (``pip install 'tactiled[zenoh,ros2]'``)."""
+    """ROS 2 topics over DDS (Cyclone DDS, as ROS 2's DDS middlewares lay them out) and/or
+    on the daemon's Zenoh session (as rmw_zenoh lays them out): ``service/tactiled_service/
+    ros2/``, ``docs/howto/ros2.md``.  Off by default; needs the ``ros2`` extra (``pip install
+    'tactiled[ros2]'``), and ``zenoh.enabled`` for the Zenoh middleware."""
 
     enabled: bool = False
     domain_id: int = 0  # the ROS_DOMAIN_ID of the graph to join
     namespace: str = "/tactiled"  # the node's namespace: topics are <namespace>/<sensor>/<kind>
     node_name: str = "tactiled"
     frame_id: str = "{sensor}"  # header.frame_id of the messages; "{sensor}": the sensor's name
+    #: "dds", "zenoh" or "both"; "auto": "zenoh" when zenoh.enabled, else "dds"
+    middleware: str = "auto"
+    #: the ROS 2 distribution whose rmw_zenoh layout to speak (Humble's has no type hashes)
+    distro: str = "jazzy"
+
+    def middlewares(self, zenoh_enabled: bool) -> tuple[str, ...]:
+        """The middlewares to publish on: ``("dds",)``, ``("zenoh",)`` or both."""
+        chosen = self.middleware
+        if chosen == "auto":
+            chosen = "zenoh" if zenoh_enabled else "dds"
+        return ("dds", "zenoh") if chosen == "both" else (chosen,)
 
 
 @dataclass(frozen=True)
@@ -555,6 +568,8 @@ _ROS2_FIELDS: dict[str, Callable[[Any, str], Any]] = {
                            "'/' or /name[/name...] (letters, digits, '_'; no leading digit)"),
     "node_name": _ros_name(_ROS_SEGMENT, "letters, digits and '_', not starting with a digit"),
     "frame_id": _as_str,
+    "middleware": _choice(("auto", "dds", "zenoh", "both")),
+    "distro": _choice(("humble", "jazzy", "kilted", "rolling")),
 }
 _STATE_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     "dir": _optional(_as_str),
@@ -770,9 +785,9 @@ def _build(raw: _Raw) -> Settings:
         raise ConfigError("zenoh.connect: a client needs a router to connect to: give its "
                           "endpoint (e.g. [\"tcp/192.168.1.10:7447\"]) or set "
                           "zenoh.multicast_scouting = true to find one")
-    if ros2.enabled and not zenoh.enabled:
-        raise ConfigError("ros2.enabled: the ROS 2 topics go out on the daemon's Zenoh session: "
-                          "set zenoh.enabled = true as well (tactiled run --ros2 does both)")
+    if ros2.enabled and "zenoh" in ros2.middlewares(zenoh.enabled) and not zenoh.enabled:
+        raise ConfigError(f"ros2.middleware: {ros2.middleware!r} publishes on the daemon's Zenoh "
+                          "session: set zenoh.enabled = true as well, or middleware = \"dds\"")
     return Settings(server=server, sensors=tuple(sensors), fit=fit, record=record, zenoh=zenoh,
                     ros2=ros2, state=state)
 

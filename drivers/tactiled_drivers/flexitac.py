@@ -17,7 +17,11 @@ are discarded; two or more (a still image that holds ``AA 55`` at the same place
 frame confirms that phase too), and it counts ``ambiguous``, drops one frame's worth of bytes and
 looks again, so it never guesses: the data's noise tells the phases apart within frames.
 A frame whose successor's marker is not where due is never delivered: ``truncated`` if a marker
-came earlier (the frame was cut short), ``length_errors`` otherwise.
+came earlier (the frame was cut short), ``length_errors`` otherwise.  One torn unit is told
+apart: a lone ``0xAA`` right where the marker is due, then a whole marker (the device reset
+after the marker's first byte) confirms the frame before it, and the lone byte is counted
+``truncated``.  So a torn frame followed by good ones costs that frame alone (and, until the
+framer is in step, the one frame it needs to get in step).
 
 No seq, no device clock: seq is generated, the device time is the host receive time.
 """
@@ -73,6 +77,14 @@ class FlexiTacFramer(FramerBase):
                     frames.append(self._frame(bytes(buf[2:period]), t))
                     del buf[:period]
                     continue
+                if buf[period] == MARKER[0] and len(buf) < period + 3:
+                    break  # a marker torn after its first byte? one more byte tells
+                if self._torn_marker(period):
+                    frames.append(self._frame(bytes(buf[2:period]), t))
+                    del buf[:period]
+                    self._reject("truncated")
+                    self._drop(1)
+                    continue
                 self._synced = False
                 early = buf.find(MARKER, 2, period + 1)
                 self._reject("truncated" if early >= 0 else "length_errors")
@@ -96,7 +108,7 @@ class FlexiTacFramer(FramerBase):
         phases = []
         at = 0
         while 0 <= at < period:
-            if buf[at + period:at + period + 2] == MARKER:
+            if buf[at + period:at + period + 2] == MARKER or self._torn_marker(at + period):
                 phases.append(at)
             at = buf.find(MARKER, at + 1, period + 1)
         if len(phases) == 1:
@@ -110,6 +122,11 @@ class FlexiTacFramer(FramerBase):
             self._drop(period)
         return True
 
+    def _torn_marker(self, i: int) -> bool:
+        """``0xAA`` at ``i`` then a whole marker: the device reset right after the first byte
+        of a marker, so the frame before ``i`` is whole (the lone ``0xAA`` is the torn unit)."""
+        return self._buf[i:i + 1] == MARKER[:1] and self._buf[i + 1:i + 3] == MARKER
+
     def _drop(self, n: int) -> None:
         if n > 0:
             del self._buf[:n]
@@ -118,7 +135,7 @@ class FlexiTacFramer(FramerBase):
     def _frame(self, payload: bytes, host_time: float) -> Frame:
         raw = np.frombuffer(payload, dtype=np.uint8).reshape(self.shape).astype(np.uint16)
         return self._accept(Frame(seq=self._next_seq(), device_time_us=self._host_clock_us(host_time),
-                                  raw=raw, host_time=host_time))
+                                  raw=raw, host_time=host_time, clocked=False))
 
 
 def encode(raw: np.ndarray) -> bytes:

@@ -122,7 +122,8 @@ class LinesFramer(FramerBase):
         except OverflowError:
             self._reject("parse_errors")
             return None
-        return Frame(seq=self._next_seq(), device_time_us=stamp, raw=raw, host_time=host_time)
+        return Frame(seq=self._next_seq(), device_time_us=stamp, raw=raw, host_time=host_time,
+                     clocked=self.time_col)
 
 
 def encode(raw: np.ndarray, sep: str = ",", time_ms: int | None = None) -> bytes:

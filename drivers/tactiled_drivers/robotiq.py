@@ -18,11 +18,24 @@ communicator.cpp``, ``sdk_cpp/RobotiqTactileSensor.cpp``, ``sdk_cpp/finger_data.
 that returns the packet's own CRC byte ("TODO: calculate CRC8"; the SDK: "the autosend
 command currently works without a valid CRC"), and ``pyrobotiqtactile`` sends 0.  So
 ``crc_errors`` stays 0 and commands go out with CRC 0.  What stands in for a checksum is the
-structure: a packet is accepted only when its length is at most 60 and its fields, each of a
+structure: a packet is accepted only when its length is at most 60, its fields, each of a
 known type, end exactly at its end (a timestamp is tried as uint16, then as uint64, so both
-firmware readings parse).  Anything else is rejected (``length_errors`` for a length over 60,
-``parse_errors`` for fields that do not fit) and the search resumes at the byte after its
-``0x9A``, so garbage that happens to hold ``0x9A`` costs no good packet behind it.
+firmware readings parse), **and what follows it is the start of another packet** (``0x9A``
+with a length of at most 60 and, when it has data, a known field type) **or a pause** (the
+packet ends where the bytes read so far end, and all of it came in that one read: the line
+went quiet right after it) **or garbage** (bytes that start no packet, where no packet start
+lies inside the packet either).  A packet whose bytes span reads and end exactly at the last
+read's end waits for the next byte to confirm it.  Anything else is rejected
+(``length_errors`` for a length over 60, ``parse_errors`` for fields that do not fit,
+``truncated`` for a packet not followed by a start) and the search resumes at the byte after
+its ``0x9A``.  So a torn packet (the device reset mid-packet) whose declared length runs into
+the next packet is not delivered as a frame made of two packets' bytes: the byte after it is
+inside the next packet, not a start, and the search finds that next packet intact.  Where the
+torn packet's missing bytes happen to be exactly one whole next packet (so a start does
+follow), the whole packet inside its data gives it away: a packet whose data ends with a run
+of whole, parsing packets is rejected as torn too (a good packet's data holds such a run by
+chance about once in 10^5 packets; it is then lost, never misread).  Garbage
+that happens to hold ``0x9A`` costs no good packet behind it either.
 
 A frame is the 7x4 static array of this URL's finger, delivered when its field arrives, with the
 finger's other fields of that packet and the latest before it as ``extras`` (``dynamic``,
@@ -107,6 +120,56 @@ def _fields(data: bytes, i: int = 0) -> list[tuple[int, int, bytes]] | None:
     return out
 
 
+def _starts_packet(buf: bytearray, i: int) -> bool:
+    """Whether ``buf[i:]`` can be the start of a packet, as far as it has arrived: ``0x9A``,
+    then a data length of at most 60, then (when there is data) a known field type."""
+    if buf[i] != START:
+        return False
+    if len(buf) > i + 3 and buf[i + 3] > MAX_DATA:
+        return False
+    if len(buf) > i + HEADER and buf[i + 3] > 0:
+        return (buf[i + HEADER] & 0xF0) in FIELD_BYTES
+    return True
+
+
+def _start_inside(buf: bytearray, end: int) -> bool | None:
+    """Whether a whole packet with data, its fields parsing, starts inside ``buf[1:end]``
+    (None: one may, its bytes have not all arrived).  Where a packet is followed by no start,
+    this tells a torn packet that ran into the next one (whose start is inside it) from a good
+    packet followed by garbage (no start inside)."""
+    i = buf.find(START, 1, end)
+    while i >= 0:
+        if len(buf) < i + HEADER:
+            return None
+        if buf[i + 3] > 0 and _starts_packet(buf, i):
+            stop = i + HEADER + buf[i + 3]
+            if len(buf) < stop:
+                return None
+            if _fields(bytes(buf[i + HEADER:stop])) is not None:
+                return True
+        i = buf.find(START, i + 1, end)
+    return False
+
+
+def _holds_packets(buf: bytearray, end: int) -> bool:
+    """Whether the data of the packet ``buf[:end]`` ends with whole packets: a ``0x9A`` inside
+    it starts a run of packets whose fields parse and which ends exactly at ``end``.  That is
+    a torn packet whose missing bytes were exactly the next packet(s) (the torn one's declared
+    length reaches just to the end of a following packet, so a start byte follows it)."""
+    i = buf.find(START, HEADER, end)
+    while i >= 0:
+        j = i
+        while j + HEADER <= end and buf[j] == START and buf[j + 3] <= MAX_DATA:
+            k = j + HEADER + buf[j + 3]
+            if k > end or _fields(bytes(buf[j + HEADER:k])) is None:
+                break
+            j = k
+        if j == end:
+            return True
+        i = buf.find(START, i + 1, end)
+    return False
+
+
 def _int16s(payload: bytes) -> tuple[int, ...]:
     return tuple(int(v) for v in np.frombuffer(payload, dtype=">i2"))
 
@@ -128,11 +191,13 @@ class RobotiqFramer(FramerBase):
         self._stamp_ms = None
 
     def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
-        """Consume ``data``; return this finger's frames from the packets it completed."""
+        """Consume ``data``; return this finger's frames from the packets it completed (and
+        confirmed: see the module text)."""
         if not data:
             return []
         self.stats.bytes += len(data)
         buf = self._buf
+        carried = len(buf)  # bytes at the front of buf that came in earlier reads
         buf += data
         t = now_if_none(host_time)
         frames: list[Frame] = []
@@ -142,21 +207,37 @@ class RobotiqFramer(FramerBase):
                 self._drop(len(buf))
                 break
             self._drop(start)
+            carried = max(0, carried - start)
             if len(buf) < HEADER:
                 break
             length = buf[3]
             if length > MAX_DATA:
                 self._reject("length_errors")
                 self._drop(1)
+                carried = max(0, carried - 1)
                 continue
-            if len(buf) < HEADER + length:
+            end = HEADER + length
+            if len(buf) < end:
                 break
-            fields = _fields(bytes(buf[HEADER:HEADER + length]))
+            fields = _fields(bytes(buf[HEADER:end]))
             if fields is None:
                 self._reject("parse_errors")
                 self._drop(1)
+                carried = max(0, carried - 1)
                 continue
-            del buf[:HEADER + length]
+            if len(buf) == end and carried:  # spans reads: the next byte must confirm it
+                break
+            inside = (len(buf) > end and not _starts_packet(buf, end)
+                      and _start_inside(buf, end))
+            if inside is None:  # a packet may start inside it: wait for its bytes to tell
+                break
+            if inside or _holds_packets(buf, end):
+                self._reject("truncated")  # a torn packet run into the next one(s)
+                self._drop(1)
+                carried = max(0, carried - 1)
+                continue
+            del buf[:end]
+            carried = max(0, carried - end)
             self.packets += 1
             frame = self._packet(fields, t)
             if frame is not None:
@@ -190,7 +271,7 @@ class RobotiqFramer(FramerBase):
         else:
             t_us = self._host_clock_us(host_time)
         return Frame(seq=self._next_seq(), device_time_us=t_us, raw=raw, sensor_id=self.finger,
-                     host_time=host_time, extras=extras)
+                     host_time=host_time, extras=extras, clocked=self._stamp_ms is not None)
 
     def _stamp(self, value: int, width: int) -> None:
         """A timestamp field: uint16 ms is unwrapped (it wraps every 65.536 s)."""

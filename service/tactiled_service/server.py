@@ -22,8 +22,9 @@ socket made here:
 * **Zenoh** (``[zenoh] enabled``): :mod:`tactiled_service.bus`, a second front end on the same
   hub, is imported only then (the ``zenoh`` extra), checked in :meth:`Service.bind`, opened
   before the sensors start and closed first on the way out (its liveliness token goes at once).
-* **ROS 2** (``[ros2] enabled``, needs ``[zenoh] enabled``): :mod:`tactiled_service.ros2`, a
-  guest of the Zenoh front end on its session (``bus.fronts``); and with ``[record] format``
+* **ROS 2** (``[ros2] enabled``): :mod:`tactiled_service.ros2`, on DDS (started here) and/or
+  as a guest of the Zenoh front end on its session (``bus.fronts``), as ``[ros2] middleware``
+  says; and with ``[record] format``
   "mcap" or "both" an MCAP recorder on the hub, closed after the daemon stops.
 """
 
@@ -118,7 +119,13 @@ def load_ros2(settings: Settings) -> tuple[ModuleType | None, ModuleType | None]
                 else None)
     except ImportError as err:
         raise ConfigError(f"{key}: ROS 2 messages need the ros2 extra: pip install "
-                          f"'tactiled[zenoh,ros2]' ({err})") from None
+                          f"'tactiled[ros2]' ({err})") from None
+    if node is not None and "dds" in settings.ros2.middlewares(settings.zenoh.enabled):
+        try:
+            importlib.import_module("tactiled_service.ros2.dds")
+        except ImportError as err:
+            raise ConfigError(f"ros2.middleware: DDS needs Cyclone DDS (the cyclonedds package "
+                              f"of the ros2 extra): pip install 'tactiled[ros2]' ({err})") from None
     if node is not None or mcap is not None:
         from tactiled_service.ros2.messages import check_segments
         try:
@@ -175,6 +182,7 @@ class Service:
         self._bus_module: ModuleType | None = None
         self._ros2_modules: tuple[ModuleType | None, ModuleType | None] | None = None
         self.mcap_recorder: Any = None  # tactiled_service.ros2.mcap_file.McapRecorder
+        self.ros2_node: Any = None  # tactiled_service.ros2.node.Ros2Node when [ros2] enabled
         self.server: _Server | None = None
         self.host = settings.server.host
         self.port = settings.server.port
@@ -235,16 +243,21 @@ class Service:
             auth = AuthPolicy(self.settings.server.token, self.loopback,
                               self.options.allowed_origins)
             self.ctx = build_context(self.daemon, self.options, auth)
+            node_module = self._ros2_modules[0] if self._ros2_modules else None
+            middlewares = self.settings.ros2.middlewares(self.settings.zenoh.enabled)
+            if node_module is not None:
+                self.ros2_node = node_module.Ros2Node(self.settings, self.daemon,
+                                                      self.ctx.health)
+                if "dds" in middlewares:
+                    self.ros2_node.start_dds()
             if self._bus_module is not None:
                 # Before the sensors start: the first estimates already go out, and a session
                 # that cannot open at all stops the start before any device is opened.
                 self.bus = self._bus_module.Bus(self.settings.zenoh, self.daemon,
                                                 self.ctx.encoder, self.ctx.health)
                 self.ctx.health.bus = self.bus
-                node_module = self._ros2_modules[0] if self._ros2_modules else None
-                if node_module is not None:
-                    self.bus.fronts.append(node_module.Ros2Node(self.settings, self.daemon,
-                                                                self.ctx.health))
+                if self.ros2_node is not None and "zenoh" in middlewares:
+                    self.bus.fronts.append(self.ros2_node)
                 await self.bus.start()
             mcap_module = self._ros2_modules[1] if self._ros2_modules else None
             if mcap_module is not None:
@@ -282,6 +295,9 @@ class Service:
         if self.bus is not None:
             with contextlib.suppress(Exception):
                 await self.bus.stop()
+        if self.ros2_node is not None:
+            with contextlib.suppress(Exception):
+                self.ros2_node.stop()
         if self._serve_task is not None and self.server is not None:
             self.server.should_exit = True
             with contextlib.suppress(BaseException):
@@ -430,6 +446,8 @@ class Service:
             # once, so Zenoh peers see the daemon leave before its sensors stop.
             bus_stop = (asyncio.ensure_future(self.bus.stop()) if self.bus is not None
                         else None)
+            if self.ros2_node is not None:  # on DDS: its writers go at once too (idempotent)
+                self.ros2_node.stop()
             if self.ctx is not None:
                 await self.ctx.manager.shutdown(timeout=min(1.0, self.options.close_timeout_s))
             if self.server is not None:

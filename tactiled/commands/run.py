@@ -69,8 +69,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="the key every publication starts with (default tactiled/<hostname>)")
     r = p.add_argument_group("ROS 2 (docs/howto/ros2.md; flags win over [ros2] and TACTILED_ROS2_*)")
     r.add_argument("--ros2", action="store_true", default=None,
-                   help="publish ROS 2 topics on the Zenoh session, as rmw_zenoh does ([ros2] "
-                        "enabled = true; turns on [zenoh] enabled too)")
+                   help="publish ROS 2 topics ([ros2] enabled = true): on the Zenoh session, as "
+                        "rmw_zenoh does (turns on [zenoh] enabled too), unless "
+                        "--ros2-middleware dds")
+    r.add_argument("--ros2-middleware", choices=("dds", "zenoh", "both"), default=None,
+                   help="DDS (Cyclone DDS, as ROS 2's default middlewares), rmw_zenoh's layout, "
+                        "or both ([ros2] middleware)")
     r.add_argument("--ros2-domain-id", type=int, default=None, metavar="N",
                    help="ROS_DOMAIN_ID of the graph to join (default 0)")
     # -v is also accepted after the command name (the top-level parser handles the level).
@@ -105,8 +109,13 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         value = getattr(args, flag, None)
         if value is not None:
             out[f"zenoh.{key}"] = value
+    middleware = getattr(args, "ros2_middleware", None)
+    if middleware is not None:
+        out["ros2.middleware"] = middleware
     if getattr(args, "ros2", None):
-        out["ros2.enabled"] = out["zenoh.enabled"] = True
+        out["ros2.enabled"] = True
+        if middleware != "dds":
+            out["zenoh.enabled"] = True
     if getattr(args, "ros2_domain_id", None) is not None:
         out["ros2.domain_id"] = args.ros2_domain_id
     return out

@@ -17,11 +17,13 @@ daemon's [zenoh] (--config FILE, TACTILED_ZENOH_* variables: mode, multicast_sco
 connect), --connect replacing connect; it never listens.
 
 With --ros2 it prints what a ROS 2 subscriber of the daemons' ROS 2 topics receives
-(docs/howto/ros2.md; needs the zenoh and ros2 extras): every wrench, contact and markers message
-(with --frames the strain images too, and /diagnostics), decoded, one JSON object per line:
-"topic", "type", "sequence_number" and "source_timestamp_ns" (the rmw_zenoh attachment),
-"message" (the message's fields).  --domain-id picks the ROS domain (default [ros2]
-domain_id, 0).
+(docs/howto/ros2.md; needs the ros2 extra, and the zenoh extra for Zenoh): every wrench, contact
+and markers message (with --frames the strain images too, and /diagnostics), decoded, one JSON
+object per line: "topic", "type", "sequence_number" and "source_timestamp_ns" (the rmw_zenoh
+attachment; on DDS the writer's timestamp and no sequence number), "message" (the message's
+fields).  --ros2-middleware reads DDS or Zenoh (default: Zenoh with --connect, else as [ros2]
+middleware says, "auto" being Zenoh when [zenoh] is enabled, else DDS).  --domain-id picks the
+ROS domain (default [ros2] domain_id, 0).
 
 examples:
   tactiled watch
@@ -31,6 +33,7 @@ examples:
   tactiled watch --zenoh --connect tcp/192.168.1.10:7447 --key 'tactiled/hand1/**'
   tactiled watch --zenoh --list
   tactiled watch --ros2 --connect tcp/localhost:7447 --count 3
+  tactiled watch --ros2 --ros2-middleware dds --domain-id 7
 """
 
 from __future__ import annotations
@@ -75,6 +78,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="list the daemons alive and their sensors, then exit")
     z.add_argument("--ros2", action="store_true",
                    help="read the ROS 2 topics (rmw_zenoh's layout) and print them decoded")
+    z.add_argument("--ros2-middleware", choices=("dds", "zenoh"), default=None,
+                   help="where --ros2 reads: DDS or Zenoh (default: see above)")
     z.add_argument("--domain-id", type=int, default=None, metavar="N",
                    help="ROS domain of --ros2 (default [ros2] domain_id, 0)")
     z.add_argument("--config", default=None, metavar="FILE",
@@ -170,6 +175,17 @@ def watch_zenoh(args: argparse.Namespace, out: TextIO) -> int:
         overrides["ros2.domain_id"] = args.domain_id
     loaded = load_settings(args.config, os.environ, overrides)  # ConfigError: exit 2
     settings = loaded.zenoh
+    middleware = args.ros2_middleware or (
+        "zenoh" if args.connect else loaded.ros2.middlewares(loaded.zenoh.enabled)[-1])
+    if args.ros2 and middleware == "dds":
+        try:
+            from tactiled_service.ros2 import dds_reader
+        except ImportError as err:
+            print(f"tactiled watch: error: --ros2 on DDS needs the ros2 extra: pip install "
+                  f"'tactiled[ros2]' ({err})", file=sys.stderr)
+            return 2
+        return dds_reader.watch(loaded.ros2.domain_id, out, sensors=args.sensor,
+                                frames=args.frames, count=args.count)
     if args.ros2:
         try:
             from tactiled_service.ros2 import reader
@@ -213,8 +229,9 @@ def watch_zenoh(args: argparse.Namespace, out: TextIO) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.domain_id is not None and not args.ros2:
-        print("tactiled watch: error: --domain-id goes with --ros2", file=sys.stderr)
+    if (args.domain_id is not None or args.ros2_middleware) and not args.ros2:
+        print("tactiled watch: error: --domain-id and --ros2-middleware go with --ros2",
+              file=sys.stderr)
         return 2
     if args.zenoh or args.ros2 or args.list or args.connect or args.key:
         if not (args.zenoh or args.ros2) or (args.ros2 and (args.list or args.key)):

@@ -86,8 +86,10 @@ def _record(cls: type[_R], fields: dict[str, Any]) -> _R:
 class Estimate:
     """One contact estimate of one sensor, for one frame.
 
-    ``seq`` / ``device_time_us`` / ``host_time`` are those of the frame this estimate answers
-    (host time: ``time.monotonic()`` seconds when its bytes arrived).  ``fitted_seq`` is the
+    ``seq`` / ``device_time_us`` / ``host_time`` / ``stamp`` are those of the frame this
+    estimate answers (host time: ``time.monotonic()`` seconds when its bytes arrived; stamp:
+    when the device measured it, Unix seconds, from :mod:`tactiled.clock`; the JSON's
+    ``time``).  ``fitted_seq`` is the
     frame the values were fitted on: ``seq`` itself when ``gate == "fit"``, an earlier frame
     when the gate found this one unchanged, None for no contact.  ``worker_ms`` is the fit
     request's round trip to the worker process (0 when not fitted), ``latency_ms`` the time from
@@ -101,7 +103,7 @@ class Estimate:
     device_time_us: int
     host_time: float  # s, monotonic
     published_time: float  # s, monotonic
-    wall_time: float  # s since the Unix epoch, at publication
+    stamp: float  # s since the Unix epoch: the frame's time (tactiled.clock)
     gate: str
     fitted_seq: int | None
     worker_ms: float
@@ -127,7 +129,7 @@ class Estimate:
             "seq": self.seq,
             "device_time_us": self.device_time_us,
             "host_time": _finite(self.host_time),
-            "time": _finite(self.wall_time),
+            "time": _finite(self.stamp),
             "latency_ms": _finite(round(self.latency_ms, 4)),
             "worker_ms": _finite(round(self.worker_ms, 4)),
             "gate": self.gate,
@@ -154,6 +156,7 @@ class ZeroedFrame:
     contact: bool
     statistic: float
     strain: np.ndarray
+    stamp: float = math.nan  # s since the Unix epoch: the frame's time (tactiled.clock)
 
     kind = "frame"
 
@@ -167,6 +170,7 @@ class ZeroedFrame:
             "seq": self.seq,
             "device_time_us": self.device_time_us,
             "host_time": _finite(self.host_time),
+            "time": _finite(self.stamp),
             "contact": self.contact,
             "statistic": _finite(round(self.statistic, 9)),
             "strain": strain.tolist(),
@@ -175,20 +179,24 @@ class ZeroedFrame:
 
 def make_estimate(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
                   host_time: float, gate: str, fitted_seq: int | None, worker_ms: float,
-                  fit: dict[str, Any]) -> Estimate:
-    """An :class:`Estimate` stamped as published now."""
+                  fit: dict[str, Any], stamp: float | None = None) -> Estimate:
+    """An :class:`Estimate` stamped as published now; ``stamp``: the frame's time (Unix s;
+    None or NaN: now, for a frame no clock stamped)."""
+    if stamp is None or not math.isfinite(stamp):
+        stamp = time.time()
     return _record(Estimate, {
         "sensor": sensor, "sensor_id": sensor_id, "seq": seq, "device_time_us": device_time_us,
-        "host_time": host_time, "published_time": time.monotonic(), "wall_time": time.time(),
+        "host_time": host_time, "published_time": time.monotonic(), "stamp": stamp,
         "gate": gate, "fitted_seq": fitted_seq, "worker_ms": worker_ms, "fit": fit,
     })
 
 
 def make_zeroed_frame(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
                       host_time: float, contact: bool, statistic: float,
-                      strain: np.ndarray) -> ZeroedFrame:
+                      strain: np.ndarray, stamp: float = math.nan) -> ZeroedFrame:
     """A :class:`ZeroedFrame` (the same as its constructor's, built faster: ``_record``)."""
     return _record(ZeroedFrame, {
         "sensor": sensor, "sensor_id": sensor_id, "seq": seq, "device_time_us": device_time_us,
         "host_time": host_time, "contact": contact, "statistic": statistic, "strain": strain,
+        "stamp": stamp,
     })

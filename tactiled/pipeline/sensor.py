@@ -37,6 +37,7 @@ from tactiled.calibration.fileformat import Calibration, load_calibration_file
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
+from tactiled.clock import FrameClock
 from tactiled.config import Geometry, NoiseModel
 from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
@@ -208,6 +209,8 @@ class SensorPipeline(ContactTracking):
             gate_mm=self.ids.gate_mm)
         self._pending: list[_Waiting] = []
         self._base: dict[str, Any] | None = None
+        #: every frame's time (tactiled/clock.py): the estimates' ``time``, ROS 2's stamps
+        self.clock = FrameClock(settings.rate_hz)
         self._base_seq: int | None = None
         # -- state
         self._ordinal = 0
@@ -305,6 +308,7 @@ class SensorPipeline(ContactTracking):
                 async with contextlib.aclosing(self.source.frame_batches()) as batches:
                     async for batch in batches:  # the frames of one read
                         began = time.monotonic()
+                        self.clock.stamp(batch)  # together: they arrived together
                         for frame in batch:
                             before = self._waiting
                             self.on_frame(frame)
@@ -370,6 +374,8 @@ class SensorPipeline(ContactTracking):
         self.frame_rate.tick(now)
         self.last_frame_at = now
         try:
+            if frame.time is None:  # a frame handed over alone, not from this sensor's reads
+                self.clock.stamp([frame])
             self._record(frame)
             self._process(frame, now)
         except Exception as err:  # a bug must cost one frame, not the sensor's loop
@@ -425,10 +431,10 @@ class SensorPipeline(ContactTracking):
         self.hub.publish(make_zeroed_frame(
             sensor=self.name, sensor_id=frame.sensor_id, seq=frame.seq,
             device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
-            statistic=detector.last_statistic, strain=strain))
+            statistic=detector.last_statistic, strain=strain, stamp=frame.time))
         waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
                            frame.host_time, strain, now, frame.device_time_us * 1e-6,
-                           peak=self.stage.peak if contact else math.nan)
+                           peak=self.stage.peak if contact else math.nan, stamp=frame.time)
         if self.settings.track:
             self._track(waiting, contact, nonfinite)
             return
@@ -491,7 +497,7 @@ class SensorPipeline(ContactTracking):
         judge(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
-                            fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)
+                            fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit, stamp=w.stamp)
         self._last_published = w.ordinal
         self.published += 1
         latency_ms = est.latency_ms

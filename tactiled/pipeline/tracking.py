@@ -53,6 +53,8 @@ class _Waiting:
     dropped: bool = False
     #: the frame's largest strain, when the calibration stage gave it (NaN: not known)
     peak: float = math.nan
+    #: the frame's time, Unix s (tactiled.clock; NaN: not stamped)
+    stamp: float = math.nan
 
 
 #: Frames of a contact that wait for a fit before the tracker can measure them (they left the
@@ -185,7 +187,8 @@ class ContactTracking:
             self._lin_asked_t = w.t
             point = at if at[0] == SEVERAL else (at[0], tuple(map(float, at[1])))
             self._waiting = _Waiting(w.ordinal, w.seq, w.sensor_id, w.device_time_us,
-                                     w.host_time, w.strain, w.since, w.t, "lin", point)
+                                     w.host_time, w.strain, w.since, w.t, "lin", point,
+                                     stamp=w.stamp)
             self.pool.wake()
 
     def _publish_tracked(self, w: _Waiting, gate: str = GATE_UNCHANGED,

@@ -221,7 +221,8 @@ def test_robotiq_garbage_between_packets(readings, junks, cuts, finger, data) ->
     for junk in junks:  # garbage without a start byte
         units.insert(data.draw(st.integers(0, len(units))), junk.replace(b"\x9a", b"\x9b"))
     framer = robotiq.RobotiqFramer(finger)
-    got = feed_chunks(framer, b"".join(units), cuts)
+    # the next packet's start byte at the end: a last packet that spans reads waits for it
+    got = feed_chunks(framer, b"".join(units) + b"\x9a", cuts)
     mine = [(raw, t) for f, raw, t in readings if f == finger]
     assert same(got, [raw for raw, _ in mine])
     assert [g.device_time_us for g in got] == [t * 1000 for _, t in mine]

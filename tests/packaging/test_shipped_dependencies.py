@@ -27,7 +27,7 @@ from tactiled.recording import Recorder
 ROOT = Path(__file__).resolve().parents[2]
 BLOCKER = Path(__file__).resolve().parent / "blocked"
 #: The optional extras' import names (pyproject's optional-dependencies).
-EXTRAS = {"zenoh": ("zenoh",), "ros2": ("rosbags", "mcap", "mcap_ros2", "xxhash"),
+EXTRAS = {"zenoh": ("zenoh",), "ros2": ("rosbags", "mcap", "mcap_ros2", "xxhash", "cyclonedds"),
           "plot": ("matplotlib",), "docs": ("mkdocs", "material", "mkdocstrings")}
 #: Test-only packages (pyproject's test extra; zenoh-ros2-sdk installs two top-level names)
 #: and the extras'.
@@ -70,6 +70,7 @@ HELP = {
     ("-m", "tactiled.bench.reliability", "--help"): "--quick",
     ("-m", "tactiled.bench.learning_cost", "--help"): "--fits",
     ("-m", "tactiled.bench.worker_memory", "--help"): "--fits",
+    ("-m", "tactiled.bench.clock", "--help"): "--seconds",
     ("-m", "tactiled_service.bench_fanout", "--help"): "--clients",
     ("-m", "tactiled_service.bench_zenoh", "--help"): "--subscribers",
     ("-m", "tactiled_service.bench_ros2", "--help"): "--sensors",
@@ -83,7 +84,9 @@ NEEDS_EXTRA = {
     ("-m", "tactiled_service.bench_zenoh", "--quick"): "tactiled[zenoh]",
     ("-m", "tactiled.cli", "bench", "--quick", "--plot", "pareto.png"): "tactiled[plot]",
     ("-m", "tactiled.cli", "run", "--ros2", "--port", "0"): "tactiled[zenoh",
-    ("-m", "tactiled.cli", "watch", "--ros2"): "tactiled[zenoh,ros2]",
+    ("-m", "tactiled.cli", "watch", "--ros2"): "tactiled[ros2]",  # DDS: no [zenoh] here
+    ("-m", "tactiled.cli", "watch", "--ros2", "--connect", "tcp/127.0.0.1:7447"):
+        "tactiled[zenoh,ros2]",
     ("-m", "tactiled_service.bench_ros2", "--quick"): "tactiled[zenoh,ros2]",
     ("-m", "tactiled.cli", "export", "r.tact", "-o", "r.mcap"): "tactiled[ros2]",
 }

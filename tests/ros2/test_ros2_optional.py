@@ -49,4 +49,4 @@ def test_run_with_ros2_but_without_the_extra_is_a_config_error() -> None:
                "try:\n    load_ros2(s)\nexcept Exception as e:\n    print(e); sys.exit(3)")
     assert done.returncode == 3, done.stderr
     assert done.stdout.startswith("ros2.enabled: ROS 2 messages need the ros2 extra: pip "
-                                  "install 'tactiled[zenoh,ros2]'"), done.stdout
+                                  "install 'tactiled[ros2]'"), done.stdout

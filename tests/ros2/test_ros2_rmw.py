@@ -103,3 +103,26 @@ def test_attachment_is_zenoh_serialised_seq_timestamp_gid() -> None:
     seq, stamp, n = struct.unpack_from("<QQB", data)
     assert (seq, stamp, n, data[17:]) == (42, 1_795_309_645_250_000_123, 16, gid)
     assert len(data) == 33
+
+
+def test_humble_has_no_type_hash_in_keys_nor_tokens() -> None:
+    """Humble's rmw_zenoh writes ``TypeHashNotSupported`` where the hash goes (ros2/rmw_zenoh
+    pull request 388); Jazzy, Kilted and Rolling the RIHS01 hash."""
+    typename = "geometry_msgs/msg/WrenchStamped"
+    real = messages.type_hash(typename)
+    for distro in ("jazzy", "kilted", "rolling"):
+        assert rmw.distro_hash(real, distro) == real
+    humble = rmw.distro_hash(real, "humble")
+    assert humble == "TypeHashNotSupported"
+    assert rmw.topic_key(0, "/tactiled/finger0/wrench", typename, humble) == (
+        "0/tactiled/finger0/wrench/geometry_msgs::msg::dds_::WrenchStamped_/"
+        "TypeHashNotSupported")
+    token = parse_token(NODE.publisher_token(1, "/tactiled/finger0/wrench", typename, humble))
+    assert (token["type"], token["type_hash"]) == (
+        "geometry_msgs::msg::dds_::WrenchStamped_", "TypeHashNotSupported")
+    from tactiled_service.ros2.reader import parse_key
+    assert parse_key(rmw.topic_key(0, "/tactiled/finger0/wrench", typename, humble)) == (
+        "/tactiled/finger0/wrench", typename, "TypeHashNotSupported")
+    import pytest
+    with pytest.raises(ValueError, match="unknown ROS 2 distro"):
+        rmw.distro_hash(real, "iron")

@@ -34,7 +34,11 @@ def test_the_environment_and_a_file_set_them(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("overrides", "message"), [
-    ({"ros2.enabled": True}, "ros2.enabled: the ROS 2 topics go out on the daemon's Zenoh"),
+    ({"ros2.enabled": True, "ros2.middleware": "zenoh"},
+     "ros2.middleware: 'zenoh' publishes on the daemon's Zenoh session"),
+    ({"ros2.enabled": True, "ros2.middleware": "both"}, "set zenoh.enabled = true as well"),
+    ({"ros2.middleware": "rtps"}, "ros2.middleware: must be one of auto, dds, zenoh, both"),
+    ({"ros2.distro": "iron"}, "ros2.distro: must be one of humble, jazzy, kilted, rolling"),
     ({"ros2.domain_id": 233}, "ros2.domain_id: must be a ROS domain id in 0..232"),
     ({"ros2.namespace": "tactiled"}, "ros2.namespace: must be '/' or /name"),
     ({"ros2.namespace": "/a//b"}, "ros2.namespace: must be '/' or /name"),
@@ -48,6 +52,16 @@ def test_bad_values_name_the_key(overrides: dict, message: str) -> None:
     with pytest.raises(ConfigError) as err:
         load_settings(None, {}, overrides)
     assert message in str(err.value)
+
+
+@pytest.mark.parametrize(("zenoh", "middleware", "expected"), [
+    (False, "auto", ("dds",)), (True, "auto", ("zenoh",)), (False, "dds", ("dds",)),
+    (True, "dds", ("dds",)), (True, "zenoh", ("zenoh",)), (True, "both", ("dds", "zenoh"))])
+def test_the_middleware_defaults_to_zenoh_with_zenoh_else_dds(
+        zenoh: bool, middleware: str, expected: tuple[str, ...]) -> None:
+    s = load_settings(None, {"TACTILED_ROS2_MIDDLEWARE": middleware},
+                      {"ros2.enabled": True, "zenoh.enabled": zenoh})
+    assert s.ros2.middlewares(s.zenoh.enabled) == expected
 
 
 def test_root_namespace_and_valid_names_pass() -> None:

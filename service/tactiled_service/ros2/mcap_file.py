@@ -190,6 +190,6 @@ class _Sink:
         if isinstance(item, tuple):
             self.writer.write_diagnostics(item[0], item[1], self.recorder.hardware_ids)
         elif item.kind == "estimate":
-            self.writer.write_estimate(item.to_json_dict(), item.host_time + offset)
+            self.writer.write_estimate(item.to_json_dict(), messages.item_stamp(item, offset))
         else:
-            self.writer.write_frame(item.sensor, item.strain, item.host_time + offset)
+            self.writer.write_frame(item.sensor, item.strain, messages.item_stamp(item, offset))

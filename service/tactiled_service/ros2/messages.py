@@ -189,6 +189,14 @@ def wrench(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
                                                    wrench=body)
 
 
+def item_stamp(item: Any, clock_offset: float) -> float:
+    """A hub item's ``header.stamp``, Unix s: the frame's time (``item.stamp``, from
+    :mod:`tactiled.clock`), or, for an item no clock stamped, its arrival moved onto the
+    wall clock by ``clock_offset`` (Unix - monotonic s)."""
+    stamp = getattr(item, "stamp", math.nan)
+    return stamp if math.isfinite(stamp) else item.host_time + clock_offset
+
+
 def estimate_message(kind: str, est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
     """The message of ``kind`` (one of :data:`ESTIMATE_KINDS`) for an estimate."""
     return _ESTIMATE_BUILDERS[kind](est, stamp_s, frame_id)

@@ -1,11 +1,16 @@
-"""The ROS 2 front end: every sensor's topics on the daemon's Zenoh session (docs/howto/ros2.md).
+"""The ROS 2 front end: every sensor's topics over DDS and/or rmw_zenoh (docs/howto/ros2.md).
 
 With ``[ros2] enabled`` the daemon is a ROS 2 node (``<namespace>/<node_name>``, default
-``/tactiled/tactiled``) to any ROS 2 system running rmw_zenoh that its Zenoh session reaches,
-with no ROS installation and no bridge: it declares the liveliness tokens of the node and of
-its publishers (so ``ros2 node list`` and ``ros2 topic list`` show them) and publishes, per
-sensor, with the key expressions, CDR payloads and attachments rmw_zenoh uses
-(:mod:`.rmw`; the messages: :mod:`.messages`):
+``/tactiled/tactiled``) with no ROS installation and no bridge, on the middlewares
+``[ros2] middleware`` names:
+
+* **DDS** (:mod:`.dds`, Cyclone DDS): the topics as ROS 2's DDS middlewares lay them out
+  (``rt/<topic>``, ``pkg::msg::dds_::Type_``), for ROS 2 systems on their default middleware;
+* **Zenoh** (:mod:`.rmw`): on the daemon's Zenoh session with the key expressions, liveliness
+  tokens and attachments of ``[ros2] distro``'s rmw_zenoh (so ``ros2 node list`` and ``ros2
+  topic list`` show the node there too).
+
+The topics, per sensor (the messages: :mod:`.messages`):
 
 * ``<namespace>/<sensor>/wrench`` (``geometry_msgs/msg/WrenchStamped``), ``.../contact``
   (``tactiled_msgs/msg/Contact``, the strongest contact), ``.../contacts``
@@ -15,13 +20,13 @@ sensor, with the key expressions, CDR payloads and attachments rmw_zenoh uses
   ``[zenoh] frame_rate_hz`` per second per sensor (0: none);
 * ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``): the health, once a second.
 
-Read-only: nothing is subscribed to.  It is a guest of :class:`~tactiled_service.bus.Bus`
-(``bus.fronts``): declared once the session is open, undeclared (tokens first) when it
-closes.  Like the bus, it converts nothing for a topic no subscriber matches, and the
-conversion, serialisation and ``put`` run on a sender thread of its own, never on the event
-loop.
+``header.stamp`` is the frame's time (:mod:`tactiled.clock`).  Read-only: nothing is
+subscribed to.  On Zenoh it is a guest of :class:`~tactiled_service.bus.Bus` (``bus.fronts``):
+declared once the session is open, undeclared (tokens first) when it closes; on DDS the
+service starts it (:meth:`Ros2Node.start_dds`).  It converts nothing for a topic no
+subscriber matches on any middleware; a message is built and serialised once, on a sender
+thread of its own (never on the event loop), and the same bytes go to every middleware.
 """
-
 from __future__ import annotations
 
 import asyncio
@@ -30,11 +35,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import zenoh
-
 from tactiled.pipeline import Daemon, Estimate, ZeroedFrame
 from tactiled.settings import Settings
-from tactiled_service.ros2 import messages, rmw
+from tactiled_service.ros2 import messages
 from tactiled_service.sender import QUEUE_SIZE, Sender
 
 log = logging.getLogger(__name__)
@@ -43,27 +46,48 @@ DIAGNOSTICS_PERIOD_S = 1.0
 KINDS = ("wrench", "contact", "contacts", "markers", "strain", "diagnostics")
 
 
-class Topic:
-    """One ROS publisher: its Zenoh publisher, GID and sequence numbers.  :meth:`put` runs on
-    the sender thread: it builds the message of an item, serialises it and puts it with the
-    rmw_zenoh attachment."""
+class ZenohSink:
+    """One topic's rmw_zenoh publisher: its Zenoh publisher, GID and sequence numbers."""
 
-    def __init__(self, name: str, typename: str, token: str,
-                 build: Callable[[Any], Any]) -> None:
-        self.name = name
-        self.typename = typename
+    def __init__(self, token: str) -> None:
+        from tactiled_service.ros2 import rmw
+
         self.token = token
         self.gid = rmw.gid(token)
-        self.build = build
         self.matched = False  # kept by Zenoh's matching listener
         self.sequence = 0  # the last sequence number sent (rmw_zenoh's first is 1)
         self.publisher: Any = None
 
+    def write(self, payload: bytes, timestamp_ns: int) -> None:
+        from tactiled_service.ros2.rmw import attachment
+
+        self.sequence += 1
+        self.publisher.put(payload, attachment=attachment(self.sequence, timestamp_ns,
+                                                          self.gid))
+
+
+class Topic:
+    """One ROS publisher on every middleware: :meth:`put` runs on the sender thread: it builds
+    the message of an item and serialises it once, then hands the same bytes to each sink
+    (a :class:`ZenohSink`, a :class:`~tactiled_service.ros2.dds.DdsSink`)."""
+
+    def __init__(self, name: str, typename: str, build: Callable[[Any], Any]) -> None:
+        self.name = name
+        self.typename = typename
+        self.build = build
+        self.sinks: list[Any] = []
+
+    @property
+    def matched(self) -> bool:
+        """Whether any middleware has a subscriber (nothing is built for none)."""
+        return any(sink.matched for sink in self.sinks)
+
     def put(self, item: Any) -> None:
         payload = messages.serialize(self.build(item), self.typename)
-        self.sequence += 1
-        self.publisher.put(payload, attachment=rmw.attachment(self.sequence, time.time_ns(),
-                                                              self.gid))
+        now = time.time_ns()
+        for sink in self.sinks:
+            if sink.matched:
+                sink.write(payload, now)
 
 
 class Ros2Node:
@@ -84,10 +108,19 @@ class Ros2Node:
         rate = settings.zenoh.frame_rate_hz
         self._frame_period = 1.0 / rate if rate > 0 else None
         self._frame_due: dict[str, float] = {}
-        #: Monotonic -> wall-clock seconds: frames carry their arrival in monotonic time.
+        #: Monotonic -> wall-clock seconds, for items no clock stamped.
         self.clock_offset = time.time() - time.monotonic()
-        self.node: rmw.NodeInfo | None = None
+        self.node: Any = None  # rmw.NodeInfo once declared on Zenoh
         self.topics: dict[tuple[str, str], Topic] = {}  # (sensor, kind) -> topic
+        plan = [(name, kind) for name in daemon.sensors
+                for kind in (*messages.ESTIMATE_KINDS, "strain")
+                if kind != "strain" or self._frame_period is not None]
+        plan.append(("", "diagnostics"))
+        for sensor, kind in plan:
+            self.topics[(sensor, kind)] = Topic(
+                messages.topic(self.settings.namespace, sensor, kind), messages.TYPES[kind],
+                self._builder(sensor, kind))
+        self.participant: Any = None  # the DDS domain participant (start_dds)
         self._remove_listener: Callable[[], None] | None = None
         self._task: asyncio.Task[None] | None = None
 
@@ -96,41 +129,54 @@ class Ros2Node:
     def declare(self, session: Any) -> list[Any]:
         """Declare the publishers and tokens on ``session`` (on the event loop) and start
         publishing; returns what the bus undeclares at stop, tokens last (undeclared first)."""
+        import zenoh
+
+        from tactiled_service.ros2 import rmw
+
         s = self.settings
         self.node = rmw.NodeInfo(s.domain_id, str(session.zid()), 0, s.namespace, s.node_name)
         declared: list[Any] = []
         tokens = [session.liveliness().declare_token(self.node.token())]
-        entity_id = 0
-        plan = [(name, kind) for name in self.daemon.sensors
-                for kind in (*messages.ESTIMATE_KINDS, "strain")
-                if kind != "strain" or self._frame_period is not None]
-        plan.append(("", "diagnostics"))
-        for sensor, kind in plan:
-            entity_id += 1
-            name = messages.topic(s.namespace, sensor, kind)
-            typename = messages.TYPES[kind]
-            type_hash = messages.type_hash(typename)
-            topic = Topic(name, typename,
-                          self.node.publisher_token(entity_id, name, typename, type_hash),
-                          self._builder(sensor, kind))
-            topic.publisher = session.declare_publisher(
-                rmw.topic_key(s.domain_id, name, typename, type_hash),
+        for entity_id, topic in enumerate(self.topics.values(), start=1):
+            type_hash = rmw.distro_hash(messages.type_hash(topic.typename), s.distro)
+            sink = ZenohSink(self.node.publisher_token(entity_id, topic.name, topic.typename,
+                                                       type_hash))
+            sink.publisher = session.declare_publisher(
+                rmw.topic_key(s.domain_id, topic.name, topic.typename, type_hash),
                 congestion_control=zenoh.CongestionControl.DROP)
-            declared.append(topic.publisher)
-            declared.append(topic.publisher.declare_matching_listener(
-                zenoh.handlers.Callback(self._matcher(topic))))
-            tokens.append(session.liveliness().declare_token(topic.token))
-            self.topics[(sensor, kind)] = topic
+            declared.append(sink.publisher)
+            declared.append(sink.publisher.declare_matching_listener(
+                zenoh.handlers.Callback(self._matcher(sink))))
+            tokens.append(session.liveliness().declare_token(sink.token))
+            topic.sinks.append(sink)
+        self._start("zenoh")
+        return declared + tokens
+
+    def start_dds(self) -> None:
+        """Create the DDS writers of every topic (:mod:`.dds`) and start publishing."""
+        from tactiled_service.ros2 import dds
+
+        self.participant = dds.participant(self.settings.domain_id)
+        publisher = dds.Publisher(self.participant)
+        for (_sensor, kind), topic in self.topics.items():
+            topic.sinks.append(dds.DdsSink(self.participant, publisher, topic.name,
+                                           topic.typename, kind, self.settings.distro))
+        self._start("DDS")
+
+    def _start(self, middleware: str) -> None:
+        s = self.settings
+        log.info("ros2: node %s/%s on domain %d over %s, %d topics", s.namespace.rstrip("/"),
+                 s.node_name, s.domain_id, middleware, len(self.topics))
+        if self._remove_listener is not None:  # already publishing on another middleware
+            return
         self.sender.start()
         self._remove_listener = self.daemon.hub.add_listener(self._on_item)
         self._task = asyncio.get_running_loop().create_task(self._diagnostics_loop(),
                                                             name="tactiled-ros2-diagnostics")
-        log.info("ros2: node %s/%s on domain %d, %d topics", s.namespace.rstrip("/"),
-                 s.node_name, s.domain_id, len(self.topics))
-        return declared + tokens
 
     def stop(self) -> None:
-        """Stop publishing (the bus undeclares and closes the session afterwards)."""
+        """Stop publishing (the bus undeclares and closes the Zenoh session afterwards; the
+        DDS participant is deleted here).  Idempotent."""
         if self._remove_listener is not None:
             self._remove_listener()
             self._remove_listener = None
@@ -138,13 +184,18 @@ class Ros2Node:
             self._task.cancel()
             self._task = None
         self.sender.stop()
+        for topic in self.topics.values():
+            topic.sinks = [sink for sink in topic.sinks if not hasattr(sink, "writer")]
+        participant, self.participant = self.participant, None
+        if participant is not None:
+            del participant  # Cyclone DDS deletes the entity and its writers with the last ref
 
     # -- publishing -----------------------------------------------------------------------------
 
     @staticmethod
-    def _matcher(topic: Topic) -> Callable[[Any], None]:
+    def _matcher(sink: ZenohSink) -> Callable[[Any], None]:
         def on_status(status: Any) -> None:  # a Zenoh thread: one assignment, atomic
-            topic.matched = bool(status.matching)
+            sink.matched = bool(status.matching)
 
         return on_status
 
@@ -154,11 +205,12 @@ class Ros2Node:
             return lambda item: messages.diagnostics(item[0], item[1], self.hardware_ids)
         frame_id = self.frame_ids[sensor]
         offset = self.clock_offset
+        stamp = messages.item_stamp
         if kind == "strain":
-            return lambda frame: messages.strain_image(frame.strain, frame.host_time + offset,
+            return lambda frame: messages.strain_image(frame.strain, stamp(frame, offset),
                                                        frame_id)
         return lambda est: messages.estimate_message(kind, est.to_json_dict(),
-                                                     est.host_time + offset, frame_id)
+                                                     stamp(est, offset), frame_id)
 
     def _on_item(self, item: Estimate | ZeroedFrame) -> None:
         """The hub's listener (the event loop's thread): queue the item, never wait."""

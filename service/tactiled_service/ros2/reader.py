@@ -30,9 +30,11 @@ _BY_DDS = {rmw.dds_type(t): t for t in messages.TYPES.values()}
 
 def parse_key(key: str) -> tuple[str, str, str] | None:
     """``(topic, type, type hash)`` of a data key ``<domain>/<topic...>/<dds type>/<hash>``
-    when its type is one of tactiled's, else None."""
+    (Humble's ``TypeHashNotSupported`` in place of the hash too) when its type is one of
+    tactiled's, else None."""
     parts = key.split("/")
-    if len(parts) < 4 or parts[-2] not in _BY_DDS or not parts[-1].startswith("RIHS01_"):
+    if len(parts) < 4 or parts[-2] not in _BY_DDS or not (
+            parts[-1].startswith("RIHS01_") or parts[-1] == rmw.NO_TYPE_HASH):
         return None
     return "/" + "/".join(parts[1:-2]), _BY_DDS[parts[-2]], parts[-1]
 

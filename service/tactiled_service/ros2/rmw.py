@@ -1,7 +1,7 @@
 """rmw_zenoh's layout on Zenoh: key expressions, liveliness tokens, attachments (no I/O).
 
-ROS 2's Zenoh middleware (https://github.com/ros2/rmw_zenoh, ``rmw_zenoh_cpp``; Jazzy and
-later) maps each ROS entity onto Zenoh as follows, and this module builds exactly those
+ROS 2's Zenoh middleware (https://github.com/ros2/rmw_zenoh, ``rmw_zenoh_cpp``; Humble, Jazzy
+and later) maps each ROS entity onto Zenoh as follows, and this module builds exactly those
 strings and bytes (sources: its design document,
 https://github.com/ros2/rmw_zenoh/blob/rolling/docs/design.md, and in
 ``rmw_zenoh_cpp/src/detail/``: ``liveliness_utils.{hpp,cpp}``, ``attachment_helpers.cpp``,
@@ -21,6 +21,14 @@ https://github.com/ros2/rmw_zenoh/blob/rolling/docs/design.md, and in
   ``%tactiled``);
 * an entity's GID is the XXH3-128 hash of its liveliness key expression, its low 64 bits then
   its high 64 bits, little-endian.
+
+**Distributions.**  Jazzy, Kilted and Rolling lay these out alike.  Humble has no type hashes:
+its rmw_zenoh (the ``humble`` branch, from https://github.com/ros2/rmw_zenoh/pull/388
+"Updates to compile against Humble": "Humble does not support type hashes ... we just remove
+the code that computes it, and instead set it to a constant string") puts the string
+``TypeHashNotSupported`` wherever the hash goes, in the data key expression and in the
+liveliness token alike; the rest (GID of 16 bytes, attachment, QoS string) is the same.
+:func:`distro_hash` gives the hash field of a distro.
 """
 
 from __future__ import annotations
@@ -38,6 +46,19 @@ NODE, PUBLISHER = "NN", "MP"
 #: is written, so this is the depth alone.
 QOS = "::,10:,:,:,,"
 GID_SIZE = 16
+
+
+#: The hash field of Humble's rmw_zenoh, which has no type hashes.
+NO_TYPE_HASH = "TypeHashNotSupported"
+DISTROS = ("humble", "jazzy", "kilted", "rolling")
+
+
+def distro_hash(type_hash: str, distro: str) -> str:
+    """The type-hash field of ``distro``'s rmw_zenoh: ``type_hash`` (``RIHS01_...``), or
+    :data:`NO_TYPE_HASH` on Humble."""
+    if distro not in DISTROS:
+        raise ValueError(f"unknown ROS 2 distro {distro!r} (known: {', '.join(DISTROS)})")
+    return NO_TYPE_HASH if distro == "humble" else type_hash
 
 
 def mangle(name: str) -> str:

@@ -1,0 +1,193 @@
+"""A real ``tactiled run`` heard by ROS 2 subscribers that are not ours, on each middleware.
+
+* **DDS**: ``[ros2] middleware = "dds"`` and no ``[zenoh]``; the subscriber is a plain
+  Cyclone DDS reader in another process with its own IDL types (``dds_wrench_reader.py``), on a
+  private ``ROS_DOMAIN_ID`` with discovery on the loopback interface only
+  (``CYCLONEDDS_URI``), so nothing leaves the machine.
+* **Zenoh**: ``--ros2`` on a loopback Zenoh port, multicast scouting off; the subscriber is
+  zenoh-ros2-sdk's ``ROS2Subscriber``, which computes rmw_zenoh's key expression itself.
+
+Either way, in 5 s: at least 200 ``WrenchStamped`` (the simulated finger runs at 200 Hz),
+``frame_id`` the sensor's name, stamps strictly increasing and never repeated, forces finite.
+Waits have deadlines; nothing here asserts a speed beyond the 200-in-5-s bar.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+HERE = Path(__file__).resolve().parent
+PYTHON = sys.executable
+RATE_HZ = 200
+SECONDS = 5.0
+#: Cyclone DDS on the loopback interface only (multicast there for discovery).
+LOOPBACK = ('<CycloneDDS><Domain id="any"><General><Interfaces>'
+            '<NetworkInterface name="lo" multicast="true"/></Interfaces>'
+            '<AllowMulticast>spdp</AllowMulticast></General></Domain></CycloneDDS>')
+
+
+def private_domain() -> int:
+    """A ROS_DOMAIN_ID of this test run alone (0..232; 0 and the common low ids avoided)."""
+    return 100 + os.getpid() % 120
+
+
+@contextmanager
+def daemon(args: list[str], env: dict[str, str]) -> Iterator[subprocess.Popen[str]]:
+    full = {k: v for k, v in os.environ.items() if not k.startswith(("TACTILED_", "ROS_"))}
+    full.update({"TACTILED_FIT_WORKERS": "1",
+                 "TACTILED_SENSOR_0_URL": f"sim://?scene=demo&seed=3&rate={RATE_HZ}"}, **env)
+    proc = subprocess.Popen([PYTHON, "-m", "tactiled.cli", "run", "--port", "0", *args],
+                            env=full, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line: list[str] = []
+        reader = threading.Thread(target=lambda: line.append(proc.stdout.readline()),
+                                  daemon=True)
+        reader.start()
+        reader.join(90)
+        if not line or not line[0]:
+            proc.kill()
+            pytest.fail(f"tactiled run did not start; stderr:\n{proc.stderr.read()}")
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+
+
+def check(samples: list[tuple[str, int, int, list[float]]]) -> None:
+    """The bar: >= 200 in 5 s, the sensor's frame_id, stamps strictly increasing, finite."""
+    assert len(samples) >= 200, len(samples)
+    assert {frame_id for frame_id, *_ in samples} == {"finger0"}
+    stamps = [sec * 1_000_000_000 + nanosec for _, sec, nanosec, _ in samples]
+    repeats = sum(a == b for a, b in zip(stamps, stamps[1:]))
+    assert repeats == 0, f"{repeats} of {len(stamps)} consecutive stamps repeated"
+    assert all(b > a for a, b in zip(stamps, stamps[1:])), "stamps went back"
+    assert abs(stamps[-1] * 1e-9 - time.time()) < 60, "stamps are not Unix time"
+    assert all(math.isfinite(v) for *_, values in samples for v in values)
+
+
+def test_dds_reader_of_its_own_hears_tactiled_run() -> None:
+    domain = private_domain()
+    env = {"CYCLONEDDS_URI": LOOPBACK}
+    reader = subprocess.Popen(
+        [PYTHON, str(HERE / "dds_wrench_reader.py"), str(domain), "rt/tactiled/finger0/wrench",
+         str(SECONDS), "90"], env={**os.environ, **env}, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+    try:
+        with daemon([], {**env, "TACTILED_ROS2_ENABLED": "true",
+                         "TACTILED_ROS2_MIDDLEWARE": "dds",
+                         "TACTILED_ROS2_DOMAIN_ID": str(domain)}):
+            out, err = reader.communicate(timeout=150)
+    finally:
+        if reader.poll() is None:
+            reader.kill()
+            reader.wait(5)
+    assert reader.returncode == 0, err
+    samples = [(s[0], s[1], s[2], s[3:]) for s in json.loads(out)["samples"]]
+    check(samples)
+
+
+def test_dds_other_domain_hears_nothing() -> None:
+    """The domain id separates graphs: a reader on another domain gets no sample."""
+    domain = private_domain()
+    env = {"CYCLONEDDS_URI": LOOPBACK}
+    reader = subprocess.Popen(
+        [PYTHON, str(HERE / "dds_wrench_reader.py"), str(domain + 1),
+         "rt/tactiled/finger0/wrench", "1", "8"], env={**os.environ, **env},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with daemon([], {**env, "TACTILED_ROS2_ENABLED": "true",
+                     "TACTILED_ROS2_DOMAIN_ID": str(domain)}):  # no [zenoh]: DDS by default
+        out, err = reader.communicate(timeout=60)
+    assert reader.returncode == 0, err
+    assert json.loads(out)["samples"] == []
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_zenoh_sdk_subscriber_hears_no_repeated_stamp(tmp_path: Path) -> None:
+    from zenoh_ros2_sdk import ROS2Subscriber
+    from zenoh_ros2_sdk.message_registry import get_registry
+    from zenoh_ros2_sdk.session import ZenohSession
+
+    definitions = {
+        "std_msgs/msg/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
+        "builtin_interfaces/msg/Time": "int32 sec\nuint32 nanosec\n",
+        "geometry_msgs/msg/Wrench": "Vector3 force\nVector3 torque\n",
+        "geometry_msgs/msg/Vector3": "float64 x\nfloat64 y\nfloat64 z\n",
+        "geometry_msgs/msg/WrenchStamped": "std_msgs/Header header\nWrench wrench\n",
+    }
+    for typename, text in definitions.items():
+        path = tmp_path.joinpath(*typename.split("/")).with_suffix(".msg")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    get_registry(str(tmp_path))  # local definitions, never a download
+    port = free_port()
+    heard: list[Any] = []
+    with daemon(["--ros2"], {"TACTILED_ZENOH_MULTICAST_SCOUTING": "false",
+                             "TACTILED_ZENOH_LISTEN": f"tcp/127.0.0.1:{port}"}):
+        sdk = ZenohSession.get_instance("127.0.0.1", port)
+        for typename in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header",
+                         "geometry_msgs/msg/Vector3", "geometry_msgs/msg/Wrench"):
+            sdk.register_message_type(definitions[typename], typename)
+        sub = ROS2Subscriber("/tactiled/finger0/wrench", "geometry_msgs/msg/WrenchStamped",
+                             lambda m: heard.append((time.monotonic(), m)),
+                             msg_definition=definitions["geometry_msgs/msg/WrenchStamped"],
+                             router_ip="127.0.0.1", router_port=port)
+        try:
+            deadline = time.monotonic() + 90
+            while not heard and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert heard, "no WrenchStamped within 90 s"
+            first = heard[0][0]
+            while time.monotonic() < first + SECONDS:
+                time.sleep(0.05)
+        finally:
+            sub.close()
+            sdk.close()
+    window = [m for t, m in list(heard) if t <= first + SECONDS]
+    check([(m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec,
+            [m.wrench.force.x, m.wrench.force.y, m.wrench.force.z, m.wrench.torque.x,
+             m.wrench.torque.y, m.wrench.torque.z]) for m in window])
+
+
+def test_watch_ros2_reads_dds() -> None:
+    domain = private_domain()
+    env = {"CYCLONEDDS_URI": LOOPBACK}
+    with daemon([], {**env, "TACTILED_ROS2_ENABLED": "true",
+                     "TACTILED_ROS2_DOMAIN_ID": str(domain)}):
+        full = {k: v for k, v in os.environ.items() if not k.startswith(("TACTILED_", "ROS_"))}
+        done = subprocess.run(
+            [PYTHON, "-m", "tactiled.cli", "watch", "--ros2", "--ros2-middleware", "dds",
+             "--domain-id", str(domain), "--count", "20"], env={**full, **env},
+            capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    lines = [json.loads(line) for line in done.stdout.splitlines()]
+    assert len(lines) == 20
+    kinds = {line["topic"] for line in lines}
+    assert kinds <= {f"/tactiled/finger0/{k}" for k in ("wrench", "contact", "contacts",
+                                                         "markers")} | {"/diagnostics"}
+    wrenches = [x for x in lines if x["type"] == "geometry_msgs/msg/WrenchStamped"]
+    assert wrenches and all(w["message"]["header"]["frame_id"] == "finger0" for w in wrenches)
+    assert all(x["source_timestamp_ns"] > 0 for x in lines)
