@@ -337,3 +337,22 @@ def test_watch_ros2_prints_every_contact_of_the_array() -> None:
     listed = line["message"]["contacts"]
     assert [(c["contact_id"], c["force_n"], c["angle_deg"]) for c in listed] == [
         (k["contact_id"], k["force_n"], k["angle_deg"]) for k in est["contacts"]]
+
+
+def test_watch_prints_fields_not_a_definitions_constants() -> None:
+    """rosbags lists a definition's constants as dataclass fields; `watch --ros2` prints only
+    the fields (checked on a definition with constants and on the messages the daemon sends)."""
+    import dataclasses
+
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from tactiled_service.ros2.reader import plain
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    store.register(get_types_from_msg("uint8 STICK=0\nuint8 SLIP=2\nfloat64 x_mm\nuint8 state",
+                                      "probe_msgs/msg/State"))
+    cls = store.types["probe_msgs/msg/State"]
+    assert {"STICK", "SLIP"} <= {f.name for f in dataclasses.fields(cls)}  # what rosbags does
+    assert plain(cls(x_mm=1.5, state=2)) == {"x_mm": 1.5, "state": 2}
+    field = store.types["sensor_msgs/msg/PointField"](name="z", offset=8, datatype=7, count=1)
+    assert plain(field) == {"name": "z", "offset": 8, "datatype": 7, "count": 1}

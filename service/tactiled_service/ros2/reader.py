@@ -46,10 +46,14 @@ def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
 
 
 def plain(value: Any) -> Any:
-    """A rosbags message as JSON data: fields by name, arrays as lists, NaN as None."""
+    """A rosbags message as JSON data: fields by name, arrays as lists, NaN as None.
+
+    rosbags lists a definition's constants (``uint8 STICK=0``) among the dataclass fields; ROS 2
+    names fields in lower case and constants in upper case, so a name with a capital is left out.
+    """
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)
-                if not f.name.startswith("__")}
+                if not f.name.startswith("__") and f.name.islower()}
     if isinstance(value, np.ndarray):
         return [plain(v) for v in value.tolist()]
     if isinstance(value, (list, tuple)):
