@@ -21,7 +21,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
+from numba import njit
 
 from tactiled.fit.regions import SUPPORT_Z
 from tactiled.fit.window import choose_window
@@ -30,7 +30,6 @@ from tactiled.fit.window import choose_window
 BAND_SHARE = 0.1
 #: Arrays of at most this many tactels are fitted whole.
 WHOLE_ARRAY_TACTELS = 64
-_EIGHT = np.ones((3, 3), bool)
 
 
 def band(clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: float,
@@ -39,11 +38,41 @@ def band(clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: flo
     the ridge through ``peak_idx`` of the zeroed frame ``clean``."""
     if clean.size <= WHOLE_ARRAY_TACTELS:
         return ok.copy()
-    above = ok & (clean > max(SUPPORT_Z * sigma, BAND_SHARE * peak))
-    above[peak_idx] = True
-    labels, _ = ndimage.label(above, structure=_EIGHT)
-    ridge = labels == labels[peak_idx]
-    return ndimage.binary_dilation(ridge, structure=_EIGHT) & ok
+    return ridge_band(np.ascontiguousarray(clean, dtype=float), np.ascontiguousarray(ok, dtype=np.bool_),
+                      int(peak_idx[0]), int(peak_idx[1]), max(SUPPORT_Z * sigma, BAND_SHARE * peak))
+
+
+@njit(cache=True, nogil=True)
+def ridge_band(clean: np.ndarray, ok: np.ndarray, m: int, n: int, threshold: float) -> np.ndarray:
+    """The usable tactels above ``threshold`` 8-connected to ``(m, n)`` (a flood fill), grown
+    by one tactel on every side, usable ones only."""
+    rows, cols = clean.shape
+    ridge = np.zeros((rows, cols), dtype=np.bool_)
+    stack = np.empty((rows * cols, 2), dtype=np.int64)
+    ridge[m, n] = True
+    stack[0, 0], stack[0, 1] = m, n
+    top = 1
+    while top > 0:
+        top -= 1
+        i, j = stack[top, 0], stack[top, 1]
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                a, b = i + di, j + dj
+                if 0 <= a < rows and 0 <= b < cols and not ridge[a, b] and ok[a, b] \
+                        and clean[a, b] > threshold:
+                    ridge[a, b] = True
+                    stack[top, 0], stack[top, 1] = a, b
+                    top += 1
+    out = np.zeros((rows, cols), dtype=np.bool_)
+    for i in range(rows):
+        for j in range(cols):
+            if ridge[i, j]:
+                for di in (-1, 0, 1):
+                    for dj in (-1, 0, 1):
+                        a, b = i + di, j + dj
+                        if 0 <= a < rows and 0 <= b < cols and ok[a, b]:
+                            out[a, b] = True
+    return out
 
 
 def bounding_window(tactels: np.ndarray) -> tuple[int, int, int, int]:
