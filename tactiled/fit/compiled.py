@@ -104,7 +104,7 @@ def _evaluate_line(p, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_sc
     if n < 0:
         empty_r[0] = b
         return _INVALID_LONG, empty_r, empty_j, 0.0
-    work = _line_work(n, target.shape[0])
+    work = _line_work(n, int(valid.sum()))  # the valid tactels: a band's box holds others
     if work > work_left:
         return _BUDGET, empty_r, empty_j, 0.0
     if n > max_nodes:
