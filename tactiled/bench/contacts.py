@@ -17,6 +17,8 @@ frame of one kind and fitted with that model by :func:`tactiled.fit.multi.fit_co
   between them: the table says how often they were reported as two, as one (``merged`` or not), or otherwise.
 * **Tracked** through time: the ``hand-palm`` grasp (up to three contacts) through the whole
   daemon, each contact's filter against the scene's truth (:mod:`tactiled.bench.tracked_contacts`).
+* **Grasps**: lines, edges and balls together, and single contacts of each, fitted with
+  ``auto`` (:mod:`tactiled.bench.grasps`).
 * **Single** frames: one contact (on a flat array, spheres and line contacts, whose ridge the
   grid samples as several bumps), fitted by ``fit_contacts`` and by the single-contact fitter;
   the two results must be the same, key for key.
@@ -32,7 +34,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from tactiled.bench import tracked_contacts
+from tactiled.bench import grasps, tracked_contacts
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.fit.multi import fit_contacts, joint_bounds
@@ -219,7 +221,9 @@ def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None 
         single["same" if same else "different"] += 1
         if bar is not None:
             bar.step()
-    return {"resolved": resolved, "close": close, "single": single}
+    grasped, grasp_singles = grasps.score(desc, fitter, model, frames, rng, bar)
+    return {"resolved": resolved, "close": close, "single": single, "grasps": grasped,
+            "grasp_singles": grasp_singles}
 
 
 def _same(a: dict, b: dict) -> bool:
@@ -234,12 +238,15 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
     names = list(names) if names else list(DEFAULT_SENSORS)
     frames = 12 if quick else 60
     descs = [load_description(n) for n in names]
-    bar = Progress(len(descs) * frames * 4, "contacts", progress)
+    bar = Progress(len(descs) * frames * (4 + len(grasps.FLAT_GRASPS) + 1), "contacts", progress)
     out = [f"Each description: {frames} frames of two and {frames} of three contacts at least "
            f"{RESOLVED_DEPTHS:g} cover depths apart (resolved), {frames} of two contacts "
            f"{CLOSE_DEPTHS[0]:g}-{CLOSE_DEPTHS[1]:g} depths apart (close), {frames} of one; "
            f"each contact's peak {PEAK_SNR[0]:g}-{PEAK_SNR[1]:g} noise sigmas. RMS/CRB against the "
-           "joint model's bound at the truth; 2-sigma: errors within twice the reported sigma.", ""]
+           "joint model's bound at the truth; 2-sigma: errors within twice the reported sigma. "
+           f"Grasps: {frames} frames of each grasp of lines, edges and balls and {frames} single "
+           "contacts, fitted with auto (tactiled.bench.grasps: found, phantoms, RMS/CRB against "
+           "each contact's own bound, fit CPU ms per frame).", ""]
     for desc in descs:
         s = score(desc, frames, seed, bar)
         r: _Tally = s["resolved"]
@@ -260,7 +267,9 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
         out += ["", "withheld: " + (", ".join(f"{k[9:]} {v}" for k, v in withheld.items()) or "none"),
                 "close pairs reported as: " + ", ".join(f"{k} {v}" for k, v in s["close"].most_common()),
                 f"single contacts, same result as the single-contact fitter: "
-                f"{s['single']['same']} of {sum(s['single'].values())}", ""]
+                f"{s['single']['same']} of {sum(s['single'].values())}", "",
+                "grasps (auto):", ""]
+        out += grasps.report(s["grasps"], s["grasp_singles"])
         out += tracked_contacts.report(desc, tracked_contacts.score(desc, seed))
     bar.finish(f"{len(descs)} descriptions")
     return "\n".join(out)

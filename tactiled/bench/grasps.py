@@ -75,6 +75,7 @@ def _one(kind: str, rng: np.random.Generator, model: StrainModel, xy: tuple[floa
         return _scaled(model, lambda s: Contact(r, r, 0.0, s, *xy), snr)
     if psi is None:
         psi = float(rng.uniform(0.0, 180.0) if g.flat else rng.uniform(30.0, 150.0))
+    psi %= 180.0  # the reported angle's range, which the offset's sign follows
     if g.flat:
         return _scaled(model, lambda s: LineContact(r, psi, 0.1 * s, *xy), snr)
     return _scaled(model, lambda s: Contact(r, math.inf, psi, s, *xy), snr)
