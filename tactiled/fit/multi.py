@@ -129,11 +129,13 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     usable = np.isfinite(flat) if mask is None else np.asarray(mask, dtype=bool) & np.isfinite(flat)
     predict = Predictions(lambda r: predicted_strain(fitter, r))
     kept: list = []
-    # one region whose one contact the window's chi^2 rejects, and which leaves strain
-    # standing out of the noise beyond its core, may hold two (crossing cylinders, a ball
-    # against a line): a second is sought there, and kept if it pays its way
+    # one region that its one contact leaves standing out of the noise beyond its core may
+    # hold two (crossing cylinders, a ball against a line): a second is sought there, and kept
+    # if it pays its way.  (A line the noise explains on its band, every tactel that sees it,
+    # is not checked: its whole-array strain is the costliest prediction.)
     one = (len(regions) == 1 and res.contact and res.chi2 is not None
-           and not fitter._consistent(res) and unexplained(fitter, flat, usable, res, predict))
+           and not (res.line is not None and fitter._consistent(res))
+           and unexplained(fitter, flat, usable, res, predict))
     if res.contact and (len(regions) > 1 or one):
         deadline = None if budget_s is None else t0 + budget_s
         kept = select(fitter, np.asarray(strain, dtype=float), flat, model, usable, res,
