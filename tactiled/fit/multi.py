@@ -154,8 +154,10 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     out = prune(fitter, flat, usable, found, predict)
     if len(out) == 1:  # the joint fit left one contact paying its way: it alone, fitted alone
         return [fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left)]
-    if len(out) < len(found):
-        for r in out:
+    elapsed = (time.perf_counter() - t0) * 1e3
+    for r in out:
+        r.fit_ms = elapsed  # the whole frame's: the contacts' choice and fits together
+        if len(out) < len(found):
             r.reasons["contacts"] = SEVERAL_REASON.format(n=len(out))
     return out
 
