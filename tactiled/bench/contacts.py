@@ -32,7 +32,6 @@ from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from tactiled.bench import grasps, tracked_contacts
 from tactiled.fit.fitter import FitOptions, Fitter
@@ -141,19 +140,7 @@ def _score_frame(fitter: Fitter, desc: SensorDescription, kind: str, truths: lis
     fits = [r for r in fit_contacts(fitter, frame, kind) if r.contact]
     tally.fit_ms.append((time.perf_counter() - t0) * 1e3)
     g = fitter.sensor.geometry
-    gate = MATCH_PITCHES * max(g.dx, g.dy)
-    cost = np.full((len(truths), len(fits)), 1e6)
-    for i, c in enumerate(truths):
-        for j, r in enumerate(fits):
-            x, y = r.values.get("x_mm"), r.values.get("y_mm")
-            if x is not None and y is not None:
-                cost[i, j] = math.dist((c.x0, c.y0), (x, y))
-    rows, cols = linear_sum_assignment(cost) if fits else ((), ())
-    pairs = [(i, j) for i, j in zip(rows, cols) if cost[i, j] <= gate]
-    tally.count["truths"] += len(truths)
-    tally.count["missed"] += len(truths) - len(pairs)
-    tally.count["fits"] += len(fits)
-    tally.count["phantom"] += len(fits) - len(pairs)
+    pairs = grasps.match(truths, fits, MATCH_PITCHES * max(g.dx, g.dy), tally.count)
     if not pairs:
         return
     union = np.zeros((g.rows, g.cols), bool)

@@ -162,14 +162,10 @@ def _line_values(res, key: str) -> tuple[float | None, float | None]:
     return res.values.get(key), res.std.get(key)
 
 
-def score_frame(fitter: Fitter, model: StrainModel, truths: list[Contact | LineContact],
-                frame: np.ndarray, tally: Tally, kind_of: list[str]) -> None:
-    """Fit one frame and add its matches, misses, phantoms and errors to ``tally``."""
-    t0 = time.thread_time()
-    fits = [r for r in fit_contacts(fitter, frame, "auto") if r.contact]
-    tally.fit_ms.append((time.thread_time() - t0) * 1e3)
-    g = model.sensor.geometry
-    gate = MATCH_PITCHES * max(g.dx, g.dy)
+def match(truths: list, fits: list, gate: float, count: Counter) -> list[tuple[int, int]]:
+    """The ``(truth, fit)`` index pairs of ``truths`` and fits ``fits`` matched by place (a
+    line truth: the fit's distance across the line) within ``gate`` mm, nearest overall;
+    ``count`` gains the truths, misses, fits and phantoms."""
     cost = np.full((len(truths), len(fits)), 1e6)
     for i, c in enumerate(truths):
         for j, r in enumerate(fits):
@@ -179,10 +175,21 @@ def score_frame(fitter: Fitter, model: StrainModel, truths: list[Contact | LineC
                 cost[i, j] = _apart(c, place) if isinstance(c, LineContact) else math.dist((c.x0, c.y0), (x, y))
     rows, cols = linear_sum_assignment(cost) if fits else ((), ())
     pairs = [(i, j) for i, j in zip(rows, cols) if cost[i, j] <= gate]
-    tally.count["truths"] += len(truths)
-    tally.count["missed"] += len(truths) - len(pairs)
-    tally.count["fits"] += len(fits)
-    tally.count["phantom"] += len(fits) - len(pairs)
+    count["truths"] += len(truths)
+    count["missed"] += len(truths) - len(pairs)
+    count["fits"] += len(fits)
+    count["phantom"] += len(fits) - len(pairs)
+    return pairs
+
+
+def score_frame(fitter: Fitter, model: StrainModel, truths: list[Contact | LineContact],
+                frame: np.ndarray, tally: Tally, kind_of: list[str]) -> None:
+    """Fit one frame and add its matches, misses, phantoms and errors to ``tally``."""
+    t0 = time.thread_time()
+    fits = [r for r in fit_contacts(fitter, frame, "auto") if r.contact]
+    tally.fit_ms.append((time.thread_time() - t0) * 1e3)
+    g = model.sensor.geometry
+    pairs = match(truths, fits, MATCH_PITCHES * max(g.dx, g.dy), tally.count)
     centre = (0.5 * g.span_x, 0.5 * g.span_y)
     for i, j in pairs:
         c, r, kind = truths[i], fits[j], kind_of[i]

@@ -54,13 +54,13 @@ class Predictions:
         return pred
 
 
-def penalty(fitter: Any, res: FitResult, n_tactels: int) -> float:
+def penalty(res: FitResult, n_tactels: int) -> float:
     """The information criterion's charge for the contact ``res``: ``k ln N``."""
     k = len(res.params) if res.params is not None else get_model(res.model or "sphere").size
     return k * math.log(max(n_tactels, 2))
 
 
-def chi2(fitter: Any, left: np.ndarray, sd: np.ndarray, usable: np.ndarray) -> float:
+def chi2(left: np.ndarray, sd: np.ndarray, usable: np.ndarray) -> float:
     """chi^2 of the residual frame ``left`` over the usable tactels, each by its sd."""
     z = left[usable] / sd[usable]
     return float(np.dot(z, z))
@@ -103,8 +103,8 @@ def select(fitter: Any, strain: np.ndarray, flat: np.ndarray, model: str, usable
         cand_pred = predict(cand) if cand.contact else None
         if cand_pred is None:
             break
-        gain = chi2(fitter, left, sd, usable) - chi2(fitter, left - cand_pred, sd, usable)
-        if not gain > penalty(fitter, cand, n):
+        gain = chi2(left, sd, usable) - chi2(left - cand_pred, sd, usable)
+        if not gain > penalty(cand, n):
             break  # the highest unexplained place is no contact: none lower is either
         accepted.append((cand, cand_pred))
         total += cand_pred
@@ -134,8 +134,8 @@ def prune(fitter: Any, flat: np.ndarray, usable: np.ndarray, results: list[FitRe
         preds = [predict(r) for r in out]
         total = sum(p for p in preds if p is not None)
         left = flat - total
-        base = chi2(fitter, left, sd, usable)
-        gains = [math.inf if p is None else chi2(fitter, left + p, sd, usable) - base - penalty(fitter, r, n)
+        base = chi2(left, sd, usable)
+        gains = [math.inf if p is None else chi2(left + p, sd, usable) - base - penalty(r, n)
                  for r, p in zip(out, preds)]
         worst = int(np.argmin(gains))
         if gains[worst] > 0.0:

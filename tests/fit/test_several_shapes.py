@@ -136,4 +136,4 @@ def test_an_extra_contact_pays_for_its_parameters(flat16) -> None:
         # the gain of the weaker over the noise: its strain's chi^2, over the charge
         w = min(two, key=lambda r: r.values["force_n"] or 0.0)
         pred = predicted_strain(fitter, w)
-        assert float(np.sum((pred / sigma) ** 2)) > penalty(fitter, w, 256)
+        assert float(np.sum((pred / sigma) ** 2)) > penalty(w, 256)
