@@ -238,6 +238,8 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
     try:
         for sweep in range(sweeps):
             for i, reg in enumerate(regions):
+                if first is not None and i == k - 1:
+                    continue  # the last chosen was fitted on the frame less all the others
                 others = [j for j in range(k) if j != i]
                 residual = strain.copy()
                 m = usable.copy()
