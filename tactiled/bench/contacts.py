@@ -128,6 +128,14 @@ class _Tally:
         self.count: Counter = Counter()
         self.fit_ms: list[float] = []
 
+    def merge(self, other: "_Tally") -> None:
+        self.count.update(other.count)
+        self.fit_ms += other.fit_ms
+        for key, z in other.z.items():
+            self.z.setdefault(key, []).extend(z)
+        for key, c in other.cov.items():
+            self.cov.setdefault(key, []).extend(c)
+
     def add(self, key: str, err: float, crb: float | None, sd: float | None) -> None:
         if crb:
             self.z.setdefault(key, []).append(err / crb)
@@ -135,14 +143,14 @@ class _Tally:
 
 
 def _score_frame(fitter: Fitter, desc: SensorDescription, kind: str, truths: list[Contact],
-                 frame: np.ndarray, tally: _Tally) -> None:
+                 frame: np.ndarray, tally: _Tally) -> list:
     t0 = time.perf_counter()
     fits = [r for r in fit_contacts(fitter, frame, kind) if r.contact]
     tally.fit_ms.append((time.perf_counter() - t0) * 1e3)
     g = fitter.sensor.geometry
     pairs = grasps.match(truths, fits, MATCH_PITCHES * max(g.dx, g.dy), tally.count)
     if not pairs:
-        return
+        return fits
     union = np.zeros((g.rows, g.cols), bool)
     for r in fits:
         if r.window is not None:
@@ -161,6 +169,7 @@ def _score_frame(fitter: Fitter, desc: SensorDescription, kind: str, truths: lis
                 continue
             crb = None if bounds is None else bounds[0][i].get(key)
             tally.add(f"{kind}/{key}", _err(key, est, true[key]), crb, r.std.get(key))
+    return fits
 
 
 def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None = None) -> dict:
@@ -173,7 +182,7 @@ def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None 
     depth = max(sensor.impulse.depth_x, sensor.impulse.depth_y)
     rng = np.random.default_rng([seed, sum(desc.name.encode())])
     kinds = ("sphere",) if desc.flat else ("sphere", "cylinder")
-    resolved, close, single = _Tally(), Counter(), Counter()
+    resolved, close, single, close_tally = _Tally(), Counter(), Counter(), _Tally()
     for n in (2, 3):
         for f in range(frames):
             kind = kinds[f % len(kinds)]
@@ -190,7 +199,10 @@ def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None 
         if drawn is None:
             continue
         truths, clean = drawn
-        fits = [r for r in fit_contacts(fitter, clean + rng.normal(0.0, sigma, clean.shape), kind) if r.contact]
+        pair = _Tally()
+        fits = _score_frame(fitter, desc, kind, truths, clean + rng.normal(0.0, sigma, clean.shape), pair)
+        if len(fits) == 2:  # told apart: scored as the resolved are (one, merged, is no measurement of either)
+            close_tally.merge(pair)
         close["two" if len(fits) == 2 else "one, merged" if len(fits) == 1 and fits[0].label == "merged"
               else "one" if len(fits) == 1 else f"{len(fits)}"] += 1
         if bar is not None:
@@ -209,8 +221,20 @@ def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None 
         if bar is not None:
             bar.step()
     grasped, grasp_singles = grasps.score(desc, fitter, model, frames, rng, bar)
-    return {"resolved": resolved, "close": close, "single": single, "grasps": grasped,
+    return {"resolved": resolved, "close": close, "close_tally": close_tally, "single": single, "grasps": grasped,
             "grasp_singles": grasp_singles}
+
+
+def _close_line(t: _Tally) -> str:
+    """The close pairs reported as two: their contacts found, and their errors over the joint
+    bound and their sigmas (every parameter together)."""
+    c = t.count
+    z = [v for zs in t.z.values() for v in zs]
+    cov = [v for vs in t.cov.values() for v in vs]
+    rms = f"{float(np.sqrt(np.mean(np.square(z)))):.2f}" if z else "-"
+    inside = f"{100 * np.mean(cov):.0f} %" if cov else "-"
+    return (f"of those reported as two, contacts found {100 * (c['truths'] - c['missed']) / max(c['truths'], 1):.0f} %, "
+            f"phantom {c['phantom']}, RMS/CRB {rms}, 2-sigma {inside}")
 
 
 def _same(a: dict, b: dict) -> bool:
@@ -252,7 +276,8 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
                        f"{100 * np.mean(r.cov[key]):.0f} % | {len(r.cov[key])} |")
         withheld = {k: v for k, v in c.items() if k.startswith("withheld")}
         out += ["", "withheld: " + (", ".join(f"{k[9:]} {v}" for k, v in withheld.items()) or "none"),
-                "close pairs reported as: " + ", ".join(f"{k} {v}" for k, v in s["close"].most_common()),
+                "close pairs reported as: " + ", ".join(f"{k} {v}" for k, v in s["close"].most_common())
+                + "; " + _close_line(s["close_tally"]),
                 f"single contacts, same result as the single-contact fitter: "
                 f"{s['single']['same']} of {sum(s['single'].values())}", "",
                 "grasps (auto):", ""]

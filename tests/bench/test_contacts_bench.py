@@ -22,8 +22,13 @@ def test_short_run_finds_every_contact_at_the_joint_bound(name: str) -> None:
         assert np.mean(r.cov[key]) >= 0.8, key
     # a single contact is fitted as before, key for key
     assert s["single"]["same"] == sum(s["single"].values()) == 10
-    # close pairs are one contact (whose strain shows no dip)
-    assert s["close"]["two"] <= 1
+    # close pairs (whose strain shows no dip) are one contact, or two where the second pays
+    # its information criterion: never more, and two reported are covered by their sigmas
+    assert set(s["close"]) <= {"two", "one", "one, merged"}
+    c = s["close_tally"]
+    assert c.count["phantom"] <= 1
+    cov = [v for vs in c.cov.values() for v in vs]
+    assert np.mean(cov) >= 0.85
 
 
 @pytest.mark.parametrize("name", ["flat16", "fearing1988"])
