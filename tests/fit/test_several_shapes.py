@@ -137,3 +137,33 @@ def test_an_extra_contact_pays_for_its_parameters(flat16) -> None:
         w = min(two, key=lambda r: r.values["force_n"] or 0.0)
         pred = predicted_strain(fitter, w)
         assert float(np.sum((pred / sigma) ** 2)) > penalty(w, 256)
+
+
+def test_auto_compares_the_line_with_the_ellipses_on_the_same_tactels(flat16) -> None:
+    """A bar near the pad's edge with another bar's tail in its band: its chi^2 over the band
+    is beyond the noise's, yet on the ellipses' 4x4 window the line explains the strain
+    best, and auto keeps it.  The window's chi^2 is the frame less the line's predicted
+    strain there, computed independently."""
+    from tactiled.fit.linewindow import line_chi2_on_window
+
+    sensor, model, fitter = flat16
+    sigma = sensor.noise.sigma
+    a = LineContact(10.3, 3.2, 0.06, 24.0, 8.7)
+    b = LineContact(12.4, 7.6, 0.05, 14.6, 23.3)
+    rng = np.random.default_rng(0)
+    compared = 0
+    for _ in range(12):
+        frame = model.predict(a) + model.predict(b) + rng.normal(0.0, sigma, (16, 16))
+        res = fitter.fit(frame, "auto")
+        assert res.label == "line" and abs(_angle_err(res.values["angle_deg"], a.psi_deg)) < 1.0
+        chi2, n = line_chi2_on_window(fitter, frame, None, res.params)
+        r0, c0, nr, nc = fitter._frame(frame, None).win
+        pred = predicted_strain(fitter, res)
+        window = (slice(r0, r0 + nr), slice(c0, c0 + nc))
+        assert n == nr * nc == 16
+        assert chi2 == pytest.approx(float(np.sum(((frame - pred)[window] / sigma) ** 2)), rel=1e-6)
+        if res.criterion is not None:  # the band's chi^2 left the noise's: the models compared
+            compared += 1
+            assert res.criterion["cylinder"] == pytest.approx(chi2 + 4 * math.log(16))
+            assert res.criterion["cylinder"] < res.criterion["general"]
+    assert compared >= 2
