@@ -48,6 +48,8 @@ EDGE_RADIUS = 0.5
 FLAT_APART_DEPTHS = 6.0
 RESOLVED_DEPTHS = 2.5
 MATCH_PITCHES = 1.5
+#: A line's errors are also compared with the bound of a square window of this side on its ridge.
+SQUARE_WINDOW = 6
 FLAT_GRASPS = {"line+line": ("line", "line"), "line+ball": ("line", "ball"),
                "edge+ball": ("edge", "ball"), "line+ball+ball": ("line", "ball", "ball")}
 CURVED_GRASPS = {"crossing": ("cylinder", "cylinder"), "cylinder+ball": ("cylinder", "ball"),
@@ -140,6 +142,9 @@ class Tally:
         self.z: dict[str, list[float]] = {}
         self.cov: dict[str, list[bool]] = {}
         self.fit_ms: list[float] = []
+        #: a line's errors over a square 6x6 window's bound (what a window cut from the ridge
+        #: could do at best: ``Fitter.line_cramer_rao(window=6)``)
+        self.z6: dict[str, list[float]] = {}
 
     def add(self, key: str, err: float | None, crb: float | None, sd: float | None) -> None:
         self.count[f"seen {key}"] += 1
@@ -202,6 +207,7 @@ def score_frame(fitter: Fitter, model: StrainModel, truths: list[Contact | LineC
         truth = _truth_values(c, centre)
         if isinstance(c, LineContact):
             crb = fitter.line_cramer_rao(alone, c)
+            six = fitter.line_cramer_rao(alone, c, window=SQUARE_WINDOW)
             for key in LINE_KEYS:
                 est, sd = _line_values(r, key)
                 err = None
@@ -211,6 +217,8 @@ def score_frame(fitter: Fitter, model: StrainModel, truths: list[Contact | LineC
                     if key == "offset_mm" and ang is not None and math.cos(math.radians(ang - truth["angle_deg"])) < 0:
                         err = est + truth[key]  # the offset's sign follows the reported angle
                 tally.add(f"{kind}/{key}", err, crb.get(key), sd)
+                if err is not None and six.get(key):
+                    tally.z6.setdefault(f"{kind}/{key}", []).append(err / six[key])
             continue
         p = get_model(own).from_values(c.r1, c.r2, c.psi_deg, c.force, c.x0, c.y0)
         crb = fitter.cramer_rao(alone, own, p)
@@ -281,8 +289,14 @@ def report(tallies: dict[str, Tally], singles: Counter) -> list[str]:
             worst.append((float(np.sqrt(np.mean(np.square(z)))), f"{name} {key}",
                           100 * float(np.mean(t.cov[key]))))
     worst.sort(reverse=True)
+    single = tallies.get("single")
+    six = ("; ".join(f"{k} {float(np.sqrt(np.mean(np.square(z)))):.2f}" for k, z in single.z6.items())
+           if single is not None and single.z6 else None)
     out += ["", "single contacts giving exactly one contact: "
             f"{singles['one']} of {singles['one'] + singles['other']}",
             "worst parameters (RMS/CRB, 2-sigma): "
-            + "; ".join(f"{n} {r:.2f}, {cv:.0f} %" for r, n, cv in worst[:4]), ""]
+            + "; ".join(f"{n} {r:.2f}, {cv:.0f} %" for r, n, cv in worst[:4])]
+    if six:
+        out.append(f"single lines, RMS error over a {SQUARE_WINDOW}x{SQUARE_WINDOW} window's bound: {six}")
+    out.append("")
     return out
