@@ -28,7 +28,7 @@ from tactiled.fit.line import FORCE_REASON as LINE_FORCE_REASON
 from tactiled.fit.line import PARAMS as LINE_PARAMS
 from tactiled.fit.line import STEPS as LINE_STEPS
 from tactiled.fit.line import LineProblem
-from tactiled.fit.linewindow import line_chi2_on_window, line_frame
+from tactiled.fit.linewindow import chi2_on_band, line_frame
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.params import (
     MAX_ANGLE_SIGMA,
@@ -1225,8 +1225,8 @@ class Fitter:
         for r in fits:
             k = len(r.params) if r.params is not None else get_model(r.model).size
             chi2, n = r.chi2, r.n_points
-            if r is cyl and flat:  # the line's band: its chi^2 on the others' window, to compare
-                chi2, n = line_chi2_on_window(self, strain, mask, r.params)
+            if flat and r is not cyl and cyl.window != r.window:  # compared on the line's band
+                chi2, n = chi2_on_band(self, strain, mask, r.model, r.params)
             crit[r.model] = (chi2 if chi2 is not None else math.inf) + k * math.log(max(n, 2))
         best = min(fits, key=lambda r: crit[r.model])
         if best is not cyl and self._runs_off(best):

@@ -119,26 +119,23 @@ def line_frame(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, size: i
     return out
 
 
-def line_chi2_on_window(fitter: Any, strain: np.ndarray, mask: np.ndarray | None,
-                        params: tuple[float, ...] | None) -> tuple[float | None, int]:
-    """``(chi^2, tactels)`` of the line ``params`` (internal, its offset referred to its band)
-    on the square window the point models are fitted on: auto's information criterion compares
-    models on the same tactels (a line's chi^2 over its band's 40-100 tactels is no measure
-    against an ellipse's over 16).  ``(None, 0)`` without a line or a window."""
-    from tactiled.fit.fitter import _LINE_MODEL, FitResult
+def chi2_on_band(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, model: str,
+                 params: tuple[float, ...] | None) -> tuple[float | None, int]:
+    """``(chi^2, tactels)`` of a point contact ``model`` at ``params`` (internal) on the line's
+    band: auto's information criterion compares the line with the point models on the same
+    tactels, the band the line was fitted on (a ridge's segment that a finite ellipse explains
+    in a 4x4 window, the ellipse's ends leave unexplained along the band).  ``(None, 0)``
+    without a band or a prediction."""
+    from tactiled.fit.fitter import FitResult
+    from tactiled.fit.multi import _point_strain
 
-    if params is None or len(params) != _LINE_MODEL.size:
+    fr = line_frame(fitter, strain, mask)
+    if isinstance(fr, FitResult) or params is None:
         return None, 0
-    own = line_frame(fitter, strain, mask)
-    win = fitter._window(strain, _LINE_MODEL, mask)
-    if isinstance(own, FitResult) or isinstance(win, FitResult):
+    pred = _point_strain(fitter, model, params)
+    if pred is None:
         return None, 0
-    a, b = fitter._line_problem(own), fitter._line_problem(win)
-    p = np.array(params, dtype=float)
-    # the same line through the window's reference point: n . (r - ref) = c
-    p[3] += -np.sin(p[1]) * (a.ref[0] - b.ref[0]) + np.cos(p[1]) * (a.ref[1] - b.ref[1])
-    try:
-        r, _ = b.residual_and_jacobian(p)
-    except ValueError:
-        return None, 0
-    return float(r @ r) * win.peak * win.peak / fitter.sigma ** 2, win.n_points
+    r0, c0, nr, nc = fr.win
+    left = (fr.target - pred[r0:r0 + nr, c0:c0 + nc].ravel())[fr.valid]
+    sd = fitter._tactel_sd(fr.target[fr.valid])
+    return float(np.sum((left / sd) ** 2)), fr.n_points
