@@ -30,6 +30,11 @@ from tactiled.fit.window import choose_window
 BAND_SHARE = 0.1
 #: Arrays of at most this many tactels are fitted whole.
 WHOLE_ARRAY_TACTELS = 64
+#: A ridge runs across the array when its half-peak tactels reach within this many pitches of
+#: the array's border at both ends of their major axis, and are at least ``RIDGE_ELONGATION``
+#: times as long as wide (second moments).
+RIDGE_REACH_PITCHES = 1.5
+RIDGE_ELONGATION = 2.0
 
 
 def band(clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: float,
@@ -139,3 +144,36 @@ def chi2_on_band(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, model
     left = (fr.target - pred[r0:r0 + nr, c0:c0 + nc].ravel())[fr.valid]
     sd = fitter._tactel_sd(fr.target[fr.valid])
     return float(np.sum((left / sd) ** 2)), fr.n_points
+
+
+def runs_across(fitter: Any, flat: np.ndarray, mask: np.ndarray | None) -> tuple[bool, np.ndarray | None]:
+    """Whether the strain through the peak of ``flat`` (after the flat field) is a ridge that
+    runs across the array (a line contact: no ellipse has both its ends beyond the array),
+    and the line's band there (None without a peak)."""
+    from tactiled.fit.fitter import FitResult
+
+    fr = line_frame(fitter, flat, mask)
+    if isinstance(fr, FitResult):
+        return False, None
+    g = fitter.sensor.geometry
+    seen = np.zeros(flat.shape, bool)
+    r0, c0, nr, nc = fr.win
+    seen[r0:r0 + nr, c0:c0 + nc] = fr.valid.reshape(nr, nc)
+    m, n = np.nonzero(seen & (np.nan_to_num(flat) >= 0.5 * fr.peak))
+    if m.size < 3:
+        return False, seen
+    x, y = m * g.dx, n * g.dy
+    mx, my = x.mean(), y.mean()
+    cov = np.cov(np.vstack((x - mx, y - my)))
+    w, v = np.linalg.eigh(cov)
+    if not w[0] * RIDGE_ELONGATION ** 2 < w[1]:
+        return False, seen
+    ux, uy = v[0, 1], v[1, 1]
+    t = (x - mx) * ux + (y - my) * uy
+    # the array's extent along the axis through the ridge's centre
+    ends = [(-mx / ux, (g.span_x - mx) / ux) if abs(ux) > 1e-9 else (-np.inf, np.inf),
+            (-my / uy, (g.span_y - my) / uy) if abs(uy) > 1e-9 else (-np.inf, np.inf)]
+    lo = max(min(e) for e in ends)
+    hi = min(max(e) for e in ends)
+    reach = RIDGE_REACH_PITCHES * max(g.dx, g.dy)
+    return bool(t.min() <= lo + reach and t.max() >= hi - reach), seen

@@ -34,6 +34,7 @@ from tactiled.fit.regions import (
     Region,
     find_regions,
 )
+from tactiled.fit.linewindow import runs_across
 from tactiled.fit.result import FitResult
 from tactiled.fit.selection import CORE_SHARE, Predictions, prune, region_of, select, unexplained
 from tactiled.fit.warm import SEVERAL, nearest_start
@@ -125,7 +126,14 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     first_warm = warm
     if warm is not None and warm[0] == SEVERAL:  # the last frame's contact at the highest peak
         first_warm = starts[0] if starts else None
-    res = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=budget_s)
+    first_model = model
+    if model == "auto" and first_warm is None and len(regions) > 1 and fitter.sensor.geometry.flat:
+        # a ridge across the array beside other contacts is a line: fitted as one, without
+        # auto's search of the ellipses that its neighbours' strain in its band would start
+        across, seen = runs_across(fitter, flat, mask)
+        if across and any(not seen[reg.peak_idx] for reg in regions):
+            first_model = "cylinder"
+    res = fitter.fit(strain, first_model, mask=mask, warm=first_warm, budget_s=budget_s)
     usable = np.isfinite(flat) if mask is None else np.asarray(mask, dtype=bool) & np.isfinite(flat)
     predict = Predictions(lambda r: predicted_strain(fitter, r))
     kept: list = []

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from tactiled.fit.linewindow import runs_across
 from tactiled.fit.models import get_model
 from tactiled.fit.regions import SIGNIFICANT_Z, SUPPORT_Z, Region
 from tactiled.fit.result import FitResult
@@ -99,7 +100,11 @@ def select(fitter: Any, strain: np.ndarray, flat: np.ndarray, model: str, usable
         if not free.any() or float(np.max(left[free])) <= floor:
             break
         budget = None if deadline is None else max(deadline - time.perf_counter(), 0.0)
-        cand = fitter.fit(strain - raw(total), model, mask=free, budget_s=budget)
+        rest = strain - raw(total)
+        cand_model = model
+        if model == "auto" and fitter.sensor.geometry.flat and runs_across(fitter, fitter.flattened(rest), free)[0]:
+            cand_model = "cylinder"  # a ridge across the array: a line, no ellipse search
+        cand = fitter.fit(rest, cand_model, mask=free, budget_s=budget)
         cand_pred = predict(cand) if cand.contact else None
         if cand_pred is None:
             break
