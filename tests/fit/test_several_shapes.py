@@ -168,3 +168,22 @@ def test_auto_compares_the_line_with_the_ellipses_on_the_same_tactels(flat16) ->
         left = (frame - predicted_strain(fitter, ball))[seen] / sigma
         assert chi2 == pytest.approx(float(left @ left), rel=1e-6)
     assert compared >= 2
+
+
+def test_a_ridge_across_the_pad_is_told_from_a_blob_and_a_finite_ellipse(flat16) -> None:
+    from tactiled.fit.linewindow import runs_across
+
+    sensor, model, fitter = flat16
+    sigma = sensor.noise.sigma
+    rng = np.random.default_rng(2)
+
+    def across(c) -> bool:
+        frame = model.predict(c) + rng.normal(0.0, sigma, (16, 16))
+        return runs_across(fitter, fitter.flattened(frame), None)[0]
+
+    for psi in (0.0, 30.0, 75.0, 120.0, 170.0):
+        assert across(LineContact(8.0, psi, 0.05, 18.0, 20.0)), psi
+    for r in (3.0, 10.0, 25.0):
+        assert not across(Contact(r, r, 0.0, 1.0, 17.0, 19.0)), r
+    # an ellipse 3:1, both its ends on the pad
+    assert not across(Contact(4.0, 40.0, 30.0, 1.0, 18.0, 18.0))
