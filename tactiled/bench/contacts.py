@@ -17,6 +17,8 @@ frame of one kind and fitted with that model by :func:`tactiled.fit.multi.fit_co
   between them: the table says how often they were reported as two, as one (``merged`` or not), or otherwise.
 * **Tracked** through time: the ``hand-palm`` grasp (up to three contacts) through the whole
   daemon, each contact's filter against the scene's truth (:mod:`tactiled.bench.tracked_contacts`).
+* **Grasps**: lines, edges and balls together, and single contacts of each, fitted with
+  ``auto`` (:mod:`tactiled.bench.grasps`).
 * **Single** frames: one contact (on a flat array, spheres and line contacts, whose ridge the
   grid samples as several bumps), fitted by ``fit_contacts`` and by the single-contact fitter;
   the two results must be the same, key for key.
@@ -30,9 +32,8 @@ from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from tactiled.bench import tracked_contacts
+from tactiled.bench import grasps, tracked_contacts
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.fit.multi import fit_contacts, joint_bounds
@@ -127,6 +128,14 @@ class _Tally:
         self.count: Counter = Counter()
         self.fit_ms: list[float] = []
 
+    def merge(self, other: "_Tally") -> None:
+        self.count.update(other.count)
+        self.fit_ms += other.fit_ms
+        for key, z in other.z.items():
+            self.z.setdefault(key, []).extend(z)
+        for key, c in other.cov.items():
+            self.cov.setdefault(key, []).extend(c)
+
     def add(self, key: str, err: float, crb: float | None, sd: float | None) -> None:
         if crb:
             self.z.setdefault(key, []).append(err / crb)
@@ -134,26 +143,14 @@ class _Tally:
 
 
 def _score_frame(fitter: Fitter, desc: SensorDescription, kind: str, truths: list[Contact],
-                 frame: np.ndarray, tally: _Tally) -> None:
+                 frame: np.ndarray, tally: _Tally) -> list:
     t0 = time.perf_counter()
     fits = [r for r in fit_contacts(fitter, frame, kind) if r.contact]
     tally.fit_ms.append((time.perf_counter() - t0) * 1e3)
     g = fitter.sensor.geometry
-    gate = MATCH_PITCHES * max(g.dx, g.dy)
-    cost = np.full((len(truths), len(fits)), 1e6)
-    for i, c in enumerate(truths):
-        for j, r in enumerate(fits):
-            x, y = r.values.get("x_mm"), r.values.get("y_mm")
-            if x is not None and y is not None:
-                cost[i, j] = math.dist((c.x0, c.y0), (x, y))
-    rows, cols = linear_sum_assignment(cost) if fits else ((), ())
-    pairs = [(i, j) for i, j in zip(rows, cols) if cost[i, j] <= gate]
-    tally.count["truths"] += len(truths)
-    tally.count["missed"] += len(truths) - len(pairs)
-    tally.count["fits"] += len(fits)
-    tally.count["phantom"] += len(fits) - len(pairs)
+    pairs = grasps.match(truths, fits, MATCH_PITCHES * max(g.dx, g.dy), tally.count)
     if not pairs:
-        return
+        return fits
     union = np.zeros((g.rows, g.cols), bool)
     for r in fits:
         if r.window is not None:
@@ -172,6 +169,7 @@ def _score_frame(fitter: Fitter, desc: SensorDescription, kind: str, truths: lis
                 continue
             crb = None if bounds is None else bounds[0][i].get(key)
             tally.add(f"{kind}/{key}", _err(key, est, true[key]), crb, r.std.get(key))
+    return fits
 
 
 def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None = None) -> dict:
@@ -184,7 +182,7 @@ def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None 
     depth = max(sensor.impulse.depth_x, sensor.impulse.depth_y)
     rng = np.random.default_rng([seed, sum(desc.name.encode())])
     kinds = ("sphere",) if desc.flat else ("sphere", "cylinder")
-    resolved, close, single = _Tally(), Counter(), Counter()
+    resolved, close, single, close_tally = _Tally(), Counter(), Counter(), _Tally()
     for n in (2, 3):
         for f in range(frames):
             kind = kinds[f % len(kinds)]
@@ -201,7 +199,10 @@ def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None 
         if drawn is None:
             continue
         truths, clean = drawn
-        fits = [r for r in fit_contacts(fitter, clean + rng.normal(0.0, sigma, clean.shape), kind) if r.contact]
+        pair = _Tally()
+        fits = _score_frame(fitter, desc, kind, truths, clean + rng.normal(0.0, sigma, clean.shape), pair)
+        if len(fits) == 2:  # told apart: scored as the resolved are (one, merged, is no measurement of either)
+            close_tally.merge(pair)
         close["two" if len(fits) == 2 else "one, merged" if len(fits) == 1 and fits[0].label == "merged"
               else "one" if len(fits) == 1 else f"{len(fits)}"] += 1
         if bar is not None:
@@ -219,7 +220,21 @@ def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None 
         single["same" if same else "different"] += 1
         if bar is not None:
             bar.step()
-    return {"resolved": resolved, "close": close, "single": single}
+    grasped, grasp_singles = grasps.score(desc, fitter, model, frames, rng, bar)
+    return {"resolved": resolved, "close": close, "close_tally": close_tally, "single": single, "grasps": grasped,
+            "grasp_singles": grasp_singles}
+
+
+def _close_line(t: _Tally) -> str:
+    """The close pairs reported as two: their contacts found, and their errors over the joint
+    bound and their sigmas (every parameter together)."""
+    c = t.count
+    z = [v for zs in t.z.values() for v in zs]
+    cov = [v for vs in t.cov.values() for v in vs]
+    rms = f"{float(np.sqrt(np.mean(np.square(z)))):.2f}" if z else "-"
+    inside = f"{100 * np.mean(cov):.0f} %" if cov else "-"
+    return (f"of those reported as two, contacts found {100 * (c['truths'] - c['missed']) / max(c['truths'], 1):.0f} %, "
+            f"phantom {c['phantom']}, RMS/CRB {rms}, 2-sigma {inside}")
 
 
 def _same(a: dict, b: dict) -> bool:
@@ -234,12 +249,15 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
     names = list(names) if names else list(DEFAULT_SENSORS)
     frames = 12 if quick else 60
     descs = [load_description(n) for n in names]
-    bar = Progress(len(descs) * frames * 4, "contacts", progress)
+    bar = Progress(len(descs) * frames * (4 + len(grasps.FLAT_GRASPS) + 1), "contacts", progress)
     out = [f"Each description: {frames} frames of two and {frames} of three contacts at least "
            f"{RESOLVED_DEPTHS:g} cover depths apart (resolved), {frames} of two contacts "
            f"{CLOSE_DEPTHS[0]:g}-{CLOSE_DEPTHS[1]:g} depths apart (close), {frames} of one; "
            f"each contact's peak {PEAK_SNR[0]:g}-{PEAK_SNR[1]:g} noise sigmas. RMS/CRB against the "
-           "joint model's bound at the truth; 2-sigma: errors within twice the reported sigma.", ""]
+           "joint model's bound at the truth; 2-sigma: errors within twice the reported sigma. "
+           f"Grasps: {frames} frames of each grasp of lines, edges and balls and {frames} single "
+           "contacts, fitted with auto (tactiled.bench.grasps: found, phantoms, RMS/CRB against "
+           "each contact's own bound, fit CPU ms per frame).", ""]
     for desc in descs:
         s = score(desc, frames, seed, bar)
         r: _Tally = s["resolved"]
@@ -258,9 +276,12 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
                        f"{100 * np.mean(r.cov[key]):.0f} % | {len(r.cov[key])} |")
         withheld = {k: v for k, v in c.items() if k.startswith("withheld")}
         out += ["", "withheld: " + (", ".join(f"{k[9:]} {v}" for k, v in withheld.items()) or "none"),
-                "close pairs reported as: " + ", ".join(f"{k} {v}" for k, v in s["close"].most_common()),
+                "close pairs reported as: " + ", ".join(f"{k} {v}" for k, v in s["close"].most_common())
+                + "; " + _close_line(s["close_tally"]),
                 f"single contacts, same result as the single-contact fitter: "
-                f"{s['single']['same']} of {sum(s['single'].values())}", ""]
+                f"{s['single']['same']} of {sum(s['single'].values())}", "",
+                "grasps (auto):", ""]
+        out += grasps.report(s["grasps"], s["grasp_singles"])
         out += tracked_contacts.report(desc, tracked_contacts.score(desc, seed))
     bar.finish(f"{len(descs)} descriptions")
     return "\n".join(out)

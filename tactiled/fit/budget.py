@@ -73,9 +73,18 @@ LINE_OVERHEAD = EVALUATION_OVERHEAD
 LINE_WORK_PER_NODE = 36
 
 
+#: A line's window is its band, the tactels that see it along its whole length (40-100 on a
+#: 16x16 pad: ``tactiled.fit.linewindow``); its evaluations are charged for at most this many
+#: tactels, the default 4x4 window's, so that following the line does not cut short the
+#: searches auto's share of the budget allows a line on a window (a line's scout from its
+#: cold start takes 10-30 evaluations).  A band's evaluation costs up to ~6x what it is
+#: charged; the line fits of ``tactiled bench --suite contacts`` take at most ~4 ms.
+LINE_CHARGED_TACTELS = 16
+
+
 def line_work(nodes: int, points: int) -> int:
     """Work units of one evaluation of the line model: ``nodes`` across the line, ``points``
-    window tactels."""
+    window tactels (a line's band is charged for at most ``LINE_CHARGED_TACTELS``)."""
     return LINE_OVERHEAD + LINE_WORK_PER_NODE * nodes * points
 
 #: How a fit the budget stopped begins its ``reasons["fit"]`` (and the solver its message).

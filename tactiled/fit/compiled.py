@@ -25,7 +25,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from tactiled.fit.budget import DENIED, Budget, evaluation_work, line_work
+from tactiled.fit.budget import DENIED, LINE_CHARGED_TACTELS, Budget, evaluation_work, line_work
 from tactiled.fit.models import physical_map
 from tactiled.fit.solver import BUDGET_MESSAGE, STALLED, WITHIN_TOLERANCE, SolveResult
 from tactiled.physics.hertz import ellipse_core
@@ -104,7 +104,7 @@ def _evaluate_line(p, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_sc
     if n < 0:
         empty_r[0] = b
         return _INVALID_LONG, empty_r, empty_j, 0.0
-    work = _line_work(n, target.shape[0])
+    work = _line_work(n, min(int(valid.sum()), LINE_CHARGED_TACTELS))  # a band: its valid tactels
     if work > work_left:
         return _BUDGET, empty_r, empty_j, 0.0
     if n > max_nodes:

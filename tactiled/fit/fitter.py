@@ -28,6 +28,7 @@ from tactiled.fit.line import FORCE_REASON as LINE_FORCE_REASON
 from tactiled.fit.line import PARAMS as LINE_PARAMS
 from tactiled.fit.line import STEPS as LINE_STEPS
 from tactiled.fit.line import LineProblem
+from tactiled.fit.linewindow import chi2_on_band, line_frame
 from tactiled.fit.models import VALUE_KEYS, Model, get_model
 from tactiled.fit.params import (
     MAX_ANGLE_SIGMA,
@@ -1059,11 +1060,14 @@ class Fitter:
         _, jac = residual(np.asarray(params, dtype=float))
         return self._uncertainty(get_model(model), np.asarray(params, dtype=float), jac * peak, {})[1]
 
-    def line_cramer_rao(self, strain: np.ndarray, contact: LineContact) -> dict[str, float | None]:
+    def line_cramer_rao(self, strain: np.ndarray, contact: LineContact,
+                        window: int | None = None) -> dict[str, float | None]:
         """1-sigma Cramer-Rao bounds of a line contact (a cylinder on a flat array) at the
-        truth ``contact``, for the window this fitter would choose on ``strain``: ``r1_mm``,
-        ``angle_deg``, ``x_mm``, ``y_mm``, ``load_n_per_mm`` and ``offset_mm``."""
-        fr = self._line_frame(self.flattened(strain), None)
+        truth ``contact``, for the window this fitter would choose on ``strain`` (with
+        ``window``: a square window of that side on the ridge,
+        :func:`tactiled.fit.linewindow.square_window`): ``r1_mm``, ``angle_deg``, ``x_mm``,
+        ``y_mm``, ``load_n_per_mm`` and ``offset_mm``."""
+        fr = line_frame(self, self.flattened(strain), None, window)
         keys = ("x_mm", "y_mm", "r1_mm", "angle_deg", "load_n_per_mm", "offset_mm")
         if isinstance(fr, FitResult):
             return dict.fromkeys(keys)
@@ -1078,28 +1082,9 @@ class Fitter:
                 "offset_mm": line["offset_mm_std"]}
 
     def _line_frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
-        """The line model's window: on the ridge (tactels above half the peak), where it
-        passes nearest the array's centre.  Along a line every ridge tactel reads about the
-        peak, so the peak's own place is chance; near the centre the window sees the line's
-        position across it with the least leverage of its angle, and the same window every
-        frame."""
-        fr = self._window(strain, _LINE_MODEL, mask)
-        if isinstance(fr, FitResult):
-            return fr
-        clean, ok = self._prepare(strain, mask)
-        g = self.sensor.geometry
-        ridge = ok & (clean >= 0.5 * fr.peak)
-        m, n = np.nonzero(ridge)
-        if m.size == 0:
-            return fr
-        d2 = (m * g.dx - 0.5 * g.span_x) ** 2 + (n * g.dy - 0.5 * g.span_y) ** 2
-        k = int(np.argmin(d2))
-        idx = (int(m[k]), int(n[k]))
-        if idx == fr.peak_idx:
-            return fr
-        out = self._window_arrays(clean, ok, fr.peak_idx, fr.peak,
-                                  choose_window(clean, idx, self.options.window))
-        return out if out.n_points > _LINE_MODEL.size else fr
+        """The line model's window: the tactels that see the line, along its whole length
+        (:func:`tactiled.fit.linewindow.line_frame`)."""
+        return line_frame(self, strain, mask)
 
     def _line_problem(self, fr: _Frame) -> LineProblem:
         return LineProblem(self.sensor, fr.xs, fr.ys, fr.ex, fr.ey, fr.target, fr.valid,
@@ -1261,7 +1246,10 @@ class Fitter:
         crit = {}
         for r in fits:
             k = len(r.params) if r.params is not None else get_model(r.model).size
-            crit[r.model] = (r.chi2 if r.chi2 is not None else math.inf) + k * math.log(max(r.n_points, 2))
+            chi2, n = r.chi2, r.n_points
+            if flat and r is not cyl and cyl.window != r.window:  # compared on the line's band
+                chi2, n = chi2_on_band(self, strain, mask, r.model, r.params)
+            crit[r.model] = (chi2 if chi2 is not None else math.inf) + k * math.log(max(n, 2))
         best = min(fits, key=lambda r: crit[r.model])
         if best is not cyl and self._runs_off(best):
             best = cyl  # an ellipse longer than the array is the line the cylinder model fits

@@ -30,24 +30,23 @@ from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
 from tactiled.fit.regions import (
     ABSORBED_SHARE,
-    SEPARATION_SHARE,
     SIGNIFICANT_Z,
     Region,
     find_regions,
 )
+from tactiled.fit.linewindow import runs_across
 from tactiled.fit.result import FitResult
+from tactiled.fit.selection import CORE_SHARE, Predictions, prune, region_of, select, unexplained
 from tactiled.fit.warm import SEVERAL, nearest_start
 from tactiled.physics.contact import LineContact
 
 #: Passes over the contacts (the first fits each from cold, the second from the first).
 SWEEPS = 2
-#: In the passes after the first, a neighbour's tactels above this share of its peak stay out
-#: of a contact's window (where its model's error would dominate the other's strain).
-CORE_SHARE = 0.5
 #: What a result says when it is one of several.
 SEVERAL_REASON = "one of {n} contacts on this array: fitted with its neighbours' strain removed"
-MERGED_REASON = ("another pressed place within the cover's spread of this one: two contacts too "
-                 "close to tell apart are reported as one")
+MERGED_REASON = ("another pressed place within the cover's spread of this one, or strain this "
+                 "contact does not explain that no second contact pays for: several contacts "
+                 "too close to tell apart, reported as one")
 
 
 def _point_contact(model: str, params: tuple[float, ...]) -> tuple[float, ...] | None:
@@ -127,18 +126,48 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     first_warm = warm
     if warm is not None and warm[0] == SEVERAL:  # the last frame's contact at the highest peak
         first_warm = starts[0] if starts else None
-    res = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=budget_s)
-    others = _unexplained(fitter, flat, res, regions[1:]) if len(regions) > 1 else []
-    if not others:
-        if regions and regions[0].absorbed and res.contact and _merged(fitter, flat, res, regions[0]):
+    first_model = model
+    if model == "auto" and first_warm is None and len(regions) > 1 and fitter.sensor.geometry.flat:
+        # a ridge across the array beside other contacts is a line: fitted as one, without
+        # auto's search of the ellipses that its neighbours' strain in its band would start
+        across, seen = runs_across(fitter, flat, mask)
+        if across and any(not seen[reg.peak_idx] for reg in regions):
+            first_model = "cylinder"
+    res = fitter.fit(strain, first_model, mask=mask, warm=first_warm, budget_s=budget_s)
+    usable = np.isfinite(flat) if mask is None else np.asarray(mask, dtype=bool) & np.isfinite(flat)
+    predict = Predictions(lambda r: predicted_strain(fitter, r))
+    kept: list = []
+    # one region that its one contact leaves standing out of the noise beyond its core may
+    # hold two (crossing cylinders, a ball against a line): a second is sought there, and kept
+    # if it pays its way.  (A line the noise explains on its band, every tactel that sees it,
+    # is not checked: its whole-array strain is the costliest prediction.)
+    one = (len(regions) == 1 and res.contact and res.chi2 is not None
+           and not (res.line is not None and fitter._consistent(res))
+           and unexplained(fitter, flat, usable, res, predict))
+    if res.contact and (len(regions) > 1 or one):
+        deadline = None if budget_s is None else t0 + budget_s
+        kept = select(fitter, np.asarray(strain, dtype=float), flat, model, usable, res,
+                      max(len(regions), 2), deadline, predict, lambda s: _raw(fitter, s))
+    if len(kept) < 2:
+        if res.contact and regions and (
+                (regions[0].absorbed and _merged(fitter, flat, res, regions[0]))
+                or one):
             res.label = "merged"
             res.reasons["contacts"] = MERGED_REASON
         return [res]
-    kept = [regions[0], *others]
     left = None if budget_s is None else max(budget_s - (time.perf_counter() - t0), 0.0)
-    first_start = (res.model, res.params) if res.params is not None and res.model else starts[0]
-    return _fit_several(fitter, np.asarray(strain, dtype=float), model, mask, kept, left,
-                        [first_start, *(starts[regions.index(r)] for r in others)])
+    found = _fit_several(fitter, np.asarray(strain, dtype=float), model, mask,
+                         [region_of(fitter, p) for _, p in kept], left,
+                         [None] * len(kept), first=[r for r, _ in kept], predict=predict)
+    out = prune(fitter, flat, usable, found, predict)
+    if len(out) == 1:  # the joint fit left one contact paying its way: it alone, fitted alone
+        return [fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left)]
+    elapsed = (time.perf_counter() - t0) * 1e3
+    for r in out:
+        r.fit_ms = elapsed  # the whole frame's: the contacts' choice and fits together
+        if len(out) < len(found):
+            r.reasons["contacts"] = SEVERAL_REASON.format(n=len(out))
+    return out
 
 
 def _all_held(warm: Any, starts: list[tuple[str, tuple[float, ...]] | None]) -> bool:
@@ -167,24 +196,6 @@ def _merged(fitter: Any, flat: np.ndarray, res: FitResult, region: Region) -> bo
     return False
 
 
-def _unexplained(fitter: Any, flat: np.ndarray, res: FitResult, regions: list[Region]) -> list[Region]:
-    """The ``regions`` whose peak the contact ``res`` does not explain: the frame less its
-    predicted strain still stands, somewhere in the region, as a separate contact's peak would
-    (``SIGNIFICANT_Z`` sigmas and ``SEPARATION_SHARE`` of the region's peak).  A line's or a
-    long contact's ridge, which the grid samples as several bumps, is one contact's strain."""
-    pred = predicted_strain(fitter, res)
-    if pred is None:
-        return list(regions)  # nothing placed: nothing explains them
-    left = flat - pred
-    floor = SIGNIFICANT_Z * fitter.sigma
-    out = []
-    for reg in regions:
-        rest = float(np.max(left[reg.tactels])) if reg.tactels.any() else 0.0
-        if rest > floor and rest > SEPARATION_SHARE * reg.peak:
-            out.append(reg)
-    return out
-
-
 def _start_for(fitter: Any, region: Region, warm: Any) -> tuple[str, tuple[float, ...]] | None:
     """The warm start of the last frame's contact at ``region``'s peak, if any: ``warm`` is
     one contact's ``(model, params)`` or several's ``(SEVERAL, (...))``."""
@@ -209,30 +220,41 @@ def warm_of(results: list[FitResult]) -> tuple[str, Any] | None:
 
 def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray | None,
                  regions: list[Region], budget_s: float | None,
-                 starts: list[tuple[str, tuple[float, ...]] | None]) -> list[FitResult]:
+                 starts: list[tuple[str, tuple[float, ...]] | None],
+                 first: list[FitResult] | None = None, predict: Any = None) -> list[FitResult]:
+    """Each contact (one per region) fitted on the frame less the others' strain; ``first``:
+    each one's fit so far (:func:`tactiled.fit.selection.select`'s), which one pass refines;
+    ``predict``: a result's strain on the whole array (default :func:`predicted_strain`)."""
+    if predict is None:
+        predict = lambda r: predicted_strain(fitter, r)  # noqa: E731
     t0 = time.perf_counter()
     k = len(regions)
     usable = np.ones(strain.shape, bool) if mask is None else np.asarray(mask, dtype=bool)
     preds: list[np.ndarray | None] = [None] * k
     results: list[FitResult | None] = [None] * k
+    if first is not None:
+        results = list(first)
+        preds = [predict(r) for r in first]
     # every contact held since the last frame: its neighbours' strain is known from their
     # last fits at once, and one pass does what the cold start's two do
     if all(st is not None for st in starts):
         preds = [_point_strain(fitter, *st) for st in starts]  # type: ignore[misc]
     warm_all = all(p is not None for p in preds)
-    sweeps = 1 if warm_all else SWEEPS
+    sweeps = 1 if warm_all or first is not None else SWEEPS
     frozen = fitter.frozen
     fitter.frozen = True  # a frame less a model is no evidence of the tactels' gains
     try:
         for sweep in range(sweeps):
             for i, reg in enumerate(regions):
+                if first is not None and i == k - 1:
+                    continue  # the last chosen was fitted on the frame less all the others
                 others = [j for j in range(k) if j != i]
                 residual = strain.copy()
                 m = usable.copy()
                 for j in others:
                     if preds[j] is not None:
                         residual -= _raw(fitter, preds[j])
-                        if sweep or warm_all:
+                        if sweep or warm_all or first is not None:
                             m &= ~(regions[j].tactels & (preds[j] > CORE_SHARE * regions[j].peak))
                         else:
                             m &= ~regions[j].tactels
@@ -245,12 +267,13 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
                 prev = results[i]
                 warm = (starts[i] if prev is None else None if prev.params is None or prev.model is None
                         else (prev.model, prev.params))
-                fit_model = model if model == "auto" or prev is None else prev.model or model
+                fit_model = (prev.model if first is not None and prev is not None and prev.model
+                             else model if model == "auto" or prev is None else prev.model or model)
                 res = fitter.fit(residual, fit_model, mask=m, warm=warm, budget_s=left)
                 if prev is not None and not res.contact:
                     res = prev  # the refinement lost it: keep the first pass's
                 results[i] = res
-                preds[i] = predicted_strain(fitter, res)
+                preds[i] = predict(res)
     finally:
         fitter.frozen = frozen
     out = [r for r in results if r is not None]

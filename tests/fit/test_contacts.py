@@ -236,7 +236,9 @@ def test_contacts_held_since_the_last_frame_are_fitted_as_several_at_once(monkey
     monkeypatch.setattr(multi, "_all_held", lambda warm, starts: False)
     calls.clear()
     full = fit_contacts(fitter, frame, "auto", warm=warm)
-    assert len(calls) == 3 and calls[0] is frame  # the frame as one contact, then each
+    # the frame as one contact, the second found on the frame less the first, then the first
+    # refined on the frame less the second
+    assert len(calls) == 3 and calls[0] is frame
     assert len(held) == len(full) == 2
     for a, b, truth in zip(held, full, moved):
         for key, value in (("x_mm", truth.x0), ("y_mm", truth.y0), ("force_n", truth.force),

@@ -59,4 +59,4 @@ def test_a_ball_on_the_flat_mat_earns_the_allowance_and_converges():
         for k in ("x_mm", "y_mm", "r1_mm", "force_n"):
             # the same minimum, to within the convergence tolerance (0.1 sigma)
             assert abs(res.values[k] - ref.values[k]) <= 0.1 * ref.std[k], (k, res.values, ref.values)
-    assert over >= 3  # the allowance was needed, and granted
+    assert over >= 2  # the allowance was needed (the line scouted on its band, in half), and granted

@@ -1,0 +1,179 @@
+"""The line model's window: the tactels that see the line, however far it runs (docs/concepts/fitting.md).
+
+A line contact's angle lives in its length: two tactels on the ridge ``L`` apart fix the
+direction to about ``sigma_offset / L``, so a square window cut from the middle of the ridge
+throws the angle's information away (on a 16x16 pad a 4x4 window's bound on the angle is ~10
+times the whole ridge's).  The line's window is therefore its *band*: the tactels 8-connected
+to the peak whose strain stands above the noise (``SUPPORT_Z`` sigmas) and above a share of the
+peak (``BAND_SHARE``: a neighbouring contact's strain, which dips to zero between two contacts
+some cover depths apart, does not join the band), grown by one tactel on every side (the flanks,
+where the strain falls fastest, carry the line's offset and width).  The window is the band's
+bounding box, only the band's tactels valid in it.  On a small array (at most
+``WHOLE_ARRAY_TACTELS``) the whole array is the window: there every tactel's reading bears on
+the line and a fit over all of them costs what a 8x8 window's does.
+
+A line evaluation costs per tactel what a point contact's does, and a line fit over 100 tactels
+about 0.5 ms (a 4x4 window's: 0.25 ms), so following the line costs little.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from tactiled.fit.regions import SUPPORT_Z
+from tactiled.fit.window import choose_window
+
+#: A band tactel's strain is above this share of the peak (and ``SUPPORT_Z`` noise sigmas).
+BAND_SHARE = 0.1
+#: Arrays of at most this many tactels are fitted whole.
+WHOLE_ARRAY_TACTELS = 64
+#: A ridge runs across the array when its half-peak tactels reach within this many pitches of
+#: the array's border at both ends of their major axis, and are at least ``RIDGE_ELONGATION``
+#: times as long as wide (second moments).
+RIDGE_REACH_PITCHES = 1.5
+RIDGE_ELONGATION = 2.0
+
+
+def band(clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: float,
+         sigma: float) -> np.ndarray:
+    """The line's band (a boolean frame; see the module's doc): the usable tactels that see
+    the ridge through ``peak_idx`` of the zeroed frame ``clean``."""
+    if clean.size <= WHOLE_ARRAY_TACTELS:
+        return ok.copy()
+    return ridge_band(np.ascontiguousarray(clean, dtype=float), np.ascontiguousarray(ok, dtype=np.bool_),
+                      int(peak_idx[0]), int(peak_idx[1]), max(SUPPORT_Z * sigma, BAND_SHARE * peak))
+
+
+@njit(cache=True, nogil=True)
+def ridge_band(clean: np.ndarray, ok: np.ndarray, m: int, n: int, threshold: float) -> np.ndarray:
+    """The usable tactels above ``threshold`` 8-connected to ``(m, n)`` (a flood fill), grown
+    by one tactel on every side, usable ones only."""
+    rows, cols = clean.shape
+    ridge = np.zeros((rows, cols), dtype=np.bool_)
+    stack = np.empty((rows * cols, 2), dtype=np.int64)
+    ridge[m, n] = True
+    stack[0, 0], stack[0, 1] = m, n
+    top = 1
+    while top > 0:
+        top -= 1
+        i, j = stack[top, 0], stack[top, 1]
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                a, b = i + di, j + dj
+                if 0 <= a < rows and 0 <= b < cols and not ridge[a, b] and ok[a, b] \
+                        and clean[a, b] > threshold:
+                    ridge[a, b] = True
+                    stack[top, 0], stack[top, 1] = a, b
+                    top += 1
+    out = np.zeros((rows, cols), dtype=np.bool_)
+    for i in range(rows):
+        for j in range(cols):
+            if ridge[i, j]:
+                for di in (-1, 0, 1):
+                    for dj in (-1, 0, 1):
+                        a, b = i + di, j + dj
+                        if 0 <= a < rows and 0 <= b < cols and ok[a, b]:
+                            out[a, b] = True
+    return out
+
+
+def bounding_window(tactels: np.ndarray) -> tuple[int, int, int, int]:
+    """``(row0, col0, rows, cols)`` of the smallest window holding every True tactel."""
+    m, n = np.nonzero(tactels)
+    return int(m.min()), int(n.min()), int(m.max() - m.min() + 1), int(n.max() - n.min() + 1)
+
+
+def square_window(fitter: Any, clean: np.ndarray, ok: np.ndarray, peak: float,
+                  size: int) -> tuple[int, int, int, int] | None:
+    """A ``size`` x ``size`` window on the ridge (tactels above half the peak) where it
+    passes nearest the array's centre: what a square window sees of a line at best (the
+    reference the line's band is benchmarked against); None without a ridge tactel."""
+    g = fitter.sensor.geometry
+    m, n = np.nonzero(ok & (clean >= 0.5 * peak))
+    if m.size == 0:
+        return None
+    d2 = (m * g.dx - 0.5 * g.span_x) ** 2 + (n * g.dy - 0.5 * g.span_y) ** 2
+    k = int(np.argmin(d2))
+    return choose_window(clean, (int(m[k]), int(n[k])), size)
+
+
+def line_frame(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, size: int | None = None):
+    """The line model's window on ``strain`` (a ``fitter._Frame``, or the FitResult saying
+    there is none): the line's band, or with ``size`` a square window of that side on the
+    ridge (:func:`square_window`)."""
+    from tactiled.fit.fitter import _LINE_MODEL, FitResult
+
+    fr = fitter._window(strain, _LINE_MODEL, mask)
+    if isinstance(fr, FitResult):
+        return fr
+    clean, ok = fitter._prepare(strain, mask)
+    if size is not None:
+        win = square_window(fitter, clean, ok, fr.peak, size)
+        if win is None:
+            return fr
+        out = fitter._window_arrays(clean, ok, fr.peak_idx, fr.peak, win)
+        return out if out.n_points > _LINE_MODEL.size else fr
+    seen = band(clean, ok, fr.peak_idx, fr.peak, fitter.sigma)
+    out = fitter._window_arrays(clean, seen, fr.peak_idx, fr.peak, bounding_window(seen))
+    if out.n_points <= _LINE_MODEL.size:
+        return fr
+    out.clean = np.where(seen, clean, 0.0)  # the starts' moments: the band's strain alone
+    return out
+
+
+def chi2_on_band(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, model: str,
+                 params: tuple[float, ...] | None) -> tuple[float | None, int]:
+    """``(chi^2, tactels)`` of a point contact ``model`` at ``params`` (internal) on the line's
+    band: auto's information criterion compares the line with the point models on the same
+    tactels, the band the line was fitted on (a ridge's segment that a finite ellipse explains
+    in a 4x4 window, the ellipse's ends leave unexplained along the band).  ``(None, 0)``
+    without a band or a prediction."""
+    from tactiled.fit.fitter import FitResult
+    from tactiled.fit.multi import _point_strain
+
+    fr = line_frame(fitter, strain, mask)
+    if isinstance(fr, FitResult) or params is None:
+        return None, 0
+    pred = _point_strain(fitter, model, params)
+    if pred is None:
+        return None, 0
+    r0, c0, nr, nc = fr.win
+    left = (fr.target - pred[r0:r0 + nr, c0:c0 + nc].ravel())[fr.valid]
+    sd = fitter._tactel_sd(fr.target[fr.valid])
+    return float(np.sum((left / sd) ** 2)), fr.n_points
+
+
+def runs_across(fitter: Any, flat: np.ndarray, mask: np.ndarray | None) -> tuple[bool, np.ndarray | None]:
+    """Whether the strain through the peak of ``flat`` (after the flat field) is a ridge that
+    runs across the array (a line contact: no ellipse has both its ends beyond the array),
+    and the line's band there (None without a peak)."""
+    from tactiled.fit.fitter import FitResult
+
+    fr = line_frame(fitter, flat, mask)
+    if isinstance(fr, FitResult):
+        return False, None
+    g = fitter.sensor.geometry
+    seen = np.zeros(flat.shape, bool)
+    r0, c0, nr, nc = fr.win
+    seen[r0:r0 + nr, c0:c0 + nc] = fr.valid.reshape(nr, nc)
+    m, n = np.nonzero(seen & (np.nan_to_num(flat) >= 0.5 * fr.peak))
+    if m.size < 3:
+        return False, seen
+    x, y = m * g.dx, n * g.dy
+    mx, my = x.mean(), y.mean()
+    cov = np.cov(np.vstack((x - mx, y - my)))
+    w, v = np.linalg.eigh(cov)
+    if not w[0] * RIDGE_ELONGATION ** 2 < w[1]:
+        return False, seen
+    ux, uy = v[0, 1], v[1, 1]
+    t = (x - mx) * ux + (y - my) * uy
+    # the array's extent along the axis through the ridge's centre
+    ends = [(-mx / ux, (g.span_x - mx) / ux) if abs(ux) > 1e-9 else (-np.inf, np.inf),
+            (-my / uy, (g.span_y - my) / uy) if abs(uy) > 1e-9 else (-np.inf, np.inf)]
+    lo = max(min(e) for e in ends)
+    hi = min(max(e) for e in ends)
+    reach = RIDGE_REACH_PITCHES * max(g.dx, g.dy)
+    return bool(t.min() <= lo + reach and t.max() >= hi - reach), seen
