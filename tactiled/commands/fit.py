@@ -308,6 +308,10 @@ def _parallel(sensor: SensorModel, args: argparse.Namespace, strain: np.ndarray,
 
 
 def run(args: argparse.Namespace) -> int:
+    from tactiled.commands import shear
+
+    if shear.is_three_axis_file(args.frames):  # x, y, z per taxel (docs/concepts/shear.md)
+        return shear.fit(args)
     if args.window is not None and args.window < 2:
         print(f"tactiled fit: error: --window must be at least 2, got {args.window}", file=sys.stderr)
         return 2

@@ -105,6 +105,9 @@ class ShearEstimate:
         return "slip" if lam + 2 * s >= 1.0 else "partial"
 
     def to_json(self) -> dict[str, Any]:
+        return _finite(self._json())
+
+    def _json(self) -> dict[str, Any]:
         """The ``contact``, ``shear`` and ``slip`` tables of ``tactiled fit`` on a 3-axis file."""
         p, s = self.params, self.sigma
         r, force = math.exp(p[0]), math.exp(p[1])
@@ -123,10 +126,22 @@ class ShearEstimate:
         }
 
 
+def _finite(doc: Any) -> Any:
+    """``doc`` with every non-finite number as None (JSON has no inf), floats as Python's."""
+    if isinstance(doc, dict):
+        return {k: _finite(v) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_finite(v) for v in doc]
+    if isinstance(doc, (float, np.floating)):
+        return float(doc) if math.isfinite(doc) else None
+    return doc
+
+
 class ShearFitter:
     """Fits frames ``(rows, cols, 3)`` of one 3-axis description."""
 
-    def __init__(self, desc: SensorDescription, tol: float = 1e-8) -> None:
+    def __init__(self, desc: SensorDescription, tol: float = 1e-6) -> None:
+        # 1e-6: the quadrature's error is then some 1e-4 of the noise of a 3-axis taxel
         self.model = ThreeAxisModel(desc, tol)
         self.desc = desc
         self.side = (min(desc.rows, max(desc.window, MIN_WINDOW)), min(desc.cols, max(desc.window, MIN_WINDOW)))
