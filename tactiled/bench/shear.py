@@ -112,7 +112,7 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
             from tactiled.errors import ConfigError
 
             raise ConfigError(f"sensor {d.name!r} is a 1-axis array: the shear suite needs axes = 3")
-    n, pulls, sticks = (40, 4, 2) if quick else (200, 20, 10)
+    n, pulls, sticks = (40, 3, 2) if quick else (200, 20, 6)
     rows_a, rows_s = [], []
     for k, d in enumerate(descs):
         t0 = time.perf_counter()

@@ -10,8 +10,9 @@ slip detector (tactiled/fit/slip.py) runs along each sequence.
 Each output line of ``tactiled fit``: ``{"frame", "contact", "model": "sphere", "x_mm",
 "y_mm", "force_n", "r1_mm", "std": {...}, "shear": {"fx_n", "fy_n", "torque_nmm",
 "q_over_p", "mu", "slip_margin", "std": {...}}, "slip": {"state", "lam", "lam_std",
-"event"}, "rms", "converged", "reasons"}``; ``mu`` and ``slip_margin`` are null where the
-bound does not resolve them, and ``reasons`` says why.
+"event"}, "rms_over_noise", "converged", "reasons"}`` (``rms_over_noise``: the RMS residual
+in units of the noise); ``mu`` and ``slip_margin`` are null where the bound does not resolve
+them, and ``reasons`` says why.
 """
 
 from __future__ import annotations

@@ -51,7 +51,7 @@ class ShearEstimate:
     cov: np.ndarray
     rms: float
     converged: bool
-    reasons: list[str] = field(default_factory=list)
+    reasons: dict[str, str] = field(default_factory=dict)
 
     @property
     def sigma(self) -> np.ndarray:
@@ -113,7 +113,9 @@ class ShearEstimate:
         r, force = math.exp(p[0]), math.exp(p[1])
         qp, s_qp = self.q_over_p()
         mu, s_mu, why = self.mu()
-        reasons = list(self.reasons) + ([why] if why else [])
+        reasons = dict(self.reasons)
+        if why:
+            reasons["mu"] = reasons["slip_margin"] = why
         return {
             "contact": {"x_mm": p[2], "y_mm": p[3], "force_n": force, "r1_mm": r,
                         "std": {"x_mm": s[2], "y_mm": s[3], "force_n": force * s[1], "r1_mm": r * s[0]}},
@@ -122,7 +124,7 @@ class ShearEstimate:
                       "std": {"fx_n": s[4], "fy_n": s[5], "torque_nmm": s[6], "q_over_p": s_qp,
                               "mu": s_mu, "slip_margin": None if mu is None else s[7]}},
             "slip": {"state": self.state(), "lam": p[7], "lam_std": s[7]},
-            "rms": self.rms, "converged": self.converged, "reasons": reasons,
+            "rms_over_noise": self.rms, "converged": self.converged, "reasons": reasons,
         }
 
 
@@ -212,16 +214,17 @@ class ShearFitter:
         def residual(p: np.ndarray) -> np.ndarray:
             return self._predict(p, idx).ravel() - data
 
+        # tolerances: a relative change of 1e-6 in chi-square is far below what the noise decides
         res = least_squares(residual, p0, bounds=(_LO, _HI), method="trf", x_scale="jac",
-                            diff_step=1e-6, max_nfev=200)
+                            diff_step=1e-6, max_nfev=200, ftol=1e-6, xtol=1e-6)
         p = res.x
         jac = self._jacobian(p, idx)
-        reasons = []
+        reasons: dict[str, str] = {}
         cov = np.full((8, 8), np.inf)
         lam_col = np.linalg.norm(jac[:, 7])
         keep = list(range(8)) if lam_col > 1e-9 * np.linalg.norm(jac) else list(range(7))
         if len(keep) < 8:
-            reasons.append("lam is unobservable: no tangential force")
+            reasons["lam"] = "unobservable: no tangential force"
         fisher = jac[:, keep].T @ jac[:, keep]
         try:
             sub = np.linalg.inv(fisher)
@@ -229,7 +232,7 @@ class ShearFitter:
             if len(keep) < 8:
                 cov[7, :7] = cov[:7, 7] = 0.0
         except np.linalg.LinAlgError:
-            reasons.append("the information matrix is singular")
+            reasons["shear"] = "the information matrix is singular"
         dof = max(1, data.size - 8)
         rms = float(math.sqrt(2.0 * res.cost / dof))
         return ShearEstimate(p, cov, rms, bool(res.success), reasons)

@@ -34,7 +34,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import roots_chebyt, roots_legendre
 
-from tactiled.physics.halfspace import green
+from tactiled.physics.halfspace import green_weighted
 from tactiled.physics.hertz import Ellipse
 from tactiled.physics.strain import DEFAULT_TOL, disk_rule, nodes_for
 
@@ -103,9 +103,12 @@ class DisplacementModel:
         self.depth, self.modulus, self.nu, self.tol = depth, modulus, nu, tol
         self.g = modulus / (2.0 * (1.0 + nu))
 
-    def _green(self, px: np.ndarray, py: np.ndarray, ox: np.ndarray, oy: np.ndarray) -> np.ndarray:
-        """``(3, 3, points, nodes)`` Green's tensor between points and node positions."""
-        return green(px[:, None] - ox[None, :], py[:, None] - oy[None, :], self.depth, self.g, self.nu)
+    def _sum(self, px: np.ndarray, py: np.ndarray, ox: np.ndarray, oy: np.ndarray,
+             weights: np.ndarray) -> np.ndarray:
+        """``(k, 3, 3, points)``: the Green's tensor between points and nodes summed over the
+        nodes with ``weights`` ``(k, 3, nodes)`` (see :func:`green_weighted`)."""
+        return green_weighted(px, py, np.ascontiguousarray(ox), np.ascontiguousarray(oy),
+                              np.ascontiguousarray(weights), self.depth, self.g, self.nu)
 
     def hertz_shaped(self, ell: Ellipse, scale: float, x0: float, y0: float,
                      px: np.ndarray, py: np.ndarray) -> np.ndarray:
@@ -114,8 +117,8 @@ class DisplacementModel:
         u, v, w = disk_rule(nodes_for(scale * ell.a, self.depth, self.tol),
                             nodes_for(scale * ell.b, self.depth, self.tol))
         ox, oy = _nodes(ell, scale, x0, y0, u, v)
-        gr = self._green(px, py, x0 + ox, y0 + oy)
-        return gr @ (w * (3.0 / (2.0 * math.pi)))
+        wt = np.broadcast_to(w * (3.0 / (2.0 * math.pi)), (1, 3, w.size))
+        return self._sum(px, py, x0 + ox, y0 + oy, wt)[0]
 
     def _inverse_shaped(self, ell: Ellipse, x0: float, y0: float, px: np.ndarray, py: np.ndarray
                         ) -> tuple[np.ndarray, np.ndarray]:
@@ -124,11 +127,12 @@ class DisplacementModel:
         u, v, w = inverse_sqrt_rule(nodes_for(ell.a, self.depth, self.tol),
                                     nodes_for(ell.b, self.depth, self.tol))
         ox, oy = _nodes(ell, 1.0, x0, y0, u, v)
-        gr = self._green(px, py, x0 + ox, y0 + oy)
-        tang = gr[:, :2] @ (w / (2.0 * math.pi))
         k = 3.0 / (2.0 * math.pi * (ell.a ** 2 + ell.b ** 2))  # per N mm, times ab du dv / ab
-        tors = (gr[:, 0] @ (-oy * w) + gr[:, 1] @ (ox * w)) * k
-        return tang, tors
+        weights = np.zeros((2, 3, w.size))
+        weights[0, 0] = weights[0, 1] = w / (2.0 * math.pi)
+        weights[1, 0], weights[1, 1] = -oy * w * k, ox * w * k
+        out = self._sum(px, py, x0 + ox, y0 + oy, weights)
+        return out[0, :, :2], out[1, :, 0] + out[1, :, 1]
 
     def displacement(self, ell: Ellipse, load: Traction, x0: float, y0: float,
                      px: np.ndarray, py: np.ndarray) -> np.ndarray:

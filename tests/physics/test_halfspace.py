@@ -275,3 +275,16 @@ def test_quarter_turn_symmetry(load, a, x, y):
     u = model.displacement(ell, Traction(p, fx, fy, t, lam), 0.0, 0.0, np.array([x]), np.array([y]))[0]
     r = model.displacement(ell, Traction(p, -fy, fx, t, lam), 0.0, 0.0, np.array([-y]), np.array([x]))[0]
     assert r == pytest.approx(np.array((-u[1], u[0], u[2])), rel=1e-6, abs=1e-6 * np.abs(u).max())
+
+
+def test_compiled_sum_matches_the_numpy_green():
+    from tactiled.physics.halfspace import green_weighted
+
+    rng = np.random.default_rng(3)
+    px, py = rng.uniform(-3, 3, 7), rng.uniform(-3, 3, 7)
+    ox, oy = rng.uniform(-1, 1, 11), rng.uniform(-1, 1, 11)
+    w = rng.normal(size=(2, 3, 11))
+    got = green_weighted(px, py, ox, oy, w, 1.7, G, NU)
+    gr = green(px[:, None] - ox[None, :], py[:, None] - oy[None, :], 1.7, G, NU)  # (3, 3, P, N)
+    want = np.einsum("ijpn,kjn->kijp", gr, w)
+    assert got == pytest.approx(want, rel=1e-12, abs=1e-15)
