@@ -36,9 +36,15 @@ ONSET_FRAMES = 5
 LEAD = 60
 
 
-def arrays() -> list[SensorDescription]:
-    return [load_description("xela_uskin_4x4"), load_description("xela_uskin_4x6"),
-            three_axis(load_description("flat16")), three_axis(load_description("fearing1988"))]
+#: The suite's arrays: a description's name or path, or a 1-axis one's name + ``_3axis``.
+ARRAYS = ("xela_uskin_4x4", "xela_uskin_4x6", "flat16_3axis", "fearing1988_3axis")
+
+
+def resolve(spec: str) -> SensorDescription:
+    """The description ``spec`` names; ``NAME_3axis`` is 1-axis ``NAME`` made 3-axis."""
+    if spec.endswith("_3axis"):
+        return three_axis(load_description(spec[: -len("_3axis")]))
+    return load_description(spec)
 
 
 def _track(fitter: ShearFitter, frames: np.ndarray, first: int) -> list[tuple[str, int]]:
@@ -106,7 +112,7 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int) -> dict[st
 def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, seed: int = 1,
         say: Callable[[str], None] | None = None) -> str:
     """The suite's Markdown tables (``sensors`` replaces the arrays: 3-axis descriptions)."""
-    descs = arrays() if not sensors else [load_description(s) for s in sensors]
+    descs = [resolve(s) for s in (sensors or ARRAYS)]
     for d in descs:
         if d.axes != 3:
             from tactiled.errors import ConfigError

@@ -32,7 +32,9 @@ from tactiled.sensors.description import SensorDescription
 
 NAMES = ("ln_r", "ln_force", "x0", "y0", "fx", "fy", "torque", "lam")
 #: ``mu`` is reported when its relative 1-sigma bound is below this.
-MU_RESOLVED = 0.25
+MU_RESOLVED = 0.2
+#: ``lam`` this close to a bound (0 or 1) is clipped by it: no Gaussian bound holds there.
+LAM_EDGE = 1e-3
 #: Side of the fit window (taxels) at least: the displacement field reaches further than
 #: the strain's, so large arrays are fitted on this window around the peak.
 MIN_WINDOW = 8
@@ -81,8 +83,11 @@ class ShearEstimate:
         _, lnp, _, _, fx, fy, _, lam = self.params
         q, force = math.hypot(fx, fy), math.exp(lnp)
         s_lam = self.sigma[7]
-        if not math.isfinite(s_lam) or lam <= 0.0:
+        if not math.isfinite(s_lam) or lam <= LAM_EDGE:
             return None, None, "the stick zone is not resolved (lam = Q/(mu P) at 0 or unobservable)"
+        if lam >= 1.0 - LAM_EDGE:
+            return None, None, (f"the estimate of Q/(mu P) is at its bound 1 (+/- {s_lam:.2f}): "
+                                "mu's bound does not hold there")
         mu = q / (lam * force)
         g = np.zeros(8)
         if q > 0:
