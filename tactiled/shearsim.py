@@ -13,10 +13,12 @@ Gaussian noise of its ``axis_noise``) with the truth per frame:
   - ``push``: ``Q`` ramps to ``0.8 mu P`` over 200 ms and holds 100 ms (stick only);
   - ``twist``: the torsion ramps to half Lubkin's gross-slip torque ``3 pi mu P a / 16`` over
     200 ms and holds 100 ms (stick only);
-  - ``pull``: ``Q`` ramps to ``1.5 mu P`` over 300 ms; when it reaches ``mu P`` the contact
-    slides (the true slip onset): ``Q`` stays ``mu P``, the traction is ``mu p`` (``lam = 1``) and
-    the object moves over the skin along ``Q`` from rest at ``accel`` mm/s^2 (default
-    5000 mm/s^2, half of g) for the rest of the scene.
+  - ``pull``: ``Q`` ramps to ``1.5 mu P`` over 300 ms; when it reaches ``mu P`` (``mu`` the
+    static coefficient) the contact slides (the true slip onset): the friction becomes kinetic,
+    ``Q = kinetic mu P`` (``kinetic`` 0.8 by default; 1 for none), the traction is
+    ``kinetic mu p`` (gross slip, ``lam = 1``) and the object moves over the skin along ``Q``
+    from rest at ``accel`` mm/s^2 (default 5000 mm/s^2: 0.2 mu P of unbalanced force on some
+    20-60 g) for the rest of the scene.
 
 Truth keys: ``true_r1`` (the sphere's radius), ``true_force``, ``true_x``, ``true_y``,
 ``true_fx``, ``true_fy``, ``true_torque``, ``true_mu``, ``true_lam`` (``Q / (mu P)``),
@@ -77,7 +79,7 @@ def random_frames(desc: SensorDescription, n: int, rng: np.random.Generator,
 
 
 def sequence(desc: SensorDescription, kind: str, rng: np.random.Generator, rate_hz: float = 1000.0,
-             accel: float = 5000.0) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+             accel: float = 5000.0, kinetic: float = 0.8) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """One scene (:data:`SEQUENCES`) of noisy frames at ``rate_hz`` and its truth."""
     if kind not in SEQUENCES:
         raise ValueError(f"no shear scene {kind!r} (scenes: {', '.join(SEQUENCES)})")
@@ -111,9 +113,9 @@ def sequence(desc: SensorDescription, kind: str, rng: np.random.Generator, rate_
         if sliding:
             if onset < 0:
                 onset = i
-            q = mu * p
+            q = kinetic * mu * p
             slid = 0.5 * accel * ((i - onset + 1) * dt) ** 2
-        lam = lam_for(q, mu, p)
+        lam = 1.0 if sliding else lam_for(q, mu, p)
         c = ShearContact(radius, p, x0 + slid * math.cos(phi), y0 + slid * math.sin(phi),
                          q * math.cos(phi), q * math.sin(phi), t, lam)
         frames[i] = _noisy(model, model.frame(c), rng)

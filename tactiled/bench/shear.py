@@ -53,8 +53,7 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int) -> list[tuple[st
     for i in range(first, len(frames)):
         est = fitter.fit(frames[i], start=prev)
         prev = est.params
-        p, s = est.params, est.sigma
-        _, ev = det.update(i, p[2], p[3], s[2], s[3], p[4], p[5], p[7], s[7])
+        _, ev = det.feed(i, est)
         if ev is not None:
             events.append((ev.kind, ev.frame))
     return events

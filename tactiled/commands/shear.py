@@ -153,8 +153,7 @@ def fit_lines(desc: SensorDescription, taxels: np.ndarray, sequence: np.ndarray 
         out = est.to_json()
         event = None
         if sequence is not None:
-            p, s = est.params, est.sigma
-            state, ev = detector.update(i, p[2], p[3], s[2], s[3], p[4], p[5], p[7], s[7])
+            state, ev = detector.feed(i, est)
             if state is not None:
                 out["slip"]["state"] = state
             event = None if ev is None else ev.kind

@@ -68,6 +68,15 @@ class ShearEstimate:
         g = grad[nz]
         return float(math.sqrt(max(0.0, g @ self.cov[np.ix_(nz, nz)] @ g)))
 
+    def tangential(self) -> tuple[float, float]:
+        """``|Q|`` (N) and its 1-sigma."""
+        fx, fy = self.params[4], self.params[5]
+        q = math.hypot(fx, fy)
+        g = np.zeros(8)
+        if q > 0:
+            g[4], g[5] = fx / q, fy / q
+        return q, self._grad_sigma(g) if q > 0 else self.sigma[4]
+
     def q_over_p(self) -> tuple[float, float]:
         """``|Q| / P`` (the friction mobilised) and its 1-sigma."""
         _, lnp, _, _, fx, fy, _, _ = self.params

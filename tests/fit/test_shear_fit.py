@@ -67,7 +67,7 @@ def test_mu_withheld_with_a_reason_or_given_with_its_bound():
 def _feed(det, frames):
     events = []
     for i, (x, lam) in enumerate(frames):
-        _, ev = det.update(i, x, 0.0, 0.01, 0.01, 0.5, 0.0, lam, 0.05)
+        _, ev = det.update(i, x, 0.0, 0.01, 0.01, 0.5, 0.0, lam, 0.05, 0.003)
         if ev:
             events.append((ev.kind, ev.frame))
     return events
@@ -88,3 +88,19 @@ def test_slip_detector_on_known_motion():
     assert _feed(SlipDetector(), backwards) == []
     stuck = [(5.0 + (0.0025 * (i - 99) ** 2 if i >= 100 else 0.0), 0.5) for i in range(130)]
     assert _feed(SlipDetector(), stuck) == []
+
+
+def test_slip_detector_on_a_force_drop():
+    """Static friction giving way: |Q| falls by many sigma while the stick zone is gone."""
+    det = SlipDetector()
+    events = []
+    for i in range(60):
+        q = 0.5 if i < 40 else 0.4
+        _, ev = det.update(i, 5.0, 0.0, 0.01, 0.01, q, 0.0, 0.99, 0.05, 0.003)
+        if ev:
+            events.append((ev.kind, ev.frame))
+    assert events == [("onset", 40)]
+    # the same drop with a resolved stick zone (an unloading, not a slip) is no event
+    det = SlipDetector()
+    assert not any(det.update(i, 5.0, 0.0, 0.01, 0.01, 0.5 if i < 40 else 0.4, 0.0, 0.5, 0.05, 0.003)[1]
+                   for i in range(60))
