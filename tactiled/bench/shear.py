@@ -10,8 +10,9 @@ magnets at the cover's depth, 2 readings of noise per axis).  On each:
   Cramer-Rao bound and the 2-sigma coverage of ``fx``, ``fy`` and the torsion; how often ``mu``
   is resolved and its coverage there;
 * pull-until-slip scenes at 1 kHz: the slip onset's delay (frames from the true onset to the
-  declared one; the detector runs from 60 frames before the onset, cold), the share declared
-  within :data:`ONSET_FRAMES` frames;
+  declared one; the detector runs from 40 frames before the onset, cold, to 30 after), the share declared
+  within :data:`ONSET_FRAMES` frames; with the friction turning kinetic at the onset (0.8 of
+  the static: the force drops) and with a constant friction (the motion alone shows it);
 * stick-only scenes (push and twist in turn, every frame of their tangential loading): slip
   events declared (there should be none).
 """
@@ -32,8 +33,8 @@ from tactiled.sensors.description import SensorDescription
 from tactiled.shearsim import random_frames, sequence
 
 ONSET_FRAMES = 5
-#: The detector starts this many frames before a pull's true onset.
-LEAD = 60
+#: The detector starts this many frames before a pull's true onset and stops this many after.
+LEAD, AFTER = 40, 30
 
 
 #: The suite's arrays: a description's name or path, or a 1-axis one's name + ``_3axis``.
@@ -47,10 +48,11 @@ def resolve(spec: str) -> SensorDescription:
     return load_description(spec)
 
 
-def _track(fitter: ShearFitter, frames: np.ndarray, first: int) -> list[tuple[str, int]]:
-    """Fit ``frames[first:]`` in order (warm starts) through a slip detector: its events."""
+def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None = None
+           ) -> list[tuple[str, int]]:
+    """Fit ``frames[first:last]`` in order (warm starts) through a slip detector: its events."""
     det, prev, events = SlipDetector(), None, []
-    for i in range(first, len(frames)):
+    for i in range(first, len(frames) if last is None else min(last, len(frames))):
         est = fitter.fit(frames[i], start=prev)
         prev = est.params
         _, ev = det.feed(i, est)
@@ -83,15 +85,18 @@ def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
     return out
 
 
-def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int) -> dict[str, float]:
-    """Onset delays on pull scenes, slip events on stick-only scenes."""
+def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: float = 0.8
+         ) -> dict[str, float]:
+    """Onset delays on pull scenes (friction turning kinetic at ``kinetic`` times the static),
+    slip events on stick-only scenes."""
     rng = np.random.default_rng(seed)
     fitter = ShearFitter(desc)
     delays, early = [], 0
     for _ in range(pulls):
-        frames, truth = sequence(desc, "pull", rng)
+        frames, truth = sequence(desc, "pull", rng, kinetic=kinetic)
         onset = int(truth["true_onset"])
-        onsets = [f for kind, f in _track(fitter, frames, onset - LEAD) if kind == "onset"]
+        events = _track(fitter, frames, onset - LEAD, onset + AFTER)
+        onsets = [f for kind, f in events if kind == "onset"]
         declared = next((f for f in onsets if f >= onset), None)
         early += sum(1 for f in onsets if f < onset)
         delays.append(math.inf if declared is None else declared - onset)
@@ -117,25 +122,29 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
             from tactiled.errors import ConfigError
 
             raise ConfigError(f"sensor {d.name!r} is a 1-axis array: the shear suite needs axes = 3")
-    n, pulls, sticks = (40, 3, 2) if quick else (200, 20, 6)
+    n, pulls, flat, sticks = (40, 3, 2, 2) if quick else (150, 20, 6, 6)
     rows_a, rows_s = [], []
     for k, d in enumerate(descs):
         t0 = time.perf_counter()
         a = accuracy(d, n, seed + 10 * k)
         s = slip(d, pulls, sticks, seed + 10 * k + 1)
+        c = slip(d, flat, 0, seed + 10 * k + 2, kinetic=1.0)
         if progress is not False:
             import sys
 
             print(f"shear: {d.name} in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
         rows_a.append(f"| {d.name} | {d.rows}x{d.cols} | "
                       + " | ".join(f"{a[f'{q}_ratio']:.2f} / {a[f'{q}_cover']:.0%}" for q in ("fx", "fy", "torque"))
-                      + f" | {a['fx_crb'] * 1000:.1f} mN, {a['torque_crb']:.3f} N mm | {a['mu_resolved']:.0%} | "
+                      + f" | {a['fx_crb'] * 1000:.1f} mN, {a['torque_crb']:.3f} N mm"
+                      + f" | {a['mu_resolved']:.0%} | "
                       + (f"{a['mu_cover']:.0%}" if math.isfinite(a["mu_cover"]) else "-") + " |")
         rows_s.append(f"| {d.name} | {s['within']:.0%} ({s['pulls']}) | {s['median_delay']:g} / {s['max_delay']:g} | "
-                      f"{s['missed']} | {s['early']} | {s['false']} ({s['sticks']}) |")
-    head_a = ["| array | taxels | fx RMS/CRB / 2-sigma cover | fy | torque | RMS CRB (fx, torque) | mu resolved | mu cover |",
-              "|---|---|---|---|---|---|---|---|"]
-    head_s = [f"| array | onset within {ONSET_FRAMES} frames (pulls) | delay median / max, frames at 1 kHz | missed | early | slip events on stick-only scenes (scenes) |",
-              "|---|---|---|---|---|---|"]
+                      f"{s['missed']} | {s['early']} | {c['within']:.0%} ({c['pulls']}), "
+                      f"{c['median_delay']:g} / {c['max_delay']:g}, {c['missed']} missed | {s['false']} ({s['sticks']}) |")
+    head_a = ["| array | taxels | fx RMS/CRB / 2-sigma cover | fy | torque | RMS CRB (fx, torque) "
+              "| mu resolved | mu cover |", "|---|---|---|---|---|---|---|---|"]
+    head_s = [f"| array | onset within {ONSET_FRAMES} frames (pulls) | delay median / max, frames at 1 kHz "
+              "| missed | early | constant friction: within, delay, missed | slip events on stick-only scenes (scenes) |",
+              "|---|---|---|---|---|---|---|"]
     return "\n".join([f"Independent frames ({n} per array):", "", *head_a, *rows_a, "",
                       "Slip: pull-until-slip and stick-only scenes at 1 kHz:", "", *head_s, *rows_s])
