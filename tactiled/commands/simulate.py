@@ -6,6 +6,10 @@ File mode (OUTPUT.npz): each parameter takes a value or a range LO:HI drawn unif
 inverts, plus Gaussian noise and quantisation; the true parameters are stored beside 'strain'
 (true_r1, true_r2, true_angle, true_force, true_x, true_y), so a fit can be checked against them.
 
+On a 3-axis --sensor (axes = 3, e.g. xela_uskin_4x4) the file holds 'taxels' (N, rows, cols,
+3) under tangential loads: --load random (independent frames; --mu, --lam, --torque) or scenes
+at 1 kHz, --load push|twist|pull --sequences N (docs/concepts/shear.md).
+
 Presses mode (OUTPUT.npz --presses N): N presses of known contacts on the simulated finger (the
 finger flags below), as docs/howto/calibration.md's identification procedure records them (its
 indentors, forces 0.25-2 N, centres over the whole array, ~10 % unloaded, each press the mean
