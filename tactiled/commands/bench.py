@@ -54,7 +54,7 @@ import sys
 import time
 
 SUITES = ("configs", "models", "skip", "foundation", "acquisition", "identify", "speed",
-          "temporal", "sensors", "unexplained", "contacts")
+          "temporal", "sensors", "unexplained", "contacts", "shear")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -238,7 +238,8 @@ def run(args: argparse.Namespace) -> int:
                              args.plot if args.suite == "temporal" else None)]
     # the suites that take --sensor: a bad description is exit 2 with its one-line message
     for suite, title in (("sensors", "Sensors: accuracy on every description"),
-                         ("contacts", "Several contacts on one array")):
+                         ("contacts", "Several contacts on one array"),
+                         ("shear", "Shear, torsion, friction and slip on 3-axis arrays")):
         if suite not in suites:
             continue
         import importlib

@@ -33,6 +33,10 @@ order, the same as with --jobs 1 but for the timing key fit_ms.  Progress goes t
 inputs of 1000 frames or more (a bar on a terminal, else a line every 10 s and the totals at
 the end); stdout carries only the JSON lines.  For raw
 recordings (.tact), which need calibration and zeroing frame by frame, use 'tactiled replay'.
+
+A 3-axis file ('taxels' (N, rows, cols, 3), written by 'tactiled simulate --sensor' on a 3-axis
+description) is fitted by the shear model instead: each line then carries the 'shear' and
+'slip' tables (tangential force, torsion, friction; docs/concepts/shear.md).
 """
 
 from __future__ import annotations
@@ -326,6 +330,10 @@ def _parallel(sensor: SensorModel, args: argparse.Namespace, strain: np.ndarray,
 
 
 def run(args: argparse.Namespace) -> int:
+    from tactiled.commands import shear
+
+    if shear.is_three_axis_file(args.frames):  # x, y, z per taxel (docs/concepts/shear.md)
+        return shear.fit(args)
     if args.window is not None and args.window < 2:
         print(f"tactiled fit: error: --window must be at least 2, got {args.window}", file=sys.stderr)
         return 2

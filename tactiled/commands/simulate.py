@@ -6,6 +6,10 @@ File mode (OUTPUT.npz): each parameter takes a value or a range LO:HI drawn unif
 inverts, plus Gaussian noise and quantisation; the true parameters are stored beside 'strain'
 (true_r1, true_r2, true_angle, true_force, true_x, true_y), so a fit can be checked against them.
 
+On a 3-axis --sensor (axes = 3, e.g. xela_uskin_4x4) the file holds 'taxels' (N, rows, cols,
+3) under tangential loads: --load random (independent frames; --mu, --lam, --torque) or scenes
+at 1 kHz, --load push|twist|pull --sequences N (docs/concepts/shear.md).
+
 Presses mode (OUTPUT.npz --presses N): N presses of known contacts on the simulated finger (the
 finger flags below), as docs/howto/calibration.md's identification procedure records them (its
 indentors, forces 0.25-2 N, centres over the whole array, ~10 % unloaded, each press the mean
@@ -48,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.errors import TactiledError
 from tactiled.files import check_output
 from tactiled.finger import FingerSpec
 from tactiled.sensors import SensorDescription, load_description
@@ -146,6 +151,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      f"{DEFAULT_HYSTERESIS.tau_s} s; 0 for none (default {DEFAULT_HYSTERESIS.fraction})")
     dev.add_argument("--baud", type=int, default=1_000_000,
                      help="with --serial: baud rate (default 1000000; a 1 kHz 8x8 stream needs ~1.6 Mbaud)")
+    from tactiled.commands import shear
+
+    shear.add_arguments(p)
     vendor = p.add_argument_group(
         "vendor device mode: stream the scene as a lab's sensor does (docs/howto/drivers.md)")
     vendor.add_argument("--as", dest="as_kind", metavar="KIND",
@@ -232,6 +240,14 @@ def run(args: argparse.Namespace) -> int:
     check_output(args.output)  # before the work: a refusal to save it comes first, not last
     if args.presses is not None:
         return _run_presses(args)
+    try:
+        desc = description(args)
+    except TactiledError as err:
+        return _error(str(err))
+    if desc.axes == 3:  # x, y, z per taxel: tangential loads (docs/concepts/shear.md)
+        from tactiled.commands import shear
+
+        return shear.simulate(args, desc)
     if args.sigma is None:
         args.sigma = FILE_SIGMA
     if args.frames < 1:

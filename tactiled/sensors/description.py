@@ -16,6 +16,13 @@ A description is one TOML file (docs/howto/sensors.md)::
     noise_sigma = 0.0005       # one zeroed tactel's strain noise, 1 sigma
     wire_order = "row-major"   # or "column-major", "serpentine-rows", or a list of indices
     dead = [[0, 3]]            # tactels to ignore (broken, covered)
+    axes = 1                   # 1: one reading per taxel (strain); 3: x, y, z per taxel
+    # with axes = 3 (docs/concepts/shear.md): what each taxel measures, the displacement of a
+    # point at taxel_depth_mm under the surface (a magnet over a Hall sensor), in readings
+    # per mm along x, y, z, and each axis's noise in readings, 1 sigma:
+    taxel_depth_mm = 3.0
+    axis_gain = [1000.0, 1000.0, 1000.0]
+    axis_noise = [2.0, 2.0, 2.0]
 
 Units are in the key names.  Built-in descriptions are package data
 (``tactiled/sensors/builtin/NAME.toml``); :func:`load_description` takes a path or a built-in's
@@ -61,7 +68,13 @@ RANGES: dict[str, tuple[float, float]] = {
     "modulus_n_mm2": (0.005, 100.0),
     "noise_sigma": (1e-8, 0.1),
     "cover_poisson": (0.0, 0.5),
+    "taxel_depth_mm": (0.1, 30.0),
+    "axis_gain": (1e-6, 1e9),
+    "axis_noise": (1e-9, 1e9),
 }
+#: The keys of a 3-axis array, with their defaults when ``axes = 1`` (absent from its TOML and
+#: its fingerprint, so a 1-axis description reads and hashes as it always has).
+THREE_AXIS_KEYS = ("taxel_depth_mm", "axis_gain", "axis_noise")
 DEFAULT_NAME = "fearing1988"
 
 
@@ -97,6 +110,11 @@ class SensorDescription:
     description: str = ""
     nominal: tuple[str, ...] = ()
     sources: tuple[str, ...] = field(default=(), compare=False)
+    #: readings per taxel: 1 (strain) or 3 (displacement x, y, z at ``taxel_depth_mm``)
+    axes: int = 1
+    taxel_depth_mm: float = 0.0
+    axis_gain: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    axis_noise: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     # -- derived ----------------------------------------------------------------------------
     @property
@@ -165,7 +183,8 @@ class SensorDescription:
         """A short hash of everything the physics reads (not the name, sources or text): two
         descriptions with one fingerprint describe the same array."""
         doc = {f.name: getattr(self, f.name) for f in fields(self)
-               if f.name not in ("name", "description", "sources", "nominal")}
+               if f.name not in ("name", "description", "sources", "nominal")
+               and (self.axes == 3 or f.name not in ("axes", *THREE_AXIS_KEYS))}
         doc["surface_radius_mm"] = None if self.flat else self.surface_radius_mm
         text = json.dumps(doc, sort_keys=True, default=list)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -182,6 +201,8 @@ class SensorDescription:
                 continue
             if f.name in ("dead", "nominal") and not value:
                 continue
+            if self.axes == 1 and f.name in ("axes", *THREE_AXIS_KEYS):
+                continue
             lines.append(f"{f.name} = {_toml_value(value)}")
         return "\n".join(lines) + "\n"
 
@@ -193,6 +214,11 @@ class SensorDescription:
         d["flat"] = self.flat
         d["dead"] = [list(t) for t in self.dead]
         d["nominal"] = list(self.nominal)
+        for key in THREE_AXIS_KEYS:
+            if self.axes == 1:
+                d.pop(key)
+            elif key != "taxel_depth_mm":
+                d[key] = list(d[key])
         if not isinstance(self.wire_order, str):
             d["wire_order"] = list(self.wire_order)
         return d
@@ -320,11 +346,35 @@ def parse_description(doc: dict[str, Any], where: str = "sensor description",
     if isinstance(window, bool) or not isinstance(window, int) or not 2 <= window <= 64:
         raise _fail(where, "window", f"must be a window side of 2..64 tactels, got {window!r}")
     return SensorDescription(
+        **_three_axis(doc, where),
         name=name, rows=rows, cols=cols, surface_radius_mm=radius, window=window,
         wire_order=_wire_order(doc.get("wire_order", "row-major"), rows * cols, where),
         dead=_dead(doc.get("dead", []), rows, cols, where),
         description=text, nominal=tuple(nominal), sources=sources, **nums,
     )
+
+
+def _three_axis(doc: dict[str, Any], where: str) -> dict[str, Any]:
+    """The ``axes`` key and, for a 3-axis array, what its taxels measure (validated)."""
+    axes = doc.get("axes", 1)
+    if isinstance(axes, bool) or axes not in (1, 3):
+        raise _fail(where, "axes", f"must be 1 or 3 (readings per taxel), got {axes!r}")
+    if axes == 1:
+        given = [k for k in THREE_AXIS_KEYS if k in doc]
+        if given:
+            raise _fail(where, given[0], "belongs to a 3-axis array (axes = 3)")
+        return {}
+    out: dict[str, Any] = {"axes": 3, "taxel_depth_mm": _number(doc, "taxel_depth_mm", where)}
+    for key in ("axis_gain", "axis_noise"):
+        value = doc.get(key)
+        if (not isinstance(value, list) or len(value) != 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+            raise _fail(where, key, f"must be three numbers (x, y, z), got {value!r}")
+        lo, hi = RANGES[key]
+        if not all(math.isfinite(v) and lo <= v <= hi for v in value):
+            raise _fail(where, key, f"each value must lie in {lo:g}..{hi:g}, got {value!r}")
+        out[key] = tuple(float(v) for v in value)
+    return out
 
 
 def _comments(text: str) -> tuple[str, ...]:

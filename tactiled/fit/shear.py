@@ -1,0 +1,252 @@
+"""Fit a 3-axis frame: the normal contact and its tangential force, torsion and friction state,
+with Cramer-Rao bounds (docs/concepts/shear.md).
+
+The model is :class:`~tactiled.physics.threeaxis.ThreeAxisModel` (a sphere's Hertz pressure, a
+Cattaneo-Mindlin tangential traction, Lubkin's torsion; the half-space's displacement at the
+taxels' depth).  Parameters ``(ln r_mm, ln force, x0, y0, fx, fy, torque, lam)``, ``lam = Q /
+(mu P)`` in [0, 1]; residuals are every live taxel's three readings in a window around the
+contact, each divided by its axis's noise.  A linear solve at full stick starts the search
+(the readings are linear in P, fx, fy and the torsion at a given contact size), then a
+bounded Levenberg-Marquardt (scipy's trust region reflective) finishes it.  The covariance is
+``(J^T J)^-1`` at the estimate (central differences).
+
+From ``lam`` follow the friction coefficient ``mu = |Q| / (lam P)`` and the margin to slip
+``1 - lam``, reported only where the bound resolves them (a relative sigma of ``mu`` under
+:data:`MU_RESOLVED`): a stick zone of radius ``c = a (1 - lam)^(1/3)`` changes the readings
+by little when ``Q`` is small or the taxels lie deep under a small contact, and then ``mu`` is
+``None`` with the reason.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from tactiled.physics.threeaxis import ShearContact, ThreeAxisModel
+from tactiled.physics.traction import Traction
+from tactiled.sensors.description import SensorDescription
+
+NAMES = ("ln_r", "ln_force", "x0", "y0", "fx", "fy", "torque", "lam")
+#: ``mu`` is reported when its relative 1-sigma bound is below this.
+MU_RESOLVED = 0.2
+#: ``lam`` this close to a bound (0 or 1) is clipped by it: no Gaussian bound holds there.
+LAM_EDGE = 1e-3
+#: Side of the fit window (taxels) at least: the displacement field reaches further than
+#: the strain's, so large arrays are fitted on this window around the peak.
+MIN_WINDOW = 8
+#: Central-difference steps of the covariance's Jacobian, per parameter.
+_STEPS = np.array((1e-3, 1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-4, 1e-3))
+_LO = np.array((math.log(1.0), math.log(1e-3), -np.inf, -np.inf, -np.inf, -np.inf, -np.inf, 0.0))
+_HI = np.array((math.log(500.0), math.log(100.0), np.inf, np.inf, np.inf, np.inf, np.inf, 1.0))
+
+
+@dataclass
+class ShearEstimate:
+    """One frame's estimate: ``values`` and 1-sigma ``sigma`` per name of :data:`NAMES`, the
+    covariance, the reduced chi-square ``rms`` and the reasons for what is withheld."""
+
+    params: np.ndarray
+    cov: np.ndarray
+    rms: float
+    converged: bool
+    reasons: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+
+    def contact(self) -> ShearContact:
+        p = self.params
+        return ShearContact(math.exp(p[0]), math.exp(p[1]), p[2], p[3], p[4], p[5], p[6], p[7])
+
+    def _grad_sigma(self, grad: np.ndarray) -> float:
+        nz = np.nonzero(grad)[0]
+        g = grad[nz]
+        return float(math.sqrt(max(0.0, g @ self.cov[np.ix_(nz, nz)] @ g)))
+
+    def tangential(self) -> tuple[float, float]:
+        """``|Q|`` (N) and its 1-sigma."""
+        fx, fy = self.params[4], self.params[5]
+        q = math.hypot(fx, fy)
+        g = np.zeros(8)
+        if q > 0:
+            g[4], g[5] = fx / q, fy / q
+        return q, self._grad_sigma(g) if q > 0 else self.sigma[4]
+
+    def q_over_p(self) -> tuple[float, float]:
+        """``|Q| / P`` (the friction mobilised) and its 1-sigma."""
+        _, lnp, _, _, fx, fy, _, _ = self.params
+        q, force = math.hypot(fx, fy), math.exp(lnp)
+        g = np.zeros(8)
+        if q > 0:
+            g[4], g[5] = fx / (q * force), fy / (q * force)
+        g[1] = -q / force
+        return q / force, self._grad_sigma(g)
+
+    def mu(self) -> tuple[float | None, float | None, str | None]:
+        """``mu = |Q| / (lam P)`` and its sigma, or ``(None, None, reason)``."""
+        _, lnp, _, _, fx, fy, _, lam = self.params
+        q, force = math.hypot(fx, fy), math.exp(lnp)
+        s_lam = self.sigma[7]
+        if not math.isfinite(s_lam) or lam <= LAM_EDGE:
+            return None, None, "the stick zone is not resolved (lam = Q/(mu P) at 0 or unobservable)"
+        if lam >= 1.0 - LAM_EDGE:
+            return None, None, (f"the estimate of Q/(mu P) is at its bound 1 (+/- {s_lam:.2f}): "
+                                "mu's bound does not hold there")
+        mu = q / (lam * force)
+        g = np.zeros(8)
+        if q > 0:
+            g[4], g[5] = fx / (q * lam * force), fy / (q * lam * force)
+        g[1] = -mu
+        g[7] = -mu / lam
+        s_mu = self._grad_sigma(g)
+        if not (mu > 0 and s_mu < MU_RESOLVED * mu):
+            return None, None, (f"the stick zone is not resolved: Q/(mu P) = {lam:.2f} +/- {s_lam:.2f} "
+                                f"(mu's bound {s_mu / mu if mu > 0 else math.inf:.0%} of it, over "
+                                f"{MU_RESOLVED:.0%})")
+        return mu, s_mu, None
+
+    def state(self) -> str:
+        """``stick`` (no slip annulus resolved: ``lam`` within 2 sigma of 0), ``slip`` (the
+        stick zone gone: within 2 sigma of 1, and resolved from 0), else ``partial``."""
+        lam, s = self.params[7], self.sigma[7]
+        if not math.isfinite(s) or lam - 2 * s <= 0.0:
+            return "stick"
+        return "slip" if lam + 2 * s >= 1.0 else "partial"
+
+    def to_json(self) -> dict[str, Any]:
+        return _finite(self._json())
+
+    def _json(self) -> dict[str, Any]:
+        """The ``contact``, ``shear`` and ``slip`` tables of ``tactiled fit`` on a 3-axis file."""
+        p, s = self.params, self.sigma
+        r, force = math.exp(p[0]), math.exp(p[1])
+        qp, s_qp = self.q_over_p()
+        mu, s_mu, why = self.mu()
+        reasons = dict(self.reasons)
+        if why:
+            reasons["mu"] = reasons["slip_margin"] = why
+        return {
+            "contact": {"x_mm": p[2], "y_mm": p[3], "force_n": force, "r1_mm": r,
+                        "std": {"x_mm": s[2], "y_mm": s[3], "force_n": force * s[1], "r1_mm": r * s[0]}},
+            "shear": {"fx_n": p[4], "fy_n": p[5], "torque_nmm": p[6], "q_over_p": qp,
+                      "mu": mu, "slip_margin": None if mu is None else 1.0 - p[7],
+                      "std": {"fx_n": s[4], "fy_n": s[5], "torque_nmm": s[6], "q_over_p": s_qp,
+                              "mu": s_mu, "slip_margin": None if mu is None else s[7]}},
+            "slip": {"state": self.state(), "lam": p[7], "lam_std": s[7]},
+            "rms_over_noise": self.rms, "converged": self.converged, "reasons": reasons,
+        }
+
+
+def _finite(doc: Any) -> Any:
+    """``doc`` with every non-finite number as None (JSON has no inf), floats as Python's."""
+    if isinstance(doc, dict):
+        return {k: _finite(v) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_finite(v) for v in doc]
+    if isinstance(doc, (float, np.floating)):
+        return float(doc) if math.isfinite(doc) else None
+    return doc
+
+
+class ShearFitter:
+    """Fits frames ``(rows, cols, 3)`` of one 3-axis description."""
+
+    def __init__(self, desc: SensorDescription, tol: float = 1e-6) -> None:
+        # 1e-6: the quadrature's error is then some 1e-4 of the noise of a 3-axis taxel
+        self.model = ThreeAxisModel(desc, tol)
+        self.desc = desc
+        self.side = (min(desc.rows, max(desc.window, MIN_WINDOW)), min(desc.cols, max(desc.window, MIN_WINDOW)))
+
+    # -- the window and the residuals ---------------------------------------------------
+    def _window(self, frame: np.ndarray) -> np.ndarray:
+        """Row-major indices of the live taxels of the window around the normal peak."""
+        d = self.desc
+        z = np.where(self.model.live.reshape(d.rows, d.cols), frame[..., 2], -np.inf)
+        m, n = np.unravel_index(int(np.argmax(z)), z.shape)
+        r0 = min(max(0, m - self.side[0] // 2), d.rows - self.side[0])
+        c0 = min(max(0, n - self.side[1] // 2), d.cols - self.side[1])
+        rr, cc = np.meshgrid(np.arange(r0, r0 + self.side[0]), np.arange(c0, c0 + self.side[1]), indexing="ij")
+        idx = (rr * d.cols + cc).ravel()
+        return idx[self.model.live[idx]]
+
+    def _predict(self, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        c = ShearContact(math.exp(p[0]), math.exp(p[1]), p[2], p[3], p[4], p[5], p[6], float(p[7]))
+        return self.model.readings(c, self.model.px[idx], self.model.py[idx]) / self.model.noise
+
+    def _jacobian(self, p: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        cols = []
+        for k in range(8):
+            lo, hi = p.copy(), p.copy()
+            h = _STEPS[k]
+            lo[k] = max(_LO[k], p[k] - h)
+            hi[k] = min(_HI[k], p[k] + h)
+            cols.append(((self._predict(hi, idx) - self._predict(lo, idx)) / (hi[k] - lo[k])).ravel())
+        return np.stack(cols, axis=1)
+
+    # -- the start ----------------------------------------------------------------------
+    def start(self, frame: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """A full-stick start: the centre from the normal readings, then ``(P, fx, fy, T)`` by
+        linear least squares at a 10 mm sphere (twice, the contact's size following ``P``)."""
+        m = self.model
+        z = frame.reshape(-1, 3)[idx, 2]
+        w = np.clip(z, 0.0, None) ** 2
+        if w.sum() <= 0:
+            w = np.ones_like(z)
+        x0 = float(np.sum(w * m.px[idx]) / w.sum())
+        y0 = float(np.sum(w * m.py[idx]) / w.sum())
+        data = (frame.reshape(-1, 3)[idx] / m.noise).ravel()
+        force, radius = 1.0, 10.0
+        coef = np.zeros(4)
+        for _ in range(2):
+            ell = m.ellipse(radius, force)
+            basis = []
+            for load in (Traction(1.0), Traction(1.0, fx=1.0), Traction(1.0, fy=1.0), Traction(1.0, torque=1.0)):
+                basis.append(m.model.displacement(ell, load, x0, y0, m.px[idx], m.py[idx]) * m.gain / m.noise)
+            normal = basis[0]
+            cols = [normal.ravel()] + [(b - normal).ravel() for b in basis[1:]]
+            coef, *_ = np.linalg.lstsq(np.stack(cols, axis=1), data, rcond=None)
+            force = float(min(max(coef[0], 1e-3), 100.0))
+        return np.array((math.log(radius), math.log(force), x0, y0, coef[1], coef[2], coef[3], 0.5))
+
+    # -- the fit --------------------------------------------------------------------------
+    def fit(self, frame: np.ndarray, start: np.ndarray | None = None) -> ShearEstimate:
+        """Fit one frame ``(rows, cols, 3)`` of readings; ``start`` (a previous estimate's
+        ``params``) replaces the linear start."""
+        frame = np.asarray(frame, dtype=float)
+        if frame.shape != self.model.shape:
+            raise ValueError(f"a frame of {self.desc.name!r} is {self.model.shape}, got {frame.shape}")
+        idx = self._window(frame)
+        data = (frame.reshape(-1, 3)[idx] / self.model.noise).ravel()
+        p0 = self.start(frame, idx) if start is None else np.clip(start, _LO, _HI)
+        p0[7] = min(max(p0[7], 0.02), 0.98)
+
+        def residual(p: np.ndarray) -> np.ndarray:
+            return self._predict(p, idx).ravel() - data
+
+        # tolerances: a relative change of 1e-6 in chi-square is far below what the noise decides
+        res = least_squares(residual, p0, bounds=(_LO, _HI), method="trf", x_scale="jac",
+                            diff_step=1e-6, max_nfev=200, ftol=1e-6, xtol=1e-6)
+        p = res.x
+        jac = self._jacobian(p, idx)
+        reasons: dict[str, str] = {}
+        cov = np.full((8, 8), np.inf)
+        lam_col = np.linalg.norm(jac[:, 7])
+        keep = list(range(8)) if lam_col > 1e-9 * np.linalg.norm(jac) else list(range(7))
+        if len(keep) < 8:
+            reasons["lam"] = "unobservable: no tangential force"
+        fisher = jac[:, keep].T @ jac[:, keep]
+        try:
+            sub = np.linalg.inv(fisher)
+            cov[np.ix_(keep, keep)] = sub
+            if len(keep) < 8:
+                cov[7, :7] = cov[:7, 7] = 0.0
+        except np.linalg.LinAlgError:
+            reasons["shear"] = "the information matrix is singular"
+        dof = max(1, data.size - 8)
+        rms = float(math.sqrt(2.0 * res.cost / dof))
+        return ShearEstimate(p, cov, rms, bool(res.success), reasons)

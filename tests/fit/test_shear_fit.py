@@ -1,0 +1,106 @@
+"""The 3-axis fit: truth recovered from noiseless frames, honest bounds on noisy ones, mu
+withheld with a reason where unresolved, and the slip detector on known motion."""
+
+import math
+
+import numpy as np
+import pytest
+
+from tactiled.fit.shear import MU_RESOLVED, ShearFitter
+from tactiled.fit.slip import SlipDetector
+from tactiled.physics.threeaxis import ShearContact, ThreeAxisModel, three_axis
+from tactiled.sensors import load_description
+from tactiled.shearsim import random_frames
+
+XELA = load_description("xela_uskin_4x4")
+PAD = three_axis(load_description("flat16"))
+
+
+@pytest.mark.parametrize("desc", [XELA, three_axis(load_description("fearing1988"))], ids=lambda d: d.name)
+def test_noiseless_frame_gives_the_truth(desc):
+    m = ThreeAxisModel(desc)
+    cx, cy = m.centre()
+    truth = ShearContact(12.0, 1.3, cx + 0.4, cy - 0.3, 0.25, -0.15, 0.12, 0.6)
+    est = ShearFitter(desc).fit(m.frame(truth))
+    c = est.contact()
+    assert c.force == pytest.approx(truth.force, rel=1e-3)
+    assert (c.x0, c.y0) == pytest.approx((truth.x0, truth.y0), abs=1e-3)
+    assert (c.fx, c.fy) == pytest.approx((truth.fx, truth.fy), abs=1e-3)
+    assert c.torque == pytest.approx(truth.torque, abs=5e-3)
+    assert c.lam == pytest.approx(truth.lam, abs=0.02)
+    assert est.rms < 0.05  # the readings are explained to a small part of the noise
+
+
+def test_bounds_cover_the_errors_on_noisy_frames():
+    """2-sigma coverage of fx, fy and torsion over 40 independent frames (an honest bound
+    covers ~95 %; the test fails under 85 %, or if errors exceed 1.5x the bound in RMS)."""
+    frames, truth = random_frames(XELA, 40, np.random.default_rng(5))
+    fitter = ShearFitter(XELA)
+    z = []
+    for i in range(len(frames)):
+        est = fitter.fit(frames[i])
+        p, s = est.params, est.sigma
+        z.append(((p[4] - truth["true_fx"][i]) / s[4], (p[5] - truth["true_fy"][i]) / s[5],
+                  (p[6] - truth["true_torque"][i]) / s[6]))
+    z = np.abs(np.array(z))
+    assert np.all(np.mean(z <= 2, axis=0) >= 0.85)
+    assert np.all(np.sqrt(np.mean(z ** 2, axis=0)) <= 1.5)
+
+
+def test_mu_withheld_with_a_reason_or_given_with_its_bound():
+    m = ThreeAxisModel(XELA)
+    cx, cy = m.centre()
+    rng = np.random.default_rng(2)
+    small = m.frame(ShearContact(10.0, 1.0, cx, cy, 0.02, 0.0, 0.0, 0.05)) + rng.normal(size=m.shape) * m.noise
+    out = ShearFitter(XELA).fit(small).to_json()
+    assert out["shear"]["mu"] is None and out["shear"]["slip_margin"] is None
+    assert "Q/(mu P)" in out["reasons"]["mu"] and out["reasons"]["slip_margin"] == out["reasons"]["mu"]
+    # a 16x16 pad under a large contact near slip resolves the stick zone: mu with a sigma
+    m = ThreeAxisModel(PAD)
+    cx, cy = m.centre()
+    big = ShearContact(40.0, 2.0, cx, cy, 0.9, 0.0, 0.0, 0.9)
+    est = ShearFitter(PAD).fit(m.frame(big))
+    mu, s_mu, why = est.mu()
+    assert why is None and mu == pytest.approx(0.5, rel=0.02) and 0 < s_mu < MU_RESOLVED * mu
+
+
+def _feed(det, frames):
+    events = []
+    for i, (x, lam) in enumerate(frames):
+        _, ev = det.update(i, x, 0.0, 0.01, 0.01, 0.5, 0.0, lam, 0.05, 0.003)
+        if ev:
+            events.append((ev.kind, ev.frame))
+    return events
+
+
+def test_slip_detector_on_known_motion():
+    rng = np.random.default_rng(0)
+    # stick: the centre jitters with its own sigma, the stick zone nearly gone: no event
+    still = [(5.0 + 0.01 * rng.normal(), 0.97) for _ in range(400)]
+    assert _feed(SlipDetector(), still) == []
+    # the centre starts moving along Q at frame 100 (0.5 g): onset within a few frames
+    moving = [(5.0 + 0.01 * rng.normal() + (0.0025 * (i - 99) ** 2 if i >= 100 else 0.0), 0.97 if i < 100 else 1.0)
+              for i in range(130)]
+    events = _feed(SlipDetector(), moving)
+    assert events and events[0][0] == "onset" and 100 <= events[0][1] <= 105
+    # moving against Q is not slip along it; a moving centre with a resolved stick zone neither
+    backwards = [(5.0 - (0.0025 * (i - 99) ** 2 if i >= 100 else 0.0), 1.0) for i in range(130)]
+    assert _feed(SlipDetector(), backwards) == []
+    stuck = [(5.0 + (0.0025 * (i - 99) ** 2 if i >= 100 else 0.0), 0.5) for i in range(130)]
+    assert _feed(SlipDetector(), stuck) == []
+
+
+def test_slip_detector_on_a_force_drop():
+    """Static friction giving way: |Q| falls by many sigma while the stick zone is gone."""
+    det = SlipDetector()
+    events = []
+    for i in range(60):
+        q = 0.5 if i < 40 else 0.4
+        _, ev = det.update(i, 5.0, 0.0, 0.01, 0.01, q, 0.0, 0.99, 0.05, 0.003)
+        if ev:
+            events.append((ev.kind, ev.frame))
+    assert events == [("onset", 40)]
+    # the same drop with a resolved stick zone (an unloading, not a slip) is no event
+    det = SlipDetector()
+    assert not any(det.update(i, 5.0, 0.0, 0.01, 0.01, 0.5 if i < 40 else 0.4, 0.0, 0.5, 0.05, 0.003)[1]
+                   for i in range(60))
