@@ -30,6 +30,9 @@ class Frame:
     ``time.monotonic()`` seconds when the host finished receiving the frame.  ``extras``: what a
     vendor format sends beside the array (a Robotiq finger's accelerometer, a XELA taxel's shear
     components...), by name; ``None`` for formats with nothing more (not sent on the wire).
+    ``taxels``: a 3-axis array's readings, shape ``(rows, cols, 3)`` (x, y, z per taxel, as the
+    device counts them; docs/concepts/shear.md), ``raw`` then holds the z counts, which the
+    1-axis path reads; ``None`` for a 1-axis array (not sent on the wire).
     """
 
     seq: int
@@ -39,10 +42,16 @@ class Frame:
     host_time: float = 0.0
     strain: np.ndarray | None = field(default=None, repr=False)
     extras: dict[str, Any] | None = field(default=None, repr=False)
+    taxels: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def shape(self) -> tuple[int, int]:
         return (int(self.raw.shape[0]), int(self.raw.shape[1]))
+
+    @property
+    def axes(self) -> int:
+        """Readings per taxel: 3 for a frame carrying :attr:`taxels`, else 1."""
+        return 1 if self.taxels is None else int(self.taxels.shape[-1])
 
 
 # --------------------------------------------------------------------------------------------

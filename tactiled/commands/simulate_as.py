@@ -8,6 +8,9 @@ its shape, pitch and nominal counts scaling) and streams them in the vendor's ow
   symlink to it.  Prints ``pty: /dev/pts/N`` and ``link: PATH``.  The Robotiq device streams both
   fingers, and only between the auto-send command that starts it and the one that stops it, as
   the sensor does.
+- ``paxini``: a pseudo-terminal as for the serial devices, answering each distributed-force
+  request (:func:`tactiled_drivers.paxini.request`) with the newest rendered frame, as the PX-6AX
+  module answers its host (it sends nothing unasked).
 - ``xela``: a WebSocket server on 127.0.0.1 (``--device PORT``, 0 for any free port) speaking as
   ``xela_server`` does (a welcome message, then one message per tick with sensors 1 and 2).
   Prints ``xela: ws://127.0.0.1:PORT``.
@@ -132,6 +135,8 @@ def _serve_pty(args: argparse.Namespace, sims: list[FingerSimulator], stop: list
         return _error(f"cannot create the pty link {args.device}: {err}")
     print(f"pty: {name}", flush=True)
     print(f"link: {args.device}", flush=True)
+    if args.as_kind == "paxini":
+        return _serve_paxini(args, sims, stop, fd, name)
     tick = _encoder(args.as_kind, sims)
     command = _AutoSend() if args.as_kind == "robotiq" else None
     writer = FrameWriter(fd, name)
@@ -161,6 +166,59 @@ def _serve_pty(args: argparse.Namespace, sims: list[FingerSimulator], stop: list
         os.close(fd)
         _remove_link(args.device, name)
     print(f"tactiled simulate: sent {writer.sent} frame(s), dropped {writer.dropped}",
+          file=sys.stderr)
+    return 0
+
+
+def paxini_points(raw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A PX-6AX answer's points ``(n, 3)`` from a rendered frame of counts: z the counts less
+    the 0x8000 offset (0..255), x and y a small signed wobble."""
+    from tactiled_drivers.paxini import ZERO_COUNTS
+
+    z = np.clip(raw.astype(np.int64).reshape(-1) - ZERO_COUNTS, 0, 255)
+    xy = np.clip(rng.normal(0.0, 1.0, (z.size, 2)).round(), -128, 127).astype(np.int64)
+    return np.column_stack([xy, z])
+
+
+def _serve_paxini(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int],
+                  fd: int, name: str) -> int:
+    """Answer requests on the pty: each one with the frame due now (rendered at ``--rate``)."""
+    import select
+
+    from tactiled.commands.simulate import FrameWriter, _remove_link
+    from tactiled_drivers.paxini import request, response
+
+    rng = np.random.default_rng(args.seed)
+    rows, cols = sims[0].sensor.geometry.rows, sims[0].sensor.geometry.cols
+    asked = request(0, rows * cols)
+    writer = FrameWriter(fd, name)
+    schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
+    heard = bytearray()
+    latest = sims[0].next_frame().raw
+    print(f"tactiled simulate: a paxini module playing {args.scene!r} at {args.rate:g} Hz on "
+          f"{args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
+    try:
+        while not stop:
+            skip, send = schedule.take(time.monotonic(), MAX_BATCH)
+            if skip:
+                sims[0].skip(skip)
+            for _ in range(send):
+                latest = sims[0].next_frame().raw
+            ready, _, _ = select.select([fd], [], [], 0.01)
+            if ready:
+                try:
+                    heard += os.read(fd, 4096)
+                except (BlockingIOError, OSError):
+                    pass
+            while (k := heard.find(asked)) >= 0:
+                del heard[:k + len(asked)]
+                writer.send(response(0, paxini_points(latest, rng)))
+            del heard[:max(0, len(heard) - len(asked))]
+            writer.flush()
+    finally:
+        os.close(fd)
+        _remove_link(args.device, name)
+    print(f"tactiled simulate: answered {writer.sent} request(s), dropped {writer.dropped}",
           file=sys.stderr)
     return 0
 
