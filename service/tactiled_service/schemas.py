@@ -33,15 +33,16 @@ class SubscribeRequest(BaseModel):
     """``{"type": "subscribe", "sensors": [...]|null, "streams": [...], "max_rate": Hz|null}``.
 
     ``sensors`` null (or absent): every sensor.  ``streams``: ``estimates`` (default),
-    ``frames`` or both.  ``max_rate``: at most this many messages per second per sensor and
-    stream (the newest wins); null: every item.
+    ``frames``, ``slip`` (a 3-axis array's slip events), any of them.  ``max_rate``: at most
+    this many messages per second per sensor and stream (the newest wins); null: every item.
+    Slip events are never paced: each one is sent.
     """
 
     model_config = ConfigDict(extra="forbid")
 
     type: Literal["subscribe"]
     sensors: list[str] | None = Field(default=None, min_length=1)
-    streams: list[Literal["estimates", "frames"]] = Field(default=["estimates"], min_length=1)
+    streams: list[Literal["estimates", "frames", "slip"]] = Field(default=["estimates"], min_length=1)
     max_rate: float | None = Field(default=None, gt=0, allow_inf_nan=False, strict=True)
 
 

@@ -13,7 +13,10 @@ its shape, pitch and nominal counts scaling) and streams them in the vendor's ow
   module answers its host (it sends nothing unasked).
 - ``xela``: a WebSocket server on 127.0.0.1 (``--device PORT``, 0 for any free port) speaking as
   ``xela_server`` does (a welcome message, then one message per tick with sensors 1 and 2).
-  Prints ``xela: ws://127.0.0.1:PORT``.
+  Prints ``xela: ws://127.0.0.1:PORT``.  With ``--scene push``, ``twist`` or ``pull`` (the
+  tangential scenes of :mod:`tactiled.shearsim`) every taxel's x, y and z follow the 3-axis model
+  on ``xela_uskin_4x4`` (sensor 1; sensor 2 rests): 300 frames at rest, then the scene, looped
+  with a new sphere each time.
 
 Runs until SIGINT/SIGTERM.
 """
@@ -66,8 +69,13 @@ def run(args: argparse.Namespace) -> int:
         return _error(f"--rate must be a frame rate in Hz in (0, 10000], got {args.rate!r}")
     if args.seed < 0:
         return _error(f"--seed must be >= 0, got {args.seed}")
+    from tactiled.shearsim import SEQUENCES
+
+    if args.scene in SEQUENCES and args.as_kind != "xela":
+        return _error(f"--scene {args.scene} (a tangential scene) needs --as xela")
     try:
-        sims = simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1)
+        sims = ([] if args.scene in SEQUENCES
+                else simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1))
     except ValueError as err:
         return _error(str(err))
     from tactiled.commands.simulate import until_signal
@@ -237,6 +245,42 @@ def _serve_xela(args: argparse.Namespace, sims: list[FingerSimulator], stop: lis
     return asyncio.run(_xela_main(args, sims, int(port_text), stop))
 
 
+class _ShearScenes:
+    """XELA counts of a tangential scene on ``xela_uskin_4x4``, looped: each loop 300 frames at
+    rest, then :func:`tactiled.shearsim.sequence` of a new sphere; x, y about
+    :data:`XELA_REST`, z about the nominal table's zero (10000 counts)."""
+
+    REST_FRAMES = 300
+
+    def __init__(self, kind: str, seed: int) -> None:
+        from tactiled.sensors import load_description
+        from tactiled.physics.threeaxis import ThreeAxisModel
+
+        self.kind = kind
+        self.desc = load_description("xela_uskin_4x4")
+        self.noise = ThreeAxisModel(self.desc).noise
+        self.rng = np.random.default_rng(seed)
+        self.queue: list[np.ndarray] = []
+
+    def _refill(self) -> None:
+        from tactiled.shearsim import sequence
+
+        shape = (self.desc.rows, self.desc.cols, 3)
+        rest = [self.rng.normal(size=shape) * self.noise for _ in range(self.REST_FRAMES)]
+        frames, _ = sequence(self.desc, self.kind, self.rng)
+        self.queue = [*rest, *frames]
+        self.queue.reverse()
+
+    def next_sensors(self, model: str) -> dict[int, tuple[str, np.ndarray]]:
+        if not self.queue:
+            self._refill()
+        readings = self.queue.pop()
+        zero = np.array([XELA_REST, XELA_REST, 10000.0])
+        counts = np.clip(np.round(readings + zero), 0, 0xFFFF)
+        still = np.clip(np.round(self.rng.normal(size=readings.shape) * self.noise + zero), 0, 0xFFFF)
+        return {1: (model, counts), 2: (model, still)}
+
+
 async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port: int,
                      stop: list[int]) -> int:
     from websockets.asyncio.server import broadcast, serve
@@ -246,6 +290,7 @@ async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port
     clients: set = set()
     rng = np.random.default_rng(args.seed)
     model = "XR1944"
+    scenes = _ShearScenes(args.scene, args.seed) if not sims else None
 
     async def handler(ws) -> None:  # noqa: ANN001 (a websockets connection)
         await ws.send(WELCOME)
@@ -265,7 +310,7 @@ async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port
         while not stop:
             skip, send = schedule.take(time.monotonic(), MAX_BATCH)
             for _ in range(send):
-                sensors = {}
+                sensors = {} if scenes is None else scenes.next_sensors(model)
                 for k, sim in enumerate(sims):
                     if skip:
                         sim.skip(skip)

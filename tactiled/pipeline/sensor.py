@@ -61,6 +61,7 @@ from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
 from tactiled.pipeline.several import ContactTrackers
+from tactiled.pipeline import shear_track
 from tactiled.pipeline.tracker import Tracker, untracked, within_reason
 from tactiled.pipeline.tracking import (  # noqa: F401  (MAX_*: re-exported for tests)
     MAX_PENDING,
@@ -181,6 +182,8 @@ class SensorPipeline(ContactTracking):
                 f"{self.description.name!r} is {g.rows}x{g.cols}: set the sensor's description "
                 "to the array's (docs/howto/sensors.md)")
         self.device = device
+        #: a 3-axis array's shear, torsion and slip (None for a 1-axis array)
+        self.shear = shear_track.for_sensor(self.description, self.name, hub.publish)
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
         self._no_contact_fit = {**untracked(plain(FitResult(
@@ -278,6 +281,8 @@ class SensorPipeline(ContactTracking):
         """Close the source and flush and close the recording."""
         await self.stop_reading()
         await self._close_source()
+        if self.shear is not None:
+            self.shear.close()
         if self._recorder is not None:
             try:
                 self._recorder.close()  # flush + fsync; kept for its frames_written count
@@ -416,6 +421,8 @@ class SensorPipeline(ContactTracking):
             sensor=self.name, sensor_id=frame.sensor_id, seq=frame.seq,
             device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
             statistic=detector.last_statistic, strain=strain))
+        if self.shear is not None:
+            self.shear.on_frame(frame, contact)
         waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
                            frame.host_time, strain, now, frame.device_time_us * 1e-6,
                            peak=self.stage.peak if contact else math.nan)
@@ -477,6 +484,8 @@ class SensorPipeline(ContactTracking):
             else:
                 fit = {**fit, "peak": peak}
         fit = identified(fit, self.ids, self._untracked_element, fresh)
+        if self.shear is not None:
+            fit = self.shear.annotate(fit)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit)
@@ -729,5 +738,6 @@ class SensorPipeline(ContactTracking):
             "recorded": 0 if self._recorder is None else self._recorder.frames_written,
             "record_errors": self.record_errors,
             "model": self.model,
+            "shear": None if self.shear is None else self.shear.stats(),
         }
 

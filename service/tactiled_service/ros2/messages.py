@@ -176,15 +176,23 @@ def _present(value: Any) -> bool:
 
 def wrench(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
     """geometry_msgs/WrenchStamped: the contact force on the sensor, N, with its moment about
-    the frame's origin, N*m (zero without contact or without a force estimate)."""
-    fz = x = y = 0.0
+    the frame's origin, N*m (zero without contact or without a force estimate).  On a 3-axis
+    array whose estimate has a ``shear`` table, the force gains the tangential force
+    (``fx_n``, ``fy_n``) and the moment the torsion about +z (``torque_nmm``, in N*m): REP 103,
+    SI units."""
+    fx = fy = fz = x = y = tz = 0.0
     if est.get("contact") and _present(est.get("force_n")):
         fz = -float(est["force_n"])
         x = _num(est.get("x_mm")) * 1e-3 if _present(est.get("x_mm")) else 0.0
         y = _num(est.get("y_mm")) * 1e-3 if _present(est.get("y_mm")) else 0.0
-    # r x F with r = (x, y, 0) and F = (0, 0, fz)
-    torque = _vector(y * fz + 0.0, -x * fz + 0.0, 0.0)  # + 0.0: no negative zeros
-    body = _cls("geometry_msgs/msg/Wrench")(force=_vector(0.0, 0.0, fz), torque=torque)
+        shear = est.get("shear")
+        if isinstance(shear, dict):
+            fx = float(shear["fx_n"]) if _present(shear.get("fx_n")) else 0.0
+            fy = float(shear["fy_n"]) if _present(shear.get("fy_n")) else 0.0
+            tz = float(shear["torque_nmm"]) * 1e-3 if _present(shear.get("torque_nmm")) else 0.0
+    # r x F with r = (x, y, 0) and F = (fx, fy, fz), plus the torsion about +z
+    torque = _vector(y * fz + 0.0, -x * fz + 0.0, x * fy - y * fx + tz + 0.0)  # + 0.0: no -0
+    body = _cls("geometry_msgs/msg/Wrench")(force=_vector(fx + 0.0, fy + 0.0, fz), torque=torque)
     return _cls("geometry_msgs/msg/WrenchStamped")(header=header(stamp_s, frame_id),
                                                    wrench=body)
 
