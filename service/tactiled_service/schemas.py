@@ -16,8 +16,8 @@ SCHEMA_VERSION = 2  # same as messages.SCHEMA_VERSION (kept import-free for clie
 
 
 def format_validation_error(err: ValidationError, prefix: str = "") -> str:
-    """One line naming each offending key: ``streams.0: Input should be 'estimates' or
-    'frames'; max_rate: Input should be greater than 0``."""
+    """One line naming each offending key: ``streams.0: Input should be 'estimates',
+    'frames' or 'slip'; max_rate: Input should be greater than 0``."""
     parts = []
     for e in err.errors(include_url=False):
         loc = ".".join(str(p) for p in e.get("loc", ()) if p != "body")

@@ -30,6 +30,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -143,39 +144,46 @@ def _serve_pty(args: argparse.Namespace, sims: list[FingerSimulator], stop: list
         return _error(f"cannot create the pty link {args.device}: {err}")
     print(f"pty: {name}", flush=True)
     print(f"link: {args.device}", flush=True)
-    if args.as_kind == "paxini":
-        return _serve_paxini(args, sims, stop, fd, name)
-    tick = _encoder(args.as_kind, sims)
-    command = _AutoSend() if args.as_kind == "robotiq" else None
     writer = FrameWriter(fd, name)
-    schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
-    print(f"tactiled simulate: a {args.as_kind} device playing {args.scene!r} at {args.rate:g} Hz "
-          f"on {args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
+    paxini = args.as_kind == "paxini"
     try:
-        while not stop:
-            if command is not None:
-                try:
-                    command.hear(os.read(fd, 4096))
-                except (BlockingIOError, OSError):
-                    pass
-            skip, send = schedule.take(time.monotonic(), MAX_BATCH)
-            for sim in sims:
-                if skip:
-                    sim.skip(skip)
-            for _ in range(send):
-                data = tick()
-                if command is None or command.streaming:
-                    writer.send(data)
-            writer.flush()
-            delay = schedule.next_due() - time.monotonic()
-            if delay > 0:
-                time.sleep(min(delay, 0.05))
+        (_answer_paxini if paxini else _stream)(args, sims, stop, fd, writer)
     finally:
         os.close(fd)
         _remove_link(args.device, name)
-    print(f"tactiled simulate: sent {writer.sent} frame(s), dropped {writer.dropped}",
+    what = "answered {} request(s)" if paxini else "sent {} frame(s)"
+    print(f"tactiled simulate: {what.format(writer.sent)}, dropped {writer.dropped}",
           file=sys.stderr)
     return 0
+
+
+def _stream(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int], fd: int,
+            writer: Any) -> None:
+    """Stream the device's frames at ``--rate`` until a signal (the Robotiq device only while
+    auto-send is on)."""
+    tick = _encoder(args.as_kind, sims)
+    command = _AutoSend() if args.as_kind == "robotiq" else None
+    schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
+    print(f"tactiled simulate: a {args.as_kind} device playing {args.scene!r} at {args.rate:g} Hz "
+          f"on {args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
+    while not stop:
+        if command is not None:
+            try:
+                command.hear(os.read(fd, 4096))
+            except (BlockingIOError, OSError):
+                pass
+        skip, send = schedule.take(time.monotonic(), MAX_BATCH)
+        for sim in sims:
+            if skip:
+                sim.skip(skip)
+        for _ in range(send):
+            data = tick()
+            if command is None or command.streaming:
+                writer.send(data)
+        writer.flush()
+        delay = schedule.next_due() - time.monotonic()
+        if delay > 0:
+            time.sleep(min(delay, 0.05))
 
 
 def paxini_points(raw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -188,47 +196,38 @@ def paxini_points(raw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.column_stack([xy, z])
 
 
-def _serve_paxini(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int],
-                  fd: int, name: str) -> int:
-    """Answer requests on the pty: each one with the frame due now (rendered at ``--rate``)."""
+def _answer_paxini(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int],
+                   fd: int, writer: Any) -> None:
+    """Answer requests on the pty until a signal: each one with the newest frame (rendered at
+    ``--rate``)."""
     import select
 
-    from tactiled.commands.simulate import FrameWriter, _remove_link
     from tactiled_drivers.paxini import request, response
 
     rng = np.random.default_rng(args.seed)
-    rows, cols = sims[0].sensor.geometry.rows, sims[0].sensor.geometry.cols
-    asked = request(0, rows * cols)
-    writer = FrameWriter(fd, name)
+    g = sims[0].sensor.geometry
+    asked = request(0, g.rows * g.cols)
     schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
     heard = bytearray()
     latest = sims[0].next_frame().raw
     print(f"tactiled simulate: a paxini module playing {args.scene!r} at {args.rate:g} Hz on "
           f"{args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
-    try:
-        while not stop:
-            skip, send = schedule.take(time.monotonic(), MAX_BATCH)
-            if skip:
-                sims[0].skip(skip)
-            for _ in range(send):
-                latest = sims[0].next_frame().raw
-            ready, _, _ = select.select([fd], [], [], 0.01)
-            if ready:
-                try:
-                    heard += os.read(fd, 4096)
-                except (BlockingIOError, OSError):
-                    pass
-            while (k := heard.find(asked)) >= 0:
-                del heard[:k + len(asked)]
-                writer.send(response(0, paxini_points(latest, rng)))
-            del heard[:max(0, len(heard) - len(asked))]
-            writer.flush()
-    finally:
-        os.close(fd)
-        _remove_link(args.device, name)
-    print(f"tactiled simulate: answered {writer.sent} request(s), dropped {writer.dropped}",
-          file=sys.stderr)
-    return 0
+    while not stop:
+        skip, send = schedule.take(time.monotonic(), MAX_BATCH)
+        if skip:
+            sims[0].skip(skip)
+        for _ in range(send):
+            latest = sims[0].next_frame().raw
+        if select.select([fd], [], [], 0.01)[0]:
+            try:
+                heard += os.read(fd, 4096)
+            except (BlockingIOError, OSError):
+                pass
+        while (k := heard.find(asked)) >= 0:
+            del heard[:k + len(asked)]
+            writer.send(response(0, paxini_points(latest, rng)))
+        del heard[:max(0, len(heard) - len(asked))]
+        writer.flush()
 
 
 # --------------------------------------------------------------------------------------------
