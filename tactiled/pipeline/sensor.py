@@ -417,12 +417,11 @@ class SensorPipeline(ContactTracking):
         self._ordinal += 1
         ordinal = self._ordinal
         detector = self.stage.zeroer.detector
+        taxels = None if self.shear is None else self.shear.on_frame(frame, contact)
         self.hub.publish(make_zeroed_frame(
             sensor=self.name, sensor_id=frame.sensor_id, seq=frame.seq,
             device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
-            statistic=detector.last_statistic, strain=strain))
-        if self.shear is not None:
-            self.shear.on_frame(frame, contact)
+            statistic=detector.last_statistic, strain=strain, taxels=taxels))
         waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
                            frame.host_time, strain, now, frame.device_time_us * 1e-6,
                            peak=self.stage.peak if contact else math.nan)

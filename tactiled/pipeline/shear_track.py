@@ -3,7 +3,7 @@
 For a sensor whose description says ``axes = 3`` and whose frames carry ``Frame.taxels``, the
 pipeline hands every frame here (:meth:`ShearTrack.on_frame`) beside its own 1-axis path:
 
-* the readings' zero is the mean of the last :data:`ZERO_FRAMES` frames the contact detector
+* the readings' zero (what the zeroed frames' ``taxels`` are read from) is the mean of the last :data:`ZERO_FRAMES` frames the contact detector
   called free of contact (x, y and z of every taxel; frozen while a contact lasts);
 * during a contact the newest zeroed frame is fitted with the shear fit
   (:class:`tactiled.fit.shear.ShearFitter`, warm-started from the contact's previous fit) in
@@ -115,14 +115,18 @@ class ShearTrack:
 
     # -- frames ---------------------------------------------------------------------------------
 
-    def on_frame(self, frame: Frame, contact: bool) -> None:
-        """One frame of the sensor and the contact detector's verdict on it."""
+    def on_frame(self, frame: Frame, contact: bool) -> np.ndarray | None:
+        """One frame of the sensor and the contact detector's verdict on it; returns its zeroed
+        readings ``(rows, cols, 3)`` (None: no 3-axis readings, or no zero yet)."""
         self.frames += 1
         taxels = frame.taxels
         if taxels is None or taxels.shape != self.shape:
             self.without_taxels += 1
-            return
+            return None
         values = taxels.astype(float)
+        readings = values - self._free_sum / len(self._free) if self._free else None
+        if readings is not None:
+            readings.setflags(write=False)  # shared by the published frame and the fit
         if not contact:
             if self._in_contact:
                 self._released(frame)
@@ -130,13 +134,12 @@ class ShearTrack:
                 self._free_sum -= self._free[0]
             self._free.append(values)
             self._free_sum += values
-            return
+            return readings
         if not self._in_contact:
             self._in_contact = True
             self._contact += 1
-        if not self._free:
-            return
-        readings = values - self._free_sum / len(self._free)
+        if readings is None:
+            return None
         job = _Job(readings, frame.seq, frame.sensor_id, frame.device_time_us, frame.host_time,
                    time.time(), self._contact)
         if self._busy:
@@ -145,6 +148,7 @@ class ShearTrack:
             self._next = job
         else:
             self._submit(job)
+        return readings
 
     def _released(self, frame: Frame) -> None:
         """The contact ended: a slip in progress ends with it; the next press starts afresh."""

@@ -151,6 +151,16 @@ def test_wrench_of_a_3_axis_estimate_carries_the_tangential_force_and_torsion() 
     assert msg.wrench.force.x == 0.0 and msg.wrench.force.y == -0.13
 
 
+def test_taxel_image_is_a_3_channel_float_image() -> None:
+    """x, y, z of each taxel as 32FC3, rows by columns, read back with numpy."""
+    taxels = np.arange(4 * 6 * 3, dtype=float).reshape(4, 6, 3) - 20.5
+    msg = decode("taxels", m.serialize(m.taxel_image(taxels, STAMP, "xela"), m.TYPES["taxels"]))
+    assert (msg.height, msg.width, msg.encoding, msg.step) == (4, 6, "32FC3", 72)
+    back = np.frombuffer(bytes(msg.data), dtype="<f4").reshape(4, 6, 3)
+    np.testing.assert_array_equal(back, taxels.astype(np.float32))
+    assert back[1, 2, 0] == taxels[1, 2, 0] and back[1, 2, 2] == taxels[1, 2, 2]
+
+
 def test_contact_carries_every_value_and_sigma_with_the_json_names() -> None:
     msg = decode("contact", m.serialize(m.contact(ESTIMATE, STAMP, "finger0"),
                                         m.TYPES["contact"]))

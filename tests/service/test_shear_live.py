@@ -9,7 +9,10 @@ from __future__ import annotations
 import asyncio
 import sys
 
+import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 from svc_helpers import http, recv_json, subscribe, wait_for, ws_connect
 from test_vendor_devices import first_line, write_config
 
@@ -33,7 +36,8 @@ def test_slip_stream_and_shear_tables(daemon_process, tmp_path) -> None:
         addr = line.removeprefix("xela: ws://")
         config = write_config(tmp_path / "xela.toml", {"xela": f"xela://{addr}?sensor=1"},
                               {"xela": "xela_uskin_4x4"})
-        config.write_text(config.read_text() + "[fit]\nworkers = 1\nstartup_timeout = 300\n")
+        config.write_text(config.read_text() + "[fit]\nworkers = 1\nstartup_timeout = 300\n"
+                          + f'[record]\npath = "{tmp_path}/live"\nformat = "mcap"\n')
         proc = daemon_process(["--config", str(config)])
         url = proc.wait_url()
         ws_url = url.replace("http://", "ws://") + "v1/stream"
@@ -70,8 +74,28 @@ def test_slip_stream_and_shear_tables(daemon_process, tmp_path) -> None:
         onset = next(m for m in events if m["event"] == "onset")
         assert isinstance(onset["seq"], int) and onset["time"] > 0
         assert onset["state"] == "slip"
+        async def frame_with_taxels() -> dict:
+            async with ws_connect(ws_url) as ws:
+                await subscribe(ws, streams=["frames"])
+                while True:
+                    msg = await recv_json(ws, 30.0)
+                    if "taxels" in msg:
+                        return msg
+
+        frame = asyncio.run(frame_with_taxels())
+        assert np.asarray(frame["taxels"]).shape == (4, 4, 3)
         proc.proc.terminate()
         assert proc.proc.wait(15) == 0
+        # the live MCAP recording holds the readings as a 3-channel image
+        with open(tmp_path / "live.mcap", "rb") as fh:
+            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+            images = [dec for _s, ch, _m, dec in reader.iter_decoded_messages()
+                      if ch.topic == "/tactiled/xela/taxels"]
+        assert images and all(im.encoding == "32FC3" and (im.height, im.width) == (4, 4)
+                              for im in images)
+        pressed = max(images, key=lambda im: np.frombuffer(bytes(im.data), "<f4")[2::3].max())
+        z = np.frombuffer(bytes(pressed.data), "<f4").reshape(4, 4, 3)[..., 2]
+        assert z.max() > 50  # readings: a press moves the magnets by tenths of a mm
     finally:
         device.terminate()
         device.wait(30)

@@ -35,6 +35,7 @@ TYPES: dict[str, str] = {
     "contact": "tactiled_msgs/msg/Contact",
     "contacts": "tactiled_msgs/msg/ContactArray",
     "strain": "sensor_msgs/msg/Image",
+    "taxels": "sensor_msgs/msg/Image",
     "markers": "visualization_msgs/msg/MarkerArray",
     "diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
@@ -357,6 +358,18 @@ def strain_image(strain: np.ndarray, stamp_s: float, frame_id: str) -> Any:
     return _cls("sensor_msgs/msg/Image")(
         header=header(stamp_s, frame_id), height=rows, width=cols, encoding="32FC1",
         is_bigendian=0, step=4 * cols, data=data.reshape(-1).view(np.uint8))
+
+
+def taxel_image(taxels: np.ndarray, stamp_s: float, frame_id: str) -> Any:
+    """sensor_msgs/Image ``32FC3``: a 3-axis array's zeroed readings, channels x, y, z (z +
+    under compression; the description's readings), ``height`` = rows, ``width`` = cols,
+    little-endian float32."""
+    data = np.ascontiguousarray(np.nan_to_num(taxels, nan=0.0, posinf=0.0, neginf=0.0),
+                                dtype="<f4")
+    rows, cols, axes = data.shape
+    return _cls("sensor_msgs/msg/Image")(
+        header=header(stamp_s, frame_id), height=rows, width=cols, encoding=f"32FC{axes}",
+        is_bigendian=0, step=4 * axes * cols, data=data.reshape(-1).view(np.uint8))
 
 
 #: Per-sensor health keys copied into a DiagnosticStatus's values (those present).
