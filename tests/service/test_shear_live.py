@@ -19,12 +19,13 @@ from test_vendor_devices import first_line, write_config
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux")
 
 
-def start_pull_device() -> tuple:
+def start_pull_device(scene: str = "pull") -> tuple:
+    """The simulated XELA server playing a tangential scene at 200 Hz: (process, address line)."""
     import subprocess
 
     proc = subprocess.Popen(
         [sys.executable, "-m", "tactiled.cli", "simulate", "--as", "xela", "--device", "0",
-         "--rate", "200", "--seed", "5", "--scene", "pull"],
+         "--rate", "200", "--seed", "5", "--scene", scene],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return proc, first_line(proc)
 

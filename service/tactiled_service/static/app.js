@@ -384,7 +384,8 @@ function drawContacts(s, target) {
                   b: ell ? +(ell.b_mm * k).toFixed(1) : null,
                   theta_deg: ell ? ell.theta_deg : null, line: !!e.line,
                   shear: arrow ? {dx: +arrow.dx.toFixed(1), dy: +arrow.dy.toFixed(1),
-                                  state: arrow.state} : null});
+                                  state: arrow.state, fx_n: e.shear.fx_n, fy_n: e.shear.fy_n}
+                               : null});
   }
   c.dataset.contacts = JSON.stringify(s.drawn);
 }
