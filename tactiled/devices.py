@@ -1,6 +1,6 @@
 """The tactile arrays the vendor drivers read, and how their counts read as strain.
 
-A vendor driver (``lines://``, ``flexitac://``, ``robotiq://``, ``xela://``) delivers raw counts
+A vendor driver (``lines://``, ``flexitac://``, ``robotiq://``, ``xela://``, ``paxini://``) delivers raw counts
 in its array's own shape; what the array is (shape, pitch, surface, cover) is the sensor's
 description (``tactiled/sensors``, docs/howto/sensors.md).  :func:`device_model` is the one place that
 says which built-in description each kind of device has; :class:`DeviceArray` adds the nominal
@@ -19,7 +19,7 @@ from tactiled.config import SensorModel
 from tactiled.sensors import load_description
 
 #: The kinds of device with a driver and a simulated device.
-KINDS = ("lines", "flexitac", "robotiq", "xela")
+KINDS = ("lines", "flexitac", "robotiq", "xela", "paxini")
 
 #: kind -> the built-in description of its array (a 4x6 XELA sensor: ``xela_uskin_4x6``).
 DESCRIPTIONS: dict[str, str] = {
@@ -27,6 +27,7 @@ DESCRIPTIONS: dict[str, str] = {
     "flexitac": "flexitac_12x32",
     "robotiq": "robotiq_tsf85",
     "xela": "xela_uskin_4x4",
+    "paxini": "paxini_px6ax",
 }
 _XELA_BY_SHAPE = {(4, 4): "xela_uskin_4x4", (4, 6): "xela_uskin_4x6"}
 
@@ -39,6 +40,9 @@ _COUNTS: dict[str, tuple[float, float]] = {
     "flexitac": (2000.0, 20.0),
     "robotiq": (20000.0, 10000.0),
     "xela": (20000.0, 10000.0),
+    # PaXini: z in 0.1 N steps of 0..255, offset by 0x8000 (tactiled_drivers.paxini): 5000
+    # counts per strain span a strain of 0.05, the simulator's presses on its cover
+    "paxini": (5000.0, 32768.0),
 }
 
 

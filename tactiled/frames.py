@@ -33,6 +33,9 @@ class Frame:
     ``clocked``: ``device_time_us`` is the device's own clock (False: the format sends none and
     the framer made it from arrival times).  ``time``: when the device measured the frame, Unix
     seconds, set by :class:`tactiled.clock.FrameClock` (None until then; host-side only).
+    ``taxels``: a 3-axis array's readings, shape ``(rows, cols, 3)`` (x, y, z per taxel, as the
+    device counts them; docs/concepts/shear.md), ``raw`` then holds the z counts, which the
+    1-axis path reads; ``None`` for a 1-axis array (not sent on the wire).
     """
 
     seq: int
@@ -44,10 +47,16 @@ class Frame:
     extras: dict[str, Any] | None = field(default=None, repr=False)
     clocked: bool = field(default=True, repr=False)
     time: float | None = field(default=None, repr=False)
+    taxels: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def shape(self) -> tuple[int, int]:
         return (int(self.raw.shape[0]), int(self.raw.shape[1]))
+
+    @property
+    def axes(self) -> int:
+        """Readings per taxel: 3 for a frame carrying :attr:`taxels`, else 1."""
+        return 1 if self.taxels is None else int(self.taxels.shape[-1])
 
 
 # --------------------------------------------------------------------------------------------

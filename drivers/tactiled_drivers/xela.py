@@ -12,10 +12,11 @@ taxel (3 * taxels hexadecimal values; the ROS message types them int16/uint16 co
 taxels "starting from top left and continuing line-by-line" (xela_server_ros2 readme);
 ``calibrated`` holds forces, optional.
 
-A frame is this URL's sensor: its z components as the array, in the model's layout (4x4 for
-XR1944 and uSPa44, 4x6 for XR1946 and uSPa46; ``rows=`` and ``cols=`` give any other), x and y
-kept as ``extras["shear_x"]``/``["shear_y"]`` (``calibrated`` as ``extras["calibrated"]`` when
-sent).  seq is the message number (so gaps count as ``lost``), device time the sensor's
+A frame is this URL's sensor, in the model's layout (4x4 for XR1944 and uSPa44, 4x6 for XR1946
+and uSPa46; ``rows=`` and ``cols=`` give any other): all three components as
+``Frame.taxels`` ``(rows, cols, 3)`` (x, y, z; xela_setup's ``example.py`` maps them the same
+way, ``[..., 0]`` x, ``[..., 1]`` y, ``[..., 2]`` z), the z components also as the array ``raw``
+the 1-axis path reads (``calibrated`` as ``extras["calibrated"]`` when sent).  seq is the message number (so gaps count as ``lost``), device time the sensor's
 ``time``; ``sensor_id`` is the sensor number.
 
 Bad messages are counted and skipped: not JSON or not an object, a sensor entry without the
@@ -113,8 +114,7 @@ class XelaFramer(FramerBase):
             self._reject("length_errors")
             return None
         xyz = np.array(values, dtype=np.uint16).reshape(shape[0], shape[1], 3)
-        extras: dict[str, Any] = {"shear_x": xyz[..., 0].copy(), "shear_y": xyz[..., 1].copy(),
-                                  "model": model}
+        extras: dict[str, Any] = {"model": model}
         calibrated = entry.get("calibrated")
         if isinstance(calibrated, list) and len(calibrated) == 3 * taxels:
             extras["calibrated"] = calibrated
@@ -122,7 +122,8 @@ class XelaFramer(FramerBase):
         t_us = (round(stamp * 1e6) if math.isfinite(stamp) and stamp >= 0
                 else self._host_clock_us(host_time))
         return Frame(seq=number % (1 << 32), device_time_us=t_us, raw=xyz[..., 2].copy(),
-                     sensor_id=self.sensor & 0xFFFF, host_time=host_time, extras=extras)
+                     sensor_id=self.sensor & 0xFFFF, host_time=host_time, extras=extras,
+                     taxels=xyz)
 
 
 def message(number: int, sensors: dict[int, tuple[str, np.ndarray]], time_s: float) -> str:

@@ -6,7 +6,8 @@ estimate message is the pipeline's estimate (``Estimate.to_json_dict()``: the en
 every key of a ``tactiled fit`` line) with ``type`` in place of ``class``, plus ``ellipse``:
 the contact ellipse to draw, ``{a_mm, b_mm, theta_deg}`` (semi-axes in mm, major axis from +x
 toward +y in degrees), or null; when the estimate lists several contacts (``contacts``), each
-element gets its own ``ellipse`` too.  The REST endpoints return the same objects.
+element gets its own ``ellipse`` too.  The REST endpoints return the same objects.  A slip
+message is a 3-axis array's slip event (:class:`tactiled.pipeline.shear_track.SlipItem`).
 
 Encoding is done once per item whatever the number of subscribers (:class:`Encoder`).
 """
@@ -30,7 +31,7 @@ log = logging.getLogger(__name__)
 SCHEMA_VERSION = 2
 
 #: ``streams`` a client may ask for -> the hub's item kinds.
-STREAM_KINDS = {"estimates": "estimate", "frames": "frame"}
+STREAM_KINDS = {"estimates": "estimate", "frames": "frame", "slip": "slip"}
 
 EllipseFunc = Callable[..., Any]
 _ellipse_func: EllipseFunc | None = None
@@ -143,7 +144,7 @@ class Encoder:
             if isinstance(contacts, list):  # each contact of several gets its own ellipse
                 msg["contacts"] = [{**c, "ellipse": self.ellipse(item, c)}
                                    if isinstance(c, dict) else c for c in contacts]
-        else:
+        elif isinstance(item, ZeroedFrame):
             msg["rows"], msg["cols"] = (int(n) for n in item.strain.shape)
         return msg
 

@@ -16,8 +16,8 @@ SCHEMA_VERSION = 2  # same as messages.SCHEMA_VERSION (kept import-free for clie
 
 
 def format_validation_error(err: ValidationError, prefix: str = "") -> str:
-    """One line naming each offending key: ``streams.0: Input should be 'estimates' or
-    'frames'; max_rate: Input should be greater than 0``."""
+    """One line naming each offending key: ``streams.0: Input should be 'estimates',
+    'frames' or 'slip'; max_rate: Input should be greater than 0``."""
     parts = []
     for e in err.errors(include_url=False):
         loc = ".".join(str(p) for p in e.get("loc", ()) if p != "body")
@@ -33,15 +33,16 @@ class SubscribeRequest(BaseModel):
     """``{"type": "subscribe", "sensors": [...]|null, "streams": [...], "max_rate": Hz|null}``.
 
     ``sensors`` null (or absent): every sensor.  ``streams``: ``estimates`` (default),
-    ``frames`` or both.  ``max_rate``: at most this many messages per second per sensor and
-    stream (the newest wins); null: every item.
+    ``frames``, ``slip`` (a 3-axis array's slip events), any of them.  ``max_rate``: at most
+    this many messages per second per sensor and stream (the newest wins); null: every item.
+    Slip events are never paced: each one is sent.
     """
 
     model_config = ConfigDict(extra="forbid")
 
     type: Literal["subscribe"]
     sensors: list[str] | None = Field(default=None, min_length=1)
-    streams: list[Literal["estimates", "frames"]] = Field(default=["estimates"], min_length=1)
+    streams: list[Literal["estimates", "frames", "slip"]] = Field(default=["estimates"], min_length=1)
     max_rate: float | None = Field(default=None, gt=0, allow_inf_nan=False, strict=True)
 
 

@@ -100,6 +100,9 @@ class PaceGroup:
             sub.offer(item)
 
     def offer(self, item: Item, now: float) -> None:
+        if item.kind == "slip":  # an event, not a state: never paced, never coalesced
+            self._pass(item)
+            return
         key = (item.sensor, item.kind)
         due = self.next_due.get(key, 0.0)
         if now >= due:
@@ -375,7 +378,7 @@ class StreamManager:
     def start(self) -> None:
         """Attach to the hub (call on the loop that runs the daemon)."""
         if self._remove_listener is None:
-            self._remove_listener = self.daemon.hub.add_listener(self._on_item)
+            self._remove_listener = self.daemon.hub.add_listener(self._on_item, events=True)
             self._flusher = asyncio.create_task(self._flush_loop(), name="tactiled-ws-flush")
 
     def join(self, spec: Spec, sub: Subscription) -> PaceGroup:

@@ -11,9 +11,15 @@ its shape, pitch and nominal counts scaling) and streams them in the vendor's ow
   symlink to it.  Prints ``pty: /dev/pts/N`` and ``link: PATH``.  The Robotiq device streams both
   fingers, and only between the auto-send command that starts it and the one that stops it, as
   the sensor does.
+- ``paxini``: a pseudo-terminal as for the serial devices, answering each distributed-force
+  request (:func:`tactiled_drivers.paxini.request`) with the newest rendered frame, as the PX-6AX
+  module answers its host (it sends nothing unasked).
 - ``xela``: a WebSocket server on 127.0.0.1 (``--device PORT``, 0 for any free port) speaking as
   ``xela_server`` does (a welcome message, then one message per tick with sensors 1 and 2).
-  Prints ``xela: ws://127.0.0.1:PORT``.
+  Prints ``xela: ws://127.0.0.1:PORT``.  With ``--scene push``, ``twist`` or ``pull`` (the
+  tangential scenes of :mod:`tactiled.shearsim`) every taxel's x, y and z follow the 3-axis model
+  on ``xela_uskin_4x4`` (sensor 1; sensor 2 rests): 300 frames at rest, then the scene, looped
+  with a new sphere each time.
 
 Runs until SIGINT/SIGTERM.
 """
@@ -28,6 +34,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -94,8 +101,13 @@ def run(args: argparse.Namespace) -> int:
         return _error(f"--rate must be a frame rate in Hz in (0, 10000], got {args.rate!r}")
     if args.seed < 0:
         return _error(f"--seed must be >= 0, got {args.seed}")
+    from tactiled.shearsim import SEQUENCES
+
+    if args.scene in SEQUENCES and args.as_kind != "xela":
+        return _error(f"--scene {args.scene} (a tangential scene) needs --as xela")
     try:
-        sims = simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1)
+        sims = ([] if args.scene in SEQUENCES
+                else simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1))
     except (ValueError, TactiledError) as err:
         return _error(str(err))
     from tactiled.commands.simulate import until_signal
@@ -163,37 +175,90 @@ def _serve_pty(args: argparse.Namespace, sims: list[FingerSimulator], stop: list
         return _error(f"cannot create the pty link {args.device}: {err}")
     print(f"pty: {name}", flush=True)
     print(f"link: {args.device}", flush=True)
-    tick = _encoder(args.as_kind, sims)
-    command = _AutoSend() if args.as_kind == "robotiq" else None
     writer = FrameWriter(fd, name)
-    schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
-    print(f"tactiled simulate: a {args.as_kind} device playing {args.scene!r} at {args.rate:g} Hz "
-          f"on {args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
+    paxini = args.as_kind == "paxini"
     try:
-        while not stop:
-            if command is not None:
-                try:
-                    command.hear(os.read(fd, 4096))
-                except (BlockingIOError, OSError):
-                    pass
-            skip, send = schedule.take(time.monotonic(), MAX_BATCH)
-            for sim in sims:
-                if skip:
-                    sim.skip(skip)
-            for _ in range(send):
-                data = tick()
-                if command is None or command.streaming:
-                    writer.send(data)
-            writer.flush()
-            delay = schedule.next_due() - time.monotonic()
-            if delay > 0:
-                time.sleep(min(delay, 0.05))
+        (_answer_paxini if paxini else _stream)(args, sims, stop, fd, writer)
     finally:
         os.close(fd)
         _remove_link(args.device, name)
-    print(f"tactiled simulate: sent {writer.sent} frame(s), dropped {writer.dropped}",
+    what = "answered {} request(s)" if paxini else "sent {} frame(s)"
+    print(f"tactiled simulate: {what.format(writer.sent)}, dropped {writer.dropped}",
           file=sys.stderr)
     return 0
+
+
+def _stream(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int], fd: int,
+            writer: Any) -> None:
+    """Stream the device's frames at ``--rate`` until a signal (the Robotiq device only while
+    auto-send is on)."""
+    tick = _encoder(args.as_kind, sims)
+    command = _AutoSend() if args.as_kind == "robotiq" else None
+    schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
+    print(f"tactiled simulate: a {args.as_kind} device playing {args.scene!r} at {args.rate:g} Hz "
+          f"on {args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
+    while not stop:
+        if command is not None:
+            try:
+                command.hear(os.read(fd, 4096))
+            except (BlockingIOError, OSError):
+                pass
+        skip, send = schedule.take(time.monotonic(), MAX_BATCH)
+        for sim in sims:
+            if skip:
+                sim.skip(skip)
+        for _ in range(send):
+            data = tick()
+            if command is None or command.streaming:
+                writer.send(data)
+        writer.flush()
+        delay = schedule.next_due() - time.monotonic()
+        if delay > 0:
+            time.sleep(min(delay, 0.05))
+
+
+def paxini_points(raw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A PX-6AX answer's points ``(n, 3)`` from a rendered frame of counts: z the counts less
+    the 0x8000 offset (0..255), x and y a small signed wobble."""
+    from tactiled_drivers.paxini import ZERO_COUNTS
+
+    z = np.clip(raw.astype(np.int64).reshape(-1) - ZERO_COUNTS, 0, 255)
+    xy = np.clip(rng.normal(0.0, 1.0, (z.size, 2)).round(), -128, 127).astype(np.int64)
+    return np.column_stack([xy, z])
+
+
+def _answer_paxini(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int],
+                   fd: int, writer: Any) -> None:
+    """Answer requests on the pty until a signal: each one with the newest frame (rendered at
+    ``--rate``)."""
+    import select
+
+    from tactiled_drivers.paxini import request, response
+
+    rng = np.random.default_rng(args.seed)
+    g = sims[0].sensor.geometry
+    asked = request(0, g.rows * g.cols)
+    schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
+    heard = bytearray()
+    latest = sims[0].next_frame().raw
+    print(f"tactiled simulate: a paxini module playing {args.scene!r} at {args.rate:g} Hz on "
+          f"{args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
+    while not stop:
+        skip, send = schedule.take(time.monotonic(), MAX_BATCH)
+        if skip:
+            sims[0].skip(skip)
+        for _ in range(send):
+            latest = sims[0].next_frame().raw
+        if select.select([fd], [], [], 0.01)[0]:
+            try:
+                heard += os.read(fd, 4096)
+            except (BlockingIOError, OSError):
+                pass
+        while (k := heard.find(asked)) >= 0:
+            del heard[:k + len(asked)]
+            writer.send(response(0, paxini_points(latest, rng)))
+        del heard[:max(0, len(heard) - len(asked))]
+        writer.flush()
 
 
 # --------------------------------------------------------------------------------------------
@@ -210,6 +275,42 @@ def _serve_xela(args: argparse.Namespace, sims: list[FingerSimulator], stop: lis
     return asyncio.run(_xela_main(args, sims, int(port_text), stop))
 
 
+class _ShearScenes:
+    """XELA counts of a tangential scene on ``xela_uskin_4x4``, looped: each loop 300 frames at
+    rest, then :func:`tactiled.shearsim.sequence` of a new sphere; x, y about
+    :data:`XELA_REST`, z about the nominal table's zero (10000 counts)."""
+
+    REST_FRAMES = 300
+
+    def __init__(self, kind: str, seed: int) -> None:
+        from tactiled.sensors import load_description
+        from tactiled.physics.threeaxis import ThreeAxisModel
+
+        self.kind = kind
+        self.desc = load_description("xela_uskin_4x4")
+        self.noise = ThreeAxisModel(self.desc).noise
+        self.rng = np.random.default_rng(seed)
+        self.queue: list[np.ndarray] = []
+
+    def _refill(self) -> None:
+        from tactiled.shearsim import sequence
+
+        shape = (self.desc.rows, self.desc.cols, 3)
+        rest = [self.rng.normal(size=shape) * self.noise for _ in range(self.REST_FRAMES)]
+        frames, _ = sequence(self.desc, self.kind, self.rng)
+        self.queue = [*rest, *frames]
+        self.queue.reverse()
+
+    def next_sensors(self, model: str) -> dict[int, tuple[str, np.ndarray]]:
+        if not self.queue:
+            self._refill()
+        readings = self.queue.pop()
+        zero = np.array([XELA_REST, XELA_REST, 10000.0])
+        counts = np.clip(np.round(readings + zero), 0, 0xFFFF)
+        still = np.clip(np.round(self.rng.normal(size=readings.shape) * self.noise + zero), 0, 0xFFFF)
+        return {1: (model, counts), 2: (model, still)}
+
+
 async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port: int,
                      stop: list[int]) -> int:
     from websockets.asyncio.server import broadcast, serve
@@ -218,8 +319,10 @@ async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port
 
     clients: set = set()
     rng = np.random.default_rng(args.seed)
-    g = sims[0].sensor.geometry
-    model = XELA_MODELS[(g.rows, g.cols)]
+    # the tangential scenes play xela_uskin_4x4; the normal ones the simulated array's shape
+    model = (XELA_MODELS[(sims[0].sensor.geometry.rows, sims[0].sensor.geometry.cols)]
+             if sims else XELA_MODELS[(4, 4)])
+    scenes = _ShearScenes(args.scene, args.seed) if not sims else None
 
     async def handler(ws) -> None:  # noqa: ANN001 (a websockets connection)
         await ws.send(WELCOME)
@@ -239,7 +342,7 @@ async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port
         while not stop:
             skip, send = schedule.take(time.monotonic(), MAX_BATCH)
             for _ in range(send):
-                sensors = {}
+                sensors = {} if scenes is None else scenes.next_sensors(model)
                 for k, sim in enumerate(sims):
                     if skip:
                         sim.skip(skip)

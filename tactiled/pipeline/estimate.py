@@ -145,7 +145,9 @@ class ZeroedFrame:
 
     ``strain`` is a read-only ``(rows, cols)`` float64 array with no NaN (the zeroer outputs 0
     for a non-finite tactel); ``contact`` is the detector's decision and ``statistic`` its
-    matched-filter statistic (strain).
+    matched-filter statistic (strain).  ``taxels``: a 3-axis array's zeroed readings
+    ``(rows, cols, 3)`` (x, y, z, in the description's readings; None for a 1-axis array or
+    before the 3-axis zero is known: :mod:`tactiled.pipeline.shear_track`).
     """
 
     sensor: str
@@ -157,13 +159,14 @@ class ZeroedFrame:
     statistic: float
     strain: np.ndarray
     stamp: float = math.nan  # s since the Unix epoch: the frame's time (tactiled.clock)
+    taxels: np.ndarray | None = None
 
     kind = "frame"
 
     def to_json_dict(self, digits: int = 6) -> dict[str, Any]:
         """The frame with strain rounded to ``digits`` decimals, rows first."""
         strain = np.round(np.nan_to_num(self.strain, nan=0.0, posinf=0.0, neginf=0.0), digits)
-        return {
+        out = {
             "type": "frame",
             "sensor": self.sensor,
             "sensor_id": self.sensor_id,
@@ -175,6 +178,9 @@ class ZeroedFrame:
             "statistic": _finite(round(self.statistic, 9)),
             "strain": strain.tolist(),
         }
+        if self.taxels is not None:
+            out["taxels"] = np.round(self.taxels, 3).tolist()
+        return out
 
 
 def make_estimate(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
@@ -193,10 +199,12 @@ def make_estimate(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
 
 def make_zeroed_frame(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
                       host_time: float, contact: bool, statistic: float,
-                      strain: np.ndarray, stamp: float = math.nan) -> ZeroedFrame:
+                      strain: np.ndarray, stamp: float = math.nan,
+                      taxels: np.ndarray | None = None) -> ZeroedFrame:
     """A :class:`ZeroedFrame` (the same as its constructor's, built faster: ``_record``)."""
     return _record(ZeroedFrame, {
         "sensor": sensor, "sensor_id": sensor_id, "seq": seq, "device_time_us": device_time_us,
         "host_time": host_time, "contact": contact, "statistic": statistic, "strain": strain,
         "stamp": stamp,
+        "taxels": taxels,
     })

@@ -21,7 +21,9 @@ from tactiled.pipeline.estimate import Estimate, ZeroedFrame
 log = logging.getLogger(__name__)
 
 Item = Union[Estimate, ZeroedFrame]
-KINDS = frozenset({"estimate", "frame"})
+KINDS = frozenset({"estimate", "frame", "slip"})
+#: Items a listener sees unless it asks for the events too (``add_listener(..., events=True)``).
+_STATE_KINDS = frozenset({"estimate", "frame"})
 
 
 class SubscriptionClosed(TactiledError):
@@ -127,9 +129,10 @@ class Hub:
             None if sensor_names is None else frozenset(sensor_names))
         self._subs: list[Subscription] = []
         self._listeners: list[Callable[[Item], None]] = []
+        self._event_listeners: list[Callable[[Item], None]] = []
         self._latest_estimate: dict[str, Estimate] = {}
         self._latest_frame: dict[str, ZeroedFrame] = {}
-        self.published = {"estimate": 0, "frame": 0}
+        self.published = {"estimate": 0, "frame": 0, "slip": 0}
         self.closed = False
 
     # -- subscribing ------------------------------------------------------------------------
@@ -137,7 +140,8 @@ class Hub:
     def subscribe(self, sensors: set[str] | frozenset[str] | None = None,
                   kinds: set[str] | frozenset[str] = frozenset({"estimate"}),
                   maxsize: int = 100) -> Subscription:
-        """A new subscription to ``kinds`` ("estimate", "frame") of ``sensors`` (None: all).
+        """A new subscription to ``kinds`` ("estimate", "frame", "slip") of ``sensors`` (None:
+        all); "slip" items are a 3-axis array's slip events (:mod:`tactiled.pipeline.shear_track`).
 
         ``maxsize`` (>= 1) bounds its queue; when full the oldest item is dropped.
         """
@@ -170,16 +174,19 @@ class Hub:
     def subscriptions(self) -> tuple[Subscription, ...]:
         return tuple(self._subs)
 
-    def add_listener(self, callback: Callable[[Item], None]) -> Callable[[], None]:
-        """Call ``callback(item)`` synchronously for every item published; returns a function
-        that removes it.  For the CLI and tests, which must see every item: the callback runs
-        inside the pipeline's loop, so it must be quick and must not raise (errors are logged).
+    def add_listener(self, callback: Callable[[Item], None], *,
+                     events: bool = False) -> Callable[[], None]:
+        """Call ``callback(item)`` synchronously for every estimate and frame published (and
+        every slip event with ``events``); returns a function that removes it.  For the CLI and
+        tests, which must see every item: the callback runs inside the pipeline's loop, so it
+        must be quick and must not raise (errors are logged).
         """
-        self._listeners.append(callback)
+        listeners = self._event_listeners if events else self._listeners
+        listeners.append(callback)
 
         def remove() -> None:
-            if callback in self._listeners:
-                self._listeners.remove(callback)
+            if callback in listeners:
+                listeners.remove(callback)
 
         return remove
 
@@ -190,17 +197,19 @@ class Hub:
         interested subscriber.  Never blocks, never awaits."""
         if isinstance(item, Estimate):
             self._latest_estimate[item.sensor] = item
-        else:
+        elif isinstance(item, ZeroedFrame):
             self._latest_frame[item.sensor] = item
         self.published[item.kind] += 1
         for sub in self._subs:
             if sub.wants(item):
                 sub.offer(item)
-        for callback in self._listeners:
-            try:
-                callback(item)
-            except Exception:  # a broken listener must not stop the pipeline
-                log.exception("hub listener %r failed", callback)
+        for listeners in ((self._listeners, self._event_listeners)
+                          if item.kind in _STATE_KINDS else (self._event_listeners,)):
+            for callback in listeners:
+                try:
+                    callback(item)
+                except Exception:  # a broken listener must not stop the pipeline
+                    log.exception("hub listener %r failed", callback)
 
     def latest_estimate(self, sensor: str) -> Estimate | None:
         """The last estimate published for ``sensor`` (None before the first)."""

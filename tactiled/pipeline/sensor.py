@@ -63,6 +63,7 @@ from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
 from tactiled.pipeline.several import ContactTrackers
+from tactiled.pipeline import shear_track
 from tactiled.pipeline.tracker import Tracker, untracked, within_reason
 from tactiled.pipeline.tracking import (  # noqa: F401  (MAX_*: re-exported for tests)
     MAX_PENDING,
@@ -191,6 +192,8 @@ class SensorPipeline(ContactTracking):
                          (f"its wire_id is {self.expected_id}", f"set wire_id = {sent}"))
             raise ConfigError(f"sensor {self.name}: {settings.url} sends sensor id {sent}, but "
                               f"{said}: every frame would be dropped ({fix})")
+        #: a 3-axis array's shear, torsion and slip (None for a 1-axis array)
+        self.shear = shear_track.for_sensor(self.description, self.name, hub.publish)
         self.stage: CalibrationStage | None = None
         self.sensor_id: int | None = self.expected_id
         self._no_contact_fit = {**untracked(plain(FitResult(
@@ -291,6 +294,8 @@ class SensorPipeline(ContactTracking):
         """Close the source and flush and close the recording."""
         await self.stop_reading()
         await self._close_source()
+        if self.shear is not None:
+            self.shear.close()
         if self._recorder is not None:
             try:
                 self._recorder.close()  # flush + fsync; kept for its frames_written count
@@ -428,10 +433,11 @@ class SensorPipeline(ContactTracking):
         self._ordinal += 1
         ordinal = self._ordinal
         detector = self.stage.zeroer.detector
+        taxels = None if self.shear is None else self.shear.on_frame(frame, contact)
         self.hub.publish(make_zeroed_frame(
             sensor=self.name, sensor_id=frame.sensor_id, seq=frame.seq,
             device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
-            statistic=detector.last_statistic, strain=strain, stamp=frame.time))
+            statistic=detector.last_statistic, strain=strain, stamp=frame.time, taxels=taxels))
         waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
                            frame.host_time, strain, now, frame.device_time_us * 1e-6,
                            peak=self.stage.peak if contact else math.nan, stamp=frame.time)
@@ -493,6 +499,8 @@ class SensorPipeline(ContactTracking):
             else:
                 fit = {**fit, "peak": peak}
         fit = identified(fit, self.ids, self._untracked_element, fresh)  # (a copy unless fresh)
+        if self.shear is not None:
+            fit = self.shear.annotate(fit)
         # the one rule before anything is published, whatever made it (tactiled.fit.verdict)
         judge(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
@@ -747,5 +755,6 @@ class SensorPipeline(ContactTracking):
             "recorded": 0 if self._recorder is None else self._recorder.frames_written,
             "record_errors": self.record_errors,
             "model": self.model,
+            "shear": None if self.shear is None else self.shear.stats(),
         }
 

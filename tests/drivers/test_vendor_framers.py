@@ -296,7 +296,7 @@ def test_xela_messages(grids, bad) -> None:
         got += framer.feed(xela.message(k + 10, {1: ("XR1946", grid), 2: ("XR1944", grid[:, :4])},
                                         100.0 + k).encode())
     assert same(got, [g[..., 2] for g in grids])
-    assert all(np.array_equal(f.extras["shear_x"], g[..., 0]) for f, g in zip(got, grids))
+    assert all(np.array_equal(f.taxels, g) and f.axes == 3 for f, g in zip(got, grids))
     assert [f.seq for f in got] == [k + 10 for k in range(len(grids))]
     assert [f.device_time_us for f in got] == [round((100.0 + k) * 1e6) for k in range(len(grids))]
 

@@ -96,7 +96,7 @@ def test_xela_frames_bad_messages_and_a_server_that_returns(wait_until) -> None:
         sent = first + second
         assert all(np.array_equal(f.raw, g[..., 2]) and f.raw.shape == (4, 6)
                    for f, g in zip(got, sent, strict=True))
-        assert all(np.array_equal(f.extras["shear_y"], g[..., 1]) for f, g in zip(got, sent))
+        assert all(np.array_equal(f.taxels, g) for f, g in zip(got, sent))
         assert [f.seq for f in got] == [*range(1, 11), *range(1, 6)]
         assert all(f.sensor_id == 2 for f in got)
         assert got[0].device_time_us == 50_000_000

@@ -135,6 +135,32 @@ def test_wrench_is_the_force_on_the_sensor_in_si_units() -> None:
     assert none.wrench.force.z == 0.0 and none.wrench.torque.x == 0.0
 
 
+def test_wrench_of_a_3_axis_estimate_carries_the_tangential_force_and_torsion() -> None:
+    """The shear table's fx_n, fy_n (N) join the force; the moment is r x F plus the torsion
+    about +z, converted from N mm to N m."""
+    shear = {"fx_n": 0.21, "fy_n": -0.13, "torque_nmm": 2.5, "q_over_p": 0.24, "mu": None}
+    est = {**ESTIMATE, "shear": shear}
+    msg = decode("wrench", m.serialize(m.wrench(est, STAMP, "xela"), m.TYPES["wrench"]))
+    f = np.array([msg.wrench.force.x, msg.wrench.force.y, msg.wrench.force.z])
+    t = np.array([msg.wrench.torque.x, msg.wrench.torque.y, msg.wrench.torque.z])
+    np.testing.assert_allclose(f, [0.21, -0.13, -1.0312], rtol=1e-15)
+    r = np.array([ESTIMATE["x_mm"], ESTIMATE["y_mm"], 0.0]) / 1000.0
+    np.testing.assert_allclose(t, np.cross(r, f) + [0.0, 0.0, 2.5e-3], rtol=1e-12, atol=1e-18)
+    withheld = {**ESTIMATE, "shear": {**shear, "fx_n": None}}
+    msg = decode("wrench", m.serialize(m.wrench(withheld, STAMP, "xela"), m.TYPES["wrench"]))
+    assert msg.wrench.force.x == 0.0 and msg.wrench.force.y == -0.13
+
+
+def test_taxel_image_is_a_3_channel_float_image() -> None:
+    """x, y, z of each taxel as 32FC3, rows by columns, read back with numpy."""
+    taxels = np.arange(4 * 6 * 3, dtype=float).reshape(4, 6, 3) - 20.5
+    msg = decode("taxels", m.serialize(m.taxel_image(taxels, STAMP, "xela"), m.TYPES["taxels"]))
+    assert (msg.height, msg.width, msg.encoding, msg.step) == (4, 6, "32FC3", 72)
+    back = np.frombuffer(bytes(msg.data), dtype="<f4").reshape(4, 6, 3)
+    np.testing.assert_array_equal(back, taxels.astype(np.float32))
+    assert back[1, 2, 0] == taxels[1, 2, 0] and back[1, 2, 2] == taxels[1, 2, 2]
+
+
 def test_contact_carries_every_value_and_sigma_with_the_json_names() -> None:
     msg = decode("contact", m.serialize(m.contact(ESTIMATE, STAMP, "finger0"),
                                         m.TYPES["contact"]))

@@ -16,7 +16,8 @@ from tactiled.cli import main as cli_main
 from tactiled.frames import decode_frame
 from tactiled.recording import RecordingReader
 
-SHAPES = {"lines": (8, 8), "flexitac": (12, 32), "robotiq": (7, 4), "xela": (4, 4)}
+SHAPES = {"lines": (8, 8), "flexitac": (12, 32), "robotiq": (7, 4), "xela": (4, 4),
+          "paxini": (10, 12)}
 PLUGIN = Path(__file__).resolve().parent.parent / "plugin_pkg"
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
@@ -143,7 +144,7 @@ def test_a_16x16_pad_rehearsed_on_the_simulated_lines_device(daemon_process, tmp
 def test_record_from_each_simulated_device(tmp_path, capsys) -> None:
     """The short version of the test above: `tactiled record` through each driver."""
     queries = {"lines": "?rows=8&cols=8", "flexitac": "", "robotiq": "?finger=1",
-               "xela": "?sensor=2"}
+               "xela": "?sensor=2", "paxini": ""}
     procs = {kind: launch_device(kind, "0" if kind == "xela" else str(tmp_path / f"tty_{kind}"))
              for kind in queries}
     try:

@@ -93,6 +93,12 @@ class McapWriter:
                    messages.strain_image(strain, stamp_s,
                                          messages.frame_name(self.frame_id, sensor)), stamp_s)
 
+    def write_taxels(self, sensor: str, taxels: np.ndarray, stamp_s: float) -> None:
+        """The 3-channel image of a 3-axis array's zeroed readings (``<sensor>/taxels``)."""
+        self.write(messages.topic(self.namespace, sensor, "taxels"), messages.TYPES["taxels"],
+                   messages.taxel_image(taxels, stamp_s,
+                                        messages.frame_name(self.frame_id, sensor)), stamp_s)
+
     def write_diagnostics(self, report: dict[str, Any], stamp_s: float,
                           hardware_ids: dict[str, str]) -> None:
         """A health document as ``/diagnostics``."""
@@ -192,4 +198,7 @@ class _Sink:
         elif item.kind == "estimate":
             self.writer.write_estimate(item.to_json_dict(), messages.item_stamp(item, offset))
         else:
-            self.writer.write_frame(item.sensor, item.strain, messages.item_stamp(item, offset))
+            stamp = messages.item_stamp(item, offset)
+            self.writer.write_frame(item.sensor, item.strain, stamp)
+            if getattr(item, "taxels", None) is not None:
+                self.writer.write_taxels(item.sensor, item.taxels, stamp)

@@ -35,6 +35,7 @@ TYPES: dict[str, str] = {
     "contact": "tactiled_msgs/msg/Contact",
     "contacts": "tactiled_msgs/msg/ContactArray",
     "strain": "sensor_msgs/msg/Image",
+    "taxels": "sensor_msgs/msg/Image",
     "markers": "visualization_msgs/msg/MarkerArray",
     "diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
@@ -176,15 +177,23 @@ def _present(value: Any) -> bool:
 
 def wrench(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
     """geometry_msgs/WrenchStamped: the contact force on the sensor, N, with its moment about
-    the frame's origin, N*m (zero without contact or without a force estimate)."""
-    fz = x = y = 0.0
+    the frame's origin, N*m (zero without contact or without a force estimate).  On a 3-axis
+    array whose estimate has a ``shear`` table, the force gains the tangential force
+    (``fx_n``, ``fy_n``) and the moment the torsion about +z (``torque_nmm``, in N*m): REP 103,
+    SI units."""
+    fx = fy = fz = x = y = tz = 0.0
     if est.get("contact") and _present(est.get("force_n")):
         fz = -float(est["force_n"])
         x = _num(est.get("x_mm")) * 1e-3 if _present(est.get("x_mm")) else 0.0
         y = _num(est.get("y_mm")) * 1e-3 if _present(est.get("y_mm")) else 0.0
-    # r x F with r = (x, y, 0) and F = (0, 0, fz)
-    torque = _vector(y * fz + 0.0, -x * fz + 0.0, 0.0)  # + 0.0: no negative zeros
-    body = _cls("geometry_msgs/msg/Wrench")(force=_vector(0.0, 0.0, fz), torque=torque)
+        shear = est.get("shear")
+        if isinstance(shear, dict):
+            fx = float(shear["fx_n"]) if _present(shear.get("fx_n")) else 0.0
+            fy = float(shear["fy_n"]) if _present(shear.get("fy_n")) else 0.0
+            tz = float(shear["torque_nmm"]) * 1e-3 if _present(shear.get("torque_nmm")) else 0.0
+    # r x F with r = (x, y, 0) and F = (fx, fy, fz), plus the torsion about +z
+    torque = _vector(y * fz + 0.0, -x * fz + 0.0, x * fy - y * fx + tz + 0.0)  # + 0.0: no -0
+    body = _cls("geometry_msgs/msg/Wrench")(force=_vector(fx + 0.0, fy + 0.0, fz), torque=torque)
     return _cls("geometry_msgs/msg/WrenchStamped")(header=header(stamp_s, frame_id),
                                                    wrench=body)
 
@@ -357,6 +366,18 @@ def strain_image(strain: np.ndarray, stamp_s: float, frame_id: str) -> Any:
     return _cls("sensor_msgs/msg/Image")(
         header=header(stamp_s, frame_id), height=rows, width=cols, encoding="32FC1",
         is_bigendian=0, step=4 * cols, data=data.reshape(-1).view(np.uint8))
+
+
+def taxel_image(taxels: np.ndarray, stamp_s: float, frame_id: str) -> Any:
+    """sensor_msgs/Image ``32FC3``: a 3-axis array's zeroed readings, channels x, y, z (z +
+    under compression; the description's readings), ``height`` = rows, ``width`` = cols,
+    little-endian float32."""
+    data = np.ascontiguousarray(np.nan_to_num(taxels, nan=0.0, posinf=0.0, neginf=0.0),
+                                dtype="<f4")
+    rows, cols, axes = data.shape
+    return _cls("sensor_msgs/msg/Image")(
+        header=header(stamp_s, frame_id), height=rows, width=cols, encoding=f"32FC{axes}",
+        is_bigendian=0, step=4 * axes * cols, data=data.reshape(-1).view(np.uint8))
 
 
 #: Per-sensor health keys copied into a DiagnosticStatus's values (those present).

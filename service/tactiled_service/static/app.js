@@ -285,6 +285,19 @@ function drawMap(s) {
   ctx.fillText("y ↑", 1, MAP_PAD - 2);
 }
 
+const SLIP_COLOURS = {stick: "#39c5cf", partial: "#e3b341", slip: "#f85149"};
+
+// A 3-axis contact's tangential-force arrow in canvas px from its centre (null: no shear).
+function shearArrow(e, X, Y, cx, cy, k) {
+  const sh = e.shear;
+  if (!sh || typeof sh.fx_n !== "number" || typeof sh.fy_n !== "number") return null;
+  const q = Math.hypot(sh.fx_n, sh.fy_n);
+  if (!(q > 0) || typeof sh.q_over_p !== "number") return null;
+  const len = Math.max(10 * sh.q_over_p, 12 / k);  // mm; at least 12 px
+  return {dx: X(e.x_mm + sh.fx_n / q * len) - cx, dy: Y(e.y_mm + sh.fy_n / q * len) - cy,
+          state: (e.slip && e.slip.state) || "stick"};
+}
+
 // Each contact's ellipse (green) or line, its curvature axis (dashed blue), centre and id; the
 // followed one ringed in white.  What was drawn is kept (s.drawn, and data-contacts on the
 // overlay: canvas px) for clicks and for anyone measuring the page.
@@ -340,6 +353,22 @@ function drawContacts(s, target) {
       ctx.stroke();
       ctx.setLineDash([]);
     }
+    const arrow = shearArrow(e, X, Y, cx, cy, k);
+    if (arrow) {
+      // The tangential force on a 3-axis array: along Q, 10 mm per unit Q/P, coloured by
+      // the slip state (stick cyan, partial yellow, slip red).
+      ctx.beginPath();
+      ctx.moveTo(0, 0);
+      ctx.lineTo(arrow.dx, arrow.dy);
+      const a = Math.atan2(arrow.dy, arrow.dx);
+      for (const s2 of [-1, 1]) {
+        ctx.moveTo(arrow.dx, arrow.dy);
+        ctx.lineTo(arrow.dx - 8 * Math.cos(a + s2 * 0.45), arrow.dy - 8 * Math.sin(a + s2 * 0.45));
+      }
+      ctx.strokeStyle = SLIP_COLOURS[arrow.state] || "#58a6ff";
+      ctx.lineWidth = 3;
+      ctx.stroke();
+    }
     ctx.fillStyle = "#fff";
     ctx.beginPath();
     ctx.arc(0, 0, 3, 0, 2 * Math.PI);
@@ -357,7 +386,10 @@ function drawContacts(s, target) {
     s.drawn.push({id, x: +cx.toFixed(1), y: +cy.toFixed(1),
                   a: ell ? +(ell.a_mm * k).toFixed(1) : null,
                   b: ell ? +(ell.b_mm * k).toFixed(1) : null,
-                  theta_deg: ell ? ell.theta_deg : null, line: !!e.line});
+                  theta_deg: ell ? ell.theta_deg : null, line: !!e.line,
+                  shear: arrow ? {dx: +arrow.dx.toFixed(1), dy: +arrow.dy.toFixed(1),
+                                  state: arrow.state, fx_n: e.shear.fx_n, fy_n: e.shear.fy_n}
+                               : null});
   }
   c.dataset.contacts = JSON.stringify(s.drawn);
 }
@@ -387,6 +419,10 @@ function drawReadouts(root, e) {
   set("vy_mm_s", fmt(e.vy_mm_s, sd("vy_mm_s"), "mm/s", 2));
   set("angle_rate_deg_s", fmt(e.angle_rate_deg_s, sd("angle_rate_deg_s"), "°/s", 1));
   set("force_rate_n_s", fmt(e.force_rate_n_s, sd("force_rate_n_s"), "N/s", 3));
+  const sh = e.shear;
+  set("shear", sh && typeof sh.fx_n === "number"
+      ? `${sh.fx_n.toFixed(3)}, ${sh.fy_n.toFixed(3)} N; ${typeof sh.torque_nmm === "number" ? sh.torque_nmm.toFixed(2) : "—"} N·mm` : "—");
+  set("slip", e.slip ? e.slip.state : "—");
   set("gate", e.gate);
   set("seq", String(e.seq));
   set("latency_ms", fmt(e.latency_ms, null, "ms", 2));
