@@ -3,5 +3,7 @@
 namespace tactiled {
 void bind_all(pybind11::module_& m) {
     bind_impulse(m);
+    bind_wire(m);
+    bind_calibrate(m);
 }
 }  // namespace tactiled

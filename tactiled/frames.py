@@ -330,3 +330,50 @@ def decode_frame(encoded: bytes, host_time: float = 0.0) -> Frame:
         raise FrameError(f"corrupt frame: {result.removesuffix('_errors')}")
     result.host_time = host_time
     return result
+
+
+class NativeFrameDecoder:
+    """:class:`FrameDecoder` with its work in the compiled core (``tactiled._core``,
+    core/wire.cpp): the same frames and the same counters for the same bytes (the Python class
+    is the reference, tests/native hold the two equal); one call into the core per ``feed``,
+    however many frames the bytes hold."""
+
+    def __init__(self) -> None:
+        from tactiled import _core  # (built by the install, whichever path is selected)
+
+        self._core = _core.WireDecoder()
+
+    @property
+    def stats(self) -> DecoderStats:
+        """A snapshot of the counters (a new :class:`DecoderStats` on each access)."""
+        return DecoderStats(*self._core.counters())
+
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete frame held until its delimiter arrives."""
+        return self._core.buffered
+
+    def reset(self) -> None:
+        """Forget partial data and sequence history (e.g. after reopening the port)."""
+        self._core.reset()
+
+    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
+        """Consume ``data`` and return the frames completed by it, in order (as
+        :meth:`FrameDecoder.feed`)."""
+        if not data:
+            return []
+        decoded = self._core.feed(data)
+        if not decoded:
+            return []
+        if host_time is None:
+            host_time = time.monotonic()
+        return [Frame(seq, t_us, raw, sensor_id, host_time)
+                for seq, t_us, sensor_id, raw in decoded]
+
+
+def new_decoder() -> FrameDecoder | NativeFrameDecoder:
+    """The wire format's decoder this process runs: the compiled core's, or the Python
+    reference where ``TACTILED_CORE=python`` (:mod:`tactiled.native`)."""
+    from tactiled import native
+
+    return FrameDecoder() if native.core is None else NativeFrameDecoder()
