@@ -12,7 +12,8 @@ Bad lines are counted and skipped, never delivered: fewer values than ``rows*col
 (``parse_errors``), a line longer than :data:`MAX_LINE` bytes (``oversize``: its bytes are
 dropped as they arrive, up to the next newline, so a device that never sends one costs no
 memory).  Blank lines are ignored.  The counts are the device's integers as they are
-(``int64``); a trailing separator is allowed.  The calibration's counts domain is 0..65535, and a recording (``tactiled record``)
+(``int64``), and a clock must fit ``int64`` in microseconds (else ``parse_errors``); a
+trailing separator is allowed.  The calibration's counts domain is 0..65535, and a recording (``tactiled record``)
 stores 0..65535 only.
 """
 
@@ -22,10 +23,11 @@ from typing import ClassVar
 
 import numpy as np
 
+from tactiled import native
 from tactiled.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import SourceURL
-from tactiled_drivers.framing import FramerBase, now_if_none
+from tactiled_drivers.framing import FramerBase, FramerStats, now_if_none
 from tactiled_drivers.serial_source import SerialSource
 
 DEFAULT_BAUD = 115_200
@@ -112,7 +114,7 @@ class LinesFramer(FramerBase):
             return None
         if self.time_col:
             stamp = values.pop(0) * self.time_scale
-            if stamp < 0:
+            if not 0 <= stamp < 1 << 63:
                 self._reject("parse_errors")
                 return None
         else:
@@ -123,6 +125,42 @@ class LinesFramer(FramerBase):
             self._reject("parse_errors")
             return None
         return Frame(seq=self._next_seq(), device_time_us=stamp, raw=raw, host_time=host_time)
+
+
+class NativeLinesFramer:
+    """:class:`LinesFramer` with its work in the compiled core (core/lines.cpp): the same frames
+    and counters for the same bytes (the Python class is the reference; tests/drivers hold the
+    two equal), one call into the core per ``feed``."""
+
+    def __init__(self, rows: int, cols: int, sep: str = ",", time_col: bool = False,
+                 time_unit: str = "ms") -> None:
+        from tactiled import _core  # (built by the install, whichever path is selected)
+
+        ref = LinesFramer(rows, cols, sep, time_col, time_unit)  # (checks the arguments)
+        self.shape = ref.shape
+        self._core = _core.LinesFramer(rows, cols, " " if ref.sep is None else ref.sep.decode(),
+                                       time_col, ref.time_scale)
+
+    @property
+    def stats(self) -> FramerStats:
+        """A snapshot of the counters (a new :class:`FramerStats` on each access)."""
+        return FramerStats(*self._core.counters())
+
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete line held between calls."""
+        return self._core.buffered
+
+    def reset(self) -> None:
+        """As :meth:`LinesFramer.reset`."""
+        self._core.reset()
+
+    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
+        """Consume ``data``; return a frame per complete good line."""
+        if not data:
+            return []
+        t = now_if_none(host_time)
+        return [Frame(seq, t_us, raw, 0, t) for seq, t_us, raw in self._core.feed(data, t)]
 
 
 def encode(raw: np.ndarray, sep: str = ",", time_ms: int | None = None) -> bytes:
@@ -145,7 +183,7 @@ class LinesSource(SerialSource):
     def __init__(self, url: str | SourceURL, *, decoder: LinesFramer | None = None) -> None:
         super().__init__(url, decoder=decoder)  # type: ignore[arg-type]
 
-    def _new_decoder(self) -> LinesFramer:
+    def _new_decoder(self) -> LinesFramer | NativeLinesFramer:
         u = self.url
         for name in ("rows", "cols"):
             if name not in u.params:
@@ -153,9 +191,10 @@ class LinesSource(SerialSource):
         self.rows = u.get_int("rows", 0, minimum=1, maximum=MAX_CELLS)
         self.cols = u.get_int("cols", 0, minimum=1, maximum=MAX_CELLS)
         time_col = u.get_int("time_col", -1, minimum=0, maximum=0) == 0
+        framer = LinesFramer if native.core is None else NativeLinesFramer
         try:
-            return LinesFramer(self.rows, self.cols, sep=u.get_str("sep", ","),
-                               time_col=time_col, time_unit=u.get_str("time_unit", "ms"))
+            return framer(self.rows, self.cols, sep=u.get_str("sep", ","),
+                          time_col=time_col, time_unit=u.get_str("time_unit", "ms"))
         except ValueError as err:
             raise ValueError(f"{u.url!r}: {err}") from None
 

@@ -1,4 +1,4 @@
-"""An atheris fuzz target for the compiled core's framers: each input is a stream and the reads
+"""An atheris fuzz target for the compiled core's framers (the wire format, text lines): each input is a stream and the reads
 it is cut into, fed to the core's framer and to its Python reference; they must agree frame for
 frame and counter for counter, never raise, and hold no more than the format's bound.
 
@@ -22,6 +22,7 @@ import atheris
 
 with atheris.instrument_imports():
     from tactiled.frames import MAX_ENCODED_LEN, FrameDecoder, NativeFrameDecoder, cobs_encode
+    from tactiled_drivers.lines import MAX_LINE, LinesFramer, NativeLinesFramer
 
 HEADER = (1).to_bytes(1, "little")
 
@@ -79,7 +80,40 @@ def wire_decoders(data: bytes) -> None:
     assert asdict(got.stats) == asdict(ref.stats)
 
 
-TARGETS = {"wire": wire_decoders}
+@atheris.instrument_func
+def lines_framers(data: bytes) -> None:
+    """Text lines: LinesFramer against NativeLinesFramer (a shape, separator and clock column
+    drawn; lines of fields built from digits, signs, blanks, underscores and noise)."""
+    fdp = atheris.FuzzedDataProvider(data)
+    rows, cols = fdp.ConsumeIntInRange(1, 3), fdp.ConsumeIntInRange(1, 3)
+    sep = fdp.PickValueInList([",", "space", "tab"])
+    time_col = fdp.ConsumeBool()
+    unit = fdp.PickValueInList(["ms", "us", "s"])
+    joiner = {",": b",", "space": b" ", "tab": b"\t"}[sep]
+    alphabet = b"0123456789+-_ \t\r,x\x0b"
+    out = bytearray()
+    for _ in range(fdp.ConsumeIntInRange(0, 12)):
+        if fdp.ConsumeIntInRange(0, 9) == 0:  # noise, or a run past the longest line
+            out += (fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 60)) if fdp.ConsumeBool()
+                    else b"7" * (MAX_LINE + fdp.ConsumeIntInRange(-2, 2)))
+            continue
+        n = rows * cols + time_col + fdp.ConsumeIntInRange(-1, 1)
+        fields = [bytes(alphabet[b % len(alphabet)] for b in fdp.ConsumeBytes(
+            fdp.ConsumeIntInRange(0, 22))) for _ in range(max(n, 0))]
+        out += joiner.join(fields) + b"\n"
+    stream = bytes(out)
+    cuts = sorted({0, len(stream), *(fdp.ConsumeIntInRange(0, len(stream)) for _ in range(6))})
+    ref = LinesFramer(rows, cols, sep=sep, time_col=time_col, time_unit=unit)
+    got = NativeLinesFramer(rows, cols, sep=sep, time_col=time_col, time_unit=unit)
+    for k, (a, b) in enumerate(zip(cuts, cuts[1:])):
+        want, have = ref.feed(stream[a:b], 0.25 * k), got.feed(stream[a:b], 0.25 * k)
+        assert [(f.seq, f.device_time_us, f.raw.tobytes()) for f in have] \
+            == [(f.seq, f.device_time_us, f.raw.tobytes()) for f in want]
+        assert got.buffered == ref.buffered <= MAX_LINE
+    assert asdict(got.stats) == asdict(ref.stats)
+
+
+TARGETS = {"wire": wire_decoders, "lines": lines_framers}
 
 
 def one_input(data: bytes) -> None:
