@@ -6,5 +6,6 @@ void bind_all(pybind11::module_& m) {
     bind_wire(m);
     bind_calibrate(m);
     bind_lines(m);
+    bind_flexitac(m);
 }
 }  // namespace tactiled

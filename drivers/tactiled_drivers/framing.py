@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 from tactiled.frames import Frame
 
@@ -118,6 +119,39 @@ class FramerBase:
         if self._t0 is None:
             self._t0 = host_time
         return max(0, round((host_time - self._t0) * 1e6))
+
+
+class NativeFramer:
+    """A vendor framer whose work runs in the compiled core (``core``: one of
+    ``tactiled._core``'s framers, whose ``feed(bytes, host_time)`` returns ``(seq,
+    device_time_us, raw)`` tuples and ``counters()`` :class:`FramerStats`' fields in order): the
+    same frames and counters as its Python reference for the same bytes, one call into the
+    core per ``feed``."""
+
+    def __init__(self, core: Any, shape: tuple[int, int]) -> None:
+        self._core = core
+        self.shape = shape
+
+    @property
+    def stats(self) -> FramerStats:
+        """A snapshot of the counters (a new :class:`FramerStats` on each access)."""
+        return FramerStats(*self._core.counters())
+
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete unit held between calls."""
+        return self._core.buffered
+
+    def reset(self) -> None:
+        """As :meth:`FramerBase.reset`."""
+        self._core.reset()
+
+    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
+        """Consume ``data``; return the frames it completes."""
+        if not data:
+            return []
+        t = now_if_none(host_time)
+        return [Frame(seq, t_us, raw, 0, t) for seq, t_us, raw in self._core.feed(data, t)]
 
 
 def now_if_none(host_time: float | None) -> float:

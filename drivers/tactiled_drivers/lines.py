@@ -27,7 +27,7 @@ from tactiled import native
 from tactiled.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import SourceURL
-from tactiled_drivers.framing import FramerBase, FramerStats, now_if_none
+from tactiled_drivers.framing import FramerBase, NativeFramer, now_if_none
 from tactiled_drivers.serial_source import SerialSource
 
 DEFAULT_BAUD = 115_200
@@ -127,40 +127,17 @@ class LinesFramer(FramerBase):
         return Frame(seq=self._next_seq(), device_time_us=stamp, raw=raw, host_time=host_time)
 
 
-class NativeLinesFramer:
-    """:class:`LinesFramer` with its work in the compiled core (core/lines.cpp): the same frames
-    and counters for the same bytes (the Python class is the reference; tests/drivers hold the
-    two equal), one call into the core per ``feed``."""
+class NativeLinesFramer(NativeFramer):
+    """:class:`LinesFramer` with its work in the compiled core (core/lines.cpp); the Python class
+    is the reference (tests/drivers/test_lines_core.py holds the two equal)."""
 
     def __init__(self, rows: int, cols: int, sep: str = ",", time_col: bool = False,
                  time_unit: str = "ms") -> None:
         from tactiled import _core  # (built by the install, whichever path is selected)
 
         ref = LinesFramer(rows, cols, sep, time_col, time_unit)  # (checks the arguments)
-        self.shape = ref.shape
-        self._core = _core.LinesFramer(rows, cols, " " if ref.sep is None else ref.sep.decode(),
-                                       time_col, ref.time_scale)
-
-    @property
-    def stats(self) -> FramerStats:
-        """A snapshot of the counters (a new :class:`FramerStats` on each access)."""
-        return FramerStats(*self._core.counters())
-
-    @property
-    def buffered(self) -> int:
-        """Bytes of an incomplete line held between calls."""
-        return self._core.buffered
-
-    def reset(self) -> None:
-        """As :meth:`LinesFramer.reset`."""
-        self._core.reset()
-
-    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
-        """Consume ``data``; return a frame per complete good line."""
-        if not data:
-            return []
-        t = now_if_none(host_time)
-        return [Frame(seq, t_us, raw, 0, t) for seq, t_us, raw in self._core.feed(data, t)]
+        super().__init__(_core.LinesFramer(rows, cols, " " if ref.sep is None else ref.sep.decode(),
+                                           time_col, ref.time_scale), ref.shape)
 
 
 def encode(raw: np.ndarray, sep: str = ",", time_ms: int | None = None) -> bytes:

@@ -1,6 +1,7 @@
-"""An atheris fuzz target for the compiled core's framers (the wire format, text lines): each input is a stream and the reads
-it is cut into, fed to the core's framer and to its Python reference; they must agree frame for
-frame and counter for counter, never raise, and hold no more than the format's bound.
+"""An atheris fuzz target for the compiled core's framers (the wire format, text lines,
+FlexiTac): each input is a stream and the reads it is cut into, fed to the core's framer and to
+its Python reference; they must agree frame for frame and counter for counter, never raise,
+and hold no more than the format's bound.
 
 Run it by hand for as long as you like (libFuzzer's options after the script)::
 
@@ -22,6 +23,7 @@ import atheris
 
 with atheris.instrument_imports():
     from tactiled.frames import MAX_ENCODED_LEN, FrameDecoder, NativeFrameDecoder, cobs_encode
+    from tactiled_drivers.flexitac import FlexiTacFramer, NativeFlexiTacFramer
     from tactiled_drivers.lines import MAX_LINE, LinesFramer, NativeLinesFramer
 
 HEADER = (1).to_bytes(1, "little")
@@ -113,7 +115,34 @@ def lines_framers(data: bytes) -> None:
     assert asdict(got.stats) == asdict(ref.stats)
 
 
-TARGETS = {"wire": wire_decoders, "lines": lines_framers}
+@atheris.instrument_func
+def flexitac_framers(data: bytes) -> None:
+    """FlexiTac: FlexiTacFramer against NativeFlexiTacFramer (frames with markers, markers in
+    their data, noise, torn frames)."""
+    fdp = atheris.FuzzedDataProvider(data)
+    rows, cols = fdp.ConsumeIntInRange(1, 4), fdp.ConsumeIntInRange(1, 6)
+    out = bytearray()
+    for _ in range(fdp.ConsumeIntInRange(0, 16)):
+        kind = fdp.ConsumeIntInRange(0, 4)
+        body = fdp.ConsumeBytes(rows * cols).ljust(rows * cols, b"\x00")
+        if kind <= 2:
+            out += b"\xaa\x55" + body
+        elif kind == 3:
+            out += (b"\xaa\x55" + body)[:fdp.ConsumeIntInRange(0, rows * cols + 1)]
+        else:
+            out += fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 30))
+    stream = bytes(out)
+    cuts = sorted({0, len(stream), *(fdp.ConsumeIntInRange(0, len(stream)) for _ in range(6))})
+    ref, got = FlexiTacFramer(rows, cols), NativeFlexiTacFramer(rows, cols)
+    for k, (a, b) in enumerate(zip(cuts, cuts[1:])):
+        want, have = ref.feed(stream[a:b], 0.5 * k), got.feed(stream[a:b], 0.5 * k)
+        assert [(f.seq, f.device_time_us, f.raw.tobytes()) for f in have] \
+            == [(f.seq, f.device_time_us, f.raw.tobytes()) for f in want]
+        assert got.buffered == ref.buffered
+    assert asdict(got.stats) == asdict(ref.stats)
+
+
+TARGETS = {"wire": wire_decoders, "lines": lines_framers, "flexitac": flexitac_framers}
 
 
 def one_input(data: bytes) -> None:
