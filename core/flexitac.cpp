@@ -1,13 +1,11 @@
 // The FlexiTac framer (core/flexitac.hpp) and its bindings.
 #include "flexitac.hpp"
 
-#include <pybind11/numpy.h>
-#include <pybind11/stl.h>
-
 #include <cmath>
 #include <cstring>
 #include <tuple>
 
+#include "framer_binding.hpp"
 #include "stages.hpp"
 
 namespace py = pybind11;
@@ -114,59 +112,14 @@ void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
 
 }  // namespace flexitac
 
-namespace {
-class PyFlexiTac {
-public:
-    PyFlexiTac(std::size_t rows, std::size_t cols) : rows_(rows), cols_(cols), framer_(rows, cols) {
-        if (!(rows >= 1 && cols >= 1 && rows * cols <= 4096))
-            throw py::value_error("rows * cols: need 1..4096");
-    }
-    std::vector<std::tuple<std::uint32_t, std::int64_t, py::array>> feed(py::buffer data,
-                                                                         double host_time) {
-        py::buffer_info info = data.request();
-        if (info.itemsize != 1 || info.ndim > 1 ||
-            (info.ndim == 1 && info.shape[0] > 1 && info.strides[0] != 1))
-            throw py::type_error("feed expects contiguous bytes");
-        out_.clear();
-        counts_.clear();
-        framer_.feed(static_cast<const std::uint8_t*>(info.ptr),
-                     static_cast<std::size_t>(info.size), host_time, out_, counts_);
-        std::vector<std::tuple<std::uint32_t, std::int64_t, py::array>> batch;
-        batch.reserve(out_.size());
-        for (const auto& f : out_) {
-            py::array_t<std::uint16_t> raw({static_cast<py::ssize_t>(rows_),
-                                            static_cast<py::ssize_t>(cols_)});
-            std::memcpy(raw.mutable_data(), counts_.data() + f.offset,
-                        sizeof(std::uint16_t) * rows_ * cols_);
-            batch.emplace_back(f.seq, f.device_time_us, std::move(raw));
-        }
-        return batch;
-    }
-    void reset() { framer_.reset(); }
-    std::size_t buffered() const { return framer_.buffered(); }
-    std::vector<std::uint64_t> counters() const {
-        const auto& s = framer_.stats();
-        return {s.frames, s.bytes, s.resyncs, s.discarded, s.truncated, s.length_errors,
-                s.oversize, s.crc_errors, s.parse_errors, s.ambiguous, s.lost, s.duplicated,
-                s.restarts};
-    }
-
-private:
-    std::size_t rows_, cols_;
-    flexitac::Framer framer_;
-    std::vector<flexitac::Frame> out_;
-    std::vector<std::uint16_t> counts_;
-};
-}  // namespace
-
 void bind_flexitac(py::module_& m) {
-    py::class_<PyFlexiTac>(m, "FlexiTacFramer",
-                           "FlexiTac's marker framing (tactiled_drivers.flexitac's core).")
-        .def(py::init<std::size_t, std::size_t>(), py::arg("rows"), py::arg("cols"))
-        .def("feed", &PyFlexiTac::feed, py::arg("data"), py::arg("host_time"),
-             "The frames `data` confirms: (seq, device_time_us, raw uint16 (rows, cols)).")
-        .def("reset", &PyFlexiTac::reset)
-        .def_property_readonly("buffered", &PyFlexiTac::buffered)
-        .def("counters", &PyFlexiTac::counters, "FramerStats' counters, in its field order.");
+    using Bound = binding::Vendor<flexitac::Framer, flexitac::Frame, std::uint16_t>;
+    Bound::bind(m, "FlexiTacFramer", "FlexiTac's marker framing (tactiled_drivers.flexitac's core).")
+        .def(py::init([](std::size_t rows, std::size_t cols) {
+                 if (!(rows >= 1 && cols >= 1 && rows * cols <= 4096))
+                     throw py::value_error("rows * cols: need 1..4096");
+                 return Bound(rows, cols, flexitac::Framer(rows, cols));
+             }),
+             py::arg("rows"), py::arg("cols"));
 }
 }  // namespace tactiled

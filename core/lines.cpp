@@ -1,14 +1,12 @@
 // The lines framer (core/lines.hpp) and its bindings.
 #include "lines.hpp"
 
-#include <pybind11/numpy.h>
-#include <pybind11/stl.h>
-
 #include <cmath>
 #include <cstring>
 #include <limits>
 #include <tuple>
 
+#include "framer_binding.hpp"
 #include "stages.hpp"
 
 namespace py = pybind11;
@@ -220,71 +218,22 @@ void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
 
 }  // namespace lines
 
-namespace {
-class PyLines {
-public:
-    PyLines(std::size_t rows, std::size_t cols, const std::string& sep, bool time_col,
-            std::int64_t time_scale)
-        : rows_(rows), cols_(cols),
-          framer_(rows, cols,
-                  sep == "," ? lines::Sep::comma
-                             : (sep == "\t" ? lines::Sep::tab : lines::Sep::space),
-                  time_col, time_scale) {
-        if (!(rows >= 1 && cols >= 1 && rows * cols <= lines::MAX_CELLS))
-            throw py::value_error("rows * cols: need 1.." + std::to_string(lines::MAX_CELLS));
-        if (sep != "," && sep != "\t" && sep != " ")
-            throw py::value_error("sep: ',', '\\t' or ' ' (runs of blanks)");
-        if (time_scale < 1) throw py::value_error("time_scale: a positive number of us");
-    }
-
-    std::vector<std::tuple<std::uint32_t, std::int64_t, py::array>> feed(py::buffer data,
-                                                                         double host_time) {
-        py::buffer_info info = data.request();
-        if (info.itemsize != 1 || info.ndim > 1 ||
-            (info.ndim == 1 && info.shape[0] > 1 && info.strides[0] != 1))
-            throw py::type_error("feed expects contiguous bytes");
-        out_.clear();
-        values_.clear();
-        framer_.feed(static_cast<const std::uint8_t*>(info.ptr),
-                     static_cast<std::size_t>(info.size), host_time, out_, values_);
-        std::vector<std::tuple<std::uint32_t, std::int64_t, py::array>> batch;
-        batch.reserve(out_.size());
-        for (const auto& l : out_) {
-            py::array_t<std::int64_t> raw({static_cast<py::ssize_t>(rows_),
-                                           static_cast<py::ssize_t>(cols_)});
-            std::memcpy(raw.mutable_data(), values_.data() + l.offset,
-                        sizeof(std::int64_t) * rows_ * cols_);
-            batch.emplace_back(l.seq, l.device_time_us, std::move(raw));
-        }
-        return batch;
-    }
-    void reset() { framer_.reset(); }
-    std::size_t buffered() const { return framer_.buffered(); }
-    std::vector<std::uint64_t> counters() const {
-        const auto& s = framer_.stats();
-        return {s.frames, s.bytes, s.resyncs, s.discarded, s.truncated, s.length_errors,
-                s.oversize, s.crc_errors, s.parse_errors, s.ambiguous, s.lost, s.duplicated,
-                s.restarts};
-    }
-
-private:
-    std::size_t rows_, cols_;
-    lines::Framer framer_;
-    std::vector<lines::Line> out_;
-    std::vector<std::int64_t> values_;
-};
-}  // namespace
-
 void bind_lines(py::module_& m) {
-    py::class_<PyLines>(m, "LinesFramer",
-                        "Text lines of integers -> frames (tactiled_drivers.lines' core).")
-        .def(py::init<std::size_t, std::size_t, const std::string&, bool, std::int64_t>(),
+    using Bound = binding::Vendor<lines::Framer, lines::Line, std::int64_t>;
+    Bound::bind(m, "LinesFramer", "Text lines of integers -> frames (tactiled_drivers.lines' core).")
+        .def(py::init([](std::size_t rows, std::size_t cols, const std::string& sep,
+                         bool time_col, std::int64_t time_scale) {
+                 if (!(rows >= 1 && cols >= 1 && rows * cols <= lines::MAX_CELLS))
+                     throw py::value_error("rows * cols: need 1.." +
+                                           std::to_string(lines::MAX_CELLS));
+                 if (sep != "," && sep != "\t" && sep != " ")
+                     throw py::value_error("sep: ',', '\\t' or ' ' (runs of blanks)");
+                 if (time_scale < 1) throw py::value_error("time_scale: a positive number of us");
+                 const lines::Sep kind = sep == "," ? lines::Sep::comma
+                                         : sep == "\t" ? lines::Sep::tab : lines::Sep::space;
+                 return Bound(rows, cols, lines::Framer(rows, cols, kind, time_col, time_scale));
+             }),
              py::arg("rows"), py::arg("cols"), py::arg("sep"), py::arg("time_col"),
-             py::arg("time_scale"))
-        .def("feed", &PyLines::feed, py::arg("data"), py::arg("host_time"),
-             "The frames `data` completes: (seq, device_time_us, raw int64 (rows, cols)).")
-        .def("reset", &PyLines::reset)
-        .def_property_readonly("buffered", &PyLines::buffered)
-        .def("counters", &PyLines::counters, "FramerStats' counters, in its field order.");
+             py::arg("time_scale"));
 }
 }  // namespace tactiled

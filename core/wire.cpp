@@ -8,6 +8,7 @@
 #include <cstring>
 #include <tuple>
 
+#include "framer_binding.hpp"
 #include "stages.hpp"
 
 namespace py = pybind11;
@@ -204,11 +205,8 @@ Batch to_batch(const std::vector<wire::Decoded>& frames, const std::vector<std::
     Batch batch;
     batch.reserve(frames.size());
     for (const auto& f : frames) {
-        py::array_t<std::uint16_t> raw({static_cast<py::ssize_t>(f.rows),
-                                        static_cast<py::ssize_t>(f.cols)});
-        std::memcpy(raw.mutable_data(), counts.data() + f.offset,
-                    sizeof(std::uint16_t) * f.rows * f.cols);
-        batch.emplace_back(f.seq, f.device_time_us, f.sensor_id, std::move(raw));
+        batch.emplace_back(f.seq, f.device_time_us, f.sensor_id,
+                           binding::counts_array(counts.data() + f.offset, f.rows, f.cols));
     }
     return batch;
 }
@@ -216,16 +214,12 @@ Batch to_batch(const std::vector<wire::Decoded>& frames, const std::vector<std::
 class PyDecoder {
 public:
     Batch feed(py::buffer data) {
-        py::buffer_info info = data.request();
-        if (info.ndim > 1 || (info.ndim == 1 && info.strides[0] != 1 && info.shape[0] > 1) ||
-            info.itemsize != 1)
-            throw py::type_error("feed expects contiguous bytes");
+        const auto bytes = binding::bytes_of(data);
         frames_.clear();
         counts_.clear();
         // (the lock is kept: a few microseconds of work, and the serial read thread would
         // take it; tactiled/calibration/fused.py says what that cost)
-        dec_.feed(static_cast<const std::uint8_t*>(info.ptr), static_cast<std::size_t>(info.size),
-                  frames_, counts_);
+        dec_.feed(bytes.first, bytes.second, frames_, counts_);
         return to_batch(frames_, counts_);
     }
     void reset() { dec_.reset(); }

@@ -332,30 +332,43 @@ def decode_frame(encoded: bytes, host_time: float = 0.0) -> Frame:
     return result
 
 
-class NativeFrameDecoder:
+class NativeFraming:
+    """What a framer whose work runs in the compiled core shares with the others: its core
+    object (one of ``tactiled._core``'s framers) and its counters, read from the core as a
+    ``STATS`` dataclass (whose fields the core's ``counters()`` gives in order)."""
+
+    STATS: type
+
+    def __init__(self, core: Any) -> None:
+        self._core = core
+
+    @property
+    def stats(self) -> Any:
+        """A snapshot of the counters (a new ``STATS`` on each access)."""
+        return self.STATS(*self._core.counters())
+
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete unit held between calls."""
+        return self._core.buffered
+
+    def reset(self) -> None:
+        """Forget partial data (the port was reopened), as the Python framer does."""
+        self._core.reset()
+
+
+class NativeFrameDecoder(NativeFraming):
     """:class:`FrameDecoder` with its work in the compiled core (``tactiled._core``,
     core/wire.cpp): the same frames and the same counters for the same bytes (the Python class
-    is the reference, tests/native hold the two equal); one call into the core per ``feed``,
-    however many frames the bytes hold."""
+    is the reference, tests/reliability/test_decoder_fuzz.py holds the two equal); one call
+    into the core per ``feed``, however many frames the bytes hold."""
+
+    STATS = DecoderStats
 
     def __init__(self) -> None:
         from tactiled import _core  # (built by the install, whichever path is selected)
 
-        self._core = _core.WireDecoder()
-
-    @property
-    def stats(self) -> DecoderStats:
-        """A snapshot of the counters (a new :class:`DecoderStats` on each access)."""
-        return DecoderStats(*self._core.counters())
-
-    @property
-    def buffered(self) -> int:
-        """Bytes of an incomplete frame held until its delimiter arrives."""
-        return self._core.buffered
-
-    def reset(self) -> None:
-        """Forget partial data and sequence history (e.g. after reopening the port)."""
-        self._core.reset()
+        super().__init__(_core.WireDecoder())
 
     def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
         """Consume ``data`` and return the frames completed by it, in order (as

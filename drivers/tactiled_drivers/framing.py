@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-from tactiled.frames import Frame
+from tactiled.frames import Frame, NativeFraming
 
 SEQ_MOD = 1 << 32  # seq numbers wrap as the wire format's uint32 does
 
@@ -121,30 +121,17 @@ class FramerBase:
         return max(0, round((host_time - self._t0) * 1e6))
 
 
-class NativeFramer:
+class NativeFramer(NativeFraming):
     """A vendor framer whose work runs in the compiled core (``core``: one of
     ``tactiled._core``'s framers, whose ``feed(bytes, host_time)`` returns ``(seq,
-    device_time_us, raw)`` tuples and ``counters()`` :class:`FramerStats`' fields in order): the
-    same frames and counters as its Python reference for the same bytes, one call into the
-    core per ``feed``."""
+    device_time_us, raw)`` tuples): the same frames and counters as its Python reference for
+    the same bytes, one call into the core per ``feed``."""
+
+    STATS = FramerStats
 
     def __init__(self, core: Any, shape: tuple[int, int]) -> None:
-        self._core = core
+        super().__init__(core)
         self.shape = shape
-
-    @property
-    def stats(self) -> FramerStats:
-        """A snapshot of the counters (a new :class:`FramerStats` on each access)."""
-        return FramerStats(*self._core.counters())
-
-    @property
-    def buffered(self) -> int:
-        """Bytes of an incomplete unit held between calls."""
-        return self._core.buffered
-
-    def reset(self) -> None:
-        """As :meth:`FramerBase.reset`."""
-        self._core.reset()
 
     def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
         """Consume ``data``; return the frames it completes."""
