@@ -114,6 +114,11 @@ void follow_baseline(double* baseline, double* z, std::int64_t n, double weight,
 }  // namespace calib
 
 namespace {
+// Inputs the kernels only read: converted to C-contiguous arrays of their type where they are
+// not (a copy); outputs (py::array below) are never converted.
+template <class T>
+using In = py::array_t<T, py::array::c_style | py::array::forcecast>;
+
 // An array argument as the kernels read it: C-contiguous, of dtype T, of `size` elements when
 // given; `writable`: written in place (then a read-only array is refused too).
 template <class T>
@@ -133,10 +138,10 @@ T* data_of(const py::array& a, const char* name, bool writable, py::ssize_t size
 }
 
 std::tuple<std::int64_t, double, double> zero_frame_py(
-    py::array raw, py::array offset, py::array breaks, py::array first, py::array params,
-    py::array baseline, py::array peak, double fraction, double decay, double floor,
-    double margin, bool active, py::array ax, py::array ay_t, py::array bands, py::array z,
-    py::array residual, py::array tmap) {
+    py::array raw, In<double> offset, In<double> breaks, In<std::int64_t> first,
+    In<double> params, In<double> baseline, py::array peak, double fraction, double decay,
+    double floor, double margin, bool active, In<double> ax, In<double> ay_t,
+    In<std::int64_t> bands, py::array z, py::array residual, py::array tmap) {
     const py::ssize_t n = raw.size();
     if (raw.ndim() != 1) throw py::value_error("raw: expected a flat array");
     calib::Segments seg{};
@@ -198,7 +203,7 @@ std::tuple<std::int64_t, double, double> zero_frame_py(
 }
 
 std::tuple<std::int64_t, std::int64_t, double> average_maps_py(py::array ring, py::array total,
-                                                               py::array tmap, std::int64_t count,
+                                                               In<double> tmap, std::int64_t count,
                                                                std::int64_t head) {
     if (ring.ndim() != 2) throw py::value_error("ring: expected 2-d");
     const std::int64_t average = ring.shape(0), p = tmap.size();
@@ -231,8 +236,8 @@ void follow_baseline_py(py::array baseline, py::array z, double weight, double l
                            data_of<double>(z, "z", true, n), n, weight, limit, clip);
 }
 
-std::tuple<std::int64_t, double, bool> drift_error_py(py::array zeroed, py::array predicted,
-                                                      py::array inside, py::array error) {
+std::tuple<std::int64_t, double, bool> drift_error_py(In<double> zeroed, In<double> predicted,
+                                                      In<bool> inside, py::array error) {
     const py::ssize_t n = zeroed.size();
     const double* zr = data_of<double>(zeroed, "zeroed", false);
     const double* pr = data_of<double>(predicted, "predicted", false, n);
@@ -253,7 +258,7 @@ std::tuple<std::int64_t, double, bool> drift_error_py(py::array zeroed, py::arra
     return {n_in, miss, finite};
 }
 
-void pull_baseline_py(py::array baseline, py::array error, py::array inside, double limit,
+void pull_baseline_py(py::array baseline, In<double> error, In<bool> inside, double limit,
                       double weight, std::int64_t outside) {
     const py::ssize_t n = error.size();
     double* b = data_of<double>(baseline, "baseline", true, n);
@@ -273,8 +278,8 @@ void pull_baseline_py(py::array baseline, py::array error, py::array inside, dou
     }
 }
 
-bool learn_hysteresis_py(py::array peaks, py::array taus, double dt, py::array predicted,
-                         py::array unexplained, py::array outside, double floor, py::array normal,
+bool learn_hysteresis_py(py::array peaks, In<double> taus, double dt, In<double> predicted,
+                         In<double> unexplained, In<bool> outside, double floor, py::array normal,
                          py::array moment, double forget) {
     if (peaks.ndim() != 2) throw py::value_error("peaks: expected 2-d");
     const std::int64_t kk = peaks.shape(0), n = peaks.shape(1);

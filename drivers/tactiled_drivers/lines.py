@@ -13,8 +13,9 @@ Bad lines are counted and skipped, never delivered: fewer values than ``rows*col
 dropped as they arrive, up to the next newline, so a device that never sends one costs no
 memory).  Blank lines are ignored.  The counts are the device's integers as they are
 (``int64``), and a clock must fit ``int64`` in microseconds (else ``parse_errors``); a
-trailing separator is allowed.  The calibration's counts domain is 0..65535, and a recording (``tactiled record``)
-stores 0..65535 only.
+trailing separator is allowed.  The calibration's counts domain is 0..65535, and a recording
+(``tactiled record``) stores 0..65535 only.  :class:`NativeLinesFramer` does the same in the
+compiled core.
 """
 
 from __future__ import annotations

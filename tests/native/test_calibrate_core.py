@@ -158,6 +158,23 @@ def test_an_output_array_of_the_wrong_kind_is_refused_not_copied() -> None:
         _core.follow_baseline(np.zeros(N), np.zeros(N - 1), 0.5, 1.0, False)
 
 
+def test_an_input_of_another_layout_is_read_for_its_values() -> None:
+    """Inputs the core only reads may come in any layout (a strided view): it reads their
+    values (the reference, given them contiguous, gives the same bits)."""
+    rng = np.random.default_rng(3)
+    error = rng.normal(0, 1e-3, 2 * N)[::2]  # strided
+    assert not error.flags.c_contiguous
+    inside = np.zeros(N, dtype=bool)
+    inside[: N // 2] = True
+    outs = []
+    for kernel, e in ((ref.pull_baseline, np.ascontiguousarray(error)),
+                      (_core.pull_baseline, error)):
+        baseline = np.zeros(N)
+        kernel(baseline, e, inside, 1e-3, 0.5, N - N // 2)
+        outs.append(baseline)
+    _same(outs[0], outs[1])
+
+
 def test_the_bands_are_the_filters_own() -> None:
     """(The inputs above are the detector's: its bands come from its matrices.)"""
     _same(filter_bands(DETECTOR._ax, DETECTOR._ay_t), DETECTOR._bands)
