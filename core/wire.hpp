@@ -1,7 +1,8 @@
 // The tactiled wire format's stream decoder (docs/reference/protocol.md): COBS-framed
 // header | uint16 LE counts | CRC-32, 0x00-delimited.  Python reference: tactiled/frames.py
 // (FrameDecoder, _parse, _cobs_decode); every branch here mirrors one there, and the tests
-// (tests/native/test_wire_core.py) hold the two equal on hostile and hypothesis-drawn streams.
+// (tests/reliability/test_decoder_fuzz.py, tests/native/fuzz_framers.py) hold the two equal
+// on hostile and hypothesis-drawn streams.
 // Pure: no I/O, never throws on any input bytes, holds at most MAX_ENCODED_LEN bytes.
 #pragma once
 
