@@ -5,5 +5,9 @@
 
 namespace tactiled {
 void bind_impulse(pybind11::module_& m);
+void bind_wire(pybind11::module_& m);
+void bind_calibrate(pybind11::module_& m);
+void bind_lines(pybind11::module_& m);
+void bind_flexitac(pybind11::module_& m);
 void bind_all(pybind11::module_& m);
 }  // namespace tactiled

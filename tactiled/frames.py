@@ -344,3 +344,63 @@ def decode_frame(encoded: bytes, host_time: float = 0.0) -> Frame:
         raise FrameError(f"corrupt frame: {result.removesuffix('_errors')}")
     result.host_time = host_time
     return result
+
+
+class NativeFraming:
+    """What a framer whose work runs in the compiled core shares with the others: its core
+    object (one of ``tactiled._core``'s framers) and its counters, read from the core as a
+    ``STATS`` dataclass (whose fields the core's ``counters()`` gives in order)."""
+
+    STATS: type
+
+    def __init__(self, core: Any) -> None:
+        self._core = core
+
+    @property
+    def stats(self) -> Any:
+        """A snapshot of the counters (a new ``STATS`` on each access)."""
+        return self.STATS(*self._core.counters())
+
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete unit held between calls."""
+        return self._core.buffered
+
+    def reset(self) -> None:
+        """Forget partial data (the port was reopened), as the Python framer does."""
+        self._core.reset()
+
+
+class NativeFrameDecoder(NativeFraming):
+    """:class:`FrameDecoder` with its work in the compiled core (``tactiled._core``,
+    core/wire.cpp): the same frames and the same counters for the same bytes (the Python class
+    is the reference, tests/reliability/test_decoder_fuzz.py holds the two equal); one call
+    into the core per ``feed``, however many frames the bytes hold."""
+
+    STATS = DecoderStats
+
+    def __init__(self) -> None:
+        from tactiled import _core  # (built by the install, whichever path is selected)
+
+        super().__init__(_core.WireDecoder())
+
+    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
+        """Consume ``data`` and return the frames completed by it, in order (as
+        :meth:`FrameDecoder.feed`)."""
+        if not data:
+            return []
+        decoded = self._core.feed(data)
+        if not decoded:
+            return []
+        if host_time is None:
+            host_time = time.monotonic()
+        return [Frame(seq, t_us, raw, sensor_id, host_time)
+                for seq, t_us, sensor_id, raw in decoded]
+
+
+def new_decoder() -> FrameDecoder | NativeFrameDecoder:
+    """The wire format's decoder this process runs: the compiled core's, or the Python
+    reference where ``TACTILED_CORE=python`` (:mod:`tactiled.native`)."""
+    from tactiled import native
+
+    return FrameDecoder() if native.core is None else NativeFrameDecoder()

@@ -40,7 +40,7 @@ from urllib.parse import parse_qsl, unquote, urlsplit
 
 from tactiled.devices import DeviceArray
 from tactiled.errors import DeviceTimeoutError, DriverError
-from tactiled.frames import Frame, FrameDecoder
+from tactiled.frames import Frame, FrameDecoder, new_decoder
 
 log = logging.getLogger(__name__)
 
@@ -234,7 +234,7 @@ class FrameSource(abc.ABC):
     def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
         self.url: SourceURL = url if isinstance(url, SourceURL) else parse_source_url(url)
         self.url.reject_unknown(self.PARAMS)
-        self.decoder: FrameDecoder = decoder if decoder is not None else self._new_decoder()
+        self.decoder: Any = decoder if decoder is not None else self._new_decoder()
         self.connected = False
         self.reconnects = 0
         self.disconnects = 0
@@ -381,8 +381,9 @@ class FrameSource(abc.ABC):
         """The framer this source's bytes go through (called once, from the constructor, after
         ``self.url`` is set): ``feed(bytes, host_time) -> list[Frame]``, ``reset()`` and a
         ``stats`` dataclass.  The default is the tactiled wire format's
-        :class:`~tactiled.frames.FrameDecoder`; a vendor driver names its own framer here."""
-        return FrameDecoder()
+        :class:`~tactiled.frames.FrameDecoder` (the compiled core's,
+        :func:`~tactiled.frames.new_decoder`); a vendor driver names its own framer here."""
+        return new_decoder()
 
     def _timestamp(self) -> float:
         """Host time stamped on bytes just read, in seconds; ``time.monotonic()`` here."""

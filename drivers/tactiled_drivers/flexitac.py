@@ -32,10 +32,11 @@ from typing import ClassVar
 
 import numpy as np
 
+from tactiled import native
 from tactiled.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import SourceURL
-from tactiled_drivers.framing import FramerBase, now_if_none
+from tactiled_drivers.framing import FramerBase, NativeFramer, now_if_none
 from tactiled_drivers.serial_source import SerialSource
 
 MARKER = b"\xaa\x55"
@@ -138,6 +139,18 @@ class FlexiTacFramer(FramerBase):
                                   raw=raw, host_time=host_time, clocked=False))
 
 
+class NativeFlexiTacFramer(NativeFramer):
+    """:class:`FlexiTacFramer` with its work in the compiled core (core/flexitac.cpp); the Python
+    class is the reference (tests/drivers/test_vendor_framers.py holds the two equal)."""
+
+    def __init__(self, rows: int = DEFAULT_ROWS, cols: int = DEFAULT_COLS) -> None:
+        from tactiled import _core  # (built by the install, whichever path is selected)
+
+        ref = FlexiTacFramer(rows, cols)  # (checks the arguments)
+        super().__init__(_core.FlexiTacFramer(rows, cols), ref.shape)
+        self.period = ref.period  # bytes from one marker to the next
+
+
 def encode(raw: np.ndarray) -> bytes:
     """One frame as the firmware sends it: the marker, then the counts row by row as uint8.
     ``ValueError`` for counts outside 0..255."""
@@ -156,11 +169,12 @@ class FlexiTacSource(SerialSource):
     def __init__(self, url: str | SourceURL, *, decoder: FlexiTacFramer | None = None) -> None:
         super().__init__(url, decoder=decoder)  # type: ignore[arg-type]
 
-    def _new_decoder(self) -> FlexiTacFramer:
+    def _new_decoder(self) -> FlexiTacFramer | NativeFlexiTacFramer:
         self.rows = self.url.get_int("rows", DEFAULT_ROWS, minimum=1, maximum=255)
         self.cols = self.url.get_int("cols", DEFAULT_COLS, minimum=1, maximum=255)
+        framer = FlexiTacFramer if native.core is None else NativeFlexiTacFramer
         try:
-            return FlexiTacFramer(self.rows, self.cols)
+            return framer(self.rows, self.cols)
         except ValueError as err:
             raise ValueError(f"{self.url.url!r}: {err}") from None
 

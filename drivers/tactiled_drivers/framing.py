@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
-from tactiled.frames import Frame
+from tactiled.frames import Frame, NativeFraming
 
 SEQ_MOD = 1 << 32  # seq numbers wrap as the wire format's uint32 does
 
@@ -118,6 +119,26 @@ class FramerBase:
         if self._t0 is None:
             self._t0 = host_time
         return max(0, round((host_time - self._t0) * 1e6))
+
+
+class NativeFramer(NativeFraming):
+    """A vendor framer whose work runs in the compiled core (``core``: one of
+    ``tactiled._core``'s framers, whose ``feed(bytes, host_time)`` returns ``(seq,
+    device_time_us, raw)`` tuples): the same frames and counters as its Python reference for
+    the same bytes, one call into the core per ``feed``."""
+
+    STATS = FramerStats
+
+    def __init__(self, core: Any, shape: tuple[int, int]) -> None:
+        super().__init__(core)
+        self.shape = shape
+
+    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
+        """Consume ``data``; return the frames it completes."""
+        if not data:
+            return []
+        t = now_if_none(host_time)
+        return [Frame(seq, t_us, raw, 0, t) for seq, t_us, raw in self._core.feed(data, t)]
 
 
 def now_if_none(host_time: float | None) -> float:

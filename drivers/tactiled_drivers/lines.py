@@ -12,8 +12,10 @@ Bad lines are counted and skipped, never delivered: fewer values than ``rows*col
 (``parse_errors``), a line longer than :data:`MAX_LINE` bytes (``oversize``: its bytes are
 dropped as they arrive, up to the next newline, so a device that never sends one costs no
 memory).  Blank lines are ignored.  The counts are the device's integers as they are
-(``int64``); a trailing separator is allowed.  The calibration's counts domain is 0..65535, and a recording (``tactiled record``)
-stores 0..65535 only.
+(``int64``), and a clock must fit ``int64`` in microseconds (else ``parse_errors``); a
+trailing separator is allowed.  The calibration's counts domain is 0..65535, and a recording
+(``tactiled record``) stores 0..65535 only.  :class:`NativeLinesFramer` does the same in the
+compiled core.
 """
 
 from __future__ import annotations
@@ -22,10 +24,11 @@ from typing import ClassVar
 
 import numpy as np
 
+from tactiled import native
 from tactiled.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import SourceURL
-from tactiled_drivers.framing import FramerBase, now_if_none
+from tactiled_drivers.framing import FramerBase, NativeFramer, now_if_none
 from tactiled_drivers.serial_source import SerialSource
 
 DEFAULT_BAUD = 115_200
@@ -112,7 +115,7 @@ class LinesFramer(FramerBase):
             return None
         if self.time_col:
             stamp = values.pop(0) * self.time_scale
-            if stamp < 0:
+            if not 0 <= stamp < 1 << 63:
                 self._reject("parse_errors")
                 return None
         else:
@@ -124,6 +127,19 @@ class LinesFramer(FramerBase):
             return None
         return Frame(seq=self._next_seq(), device_time_us=stamp, raw=raw, host_time=host_time,
                      clocked=self.time_col)
+
+
+class NativeLinesFramer(NativeFramer):
+    """:class:`LinesFramer` with its work in the compiled core (core/lines.cpp); the Python class
+    is the reference (tests/drivers/test_lines_core.py holds the two equal)."""
+
+    def __init__(self, rows: int, cols: int, sep: str = ",", time_col: bool = False,
+                 time_unit: str = "ms") -> None:
+        from tactiled import _core  # (built by the install, whichever path is selected)
+
+        ref = LinesFramer(rows, cols, sep, time_col, time_unit)  # (checks the arguments)
+        super().__init__(_core.LinesFramer(rows, cols, " " if ref.sep is None else ref.sep.decode(),
+                                           time_col, ref.time_scale), ref.shape)
 
 
 def encode(raw: np.ndarray, sep: str = ",", time_ms: int | None = None) -> bytes:
@@ -146,7 +162,7 @@ class LinesSource(SerialSource):
     def __init__(self, url: str | SourceURL, *, decoder: LinesFramer | None = None) -> None:
         super().__init__(url, decoder=decoder)  # type: ignore[arg-type]
 
-    def _new_decoder(self) -> LinesFramer:
+    def _new_decoder(self) -> LinesFramer | NativeLinesFramer:
         u = self.url
         for name in ("rows", "cols"):
             if name not in u.params:
@@ -154,9 +170,10 @@ class LinesSource(SerialSource):
         self.rows = u.get_int("rows", 0, minimum=1, maximum=MAX_CELLS)
         self.cols = u.get_int("cols", 0, minimum=1, maximum=MAX_CELLS)
         time_col = u.get_int("time_col", -1, minimum=0, maximum=0) == 0
+        framer = LinesFramer if native.core is None else NativeLinesFramer
         try:
-            return LinesFramer(self.rows, self.cols, sep=u.get_str("sep", ","),
-                               time_col=time_col, time_unit=u.get_str("time_unit", "ms"))
+            return framer(self.rows, self.cols, sep=u.get_str("sep", ","),
+                          time_col=time_col, time_unit=u.get_str("time_unit", "ms"))
         except ValueError as err:
             raise ValueError(f"{u.url!r}: {err}") from None
 

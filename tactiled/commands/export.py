@@ -39,7 +39,7 @@ import numpy as np
 from tactiled.commands import replay
 from tactiled.errors import ConfigError, TactiledError
 from tactiled.files import check_input, check_output
-from tactiled.frames import FrameDecoder
+from tactiled.frames import new_decoder
 from tactiled.progress import Progress
 from tactiled.recording import RecordingReader
 from tactiled.settings import load_settings
@@ -174,7 +174,7 @@ def _health(stats: dict[str, Any], state: dict[str, Any]) -> dict[str, Any]:
 
 def export_npz(path: str, out: Path, progress: Progress) -> int:
     """The raw frames of a recording into ``out`` (see the module docstring); the count."""
-    decoder = FrameDecoder()
+    decoder = new_decoder()
     counts, host_time, seq, sensor_id = [], [], [], []
     with RecordingReader(path) as reader:
         for t, data in reader:

@@ -6,6 +6,7 @@ counted."""
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 
 import numpy as np
 import pytest
@@ -15,6 +16,13 @@ from hypothesis import strategies as st
 from tactiled_drivers import flexitac, lines, robotiq, xela
 
 SMALL = st.integers(1, 4)
+#: the FlexiTac framer and its compiled core's (held equal below)
+FLEXITAC = pytest.mark.parametrize("make", [flexitac.FlexiTacFramer,
+                                            flexitac.NativeFlexiTacFramer],
+                                   ids=lambda c: c.__name__)
+#: the lines framer and its compiled core's (tests/drivers/test_lines_core.py holds them equal)
+LINES = pytest.mark.parametrize("make", [lines.LinesFramer, lines.NativeLinesFramer],
+                                ids=lambda c: c.__name__)
 
 
 def feed_chunks(framer, data: bytes, cuts: list[int]) -> list:
@@ -62,11 +70,12 @@ def flexitac_stream(draw, markers: bool = True):
     return rows, cols, imgs
 
 
+@FLEXITAC
 @settings(max_examples=150, deadline=None)
 @given(flexitac_stream(), st.lists(st.integers(0, 10_000), max_size=6))
-def test_flexitac_clean_stream_any_chunking(stream, cuts) -> None:
+def test_flexitac_clean_stream_any_chunking(make, stream, cuts) -> None:
     rows, cols, imgs = stream
-    framer = flexitac.FlexiTacFramer(rows, cols)
+    framer = make(rows, cols)
     got = feed_chunks(framer, b"".join(flexitac.encode(i) for i in imgs), cuts)
     # each frame is confirmed by the next one's marker: all but the last come out, once the
     # first two have set the phase (which takes a byte of the third)
@@ -76,10 +85,11 @@ def test_flexitac_clean_stream_any_chunking(stream, cuts) -> None:
     assert framer.stats.rejected == 0 and framer.buffered <= 2 * framer.period + 1 + 0
 
 
+@FLEXITAC
 @settings(max_examples=150, deadline=None)
 @given(flexitac_stream(markers=False), st.binary(min_size=1, max_size=300), st.integers(0, 6),
        st.lists(st.integers(0, 10_000), max_size=4))
-def test_flexitac_garbage_costs_only_its_neighbour(stream, junk, at, cuts) -> None:
+def test_flexitac_garbage_costs_only_its_neighbour(make, stream, junk, at, cuts) -> None:
     """Garbage between frames.  (With a marker inside the data *and* garbage, a marker that
     happens to lie exactly one period before the first frame after the garbage is a frame to
     any reader of this format: it has no checksum.  docs/howto/drivers.md says so.)"""
@@ -88,7 +98,7 @@ def test_flexitac_garbage_costs_only_its_neighbour(stream, junk, at, cuts) -> No
     at = min(at, len(imgs) - 1)
     data = (b"".join(flexitac.encode(i) for i in imgs[:at]) + junk
             + b"".join(flexitac.encode(i) for i in imgs[at:]))
-    framer = flexitac.FlexiTacFramer(rows, cols)
+    framer = make(rows, cols)
     got = feed_chunks(framer, data, cuts)
     assert is_subsequence(got, imgs)
     if framer.stats.ambiguous == 0:
@@ -99,22 +109,24 @@ def test_flexitac_garbage_costs_only_its_neighbour(stream, junk, at, cuts) -> No
     assert framer.stats.discarded >= len(junk)
 
 
+@FLEXITAC
 @settings(max_examples=200, deadline=None)
 @given(st.binary(max_size=3000), st.lists(st.integers(0, 3000), max_size=8))
-def test_flexitac_never_raises_and_stays_bounded(data, cuts) -> None:
-    framer = flexitac.FlexiTacFramer(2, 3)
+def test_flexitac_never_raises_and_stays_bounded(make, data, cuts) -> None:
+    framer = make(2, 3)
     for frame in feed_chunks(framer, data, cuts):
         assert frame.raw.shape == (2, 3) and frame.raw.dtype == np.uint16
     assert framer.buffered <= 2 * framer.period + 1
 
 
-def test_flexitac_still_image_with_a_marker_waits_then_locks() -> None:
+@FLEXITAC
+def test_flexitac_still_image_with_a_marker_waits_then_locks(make) -> None:
     """A still image holding AA 55 at the same place confirms two phases: the framer counts
     the ambiguity and delivers nothing until the data (its noise) tells them apart."""
     rows, cols = 3, 4
     still = np.arange(12, dtype=np.uint16).reshape(rows, cols)
     still.flat[5:7] = (0xAA, 0x55)
-    framer = flexitac.FlexiTacFramer(rows, cols)
+    framer = make(rows, cols)
     got = framer.feed(b"\x01\x02" + flexitac.encode(still) * 6)
     assert got == [] or all(np.array_equal(f.raw, still) for f in got)
     assert framer.stats.ambiguous >= 1
@@ -127,15 +139,43 @@ def test_flexitac_still_image_with_a_marker_waits_then_locks() -> None:
     assert sum(any(np.array_equal(f.raw, m) for m in moving) for f in got) >= 3
 
 
-def test_flexitac_torn_frame_counted() -> None:
+@FLEXITAC
+def test_flexitac_torn_frame_counted(make) -> None:
     imgs = [np.full((2, 3), k, dtype=np.uint16) for k in range(1, 6)]
     torn = flexitac.encode(imgs[1])[:5]  # unplugged mid-frame, the device restarts
     data = flexitac.encode(imgs[0]) + torn + b"".join(flexitac.encode(i) for i in imgs[2:])
-    framer = flexitac.FlexiTacFramer(2, 3)
+    framer = make(2, 3)
     got = framer.feed(data)
     # the frame before the torn one is confirmed by its marker; the torn one never comes out
     assert same(got, [imgs[0], imgs[2], imgs[3]]) and framer.stats.truncated == 1
     assert framer.stats.resyncs == 1 and [f.seq for f in got] == [0, 1, 2]
+
+
+@settings(max_examples=200, deadline=None)
+@given(flexitac_stream(), st.lists(st.tuples(st.integers(0, 8), st.binary(max_size=40)),
+                                   max_size=3),
+       st.lists(st.integers(0, 10_000), max_size=6), st.booleans())
+def test_flexitac_core_frames_as_the_reference(stream, junk, cuts, reset) -> None:
+    """The same frames (seq, device time, counts) and counters, on clean streams, markers in
+    the data, garbage and torn frames, cut anywhere, and after a reset."""
+    rows, cols, imgs = stream
+    units = [flexitac.encode(i) for i in imgs]
+    for at, j in junk:
+        units.insert(min(at, len(units)), j)
+    data = b"".join(units)
+    ref, got = flexitac.FlexiTacFramer(rows, cols), flexitac.NativeFlexiTacFramer(rows, cols)
+
+    def wire(framer):  # each read at its own host time (the device time is the host clock)
+        points = [0, *sorted({c % (len(data) + 1) for c in cuts}), len(data)]
+        return [(f.seq, f.device_time_us, f.host_time, f.raw.dtype, f.raw.tobytes())
+                for k, (a, b) in enumerate(zip(points, points[1:]))
+                for f in framer.feed(data[a:b], host_time=3.0 + 0.0013 * k)]
+
+    for _ in range(2 if reset else 1):
+        assert wire(got) == wire(ref)
+        assert (got.buffered, asdict(got.stats)) == (ref.buffered, asdict(ref.stats))
+        ref.reset()
+        got.reset()
 
 
 # --------------------------------------------------------------------------------------------
@@ -153,11 +193,12 @@ def lines_stream(draw):
     return rows, cols, sep, arrays
 
 
+@LINES
 @settings(max_examples=150, deadline=None)
 @given(lines_stream(), st.lists(st.tuples(st.sampled_from(["text", "short", "long"]),
                                           st.binary(max_size=60)), max_size=4),
        st.lists(st.integers(0, 5000), max_size=6), st.data())
-def test_lines_good_lines_survive_bad_ones(stream, bad, cuts, data) -> None:
+def test_lines_good_lines_survive_bad_ones(make, stream, bad, cuts, data) -> None:
     rows, cols, sep, arrays = stream
     n = rows * cols
     units = [(lines.encode(a, sep), a) for a in arrays]
@@ -168,24 +209,28 @@ def test_lines_good_lines_survive_bad_ones(stream, bad, cuts, data) -> None:
         if sep != ",":
             line = line.replace(b",", b" " if sep == "space" else b"\t")
         units.insert(data.draw(st.integers(0, len(units))), (line + b"\n", None))
-    framer = lines.LinesFramer(rows, cols, sep=sep)
+    framer = make(rows, cols, sep=sep)
     got = feed_chunks(framer, b"".join(u for u, _ in units), cuts)
     assert same(got, arrays)
     assert framer.stats.rejected == len(bad) and framer.stats.frames == len(arrays)
     assert all(f.raw.dtype == np.int64 for f in got)
 
 
-def test_lines_counts_each_kind_and_time_column() -> None:
-    framer = lines.LinesFramer(2, 2, sep=",", time_col=True, time_unit="ms")
-    got = framer.feed(b"10,1,2,3,4\r\n11,1,2\n12,1,2,3,4,5\n13,1,x,3,4\n-1,1,2,3,4\n\n14,5,6,7,8,\n")
+@LINES
+def test_lines_counts_each_kind_and_time_column(make) -> None:
+    framer = make(2, 2, sep=",", time_col=True, time_unit="ms")
+    got = framer.feed(b"10,1,2,3,4\r\n11,1,2\n12,1,2,3,4,5\n13,1,x,3,4\n-1,1,2,3,4\n\n14,5,6,7,8,\n"
+                      b"9223372036854775807,1,2,3,4\n")
     assert [f.device_time_us for f in got] == [10_000, 14_000]
     assert [f.seq for f in got] == [0, 1] and got[1].raw.tolist() == [[5, 6], [7, 8]]
     s = framer.stats
-    assert (s.truncated, s.length_errors, s.parse_errors, s.resyncs) == (1, 1, 2, 1)
+    # (a clock past int64 once in microseconds is a parse error too)
+    assert (s.truncated, s.length_errors, s.parse_errors, s.resyncs) == (1, 1, 3, 1)
 
 
-def test_lines_ten_megabyte_line_costs_no_memory() -> None:
-    framer = lines.LinesFramer(2, 2)
+@LINES
+def test_lines_ten_megabyte_line_costs_no_memory(make) -> None:
+    framer = make(2, 2)
     chunk = b"7" * 65536
     peak = 0
     framer.feed(b"1,2,3,4\n")

@@ -1,7 +1,9 @@
 """Hostile input for the frame decoder: property-based fuzz (hypothesis) of byte streams, a time
 bound per megabyte for the worst patterns, and bounded memory over long streams.
 
-``FrameDecoder.feed`` must never raise, whatever the bytes: every bad chunk between two 0x00 is
+Each runs against the Python reference (``FrameDecoder``) and the compiled core's decoder
+(``NativeFrameDecoder``), and the two must agree frame for frame and
+counter for counter.  ``FrameDecoder.feed`` must never raise, whatever the bytes: every bad chunk between two 0x00 is
 counted once in its stats (and nothing else happens), it holds at most ``MAX_ENCODED_LEN`` bytes
 between calls, and the result does not depend on how the stream is cut into reads.
 """
@@ -21,11 +23,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from rel_helpers import figures
 
-from tactiled.frames import MAX_ENCODED_LEN, Frame, FrameDecoder, encode_frame
+from tactiled.frames import MAX_ENCODED_LEN, Frame, FrameDecoder, NativeFrameDecoder, encode_frame
 
 MB = 1 << 20
 READ = 4096  # bytes per read, as the serial driver reads
 SECONDS_PER_MB = 5.0  # the bar; about 1 s/MB is measured for the worst pattern on this machine
+
+#: the decoders under test: the reference, and the core's (built by the install, whichever of
+#: the two TACTILED_CORE selects for the daemon)
+DECODERS = [FrameDecoder, NativeFrameDecoder]
+each_decoder = pytest.mark.parametrize("make", DECODERS, ids=lambda c: c.__name__)
 
 FUZZ = settings(max_examples=300, deadline=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -77,10 +84,11 @@ pieces = st.one_of(
 streams = st.lists(pieces, max_size=25).map(b"".join)
 
 
-def feed_in_pieces(data: bytes, cuts: list[int]) -> tuple[FrameDecoder, list[Frame], int]:
-    """Feed ``data`` cut at ``cuts``; returns the decoder, its frames and the most bytes it
-    held between calls.  Any exception escapes (and fails the test)."""
-    dec = FrameDecoder()
+def feed_in_pieces(data: bytes, cuts: list[int], make: type = FrameDecoder,
+                   ) -> tuple[FrameDecoder, list[Frame], int]:
+    """Feed ``data`` cut at ``cuts`` to a new ``make()``; returns the decoder, its frames and
+    the most bytes it held between calls.  Any exception escapes (and fails the test)."""
+    dec = make()
     out: list[Frame] = []
     held = 0
     for a, b in zip(cuts, cuts[1:]):
@@ -100,25 +108,28 @@ def expected_outcomes(data: bytes) -> int:
     return sum(1 for c in complete if c) + (len(tail) > MAX_ENCODED_LEN)
 
 
-def test_an_oversize_tail_after_a_good_frame_is_not_a_resync() -> None:
+@each_decoder
+def test_an_oversize_tail_after_a_good_frame_is_not_a_resync(make: type) -> None:
     """Found by the fuzz below (bug 6): a good frame then more than MAX_ENCODED_LEN bytes
     with no 0x00, read at once, counted the tail's rejection before the frame and so the
     frame as a resync; read in two pieces it did not.  Stream order is what counts."""
     good = encode_frame(Frame(seq=1, device_time_us=1, raw=np.zeros((8, 8), np.uint16)))
     stream = good + b"\x01" * (MAX_ENCODED_LEN + 10)
     for cuts in ([0, len(stream)], [0, len(good), len(stream)], [0, 26, len(stream)]):
-        dec, frames, _ = feed_in_pieces(stream, cuts)
+        dec, frames, _ = feed_in_pieces(stream, cuts, make)
         assert len(frames) == 1 and dec.stats.oversize == 1, cuts
         assert dec.stats.resyncs == 0, cuts
 
 
+@each_decoder
 @FUZZ
 @given(data=st.data(), stream=streams)
-def test_fuzzed_streams_are_counted_and_cut_anywhere(data: st.DataObject, stream: bytes) -> None:
-    whole, whole_frames, _ = feed_in_pieces(stream, [0, len(stream)])
+def test_fuzzed_streams_are_counted_and_cut_anywhere(make: type, data: st.DataObject,
+                                                     stream: bytes) -> None:
+    whole, whole_frames, _ = feed_in_pieces(stream, [0, len(stream)], make)
     cuts = data.draw(st.lists(st.integers(0, len(stream)), max_size=30).map(
         lambda points: [0, *sorted(set(points)), len(stream)]))
-    cut, cut_frames, _ = feed_in_pieces(stream, cuts)
+    cut, cut_frames, _ = feed_in_pieces(stream, cuts, make)
     # How the stream is cut into reads changes nothing.
     assert [wire(f) for f in cut_frames] == [wire(f) for f in whole_frames]
     assert asdict(cut.stats) == asdict(whole.stats)
@@ -133,10 +144,27 @@ def test_fuzzed_streams_are_counted_and_cut_anywhere(data: st.DataObject, stream
 
 
 @FUZZ
+@given(data=st.data(), stream=streams)
+def test_the_core_decodes_as_the_reference(data: st.DataObject, stream: bytes) -> None:
+    """The same frames (header, shape, dtype, counts), the same counters, the same bytes held,
+    however the stream is cut."""
+    cuts = data.draw(st.lists(st.integers(0, len(stream)), max_size=30).map(
+        lambda points: [0, *sorted(set(points)), len(stream)]))
+    ref, ref_frames, ref_held = feed_in_pieces(stream, cuts, FrameDecoder)
+    got, got_frames, got_held = feed_in_pieces(stream, cuts, NativeFrameDecoder)
+    assert [wire(f) for f in got_frames] == [wire(f) for f in ref_frames]
+    assert all(f.raw.dtype == np.uint16 and f.raw.shape == r.raw.shape and f.host_time == 1.0
+               for f, r in zip(got_frames, ref_frames))
+    assert asdict(got.stats) == asdict(ref.stats)
+    assert (got.buffered, got_held) == (ref.buffered, ref_held)
+
+
+@each_decoder
+@FUZZ
 @given(stream=st.binary(max_size=30000), step=st.integers(1, 9000))
-def test_random_bytes_never_raise(stream: bytes, step: int) -> None:
+def test_random_bytes_never_raise(make: type, stream: bytes, step: int) -> None:
     cuts = [*range(0, len(stream), step), len(stream)]
-    dec, frames, held = feed_in_pieces(stream, cuts)
+    dec, frames, held = feed_in_pieces(stream, cuts, make)
     assert held <= MAX_ENCODED_LEN
     s = dec.stats
     assert s.frames + s.duplicated + s.rejected == expected_outcomes(stream)
@@ -168,19 +196,20 @@ def _patterns(size: int = MB) -> dict[str, bytes]:
     }
 
 
-def test_time_per_megabyte() -> None:
+@each_decoder
+def test_time_per_megabyte(make: type) -> None:
     """The decoder never hangs: each megabyte of the worst patterns is decoded within the bar."""
     results = {}
     for name, data in _patterns().items():
         cuts = [*range(0, len(data), READ), len(data)]
         t = time.perf_counter()
-        dec, _, held = feed_in_pieces(data, cuts)
+        dec, _, held = feed_in_pieces(data, cuts, make)
         elapsed = (time.perf_counter() - t) / (len(data) / MB)
         results[name] = round(elapsed, 3)
         assert elapsed < SECONDS_PER_MB, f"{name}: {elapsed:.2f} s per MB"
         assert held <= MAX_ENCODED_LEN
         assert dec.stats.bytes == len(data)
-    figures("decoder_time_per_MB", seconds_per_MB=results, bar=SECONDS_PER_MB)
+    figures(f"decoder_time_per_MB[{make.__name__}]", seconds_per_MB=results, bar=SECONDS_PER_MB)
 
 
 def _memory_growth(megabytes: int) -> dict:

@@ -1,0 +1,125 @@
+// The FlexiTac framer (core/flexitac.hpp) and its bindings.
+#include "flexitac.hpp"
+
+#include <cmath>
+#include <cstring>
+#include <tuple>
+
+#include "framer_binding.hpp"
+#include "stages.hpp"
+
+namespace py = pybind11;
+
+namespace tactiled {
+namespace flexitac {
+
+long Framer::find(std::size_t from, std::size_t to) const {
+    to = to < size() ? to : size();
+    for (std::size_t k = from; k + 2 <= to; ++k)
+        if (at(k) == 0xAA && at(k + 1) == 0x55) return static_cast<long>(k);
+    return -1;
+}
+
+void Framer::drop(std::size_t n) {
+    if (n > 0) {
+        head_ += n;
+        stats_.discarded += n;
+        in_error_ = true;
+    }
+}
+
+void Framer::reset() {
+    if (size() > 0) {
+        ++stats_.truncated;
+        stats_.discarded += size();
+    }
+    buf_.clear();
+    head_ = 0;
+    in_error_ = false;
+    synced_ = false;
+}
+
+bool Framer::find_phase() {
+    const long first = find(0, size());
+    if (first < 0) {
+        const std::size_t keep = (size() > 0 && at(size() - 1) == 0xAA) ? 1 : 0;
+        drop(size() - keep);
+        return false;
+    }
+    drop(static_cast<std::size_t>(first));
+    if (size() < 2 * period_ + 1) return false;  // every phase of one span checked
+    std::size_t phases = 0, phase = 0;
+    long k = 0;
+    while (k >= 0 && static_cast<std::size_t>(k) < period_) {
+        if (marker_at(static_cast<std::size_t>(k) + period_)) {
+            if (phases++ == 0) phase = static_cast<std::size_t>(k);
+        }
+        k = find(static_cast<std::size_t>(k) + 1, period_ + 1);
+    }
+    if (phases == 1) {
+        drop(phase);
+        synced_ = true;
+    } else if (phases == 0) {
+        const long next = find(1, size());
+        drop(next > 0 ? static_cast<std::size_t>(next) : size() - 1);
+    } else {
+        ++stats_.ambiguous;
+        drop(period_);
+    }
+    return true;
+}
+
+void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
+                  std::vector<Frame>& out, std::vector<std::uint16_t>& counts) {
+    if (n == 0) return;
+    stats_.bytes += n;
+    buf_.insert(buf_.end(), data, data + n);
+    while (true) {
+        if (synced_) {
+            if (size() < period_ + 2) break;
+            if (marker_at(period_)) {
+                if (!have_t0_) {
+                    have_t0_ = true;
+                    t0_ = host_time;
+                }
+                const double us = std::nearbyint((host_time - t0_) * 1e6);
+                Frame f{seq_++, us > 0.0 ? static_cast<std::int64_t>(us) : 0, counts.size()};
+                for (std::size_t c = 0; c < cells_; ++c) counts.push_back(at(2 + c));
+                out.push_back(f);
+                ++stats_.frames;
+                if (in_error_) {
+                    ++stats_.resyncs;
+                    in_error_ = false;
+                }
+                head_ += period_;
+                continue;
+            }
+            synced_ = false;
+            const long early = find(2, period_ + 1);
+            if (early >= 0)
+                ++stats_.truncated;
+            else
+                ++stats_.length_errors;
+            in_error_ = true;
+            drop(early >= 0 ? static_cast<std::size_t>(early) : period_);
+            continue;
+        }
+        if (!find_phase()) break;
+    }
+    buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(head_));
+    head_ = 0;
+}
+
+}  // namespace flexitac
+
+void bind_flexitac(py::module_& m) {
+    using Bound = binding::Vendor<flexitac::Framer, flexitac::Frame, std::uint16_t>;
+    Bound::bind(m, "FlexiTacFramer", "FlexiTac's marker framing (tactiled_drivers.flexitac's core).")
+        .def(py::init([](std::size_t rows, std::size_t cols) {
+                 if (!(rows >= 1 && cols >= 1 && rows * cols <= 4096))
+                     throw py::value_error("rows * cols: need 1..4096");
+                 return Bound(rows, cols, flexitac::Framer(rows, cols));
+             }),
+             py::arg("rows"), py::arg("cols"));
+}
+}  // namespace tactiled

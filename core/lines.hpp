@@ -1,0 +1,64 @@
+// Text lines of integers, one frame per line (the `lines://` driver).  Python reference:
+// drivers/tactiled_drivers/lines.py (LinesFramer); tests/drivers/test_lines_core.py holds the
+// two equal.  Pure: no I/O, never throws on any input bytes, holds at most MAX_LINE bytes.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace tactiled {
+namespace lines {
+
+constexpr std::size_t MAX_CELLS = 4096;
+constexpr std::size_t MAX_LINE = 21 * (MAX_CELLS + 1);
+// Python's int() refuses a decimal of more digits than this (sys.get_int_max_str_digits())
+constexpr std::size_t MAX_DIGITS = 4300;
+
+enum class Sep { comma, space, tab };
+
+// FramerStats' counters, in its field order (tactiled_drivers.framing.FramerStats)
+struct Stats {
+    std::uint64_t frames = 0, bytes = 0, resyncs = 0, discarded = 0, truncated = 0,
+                  length_errors = 0, oversize = 0, crc_errors = 0, parse_errors = 0,
+                  ambiguous = 0, lost = 0, duplicated = 0, restarts = 0;
+};
+
+struct Line {
+    std::uint32_t seq;
+    std::int64_t device_time_us;
+    std::size_t offset;  // into the batch's values (rows * cols of them)
+};
+
+class Framer {
+public:
+    Framer(std::size_t rows, std::size_t cols, Sep sep, bool time_col, std::int64_t time_scale);
+    void feed(const std::uint8_t* data, std::size_t n, double host_time, std::vector<Line>& out,
+              std::vector<std::int64_t>& values);
+    void reset();
+    std::size_t buffered() const { return buf_.size(); }
+    const Stats& stats() const { return stats_; }
+
+private:
+    void line(const std::uint8_t* p, std::size_t n, double host_time, std::vector<Line>& out,
+              std::vector<std::int64_t>& values);
+    void check_bound();
+    void reject(std::uint64_t& counter) { ++counter; in_error_ = true; }
+    std::int64_t host_clock_us(double host_time);
+
+    std::size_t cells_;
+    Sep sep_;
+    bool time_col_;
+    std::int64_t time_scale_;
+    Stats stats_;
+    std::vector<std::uint8_t> buf_;
+    bool skipping_ = false;
+    bool in_error_ = false;
+    std::uint32_t seq_ = 0;
+    bool have_t0_ = false;
+    double t0_ = 0.0;
+};
+
+}  // namespace lines
+}  // namespace tactiled

@@ -1,0 +1,156 @@
+"""An atheris fuzz target for the compiled core's framers (the wire format, text lines,
+FlexiTac): each input is a stream and the reads it is cut into, fed to the core's framer and to
+its Python reference; they must agree frame for frame and counter for counter, never raise,
+and hold no more than the format's bound.
+
+Run it by hand for as long as you like (libFuzzer's options after the script)::
+
+    .venv/bin/python tests/native/fuzz_framers.py -runs=1000000 -max_len=65536
+
+tests/native/test_fuzz_framers.py runs it briefly (longer with ``-m slow``).  Coverage guides
+the Python side only: the extension is built by g++ without libFuzzer's instrumentation, so
+the input is built from structure (valid frames, damaged frames, noise, delimiters) rather than
+left to coverage to find a CRC.
+"""
+
+from __future__ import annotations
+
+import sys
+import zlib
+from dataclasses import asdict
+
+import atheris
+
+with atheris.instrument_imports():
+    from tactiled.frames import MAX_ENCODED_LEN, FrameDecoder, NativeFrameDecoder, cobs_encode
+    from tactiled_drivers.flexitac import FlexiTacFramer, NativeFlexiTacFramer
+    from tactiled_drivers.lines import MAX_LINE, LinesFramer, NativeLinesFramer
+
+HEADER = (1).to_bytes(1, "little")
+
+
+@atheris.instrument_func
+def _wire_frame(fdp: atheris.FuzzedDataProvider) -> bytes:
+    """A frame as a device sends it (its header fields drawn, some of them out of range)."""
+    rows, cols = fdp.ConsumeIntInRange(0, 70), fdp.ConsumeIntInRange(0, 70)
+    version = 1 if fdp.ConsumeBool() else fdp.ConsumeIntInRange(0, 255)
+    head = (bytes([version, 0]) + fdp.ConsumeIntInRange(0, 65535).to_bytes(2, "little")
+            + fdp.ConsumeIntInRange(0, 2**32 - 1).to_bytes(4, "little")
+            + fdp.ConsumeIntInRange(0, 2**64 - 1).to_bytes(8, "little") + bytes([rows, cols]))
+    n = rows * cols if fdp.ConsumeBool() else fdp.ConsumeIntInRange(0, 5000)
+    body = head + fdp.ConsumeBytes(2 * n).ljust(2 * n, b"\x01")
+    return cobs_encode(body + zlib.crc32(body).to_bytes(4, "little")) + b"\x00"
+
+
+@atheris.instrument_func
+def _stream(fdp: atheris.FuzzedDataProvider) -> bytes:
+    out = bytearray()
+    for _ in range(fdp.ConsumeIntInRange(0, 12)):
+        kind = fdp.ConsumeIntInRange(0, 5)
+        if kind <= 1:
+            piece = bytearray(_wire_frame(fdp))
+            if kind == 1 and piece:  # damaged: cut, or a byte changed
+                i = fdp.ConsumeIntInRange(0, len(piece) - 1)
+                if fdp.ConsumeBool():
+                    piece = piece[:i]
+                else:
+                    piece[i] = fdp.ConsumeIntInRange(0, 255)
+            out += piece
+        elif kind == 2:
+            out += fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 400))
+        elif kind == 3:
+            out += b"\x00" * fdp.ConsumeIntInRange(1, 3)
+        elif kind == 4:  # around the oversize bound, no delimiter
+            out += b"\x07" * (MAX_ENCODED_LEN + fdp.ConsumeIntInRange(-3, 3))
+        else:
+            out += fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 40))
+    return bytes(out)
+
+
+@atheris.instrument_func
+def wire_decoders(data: bytes) -> None:
+    """The wire format: FrameDecoder against NativeFrameDecoder."""
+    fdp = atheris.FuzzedDataProvider(data)
+    stream = _stream(fdp)
+    cuts = sorted({0, len(stream), *(fdp.ConsumeIntInRange(0, len(stream)) for _ in range(8))})
+    ref, got = FrameDecoder(), NativeFrameDecoder()
+    for a, b in zip(cuts, cuts[1:]):
+        want, have = ref.feed(stream[a:b], 1.0), got.feed(stream[a:b], 1.0)
+        assert [(f.seq, f.device_time_us, f.sensor_id, f.raw.shape, f.raw.tobytes()) for f in have] \
+            == [(f.seq, f.device_time_us, f.sensor_id, f.raw.shape, f.raw.tobytes()) for f in want]
+        assert got.buffered == ref.buffered <= MAX_ENCODED_LEN
+    assert asdict(got.stats) == asdict(ref.stats)
+
+
+@atheris.instrument_func
+def lines_framers(data: bytes) -> None:
+    """Text lines: LinesFramer against NativeLinesFramer (a shape, separator and clock column
+    drawn; lines of fields built from digits, signs, blanks, underscores and noise)."""
+    fdp = atheris.FuzzedDataProvider(data)
+    rows, cols = fdp.ConsumeIntInRange(1, 3), fdp.ConsumeIntInRange(1, 3)
+    sep = fdp.PickValueInList([",", "space", "tab"])
+    time_col = fdp.ConsumeBool()
+    unit = fdp.PickValueInList(["ms", "us", "s"])
+    joiner = {",": b",", "space": b" ", "tab": b"\t"}[sep]
+    alphabet = b"0123456789+-_ \t\r,x\x0b"
+    out = bytearray()
+    for _ in range(fdp.ConsumeIntInRange(0, 12)):
+        if fdp.ConsumeIntInRange(0, 9) == 0:  # noise, or a run past the longest line
+            out += (fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 60)) if fdp.ConsumeBool()
+                    else b"7" * (MAX_LINE + fdp.ConsumeIntInRange(-2, 2)))
+            continue
+        n = rows * cols + time_col + fdp.ConsumeIntInRange(-1, 1)
+        fields = [bytes(alphabet[b % len(alphabet)] for b in fdp.ConsumeBytes(
+            fdp.ConsumeIntInRange(0, 22))) for _ in range(max(n, 0))]
+        out += joiner.join(fields) + b"\n"
+    stream = bytes(out)
+    cuts = sorted({0, len(stream), *(fdp.ConsumeIntInRange(0, len(stream)) for _ in range(6))})
+    ref = LinesFramer(rows, cols, sep=sep, time_col=time_col, time_unit=unit)
+    got = NativeLinesFramer(rows, cols, sep=sep, time_col=time_col, time_unit=unit)
+    for k, (a, b) in enumerate(zip(cuts, cuts[1:])):
+        want, have = ref.feed(stream[a:b], 0.25 * k), got.feed(stream[a:b], 0.25 * k)
+        assert [(f.seq, f.device_time_us, f.raw.tobytes()) for f in have] \
+            == [(f.seq, f.device_time_us, f.raw.tobytes()) for f in want]
+        assert got.buffered == ref.buffered <= MAX_LINE
+    assert asdict(got.stats) == asdict(ref.stats)
+
+
+@atheris.instrument_func
+def flexitac_framers(data: bytes) -> None:
+    """FlexiTac: FlexiTacFramer against NativeFlexiTacFramer (frames with markers, markers in
+    their data, noise, torn frames)."""
+    fdp = atheris.FuzzedDataProvider(data)
+    rows, cols = fdp.ConsumeIntInRange(1, 4), fdp.ConsumeIntInRange(1, 6)
+    out = bytearray()
+    for _ in range(fdp.ConsumeIntInRange(0, 16)):
+        kind = fdp.ConsumeIntInRange(0, 4)
+        body = fdp.ConsumeBytes(rows * cols).ljust(rows * cols, b"\x00")
+        if kind <= 2:
+            out += b"\xaa\x55" + body
+        elif kind == 3:
+            out += (b"\xaa\x55" + body)[:fdp.ConsumeIntInRange(0, rows * cols + 1)]
+        else:
+            out += fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 30))
+    stream = bytes(out)
+    cuts = sorted({0, len(stream), *(fdp.ConsumeIntInRange(0, len(stream)) for _ in range(6))})
+    ref, got = FlexiTacFramer(rows, cols), NativeFlexiTacFramer(rows, cols)
+    for k, (a, b) in enumerate(zip(cuts, cuts[1:])):
+        want, have = ref.feed(stream[a:b], 0.5 * k), got.feed(stream[a:b], 0.5 * k)
+        assert [(f.seq, f.device_time_us, f.raw.tobytes()) for f in have] \
+            == [(f.seq, f.device_time_us, f.raw.tobytes()) for f in want]
+        assert got.buffered == ref.buffered
+    assert asdict(got.stats) == asdict(ref.stats)
+
+
+TARGETS = {"wire": wire_decoders, "lines": lines_framers, "flexitac": flexitac_framers}
+
+
+def one_input(data: bytes) -> None:
+    """Every target on the same input."""
+    for target in TARGETS.values():
+        target(data)
+
+
+if __name__ == "__main__":
+    atheris.Setup(sys.argv, one_input)
+    atheris.Fuzz()
