@@ -58,7 +58,8 @@ def information(sensor: SensorModel) -> dict[int, dict[str, float]]:
             sphere.r1, sphere.r2, 0.0, sphere.force, sphere.x0, sphere.y0))
         row = {"sphere/r1_mm": c["r1_mm"], "sphere/force_n": c["force_n"]}
         if g.flat:
-            c = f.line_cramer_rao(model.predict(cyl), cyl)
+            # a square window of side n on the ridge (a line's own fit uses its band instead)
+            c = f.line_cramer_rao(model.predict(cyl), cyl, window=n)
             row.update({"line/r1_mm": c["r1_mm"], "line/load_n_per_mm": c["load_n_per_mm"],
                         "line/angle_deg": c["angle_deg"]})
         else:
