@@ -51,7 +51,8 @@ bool Framer::find_phase() {
     std::size_t phases = 0, phase = 0;
     long k = 0;
     while (k >= 0 && static_cast<std::size_t>(k) < period_) {
-        if (marker_at(static_cast<std::size_t>(k) + period_)) {
+        const std::size_t next = static_cast<std::size_t>(k) + period_;
+        if (marker_at(next) || torn_marker(next)) {
             if (phases++ == 0) phase = static_cast<std::size_t>(k);
         }
         k = find(static_cast<std::size_t>(k) + 1, period_ + 1);
@@ -69,6 +70,29 @@ bool Framer::find_phase() {
     return true;
 }
 
+bool Framer::torn_marker(std::size_t i) const {
+    // 0xAA at i then a whole marker: the device reset right after a marker's first byte, so
+    // the frame before i is whole (flexitac.py's _torn_marker)
+    return i < size() && at(i) == 0xAA && marker_at(i + 1);
+}
+
+void Framer::emit(double host_time, std::vector<Frame>& out, std::vector<std::uint16_t>& counts) {
+    if (!have_t0_) {
+        have_t0_ = true;
+        t0_ = host_time;
+    }
+    const double us = std::nearbyint((host_time - t0_) * 1e6);
+    Frame f{seq_++, us > 0.0 ? static_cast<std::int64_t>(us) : 0, counts.size()};
+    for (std::size_t c = 0; c < cells_; ++c) counts.push_back(at(2 + c));
+    out.push_back(f);
+    ++stats_.frames;
+    if (in_error_) {
+        ++stats_.resyncs;
+        in_error_ = false;
+    }
+    head_ += period_;
+}
+
 void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
                   std::vector<Frame>& out, std::vector<std::uint16_t>& counts) {
     if (n == 0) return;
@@ -78,20 +102,16 @@ void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
         if (synced_) {
             if (size() < period_ + 2) break;
             if (marker_at(period_)) {
-                if (!have_t0_) {
-                    have_t0_ = true;
-                    t0_ = host_time;
-                }
-                const double us = std::nearbyint((host_time - t0_) * 1e6);
-                Frame f{seq_++, us > 0.0 ? static_cast<std::int64_t>(us) : 0, counts.size()};
-                for (std::size_t c = 0; c < cells_; ++c) counts.push_back(at(2 + c));
-                out.push_back(f);
-                ++stats_.frames;
-                if (in_error_) {
-                    ++stats_.resyncs;
-                    in_error_ = false;
-                }
-                head_ += period_;
+                emit(host_time, out, counts);
+                continue;
+            }
+            // a marker torn after its first byte? one more byte tells
+            if (at(period_) == 0xAA && size() < period_ + 3) break;
+            if (torn_marker(period_)) {
+                emit(host_time, out, counts);
+                ++stats_.truncated;  // the lone 0xAA is the torn unit
+                in_error_ = true;
+                drop(1);
                 continue;
             }
             synced_ = false;

@@ -33,6 +33,10 @@ private:
     long find(std::size_t from, std::size_t to) const;
     bool find_phase();
     void drop(std::size_t n);
+    // 0xAA at i followed by a whole marker: a marker torn after its first byte
+    bool torn_marker(std::size_t i) const;
+    // deliver the frame that starts the held bytes and step over it
+    void emit(double host_time, std::vector<Frame>& out, std::vector<std::uint16_t>& counts);
     std::size_t size() const { return buf_.size() - head_; }
     std::uint8_t at(std::size_t k) const { return buf_[head_ + k]; }
     bool marker_at(std::size_t k) const { return k + 2 <= size() && at(k) == 0xAA && at(k + 1) == 0x55; }
