@@ -3,5 +3,15 @@
 namespace tactiled {
 void bind_all(pybind11::module_& m) {
     bind_impulse(m);
+    bind_eccentricity(m);
+    bind_hertz(m);
+    bind_models(m);
+    bind_quadrature(m);
+    bind_lsq(m);
+    bind_line(m);
+    bind_search(m);
+    bind_window(m);
+    bind_start(m);
+    bind_flatfield(m);
 }
 }  // namespace tactiled
