@@ -64,7 +64,8 @@ def ellipse_core(
     delta = math.hypot(half, q)
     # C' = det(M) / A', not mu - delta: near a line contact (a cylinder almost along the
     # finger axis) mu - delta cancels to nothing.  det(2M) = ka kb + kf (kb cos^2 + ka sin^2).
-    sin2, cos2 = math.sin(psi) ** 2, math.cos(psi) ** 2
+    sp, cp = math.sin(psi), math.cos(psi)
+    sin2, cos2 = sp * sp, cp * cp
     det = 0.25 * (kappa_a * kappa_b + kf * (kappa_b * cos2 + kappa_a * sin2))
     c_prime = det / (mu + delta)  # C'
     if not c_prime > 0.0:

@@ -137,11 +137,13 @@ def quadrature(
         xq = x0 + au * c - bv * s
         yq = y0 + au * s + bv * c
         for i in range(mx):
-            t2 = (xs[i] - xq) ** 2
+            t = xs[i] - xq
+            t2 = t * t
             sx = t2 + dx2
             hx[i] = cx * (dx2 - nu_x * t2) / (sx * sx) * w[q]
         for j in range(ny):
-            t2 = (ys[j] - yq) ** 2
+            t = ys[j] - yq
+            t2 = t * t
             sy = t2 + dy2
             hyj = cy * (dy2 - nu_y * t2) / (sy * sy)
             for i in range(mx):
@@ -178,9 +180,11 @@ def quadrature_points(
         xq = x0 + au * c - bv * s
         yq = y0 + au * s + bv * c
         for k in range(npt):
-            tx2 = (px[k] - xq) ** 2
+            tx = px[k] - xq
+            tx2 = tx * tx  # a product, not ``** 2`` (libm's pow may differ in the last bit)
             sx = tx2 + dx2
-            ty2 = (py[k] - yq) ** 2
+            ty = py[k] - yq
+            ty2 = ty * ty
             sy = ty2 + dy2
             val[k] += cx * (dx2 - nu_x * tx2) / (sx * sx) * cy * (dy2 - nu_y * ty2) / (sy * sy) * w[q]
     return val
