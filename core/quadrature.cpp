@@ -11,7 +11,7 @@ namespace {
 const double INV_PI = 1.0 / M_PI;
 }
 
-void strain_with_jacobian(const double* geo, const double* hj, const double* u, const double* v,
+TACTILED_HOT void strain_with_jacobian(const double* geo, const double* hj, const double* u, const double* v,
                           const double* w, int nq, const double* xs, int mx, const double* ys,
                           int ny, const double* imp, std::vector<double>& val,
                           std::vector<double>& jac) {
@@ -35,7 +35,8 @@ void strain_with_jacobian(const double* geo, const double* hj, const double* u, 
         vs[q] = -v[q] * s;
         vc[q] = v[q] * c;
     }
-    // the separable kernel tabulated per axis and node, with its slope
+    // the separable kernel tabulated per axis and node, with its slope; the y axis's stored
+    // node-major (hy[q * ny + j]) so the sums below run along j, contiguous
     std::vector<double> hx(static_cast<size_t>(mx) * nq), dhx(hx.size());
     std::vector<double> hy(static_cast<size_t>(ny) * nq), dhy(hy.size());
     for (int i = 0; i < mx; ++i) {
@@ -54,34 +55,52 @@ void strain_with_jacobian(const double* geo, const double* hj, const double* u, 
             const double t2 = t * t;
             const double sy = t2 + dy2;
             const double inv = 1.0 / (sy * sy);
-            hy[j * nq + q] = cy * (dy2 - nu_y * t2) * inv;
-            dhy[j * nq + q] = 2.0 * cy * t * (nu_y * t2 - (nu_y + 2.0) * dy2) * inv / sy;
+            hy[q * ny + j] = cy * (dy2 - nu_y * t2) * inv;
+            dhy[q * ny + j] = 2.0 * cy * t * (nu_y * t2 - (nu_y + 2.0) * dy2) * inv / sy;
+        }
+    }
+    // Each tactel's value and derivatives are sums over the nodes, taken in node order for
+    // every tactel (the reference's order, so the same numbers); the loop runs over the
+    // tactels innermost, independent sums the compiler can vectorise without reassociating.
+    const size_t cells = static_cast<size_t>(mx) * ny;
+    std::vector<double> sv(cells, 0.0), d0(cells, 0.0), d1(cells, 0.0), d2(cells, 0.0),
+        d3(cells, 0.0), d4(cells, 0.0);
+    for (int q = 0; q < nq; ++q) {
+        const double ucq = uc[q], usq = us[q], vsq = vs[q], vcq = vc[q], exq = ex[q], eyq = ey[q];
+        const double* hyq = &hy[static_cast<size_t>(q) * ny];
+        const double* dhyq = &dhy[static_cast<size_t>(q) * ny];
+        for (int i = 0; i < mx; ++i) {
+            const double hxi = hx[i * nq + q], dhxi = dhx[i * nq + q];
+            double* svi = &sv[static_cast<size_t>(i) * ny];
+            double* d0i = &d0[static_cast<size_t>(i) * ny];
+            double* d1i = &d1[static_cast<size_t>(i) * ny];
+            double* d2i = &d2[static_cast<size_t>(i) * ny];
+            double* d3i = &d3[static_cast<size_t>(i) * ny];
+            double* d4i = &d4[static_cast<size_t>(i) * ny];
+            for (int j = 0; j < ny; ++j) {
+                // the kernel's argument is X - x_q, hence the minus signs on node motion
+                const double ax_ = dhxi * hyq[j];  // d/d(node x) is minus this
+                const double by_ = hxi * dhyq[j];  // d/d(node y) is minus this
+                svi[j] += hxi * hyq[j];
+                d0i[j] -= ax_;
+                d1i[j] -= by_;
+                d2i[j] -= ax_ * ucq + by_ * usq;
+                d3i[j] -= ax_ * vsq + by_ * vcq;
+                d4i[j] += ax_ * eyq - by_ * exq;  // theta: node motion (-ey, ex)
+            }
         }
     }
     const double kf = scale * force;
-    val.assign(static_cast<size_t>(mx) * ny, 0.0);
-    jac.assign(static_cast<size_t>(mx) * ny * 6, 0.0);
-    for (int i = 0; i < mx; ++i) {
-        for (int j = 0; j < ny; ++j) {
-            double sv = 0.0, d0 = 0.0, d1 = 0.0, d2 = 0.0, d3 = 0.0, d4 = 0.0;
-            for (int q = 0; q < nq; ++q) {
-                // the kernel's argument is X - x_q, hence the minus signs on node motion
-                const double ax_ = dhx[i * nq + q] * hy[j * nq + q];  // d/d(node x) is minus this
-                const double by_ = hx[i * nq + q] * dhy[j * nq + q];  // d/d(node y) is minus this
-                sv += hx[i * nq + q] * hy[j * nq + q];
-                d0 -= ax_;
-                d1 -= by_;
-                d2 -= ax_ * uc[q] + by_ * us[q];
-                d3 -= ax_ * vs[q] + by_ * vc[q];
-                d4 += ax_ * ey[q] - by_ * ex[q];  // theta: node motion (-ey, ex)
-            }
-            double* jj = &jac[(static_cast<size_t>(i) * ny + j) * 6];
-            for (int k = 0; k < 4; ++k) jj[k] = kf * (d2 * hj[0 * 4 + k] + d3 * hj[1 * 4 + k] + d4 * hj[2 * 4 + k]);
-            jj[3] += scale * sv;
-            jj[4] = kf * d0;
-            jj[5] = kf * d1;
-            val[static_cast<size_t>(i) * ny + j] = kf * sv;
-        }
+    val.assign(cells, 0.0);
+    jac.assign(cells * 6, 0.0);
+    for (size_t c = 0; c < cells; ++c) {
+        double* jj = &jac[c * 6];
+        for (int k = 0; k < 4; ++k)
+            jj[k] = kf * (d2[c] * hj[0 * 4 + k] + d3[c] * hj[1 * 4 + k] + d4[c] * hj[2 * 4 + k]);
+        jj[3] += scale * sv[c];
+        jj[4] = kf * d0[c];
+        jj[5] = kf * d1[c];
+        val[c] = kf * sv[c];
     }
 }
 

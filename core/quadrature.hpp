@@ -8,6 +8,14 @@
 #pragma once
 #include <vector>
 
+// The hottest loops get an AVX2 copy beside the baseline one, chosen when the module loads
+// (GCC's function multi-versioning).  AVX2 without FMA: the same operations, the same numbers.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define TACTILED_HOT __attribute__((target_clones("avx2", "default")))
+#else
+#define TACTILED_HOT
+#endif
+
 namespace tactiled {
 
 // Strains (mx x ny) and their Jacobian (mx x ny x 6) in (kappa_a, kappa_b, psi, F, x0, y0).
