@@ -105,6 +105,15 @@ void symmetric_eigen(std::vector<double> a, int k, std::vector<double>& ev, std:
             for (int q = p + 1; q < k; ++q) {
                 const double apq = a[p * k + q];
                 if (apq == 0.0) continue;
+                // negligible beside both diagonal entries: zeroed (Rutishauser's test), so
+                // the sweeps end once the matrix is diagonal to working precision
+                const double g = 100.0 * std::fabs(apq);
+                if (std::fabs(a[p * k + p]) + g == std::fabs(a[p * k + p]) &&
+                    std::fabs(a[q * k + q]) + g == std::fabs(a[q * k + q])) {
+                    a[p * k + q] = 0.0;
+                    a[q * k + p] = 0.0;
+                    continue;
+                }
                 // the rotation that zeroes a[p, q] (Golub & Van Loan, sym.schur2)
                 const double tau = (a[q * k + q] - a[p * k + p]) / (2.0 * apq);
                 const double t = (tau >= 0.0 ? 1.0 : -1.0) / (std::fabs(tau) + std::sqrt(1.0 + tau * tau));
