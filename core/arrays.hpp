@@ -38,6 +38,14 @@ inline py::array_t<double> to_array(const std::vector<double>& v, py::ssize_t a,
     return out;
 }
 
+// A 2-D strain frame of at least one tactel: its (rows, cols), else a ValueError.
+inline void frame_shape(const Arr& s, long long& rows, long long& cols) {
+    if (s.ndim() != 2 || s.shape(0) < 1 || s.shape(1) < 1)
+        throw py::value_error("strain must be a 2-D array of at least one tactel");
+    rows = s.shape(0);
+    cols = s.shape(1);
+}
+
 // The extent of axis `axis` of an array (0 when it has fewer axes).
 template <class A>
 inline py::ssize_t dim(const A& a, int axis) {

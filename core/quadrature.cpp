@@ -9,7 +9,25 @@
 namespace tactiled {
 namespace {
 const double INV_PI = 1.0 / M_PI;
+
+// The separable response's constants, h(t) = c (d^2 - nu t^2) / (t^2 + d^2)^2, c = 2 d / pi,
+// on each axis.
+struct Axes {
+    double cx, cy, dx2, dy2, nu_x, nu_y;
+    Axes(double dep_x, double nux, double dep_y, double nuy)
+        : cx(2.0 * dep_x * INV_PI), cy(2.0 * dep_y * INV_PI), dx2(dep_x * dep_x),
+          dy2(dep_y * dep_y), nu_x(nux), nu_y(nuy) {}
+};
+
+// Node q of the unit-disk rule carried onto the ellipse: (x0 + a u c - b v s, y0 + a u s + b v c).
+inline void node(double x0, double y0, double a, double b, double c, double s, double u, double v,
+                 double& xq, double& yq) {
+    const double au = a * u;
+    const double bv = b * v;
+    xq = x0 + au * c - bv * s;
+    yq = y0 + au * s + bv * c;
 }
+}  // namespace
 
 TACTILED_HOT void strain_with_jacobian(const double* geo, const double* hj, const double* u, const double* v,
                           const double* w, int nq, const double* xs, int mx, const double* ys,
@@ -111,15 +129,11 @@ std::vector<double> quadrature(double x0, double y0, double a, double b, double 
     std::vector<double> val(static_cast<size_t>(mx) * ny, 0.0);
     std::vector<double> hx(mx);
     const double c = std::cos(theta), s = std::sin(theta);
-    const double cx = 2.0 * dep_x * INV_PI;
-    const double cy = 2.0 * dep_y * INV_PI;
-    const double dx2 = dep_x * dep_x;
-    const double dy2 = dep_y * dep_y;
+    const Axes ax(dep_x, nu_x, dep_y, nu_y);
+    const double cx = ax.cx, cy = ax.cy, dx2 = ax.dx2, dy2 = ax.dy2;
     for (int q = 0; q < nq; ++q) {
-        const double au = a * u[q];
-        const double bv = b * v[q];
-        const double xq = x0 + au * c - bv * s;
-        const double yq = y0 + au * s + bv * c;
+        double xq, yq;
+        node(x0, y0, a, b, c, s, u[q], v[q], xq, yq);
         for (int i = 0; i < mx; ++i) {
             const double t = xs[i] - xq;
             const double t2 = t * t;
@@ -144,15 +158,11 @@ std::vector<double> quadrature_points(double x0, double y0, double a, double b, 
     const double dep_x = imp[0], nu_x = imp[1], dep_y = imp[2], nu_y = imp[3];
     std::vector<double> val(npt, 0.0);
     const double c = std::cos(theta), s = std::sin(theta);
-    const double cx = 2.0 * dep_x * INV_PI;
-    const double cy = 2.0 * dep_y * INV_PI;
-    const double dx2 = dep_x * dep_x;
-    const double dy2 = dep_y * dep_y;
+    const Axes ax(dep_x, nu_x, dep_y, nu_y);
+    const double cx = ax.cx, cy = ax.cy, dx2 = ax.dx2, dy2 = ax.dy2;
     for (int q = 0; q < nq; ++q) {
-        const double au = a * u[q];
-        const double bv = b * v[q];
-        const double xq = x0 + au * c - bv * s;
-        const double yq = y0 + au * s + bv * c;
+        double xq, yq;
+        node(x0, y0, a, b, c, s, u[q], v[q], xq, yq);
         for (int k = 0; k < npt; ++k) {
             const double tx = px[k] - xq;
             const double tx2 = tx * tx;

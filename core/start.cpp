@@ -114,13 +114,6 @@ std::vector<long long> pick_separated(const double* angles, long long n, long lo
 }
 
 namespace {
-void frame_shape(const Arr& s, long long& rows, long long& cols) {
-    if (s.ndim() != 2 || s.shape(0) < 1 || s.shape(1) < 1)
-        throw py::value_error("strain must be a 2-D array of at least one tactel");
-    rows = s.shape(0);
-    cols = s.shape(1);
-}
-
 py::array_t<double> features_array(const Arr& strain, long long m, long long n, double force) {
     long long rows, cols;
     frame_shape(strain, rows, cols);

@@ -67,14 +67,6 @@ void plain_window(const double* s, long long rows, long long cols, long long siz
 }
 
 namespace {
-// A 2-D strain frame with at least one tactel, and its (rows, cols).
-void frame_shape(const Arr& s, long long& rows, long long& cols) {
-    if (s.ndim() != 2 || s.shape(0) < 1 || s.shape(1) < 1)
-        throw py::value_error("strain must be a 2-D array of at least one tactel");
-    rows = s.shape(0);
-    cols = s.shape(1);
-}
-
 void check_peak(long long rows, long long cols, long long m, long long n) {
     if (m < 0 || m >= rows || n < 0 || n >= cols) throw py::index_error("peak outside the frame");
 }
