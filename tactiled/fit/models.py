@@ -56,7 +56,10 @@ class Model:
 def physical_map(kind: int, p: np.ndarray, d: np.ndarray) -> tuple[float, float, float, float, float, float]:
     """Every model's map from its parameters to ``(kappa_a, kappa_b, psi, F, x0, y0)``, filling
     ``d`` (zeroed, (6, k)) with its Jacobian; ``kind`` 0 cylinder, 1 sphere, 2 general.  One
-    compiled copy serves the Python models and the compiled search alike."""
+    compiled copy serves the Python models and the compiled search alike.  Too few parameters
+    for the kind (a line contact's four given as a cylinder's) is a ValueError."""
+    if p.shape[0] < (5, 4, 6)[kind]:
+        raise ValueError(f"model kind {kind} takes {(5, 4, 6)[kind]} parameters, got {p.shape[0]}")
     if kind == 0:  # cylinder: ln_r, psi, ln_f, x0, y0
         ka, f = math.exp(-p[0]), math.exp(p[2])
         d[0, 0] = -ka
