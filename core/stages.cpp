@@ -7,5 +7,15 @@ void bind_all(pybind11::module_& m) {
     bind_calibrate(m);
     bind_lines(m);
     bind_flexitac(m);
+    bind_eccentricity(m);
+    bind_hertz(m);
+    bind_models(m);
+    bind_quadrature(m);
+    bind_lsq(m);
+    bind_line(m);
+    bind_search(m);
+    bind_window(m);
+    bind_start(m);
+    bind_flatfield(m);
 }
 }  // namespace tactiled

@@ -9,5 +9,15 @@ void bind_wire(pybind11::module_& m);
 void bind_calibrate(pybind11::module_& m);
 void bind_lines(pybind11::module_& m);
 void bind_flexitac(pybind11::module_& m);
+void bind_eccentricity(pybind11::module_& m);
+void bind_hertz(pybind11::module_& m);
+void bind_models(pybind11::module_& m);
+void bind_quadrature(pybind11::module_& m);
+void bind_lsq(pybind11::module_& m);
+void bind_line(pybind11::module_& m);
+void bind_search(pybind11::module_& m);
+void bind_window(pybind11::module_& m);
+void bind_start(pybind11::module_& m);
+void bind_flatfield(pybind11::module_& m);
 void bind_all(pybind11::module_& m);
 }  // namespace tactiled

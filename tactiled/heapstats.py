@@ -196,8 +196,7 @@ def rule_cache_bytes(strain: Any) -> int:
 def fitter_cache_figures() -> dict[str, int]:
     """Entries of the fitter's per-process caches: the quadrature rules of
     :mod:`tactiled.physics.strain` (1-D Gauss rules by node count, 2-D disk rules by pair of
-    counts) and the start tables; and the compiled specialisations numba holds for the physics
-    kernels (``numba_specialisations``).  Only modules already imported are looked at."""
+    counts) and the start tables.  Only modules already imported are looked at."""
     out: dict[str, int] = {}
     strain = sys.modules.get("tactiled.physics.strain")
     if strain is not None:
@@ -210,14 +209,6 @@ def fitter_cache_figures() -> dict[str, int]:
     start = sys.modules.get("tactiled.fit.start")
     if start is not None and hasattr(start, "start_table"):
         out["cache_start_table"] = start.start_table.cache_info().currsize
-    overloads = 0
-    for name in ("tactiled.physics.kernels", "tactiled.physics.hertz",
-                 "tactiled.physics.eccentricity"):
-        mod = sys.modules.get(name)
-        for obj in vars(mod).values() if mod is not None else ():
-            if hasattr(obj, "overloads") and hasattr(obj, "py_func"):
-                overloads += len(obj.overloads)
-    out["numba_specialisations"] = overloads
     return out
 
 

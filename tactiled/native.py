@@ -8,7 +8,9 @@ process (its children inherit the variable), so every test can run against both.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterable, Mapping
 from types import ModuleType
+from typing import Any
 
 #: the bindings' version this Python expects (core/module.cpp's ``ABI``)
 ABI = 1
@@ -43,3 +45,19 @@ core: ModuleType | None = _load()
 def name() -> str:
     """``"native"`` or ``"python"``: what this process runs (health and bench output say it)."""
     return "python" if core is None else "native"
+
+
+def bind(namespace: dict[str, Any], names: Mapping[str, str] | Iterable[str]) -> dict[str, Callable[..., Any]]:
+    """Point a module's functions at the core's, when the core is loaded.
+
+    ``names``: the module's names (each bound to the core's function of the same name), or a
+    mapping of the module's names to the core's.  Returns the module's own Python bodies by
+    name, whichever runs: the reference the core is held to (tests/native).  A Python body that
+    calls another bound name calls the core's when the core is loaded.
+    """
+    pairs = dict(names) if isinstance(names, Mapping) else {n: n for n in names}
+    reference = {name: namespace[name] for name in pairs}
+    if core is not None:
+        for name, core_name in pairs.items():
+            namespace[name] = getattr(core, core_name)
+    return reference

@@ -40,8 +40,8 @@ _ellipse_lock = threading.Lock()
 
 
 def load_ellipse() -> EllipseFunc | None:
-    """Import the Hertz ellipse (numba: ~1 s the first time, so call this once at startup,
-    off the event loop) and return ``contact_ellipse_radii``; None (logged once) if it cannot
+    """Import the Hertz ellipse (it imports scipy, so call this once at startup, off the
+    event loop) and return ``contact_ellipse_radii``; None (logged once) if it cannot
     be loaded: estimates then carry ``ellipse: null`` rather than failing."""
     global _ellipse_func, _ellipse_error
     with _ellipse_lock:
@@ -49,7 +49,7 @@ def load_ellipse() -> EllipseFunc | None:
             try:
                 from tactiled.physics.hertz import contact_ellipse_radii
 
-                contact_ellipse_radii(10.0, math.inf, 90.0, 1.0)  # compile / load the cache
+                contact_ellipse_radii(10.0, math.inf, 90.0, 1.0)  # a first call, off the loop
                 _ellipse_func = contact_ellipse_radii
             except Exception as err:  # a display aid: never worth stopping the daemon
                 _ellipse_error = f"{type(err).__name__}: {err}"

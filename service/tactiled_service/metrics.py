@@ -222,10 +222,6 @@ class DaemonCollector(Collector):
                                   "Fit workers replaced after fit.max_fits_per_worker fits "
                                   "(successor started first; no fit lost).",
                                   value=float(pool.get("recycles", 0)))
-        yield CounterMetricFamily("tactiled_worker_compiles",
-                                  "Kernels a fit worker compiled for a request (numba's first "
-                                  "use on a fresh install; cached from then on).",
-                                  value=float(pool.get("compiles", 0)))
         yield CounterMetricFamily("tactiled_worker_deadline_extended",
                                   "Requests given more time because their worker, runnable, "
                                   "was starved of CPU by other processes (not hung).",

@@ -265,7 +265,7 @@ class Service:
                                                               self.ctx.health)
                 self.mcap_recorder.start()
             # Fits carry their contact ellipse, so this process never needs the Hertz code
-            # (numba: ~1 s and ~100 MB); messages.display_ellipse loads it lazily only for a
+            # (it imports scipy); messages.display_ellipse loads it lazily only for a
             # fit line without one.
             await self.daemon.start()
             self.ctx.manager.start()

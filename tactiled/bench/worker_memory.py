@@ -11,7 +11,6 @@ models), with warm starts as the daemon gives them, and every ``--every`` fits r
   (arenas, live bytes): :mod:`tactiled.heapstats`;
 * with ``--tracemalloc``, the Python allocations that grew most since the first sample (by
   file and line);
-* every numba dispatcher of the physics: how many compiled specialisations it holds;
 * the sizes of the quadrature-rule caches (``tactiled.physics.strain``) and the start tables.
 
     python -m tactiled.bench.worker_memory --fits 20000 --every 1000
@@ -34,20 +33,6 @@ from typing import Any
 import numpy as np
 
 SKIP = 5  # fit every 5th tick of a 1 kHz finger: what latest-wins leaves a busy worker
-
-
-def dispatcher_figures() -> dict[str, int]:  # per dispatcher (heapstats gives the sum)
-    """Compiled specialisations held by each numba dispatcher of the physics kernels."""
-    from numba.core.registry import CPUDispatcher
-
-    from tactiled.physics import eccentricity, hertz, kernels
-
-    out = {}
-    for mod in (kernels, hertz, eccentricity):
-        for name, obj in vars(mod).items():
-            if isinstance(obj, CPUDispatcher):
-                out[f"{mod.__name__.rsplit('.', 1)[1]}.{name}"] = len(obj.overloads)
-    return out
 
 
 def frames(count: int, seed: int = 1) -> Any:
@@ -113,7 +98,7 @@ def probe(fits: int, every: int, warmup: int, use_tracemalloc: bool = False,
     report: dict[str, Any] = {"fits": done, "every": every, "warmup_fits": warmup,
                               "model": model, "fitted_models": models,
                               "seconds": round(time.perf_counter() - t0, 1),
-                              "samples": samples, "dispatchers": dispatcher_figures(),
+                              "samples": samples,
                               "caches": fitter_cache_figures()}
     later = [s for s in samples if s["fits"] >= warmup]
     report["slope_mb_per_1000_fits"] = {
@@ -150,7 +135,6 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(f"{report['fits']} fits in {report['seconds']} s ({report['fitted_models']})")
         print("slopes after warm-up, MB per 1000 fits:", report["slope_mb_per_1000_fits"])
-        print("numba specialisations:", report["dispatchers"])
         print("caches:", report["caches"])
         for row in report.get("tracemalloc_growth", []):
             print(f"  {row['size_diff_kb']:>9} KB {row['count_diff']:>7} blocks  {row['where']}")

@@ -60,7 +60,7 @@ from tactiled.calibration.contact import ContactDetector
 from tactiled.calibration.fileformat import Calibration, load_calibration_file
 from tactiled.config import Geometry, NoiseModel, SensorModel
 from tactiled.errors import TactiledError
-from tactiled.fit.result import FitResult  # light: no numba, no scipy
+from tactiled.fit.result import FitResult  # light: no scipy
 from tactiled.framefile import load_frame_file
 from tactiled.progress import Progress
 from tactiled.sensors import load_description
@@ -69,7 +69,7 @@ MODELS = ("auto", "cylinder", "sphere", "general")
 #: Inputs at least this long show progress on stderr by default.
 LONG_INPUT = 1000
 #: Without --jobs, shorter inputs are fitted in this process: starting the workers (a
-#: forkserver that imports numba and scipy, then a fitter per worker: ~1 s more than fitting
+#: forkserver that imports scipy and the fitter, then a fitter per worker: ~1 s more than fitting
 #: here) would cost more than two cores save on fewer frames (~0.8 ms a cold cylinder fit).
 PARALLEL_INPUT = 2000
 #: Frames per chunk handed to a worker: enough work (~16-256 ms) to drown the cost of sending
@@ -79,8 +79,8 @@ MIN_CHUNK, MAX_CHUNK = 16, 256
 AHEAD = 4
 #: The learning pass fits at most this many contact frames (~1-2 s), spread over the file.
 LEARN_FITS = 2000
-#: Imported once by the forkserver, so the workers forked from it start with numba's kernels
-#: loaded and the default sensor's start table built (docs/concepts/pipeline.md, "Workers").
+#: Imported once by the forkserver, so the workers forked from it start with the fitter
+#: imported and the default sensor's start table built (docs/concepts/pipeline.md, "Workers").
 PRELOAD_MODULE = "tactiled.pipeline.preload"
 
 

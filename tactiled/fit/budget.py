@@ -116,7 +116,8 @@ class BudgetExhausted(Exception):
 def evaluation_work(nodes_u: int, nodes_s: int, points: int) -> int:
     """Work units of one evaluation: ``nodes_u x nodes_s`` quadrature nodes over ``points``
     window tactels (``LARGE_RULE_FACTOR`` times that for a rule beyond ``LARGE_RULE_NODES``),
-    plus the overhead.  Plain arithmetic: the compiled search compiles this same function."""
+    plus the overhead.  Plain arithmetic: the compiled search (core/search.cpp) repeats it, held equal by
+    tests/native."""
     nodes = nodes_u * nodes_s
     return EVALUATION_OVERHEAD + nodes * points * (LARGE_RULE_FACTOR if nodes > LARGE_RULE_NODES else 1)
 

@@ -1,10 +1,10 @@
-"""The Levenberg-Marquardt search of one start, compiled whole (issue 16).
+"""The Levenberg-Marquardt search of one start, whole, in the compiled core (core/search.cpp).
 
 :func:`tactiled.fit.solver.levenberg_marquardt` calls back into Python for every evaluation of
 the forward model: the model's parameter map, the Hertz solve, the quadrature rule's size and
 the window residual are each a compiled kernel, but the glue between them (argument packing,
 dispatch, the damping loop) cost three times the arithmetic.  Here the same steps run in one
-compiled call: the same parameter maps (``tactiled.fit.models``), the same Hertz solve and
+call of the core (the Python bodies below are its reference): the same parameter maps (``tactiled.fit.models``), the same Hertz solve and
 window residual kernels, the same node-count rule and 1-D Gauss rules (packed into arrays), and
 the same damping loop, operation for operation, so a fit gives the numbers the Python path
 gives.
@@ -23,7 +23,8 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 from tactiled.fit.budget import DENIED, LINE_CHARGED_TACTELS, Budget, evaluation_work, line_work
 from tactiled.fit.models import physical_map
@@ -70,7 +71,6 @@ def rule_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.nd
             np.concatenate(wss))
 
 
-@njit(cache=True, nogil=True)
 def _nodes(extent: float, depth: float, tol: float, ladder: np.ndarray) -> int:
     """``strain.nodes_for``: the ladder size, or -1 beyond MAX_NODES (too long to integrate)."""
     r = depth / max(extent, 1e-12)
@@ -81,16 +81,14 @@ def _nodes(extent: float, depth: float, tol: float, ladder: np.ndarray) -> int:
     return ladder[np.searchsorted(ladder, max(n, MIN_NODES))]
 
 
-@njit(cache=True, nogil=True)
 def _rule_index(n: int, ladder: np.ndarray) -> int:
     return np.searchsorted(ladder, n)
 
 
-_work = njit(cache=True, nogil=True)(evaluation_work)
-_line_work = njit(cache=True, nogil=True)(line_work)
+_work = evaluation_work
+_line_work = line_work
 
 
-@njit(cache=True, nogil=True)
 def _evaluate_line(p, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey,
                    ladder, offsets, rs, rws, work_left, max_nodes):
     """:func:`_evaluate` for the line model (``tactiled.fit.line``): the rule across the line
@@ -116,7 +114,6 @@ def _evaluate_line(p, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_sc
     return _OK, r, jac, float(work)
 
 
-@njit(cache=True, nogil=True)
 def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid, inv_scale, ex, ey,
               ladder, offsets, ru, rwu, rs, rws, work_left, max_nodes):
     """One evaluation of the residual closure: ``(status, r, J, work)``; status ``_OK``, an
@@ -169,7 +166,6 @@ def _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target, valid
     return _OK, r, jac, float(work)
 
 
-@njit(cache=True, nogil=True)
 def ellipse_at(kind: int, p: np.ndarray, rf: float, comp: float) -> tuple[float, float, float, float]:
     """The Hertz ellipse ``(a, b, theta, m)`` of the model ``kind`` at ``p`` (``a < 0``: an
     infinite line), by the same map and solve as an evaluation, in one call."""
@@ -178,7 +174,6 @@ def ellipse_at(kind: int, p: np.ndarray, rf: float, comp: float) -> tuple[float,
     return ellipse_core(ka, kb, psi, force, rf, comp, np.empty((0, 0)))
 
 
-@njit(cache=True, nogil=True)
 def _pin(p: np.ndarray, jtj: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray):
     """``solver._pin``: parameters on a bound that the descent pushes out are held."""
     k = p.shape[0]
@@ -198,7 +193,6 @@ def _pin(p: np.ndarray, jtj: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.n
     return jtj, g
 
 
-@njit(cache=True, nogil=True)
 def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """``np.clip(x, lo, hi)``."""
     out = np.empty_like(x)
@@ -207,7 +201,6 @@ def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
 def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp, scale, dmin, tol,
            imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
            work_left, max_nodes, noise_cost, reserve, grant_cost, start_ok):
@@ -287,7 +280,6 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
             _remaining(jac, r, max_step, p, lo, hi), work)
 
 
-@njit(cache=True, nogil=True)
 def _remaining(jac, r, scale, p, lo, hi) -> float:
     """``solver.remaining_decrease(jac, r, scale, p, (lo, hi))``, step for step (an unbounded
     box pins nothing, as no ``bounds`` there)."""
@@ -298,6 +290,12 @@ def _remaining(jac, r, scale, p, lo, hi) -> float:
     except Exception:  # pragma: no cover - the damping makes it definite
         return math.inf
     return predicted if math.isfinite(predicted) else math.inf
+
+
+#: the Python bodies (the reference); the module's names run the compiled core's
+#: (core/search.cpp) when it is loaded
+REFERENCE = native.bind(globals(), {"_evaluate": "evaluate", "search": "search",
+                                    "ellipse_at": "ellipse_at"})
 
 
 def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: float, model_args: tuple,

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
+from scipy.special import gammaincinv
 
 from tactiled.config import SensorModel
 from tactiled.fit import budget as fit_budget
@@ -92,8 +92,9 @@ MISMATCH_LEVEL = 0.99
 
 @lru_cache(maxsize=None)
 def _chi2_limit(dof: int) -> float:
-    """The ``MISMATCH_LEVEL`` quantile of chi^2 with ``dof`` degrees of freedom."""
-    return float(chi2_dist.ppf(MISMATCH_LEVEL, dof))
+    """The ``MISMATCH_LEVEL`` quantile of chi^2 with ``dof`` degrees of freedom: scipy.stats'
+    ``chi2.ppf``, bit for bit, from scipy.special (scipy.stats costs a second to import)."""
+    return float(2.0 * gammaincinv(dof / 2.0, MISMATCH_LEVEL))
 
 
 _STEP = {"ln_r": 1.0, "ln_ra": 1.0, "beta": 0.5, "psi": 0.5, "ln_f": 0.7, "x0": 2.0, "y0": 2.0}

@@ -55,7 +55,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 #: Arrays up to this many tactels get a flat field: its normal equations are 3 per tactel
 #: square (an 8x8 array: 192, a solve ~2 ms; 16x16: 768, ~0.1 s and 14 MB a finger).
@@ -103,7 +104,6 @@ _FOLLOW_THE_CONTACTS = ("the residuals follow the contacts, not the tactels (a r
 _RESCALE = 1e100
 
 
-@njit(cache=True, nogil=True)
 def _accumulate(ata: np.ndarray, atb: np.ndarray, resid_op: np.ndarray, m: np.ndarray,
                 jx: np.ndarray, jy: np.ndarray, r: np.ndarray, u: np.ndarray, idx: np.ndarray,
                 w: float) -> float:
@@ -111,8 +111,9 @@ def _accumulate(ata: np.ndarray, atb: np.ndarray, resid_op: np.ndarray, m: np.nd
     ``X^T X = E^T M E`` and ``X^T (r + X u) = E^T (r + M E u)`` (M, the residual operator, is a
     symmetric projection; ``E = [diag(-m), diag(jx), diag(jy)]``; ``u[idx]`` the corrections
     the fit ran with).  Returns the excess ``|r0|^2 - tr M`` of the uncorrected residuals
-    ``r0``, or NaN (and adds nothing) when a number of the fit is not finite.  Compiled: in
-    numpy this was ~25 small array operations a fit, 40 % of a learning fitter's time."""
+    ``r0``, or NaN (and adds nothing) when a number of the fit is not finite.  Compiled
+    (core/flatfield.cpp): in numpy this is ~25 small array operations a fit, 40 % of a
+    learning fitter's time."""
     k = m.size
     c = np.empty(3 * k)
     check = 0.0
@@ -145,6 +146,10 @@ def _accumulate(ata: np.ndarray, atb: np.ndarray, resid_op: np.ndarray, m: np.nd
                 for j in range(k):
                     ata[a * k + i, b * k + j] += ci * resid_op[i, j] * c[b * k + j]
     return total - trace
+
+
+#: the Python body (the reference); ``_accumulate`` runs the compiled core's when it is loaded
+REFERENCE = native.bind(globals(), {"_accumulate": "accumulate"})
 
 
 @dataclass

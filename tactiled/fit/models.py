@@ -19,7 +19,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 from tactiled.fit.params import VALUE_KEYS, report  # noqa: F401  (VALUE_KEYS re-exported)
 
@@ -52,11 +53,13 @@ class Model:
         raise NotImplementedError
 
 
-@njit(cache=True, nogil=True)
 def physical_map(kind: int, p: np.ndarray, d: np.ndarray) -> tuple[float, float, float, float, float, float]:
     """Every model's map from its parameters to ``(kappa_a, kappa_b, psi, F, x0, y0)``, filling
     ``d`` (zeroed, (6, k)) with its Jacobian; ``kind`` 0 cylinder, 1 sphere, 2 general.  One
-    compiled copy serves the Python models and the compiled search alike."""
+    compiled copy serves the Python models and the compiled search alike.  Too few parameters
+    for the kind (a line contact's four given as a cylinder's) is a ValueError."""
+    if p.shape[0] < (5, 4, 6)[kind]:
+        raise ValueError(f"model kind {kind} takes {(5, 4, 6)[kind]} parameters, got {p.shape[0]}")
     if kind == 0:  # cylinder: ln_r, psi, ln_f, x0, y0
         ka, f = math.exp(-p[0]), math.exp(p[2])
         d[0, 0] = -ka
@@ -85,6 +88,9 @@ def physical_map(kind: int, p: np.ndarray, d: np.ndarray) -> tuple[float, float,
     d[5, 5] = 1.0
     return ka, kb, p[2], f, p[4], p[5]
 
+
+#: the Python body (the reference); ``physical_map`` runs the compiled core's when it is loaded
+REFERENCE = native.bind(globals(), ("physical_map",))
 
 
 class Cylinder(Model):

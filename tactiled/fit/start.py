@@ -16,7 +16,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 from tactiled.config import SensorModel
 from tactiled.physics.contact import Contact, LineContact
@@ -56,7 +57,6 @@ def force_constants(sensor: SensorModel) -> tuple:
             imp.depth_y, imp.nu_y)
 
 
-@njit(cache=True, nogil=True)
 def _force(total: float, modulus: float, rows: int, dx: float, depth_x: float, nu_x: float,
            cols: int, dy: float, depth_y: float, nu_y: float, x0: float, y0: float) -> float:
     """:func:`force_estimate` from the summed strain ``total`` (summed by numpy, whose
@@ -73,7 +73,6 @@ def features(strain: np.ndarray, peak: tuple[int, int], force: float) -> np.ndar
     return _features(np.asarray(strain, dtype=float), int(peak[0]), int(peak[1]), float(force))
 
 
-@njit(cache=True, nogil=True)
 def _features(strain: np.ndarray, m: int, n: int, force: float) -> np.ndarray:
     rows, cols = strain.shape
     c = strain[m, n]
@@ -90,7 +89,6 @@ def _features(strain: np.ndarray, m: int, n: int, force: float) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
 def start_point(strain: np.ndarray, m: int, n: int, total: float, modulus: float, rows: int, dx: float,
                 depth_x: float, nu_x: float, cols: int, dy: float, depth_y: float, nu_y: float):
     """A cold start's ``(x0, y0, force, features)`` for the peak at ``(m, n)`` in one compiled
@@ -143,7 +141,6 @@ class StartTable:
                 for i in chosen]
 
 
-@njit(cache=True, nogil=True)
 def nearest(table: np.ndarray, feat: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` rows of ``table`` nearest to ``feat`` (Euclidean), nearest first (ties: the
     lower index first): ``(distances, indices)``.  A NaN in ``feat`` (a neighbour off the array)
@@ -194,7 +191,6 @@ def nearest(table: np.ndarray, feat: np.ndarray, k: int) -> tuple[np.ndarray, np
     return np.sqrt(best_d), best_i
 
 
-@njit(cache=True, nogil=True)
 def pick_separated(angles: np.ndarray, count: int, min_separation: float) -> list[int]:
     """Indices into ``angles`` (deg, best first): the first, then each next one whose
     orientation differs from every one chosen by ``min_separation`` (orientations modulo 180)."""
@@ -216,7 +212,6 @@ def pick_separated(angles: np.ndarray, count: int, min_separation: float) -> lis
     return chosen
 
 
-@njit(cache=True, nogil=True)
 def line_sum(n: int, pitch: float, x0: float, depth: float, nu: float) -> float:
     """``sum_m h(m * pitch - x0)`` over ``n`` tactels (the line response, 1/mm)."""
     d2 = depth * depth
@@ -228,6 +223,12 @@ def line_sum(n: int, pitch: float, x0: float, depth: float, nu: float) -> float:
         s = u2 + d2
         total += c * (d2 - nu * u2) / (s * s)
     return total
+
+
+#: the Python bodies (the reference); the module's names run the compiled core's when it is loaded
+REFERENCE = native.bind(globals(), {"_force": "force_from_total", "_features": "features",
+                                    "start_point": "start_point", "nearest": "nearest",
+                                    "pick_separated": "pick_separated", "line_sum": "line_sum"})
 
 
 @lru_cache(maxsize=8)

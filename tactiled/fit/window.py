@@ -5,10 +5,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 
-@njit(cache=True, nogil=True)
 def window_origin(peak: int, size: int, length: int, lower: float, upper: float) -> int:
     """First index of a ``size``-long window on an axis of ``length`` tactels containing
     ``peak``; for an even size the extra tactel goes to the side whose neighbour (``lower`` at
@@ -36,7 +36,6 @@ def choose_window(strain: np.ndarray, peak: tuple[int, int], size: int) -> tuple
     return r0, c0, nr, nc
 
 
-@njit(cache=True, nogil=True)
 def _vertex(lo: float, mid: float, hi: float) -> float:
     """Offset in [-0.5, 0.5] tactels of the vertex of the parabola through three samples."""
     den = lo - 2.0 * mid + hi
@@ -45,7 +44,6 @@ def _vertex(lo: float, mid: float, hi: float) -> float:
     return min(max(0.5 * (lo - hi) / den, -0.5), 0.5)
 
 
-@njit(cache=True, nogil=True)
 def peak_centre(strain: np.ndarray, m: int, n: int, dx: float, dy: float) -> tuple[float, float]:
     """:func:`interpolated_peak` of the peak at ``(m, n)``, compiled (for callers that are)."""
     rows, cols = strain.shape
@@ -64,7 +62,6 @@ def interpolated_peak(strain: np.ndarray, peak: tuple[int, int], dx: float, dy: 
     return float(x), float(y)
 
 
-@njit(cache=True, nogil=True)
 def plain_window(strain: np.ndarray, size: int, max_strain: float) -> tuple[int, int, int, int, int, int, int]:
     """The peak and window of a frame with every tactel usable, in one compiled pass:
     ``(usable, m, n, row0, col0, rows, cols)``; ``usable`` is 0 when any strain is not finite
@@ -88,7 +85,6 @@ def plain_window(strain: np.ndarray, size: int, max_strain: float) -> tuple[int,
     return 1, m, n, window_origin(m, nr, rows, lo_r, hi_r), window_origin(n, nc, cols, lo_c, hi_c), nr, nc
 
 
-@njit(cache=True, nogil=True)
 def plain_frame(strain: np.ndarray, size: int, max_strain: float, min_peak: float, sigma: float):
     """:func:`plain_window` and the window's arrays in the same call, for a sensor without a
     model-error floor (each tactel weighted by the noise ``sigma`` alone): ``(usable, m, n,
@@ -115,3 +111,7 @@ def plain_frame(strain: np.ndarray, size: int, max_strain: float, min_peak: floa
                 inv_scale[q] = inv
                 zdata[q] = t / sigma
     return usable, m, n, r0, c0, nr, nc, peak, target, valid, inv_scale, zdata
+
+
+#: the Python bodies (the reference); the module's names run the compiled core's when it is loaded
+REFERENCE = native.bind(globals(), ("window_origin", "peak_centre", "plain_window", "plain_frame"))

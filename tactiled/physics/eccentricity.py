@@ -21,8 +21,10 @@ from fractions import Fraction
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+
 from scipy.special import ellipe, ellipkm1
+
+from tactiled import native
 
 _SERIES_BELOW = 0.05  # m below which the power series are used (error ~0.05^14 ~ 6e-19)
 _N_TERMS = 16
@@ -158,10 +160,10 @@ def curvature_ratio(m: np.ndarray | float) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# Scalar fast path, compiled.  The fitter solves one ellipse per iteration; numpy's per-call
-# overhead on 1-element arrays (~200 us for the vector code above) would dominate a 1 ms fit.
-# K and E come from the arithmetic-geometric mean (agrees with scipy to 4e-15, tested), which
-# numba can compile where scipy.special cannot be called.
+# Scalar fast path, compiled (core/eccentricity.cpp; these bodies are its reference).  The fitter
+# solves one ellipse per iteration; numpy's per-call overhead on 1-element arrays (~200 us for
+# the vector code above) would dominate a 1 ms fit.  K and E come from the arithmetic-geometric
+# mean (agrees with scipy to 4e-15, tested), plain arithmetic the core repeats.
 # ---------------------------------------------------------------------------------------------
 _DM_H = np.ascontiguousarray(_DM_COEF[::-1])
 _PM_H = np.ascontiguousarray(_PM_COEF[::-1])
@@ -172,7 +174,6 @@ _YT0 = float(_Y_TABLE[0])
 _DY = float(_Y_TABLE[1] - _Y_TABLE[0])
 
 
-@njit(cache=True, nogil=True)
 def ellip_ke(m: float, m1: float) -> tuple[float, float]:
     """Complete elliptic integrals ``K(m), E(m)`` by the AGM; ``m1 = 1 - m`` passed separately
     so that near-line contacts keep full precision."""
@@ -191,7 +192,6 @@ def ellip_ke(m: float, m1: float) -> tuple[float, float]:
     return k, k * (1.0 - s)
 
 
-@njit(cache=True, nogil=True)
 def _horner(coef_high_first: np.ndarray, m: float) -> float:
     acc = 0.0
     for c in coef_high_first:
@@ -199,7 +199,6 @@ def _horner(coef_high_first: np.ndarray, m: float) -> float:
     return acc
 
 
-@njit(cache=True, nogil=True)
 def kernel_scalar(m: float, m1: float) -> tuple[float, float, float, float]:
     """``(K-E)/m``, ``(lambda-1)(K-E)/m`` and their m-derivatives (scalar :func:`_kernel`)."""
     if m < _SERIES_BELOW:
@@ -213,7 +212,6 @@ def kernel_scalar(m: float, m1: float) -> tuple[float, float, float, float]:
     return d / m, nd / m, ((dk - de) * m - d) / (m * m), (dnd * m - nd) / (m * m)
 
 
-@njit(cache=True, nogil=True)
 def solve_log_scalar(x: float, newton_steps: int = 1) -> tuple[float, float, float, float, float]:
     """Scalar :func:`solve_log`: returns ``(m, m1, log_f, dlogf_dx, dlogm1_dx)``."""
     x = min(max(x, X_MIN), X_MAX)
@@ -232,3 +230,10 @@ def solve_log_scalar(x: float, newton_steps: int = 1) -> tuple[float, float, flo
         y -= (math.log(pm / dm) - x) / dxdy
     dm_dx = m * m1 / dxdy
     return m, m1, math.log(dm), ddm / dm * dm_dx, -dm_dx / m1
+
+
+#: the Python bodies (the reference); the module's names run the compiled core's when it is loaded
+REFERENCE = native.bind(globals(), ("ellip_ke", "kernel_scalar", "solve_log_scalar"))
+if native.core is not None:  # the core starts from this module's table and coefficients
+    native.core.set_eccentricity_tables(_XT, _YT0, _DY, X_MIN, X_MAX, _SERIES_BELOW, _DM_H, _PM_H,
+                                        _DDM_H, _DPM_H)

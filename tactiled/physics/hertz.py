@@ -11,8 +11,9 @@ has eigenvalues ``A' >= C'``; the major semi-axis ``a`` lies along the eigenvect
 
     a^3 = 3 F k (K(m) - E(m)) / (2 pi m C'),    k = (1 - nu_f^2)/E.
 
-The core is compiled scalar code (numba): the fitter calls it once per iteration, and numpy's
-per-call overhead on scalars would cost more than the algebra.  With ``jac=True`` the analytic
+The core is scalar code, compiled (core/hertz.cpp; this Python body is its reference): the
+fitter calls it once per iteration, and numpy's per-call overhead on scalars would cost more
+than the algebra.  With ``jac=True`` the analytic
 derivatives of ``(a, b, theta)`` with respect to ``(kappa_a, kappa_b, psi, F)`` come too.
 """
 
@@ -22,7 +23,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 from tactiled.physics.eccentricity import solve_log_scalar
 
@@ -37,7 +39,6 @@ class Ellipse(NamedTuple):
     m: float
 
 
-@njit(cache=True, nogil=True)
 def ellipse_core(
     kappa_a: float,
     kappa_b: float,
@@ -63,7 +64,8 @@ def ellipse_core(
     delta = math.hypot(half, q)
     # C' = det(M) / A', not mu - delta: near a line contact (a cylinder almost along the
     # finger axis) mu - delta cancels to nothing.  det(2M) = ka kb + kf (kb cos^2 + ka sin^2).
-    sin2, cos2 = math.sin(psi) ** 2, math.cos(psi) ** 2
+    sp, cp = math.sin(psi), math.cos(psi)
+    sin2, cos2 = sp * sp, cp * cp
     det = 0.25 * (kappa_a * kappa_b + kf * (kappa_b * cos2 + kappa_a * sin2))
     c_prime = det / (mu + delta)  # C'
     if not c_prime > 0.0:
@@ -108,6 +110,9 @@ def ellipse_core(
         jac[2, 3] = 0.0
     return a, b, theta, m
 
+
+#: the Python body (the reference); ``ellipse_core`` runs the compiled core's when it is loaded
+REFERENCE = native.bind(globals(), ("ellipse_core",))
 
 _NO_JAC = np.zeros((0, 0))
 

@@ -1,10 +1,9 @@
-"""Compiled inner loop of the forward model: quadrature of the impulse response over the nodes.
+"""Inner loop of the forward model: quadrature of the impulse response over the nodes.
 
 The numpy expression of the same sum (``StrainModel.strain_and_jacobian_numpy``) costs ~200 us
-for a 4x4 window because it is some fifty numpy calls on tiny arrays, each paying ~2-3 us of
-overhead; this loop does the same arithmetic in ~5 us.  numba compiles it once per process
-(``cache=True`` keeps the machine code under ``__pycache__`` or ``NUMBA_CACHE_DIR``).  Tests
-check it against the numpy path to 1e-12.
+for a 4x4 window because it is some fifty numpy calls on tiny arrays; these loops run in the
+compiled core (core/quadrature.cpp, core/lsq.cpp, built by ``pip install``).  The Python bodies
+here are the reference it is held to (tests/native), and run with ``TACTILED_CORE=python``.
 """
 
 from __future__ import annotations
@@ -12,16 +11,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 _INV_PI = 1.0 / math.pi
 
 
-# reassociation lets LLVM vectorise the sums over nodes; NaN/inf semantics are kept
-_FAST = {"reassoc", "contract"}
-
-
-@njit(cache=True, fastmath=_FAST, nogil=True)
 def strain_with_jacobian(
     geo: np.ndarray,
     hj: np.ndarray,
@@ -36,8 +31,7 @@ def strain_with_jacobian(
 
     ``geo = [x0, y0, a, b, theta, F, scale]`` (mm, rad, N; ``scale = 3/(2 pi E)``), ``hj`` the
     3x4 Hertz Jacobian ``d(a, b, theta)/d(kappa_a, kappa_b, psi, F)``, ``(u, v, w)`` the unit-disk
-    rule, ``imp = [d_x, nu_x, d_y, nu_y]``.  Scalars travel packed in two arrays because numba's
-    dispatch cost grows with the argument count.  Returns ``(M, N)`` and ``(M, N, 6)`` arrays.
+    rule, ``imp = [d_x, nu_x, d_y, nu_y]``.  Returns ``(M, N)`` and ``(M, N, 6)`` arrays.
 
     The kernel is separable, so the per-axis responses at every node are tabulated first
     (``HX[i, q]``, ``HY[j, q]`` and their slopes) and each tactel's value and derivatives are then
@@ -112,7 +106,6 @@ def strain_with_jacobian(
     return val, jac
 
 
-@njit(cache=True, fastmath=False, nogil=True)
 def quadrature(
     x0: float,
     y0: float,
@@ -144,11 +137,13 @@ def quadrature(
         xq = x0 + au * c - bv * s
         yq = y0 + au * s + bv * c
         for i in range(mx):
-            t2 = (xs[i] - xq) ** 2
+            t = xs[i] - xq
+            t2 = t * t
             sx = t2 + dx2
             hx[i] = cx * (dx2 - nu_x * t2) / (sx * sx) * w[q]
         for j in range(ny):
-            t2 = (ys[j] - yq) ** 2
+            t = ys[j] - yq
+            t2 = t * t
             sy = t2 + dy2
             hyj = cy * (dy2 - nu_y * t2) / (sy * sy)
             for i in range(mx):
@@ -156,7 +151,6 @@ def quadrature(
     return val
 
 
-@njit(cache=True, fastmath=False, nogil=True)
 def quadrature_points(
     x0: float,
     y0: float,
@@ -186,15 +180,16 @@ def quadrature_points(
         xq = x0 + au * c - bv * s
         yq = y0 + au * s + bv * c
         for k in range(npt):
-            tx2 = (px[k] - xq) ** 2
+            tx = px[k] - xq
+            tx2 = tx * tx  # a product, not ``** 2`` (libm's pow may differ in the last bit)
             sx = tx2 + dx2
-            ty2 = (py[k] - yq) ** 2
+            ty = py[k] - yq
+            ty2 = ty * ty
             sy = ty2 + dy2
             val[k] += cx * (dx2 - nu_x * tx2) / (sx * sx) * cy * (dy2 - nu_y * ty2) / (sy * sy) * w[q]
     return val
 
 
-@njit(cache=True, nogil=True)
 def window_residual(
     geo: np.ndarray,
     hj: np.ndarray,
@@ -249,7 +244,6 @@ def window_residual(
     return r, jac
 
 
-@njit(cache=True, nogil=True)
 def normal_equations(jac: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``J^T J``, ``J^T r`` and the Marquardt scaling ``diag(J^T J)`` (floored at 1e-12 of its
     largest entry so a dead parameter still gets damped), compiled: numpy's per-call overhead
@@ -267,7 +261,6 @@ def normal_equations(jac: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.nda
     return jtj, g, diag
 
 
-@njit(cache=True, nogil=True)
 def finite_cost(r: np.ndarray, jac: np.ndarray) -> float:
     """``sum(r^2)``, or inf if any residual or Jacobian entry is not finite."""
     if not np.isfinite(np.sum(jac)):
@@ -278,7 +271,6 @@ def finite_cost(r: np.ndarray, jac: np.ndarray) -> float:
     return c if np.isfinite(c) else np.inf
 
 
-@njit(cache=True, nogil=True)
 def damped_step(
     jtj: np.ndarray, g: np.ndarray, diag: np.ndarray, lam: float, scale: np.ndarray
 ) -> tuple[np.ndarray, float, float]:
@@ -300,7 +292,6 @@ def damped_step(
     return step, over, predicted
 
 
-@njit(cache=True, nogil=True)
 def cramer_rao(jraw: np.ndarray, grad: np.ndarray, sigma: float) -> tuple[np.ndarray, float]:
     """1-sigma bounds of the quantities whose gradients are the rows of ``grad`` (NaN rows give
     NaN), from ``cov = sigma^2 (J^T J)^-1``; and the condition number of J (inf if singular).
@@ -331,3 +322,9 @@ def cramer_rao(jraw: np.ndarray, grad: np.ndarray, sigma: float) -> tuple[np.nda
         if var >= 0.0:
             std[q] = math.sqrt(var)
     return std, cond
+
+
+#: the Python bodies (the reference); the module's names run the compiled core's when it is loaded
+REFERENCE = native.bind(globals(), ("strain_with_jacobian", "quadrature", "quadrature_points",
+                                    "window_residual", "normal_equations", "finite_cost",
+                                    "damped_step", "cramer_rao"))

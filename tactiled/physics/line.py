@@ -16,8 +16,9 @@ The integral along the (infinite) line is exact: writing the impulse response as
 ``h(u) = Re g(u) / pi`` with ``g(u) = (1 + nu) d / (d - i u)^2 + (1 - nu) / (d - i u)`` (one
 double pole, in the lower half-plane), ``h_x h_y = Re[g_x g_y + g_x conj(g_y)] / (2 pi^2)`` and
 each product's integral over the real line is one residue.  Across the line a Gauss-Chebyshev
-(second kind) rule integrates the square-root pressure.  Compiled (numba); the total force and
-the position along the line do not exist for such a contact.
+(second kind) rule integrates the square-root pressure.  Compiled (core/line.cpp; these bodies
+are its reference); the total force and the position along the line do not exist for such a
+contact.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 from tactiled.physics.strain import _rule_s, nodes_for
 
@@ -38,19 +40,16 @@ from tactiled.physics.strain import _rule_s, nodes_for
 _AXIS_EPS = 1e-12
 
 
-@njit(cache=True, nogil=True)
 def _g(a: float, b: float, d: float, sig: float, u: complex) -> complex:
     w = d - 1j * sig * u
     return a / (w * w) + b / w
 
 
-@njit(cache=True, nogil=True)
 def _dg(a: float, b: float, d: float, sig: float, u: complex) -> complex:
     w = d - 1j * sig * u
     return 1j * sig * (2.0 * a / (w * w * w) + b / (w * w))
 
 
-@njit(cache=True, nogil=True)
 def _pair(a1: float, b1: float, d1: float, s1: float, p1: float, q1: float,
           a2: float, b2: float, d2: float, s2: float, p2: float, q2: float) -> complex:
     """integral over real t of G1(p1 + q1 t) G2(p2 + q2 t), each
@@ -75,7 +74,6 @@ def _pair(a1: float, b1: float, d1: float, s1: float, p1: float, q1: float,
     return 2j * math.pi * res
 
 
-@njit(cache=True, nogil=True)
 def along_line(px: float, py: float, c: float, s: float, imp: np.ndarray) -> float:
     """integral over the whole line of ``h_x(px - t c) h_y(py - t s)`` dt (1/mm): the response
     at offset ``(px, py)`` from a point of a line of unit direction ``(c, s)``."""
@@ -87,7 +85,6 @@ def along_line(px: float, py: float, c: float, s: float, imp: np.ndarray) -> flo
     return both.real / (2.0 * math.pi * math.pi)
 
 
-@njit(cache=True, nogil=True)
 def line_strain_points(load: float, half_width: float, psi: float, cx: float, cy: float,
                        px: np.ndarray, py: np.ndarray, imp: np.ndarray, modulus: float,
                        nodes: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -106,7 +103,6 @@ def line_strain_points(load: float, half_width: float, psi: float, cx: float, cy
     return out
 
 
-@njit(cache=True, nogil=True)
 def _pair_setup(a1: float, b1: float, d1: float, s1: float, q1: float,
                 a2: float, b2: float, d2: float, s2: float, q2: float):
     """What :func:`_pair_partials` needs that depends on the line's angle only (``q1``,
@@ -125,7 +121,6 @@ def _pair_setup(a1: float, b1: float, d1: float, s1: float, q1: float,
             2.0 * a1 / (q1 * q1 * q1), -q2 / q1)
 
 
-@njit(cache=True, nogil=True)
 def _pair_partials(st, p1: float, p2: float
                    ) -> tuple[complex, complex, complex, complex, complex]:
     """:func:`_pair` off the axes and its partials in ``(p1, q1, p2, q2)``: the one residue's
@@ -162,7 +157,6 @@ _AXIS_NEAR = 1e-7
 _AXIS_NUDGE = 1e-6
 
 
-@njit(cache=True, nogil=True)
 def _line_angle(psi: float, imp: np.ndarray):
     """What :func:`across_line` needs of the angle ``psi`` (radians), whatever the distance:
     its cosine and sine, whether it is within ``_AXIS_NEAR`` of an axis, the cosine and sine
@@ -180,7 +174,6 @@ def _line_angle(psi: float, imp: np.ndarray):
     return c, s, near, cj, sj, st1, st2
 
 
-@njit(cache=True, nogil=True)
 def _across_at(dist: float, ang, imp: np.ndarray) -> tuple[float, float, float]:
     """:func:`across_line` with its partials, ``ang`` = :func:`_line_angle` of the angle."""
     c, s, near, cj, sj, st1, st2 = ang
@@ -198,7 +191,6 @@ def _across_at(dist: float, ang, imp: np.ndarray) -> tuple[float, float, float]:
     return val, d_dist, d_psi
 
 
-@njit(cache=True, nogil=True)
 def across_line(dist: float, psi: float, imp: np.ndarray, want: bool) -> tuple[float, float, float]:
     """``L(d, psi)``: the response (1/mm) at signed distance ``dist`` (mm, along the normal
     ``(-sin psi, cos psi)``) from an infinite line along ``psi`` (:func:`along_line` at any
@@ -209,7 +201,6 @@ def across_line(dist: float, psi: float, imp: np.ndarray, want: bool) -> tuple[f
     return _across_at(dist, _line_angle(psi, imp), imp)
 
 
-@njit(cache=True, nogil=True)
 def line_residual(p: np.ndarray, px: np.ndarray, py: np.ndarray, ref_x: float, ref_y: float,
                   imp: np.ndarray, modulus: float, compliance: float, nodes: np.ndarray,
                   weights: np.ndarray, target: np.ndarray, valid: np.ndarray,
@@ -254,7 +245,6 @@ def line_residual(p: np.ndarray, px: np.ndarray, py: np.ndarray, ref_x: float, r
     return r, jac
 
 
-@njit(cache=True, nogil=True)
 def line_points(xs: np.ndarray, ys: np.ndarray, ex: np.ndarray,
                 ey: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
     """A window's tactel positions (mm, flattened row-major) from its grid ``xs x ys`` and
@@ -271,6 +261,11 @@ def line_points(xs: np.ndarray, ys: np.ndarray, ex: np.ndarray,
             sx += px[k]
             sy += py[k]
     return px, py, sx / (nr * nc), sy / (nr * nc)
+
+
+#: the Python bodies (the reference); the module's names run the compiled core's when it is loaded
+REFERENCE = native.bind(globals(), ("along_line", "line_strain_points", "across_line",
+                                    "line_residual", "line_points"))
 
 
 def half_width(load: float, radius: float, compliance: float) -> float:

@@ -58,10 +58,6 @@ YOUNG = 2.0  # s, a worker lost this soon after being ready, before any fit, cou
 #: Share of ``fit.timeout`` a fit may spend before the fitter stops itself (its time budget);
 #: the rest is margin for one last evaluation and the answer, so the worker is not killed.
 FIT_BUDGET_FRACTION = 0.5
-#: A worker compiling a numba kernel for a request (first use on a fresh install: ~1 s per
-#: kernel, then cached) gets this much more time for it (s) before it counts as hung.
-COMPILE_GRACE_S = 30.0
-
 #: A worker past a request's deadline that is runnable yet got less than this share of a core
 #: since the deadline is starved (a machine loaded by other processes), not hung: it gets
 #: another deadline, up to ``STARVED_MAX_S`` past its first.  One asleep, stopped or blocked
@@ -224,8 +220,6 @@ class WorkerPool:
         self._stopping = False
         self.fits = 0
         self.restarts = 0
-        #: kernels the workers compiled for a request (numba's first use on a fresh install)
-        self.compiles = 0
         #: deadlines extended for a starved worker (``_starved``)
         self.deadline_extended = 0
         self.restarts_by_reason: dict[str, int] = {}
@@ -567,12 +561,6 @@ class WorkerPool:
         if not w.outstanding or w.outstanding[0].rid != msg[1]:
             self._lose(w, "protocol", f"unexpected answer {kind!r}")
             return
-        if kind == "compiling":  # not an answer: numba compiles a kernel for this request
-            w.head_since = max(w.head_since, now + COMPILE_GRACE_S)
-            self.compiles += 1
-            log.info("fit worker %d compiles a kernel (its first use here; cached from now on)",
-                     w.slot)
-            return
         req = w.outstanding.popleft()
         w.head_since = now
         if kind == "result":
@@ -712,16 +700,6 @@ class WorkerPool:
         self._send(w, ("garble",), "garble", self.settings.timeout)
         return w.pid
 
-    def debug_compile(self, slot: int, seconds: float) -> int | None:
-        """Make worker ``slot`` announce a kernel compilation and hold it for ``seconds`` (test
-        hook: the deadline is ``fit.timeout``, which a compilation may exceed).  Returns the
-        worker's pid, or None if it is not ready."""
-        w = self._workers[slot]
-        if w.state != "ready":
-            return None
-        self._send(w, ("compile", float(seconds)), "compile", self.settings.timeout)
-        return w.pid
-
     # -- stopping ---------------------------------------------------------------------------------
 
     async def stop(self, timeout: float | None = None) -> None:
@@ -807,7 +785,6 @@ class WorkerPool:
             "start_method": self.settings.start_method,
             "fits": self.fits,
             "restarts": self.restarts,
-            "compiles": self.compiles,
             "deadline_extended": self.deadline_extended,
             "restarts_by_reason": dict(self.restarts_by_reason),
             "last_restart": None if self.last_restart is None else {

@@ -88,7 +88,7 @@ SLICE_S = 0.01
 WITHHOLD_RELATIVE_SIGMA = 0.5
 def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
-    so this process never imports the fitter (numba, scipy: 1.3 s and ~100 MB)."""
+    so this process never imports the fitter (and scipy with it)."""
     return (("window", window), ("withhold_relative_sigma", WITHHOLD_RELATIVE_SIGMA),
             ("learn_floor", True))
 

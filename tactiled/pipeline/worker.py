@@ -24,12 +24,6 @@ in order (which is what lets the parent give every outstanding request a deadlin
 - ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
 - ``("garble", rid)`` -> bytes that do not unpickle: a test hook for an answer the parent
   cannot read;
-- ``("compile", rid, seconds)`` -> ``("compiled", rid)``: a test hook that holds a numba
-  compile event open for ``seconds``, as a first-time kernel compilation does;
-- ``("compiling", rid)``, unasked, before the answer to request ``rid``: numba is compiling a
-  kernel for it (its first use on a fresh install, ~1 s, cached from then on).  The parent
-  then gives the request more time instead of killing the worker mid-compile, which would
-  leave the cache unwritten and the next worker compiling again, for ever;
 - ``("stop",)``: exit.
 
 ``spec`` is a small integer naming a (SensorModel, FitOptions arguments) pair the parent
@@ -62,29 +56,6 @@ TRIM_EVERY_FITS = 20000
 
 #: (SensorModel, FitOptions keyword arguments as ``((name, value), ...)``)
 Spec = tuple[SensorModel, tuple[tuple[str, Any], ...]]
-
-
-class _CompileNotice:
-    """A numba event listener: tells the parent when a kernel is being compiled for the
-    request in hand (``rid``; None between requests and during start-up, whose own deadline
-    is long).  Loading a kernel from numba's cache fires no such event."""
-
-    def __init__(self, conn: Connection) -> None:
-        from numba.core import event
-
-        self.conn = conn
-        self.rid: int | None = None
-        notice = self
-
-        class Listener(event.Listener):
-            def on_start(self, _event: object) -> None:
-                if notice.rid is not None:
-                    notice.conn.send(("compiling", notice.rid))
-
-            def on_end(self, _event: object) -> None:
-                pass
-
-        event.register("numba:compile", Listener())
 
 
 class _Keeper:
@@ -164,7 +135,6 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
     from tactiled.fit.multi import contacts_json, fit_contacts, linearize_several, warm_of
     from tactiled.fit.warm import SEVERAL
 
-    notice = _CompileNotice(conn)
     t0 = time.perf_counter()
     fits = 0
     fitters: dict[int, Any] = {}
@@ -186,7 +156,6 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
             if kind == "fit":
                 _, rid, spec, strain, model, mask, warm, budget_s, job_kind = msg
                 strain, mask = unpack_array(strain), unpack_array(mask)
-                notice.rid = rid
                 t = time.perf_counter()
                 follow = lin = out = None
                 try:
@@ -216,7 +185,6 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                 except Exception as err:  # a fitter bug must cost one frame, not the worker
                     out, error = None, f"{type(err).__name__}: {err}"
                 fits += 1
-                notice.rid = None
                 conn.send(("result", rid, out, time.perf_counter() - t, error, follow, lin))
                 if fitter is not None:
                     # the learning this fit made due, after its answer and before the next job
@@ -251,15 +219,6 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
             elif kind == "sleep":
                 time.sleep(msg[2])  # deliberately unresponsive: the parent must notice
                 conn.send(("slept", msg[1]))
-            elif kind == "compile":
-                from numba.core.event import trigger_event
-
-                notice.rid = msg[1]
-                with trigger_event("numba:compile", data={"dispatcher": None, "args": (),
-                                                          "return_type": None}):
-                    time.sleep(msg[2])
-                notice.rid = None
-                conn.send(("compiled", msg[1]))
             elif kind == "garble":
                 conn.send_bytes(b"\x80\x05not a pickle")  # test hook: an unreadable answer
             elif kind == "stop":

@@ -69,3 +69,14 @@ def test_mean_of_n_frames_has_sqrt_n_smaller_bounds(fitter):
     assert fitter.sigma == 0.0005
     with pytest.raises(ValueError, match="frames"):
         fitter.fit(frame, "cylinder", frames=0)
+
+
+def test_the_mismatch_quantile_is_scipy_stats_chi2() -> None:
+    """The fitter takes chi^2's quantile from scipy.special (scipy.stats is a slow import):
+    the same numbers as ``scipy.stats.chi2.ppf``, bit for bit, for every window size."""
+    from scipy.stats import chi2
+
+    from tactiled.fit.fitter import MISMATCH_LEVEL, _chi2_limit
+
+    for dof in range(1, 300):
+        assert _chi2_limit(dof) == chi2.ppf(MISMATCH_LEVEL, dof)
