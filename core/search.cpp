@@ -45,7 +45,10 @@ Evaluation evaluate_line(const double* p, const ModelArgs& md, const WindowArgs&
     const long long n = nodes_for(b, md.dmin, md.tol, rules);
     const int points = win.mx * win.ny;
     if (n < 0) return none(INVALID_LONG, 4, b);
-    const double work = line_work(n, points);
+    // a band is charged its valid tactels, at most LINE_CHARGED_TACTELS (budget.py)
+    long long valid = 0;
+    for (int k = 0; k < points; ++k) valid += win.valid[k] ? 1 : 0;
+    const double work = line_work(n, valid < LINE_CHARGED_TACTELS ? valid : LINE_CHARGED_TACTELS);
     if (work > work_left) return none(BUDGET, 4);
     if (n > max_nodes) return none(FALLBACK, 4);
     const long long o = rules.offsets[rule_index(n, rules)];
@@ -273,6 +276,7 @@ int model_size(int kind, const Arr& p) {
 void bind_search(py::module_& m) {
     m.def("evaluation_work", &evaluation_work);
     m.def("line_work", &line_work);
+    m.attr("LINE_CHARGED_TACTELS") = LINE_CHARGED_TACTELS;
     m.def("evaluate",
           [](int kind, Arr p, int k, double rf, double comp, double scale, double dmin, double tol,
              Arr imp, Arr xs, Arr ys, Arr target, BArr valid, Arr inv_scale, Arr ex, Arr ey,

@@ -20,6 +20,9 @@ constexpr int MIN_NODES = 3;
 // LARGE_RULE_FACTOR; LINE_OVERHEAD, LINE_WORK_PER_NODE; a test holds them equal).
 double evaluation_work(long long nodes_u, long long nodes_s, long long points);
 double line_work(long long nodes, long long points);
+// the tactels a line's band is charged at most (tactiled.fit.budget.LINE_CHARGED_TACTELS; a
+// test holds the two equal)
+constexpr long long LINE_CHARGED_TACTELS = 16;
 
 // The model and the physics constants of a search.
 struct ModelArgs {

@@ -317,6 +317,7 @@ def test_the_work_units_are_the_budgets() -> None:
     for nu, ns, pts in ((3, 3, 16), (64, 64, 16), (100, 100, 25), (1024, 3, 1)):
         assert native.core.evaluation_work(nu, ns, pts) == budget.evaluation_work(nu, ns, pts)
         assert native.core.line_work(nu, pts) == budget.line_work(nu, pts)
+    assert native.core.LINE_CHARGED_TACTELS == budget.LINE_CHARGED_TACTELS
 
 
 @settings(max_examples=25, deadline=None)
