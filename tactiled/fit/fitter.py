@@ -37,7 +37,7 @@ from tactiled.fit.params import (
     UNOBSERVABLE_RELATIVE_SIGMA,
     radius_tied_force,
 )
-from tactiled.fit.profile import flat_below, withhold_flat
+from tactiled.fit.profile import angle_profile, flat_below, withhold_flat
 from tactiled.fit.result import FitResult
 from tactiled.fit.verdict import ArrayLimits, judge_values
 from tactiled.fit.solver import BUDGET_MESSAGE, TIME_BUDGET_EXCEEDED, SolveResult, levenberg_marquardt
@@ -670,6 +670,10 @@ class Fitter:
                 self, fr, compiled.LINE, best.p, LINE_STEPS, _LINE_BOUNDS,
                 lambda: prob.residual_and_jacobian, best.cost * peak * peak / self.sigma**2,
                 values.get("r1_mm"), std.get("r1_mm")))
+            withhold_flat(values, std, reasons, angle_profile(
+                self, fr, compiled.LINE, best.p, LINE_STEPS, _LINE_BOUNDS,
+                lambda: prob.residual_and_jacobian, best.cost * peak * peak / self.sigma**2,
+                LINE_PARAMS.index("psi"), std.get("angle_deg")), "angle_deg")
         else:
             reasons.setdefault("fit", best.message)
         label = self._label(values, "line")
