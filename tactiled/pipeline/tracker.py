@@ -598,8 +598,10 @@ class Tracker:
         """Why ``key`` (value ``v``, 1-sigma ``sd`` over the frames used) is withheld, by the
         fitter's rules (tactiled.fit.fitter.Fitter._unobservable); None to report it.
         ``flat``: the fit found the likelihood flat below this radius
-        (:mod:`tactiled.fit.profile`): reported only once the frames give it a relative sigma
-        within ``TEST_RELATIVE_SIGMA``, where its sigma is not in question."""
+        (:mod:`tactiled.fit.profile`), or left it outside the range that test vouches for
+        (a relative sigma over ``TEST_RELATIVE_SIGMA``), or withheld it: reported only once
+        the frames give it a relative sigma within ``TEST_RELATIVE_SIGMA``, where its sigma is
+        not in question."""
         if key in ("x_mm", "y_mm"):
             if sd > OFF_ARRAY_MM:
                 return f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
