@@ -38,7 +38,7 @@ from tactiled.fit.params import (
     UNOBSERVABLE_RELATIVE_SIGMA,
     radius_tied_force,
 )
-from tactiled.fit.profile import flat_below, withhold_flat
+from tactiled.fit.profile import angle_profile, flat_below, withhold_flat
 from tactiled.fit.result import FitResult
 from tactiled.fit.verdict import ArrayLimits, judge_values
 from tactiled.fit.solver import BUDGET_MESSAGE, TIME_BUDGET_EXCEEDED, SolveResult, levenberg_marquardt
@@ -672,6 +672,10 @@ class Fitter:
                 self, fr, compiled.LINE, best.p, LINE_STEPS, _LINE_BOUNDS,
                 lambda: prob.residual_and_jacobian, best.cost * peak * peak / self.sigma**2,
                 values.get("r1_mm"), std.get("r1_mm")))
+            withhold_flat(values, std, reasons, angle_profile(
+                self, fr, compiled.LINE, best.p, LINE_STEPS, _LINE_BOUNDS,
+                lambda: prob.residual_and_jacobian, best.cost * peak * peak / self.sigma**2,
+                LINE_PARAMS.index("psi"), std.get("angle_deg")), "angle_deg")
         else:
             reasons.setdefault("fit", best.message)
         label = self._label(values, "line")
@@ -1188,6 +1192,21 @@ class Fitter:
         full.evaluations += scout.evaluations
         return full
 
+    def _criteria(self, fits: list[FitResult], cyl: FitResult, strain: np.ndarray,
+                  mask: np.ndarray | None) -> dict[str, float]:
+        """Each fit's BIC with known noise, ``chi^2 + k ln n`` (Schwarz), by model.  On a flat
+        array the point models' chi^2 is taken on the line's band, so that models are compared
+        on the same tactels."""
+        flat = self.sensor.geometry.flat
+        crit = {}
+        for r in fits:
+            k = len(r.params) if r.params is not None else get_model(r.model).size
+            chi2, n = r.chi2, r.n_points
+            if flat and r is not cyl and cyl.window != r.window:  # compared on the line's band
+                chi2, n = chi2_on_band(self, strain, mask, r.model, r.params)
+            crit[r.model] = (chi2 if chi2 is not None else math.inf) + k * math.log(max(n, 2))
+        return crit
+
     def _cut_short(self, cyl: FitResult, fits: list[FitResult]) -> FitResult:
         """Auto's answer when its budget ran out while it scouted the other models: the
         cylinder, fully solved, with every search's iterations and evaluations; the scouts,
@@ -1244,14 +1263,22 @@ class Fitter:
         fits.append(min(gens, key=lambda r: r.chi2 if r.chi2 is not None else math.inf))
         if self._out_of_time():
             return self._cut_short(cyl, [cyl, sph, *gens])
-        crit = {}
-        for r in fits:
-            k = len(r.params) if r.params is not None else get_model(r.model).size
-            chi2, n = r.chi2, r.n_points
-            if flat and r is not cyl and cyl.window != r.window:  # compared on the line's band
-                chi2, n = chi2_on_band(self, strain, mask, r.model, r.params)
-            crit[r.model] = (chi2 if chi2 is not None else math.inf) + k * math.log(max(n, 2))
+        crit = self._criteria(fits, cyl, strain, mask)
         best = min(fits, key=lambda r: crit[r.model])
+        if best.model == "general" and best.params is not None and not self._out_of_time():
+            # The general's two extra parameters must buy their ln n each against the sphere
+            # at its best, not against a scout that stopped in another valley (started from
+            # the cylinder's point it can end far above the noise on a weak ball: chi^2 190
+            # where the sphere from the general's own point reaches 30). The sphere from there.
+            ln_ra, _, _, g_ln_f, gx, gy = best.params
+            again = self._fit_model(strain, get_model("sphere"),
+                                    np.array([ln_ra, g_ln_f, gx, gy]), mask, scouting=True)
+            if again.chi2 is not None and (sph.chi2 is None or again.chi2 < sph.chi2):
+                again.iterations += sph.iterations
+                again.evaluations += sph.evaluations
+                fits[1] = sph = again
+                crit = self._criteria(fits, cyl, strain, mask)
+                best = min(fits, key=lambda r: crit[r.model])
         if best is not cyl and self._runs_off(best):
             best = cyl  # an ellipse longer than the array is the line the cylinder model fits
         iterations = sum(r.iterations for r in fits)

@@ -42,7 +42,7 @@ TIED_FORCE_SHARE = 0.75
 
 
 def radius_tied_force(r: float | None, sd_r: float | None, sd_f: float | None,
-                      cov_rf: float) -> str | None:
+                      cov_rf: float, unresolved: bool = False) -> str | None:
     """Why a force must be withheld with its radius, or None to keep it.
 
     ``r``, ``sd_r`` the radius (mm) and its 1-sigma bound, ``sd_f`` the force's (N),
@@ -56,8 +56,11 @@ def radius_tied_force(r: float | None, sd_r: float | None, sd_f: float | None,
     settles anywhere along that valley, and the force it reports there can lie several of its
     bounds from the truth.  Where the force hardly depends on the radius (a light touch under
     a cover deep beside the contact: the paper's finger, where the share stays near 50-56 %),
-    the force is kept."""
-    if r is None or sd_r is None or sd_f is None or not (r > 0.0 and sd_f > 0.0) or sd_r < r:
+    the force is kept.  ``unresolved``: the radius is withheld for another reason its
+    sigma gives (the daemon's tracker: not yet within the range where its linearised sigma
+    holds), so the interval test is not needed."""
+    if r is None or sd_r is None or sd_f is None or not (r > 0.0 and sd_f > 0.0) \
+            or (sd_r < r and not unresolved):
         return None
     share = cov_rf * cov_rf / (sd_r * sd_r * sd_f * sd_f)
     if not share > TIED_FORCE_SHARE:

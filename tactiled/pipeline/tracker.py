@@ -547,7 +547,12 @@ class Tracker:
             sd_i = math.sqrt(var[i])
             withheld = self._withheld(key, v, sd_i, flat[i])
             if not withheld and key == "force_n" and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
-                withheld = radius_tied_force(values.get("r1_mm"), math.sqrt(var[i_r]), sd_i, cov_rf)
+                r1, sd_r = values.get("r1_mm"), math.sqrt(var[i_r])
+                # a radius this estimate withholds (below) is as unresolved as one whose
+                # interval reaches zero: a force that trades with it rests on it
+                unresolved = (soft_keys[i_r] and r1 is not None
+                              and self._withheld("r1_mm", r1, sd_r, flat[i_r]) is not None)
+                withheld = radius_tied_force(r1, sd_r, sd_i, cov_rf, unresolved)
             if withheld:
                 out[key], std[key] = None, None
                 reasons[key] = withheld
@@ -576,7 +581,15 @@ class Tracker:
         reasons = base.get("reasons") or {}
         why = [str(reasons.get(key, "")).startswith(_SOFT) for key in VALUE_KEYS]
         soft = [base.get(key) is not None or w for key, w in zip(VALUE_KEYS, why)]
-        flat = [FLAT in str(reasons.get(key, "")) for key in VALUE_KEYS]
+        # a radius whose fit left it beyond the linearised sigma's tested range (its relative
+        # sigma over TEST_RELATIVE_SIGMA: a likelihood not shown quadratic, the regime where a
+        # weak frame's radius lands at 20-40 times the truth with a sigma of 50 %), or that the
+        # fit found flat below it: the filter pools linearised steps from such a point, so its
+        # value is published only once the frames bring its sigma within that range
+        std0 = base.get("std") or {}
+        flat = [FLAT in str(reasons.get(key, "")) or (
+            key in ("r1_mm", "r2_mm") and _beyond_tested(base.get(key), std0.get(key)))
+            for key in VALUE_KEYS]
         judged = (soft, why, reasons, base.get("std") or {}, flat)
         self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
         return judged
@@ -585,8 +598,10 @@ class Tracker:
         """Why ``key`` (value ``v``, 1-sigma ``sd`` over the frames used) is withheld, by the
         fitter's rules (tactiled.fit.fitter.Fitter._unobservable); None to report it.
         ``flat``: the fit found the likelihood flat below this radius
-        (:mod:`tactiled.fit.profile`): reported only once the frames give it a relative sigma
-        within ``TEST_RELATIVE_SIGMA``, where its sigma is not in question."""
+        (:mod:`tactiled.fit.profile`), or left it outside the range that test vouches for
+        (a relative sigma over ``TEST_RELATIVE_SIGMA``), or withheld it: reported only once
+        the frames give it a relative sigma within ``TEST_RELATIVE_SIGMA``, where its sigma is
+        not in question."""
         if key in ("x_mm", "y_mm"):
             if sd > OFF_ARRAY_MM:
                 return f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
@@ -616,6 +631,12 @@ class Tracker:
         if self.model == "sphere":
             reasons["angle_rate_deg_s"] = "undefined: sphere model"
         return rates, sds
+
+
+def _beyond_tested(v: float | None, sd: float | None) -> bool:
+    """A fit's radius ``v`` (1-sigma ``sd``) outside the range where its linearised sigma is
+    tested (:data:`TEST_RELATIVE_SIGMA`), or not given at all."""
+    return v is None or sd is None or not (v > 0.0 and sd <= TEST_RELATIVE_SIGMA * v)
 
 
 def untracked(fit: dict[str, Any], frames_used: int, reason: str) -> dict[str, Any]:

@@ -135,3 +135,17 @@ def test_a_firm_ball_keeps_its_force(name: str) -> None:
     force = 3.0 if g.flat else 1.0
     rows = _draws(name, Contact(8.0, 8.0, 0.0, force, 0.5 * g.span_x, 0.5 * g.span_y), 10, 6)
     assert all(r[2] is not None for r in rows)
+
+
+def test_a_force_tied_to_a_radius_withheld_for_another_reason_is_withheld_with_it() -> None:
+    """The tracker withholds a radius whose sigma is within it but outside the range the
+    profile test vouches for (``unresolved``); a force whose variance is mostly that radius's
+    goes with it, one that hardly depends on it stays."""
+    r, sd_r, sd_f = 8.0, 2.0, 0.05  # the radius's interval does not reach zero
+    tied = 0.9 * sd_r * sd_f  # correlation 0.9: 81 % of the force's variance
+    loose = 0.6 * sd_r * sd_f  # 36 %
+    assert (tied / (sd_r * sd_f)) ** 2 > TIED_FORCE_SHARE > (loose / (sd_r * sd_f)) ** 2
+    assert radius_tied_force(r, sd_r, sd_f, tied) is None
+    why = radius_tied_force(r, sd_r, sd_f, tied, unresolved=True)
+    assert why is not None and why.startswith(TOO_LIGHT) and "81 %" in why
+    assert radius_tied_force(r, sd_r, sd_f, loose, unresolved=True) is None

@@ -84,19 +84,28 @@ def test_a_carried_value_covers_the_change_since_its_fit() -> None:
     assert carried(fit, 0.0, 1)["std"] == before
 
 
-def test_a_coarse_pads_line_radius_is_never_published_far_from_the_truth() -> None:
-    desc = load_description("xela_uskin_4x6")
+def _lines_at_1n(name: str, n: int, seed: int) -> tuple[Fitter, list[tuple[Contact, np.ndarray]]]:
+    """The description's fitter (its own window) and ``n`` noisy frames of a 10 mm cylinder
+    at 1 N, at random angles and places in the array's middle: ``(contact, strain)``."""
+    desc = load_description(name)
     sensor = desc.sensor_model()
     g, sigma = sensor.geometry, sensor.noise.sigma
     model = StrainModel(sensor)
-    fitter = Fitter(sensor, FitOptions(window=desc.window))
-    rng = np.random.default_rng(11)
-    published, flat, far = 0, 0, []
-    for _ in range(60):
+    rng = np.random.default_rng(seed)
+    frames = []
+    for _ in range(n):
         c = Contact(10.0, math.inf, float(rng.uniform(0, 180)), 1.0,
                     g.span_x * rng.uniform(0.3, 0.7), g.span_y * rng.uniform(0.3, 0.7))
         clean = model.predict(as_line(c, g))
-        res = fitter.fit(clean + rng.normal(0.0, sigma, clean.shape), "cylinder")
+        frames.append((c, clean + rng.normal(0.0, sigma, clean.shape)))
+    return Fitter(sensor, FitOptions(window=desc.window)), frames
+
+
+def test_a_coarse_pads_line_radius_is_never_published_far_from_the_truth() -> None:
+    fitter, frames = _lines_at_1n("xela_uskin_4x6", 60, 11)
+    published, flat, far = 0, 0, []
+    for _, strain in frames:
+        res = fitter.fit(strain, "cylinder")
         r, sd = res.values["r1_mm"], res.std["r1_mm"]
         if r is None:
             flat += "flat below" in res.reasons.get("r1_mm", "")
@@ -107,3 +116,43 @@ def test_a_coarse_pads_line_radius_is_never_published_far_from_the_truth() -> No
     assert not far, far
     assert flat >= 1  # the profile test is what withheld some of them
     assert published >= 5  # and it does not withhold every one
+
+
+def test_a_weak_lines_angle_is_tested_on_its_profile() -> None:
+    """A 10 mm cylinder at 1 N on the 12x32 mat (peak about 4 noise sigmas, a window of a few
+    tactels): the angle's likelihood is far from quadratic, and its linearised sigma
+    understates the error.  The profile test (tactiled/fit/profile.py ``angle_profile``)
+    widens or withholds it; without it more published angles lie beyond 4 of their sigmas
+    on the same frames."""
+    from tactiled.fit import profile
+
+    fitter, frames = _lines_at_1n("flexitac_12x32", 160, 5)
+
+    def score() -> tuple[int, int, int, int]:
+        published, far, tested, within2 = 0, 0, 0, 0
+        for c, strain in frames:
+            res = fitter.fit(strain, "cylinder")
+            a, sd = res.values["angle_deg"], res.std["angle_deg"]
+            why = res.reasons.get("angle_deg", "")
+            tested += "profile likelihood" in why or "flat across it" in why
+            if a is None:
+                continue
+            published += 1
+            z = abs((a - c.psi_deg + 90.0) % 180.0 - 90.0) / sd
+            far += z > 4.0
+            within2 += z <= 2.0
+        return published, far, tested, within2
+
+    published, far, tested, within2 = score()
+    assert tested >= 0.2 * len(frames)  # the test acts on a weak line's angle
+    assert published >= 0.8 * len(frames)  # mostly by widening, not withholding
+    assert far <= 0.035 * published, (far, published)
+    assert within2 >= 0.85 * published, (within2, published)
+    old = profile.ANGLE_TEST_SIGMA
+    try:
+        profile.ANGLE_TEST_SIGMA = math.inf  # the linearised sigma alone
+        published0, far0, tested0, _ = score()
+    finally:
+        profile.ANGLE_TEST_SIGMA = old
+    assert tested0 == 0
+    assert far0 / published0 > far / published, (far0, published0, far, published)
