@@ -1,8 +1,9 @@
 """The framers' cost per frame: ``python -m tactiled_drivers.bench_framers``.
 
-The vendor framers and tactiled's own frame decoder (8x8 counts below 256, the most COBS groups
-per frame).  Each format's stream (2000 frames built by its encoder) is fed in 4 KiB pieces, as the serial
-reader hands it over; the best of 5 passes is printed, per frame and in MB/s.
+The vendor framers and the wire protocol's decoder (``wire``: 8x8 counts below 256, the most
+COBS groups per frame).  Each format's stream (2000 frames built by its encoder) is fed in 4 KiB
+pieces, as the serial reader hands it over; the best of 5 passes is printed, per frame and in
+MB/s.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ def best_time(make: Callable[[], FramerBase | Any], pieces: list[bytes]) -> floa
 def main() -> None:
     rng = np.random.default_rng(0)
     streams: dict[str, tuple[Callable[[], FramerBase | Any], list[bytes]]] = {
-        "tactiled 8x8": (FrameDecoder,
+        "wire 8x8": (FrameDecoder,
                          [encode_frame(Frame(seq=k, device_time_us=k,
                                              raw=rng.integers(0, 256, (8, 8)).astype(np.uint16)))
                           for k in range(FRAMES)]),
