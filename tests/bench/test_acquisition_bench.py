@@ -177,9 +177,12 @@ def test_the_moving_scene_on_ptys_with_a_workers_sweep(table_rows, workers: str,
     assert all(r[-1] == "0" for r in integrity), integrity  # every frame accounted for
 
 
+@pytest.mark.slow
 def test_a_baseline_runs_its_own_code_side_by_side() -> None:
     """``--baseline REV``: the daemon of a git revision (here HEAD, archived into a temporary
-    folder and run from there) alternates with this tree's, two runs each, labelled."""
+    folder and run from there) alternates with this tree's, two runs each, labelled.  Four
+    daemon runs with their warm-ups (1-2.5 min), so behind ``-m slow``; the renicing of a
+    baseline's simulators is checked in the default run below."""
     proc = subprocess.run([*TACTILED, "--suite", "acquisition", "--scene", "moving", "--quick",
                            "--workers", "1", "--seconds", "1", "--baseline", "HEAD"],
                           capture_output=True, text=True, timeout=600)
