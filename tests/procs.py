@@ -1,7 +1,7 @@
 """Process checks and fixtures shared by the pipeline and reliability suites (Linux /proc).
 
 Their conftests import :func:`no_leftover_workers` and :func:`arun` (pytest takes fixtures
-from a conftest's namespace); the service suite has its own variants, which tolerate the
+from a conftest's namespace); any test may import :func:`block_until`; the service suite has its own variants, which tolerate the
 workers of module-scoped servers and cap ``arun`` at 60 s.
 """
 
@@ -37,6 +37,19 @@ def leftover(pids: list[int], grace: float = 2.0) -> list[int]:
         if not running or time.monotonic() > deadline:
             return running
         time.sleep(0.02)
+
+
+def block_until(condition: Callable[[], bool], timeout: float, what: str = "condition",
+                poll: float = 0.01) -> float:
+    """Poll ``condition`` (blocking: for threads, or a test that holds the event loop on
+    purpose) until true; the seconds taken, or AssertionError naming ``what`` after
+    ``timeout`` s.  In a coroutine, ``await wait_until(...)`` (tests/conftest.py) instead."""
+    start = time.monotonic()
+    while not condition():
+        if time.monotonic() - start > timeout:
+            raise AssertionError(f"{what}: not within {timeout} s")
+        time.sleep(poll)
+    return time.monotonic() - start
 
 
 @pytest.fixture(autouse=True)

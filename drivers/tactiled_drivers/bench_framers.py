@@ -1,16 +1,20 @@
-"""The vendor framers' cost per frame: ``python -m tactiled_drivers.bench_framers``.
+"""The framers' cost per frame: ``python -m tactiled_drivers.bench_framers``.
 
-Each format's stream (2000 frames built by its encoder) is fed in 4 KiB pieces, as the serial
-reader hands it over; the best of 5 passes is printed, per frame and in MB/s.
+The vendor framers and the wire protocol's decoder (``wire``: 8x8 counts below 256, the most
+COBS groups per frame).  Each format's stream (2000 frames built by its encoder) is fed in 4 KiB
+pieces, as the serial reader hands it over; the best of 5 passes is printed, per frame and in
+MB/s.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
+from tactiled.frames import Frame, FrameDecoder, encode_frame
 from tactiled_drivers import flexitac, lines, robotiq, xela
 from tactiled_drivers.framing import FramerBase
 
@@ -19,7 +23,7 @@ PIECE = 4096
 PASSES = 5
 
 
-def best_time(make: Callable[[], FramerBase], pieces: list[bytes]) -> float:
+def best_time(make: Callable[[], FramerBase | Any], pieces: list[bytes]) -> float:
     """Seconds of the fastest of PASSES passes feeding ``pieces`` to a new framer."""
     best = float("inf")
     for _ in range(PASSES):
@@ -33,7 +37,11 @@ def best_time(make: Callable[[], FramerBase], pieces: list[bytes]) -> float:
 
 def main() -> None:
     rng = np.random.default_rng(0)
-    streams: dict[str, tuple[Callable[[], FramerBase], list[bytes]]] = {
+    streams: dict[str, tuple[Callable[[], FramerBase | Any], list[bytes]]] = {
+        "wire 8x8": (FrameDecoder,
+                         [encode_frame(Frame(seq=k, device_time_us=k,
+                                             raw=rng.integers(0, 256, (8, 8)).astype(np.uint16)))
+                          for k in range(FRAMES)]),
         "flexitac 12x32": (lambda: flexitac.FlexiTacFramer(12, 32),
                            [flexitac.encode(rng.integers(0, 256, (12, 32))) for _ in range(FRAMES)]),
         "lines 8x8": (lambda: lines.LinesFramer(8, 8),

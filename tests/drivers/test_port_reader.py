@@ -16,6 +16,8 @@ from collections.abc import Iterator
 import pytest
 import serial
 
+from procs import block_until
+
 from tactiled_drivers.port_reader import TAKE_LIMIT, PortReader
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
@@ -154,7 +156,9 @@ def test_stops_reading_at_its_limit_and_loses_nothing(pty_device) -> None:
         with reading(pty_device.path, limit=4096) as (_port, reader):
             writer = Writer(pty_device.master, PAYLOAD, deadline=5.0)
             writer.start()
-            time.sleep(0.5)
+            # the reader at its limit and the kernel buffer holding what it no longer reads
+            block_until(lambda: reader.full and writer.accepted > reader.peak, 5.0,
+                        "the reader at its limit")
             held_back = writer.accepted
             assert held_back < len(PAYLOAD)  # back-pressure reached the device
             assert 4096 <= reader.peak < held_back
@@ -169,10 +173,9 @@ def test_error_comes_after_every_byte_read_before_it(pty_device) -> None:
     async def main() -> None:
         with reading(pty_device.path) as (_port, reader):
             pty_device.write(PAYLOAD[:3000])
-            time.sleep(0.2)
+            block_until(lambda: reader.held >= 3000, 5.0, "the bytes read")
             pty_device.unplug()  # the slave's reads now fail (EIO)
-            time.sleep(0.2)
-            assert not reader.alive
+            block_until(lambda: not reader.alive, 5.0, "the reader ended by the error")
             assert await take_all(reader, 3000) == PAYLOAD[:3000]
             with pytest.raises((serial.SerialException, OSError)):
                 await reader.take()
@@ -225,7 +228,7 @@ def test_limit_must_be_positive(pty_device) -> None:
     asyncio.run(main())
 
 
-def test_the_loop_reads_every_port_and_one_thread_stands_guard(pty_devices) -> None:
+def test_the_loop_reads_every_port_and_one_thread_stands_guard(pty_devices, wait_until) -> None:
     """Three ports: while the loop is free, the loop reads each port's bytes as they arrive
     (whole and in order) and the one guard thread of the process reads nothing; while the
     loop is held up, the thread reads them (the device never waits), and the loop then gets
@@ -270,8 +273,8 @@ def test_the_loop_reads_every_port_and_one_thread_stands_guard(pty_devices) -> N
                 r.stop()
             for p in ports:
                 p.close()
-        await asyncio.sleep(0.05)
-        assert not any(t.name == "tactiled-read" for t in threading.enumerate())
+        await wait_until(lambda: not any(t.name == "tactiled-read"
+                                         for t in threading.enumerate()), 5.0)
 
     asyncio.run(main())
 
@@ -293,8 +296,8 @@ def test_a_full_ring_is_not_read_until_the_loop_takes(pty_device, monkeypatch) -
         with reading(pty_device.path, limit=4096) as (_port, reader):
             writer = Writer(pty_device.master, PAYLOAD, deadline=5.0)
             writer.start()
-            time.sleep(0.2)  # (the loop is stuck: the guard fills the ring)
-            assert reader.full
+            # (the loop is held: the guard fills the ring)
+            block_until(lambda: reader.full, 10.0, "the ring full")
             before = calls
             await asyncio.sleep(0.3)  # the loop free, the ring full, the port readable
             assert reader.full and not reader._watched

@@ -36,11 +36,10 @@ def test_slow_subscriber_drops_oldest_without_slowing_the_others(arun) -> None:
 
         reader = asyncio.create_task(read_fast())
         n = 2000
-        worst = 0.0
         for seq in range(n):
-            t0 = time.perf_counter()
             hub.publish(estimate("f0", seq))
-            worst = max(worst, time.perf_counter() - t0)
+            # the slow one holds at most maxsize items: publishing never waits on it, it drops
+            assert slow.qsize() == min(seq + 1, 8)
             if seq % 4 == 3:
                 await asyncio.sleep(0)  # the fast reader keeps up; the slow one never reads
         await asyncio.sleep(0)
@@ -51,7 +50,6 @@ def test_slow_subscriber_drops_oldest_without_slowing_the_others(arun) -> None:
         # The slow one kept the newest maxsize items and counted every other one as dropped.
         assert slow.dropped == n - 8
         assert [slow.get_nowait().seq for _ in range(8)] == list(range(n - 8, n))
-        assert worst < 0.01, f"publish took {worst * 1e3:.2f} ms"
         slow.close()
 
     arun(main())

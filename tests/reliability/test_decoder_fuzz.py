@@ -27,7 +27,6 @@ from tactiled.frames import MAX_ENCODED_LEN, Frame, FrameDecoder, NativeFrameDec
 
 MB = 1 << 20
 READ = 4096  # bytes per read, as the serial driver reads
-SECONDS_PER_MB = 5.0  # the bar; about 1 s/MB is measured for the worst pattern on this machine
 
 #: the decoders under test: the reference, and the core's (built by the install, whichever of
 #: the two TACTILED_CORE selects for the daemon)
@@ -197,19 +196,26 @@ def _patterns(size: int = MB) -> dict[str, bytes]:
 
 
 @each_decoder
-def test_time_per_megabyte(make: type) -> None:
-    """The decoder never hangs: each megabyte of the worst patterns is decoded within the bar."""
+def test_each_megabyte_of_the_worst_patterns_is_accounted_for(make: type) -> None:
+    """Each megabyte of the worst patterns is read to the end, every chunk ending as exactly
+    one outcome, within the held-bytes bound.  The seconds per megabyte are printed (``-rP``),
+    not asserted: the decoder's speed is reported by ``python -m tactiled_drivers.bench_framers``
+    (``wire``); a decoder that hung would hit the suite's timeout."""
     results = {}
     for name, data in _patterns().items():
         cuts = [*range(0, len(data), READ), len(data)]
         t = time.perf_counter()
-        dec, _, held = feed_in_pieces(data, cuts, make)
-        elapsed = (time.perf_counter() - t) / (len(data) / MB)
-        results[name] = round(elapsed, 3)
-        assert elapsed < SECONDS_PER_MB, f"{name}: {elapsed:.2f} s per MB"
+        dec, frames, held = feed_in_pieces(data, cuts, make)
+        results[name] = round((time.perf_counter() - t) / (len(data) / MB), 3)
         assert held <= MAX_ENCODED_LEN
-        assert dec.stats.bytes == len(data)
-    figures(f"decoder_time_per_MB[{make.__name__}]", seconds_per_MB=results, bar=SECONDS_PER_MB)
+        s = dec.stats
+        assert s.bytes == len(data), name
+        assert s.frames + s.duplicated + s.rejected == expected_outcomes(data), name
+        assert len(frames) == s.frames, name
+        if name.startswith("valid"):
+            # every complete frame delivered: only the cut-off last one is not
+            assert s.rejected == 0 and s.frames == expected_outcomes(data), name
+    figures(f"decoder_time_per_MB[{make.__name__}]", seconds_per_MB=results)
 
 
 def _memory_growth(megabytes: int) -> dict:

@@ -205,9 +205,9 @@ def test_second_process_is_refused_with_a_clear_error(pty_device, arun, tmp_path
             await asyncio.sleep(0.5)
             other = second.stats(SENSOR)
             frames_before = pipe.frames
-            await asyncio.sleep(0.2)
+            await wait_for(lambda: pipe.frames > frames_before, 5.0,
+                           "the first daemon receiving on")
             first = daemon.stats(SENSOR)
-            assert pipe.frames > frames_before, "the first daemon stopped receiving"
         finally:
             await streamer.stop()
             if second is not None:

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 import httpx
+from procs import block_until
 from websockets.asyncio.client import ClientConnection, connect
 
 from tactiled.fit.result import FitResult
@@ -78,9 +79,4 @@ def http(base: str, method: str, path: str, **kwargs: Any) -> httpx.Response:
 def wait_for(condition: Callable[[], bool], timeout: float, poll: float = 0.05,
              what: str = "condition") -> float:
     """Poll ``condition`` until true; seconds taken, or AssertionError after ``timeout``."""
-    start = time.monotonic()
-    while not condition():
-        if time.monotonic() - start > timeout:
-            raise AssertionError(f"{what} not met within {timeout} s")
-        time.sleep(poll)
-    return time.monotonic() - start
+    return block_until(condition, timeout, what, poll)

@@ -5,7 +5,7 @@ import json
 import math
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -53,7 +53,8 @@ def test_corrupted_real_contacts(r1, psi, force, x, y, corruption, seed):
     try:
         clean = MODEL.predict(Contact(r1, math.inf, psi, force, x, y))
     except ValueError:  # a contact hundreds of mm long: no frame to make
-        return
+        clean = None
+    assume(clean is not None)
     frame = clean + rng.normal(0, 5e-4, (8, 8))
     if corruption == 1:  # saturated tactels
         frame = np.minimum(frame, np.quantile(frame, 0.8))
@@ -88,27 +89,26 @@ def test_contact_longer_than_the_array_but_on_the_finger_is_flagged_not_withheld
 
 
 def test_time_budget_stops_a_fit_far_outside_the_model():
-    """Every tactel at full scale (2.77 strain: a "contact" the size of the finger) costs the
-    forward model ~50-150 ms per evaluation and ran for ~10 s; with ``budget_s`` the fitter
-    stops before the next evaluation once the budget is spent (so at most one evaluation
-    over it), saying why, with a finite best point.  The bound asserted is generous (shared
-    machine): the budget plus two seconds, where the unbudgeted fit takes ~10 s."""
-    import time
-
+    """Every tactel at full scale (2.77 strain: a "contact" the size of the finger) sends the
+    search far outside the model; with ``budget_s`` the fitter stops before the next
+    evaluation once the budget is spent (so at most one evaluation over it), saying why, with
+    a finite best point.  A budget already spent (0 s) allows exactly the first evaluation,
+    whatever the machine's speed; the fit's seconds are not asserted (a loaded machine)."""
     from tactiled.fit.fitter import FitOptions
 
     # the iteration and work budget off: the wall clock alone
     fitter = Fitter(options=FitOptions(budget_iterations=None, budget_work=None))
     saturated = np.full((8, 8), (65535 - 10000) / 20000.0)
     for model in ("cylinder", "auto"):
-        t0 = time.perf_counter()
-        res = fitter.fit(saturated, model, budget_s=0.2)
-        took = time.perf_counter() - t0
-        assert took < 0.2 + 2.0, (model, took)
-        assert res.converged is False, res
-        assert res.reasons["fit"].startswith("fit budget exhausted (time budget exceeded)"), res
-        assert res.params is not None and all(math.isfinite(p) for p in res.params)
-        json.dumps(res.to_json_dict(), allow_nan=False)
+        for budget_s in (0.0, 0.2):
+            res = fitter.fit(saturated, model, budget_s=budget_s)
+            assert res.converged is False, res
+            assert res.reasons["fit"].startswith(
+                "fit budget exhausted (time budget exceeded)"), res
+            assert res.params is not None and all(math.isfinite(p) for p in res.params)
+            json.dumps(res.to_json_dict(), allow_nan=False)
+            if budget_s == 0.0:
+                assert res.evaluations == 1, (model, res.evaluations)
     # with the default budget the work stops it first, whatever the machine
     for model in ("cylinder", "auto"):
         res = Fitter().fit(saturated, model, budget_s=60.0)

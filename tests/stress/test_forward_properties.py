@@ -5,7 +5,7 @@ and off the array's edge."""
 import math
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from tactiled.physics.contact import Contact
@@ -44,7 +44,10 @@ def is_line(c: Contact) -> bool:
         return True
 
 
-SET = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# Contacts too long for a property are discarded with assume (hypothesis then draws others, so
+# each property sees its examples); for some seeds that is most of the draws, by design.
+SET = settings(max_examples=150, deadline=None,
+               suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 
 
 @SET
@@ -70,8 +73,7 @@ def test_total_over_the_plane_is_positive(r1, k, psi, f):
     """The strain integrates to (F/E)(1 - nu_x)(1 - nu_y) > 0 over the plane; on a finite grid
     only contacts well inside it can be checked (larger ones are covered by finiteness)."""
     c = contact(r1, k, psi, f, 0.0, 0.0)
-    if is_line(c) or ellipse_of(c).a > 40.0:
-        return
+    assume(not is_line(c) and ellipse_of(c).a <= 40.0)
     grid = np.linspace(-120, 120, 121)
     total = MODEL.predict(c, grid, grid).sum() * (grid[1] - grid[0]) ** 2
     assert total > 0
@@ -83,8 +85,7 @@ def test_mirror_symmetry(r1, k, psi, f, x, y, t):
     # psi -> 180 - psi with y mirrored about the contact centre
     c1 = contact(r1, k, psi, f, x, y)
     c2 = contact(r1, k, (180.0 - psi) % 180.0, f, x, y)
-    if is_line(c1) or is_line(c2):
-        return
+    assume(not is_line(c1) and not is_line(c2))
     px = np.array([x - 3.0, x, x + 4.5])
     s1 = MODEL.predict(c1, px, [y + t, y - t])
     s2 = MODEL.predict(c2, px, [y - t, y + t])
@@ -96,8 +97,7 @@ def test_mirror_symmetry(r1, k, psi, f, x, y, t):
 def test_periodic_in_psi(r1, k, psi, f, x, y):
     c1 = contact(r1, k, psi, f, x, y)
     c2 = contact(r1, k, psi + 180.0, f, x, y)
-    if is_line(c1):
-        return
+    assume(not is_line(c1))
     np.testing.assert_allclose(MODEL.predict(c1), MODEL.predict(c2), rtol=1e-9, atol=1e-15)
 
 
@@ -107,8 +107,7 @@ def test_force_scaling_follows_hertz(r1, k, psi, f, scale):
     """Hertz: the ellipse grows as F^(1/3) with its shape and orientation fixed, and the strain
     is F times the kernel averaged over the (grown) ellipse."""
     c = contact(r1, k, psi, f, 11.0, 13.0)
-    if is_line(c):
-        return
+    assume(not is_line(c))
     e1, _ = MODEL.ellipse(c.kappa_a, c.kappa_b, c.psi, f)
     e2, _ = MODEL.ellipse(c.kappa_a, c.kappa_b, c.psi, f * scale)
     assert math.isclose(e2.a, e1.a * scale ** (1 / 3), rel_tol=1e-10)
@@ -129,8 +128,7 @@ def test_force_scaling_follows_hertz(r1, k, psi, f, scale):
 @given(r1s, ratio, psis, forces)
 def test_ellipse_is_sane(r1, k, psi, f):
     c = contact(r1, k, psi, f, 0.0, 0.0)
-    if is_line(c):
-        return
+    assume(not is_line(c))
     e, jac = contact_ellipse(c.kappa_a, c.kappa_b, c.psi, f, G.finger_radius, MODEL.sensor.material.compliance, jac=True)
     assert 0 < e.b <= e.a and math.isfinite(e.a)
     assert 0 <= e.theta < math.pi
