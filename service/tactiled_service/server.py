@@ -38,6 +38,7 @@ import logging
 import os
 import signal
 import socket
+import sys
 import time
 from collections.abc import Callable, Iterator, Mapping
 from types import ModuleType
@@ -354,8 +355,12 @@ class Service:
         def on_signal(sig: signal.Signals) -> None:
             if self._stop_requested.is_set() and sig == signal.SIGINT:
                 self.force_exit(130, "second interrupt: exiting now")
-            # an asked-for stop is no fault: INFO (the journal shows systemd's own line)
+            # an asked-for stop is no fault: INFO (the journal shows systemd's own line); a
+            # person at the terminal who pressed Ctrl-C is told so whatever the log level
             log.info("%s: shutting down (interrupt again to force)", sig.name)
+            if sig == signal.SIGINT and not log.isEnabledFor(logging.INFO):
+                print("tactiled: interrupted: shutting down (Ctrl-C again to force)",
+                      file=sys.stderr, flush=True)
             self.request_stop()
 
         for sig in (signal.SIGTERM, signal.SIGINT):
