@@ -205,7 +205,7 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
         pipes = daemon.sensors
         total = sum(p.frames for p in pipes.values())
         return {"us_per_frame": 1e6 * cpu / max(total, 1), "frames": total,
-                "relinearized": {n: p.relinearized for n, p in pipes.items()},
+                "relinearized": {n: p.tracking.relinearized for n, p in pipes.items()},
                 "fits": {n: p.fitted for n, p in pipes.items()}}
 
     with tempfile.TemporaryDirectory(prefix="tactiled-budget-") as d:
