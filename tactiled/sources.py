@@ -35,12 +35,12 @@ from collections.abc import AsyncIterator, Iterable, Mapping
 from dataclasses import asdict, dataclass, field, is_dataclass
 from importlib import metadata
 from types import MappingProxyType, TracebackType
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol, runtime_checkable
 from urllib.parse import parse_qsl, unquote, urlsplit
 
 from tactiled.devices import DeviceArray
 from tactiled.errors import DeviceTimeoutError, DriverError
-from tactiled.frames import Frame, FrameDecoder, new_decoder
+from tactiled.frames import Frame, new_decoder
 
 log = logging.getLogger(__name__)
 
@@ -50,9 +50,9 @@ ENTRY_POINT_GROUP = "tactiled.drivers"
 #: importing this module imports no driver (and no optional library).
 BUILTIN_DRIVERS: Mapping[str, str] = MappingProxyType(
     {
-        "serial": "tactiled_drivers.serial_source:SerialSource",
+        "serial": "tactiled_drivers.serial:SerialSource",
         "sim": "tactiled_drivers.sim:SimSource",
-        "replay": "tactiled_drivers.replay_source:ReplaySource",
+        "replay": "tactiled_drivers.replay:ReplaySource",
     }
 )
 
@@ -195,6 +195,39 @@ def parse_source_url(url: str) -> SourceURL:
 
 
 # --------------------------------------------------------------------------------------------
+# Framers
+
+
+@runtime_checkable
+class Framer(Protocol):
+    """What a source's bytes go through: a pure ``bytes -> frames`` parser, no I/O.
+
+    Every framer implements it: the wire format's :class:`~tactiled.frames.FrameDecoder` and
+    its compiled twin, each vendor driver's Python framer and the compiled ones
+    (``tactiled_drivers.plumbing.framing.NativeFramer``).  ``feed`` never raises on any
+    input, holds a bounded number of bytes between calls and counts what it drops in
+    ``stats``, a dataclass of counters that only grow (``frames``, ``bytes``,
+    ``crc_errors``...: the same name for the same count in every framer, so health,
+    ``/metrics`` and ``tactiled record`` read every driver alike).
+    """
+
+    @property
+    def stats(self) -> Any:
+        """The counters: a dataclass instance (a snapshot, for a compiled framer)."""
+
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete unit held between calls."""
+
+    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
+        """Consume ``data``; return the frames it completes, in order, each stamped with
+        ``host_time`` (``time.monotonic()`` seconds; now when ``None``)."""
+
+    def reset(self) -> None:
+        """Forget partial data and sequence history (the device was reopened)."""
+
+
+# --------------------------------------------------------------------------------------------
 # The base class
 
 
@@ -231,10 +264,10 @@ class FrameSource(abc.ABC):
     #: Query parameters the driver understands; anything else in the URL is a ValueError.
     PARAMS: ClassVar[frozenset[str]] = frozenset()
 
-    def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
+    def __init__(self, url: str | SourceURL, *, decoder: Framer | None = None) -> None:
         self.url: SourceURL = url if isinstance(url, SourceURL) else parse_source_url(url)
         self.url.reject_unknown(self.PARAMS)
-        self.decoder: Any = decoder if decoder is not None else self._new_decoder()
+        self.decoder: Framer = decoder if decoder is not None else self._new_decoder()
         self.connected = False
         self.reconnects = 0
         self.disconnects = 0
@@ -377,10 +410,9 @@ class FrameSource(abc.ABC):
 
     # -- for drivers ----------------------------------------------------------------------
 
-    def _new_decoder(self) -> Any:
-        """The framer this source's bytes go through (called once, from the constructor, after
-        ``self.url`` is set): ``feed(bytes, host_time) -> list[Frame]``, ``reset()`` and a
-        ``stats`` dataclass.  The default is the tactiled wire format's
+    def _new_decoder(self) -> Framer:
+        """The :class:`Framer` this source's bytes go through (called once, from the
+        constructor, after ``self.url`` is set).  The default is the tactiled wire format's
         :class:`~tactiled.frames.FrameDecoder` (the compiled core's,
         :func:`~tactiled.frames.new_decoder`); a vendor driver names its own framer here."""
         return new_decoder()
