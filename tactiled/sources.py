@@ -10,7 +10,9 @@ A source is named by a URL whose scheme picks the driver::
 
 Drivers are registered by name as ``"module:Class"`` strings (the pattern of python-can's
 ``can/interfaces/__init__.py``) plus the ``tactiled.drivers`` entry-point group, so a third
-party can add one.  Nothing is imported until a source is opened: the core never imports
+party can add one; the shipped ones also list their URL query keys, so
+:func:`check_source_url` checks a URL without importing its driver.  Nothing is imported until
+a source is built: the core never imports
 ``tactiled_drivers`` or pyserial at module level, and a missing optional library breaks only
 its own driver (with a :class:`~tactiled.errors.DriverError` naming it).
 
@@ -46,15 +48,38 @@ log = logging.getLogger(__name__)
 
 ENTRY_POINT_GROUP = "tactiled.drivers"
 
-#: URL scheme -> ``"module:Class"`` of the built-in drivers.  Strings, not classes, so that
-#: importing this module imports no driver (and no optional library).
-BUILTIN_DRIVERS: Mapping[str, str] = MappingProxyType(
-    {
-        "serial": "tactiled_drivers.serial:SerialSource",
-        "sim": "tactiled_drivers.sim:SimSource",
-        "replay": "tactiled_drivers.replay:ReplaySource",
-    }
-)
+@dataclass(frozen=True)
+class DriverSpec:
+    """A shipped driver as the registry knows it without importing its module: its class as
+    ``"module:Class"`` and the URL query keys it accepts (the class's ``PARAMS``, which
+    tests/drivers/test_driver_registry.py holds equal to these)."""
+
+    target: str
+    params: frozenset[str]
+
+
+_SERIAL = frozenset({"baud", "exclusive"})
+_FINGER = frozenset({"depth_x", "nu_x", "depth_y", "nu_y", "modulus", "gain_error",
+                     "position_error", "offset_counts", "finger_seed"})  # FingerSpec.PARAMS
+
+#: URL scheme -> the driver shipped in ``tactiled_drivers`` (one module per scheme).  Strings,
+#: not classes, so that importing this module imports no driver (and no optional library).
+BUILTIN_DRIVERS: Mapping[str, DriverSpec] = MappingProxyType({
+    "serial": DriverSpec("tactiled_drivers.serial:SerialSource", _SERIAL),
+    "sim": DriverSpec("tactiled_drivers.sim:SimSource", _FINGER | {
+        "seed", "scene", "rate", "sensor_id", "loop", "speed", "noise", "drift", "hysteresis",
+        "sensor"}),
+    "replay": DriverSpec("tactiled_drivers.replay:ReplaySource",
+                         frozenset({"speed", "loop", "clock"})),
+    "lines": DriverSpec("tactiled_drivers.lines:LinesSource", _SERIAL | {
+        "rows", "cols", "sep", "time_col", "time_unit"}),
+    "flexitac": DriverSpec("tactiled_drivers.flexitac:FlexiTacSource", _SERIAL | {"rows", "cols"}),
+    "robotiq": DriverSpec("tactiled_drivers.robotiq:RobotiqSource", _SERIAL | {"finger",
+                                                                               "period_ms"}),
+    "xela": DriverSpec("tactiled_drivers.xela:XelaSource", frozenset({"sensor", "rows", "cols"})),
+    "paxini": DriverSpec("tactiled_drivers.paxini:PaxiniSource", _SERIAL | {"module", "rows",
+                                                                            "cols"}),
+})
 
 # Drivers added at run time with register_driver(); they win over built-ins and entry points.
 _registered: dict[str, str | type[FrameSource]] = {}
@@ -463,7 +488,7 @@ def _load_entry_points() -> dict[str, str]:
             points = ()
         for point in points:
             scheme = point.name.lower()
-            if scheme in BUILTIN_DRIVERS and BUILTIN_DRIVERS[scheme] != point.value:
+            if scheme in BUILTIN_DRIVERS and BUILTIN_DRIVERS[scheme].target != point.value:
                 # A plug-in must not silently replace a built-in (say, the serial driver).
                 log.warning("ignoring entry point %s=%s: scheme %r is built in",
                             point.name, point.value, scheme)
@@ -510,7 +535,9 @@ def driver_class(scheme: str) -> type[FrameSource]:
     the driver or a library it needs cannot be imported.
     """
     key = scheme.lower()
-    target = _registered.get(key) or BUILTIN_DRIVERS.get(key) or _load_entry_points().get(key)
+    builtin = BUILTIN_DRIVERS.get(key)
+    target = (_registered.get(key) or (builtin.target if builtin else None)
+              or _load_entry_points().get(key))
     if target is None:
         raise ValueError(
             f"unknown frame source scheme {scheme!r}; known: {', '.join(known_schemes())}"
@@ -531,6 +558,22 @@ def driver_class(scheme: str) -> type[FrameSource]:
     if not (isinstance(cls, type) and issubclass(cls, FrameSource)):
         raise DriverError(f"driver {scheme!r}: {target} is not a FrameSource subclass")
     return cls
+
+
+def check_source_url(url: str) -> SourceURL:
+    """``url`` parsed, its scheme known and its query keys ones its driver accepts, checked
+    without importing a shipped driver's module (a plug-in's is imported to read its
+    ``PARAMS``).  ``ValueError`` naming what is wrong (:class:`DriverError` for a plug-in that
+    cannot be imported); the values are checked when the source is built (:func:`open_source`).
+    """
+    parsed = parse_source_url(url)
+    spec = BUILTIN_DRIVERS.get(parsed.scheme)
+    if spec is None or parsed.scheme in _registered:
+        params = driver_class(parsed.scheme).PARAMS
+    else:
+        params = spec.params
+    parsed.reject_unknown(params)
+    return parsed
 
 
 def open_source(url: str, **kwargs: Any) -> FrameSource:
