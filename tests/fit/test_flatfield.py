@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.bench import identify as bench
+from tactiled_bench import identify as bench
 from tactiled.config import NoiseModel
 from tactiled.finger import FingerSpec
 from tactiled.fit.flatfield import FlatField

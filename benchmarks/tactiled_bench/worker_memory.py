@@ -3,7 +3,7 @@
 A fit worker (:mod:`tactiled.pipeline.worker`) is a process that does nothing but
 ``Fitter.fit``.  This probe builds the same fitter as the worker does for a default sensor
 (window 4, radius withheld beyond 0.5 relative sigma), feeds it the frames of the busy scene
-(:func:`tactiled.bench.scenes.busy_scene`: pressing, rolling, turning and changing shape all
+(:func:`tactiled_bench.scenes.busy_scene`: pressing, rolling, turning and changing shape all
 the time, so nearly every frame is a fit and the fitter keeps meeting new contact sizes and
 models), with warm starts as the daemon gives them, and every ``--every`` fits records:
 
@@ -13,8 +13,8 @@ models), with warm starts as the daemon gives them, and every ``--every`` fits r
   file and line);
 * the sizes of the quadrature-rule caches (``tactiled.physics.strain``) and the start tables.
 
-    python -m tactiled.bench.worker_memory --fits 20000 --every 1000
-    python -m tactiled.bench.worker_memory --fits 5000 --tracemalloc --json
+    python -m tactiled_bench.worker_memory --fits 20000 --every 1000
+    python -m tactiled_bench.worker_memory --fits 5000 --tracemalloc --json
 
 Growth is judged after ``--warmup`` fits (the caches that fill on first use fill then): the
 slope of a line fitted to the later samples, in MB per 1000 fits.
@@ -38,7 +38,7 @@ SKIP = 5  # fit every 5th tick of a 1 kHz finger: what latest-wins leaves a busy
 def frames(count: int, seed: int = 1) -> Any:
     """Zeroed strain frames of the busy scene (every ``SKIP``-th tick at 1 kHz), with the true
     contact: ``(strain, contact)`` pairs, generated lazily."""
-    from tactiled.bench.scenes import busy_scene
+    from tactiled_bench.scenes import busy_scene
     from tactiled.sim import FingerSimulator
 
     sim = FingerSimulator(scene=busy_scene(), seed=seed, rate_hz=1000.0, drift=None, loop=True)

@@ -1,7 +1,7 @@
 """How well frame stamps hold: :class:`tactiled.clock.FrameClock` against the simulated
 device's true send times.
 
-``python -m tactiled.bench.clock --seconds 10 --rate 1000`` plays a simulated finger
+``python -m tactiled_bench.clock --seconds 10 --rate 1000`` plays a simulated finger
 (``sim://``, paced in real time on the event loop, up to 8 frames a read) and stamps its
 frames as the daemon does, twice: mapped from the device clock (``clocked``), and as a device
 that sends no clock would be (its arrival times spread by sequence number and the rate).
@@ -72,7 +72,7 @@ async def measure(seconds: float = 10.0, rate: float = 1000.0, settle_s: float =
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(prog="python -m tactiled.bench.clock", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m tactiled_bench.clock", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seconds", type=float, default=10.0)
     p.add_argument("--rate", type=float, default=1000.0, help="frames per second (Hz)")

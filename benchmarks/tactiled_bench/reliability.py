@@ -2,7 +2,7 @@
 never read), for minutes or hours.
 
 Each finger is a ``tactiled simulate --pty`` process streaming a looping scene at ``--rate`` Hz:
-by default ``busy`` (:func:`tactiled.bench.scenes.busy_scene`), whose contact presses, rolls,
+by default ``busy`` (:func:`tactiled_bench.scenes.busy_scene`), whose contact presses, rolls,
 turns and changes shape all the time, so the fit workers are kept busy (``--scene demo`` plays
 the demo scene, mostly held contacts that the gate answers without a fit).
 This process runs the service (:class:`tactiled_service.server.Service`: the daemon with its
@@ -10,7 +10,7 @@ This process runs the service (:class:`tactiled_service.server.Service`: the dae
 an ephemeral port) and nothing else, so its resident memory is the service's.  ``--subscribers
 N`` WebSocket subscribers (default 50) run in a child process of their own, so they neither
 add to the measured memory nor compete for its GIL: minimal raw-socket clients sharing one
-selector thread (:mod:`tactiled_service.bench_fanout`'s).  The healthy ones subscribe as the
+selector thread (:mod:`tactiled_bench.websocket_fanout`'s).  The healthy ones subscribe as the
 dashboard does (estimates of every sensor, ``--max-rate`` 30 Hz) and read everything;
 ``--stalled K`` of them (default 5) subscribe the same way and never read: the server closes
 them (1013) once a send has been stuck for its send timeout, and they reconnect and stall
@@ -55,12 +55,12 @@ subscriber >= 99 % delivered and none closed; the never-reading ones closed and 
 descriptor leaked.  Frames the simulators never wrote, worker restarts and the CPU of other
 jobs are reported, not judged.
 
-    python -m tactiled.bench.reliability --quick          # 20 s (after a 60 s warm-up)
-    python -m tactiled.bench.reliability                  # 10 min
-    python -m tactiled.bench.reliability --seconds 3600   # 1 h (the slope bar: after 5 min)
-    python -m tactiled.bench.reliability --scene demo     # the demo scene (mostly gated)
-    python -m tactiled.bench.reliability --subscribers 0  # acquisition only (the bare daemon)
-    python -m tactiled.bench.reliability --quick --json   # one JSON object (what the test reads)
+    python -m tactiled_bench.reliability --quick          # 20 s (after a 60 s warm-up)
+    python -m tactiled_bench.reliability                  # 10 min
+    python -m tactiled_bench.reliability --seconds 3600   # 1 h (the slope bar: after 5 min)
+    python -m tactiled_bench.reliability --scene demo     # the demo scene (mostly gated)
+    python -m tactiled_bench.reliability --subscribers 0  # acquisition only (the bare daemon)
+    python -m tactiled_bench.reliability --quick --json   # one JSON object (what the test reads)
 """
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ SLOPE_BAR_MB_PER_H = 1.0
 SETTLE_S = 300.0
 #: ... when the samples after it span at least this long (a slope over less is noise).
 SLOPE_MIN_SPAN_S = 600.0
-#: The soak's default scene: keeps the fitter busy (tactiled.bench.scenes).  A built-in
+#: The soak's default scene: keeps the fitter busy (tactiled_bench.scenes).  A built-in
 #: scene for the same purpose (``moving``, tactiled.sim) may replace it.
 DEFAULT_SCENE = "busy"
 DELIVERY_BAR = 0.99
@@ -101,10 +101,10 @@ _SUMMARY = re.compile(r"sent (\d+) frame\(s\), dropped (\d+) \(device full\), sk
 _RUNS = re.compile(r"^seq runs: (\{.*\})$", re.MULTILINE)
 
 #: A simulator: ``tactiled simulate`` run through :func:`simulator_main` (arguments follow).
-_SIMULATOR = ("import sys; from tactiled.bench.reliability import simulator_main; "
+_SIMULATOR = ("import sys; from tactiled_bench.reliability import simulator_main; "
               "sys.exit(simulator_main(sys.argv[1:]))")
 #: The subscribers: :func:`subscribers_main` with the port and counts as arguments.
-_SUBSCRIBERS = ("import sys; from tactiled.bench.reliability import subscribers_main; "
+_SUBSCRIBERS = ("import sys; from tactiled_bench.reliability import subscribers_main; "
                 "sys.exit(subscribers_main(*sys.argv[1:]))")
 
 
@@ -186,7 +186,7 @@ def simulator_main(argv: list[str]) -> int:
 
     ``dropped + overflowed`` is the command's own "dropped (device full)" count and
     ``skipped`` its "skipped"; only the positions and the split are added here."""
-    from tactiled.bench.scenes import register_bench_scenes
+    from tactiled_bench.scenes import register_bench_scenes
     from tactiled.cli import main as cli_main
     from tactiled.commands import simulate
 
@@ -304,7 +304,7 @@ def subscribers_main(port: str, healthy: str, stalled: str, max_rate: str) -> in
     (per reader: local port, estimates received, closed; the never-reading ones'
     connections); on ``exit`` (or end of input): closes everything.
     """
-    from tactiled_service.bench_fanout import Readers, Restaller, Staller
+    from tactiled_bench.websocket_fanout import Readers, Restaller, Staller
 
     sub = json.dumps({"type": "subscribe", "streams": ["estimates"],
                       "max_rate": float(max_rate)}).encode()

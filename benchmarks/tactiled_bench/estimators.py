@@ -119,7 +119,7 @@ class MomentsEstimator(Estimator):
         return {"x_mm": x, "y_mm": y, "force_n": f, "r1_mm": None, "r2_mm": None, "angle_deg": psi}, feature
 
     def _train(self) -> None:
-        from tactiled.bench.suite import build_suite
+        from tactiled_bench.suite import build_suite
 
         rows, targets = [], []
         for bf in build_suite(120, 1, kinds=("cylinder",), seed=987654):

@@ -6,9 +6,9 @@ loop and the serial read thread, not its fit workers nor the simulators) by pipe
 
     py-spy record --subprocesses --nonblocking --format raw -r 250 -o prof.txt -- \\
         tactiled bench --suite acquisition --scene hand --seconds 15 --sim-nice 10
-    python -m tactiled.bench.budget prof.txt --frames-per-s 6000 --cpu-share 0.46
+    python -m tactiled_bench.budget prof.txt --frames-per-s 6000 --cpu-share 0.46
 
-``python -m tactiled.bench.budget --stage`` times the calibration stage alone, compiled and
+``python -m tactiled_bench.budget --stage`` times the calibration stage alone, compiled and
 reference paths; ``--replay`` the whole main process on the hand's parts replayed lossless,
 nothing else competing (:func:`replay_cost`); ``--fits`` a fit worker's time per job on the
 palm's and a fingertip's frames (:func:`fit_cost`).  A sample belongs to the innermost stage its stack passes through (the detector inside the
@@ -42,7 +42,7 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("fit dispatch (pool IPC)", ("pipeline/pool.py", "multiprocessing/")),
     ("pipeline, other", ("pipeline/sensor.py", "pipeline/sensor_tracking.py",
                          "pipeline/meters.py")),
-    ("bench listener", ("bench/acquisition.py:listen", "listen (tactiled/bench")),
+    ("bench listener", ("tactiled_bench/acquisition.py:listen", "listen (tactiled_bench")),
     ("garbage collection", ("tactiled/heap.py", "gc_")),
     ("event loop", ("asyncio/", "selectors.py")),
 )
@@ -320,7 +320,7 @@ def _baseline_tree(rev: str | None) -> Iterator[str | None]:
         return
     import tempfile
 
-    from tactiled.bench.speed import _checkout
+    from tactiled_bench.speed import _checkout
 
     with tempfile.TemporaryDirectory(prefix="tactiled-budget-base-") as tmp:
         yield _checkout(rev, tmp)

@@ -1,4 +1,4 @@
-"""Per-frame cost of the calibration stage: ``python -m tactiled.calibration.bench`` (or
+"""Per-frame cost of the calibration stage: ``python -m tactiled_bench.calibration_cost`` (or
 ``tactiled calibrate --bench``).
 
 Each timing is the minimum, over many short bursts (``burst`` frames, about a millisecond each),

@@ -28,8 +28,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from tactiled.bench.runner import Progress
-from tactiled.bench.suite import BENCH_NOISE, KINDS, build_suite, random_contact
+from tactiled_bench.runner import Progress
+from tactiled_bench.suite import BENCH_NOISE, KINDS, build_suite, random_contact
 from tactiled.config import Geometry, SensorModel
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter

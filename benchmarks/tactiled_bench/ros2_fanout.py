@@ -1,6 +1,6 @@
 """ROS 2 topics against the JSON on Zenoh: estimates delivered, and the daemon's CPU per frame.
 
-    python -m tactiled_service.bench_ros2 [--quick] [--sensors 3] [--rate 1000] [--seconds 10]
+    python -m tactiled_bench.ros2_fanout [--quick] [--sensors 3] [--rate 1000] [--seconds 10]
 
 Starts ``tactiled run --ros2`` (a separate process) with simulated fingers publishing on
 Zenoh (peer mode, listening on a loopback port, multicast scouting off), and measures four
@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tactiled_service.bench_fanout import _number_after, cpu_seconds, health
-from tactiled_service.bench_zenoh import CONFIG, PREFIX, SENSOR, free_port
+from tactiled_bench.websocket_fanout import _number_after, cpu_seconds, health
+from tactiled_bench.zenoh_fanout import CONFIG, PREFIX, SENSOR, free_port
 
 PHASES = ("idle", "json", "ros2", "both")
 ROS2_CONFIG = """
@@ -261,7 +261,7 @@ def report(results: dict[str, Result], args: argparse.Namespace) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m tactiled_service.bench_ros2",
+    p = argparse.ArgumentParser(prog="python -m tactiled_bench.ros2_fanout",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--sensors", type=int, default=3)
     p.add_argument("--rate", type=float, default=1000.0, help="frames per second per sensor")
@@ -275,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         import zenoh  # noqa: F401
         import rosbags  # noqa: F401
     except ImportError:
-        print("bench_ros2: error: needs the zenoh and ros2 extras: pip install "
+        print("ros2_fanout: error: needs the zenoh and ros2 extras: pip install "
               "'tactiled[zenoh,ros2]'", file=sys.stderr)
         return 2
     if args.quick:

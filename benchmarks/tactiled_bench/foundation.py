@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
-from tactiled.bench.runner import Progress
-from tactiled.bench.suite import BENCH_NOISE, issue_cylinder
+from tactiled_bench.runner import Progress
+from tactiled_bench.suite import BENCH_NOISE, issue_cylinder
 from tactiled.config import SensorModel
 from tactiled.fit.fitter import Fitter
 from tactiled.fit.models import get_model

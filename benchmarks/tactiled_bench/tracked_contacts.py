@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.bench.lossless import play_lossless
+from tactiled_bench.lossless import play_lossless
 from tactiled.sensors import SensorDescription
 
 SCENE = "hand-palm"

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactiled.bench import live_sensors
-from tactiled.bench.live_sensors import FAR_SIGMAS
+from tactiled_bench import live_sensors
+from tactiled_bench.live_sensors import FAR_SIGMAS
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
@@ -199,7 +199,7 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
         live: bool = True) -> str:
     """The suite's Markdown report: per description, its fits (one table each, then a summary
     line each) and, ``live``, the daemon's own estimates of the demo scene against the truth
-    (:mod:`tactiled.bench.live_sensors`)."""
+    (:mod:`tactiled_bench.live_sensors`)."""
     names = list(names) if names else builtin_names()
     contacts, draws = (4, 10) if quick else (12, 25)
     rate = 100.0 if quick else 200.0

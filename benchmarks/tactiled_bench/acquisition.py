@@ -689,7 +689,7 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
     with tempfile.TemporaryDirectory(prefix="tactiled-acq-base-") as d:
         out = os.path.join(d, "result.pickle")
         code = ("import pickle, sys\n"
-                "from tactiled.bench.acquisition import measure\n"
+                "from tactiled_bench.acquisition import measure\n"
                 "if __name__ == '__main__':\n"
                 + (f"    exec({(COMPILE_HAND if scene == HAND else COMPILE_KERNELS)!r})\n"
                    if compile_kernels else "")
@@ -1062,7 +1062,7 @@ def run(quick: bool, rate: float = 1000.0, scene: str = "demo", workers: Sequenc
     if baseline is None:
         results = [measure_in(here, w) for w in workers]
     else:
-        from tactiled.bench.speed import _checkout
+        from tactiled_bench.speed import _checkout
 
         results = []
         with tempfile.TemporaryDirectory(prefix="tactiled-acq-") as tmp:

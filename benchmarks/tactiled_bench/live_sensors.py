@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from tactiled.bench.lossless import play_lossless
+from tactiled_bench.lossless import play_lossless
 from tactiled.sensors import SensorDescription
 
 SCENE = "demo"

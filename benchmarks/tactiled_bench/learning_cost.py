@@ -7,7 +7,7 @@ the paper's finger (the flat field stays off: what it costs to watch) and on a f
 gains and 0.1 mm displacements (on: what correcting costs), in interleaved rounds of one run,
 after a warm-up of ``--warmup`` fits; the ratio is what counts.
 
-    python -m tactiled.bench.learning_cost [--fits 1000] [--rounds 4] [--warmup 2000]
+    python -m tactiled_bench.learning_cost [--fits 1000] [--rounds 4] [--warmup 2000]
 
 Run it as a worker runs (``OPENBLAS_NUM_THREADS=1``, which the worker pool sets): a BLAS
 thread pool spins on the other core and bills this process for it.
@@ -23,7 +23,7 @@ import numpy as np
 
 def measure(fits: int, rounds: int, warmup: int) -> list[str]:
     """Markdown table rows: per finger, ms of CPU per fit with and without the flat field."""
-    from tactiled.bench.identify import FRAME_SIGMA, nominal_fitter, test_cylinder
+    from tactiled_bench.identify import FRAME_SIGMA, nominal_fitter, test_cylinder
     from tactiled.config import NoiseModel
     from tactiled.finger import FingerSpec
     from tactiled.physics.strain import StrainModel

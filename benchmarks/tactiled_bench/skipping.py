@@ -19,8 +19,8 @@ import time
 
 import numpy as np
 
-from tactiled.bench.runner import Progress
-from tactiled.bench.suite import issue_cylinder
+from tactiled_bench.runner import Progress
+from tactiled_bench.suite import issue_cylinder
 from tactiled.calibration.contact import ContactDetector
 from tactiled.config import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter

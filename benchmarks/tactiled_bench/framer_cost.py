@@ -1,4 +1,4 @@
-"""The framers' cost per frame: ``python -m tactiled_drivers.bench_framers``.
+"""The framers' cost per frame: ``python -m tactiled_bench.framer_cost``.
 
 The vendor framers and the wire protocol's decoder (``wire``: 8x8 counts below 256, the most
 COBS groups per frame).  Each format's stream (2000 frames built by its encoder) is fed in 4 KiB

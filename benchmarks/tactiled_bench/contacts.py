@@ -16,9 +16,9 @@ frame of one kind and fitted with that model by :func:`tactiled.fit.multi.fit_co
 * **Close** frames hold two contacts 1-2 depths apart whose noise-free strain shows no dip
   between them: the table says how often they were reported as two, as one (``merged`` or not), or otherwise.
 * **Tracked** through time: the ``hand-palm`` grasp (up to three contacts) through the whole
-  daemon, each contact's filter against the scene's truth (:mod:`tactiled.bench.tracked_contacts`).
+  daemon, each contact's filter against the scene's truth (:mod:`tactiled_bench.tracked_contacts`).
 * **Grasps**: lines, edges and balls together, and single contacts of each, fitted with
-  ``auto`` (:mod:`tactiled.bench.grasps`).
+  ``auto`` (:mod:`tactiled_bench.grasps`).
 * **Single** frames: one contact (on a flat array, spheres and line contacts, whose ridge the
   grid samples as several bumps), fitted by ``fit_contacts`` and by the single-contact fitter;
   the two results must be the same, key for key.
@@ -33,7 +33,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from tactiled.bench import grasps, tracked_contacts
+from tactiled_bench import grasps, tracked_contacts
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.fit.multi import fit_contacts, joint_bounds
@@ -256,7 +256,7 @@ def run(quick: bool, progress: bool | None, names: Sequence[str] | None = None, 
            f"each contact's peak {PEAK_SNR[0]:g}-{PEAK_SNR[1]:g} noise sigmas. RMS/CRB against the "
            "joint model's bound at the truth; 2-sigma: errors within twice the reported sigma. "
            f"Grasps: {frames} frames of each grasp of lines, edges and balls and {frames} single "
-           "contacts, fitted with auto (tactiled.bench.grasps: found, phantoms, RMS/CRB against "
+           "contacts, fitted with auto (tactiled_bench.grasps: found, phantoms, RMS/CRB against "
            "each contact's own bound, fit CPU ms per frame).", ""]
     for desc in descs:
         s = score(desc, frames, seed, bar)

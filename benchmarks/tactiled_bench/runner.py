@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactiled.bench.estimators import Estimator
-from tactiled.bench.suite import BenchFrame
+from tactiled_bench.estimators import Estimator
+from tactiled_bench.suite import BenchFrame
 from tactiled.fit.fitter import Fitter
 from tactiled.fit.models import get_model
 from tactiled.progress import Progress  # the suites import it from here too

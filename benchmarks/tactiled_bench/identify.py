@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactiled.bench.runner import Progress
+from tactiled_bench.runner import Progress
 from tactiled.calibration.identify import RUBBER, Identification, identify
 from tactiled.calibration.presses import synthesize_contact_presses
 from tactiled.config import NoiseModel, SensorModel

@@ -1,6 +1,6 @@
 """Zenoh against the WebSocket stream: the same daemon, the same estimates, 1, 10 and 50 readers.
 
-    python -m tactiled_service.bench_zenoh [--quick] [--subscribers 1,10,50]
+    python -m tactiled_bench.zenoh_fanout [--quick] [--subscribers 1,10,50]
 
 Starts ``tactiled run`` (a separate process) with three simulated fingers at 1 kHz, publishing
 on Zenoh (peer mode, listening on a loopback port, multicast scouting off), then for each
@@ -56,7 +56,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tactiled_service.bench_fanout import (
+from tactiled_bench.websocket_fanout import (
     Client,
     Readers,
     _number_after,
@@ -195,7 +195,7 @@ class ReaderProcess:
         self.out = out
         env = {k: v for k, v in os.environ.items() if not k.startswith("TACTILED_")}
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tactiled_service.bench_zenoh", "reader", endpoint,
+            [sys.executable, "-m", "tactiled_bench.zenoh_fanout", "reader", endpoint,
              str(count), mode, key, str(out)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
 
@@ -444,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "reader":
         return reader_main(argv[1:])
-    p = argparse.ArgumentParser(prog="python -m tactiled_service.bench_zenoh",
+    p = argparse.ArgumentParser(prog="python -m tactiled_bench.zenoh_fanout",
                                 description="Zenoh against the WebSocket stream, same daemon.")
     p.add_argument("--quick", action="store_true",
                    help="4 s phases, 1 and 10 readers (default: one scene period, 1, 10, 50)")
@@ -459,7 +459,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         import zenoh  # noqa: F401  (the readers need it: say so before starting anything)
     except ImportError:
-        print("bench_zenoh: error: needs the zenoh extra: pip install 'tactiled[zenoh]'",
+        print("zenoh_fanout: error: needs the zenoh extra: pip install 'tactiled[zenoh]'",
               file=sys.stderr)
         return 2
     if args.subscribers is None:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tactiled.bench.lossless import play_lossless
+from tactiled_bench.lossless import play_lossless
 from tactiled.config import NoiseModel, SensorModel
 from tactiled.physics.contact import Contact
 from tactiled.sim import SCENES, Pose, SceneBuilder, named_scene
@@ -243,7 +243,7 @@ def steps(quick: bool, progress) -> str:
 
 
 def cost(quick: bool, progress) -> str:
-    from tactiled.bench import acquisition
+    from tactiled_bench import acquisition
 
     seconds = 6.0 if quick else 20.0
     lines = ["| tracking | frames | daemon CPU per frame, us | workers' CPU per frame, us "

@@ -1,6 +1,6 @@
 """Fan-out benchmark: many WebSocket subscribers, some of which never read.
 
-    python -m tactiled_service.bench_fanout [--quick] [--clients 100] [--stalled 10]
+    python -m tactiled_bench.websocket_fanout [--quick] [--clients 100] [--stalled 10]
 
 Starts ``tactiled run`` (a separate process) with three simulated fingers at 1 kHz each, then
 runs two phases against it from this process:
@@ -526,7 +526,7 @@ def bench(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m tactiled_service.bench_fanout",
+    p = argparse.ArgumentParser(prog="python -m tactiled_bench.websocket_fanout",
                                 description="Fan-out benchmark of the WebSocket stream.")
     p.add_argument("--quick", action="store_true",
                    help="one pair of 4 s phases (default: 3 pairs of one scene period)")
