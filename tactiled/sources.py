@@ -38,7 +38,7 @@ from types import MappingProxyType, TracebackType
 from typing import Any, ClassVar
 from urllib.parse import parse_qsl, unquote, urlsplit
 
-from tactiled.devices import DeviceArray
+from tactiled.sensors.devices import DeviceArray
 from tactiled.errors import DeviceTimeoutError, DriverError
 from tactiled.frames import Frame, FrameDecoder, new_decoder
 

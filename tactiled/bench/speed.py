@@ -25,7 +25,7 @@ import numpy as np
 from tactiled.bench.runner import Progress
 from tactiled.bench.speed_worker import KINDS
 from tactiled.bench.suite import BENCH_NOISE, issue_cylinder
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.physics.strain import StrainModel
 from tactiled.sim import add_noise
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 
 #: Bumped when the file's content changes meaning; older files are refused.
 VERSION = 1
