@@ -61,7 +61,8 @@ from tactiled.fit.warm import SEVERAL
 from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
-from tactiled.pipeline.pool import FitJob, WorkerPool
+from tactiled.pipeline.jobs import FitJob
+from tactiled.pipeline.pool import WorkerPool
 from tactiled.pipeline.sensor_stats import SensorStats
 from tactiled.pipeline.multi_contact import ContactTrackers
 from tactiled.pipeline import shear_track
