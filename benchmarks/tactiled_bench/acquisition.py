@@ -319,7 +319,7 @@ def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int
 COMPILE_KERNELS = """
 import math
 import numpy as np
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit.fitter import Fitter
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel

@@ -131,7 +131,7 @@ def stage_cost(description: str, scene: str, compiled: bool, frames: int = 300,
     from tactiled.calibration.lut import LookupTable
     from tactiled.calibration.stage import CalibrationStage
     from tactiled.calibration.zeroing import Zeroer
-    from tactiled.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS
+    from tactiled.sensors.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS
     from tactiled.frames import Frame
     from tactiled.sensors import load_description
     from tactiled.settings import SensorSettings

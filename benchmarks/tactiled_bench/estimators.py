@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.start import features, force_estimate, start_table
 from tactiled.fit.window import interpolated_peak

@@ -19,7 +19,7 @@ import numpy as np
 
 from tactiled_bench.runner import Progress
 from tactiled_bench.suite import BENCH_NOISE, issue_cylinder
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit.fitter import Fitter
 from tactiled.fit.models import get_model
 from tactiled.physics.contact import Contact

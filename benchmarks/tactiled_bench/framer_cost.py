@@ -16,7 +16,7 @@ import numpy as np
 
 from tactiled.frames import Frame, FrameDecoder, encode_frame
 from tactiled_drivers import flexitac, lines, robotiq, xela
-from tactiled_drivers.framing import FramerBase
+from tactiled_drivers.plumbing.framing import FramerBase
 
 FRAMES = 2000
 PIECE = 4096

@@ -24,8 +24,8 @@ import numpy as np
 from tactiled_bench.runner import Progress
 from tactiled.calibration.identify import RUBBER, Identification, identify
 from tactiled.calibration.presses import synthesize_contact_presses
-from tactiled.config import NoiseModel, SensorModel
-from tactiled.finger import COUNTS_PER_STRAIN, FingerSpec
+from tactiled.sensors.model import NoiseModel, SensorModel
+from tactiled.sensors.finger import COUNTS_PER_STRAIN, FingerSpec
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.floor import MIN_FITS
 from tactiled.fit.models import get_model

@@ -24,8 +24,8 @@ import numpy as np
 def measure(fits: int, rounds: int, warmup: int) -> list[str]:
     """Markdown table rows: per finger, ms of CPU per fit with and without the flat field."""
     from tactiled_bench.identify import FRAME_SIGMA, nominal_fitter, test_cylinder
-    from tactiled.config import NoiseModel
-    from tactiled.finger import FingerSpec
+    from tactiled.sensors.model import NoiseModel
+    from tactiled.sensors.finger import FingerSpec
     from tactiled.physics.strain import StrainModel
 
     rows = ["| finger | flat field | ms per fit, with it | without it | ratio | rounds with / without |",

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from tactiled.config import Geometry
+from tactiled.sensors.model import Geometry
 from tactiled.sim import SCENES, Pose, Scene, SceneBuilder
 
 #: Name under which the soak's simulators know :func:`busy_scene`.

@@ -25,7 +25,7 @@ import numpy as np
 from tactiled_bench.runner import Progress
 from tactiled_bench.speed_worker import KINDS
 from tactiled_bench.suite import BENCH_NOISE, issue_cylinder
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.physics.strain import StrainModel
 from tactiled.sim import add_noise
 

@@ -25,7 +25,7 @@ KINDS = ("cylinder-cold", "cylinder-warm", "general-cold", "auto-cold", "auto-wa
 
 def main(path: str) -> int:
     from tactiled_bench.suite import BENCH_NOISE
-    from tactiled.config import SensorModel
+    from tactiled.sensors.model import SensorModel
     from tactiled.fit.fitter import Fitter
     from tactiled.fit.models import get_model
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 from tactiled.sim import add_noise

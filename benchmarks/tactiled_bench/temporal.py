@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from tactiled_bench.lossless import play_lossless
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.physics.contact import Contact
 from tactiled.sim import SCENES, Pose, SceneBuilder, named_scene
 

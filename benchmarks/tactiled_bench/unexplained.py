@@ -30,7 +30,7 @@ import numpy as np
 
 from tactiled_bench.runner import Progress
 from tactiled_bench.suite import BENCH_NOISE, KINDS, build_suite, random_contact
-from tactiled.config import Geometry, SensorModel
+from tactiled.sensors.model import Geometry, SensorModel
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.params import VALUE_KEYS

@@ -59,7 +59,7 @@ def _slope(points: list[tuple[float, float]]) -> float | None:
 def probe(fits: int, every: int, warmup: int, use_tracemalloc: bool = False,
           model: str = "auto", seed: int = 1, top: int = 12) -> dict[str, Any]:
     """Run ``fits`` fits, sampling every ``every``; a JSON-ready report."""
-    from tactiled.config import NoiseModel, SensorModel
+    from tactiled.sensors.model import NoiseModel, SensorModel
     from tactiled.fit.fitter import FitOptions, Fitter
     from tactiled.pipeline.sensor import worker_fit_options
     from tactiled.heapstats import fitter_cache_figures, heap_figures

@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     from tactiled_bench import foundation, runner
     from tactiled_bench.estimators import default_configurations
     from tactiled_bench.suite import BENCH_NOISE, build_suite
-    from tactiled.config import SensorModel
+    from tactiled.sensors.model import SensorModel
     from tactiled.fit.fitter import FitOptions, Fitter
 
     if args.plot:

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from scipy.special import roots_chebyu, roots_jacobi
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.hertz import Ellipse, contact_ellipse, ellipse_core
 from tactiled.physics.impulse import line_response, line_response_and_slope

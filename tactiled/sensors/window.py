@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 
 #: Share of the largest window's information a recommended window keeps, for every parameter.
 KEEP = 0.9

@@ -14,9 +14,9 @@ import pytest
 from tactiled.calibration.fileformat import load_calibration, load_calibration_file
 from tactiled.calibration.identify import RUBBER, identify
 from tactiled.calibration.presses import PressSet, save_presses, synthesize_contact_presses
-from tactiled.config import NoiseModel, SensorModel, TactelPositions
+from tactiled.sensors.model import NoiseModel, SensorModel, TactelPositions
 from tactiled.errors import CalibrationError
-from tactiled.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, FingerSpec
+from tactiled.sensors.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, FingerSpec
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
@@ -291,7 +291,7 @@ def test_model_error_floor_enters_weights_and_covariance():
     """A known floor widens the bound exactly as the weights say, with no residual excess."""
     c = Contact(10.0, math.inf, 80.0, 1.5, 11.0, 13.0)
     frame = StrainModel().predict(c)
-    from tactiled.config import ModelError
+    from tactiled.sensors.model import ModelError
 
     plain = Fitter(SensorModel(noise=NoiseModel(0.0005)), warm=False).fit(frame, "cylinder")
     floored = Fitter(SensorModel(noise=NoiseModel(0.0005), model_error=ModelError(relative=0.05)),

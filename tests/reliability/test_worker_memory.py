@@ -19,7 +19,7 @@ import numpy as np
 from rel_helpers import figures
 
 from tactiled_bench.scenes import busy_scene
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.pipeline.sensor import worker_fit_options
 from tactiled.heapstats import fitter_cache_figures

@@ -3,7 +3,8 @@
 Written by ``tactiled calibrate --identify`` (:mod:`tactiled.calibration.identify`), read by the
 daemon and ``tactiled fit --calibration``: the rubber's constants, the tactels' positions, the
 model-error floor, each constant's 1-sigma bound and which were held at the paper's value.
-A constant outside its physical range (:data:`RANGES`) is refused at load, naming the key.
+A constant outside its physical range (:data:`~tactiled.sensors.model.COVER_RANGES`) is refused
+at load, naming the key.
 """
 
 from __future__ import annotations
@@ -12,7 +13,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from tactiled.config import (
+from tactiled.sensors.model import (
+    COVER_KEYS,
+    COVER_RANGES,
+    IMPULSE_KEYS,
     MAX_POSITION_ERROR,
     Geometry,
     ImpulseResponse,
@@ -21,16 +25,10 @@ from tactiled.config import (
     NoiseModel,
     SensorModel,
     TactelPositions,
+    cover_constants,
 )
 from tactiled.errors import CalibrationError
 
-#: Physical ranges of the constants a file may carry (mm; ratios; N/mm^2).
-RANGES: dict[str, tuple[float, float]] = {
-    "depth_x": (0.5, 30.0), "nu_x": (-0.5, 0.99), "depth_y": (0.5, 30.0), "nu_y": (-0.5, 0.99),
-    "modulus": (0.005, 100.0),
-}
-IMPULSE_KEYS = ("depth_x", "nu_x", "depth_y", "nu_y")
-CONSTANTS = (*IMPULSE_KEYS, "modulus")
 
 
 @dataclass(frozen=True)
@@ -53,9 +51,7 @@ class FingerModel:
 
     def constants(self) -> dict[str, float]:
         """The rubber's constants by name (mm, ratios, N/mm^2)."""
-        imp = self.impulse
-        return {"depth_x": imp.depth_x, "nu_x": imp.nu_x, "depth_y": imp.depth_y,
-                "nu_y": imp.nu_y, "modulus": self.material.modulus}
+        return cover_constants(self.impulse, self.material)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON-ready ``model`` object of a version 2 calibration file."""
@@ -66,7 +62,7 @@ class FingerModel:
         return {
             "impulse": {k: c[k] for k in IMPULSE_KEYS},
             "modulus": c["modulus"],
-            "sigma": {k: self.sigma.get(k) for k in CONSTANTS},
+            "sigma": {k: self.sigma.get(k) for k in COVER_KEYS},
             "held": dict(self.held),
             "model_error": {"strain": self.model_error.strain, "relative": self.model_error.relative},
             "positions_mm": pos,
@@ -87,7 +83,7 @@ class FingerModel:
             vals[k] = _number(imp.get(k), f"model.impulse.{k}")
         vals["modulus"] = _number(doc.get("modulus"), "model.modulus")
         for k, v in vals.items():
-            lo, hi = RANGES[k]
+            lo, hi = COVER_RANGES[k]
             if not lo <= v <= hi:
                 key = f"model.impulse.{k}" if k in IMPULSE_KEYS else "model.modulus"
                 raise CalibrationError(f"key {key!r} is {v!r}, outside its physical range {lo:g}..{hi:g}")
@@ -127,7 +123,7 @@ class FingerModel:
             positions=positions,
             model_error=floor,
             sigma={k: (None if sigma.get(k) is None else _number(sigma[k], f"model.sigma.{k}"))
-                   for k in CONSTANTS},
+                   for k in COVER_KEYS},
             held={str(k): str(v) for k, v in held.items()},
             identification=ident if isinstance(ident, dict) else {},
         )
@@ -144,18 +140,16 @@ def constants_report(sensor: SensorModel, model: FingerModel | None, source: str
     """What ``/v1/sensors`` says of a sensor's model: the constants in use and where they came
     from (``source``: the calibration file of an identified ``model``; else the sensor
     ``description``'s name, "paper" for the paper's finger)."""
-    imp, mat = sensor.impulse, sensor.material
     out: dict[str, Any] = {
-        "depth_x": imp.depth_x, "nu_x": imp.nu_x, "depth_y": imp.depth_y, "nu_y": imp.nu_y,
-        "modulus": mat.modulus,
+        **cover_constants(sensor.impulse, sensor.material),
         "model_error": {"strain": sensor.model_error.strain, "relative": sensor.model_error.relative},
         "positions_identified": 0 if sensor.positions.nominal
         else sum(1 for x, y in zip(sensor.positions.ex, sensor.positions.ey) if x or y),
     }
     if model is None:
         out.update(source="paper" if description == "fearing1988" else f"description: {description}",
-                   sigma=dict.fromkeys(CONSTANTS), held={})
+                   sigma=dict.fromkeys(COVER_KEYS), held={})
     else:
-        out.update(source=f"identified: {source}", sigma={k: model.sigma.get(k) for k in CONSTANTS},
+        out.update(source=f"identified: {source}", sigma={k: model.sigma.get(k) for k in COVER_KEYS},
                    held=dict(model.held))
     return out

@@ -5,7 +5,7 @@ finger differs: its rubber (impulse-response depths and ratios, modulus), and ea
 gain error, displacement from the nominal pitch and count offset at zero load, all drawn from
 one seed so the same spec always gives the same finger.  It yields
 
-* :meth:`FingerSpec.sensor`: the true :class:`~tactiled.config.SensorModel` (rubber and tactel
+* :meth:`FingerSpec.sensor`: the true :class:`~tactiled.sensors.model.SensorModel` (rubber and tactel
   positions): the physics the simulator renders;
 * :meth:`FingerSpec.gains` / :meth:`FingerSpec.offsets`: the tactels' true response,
   ``counts = ZERO_STRAIN_COUNTS + offset + COUNTS_PER_STRAIN * gain * strain``.
@@ -24,7 +24,7 @@ from functools import cached_property
 
 import numpy as np
 
-from tactiled.config import (
+from tactiled.sensors.model import (
     MAX_POSITION_ERROR,
     Geometry,
     ImpulseResponse,
@@ -32,9 +32,15 @@ from tactiled.config import (
     NoiseModel,
     SensorModel,
     TactelPositions,
+    cover_constants,
 )
 
-#: Nominal counts per unit strain and counts at zero strain of a simulated tactel.
+#: Nominal counts per unit strain and counts at zero strain of a simulated tactel: the same as
+#: :meth:`~tactiled.calibration.lut.LookupTable.linear`'s defaults, so a daemon with no
+#: calibration file reads simulated counts back as the simulator's strain.  20000 counts per
+#: unit strain = 20 counts per 0.001 strain (one count = 5e-5 strain, a tenth of the default
+#: noise sigma); zero strain at 10000 counts, so 0 .. 65535 spans strain -0.5 .. +2.78, ample
+#: room for tension, drift and the hardest press.
 COUNTS_PER_STRAIN = 20000.0
 ZERO_STRAIN_COUNTS = 10000.0
 
@@ -83,10 +89,7 @@ class FingerSpec:
     def of_sensor(cls, sensor: SensorModel, **changes: float | int) -> FingerSpec:
         """A spec whose rubber is ``sensor``'s cover (a sensor description's), with
         ``changes``."""
-        imp, mat = sensor.impulse, sensor.material
-        base = dict(depth_x=imp.depth_x, nu_x=imp.nu_x, depth_y=imp.depth_y, nu_y=imp.nu_y,
-                    modulus=mat.modulus)
-        return cls(**{**base, **changes})
+        return cls(**{**cover_constants(sensor.impulse, sensor.material), **changes})
 
     @classmethod
     def from_params(cls, params: Mapping[str, str | float | int],

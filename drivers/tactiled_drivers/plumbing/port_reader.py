@@ -3,8 +3,8 @@
 A tty buffers little: a pseudo-terminal about 15 KB, a USB CDC-ACM port some 64 KB, that is 30
 ms to 0.4 s of an array streaming at 1 kHz.  A reader with a descriptor (pyserial's POSIX
 ports) is read by the event loop as bytes arrive (``loop.add_reader``), and guarded by the
-process's read thread (:class:`~tactiled_drivers.read_thread.ReadThread`), which reads the
-port itself whenever the loop has not for a few milliseconds: every stall of the loop (the
+process's read thread (:class:`~tactiled_drivers.plumbing.read_thread.ReadThread`), which
+reads the port itself whenever the loop has not for a few milliseconds: every stall of the loop (the
 10-minute soak, docs/performance/reliability.md, saw it wake up to 1.5 s late and, read by the
 loop alone, lose 1.5-4 % of the frames on full ptys) is bridged by the thread, and while the
 loop keeps up no thread stands between a frame and its decoding.  A port without a descriptor
@@ -37,9 +37,9 @@ from collections import deque
 
 import serial
 
-from tactiled_drivers import read_thread
-from tactiled_drivers.futures import resolve
-from tactiled_drivers.read_thread import ReadThread
+from tactiled_drivers.plumbing import read_thread
+from tactiled_drivers.plumbing.futures import resolve
+from tactiled_drivers.plumbing.read_thread import ReadThread
 
 log = logging.getLogger(__name__)
 

@@ -19,7 +19,7 @@ import serial
 from tactiled.errors import DeviceConnectionError, DeviceTimeoutError
 from tactiled.frames import Frame, encode_frame
 from tactiled.sources import FrameSource, open_source
-from tactiled_drivers.serial_source import SerialSource
+from tactiled_drivers.serial import SerialSource
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="needs Linux ptys and /proc/self/fd")
@@ -204,7 +204,7 @@ def test_unplug_reported_and_replug_resumes(pty_device, frame_factory, same_fram
         assert all(same_frame(a, b) for a, b in zip(c.frames, before + after, strict=True))
         assert c.src.decoder.stats.rejected == 0
 
-    with caplog.at_level(logging.INFO, logger="tactiled_drivers.serial_source"):
+    with caplog.at_level(logging.INFO, logger="tactiled_drivers.serial"):
         asyncio.run(main())
     lost = [r for r in caplog.records if "lost" in r.getMessage()]
     assert len(lost) == 1 and lost[0].levelno == logging.WARNING

@@ -13,7 +13,7 @@ from tactiled.errors import DeviceTimeoutError, DriverError, FrameError
 from tactiled.frames import encode_frame
 from tactiled.recording import Recorder, RecordingWriter
 from tactiled.sources import open_source
-from tactiled_drivers.replay_source import ReplaySource
+from tactiled_drivers.replay import ReplaySource
 
 
 def record(path, frames, period: float, t0: float = 1000.0):

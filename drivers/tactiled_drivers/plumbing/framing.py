@@ -1,18 +1,19 @@
 """What the vendor formats' framers share: their counters, and a seq and device clock for
 formats that send neither.
 
-A framer is pure (no I/O, like :class:`tactiled.frames.FrameDecoder`): ``feed(bytes,
-host_time) -> list[Frame]`` never raises on any input, holds a bounded number of bytes between
-calls, and counts everything it drops in :class:`FramerStats`.  The counters that mean the same
-as the wire-format decoder's carry the same names (``crc_errors``, ``truncated``, ``oversize``,
-``lost``...), so health, ``/metrics`` and ``tactiled record`` read every driver alike.
+Each framer is a :class:`tactiled.sources.Framer` (pure, no I/O, like
+:class:`tactiled.frames.FrameDecoder`) and counts everything it drops in :class:`FramerStats`,
+whose counters that mean the same as the wire-format decoder's carry the same names
+(``crc_errors``, ``truncated``, ``oversize``, ``lost``...).
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Protocol
+
+import numpy as np
 
 from tactiled.frames import Frame, NativeFraming
 
@@ -121,6 +122,25 @@ class FramerBase:
         return max(0, round((host_time - self._t0) * 1e6))
 
 
+class CoreFramer(Protocol):
+    """A vendor framer of the compiled core as its binding shows it (core/framer_binding.hpp's
+    ``Vendor``): frames as ``(seq, device_time_us, raw)`` tuples, counters as a list in
+    :class:`FramerStats`' field order."""
+
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete unit held between calls."""
+
+    def feed(self, data: bytes, host_time: float) -> list[tuple[int, int, np.ndarray]]:
+        """The frames ``data`` completes."""
+
+    def reset(self) -> None:
+        """Forget partial data."""
+
+    def counters(self) -> list[int]:
+        """:class:`FramerStats`' counters, in its field order."""
+
+
 class NativeFramer(NativeFraming):
     """A vendor framer whose work runs in the compiled core (``core``: one of
     ``tactiled._core``'s framers, whose ``feed(bytes, host_time)`` returns ``(seq,
@@ -129,7 +149,7 @@ class NativeFramer(NativeFraming):
 
     STATS = FramerStats
 
-    def __init__(self, core: Any, shape: tuple[int, int]) -> None:
+    def __init__(self, core: CoreFramer, shape: tuple[int, int]) -> None:
         super().__init__(core)
         self.shape = shape
 

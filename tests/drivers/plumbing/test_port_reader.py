@@ -18,7 +18,7 @@ import serial
 
 from procs import block_until
 
-from tactiled_drivers.port_reader import TAKE_LIMIT, PortReader
+from tactiled_drivers.plumbing.port_reader import TAKE_LIMIT, PortReader
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
 
@@ -233,7 +233,7 @@ def test_the_loop_reads_every_port_and_one_thread_stands_guard(pty_devices, wait
     (whole and in order) and the one guard thread of the process reads nothing; while the
     loop is held up, the thread reads them (the device never waits), and the loop then gets
     them in order.  The thread ends when the last port stops."""
-    from tactiled_drivers import read_thread
+    from tactiled_drivers.plumbing import read_thread
 
     devices = [pty_devices(f"tty{i}") for i in range(3)]
 

@@ -1,7 +1,7 @@
 """The thread that stands guard over every serial port of the process (:class:`ReadThread`).
 
-A :class:`~tactiled_drivers.port_reader.PortReader` with a file descriptor is read by the event
-loop itself: ``loop.add_reader`` calls it as soon as its port has bytes, it reads them into its
+A :class:`~tactiled_drivers.plumbing.port_reader.PortReader` with a file descriptor is read by
+the event loop itself: ``loop.add_reader`` calls it as soon as its port has bytes, it reads them into its
 ring and hands them on, with no thread in between.  What the loop cannot do is read while it
 is held up (a long garbage collection, a CPU-starved process, a callback that overruns), and a
 tty buffers little: a pseudo-terminal about 15 KB, 30 ms of a 16x16 palm at 1 kHz.  So this
@@ -29,7 +29,7 @@ import time
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from tactiled_drivers.port_reader import PortReader
+    from tactiled_drivers.plumbing.port_reader import PortReader
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from tactiled.calibration.lut import LookupTable
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.sensors import load_description
 
 #: The kinds of device with a driver and a simulated device.

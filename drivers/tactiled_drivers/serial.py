@@ -4,15 +4,15 @@ URL parameters: ``baud`` (bits/s, default 1000000; ignored by USB CDC-ACM device
 ``exclusive`` (default 1: take an ``flock`` on the port so a second daemon cannot interleave
 reads with ours).
 
-**Read as bytes arrive** (:class:`~tactiled_drivers.port_reader.PortReader`): the event loop
-reads the port when it has bytes (``loop.add_reader``) into a bounded ring, and one thread of the
-process (:mod:`tactiled_drivers.read_thread`) reads any port the loop has not read for a few
-milliseconds, so a stalled loop never leaves the device waiting: a tty buffers 30 ms to 0.4 s of
-an array at 1 kHz, and the loop, which also serves the WebSocket subscribers, can stall for
-longer than that under load (the soak lost frames at the device when the loop alone read).  The
-consumer takes the bytes with ``await``, so read timeouts and shutdown are ordinary
-cancellation.  See those modules for the details and the bound on memory.  POSIX only, which
-suits a daemon deployed with systemd and udev.
+**Read as bytes arrive** (:class:`~tactiled_drivers.plumbing.port_reader.PortReader`): the event
+loop reads the port when it has bytes (``loop.add_reader``) into a bounded ring, and one thread
+of the process (:mod:`tactiled_drivers.plumbing.read_thread`) reads any port the loop has not
+read for a few milliseconds, so a stalled loop never leaves the device waiting: a tty buffers 30
+ms to 0.4 s of an array at 1 kHz, and the loop, which also serves the WebSocket subscribers, can
+stall for longer than that under load (the soak lost frames at the device when the loop alone
+read). The consumer takes the bytes with ``await``, so read timeouts and shutdown are ordinary
+cancellation. See those modules for the details and the bound on memory. POSIX only, which suits
+a daemon deployed with systemd and udev.
 
 **A vanishing device** shows in two ways, both handled: pyserial raises ``SerialException``
 for ``EIO`` ("read failed"), and for a descriptor that polls readable but reads ``b""`` (what a
@@ -46,10 +46,9 @@ from typing import ClassVar
 import serial
 
 from tactiled.errors import DeviceConnectionError
-from tactiled.frames import FrameDecoder
-from tactiled.sources import FrameSource, SourceURL
-from tactiled_drivers.futures import resolve
-from tactiled_drivers.port_reader import PortReader
+from tactiled.sources import FrameSource, Framer, SourceURL
+from tactiled_drivers.plumbing.futures import resolve
+from tactiled_drivers.plumbing.port_reader import PortReader
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +82,7 @@ class SerialSource(FrameSource):
     #: While waiting to retry, the device path is checked this often (seconds).
     WATCH_INTERVAL: ClassVar[float] = 0.05
 
-    def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
+    def __init__(self, url: str | SourceURL, *, decoder: Framer | None = None) -> None:
         super().__init__(url, decoder=decoder)
         if not self.url.location:
             raise ValueError(f"{self.url.url!r}: no device path; write e.g. "

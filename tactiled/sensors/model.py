@@ -1,4 +1,4 @@
-"""Typed settings of the sensor: geometry, material, impulse response, noise.
+"""The physical model of one sensor: geometry, cover (impulse response, material), noise.
 
 Units follow ``docs/concepts/model.md``: millimetres, newtons, N/mm^2; strain is dimensionless and positive
 under compression.  These are frozen dataclasses so a model built from them can be cached and
@@ -177,6 +177,24 @@ class ModelError:
     @property
     def zero(self) -> bool:
         return self.strain == 0.0 and self.relative == 0.0
+
+
+#: The cover's constants by name (mm, ratios, N/mm^2): what a description, a calibration file
+#: and an identification all say of the rubber.
+IMPULSE_KEYS = ("depth_x", "nu_x", "depth_y", "nu_y")
+COVER_KEYS = (*IMPULSE_KEYS, "modulus")
+#: Physical ranges of the cover's constants; a description or a calibration file outside them
+#: is refused, naming the key.
+COVER_RANGES: dict[str, tuple[float, float]] = {
+    "depth_x": (0.5, 30.0), "nu_x": (-0.5, 0.99), "depth_y": (0.5, 30.0), "nu_y": (-0.5, 0.99),
+    "modulus": (0.005, 100.0),
+}
+
+
+def cover_constants(impulse: ImpulseResponse, material: Material) -> dict[str, float]:
+    """The cover's constants keyed by :data:`COVER_KEYS` (mm, ratios, N/mm^2)."""
+    return {"depth_x": impulse.depth_x, "nu_x": impulse.nu_x, "depth_y": impulse.depth_y,
+            "nu_y": impulse.nu_y, "modulus": material.modulus}
 
 
 #: Largest tactel displacement from the nominal grid a model accepts, mm (a third of a pitch:

@@ -25,10 +25,9 @@ from collections.abc import Iterator
 from typing import ClassVar
 
 from tactiled.errors import DriverError
-from tactiled.frames import FrameDecoder
 from tactiled.recording import RecordingReader
-from tactiled.sources import FrameSource, SourceURL
-from tactiled_drivers.futures import resolve
+from tactiled.sources import FrameSource, Framer, SourceURL
+from tactiled_drivers.plumbing.futures import resolve
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +37,7 @@ class ReplaySource(FrameSource):
 
     PARAMS: ClassVar[frozenset[str]] = frozenset({"speed", "loop", "clock"})
 
-    def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
+    def __init__(self, url: str | SourceURL, *, decoder: Framer | None = None) -> None:
         super().__init__(url, decoder=decoder)
         if not self.url.location:
             raise ValueError(f"{self.url.url!r}: no recording file; write e.g. "
