@@ -39,7 +39,7 @@ from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from typing import Any
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.pipeline.jobs import FitJob
 from tactiled.pipeline.messages import dumps
 from tactiled.settings import FitSettings
