@@ -45,7 +45,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.pipeline.messages import dumps, pack_array
 from tactiled.settings import FitSettings
 
