@@ -244,6 +244,9 @@ class SensorPipeline(ContactTracking):
         self.published = 0
         self.skipped = {GATE_NO_CONTACT: 0, GATE_UNCHANGED: 0}
         self.stale_dropped = 0
+        #: unchanged frames fitted all the same: the estimate carried to them would have lost
+        #: a value to the one rule (its sigma widened by the change the gate could miss)
+        self.reuse_refused = 0
         self.tracked = 0  # contact frames measured by the tracker, without a fit of their own
         self.predicted = 0  # ... of which the tracker could only predict, not measure
         self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
@@ -252,6 +255,9 @@ class SensorPipeline(ContactTracking):
         #: tracked frames sent to a fit because a tactel outside the contact's window rose
         #: (another contact pressed)
         self.pressed_elsewhere = 0
+        #: tracked frames sent to a fit because their signal doubled since the tracked fit's
+        #: frame (a light touch pressed harder: its model and curvatures fitted again)
+        self.signal_grown = 0
         self.fit_failed = 0
         self.fit_errors = 0
         self.fits_budget_spent = 0  # fits the fit budget stopped (tactiled.fit.budget)
@@ -459,8 +465,9 @@ class SensorPipeline(ContactTracking):
             self.skipped[GATE_NO_CONTACT] += 1
             self._supersede_waiting()
             self._publish(waiting, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
-        elif action == GATE_UNCHANGED and self._last_fit is not None:
-            self._publish_reuse(waiting, self._last_fit)
+        elif (action == GATE_UNCHANGED and self._last_fit is not None
+              and self._publish_reuse(waiting, self._last_fit)):
+            pass
         else:
             if self._waiting is not None:
                 self.superseded += 1
@@ -501,8 +508,7 @@ class SensorPipeline(ContactTracking):
         fit = identified(fit, self.ids, self._untracked_element, fresh)  # (a copy unless fresh)
         if self.shear is not None:
             fit = self.shear.annotate(fit)
-        # the one rule before anything is published, whatever made it (tactiled.fit.verdict)
-        judge(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
+        self._judge(fit)
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit, stamp=w.stamp)
@@ -514,6 +520,11 @@ class SensorPipeline(ContactTracking):
             self.latency_hist[gate].observe(latency_ms / 1e3)
         self.hub.publish(est)
         return est
+
+    def _judge(self, fit: dict[str, Any]) -> dict[str, Any]:
+        """The one rule before anything is published, whatever made it
+        (:mod:`tactiled.fit.verdict`), on ``fit`` in place."""
+        return judge(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
 
     def _frame_peak(self, w: _Waiting, fallback: float) -> float:
         """The largest strain of a frame's usable tactels (``fallback`` if none is): the
@@ -725,6 +736,7 @@ class SensorPipeline(ContactTracking):
             "published": self.published,
             "skipped": dict(self.skipped),
             "stale_dropped": self.stale_dropped,
+            "reuse_refused": self.reuse_refused,
             "track": self.settings.track,
             "tracked": self.tracked,
             "track_resets": self.tracker.resets,
@@ -734,6 +746,7 @@ class SensorPipeline(ContactTracking):
             "relinearize_lost": self.relinearize_lost,
             "drift_followed": self.drift_followed,
             "pressed_elsewhere": self.pressed_elsewhere,
+            "signal_grown": self.signal_grown,
             "hysteresis": None if zeroer is None else zeroer.hysteresis_summary(),
             "pending": len(self._pending),
             # frames received and neither answered nor counted yet (waiting for a fit)

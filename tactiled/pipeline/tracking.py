@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactiled.fit.verdict import carried
+from tactiled.fit.verdict import carried, withheld_since
 from tactiled.fit.warm import SEVERAL
 from tactiled.pipeline.estimate import GATE_FIT, GATE_NO_CONTACT, GATE_UNCHANGED, Estimate
 from tactiled.pipeline.kernels import largest_excess
@@ -68,6 +68,11 @@ MAX_PENDING = 64
 MAX_WAIT_S = 0.005
 #: A relinearisation is asked for at most once per this much device time (s).
 MIN_RELINEARIZE_S = 0.004
+#: A tracked contact whose frame's largest strain grows past this many times that of the frame
+#: its fit was of is fitted again (:meth:`ContactTracking._signal_grown`): each value's
+#: single-frame sigma is then half what that fit had, or less.  A contact pressed from a light
+#: touch costs a fit each time its signal doubles.
+REFIT_SIGNAL_RATIO = 2.0
 
 
 class ContactTracking:
@@ -102,6 +107,10 @@ class ContactTracking:
             self.pressed_elsewhere += 1
             self._wait_for_fit(w)
             return
+        if self._signal_grown(w):
+            self.signal_grown += 1
+            self._wait_for_fit(w)
+            return
         if tracker.step(w.strain.ravel(), w.t) == "refit":
             self._wait_for_fit(w)
             return
@@ -119,6 +128,19 @@ class ContactTracking:
         index, predicted = ref
         return largest_excess(strain.ravel(), index, predicted) > self._elsewhere_strain
 
+    def _signal_grown(self, w: _Waiting) -> bool:
+        """The frame's largest strain is over ``REFIT_SIGNAL_RATIO`` times that of the frame
+        the tracked estimates rest on: a contact pressed well beyond the frame whose fit chose
+        its model and its curvatures.  What that frame could not resolve (a light touch's
+        radius, a ball taken for a plane) the filter cannot learn from linearised steps about
+        that fit's point, which hold the curvature the fit gave; a fit of this frame, with
+        twice the signal (half the sigma on every value), can."""
+        base = self._base
+        peak0 = None if base is None else base.get("peak")
+        if peak0 is None or not peak0 > 0.0:
+            return False
+        return self._frame_peak(w, 0.0) > REFIT_SIGNAL_RATIO * peak0
+
     def _reuse_unchanged(self, w: _Waiting) -> bool:
         """With nothing to track (the contact's last fit could not place it: a frame at the
         noise, a light touch), a frame the gate finds unchanged since that fit is answered
@@ -127,15 +149,21 @@ class ContactTracking:
         last = self._last_fit
         if last is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
             return False
-        self._publish_reuse(w, last)
-        return True
+        return self._publish_reuse(w, last)
 
-    def _publish_reuse(self, w: _Waiting, last: Estimate) -> None:
-        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since)."""
-        self.skipped[GATE_UNCHANGED] += 1
+    def _publish_reuse(self, w: _Waiting, last: Estimate) -> bool:
+        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since),
+        its sigmas widened by the change the gate could have missed; False (nothing
+        published: the frame needs a fit) when the one rule would withhold a value so carried
+        that ``last`` published: a fit of the frame can still say it."""
         frames = w.seq - last.fitted_seq if last.fitted_seq is not None else 0
-        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0,
-                      carried(last.fit, self.gate.change, frames), fresh=True)
+        fit = self._judge(carried(last.fit, self.gate.change, frames))
+        if withheld_since(last.fit, fit):
+            self.reuse_refused += 1
+            return False
+        self.skipped[GATE_UNCHANGED] += 1
+        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0, fit, fresh=True)
+        return True
 
     def _flush_pending(self) -> None:
         """The waiting frames' fit is late: publish each with the contact predicted to its
