@@ -257,8 +257,10 @@ class ContactTracking:
         # prediction (MAX_WAIT_S); its fit still serves the tracker and the frames after it
         pending, self.pending = self.pending, []
         mine = any(p.ordinal == w.ordinal for p in pending)
-        usable = fit.get("contact") and lin is not None and all(
-            fit.get(k) is not None for k in ("x_mm", "y_mm"))
+        # (a contact whose radii both lie beyond the array's span, label "plane", gives the
+        # filter no curvature to hold: its frames are fitted, each as it comes)
+        usable = (fit.get("contact") and lin is not None and fit.get("label") != "plane"
+                  and all(fit.get(k) is not None for k in ("x_mm", "y_mm")))
         if not usable and not mine and tracker.started:
             # a late fit with nothing to give: the tracker goes on predicting; any frame
             # waiting now needs a fit of its own
