@@ -1,9 +1,10 @@
 """Subscribe to a running daemon and print what it streams, one JSON object per line.
 
-Like gpspipe: every estimate (and, with --frames, every zeroed frame) the daemon's stream
-sends, as it arrives, flushed line by line so it can be piped (`tactiled watch | jq .r1_mm`).
-Each line is the stream's message: "type" ("estimate" or "frame"), "v", "sensor", "seq", the
-keys of a `tactiled fit` line, and "ellipse".  Control messages (version, subscribed) are not
+Like gpspipe: every estimate (and, with --frames, every zeroed frame; with --slip, every slip
+event of a 3-axis array) the daemon's stream sends, as it arrives, flushed line by line so it
+can be piped (`tactiled watch | jq .r1_mm`).  Each line is the stream's message: "type"
+("estimate", "frame" or "slip"), "v", "sensor", "seq", the keys of a `tactiled fit` line, and
+"ellipse" (a slip event: "event", "contact_id", "state", docs/concepts/shear.md).  Control messages (version, subscribed) are not
 printed; an error message from the server goes to stderr.
 
 Exit status: 0 when the daemon closes the stream normally (or on Ctrl-C), 1 when the

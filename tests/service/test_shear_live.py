@@ -7,6 +7,7 @@ else, and a Zenoh subscriber to the sensor's `slip` key receives the same events
 from __future__ import annotations
 
 import asyncio
+import os
 import sys
 
 import numpy as np
@@ -90,6 +91,19 @@ def test_slip_stream_and_shear_tables(daemon_process, tmp_path) -> None:
         assert all(m["sensor"] == "xela" for m in bus.of("shear/test", "slip"))
         bus.close()
         reader.close()
+        # `tactiled watch --zenoh --slip` on the slip key alone prints the next event
+        import json
+        import subprocess
+
+        watch = subprocess.run(
+            [sys.executable, "-m", "tactiled.cli", "watch", "--zenoh", "--slip", "--connect",
+             f"tcp/127.0.0.1:{port}", "--key", "shear/test/xela/slip", "--count", "1"],
+            capture_output=True, text=True, timeout=120,
+            env={**os.environ, "TACTILED_ZENOH_MULTICAST_SCOUTING": "false"})
+        assert watch.returncode == 0, watch.stderr
+        line = json.loads(watch.stdout)
+        assert line["prefix"] == "shear/test" and line["type"] == "slip"
+        assert line["event"] in ("onset", "end") and line["sensor"] == "xela"
         async def frame_with_taxels() -> dict:
             async with ws_connect(ws_url) as ws:
                 await subscribe(ws, streams=["frames"])
