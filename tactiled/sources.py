@@ -40,7 +40,7 @@ from types import MappingProxyType, TracebackType
 from typing import Any, ClassVar, Protocol, runtime_checkable
 from urllib.parse import parse_qsl, unquote, urlsplit
 
-from tactiled.devices import DeviceArray
+from tactiled.sensors.devices import DeviceArray
 from tactiled.errors import DeviceTimeoutError, DriverError
 from tactiled.frames import Frame, new_decoder
 

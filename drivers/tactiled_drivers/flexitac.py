@@ -33,7 +33,7 @@ from typing import ClassVar
 import numpy as np
 
 from tactiled import native
-from tactiled.devices import DeviceArray, device_array
+from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import Framer, SourceURL
 from tactiled_drivers.plumbing.framing import FramerBase, NativeFramer, now_if_none

@@ -41,7 +41,7 @@ from typing import ClassVar
 import numpy as np
 import serial
 
-from tactiled.devices import DeviceArray, device_array
+from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import SourceURL
 from tactiled_drivers.plumbing.framing import FramerBase, now_if_none

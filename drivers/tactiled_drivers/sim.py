@@ -20,7 +20,7 @@ URL parameters (all optional):
 - ``drift``: peak of the slow baseline drift wave, strain (default 0.002; 0 turns drift off);
 - ``hysteresis``: fraction of a released strain the rubber keeps, decaying with tau 0.5 s
   (default 0.05; 0 for none);
-- a finger that is not the paper's (:class:`~tactiled.finger.FingerSpec`, default the paper's):
+- a finger that is not the paper's (:class:`~tactiled.sensors.finger.FingerSpec`, default the paper's):
   ``depth_x``, ``nu_x``, ``depth_y``, ``nu_y`` (impulse response, mm), ``modulus`` (N/mm^2),
   ``gain_error`` (relative sd of tactel gains), ``position_error`` (sd of tactel displacements,
   mm), ``offset_counts`` (half-width of the tactels' zero offsets, counts) and ``finger_seed``.
@@ -40,7 +40,7 @@ import asyncio
 import logging
 from typing import ClassVar
 
-from tactiled.finger import FingerSpec
+from tactiled.sensors.finger import FingerSpec
 from tactiled.sensors import DEFAULT_NAME, load_description
 from tactiled.frames import encode_frame
 from tactiled.sim import (

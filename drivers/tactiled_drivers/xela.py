@@ -39,7 +39,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from tactiled.devices import DeviceArray, device_array
+from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.errors import DeviceConnectionError
 from tactiled.frames import Frame
 from tactiled.sources import FrameSource, SourceURL

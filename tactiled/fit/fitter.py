@@ -17,7 +17,7 @@ from functools import lru_cache
 import numpy as np
 from scipy.special import gammaincinv
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit import budget as fit_budget
 from tactiled.fit import compiled
 from tactiled.fit import flatfield

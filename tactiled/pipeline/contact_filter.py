@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.config import Geometry
+from tactiled.sensors.model import Geometry
 from tactiled.fit.profile import FLAT, TEST_RELATIVE_SIGMA
 from tactiled.fit.verdict import sigma_reason
 from tactiled.fit.params import (

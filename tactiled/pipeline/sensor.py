@@ -38,7 +38,7 @@ from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
 from tactiled.clock import FrameClock
-from tactiled.config import Geometry, NoiseModel
+from tactiled.sensors.model import Geometry, NoiseModel
 from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent

@@ -17,7 +17,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.fit.fitter import CONVERGED_CHI2, FitOptions, Fitter
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel

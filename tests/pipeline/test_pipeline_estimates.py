@@ -88,7 +88,7 @@ def test_every_frame_gets_its_estimate_with_its_sensor_and_seq(tmp_path: Path, a
 def test_the_calibration_file_is_applied_and_its_dead_tactels_are_left_out(
         tmp_path: Path, arun) -> None:
     from tactiled.calibration import LookupTable, save_calibration
-    from tactiled.config import NoiseModel
+    from tactiled.sensors.model import NoiseModel
     from tactiled.sim import simulate_frames
 
     # A sensor twice as sensitive as the nominal table, with tactel [3, 3] (under the contact's

@@ -24,7 +24,7 @@ from pipeline_helpers import (
     write_recording,
 )
 
-from tactiled.config import DEFAULT_SENSOR
+from tactiled.sensors.model import DEFAULT_SENSOR
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import predict_strain
 from tactiled.pipeline import Daemon
@@ -304,7 +304,7 @@ def test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker(arun) -> No
     build error, and the healthy spec is fitted by the same worker, with no restart."""
     import dataclasses
 
-    from tactiled.config import NoiseModel
+    from tactiled.sensors.model import NoiseModel
 
     broken = dataclasses.replace(DEFAULT_SENSOR, noise=NoiseModel(sigma=1e-300, quantum=0.0))
     clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
