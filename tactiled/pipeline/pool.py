@@ -20,7 +20,7 @@ import time
 from typing import Any
 
 from tactiled.pipeline.jobs import FitJob, JobOwner
-from tactiled.pipeline.messages import pack_array
+from tactiled.pipeline.worker_packing import pack_array
 from tactiled.pipeline.supervision import WorkerSupervision
 from tactiled.sensors.model import SensorModel
 from tactiled.settings import FitSettings

@@ -40,7 +40,7 @@ from multiprocessing.process import BaseProcess
 from typing import Any
 
 from tactiled.pipeline.jobs import FitJob
-from tactiled.pipeline.messages import dumps
+from tactiled.pipeline.worker_packing import dumps
 from tactiled.sensors.model import SensorModel
 from tactiled.settings import FitSettings
 
