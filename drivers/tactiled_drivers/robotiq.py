@@ -67,8 +67,8 @@ import serial
 from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import FrameSource, SourceURL, parse_source_url
-from tactiled_drivers.framing import FramerBase, FramerStats, now_if_none
-from tactiled_drivers.serial_source import SerialSource
+from tactiled_drivers.plumbing.framing import FramerBase, FramerStats, now_if_none
+from tactiled_drivers.serial import SerialSource
 
 log = logging.getLogger(__name__)
 

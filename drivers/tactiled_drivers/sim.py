@@ -42,7 +42,7 @@ from typing import ClassVar
 
 from tactiled.sensors.finger import FingerSpec
 from tactiled.sensors import DEFAULT_NAME, load_description
-from tactiled.frames import FrameDecoder, encode_frame
+from tactiled.frames import encode_frame
 from tactiled.sim import (
     DEFAULT_DRIFT,
     DEFAULT_HYSTERESIS,
@@ -52,8 +52,8 @@ from tactiled.sim import (
     HysteresisModel,
     scene_from_spec,
 )
-from tactiled.sources import FrameSource, SourceURL
-from tactiled_drivers.futures import resolve
+from tactiled.sources import FrameSource, Framer, SourceURL
+from tactiled_drivers.plumbing.futures import resolve
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +68,7 @@ class SimSource(FrameSource):
         {"seed", "scene", "rate", "sensor_id", "loop", "speed", "noise", "drift", "hysteresis",
          "sensor", *FingerSpec.PARAMS})
 
-    def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
+    def __init__(self, url: str | SourceURL, *, decoder: Framer | None = None) -> None:
         super().__init__(url, decoder=decoder)
         u = self.url
         self.seed: int = u.get_int("seed", 0, minimum=0)

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.bench import identify as bench
+from tactiled_bench import identify as bench
 from tactiled.sensors.model import NoiseModel
 from tactiled.sensors.finger import FingerSpec
 from tactiled.fit.flatfield import FlatField
