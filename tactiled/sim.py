@@ -32,8 +32,8 @@ from typing import Union
 import numpy as np
 
 from tactiled.calibration.lut import LookupTable
-from tactiled.config import Geometry, NoiseModel, SensorModel
-from tactiled.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, FingerSpec
+from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
+from tactiled.sensors.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, FingerSpec
 from tactiled.frames import Frame
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.strain import StrainModel

@@ -1,6 +1,6 @@
 """``tactiled simulate --as KIND --device PATH_OR_PORT``: a simulated vendor device.
 
-The scene simulator renders frames on the device's array (:func:`tactiled.devices.device_array`:
+The scene simulator renders frames on the device's array (:func:`tactiled.sensors.devices.device_array`:
 its shape, pitch and nominal counts scaling) and streams them in the vendor's own format, so
 ``tactiled run`` and ``tactiled record`` can be tried on each driver without hardware:
 
@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.devices import KINDS, DeviceArray, device_array
+from tactiled.sensors.devices import KINDS, DeviceArray, device_array
 from tactiled.errors import TactiledError
 from tactiled.sim import DriftModel, FingerSimulator, FrameSchedule, HysteresisModel
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit import budget as fit_budget
 from tactiled.fit import flatfield, search, uncertainty
 from tactiled.fit.auto import ModelSelector

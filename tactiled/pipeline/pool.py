@@ -45,7 +45,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.pipeline.messages import dumps, pack_array
 from tactiled.settings import FitSettings
 
@@ -123,7 +123,7 @@ class FitJob:
     #: the sensor's previous fit on a persisting contact, ``(model, params)``: a warm start
     warm: tuple[str, tuple[float, ...]] | None = None
     #: "fit"; "fit+lin": a fit and its linearisation; "lin": only the linearisation of the
-    #: frame at ``warm`` (the tracker's state, see tactiled.pipeline.tracker)
+    #: frame at ``warm`` (the tracker's state, see tactiled.pipeline.contact_filter)
     kind: str = "fit"
     sent_at: float = 0.0
 

@@ -45,7 +45,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.heap import pin_malloc, trim
 from tactiled.pipeline.estimate import plain
 from tactiled.pipeline.messages import unpack_array

@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from tactiled.bench import acquisition as acq
+from tactiled_bench import acquisition as acq
 from tactiled.physics.contact import Contact
 from tactiled.sim import SCENES, FingerSimulator, Pose, SceneBuilder, named_scene
 

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from tactiled.bench import acquisition as acq
+from tactiled_bench import acquisition as acq
 from tactiled.sim import HAND_PARTS
 
 TACTILED = [sys.executable, "-m", "tactiled.cli", "bench", "--no-progress"]

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.config import NoiseModel
+from tactiled.sensors.model import NoiseModel
 from tactiled.fit.models import get_model
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel

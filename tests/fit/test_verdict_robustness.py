@@ -17,7 +17,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.search import CONVERGED_CHI2
 from tactiled.physics.contact import Contact

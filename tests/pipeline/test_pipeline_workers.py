@@ -23,7 +23,7 @@ from pipeline_helpers import (
     write_recording,
 )
 
-from tactiled.config import DEFAULT_SENSOR
+from tactiled.sensors.model import DEFAULT_SENSOR
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import predict_strain
 from tactiled.pipeline import Daemon
@@ -81,7 +81,7 @@ def test_sigkilled_worker_is_replaced_within_a_second(tmp_path: Path, arun) -> N
 
 def test_hung_worker_is_killed_and_replaced(tmp_path: Path, arun) -> None:
     # tracking off: every contact frame wants a fit of its own (the tracked case is in
-    # test_tracking.py)
+    # test_sensor_tracking.py)
     overrides = {"sensor[0].url": live_stream(tmp_path, 500), "fit.timeout": 0.3,
                  "sensor[0].reuse_unchanged": False, "sensor[0].model": "cylinder",
                  "sensor[0].track": False}
@@ -302,7 +302,7 @@ def test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker(arun) -> No
     build error, and the healthy spec is fitted by the same worker, with no restart."""
     import dataclasses
 
-    from tactiled.config import NoiseModel
+    from tactiled.sensors.model import NoiseModel
 
     broken = dataclasses.replace(DEFAULT_SENSOR, noise=NoiseModel(sigma=1e-300, quantum=0.0))
     clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))

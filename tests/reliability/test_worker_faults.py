@@ -393,7 +393,7 @@ _FRESH_WORKER_FIT = """
 import json, sys, time
 import numpy as np
 import tactiled.pipeline.preload  # what the forkserver template holds: kernels, start table
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.pipeline.sensor import worker_fit_options
 strain, warm = json.loads(sys.argv[1])
@@ -432,7 +432,7 @@ def test_one_glitch_frame_barely_moves_the_baseline(gap_frames: int) -> None:
     from tactiled.calibration.lut import LookupTable
     from tactiled.calibration.stage import CalibrationStage
     from tactiled.calibration.zeroing import Zeroer
-    from tactiled.config import SensorModel
+    from tactiled.sensors.model import SensorModel
     from tactiled.sim import FingerSimulator
 
     sigma = 0.0005

@@ -24,7 +24,7 @@ from tactiled.sim import (
     render,
     simulate_frames,
 )
-from tactiled.config import NoiseModel
+from tactiled.sensors.model import NoiseModel
 from tactiled.physics.contact import Contact
 
 COUNT = 1.0 / COUNTS_PER_STRAIN  # strain per count

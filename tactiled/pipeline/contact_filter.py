@@ -1,0 +1,650 @@
+"""The temporal tracker: every contact frame measured, a held contact sharpened, a moving one
+followed without lag.
+
+A fit describes one frame.  Between fits the tracker measures each new frame through the last
+fit's linearisation (:class:`tactiled.fit.linearize.Linearization`): one least-squares step,
+``z = p + G (f - s(p))``, with the single-frame noise covariance ``R``.  Those measurements feed
+a Kalman filter per parameter of the model (the fitter's own parameters: ln R, psi, ln F, x0,
+y0, ...):
+
+* the **moving** parameters (orientation, force, position) follow a constant-velocity model
+  whose white-acceleration noise gives the filter a memory of about ``memory_s`` seconds; their
+  rates are the reported velocities;
+* the **curvatures** (ln R, beta: a property of the object) are held constant, with a memory
+  of ``hold_s``: on a held contact they average every frame, so their uncertainty shrinks like
+  1/sqrt(frames) until the model-error floor (:attr:`Linearization.systematic`, added to every
+  reported variance, never averaged) dominates.
+
+A change is caught three ways, each the moment it happens:
+
+* the frame leaves the linear range (the part of ``f - s(p)`` that ``J dz`` cannot explain is
+  beyond the noise: chi^2 over ``n - k`` degrees of freedom past ``LINEAR_Z`` sigmas): the frame
+  needs a fit of its own (:meth:`Tracker.step` says ``"refit"``);
+* a parameter jumps (its innovation beyond ``RESET_SIGMA`` of its predicted spread): the filter
+  restarts from this frame (``"reset"``: a step in force, a jump in place);
+* a parameter drifts away from the model (an exponentially weighted mean of its normalised
+  innovations beyond ``DRIFT_LIMIT`` of its spread: an acceleration): its rate's uncertainty is
+  widened so the filter catches up within tens of frames.
+
+The filters of different parameters run independently (a frame's measurements are correlated,
+``R`` is not diagonal): on a held contact, whose ``R`` is the same every frame, that loses
+nothing (the joint estimate of a constant is the plain mean as well); the reported covariance
+puts the single-frame correlation back.  No I/O and no physics here: the main process runs
+it for every frame, in tens of microseconds.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import replace
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from tactiled.sensors.model import Geometry
+from tactiled.fit.profile import FLAT, TEST_RELATIVE_SIGMA
+from tactiled.fit.verdict import sigma_reason
+from tactiled.fit.params import (
+    MOVING,
+    PARAMS,
+    RADIUS_LIMITS,
+    TOO_LIGHT,
+    VALUE_KEYS,
+    radius_tied_force,
+    wrap_deg,
+)
+from tactiled.pipeline.kernels import (
+    C_HIGH,
+    C_LIN_SD,
+    C_LOG,
+    C_LOW,
+    C_MOVING,
+    PXV,
+    C_POINT,
+    C_R,
+    DRIFT,
+    MODEL_CODES,
+    PVV,
+    PXX,
+    V,
+    X,
+    estimate_numbers,
+    filter_frame,
+    fold_residuals,
+    linearization_constants,
+    measure_point,
+    moved_from_point,
+)
+
+_I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
+#: the value each moving parameter's lag widens (see Tracker._innovation_excess)
+_LAG_KEY = {"x0": "x_mm", "y0": "y_mm", "psi": "angle_deg", "ln_f": "force_n"}
+#: the running mean's weight of the newest frame's innovation excess: about the last two
+#: frames, as quick as a lag appears (a release at 30 frames/s lasts 15)
+LAG_WEIGHT = 0.5
+#: ... counted where it is beyond this many of its noise's sigmas (0.3 % of a held contact's
+#: frames: a held contact still averages down)
+LAG_SIGNIFICANT = 3.0
+#: the state a linearisation is adopted with before the filter has started (no column)
+_NO_STATE = np.empty((DRIFT + 1, 0))
+
+#: The linearity test's threshold: the chi^2 (dof n - k) quantile a frame of the contact
+#: exceeds once in ~3.5 million (a normal deviate of 5, through Wilson-Hilferty).
+LINEAR_Z = 5.0
+
+#: A parameter's innovation beyond this many sigmas restarts the filter (a step, a jump).
+RESET_SIGMA = 5.0
+#: Weight of the newest normalised innovation in the drift detector's running mean.
+DRIFT_ALPHA = 1.0 / 32.0
+#: The drift detector's alarm, in standard deviations of its running mean.
+DRIFT_LIMIT = 5.0
+#: ... which is this, in units of the normalised innovation (the running mean's spread is
+#: sqrt(alpha / (2 - alpha)) of one innovation's)
+_DRIFT_ALARM = DRIFT_LIMIT * math.sqrt(DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
+#: A moving parameter's running mean of normalised innovations beyond this many of its own
+#: sigmas says the filter lags the motion (it departs from constant velocity: a press's
+#: log-force decelerates) and its estimate trails the truth by about that mean times the
+#: innovations' spread, an error its own variance does not hold: that lag is added to its
+#: reported variance.
+LAG_Z = 2.0
+#: The frames' mean residual is tested for what averaging cannot remove (see
+#: :meth:`Tracker._fold`) on the tactels that this many frames have measured.
+MEAN_RESIDUAL_FRAMES = 16
+#: ... at this normal deviate of its chi^2 (Wilson-Hilferty), over the last ~this many
+#: seconds (an exponential memory: what the contact did a while ago says little of now).
+MEAN_RESIDUAL_Z = 3.0
+MEAN_RESIDUAL_S = 1.0
+#: Frames whose residuals are buffered before they are folded into the sums and tested.
+MEAN_RESIDUAL_FOLD = 8
+
+
+#: Velocities are reported from this many frames after a (re)start of the filter.
+MIN_RATE_FRAMES = 3
+#: A gap in the device clock longer than this (s), or time running backwards (the device
+#: restarted), restarts the filter: the motion model says nothing over it.
+MAX_GAP_S = 0.25
+#: The state moved from the linearisation point by this many single-frame sigmas (in any
+#: parameter), or its own spread shrank below 1/``SHARPEN`` of the point's: time to
+#: linearise again, where the contact now is.
+RELINEARIZE_SIGMA = 1.0
+#: A force measured more than a factor e^3 from the linearisation point needs a fit, however
+#: uncertain one frame leaves it (the radius has no such cap: it is only held in its box).
+MAX_LOG_FORCE_STEP = 3.0
+SHARPEN = 2.0
+
+#: Reasons of the fitter's for a value it withheld that the tracker judges again on the frames
+#: it has gathered (a radius too uncertain in one light frame may be sharp in a hundred).
+_SOFT = (TOO_LIGHT, "poorly determined", "orientation not observable")
+
+#: Estimate keys the tracker adds: rates (their 1-sigma in ``std`` under the same key).
+RATE_KEYS = ("vx_mm_s", "vy_mm_s", "angle_rate_deg_s", "force_rate_n_s")
+_RATE_OF = {"x0": "vx_mm_s", "y0": "vy_mm_s", "psi": "angle_rate_deg_s",
+            "ln_f": "force_rate_n_s"}
+
+
+#: A fit (or a worker's linearisation) starts from the tracker's state only within what a
+#: finger carries: a force of MIN_FORCE_N..MAX_FORCE_N (N), a centre at most OFF_ARRAY_MM
+#: outside the array, a radius within the fitter's own search bounds (half and twice
+#: ``RADIUS_LIMITS``).  A filter on a light edge can run its radius off to ln R of -50 and
+#: beyond (unobservable there, so nothing holds it); an evaluation at such a point, or at a
+#: contact larger than the array, outlasts a worker's deadline.
+MIN_FORCE_N, MAX_FORCE_N = 1e-4, 100.0
+OFF_ARRAY_MM = 5.0
+LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
+LN_F_BOUNDS = (math.log(MIN_FORCE_N), math.log(MAX_FORCE_N))
+
+
+def reasonable_bounds(names: tuple[str, ...], geometry) -> list[tuple[int, float, float]]:
+    """``(index, low, high)`` for each parameter of ``names`` (a model's internal parameters)
+    that a finger bounds on ``geometry`` (a ``config.Geometry``): a radius, the force, the
+    centre; the others (an angle, a shape ratio) are free."""
+    x_hi = (geometry.rows - 1) * geometry.dx + OFF_ARRAY_MM
+    y_hi = (geometry.cols - 1) * geometry.dy + OFF_ARRAY_MM
+    box = {"ln_r": LN_R_BOUNDS, "ln_ra": LN_R_BOUNDS, "ln_f": LN_F_BOUNDS,
+           "x0": (-OFF_ARRAY_MM, x_hi), "y0": (-OFF_ARRAY_MM, y_hi)}
+    return [(i, *box[n]) for i, n in enumerate(names) if n in box]
+
+
+@functools.lru_cache(maxsize=64)
+def _vector_bounds(size: int, geometry) -> tuple[tuple[int, float, float], ...]:
+    """:func:`reasonable_bounds` of a model's internal vector of ``size`` parameters
+    (``(ln_r.., .., ln_f, x0, y0)``)."""
+    names = ("ln_r",) + ("",) * (size - 4) + ("ln_f", "x0", "y0")
+    return tuple(reasonable_bounds(names, geometry))
+
+
+def within_reason(p: Sequence[float], geometry) -> list[float]:
+    """A model's internal vector ``p`` (``(ln_r.., .., ln_f, x0, y0)``) with its radius, force
+    and centre clipped to what a finger carries on ``geometry`` (a ``config.Geometry``)."""
+    q = [float(v) for v in p]
+    for i, lo, hi in _vector_bounds(len(q), geometry):
+        q[i] = min(max(q[i], lo), hi)
+    return q
+
+
+@functools.lru_cache(maxsize=64)
+def _model_constants(names: tuple[str, ...], geometry) -> tuple[
+        list[bool], int, list[tuple[int, str, str]], np.ndarray]:
+    """What the tracker reads of a model's parameters ``names`` on ``geometry``, the same at
+    every linearisation: which move, the force's index, which carry a rate (index, estimate
+    key, name), and the kernels' constants table with the rows that depend on the model only
+    filled in (which move, which are logarithms, the box each is kept in).  (Read only.)"""
+    moving = [n in MOVING for n in names]
+    table = np.full((C_LIN_SD + 1, len(names)), math.nan)
+    table[C_MOVING] = moving
+    table[C_LOG] = [n.startswith("ln_") for n in names]
+    table[C_LOW], table[C_HIGH] = -math.inf, math.inf
+    for i, lo, hi in reasonable_bounds(names, geometry):
+        table[C_LOW, i], table[C_HIGH, i] = lo, hi
+    table.flags.writeable = False
+    return (moving, names.index("ln_f"),
+            [(i, _RATE_OF[n], n) for i, n in enumerate(names) if n in _RATE_OF], table)
+
+
+@functools.lru_cache(maxsize=1024)
+def chi2_limit(dof: int, z: float = LINEAR_Z) -> float:
+    """The chi^2 quantile of ``dof`` degrees of freedom at the normal deviate ``z``
+    (Wilson-Hilferty: 5 % above the exact one at 5 degrees of freedom, 1 % at 30)."""
+    a = 2.0 / (9.0 * dof)
+    return dof * (1.0 - a + z * math.sqrt(a)) ** 3
+
+
+class Tracker:
+    """Tracks one sensor's contact through the frames between fits (see the module's doc).
+
+    ``memory_s``: how far back the moving parameters' filter looks (s); ``hold_s``: the same
+    for the curvatures.  Times are the device's clock in seconds.  The per-parameter state is
+    one small array (``_s``, rows ``kernels.X .. DRIFT``) that the compiled kernels of
+    :mod:`tactiled.pipeline.kernels` measure, filter, test and report in one call each per
+    frame; the rules that withhold a value stay here, in Python.
+    """
+
+    def __init__(self, memory_s: float = 0.1, hold_s: float = 30.0,
+                 withhold_relative_sigma: float | None = None, geometry=None) -> None:
+        if not (memory_s > 0 and hold_s > 0):
+            raise ValueError(f"memory_s and hold_s must be positive, got {memory_s}, {hold_s}")
+        #: the array (a ``config.Geometry``; default the paper's): where a centre can be
+        self.geometry = geometry if geometry is not None else Geometry()
+        self.memory_s = float(memory_s)
+        self.hold_s = float(hold_s)
+        #: a radius whose sigma exceeds this fraction of it is withheld, as the fitter does
+        self.withhold = withhold_relative_sigma
+        #: counters: filter restarts on a change; frames it could not use
+        self.resets = 0
+        self.skipped = 0
+        self.clear()
+
+    # -- state ----------------------------------------------------------------------------------
+
+    def clear(self) -> None:
+        """Forget the contact (it ended, a tare, new settings)."""
+        self.lin = None  # the Linearization frames are measured through
+        self.model: str | None = None
+        self.names: tuple[str, ...] = ()
+        self.t: float | None = None
+        self.n = 0  # frames the estimate rests on since the filter (re)started
+        # per parameter (a column): value, rate, covariance [[pxx, pxv], [pxv, pvv]], drift
+        # detector; None until the filter starts
+        self._s: np.ndarray | None = None
+        #: how far the mean of the frames departs from the model beyond their noise: the
+        #: reported variances are multiplied by it (1: not at all)
+        self.excess = 1.0
+        self._esum: np.ndarray | None = None  # per tactel: the residuals' sum, their count
+        self._ecount: np.ndarray | None = None
+        self._ebuf: np.ndarray | None = None  # residuals not yet folded into the sums
+        self._eframes = 0
+        self._edt = 0.0
+        self._judged_memo: tuple[dict[str, Any], Any] | None = None
+        self._constants: tuple[tuple[str, ...], Any] = ((), None)
+
+    @property
+    def x(self) -> np.ndarray | None:
+        """The filter's parameters (the model's internal vector), None before it starts."""
+        return None if self._s is None else self._s[X]
+
+    @property
+    def active(self) -> bool:
+        """True when frames can be measured (a linearisation is held)."""
+        return self.lin is not None
+
+    @property
+    def started(self) -> bool:
+        """True when the filter holds an estimate."""
+        return self._s is not None
+
+    def adopt(self, lin, zero_var: float = 0.0) -> None:
+        """Measure the following frames through ``lin`` (a new fit's, or a relinearisation's).
+        A different model than the filter's restarts it at the next frame.  ``zero_var``: the
+        variance (strain^2) of each tactel's zero (``Zeroer.baseline_var``), an error every
+        frame of the contact shares: systematic, ``zero_var / sigma^2`` times ``lin.cov``."""
+        if self.model is not None and lin.model != self.model:
+            self._s, self.t, self.n = None, None, 0
+        names = PARAMS[lin.model]
+        if self._s is not None and "psi" in names:
+            # psi is periodic by pi: take the linearisation's psi next to the state's
+            i = names.index("psi")
+            turns = round((float(self._s[X, i]) - float(lin.p[i])) / math.pi)
+            if turns:
+                p = lin.p.copy()
+                p[i] += turns * math.pi
+                lin = replace(lin, p=p)
+        self._fold()
+        self.lin, self.model, self.names = lin, lin.model, names
+        if self._esum is None:
+            size = max(int(lin.index.max()) + 1 if lin.index.size else 0,
+                       self.geometry.rows * self.geometry.cols)
+            self._esum, self._ecount = np.zeros(size), np.zeros(size)
+        self._ebuf = np.zeros(lin.index.size)
+        # the linearisation as the measuring kernel takes it (contiguous, its dtypes)
+        self._at = np.ascontiguousarray(lin.strain, dtype=np.float64)
+        self._index = np.ascontiguousarray(lin.index, dtype=np.intp)
+        self._gain = np.asarray(lin.gain, dtype=np.float64)
+        self._jacobian = np.asarray(lin.jacobian, dtype=np.float64)
+        self._weight = np.ascontiguousarray(lin.weight, dtype=np.float64)
+        if self._constants[0] is not names:  # (a relinearisation keeps the model)
+            self._constants = (names, _model_constants(names, self.geometry))
+        self._moving, self._ln_f, self._rate_of, table = self._constants[1]
+        self._limit = chi2_limit(max(lin.dof, 1))
+        # The single frame's covariance as variances and correlations, and the systematic
+        # part, for the estimate's delta method (kernels.estimate_numbers)
+        self._c, self._corr, self._sys, self._has_sys = linearization_constants(
+            table, np.asarray(lin.cov, dtype=np.float64),
+            np.ascontiguousarray(lin.p, dtype=np.float64),
+            _NO_STATE if self._s is None else self._s,
+            np.asarray(lin.systematic, dtype=np.float64), zero_var / (lin.sigma * lin.sigma))
+        self._r = self._c[C_R].tolist()
+        self._model_code = MODEL_CODES[lin.model]
+
+    def wants_linearization(self) -> tuple[str, np.ndarray] | None:
+        """``(model, p)``: where to linearise again, when the state has moved from the
+        linearisation point, or has sharpened well past it; None while the point serves."""
+        if self.lin is None or self._s is None:
+            return None
+        if moved_from_point(self._s, self._c, RELINEARIZE_SIGMA, SHARPEN):
+            return self.model, self._s[X].copy()
+        return None
+
+    def predicted(self, t: float) -> tuple[str, tuple[float, ...]] | None:
+        """``(model, params)`` of the contact predicted at ``t``: a warm start for a fit."""
+        if self._s is None or self.t is None:
+            return None
+        dt = t - self.t
+        dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
+        x, v = self._s[X].tolist(), self._s[V].tolist()
+        return self.model, tuple(xi + vi * dt for xi, vi in zip(x, v))
+
+    # -- a frame --------------------------------------------------------------------------------
+
+    def step(self, strain: np.ndarray, t: float, fitted: bool = False,
+             measured: tuple[np.ndarray, np.ndarray] | None = None) -> str:
+        """Measure one zeroed frame (flattened row-major, strain) taken at device time ``t``
+        (s) and update the estimate: ``"tracked"``, ``"reset"`` (a change: the filter restarted
+        from this frame) or ``"refit"`` (it needs a fit of its own: outside the linear range,
+        or a jump the linearisation would measure poorly; the estimate is unchanged).
+        ``fitted``: the frame is the one the current linearisation was fitted on (it is
+        measured exactly there, and a jump restarts the filter).  ``measured``: the frame's
+        :meth:`measure`, when the caller has it already."""
+        if fitted:
+            z = self._c[C_POINT].copy()  # the fit itself: the frame's own measurement
+        else:
+            m = self.measure(strain) if measured is None else measured
+            if m is None:
+                return "refit"
+            z, e = m
+            self._ebuf += e
+            self._eframes += 1
+            self._edt += 0.0 if self.t is None else max(t - self.t, 0.0)
+            if self._eframes >= MEAN_RESIDUAL_FOLD:
+                self._fold()
+        return self._filter(z, t, fitted)
+
+    def measure(self, strain: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """One frame's measurement through the linearisation, ``(z, e)`` (the parameters and
+        the residual ``J dz`` leaves), or None when the frame needs a fit of its own (outside
+        the linear range, or a step no linearisation reaches).  Changes nothing."""
+        frame = np.ascontiguousarray(strain, dtype=np.float64)
+        return self.measure_at(frame, self._index, self._at)
+
+    def measure_at(self, frame: np.ndarray, index: np.ndarray,
+                   at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """:meth:`measure` of ``frame[index]`` (``frame`` flat, float64) less ``at`` (the
+        linearisation's strains on its window, and whatever else the caller takes out)."""
+        # The kernel's tests of the step (kernels.measure_point): a log radius or force moved
+        # by more than a factor e from the point: no linear range reaches that far (a
+        # release: force to zero), whatever the residual says.  Unless the step is within
+        # the noise (RESET_SIGMA single-frame sigmas): a value one frame barely determines
+        # (the radius of a light contact, of one at the noise), which the filter weighs as
+        # such; a fit would give as uncertain a value.  The force, though, never by more
+        # than a factor e^MAX_LOG_FORCE_STEP: a contact letting go (its fit may find nothing
+        # left to place), or a filter gone astray (a point so far from the contact that its
+        # linearisation measures nothing, and every step passes as noise: seen as 577 N off
+        # the array on a held 1.2 N contact).  And a value the frame does not bound is kept
+        # within what a finger carries (within_reason's box): a radius, force or centre no
+        # frame determines (a contact at the noise, letting go) would otherwise random-walk,
+        # to exp() overflow and centres a kilometre off the array (seen on release residuals).
+        ok, z, e = measure_point(frame, index, at, self._gain, self._jacobian, self._weight,
+                                 self._c, self._limit, self._ln_f, RESET_SIGMA,
+                                 MAX_LOG_FORCE_STEP)
+        return (z, e) if ok else None
+
+    def _filter(self, z: np.ndarray, t: float, fitted: bool) -> str:
+        """The filter's update with measurement ``z`` at ``t`` (see :meth:`step`): predicted,
+        innovations tested, updated (:func:`~tactiled.pipeline.kernels.filter_frame`)."""
+        if self._s is None or self.t is None:
+            self._start(z, t)
+            return "tracked"
+        dt = t - self.t
+        if not 0.0 < dt < MAX_GAP_S:
+            self._start(z, t)
+            self.resets += 1
+            return "reset"
+        # white acceleration of density 36 R dt / tau^4 for a moving parameter: an alpha-beta
+        # filter with a window of about tau s (R: one frame's noise variance, dt: the frame
+        # period); a random walk with a memory of hold_s for a curvature
+        lagged = self._innovation_excess(z, dt)
+        jumped = filter_frame(z, self._s, self._c, dt, 36.0 * dt / self.memory_s ** 4,
+                              dt * dt / (self.hold_s * self.hold_s), fitted, RESET_SIGMA,
+                              DRIFT_ALPHA, _DRIFT_ALARM)
+        if jumped < 0:
+            # the estimate is unchanged (its fit will be measured from there)
+            return "refit"
+        if jumped:
+            # a change: the moving parameters start again from this frame; a curvature only
+            # if it changed itself (a force step does not change the object)
+            self._start(z, t, keep=[not (m or jumped >> i & 1) for i, m in enumerate(self._moving)])
+            self.resets += 1
+            return "reset"
+        self.t = t
+        self.n += 1
+        self._lag += LAG_WEIGHT * (np.stack(lagged) - self._lag)
+        return "tracked"
+
+    def _innovation_excess(self, z: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per parameter, this frame's innovation (the measurement less the constant-velocity
+        prediction) ``nu`` and its predicted variance ``S`` (the prediction's plus one
+        frame's); zero for a held parameter.  See :meth:`_lag_variance`."""
+        s, r = self._s, self._c[C_R]
+        moving = self._c[C_MOVING] != 0.0
+        nu = z - (s[X] + s[V] * dt)
+        spread = s[PXX] + 2.0 * dt * s[PXV] + dt * dt * s[PVV] + r
+        return np.where(moving, nu, 0.0), np.where(moving, spread, 0.0)
+
+    def _lag_variance(self) -> np.ndarray:
+        """What the filter lags a contact that accelerates by, per parameter (its variance):
+        the running mean of the innovations (weight ``LAG_WEIGHT``: about the last two
+        frames) squared, where it is significant (beyond ``LAG_SIGNIFICANT`` of the spread the noise
+        gives that mean, ``S w / (2 - w)``).  Zero on average where the contact moves as the
+        filter's model says, so a held contact still averages down; where it accelerates (a
+        release: the log force falls ever faster as the force goes to zero) the innovations
+        run to one side and the estimate lags by about their mean."""
+        m, spread = self._lag
+        noise = spread * LAG_WEIGHT / (2.0 - LAG_WEIGHT)
+        return np.where(m * m > LAG_SIGNIFICANT * LAG_SIGNIFICANT * noise, m * m, 0.0)
+
+    def skip(self) -> None:
+        """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""
+        self.skipped += 1
+
+    def _fold(self) -> None:
+        """Fold the buffered residuals into the per-tactel sums (every MEAN_RESIDUAL_FOLD
+        frames, to keep the per-frame cost down) and test the frames' mean residual.
+
+        Model error that no single frame shows can dominate an average of thousands (a
+        tactel's zero drifting under a held contact, the rubber's hysteresis behind a rolling
+        one, a finger that departs from its model): the residual of the frames' mean, whose
+        noise is sigma / sqrt(m), reveals it.  Summed per tactel over the last
+        ``MEAN_RESIDUAL_S``; when its chi^2 is beyond the noise's, the reported variances are
+        scaled by chi^2 / dof (the Birge ratio), so the uncertainty stops shrinking where the
+        data stop agreeing."""
+        lin, m = self.lin, self._eframes
+        if lin is None or m == 0:
+            return
+        used, chi2 = fold_residuals(self._esum, self._ecount, self._index, self._ebuf, float(m),
+                                    math.exp(-self._edt / MEAN_RESIDUAL_S),
+                                    float(MEAN_RESIDUAL_FRAMES))
+        self._eframes, self._edt = 0, 0.0
+        dof = used - lin.p.size
+        if dof < 1:
+            return
+        chi2 /= lin.sigma * lin.sigma
+        self.excess = chi2 / dof if chi2 > chi2_limit(dof, MEAN_RESIDUAL_Z) else 1.0
+
+    def _start(self, z: np.ndarray | list[float], t: float,
+               keep: list[bool] | None = None) -> None:
+        """(Re)start the filter at measurement ``z``; ``keep`` marks parameters whose filter
+        goes on (updated with this frame)."""
+        r = self._r
+        z = [float(zi) for zi in z]
+        old = None if self._s is None else (self._s[X].tolist(), self._s[PXX].tolist())
+        x, pxx = list(z), list(r)
+        if old is not None and keep is not None:
+            for i, kept in enumerate(keep):
+                if kept:
+                    x0, p0 = old[0][i], old[1][i]
+                    gain = p0 / (p0 + r[i])
+                    x[i] = x0 + gain * (z[i] - x0)
+                    pxx[i] = p0 * (1.0 - gain)
+        s = np.zeros((DRIFT + 1, len(z)))
+        s[X], s[PXX] = x, pxx
+        # The rate is unknown: a prior wide enough for any contact the scenes move (it is
+        # learnt from the next frames; velocities are reported after MIN_RATE_FRAMES).
+        s[PVV] = [1e6 * ri if m else 0.0 for ri, m in zip(r, self._moving)]
+        self._s = s
+        self._lag = np.zeros((2, len(z)))  # running means of the innovations, their variances
+        self.t, self.n = t, 1
+        self._c[C_LIN_SD] = np.sqrt(s[PXX])
+
+    # -- the estimate ---------------------------------------------------------------------------
+
+    def estimate(self, base: dict[str, Any], at: float | None = None) -> dict[str, Any]:
+        """The estimate's fit dict: ``base`` (the last fit's ``FitResult.to_json_dict()``, which
+        gives the keys the tracker does not estimate: label, rms, ellipse, ...) with the
+        tracked values, their 1-sigma, ``frames_used`` and the rates.  ``at``: predicted to
+        that device time (s) from the last frame measured (a frame it could not measure)."""
+        assert self._s is not None and self.model is not None
+        dt = 0.0 if at is None or self.t is None else at - self.t
+        dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
+        # The delta method term by term (a value rests on one or two parameters): the
+        # state's covariance is sd_a sd_b corr_ab (the filters' variances, each moving
+        # parameter's lag behind the truth added where its innovations run consistently to
+        # one side, the single frame's correlation) plus the systematic part.  A runaway
+        # value overflows to inf (withheld).
+        numbers, var, cov_rf, absent = estimate_numbers(
+            self._model_code, self._s, self._c, dt, self.excess, self._corr, self._sys,
+            self._has_sys, LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
+        numbers, var = numbers.tolist(), var.tolist()
+        lag = self._lag_variance()
+        for i, name in enumerate(self.names):  # what the filter lags an accelerating contact by
+            extra = float(lag[i]) if i < lag.size else 0.0
+            key = _LAG_KEY.get(name)
+            if extra > 0.0 and key is not None:
+                j = VALUE_KEYS.index(key)
+                unit = (numbers[j] or 0.0) if name == "ln_f" else (
+                    180.0 / math.pi if name == "psi" else 1.0)
+                var[j] += extra * unit * unit
+        values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
+        if absent:
+            for i, key in enumerate(VALUE_KEYS):
+                if absent >> i & 1:
+                    values[key] = None
+        if values["angle_deg"] is not None:
+            values["angle_deg"] = wrap_deg(values["angle_deg"])
+        i_f, i_r = _I_FORCE, _I_R1
+        out = dict(base)
+        soft_keys, soft_reasons, base_reasons, base_std, flat = self._judged(base)
+        reasons = dict(base_reasons)
+        std: dict[str, float | None] = {}
+        for i, key in enumerate(VALUE_KEYS):
+            v = values[key]
+            if not soft_keys[i] or v is None or not math.isfinite(var[i]):
+                # not in this model, or withheld by the fit for what frames do not change (a
+                # line contact's radius): stays as the fit said
+                out[key] = base.get(key)
+                std[key] = base_std.get(key)
+                continue
+            sd_i = math.sqrt(var[i])
+            withheld = self._withheld(key, v, sd_i, flat[i])
+            if not withheld and key == "force_n" and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
+                r1, sd_r = values.get("r1_mm"), math.sqrt(var[i_r])
+                # a radius this estimate withholds (below) is as unresolved as one whose
+                # interval reaches zero: a force that trades with it rests on it
+                unresolved = (soft_keys[i_r] and r1 is not None
+                              and self._withheld("r1_mm", r1, sd_r, flat[i_r]) is not None)
+                withheld = radius_tied_force(r1, sd_r, sd_i, cov_rf, unresolved)
+            if withheld:
+                out[key], std[key] = None, None
+                reasons[key] = withheld
+                continue
+            out[key], std[key] = v, sd_i
+            if soft_reasons[i]:
+                del reasons[key]
+        rows = self._s.tolist()
+        rates, rate_sd = self._rates(values, reasons, rows[V], rows[PVV])
+        out.update(rates)
+        std.update(rate_sd)
+        out["std"] = std
+        out["reasons"] = reasons
+        out["frames_used"] = self.n
+        return out
+
+    def _judged(self, base: dict[str, Any]) -> tuple[list[bool], list[bool], dict[str, Any],
+                                                       dict[str, Any], list[bool]]:
+        """What of ``base`` (the fit the estimates rest on) the tracker judges again, per value
+        key: a value the fit gave, or withheld for a reason the frames gathered since may
+        lift (``_SOFT``); which of those reasons to drop once lifted; the fit's reasons and
+        1-sigma.  Kept while the same fit dict is the base (every frame of a contact)."""
+        memo = self._judged_memo
+        if memo is not None and memo[0] is base:
+            return memo[1]
+        reasons = base.get("reasons") or {}
+        why = [str(reasons.get(key, "")).startswith(_SOFT) for key in VALUE_KEYS]
+        soft = [base.get(key) is not None or w for key, w in zip(VALUE_KEYS, why)]
+        # a radius whose fit left it beyond the linearised sigma's tested range (its relative
+        # sigma over TEST_RELATIVE_SIGMA: a likelihood not shown quadratic, the regime where a
+        # weak frame's radius lands at 20-40 times the truth with a sigma of 50 %), or that the
+        # fit found flat below it: the filter pools linearised steps from such a point, so its
+        # value is published only once the frames bring its sigma within that range
+        std0 = base.get("std") or {}
+        flat = [FLAT in str(reasons.get(key, "")) or (
+            key in ("r1_mm", "r2_mm") and _beyond_tested(base.get(key), std0.get(key)))
+            for key in VALUE_KEYS]
+        judged = (soft, why, reasons, base.get("std") or {}, flat)
+        self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
+        return judged
+
+    def _withheld(self, key: str, v: float, sd: float, flat: bool = False) -> str | None:
+        """Why ``key`` (value ``v``, 1-sigma ``sd`` over the frames used) is withheld, by the
+        fitter's rules (tactiled.fit.uncertainty.unobservable); None to report it.
+        ``flat``: the fit found the likelihood flat below this radius
+        (:mod:`tactiled.fit.profile`), or left it outside the range that test vouches for
+        (a relative sigma over ``TEST_RELATIVE_SIGMA``), or withheld it: reported only once
+        the frames give it a relative sigma within ``TEST_RELATIVE_SIGMA``, where its sigma is
+        not in question."""
+        if key in ("x_mm", "y_mm"):
+            if sd > OFF_ARRAY_MM:
+                return f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
+            return None
+        if key not in ("r1_mm", "r2_mm", "force_n", "angle_deg") or (key != "angle_deg" and v <= 0.0):
+            return None
+        limit = self.withhold
+        if flat and key != "force_n":
+            limit = min(limit if limit is not None else math.inf, TEST_RELATIVE_SIGMA)
+        return sigma_reason(key, v, sd, None, limit, f" over {self.n} frame(s)")
+
+    def _rates(self, values: dict[str, float | None], reasons: dict[str, str], v: list[float],
+               pvv: list[float]) -> tuple[dict[str, float | None], dict[str, float | None]]:
+        rates: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
+        sds: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
+        if self.n < MIN_RATE_FRAMES:
+            why = f"the contact changed {self.n} frame(s) ago: too few frames for a rate"
+            for _, key, _ in self._rate_of:
+                reasons[key] = why
+        else:
+            excess = self.excess
+            for i, key, name in self._rate_of:
+                scale = (180.0 / math.pi if name == "psi"
+                         else (values["force_n"] or 0.0) if name == "ln_f" else 1.0)
+                rates[key] = v[i] * scale
+                sds[key] = math.sqrt(max(pvv[i] * excess, 0.0)) * abs(scale)
+        if self.model == "sphere":
+            reasons["angle_rate_deg_s"] = "undefined: sphere model"
+        return rates, sds
+
+
+def _beyond_tested(v: float | None, sd: float | None) -> bool:
+    """A fit's radius ``v`` (1-sigma ``sd``) outside the range where its linearised sigma is
+    tested (:data:`TEST_RELATIVE_SIGMA`), or not given at all."""
+    return v is None or sd is None or not (v > 0.0 and sd <= TEST_RELATIVE_SIGMA * v)
+
+
+def untracked(fit: dict[str, Any], frames_used: int, reason: str) -> dict[str, Any]:
+    """``fit`` (a fit's JSON dict) with the tracker's keys for an estimate it did not make
+    (no contact, tracking off): ``frames_used`` as given, the rates null with ``reason``."""
+    out = dict(fit)
+    out.update(dict.fromkeys(RATE_KEYS))
+    out["frames_used"] = frames_used
+    out["std"] = {**(fit.get("std") or {}), **dict.fromkeys(RATE_KEYS)}
+    out["reasons"] = {**(fit.get("reasons") or {}), **{k: reason for k in RATE_KEYS}}
+    return out
