@@ -43,18 +43,18 @@ COMPILED = ("tactiled._core",)
 #: The layers, lowest first: a module may import its own layer's modules and those below it.
 #: A module's layer is the one naming the longest prefix of its dotted name.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("tactiled", "tactiled._core", "tactiled.errors", "tactiled.files", "tactiled.native",
+    ("base", ("tactiled", "tactiled._core", "tactiled.errors", "tactiled.io.files", "tactiled.native",
               "tactiled.progress", "tactiled.heap", "tactiled.heapstats", "tactiled.systemd")),
     # a sensor: its model, description and vendor arrays, and the counts-to-strain table type
     # (calibration.lut, .segments: a vendor array's nominal table is one)
     ("sensor", ("tactiled.sensors", "tactiled.calibration.lut", "tactiled.calibration.segments")),
-    ("frames", ("tactiled.frames", "tactiled.clock", "tactiled.recording")),
+    ("frames", ("tactiled.frames", "tactiled.clock", "tactiled.io.recording")),
     ("physics", ("tactiled.physics",)),
     ("calibration", ("tactiled.calibration",)),
     ("fit", ("tactiled.fit", "tactiled.sensors.window")),
-    # sources holds the driver table (a URL checked by scheme, no driver imported)
-    ("sources", ("tactiled.sources", "tactiled.framefile", "tactiled.io", "tactiled.sim",
-                 "tactiled.shearsim")),
+    # sources holds the driver table (a URL checked by scheme, no driver imported); the file
+    # formats above the calibration (a calibration or press file holds its types)
+    ("sources", ("tactiled.sources", "tactiled.io", "tactiled.sim")),
     ("settings", ("tactiled.settings",)),
     ("pipeline", ("tactiled.pipeline",)),
     ("drivers", ("tactiled_drivers",)),
@@ -67,11 +67,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 BENCH_ENTRY = ("tactiled.commands.bench", "tactiled.commands.calibrate")
 
 #: Imports running up the layers today: (importer, imported) -> why, and the mend.
-UPWARD_KNOWN: dict[tuple[str, str], str] = {
-    ("tactiled.settings", "tactiled.pipeline.learned"):
-        "settings.py reads the learned state's default directory from the pipeline "
-        "(settings.py is to be the daemon's configuration only)",
-}
+UPWARD_KNOWN: dict[tuple[str, str], str] = {}
 #: Import cycles between modules today (their sorted members) -> the mend.
 CYCLES_KNOWN: dict[tuple[str, ...], str] = {
     ("tactiled.fit.fitter", "tactiled.fit.linewindow", "tactiled.fit.multi",
@@ -88,8 +84,6 @@ MAX_LINES = 700
 LONG_KNOWN: dict[str, str] = {
     "tactiled.fit.fitter": "the Fitter split by strategy",
     "tactiled.pipeline.pool": "the pool split into dispatch and supervision",
-    "tactiled.settings": "settings.py split by what it holds",
-    "tactiled.sim": "a simulation package",
 }
 #: Words a long module's first lines use to say it holds compiled kernels (and why it is long).
 KERNEL_FILE = "compiled-kernel file"
