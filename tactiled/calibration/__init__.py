@@ -6,7 +6,7 @@ files and ``docs/concepts/calibration.md`` for the estimation and the time const
 """
 
 from tactiled.calibration.builder import CalibrationReport, build_table, format_report
-from tactiled.calibration.contact import ContactDetector, detection_threshold, filter_matrices
+from tactiled.calibration.detection import ContactDetector, detection_threshold, filter_matrices
 from tactiled.calibration.isotonic import isotonic_increasing
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.presses import (

@@ -56,7 +56,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.detection import ContactDetector
 from tactiled.io.calibration import Calibration, load_calibration_file
 from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
 from tactiled.errors import TactiledError

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.detection import ContactDetector
 from tactiled.io.calibration import Calibration, load_calibration_file
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
