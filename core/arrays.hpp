@@ -4,6 +4,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include <string>
 #include <vector>
 
 namespace tactiled {
@@ -50,5 +51,26 @@ inline void frame_shape(const Arr& s, long long& rows, long long& cols) {
 template <class A>
 inline py::ssize_t dim(const A& a, int axis) {
     return a.ndim() > axis ? a.shape(axis) : 0;
+}
+
+// Inputs the kernels only read: converted to C-contiguous arrays of their type where they are
+// not (a copy); outputs (plain py::array, checked by data_of) are never converted.
+template <class T>
+using In = py::array_t<T, py::array::c_style | py::array::forcecast>;
+
+// An array argument as the kernels read it: C-contiguous, of dtype T, of `size` elements when
+// given; `writable`: written in place (then a read-only array is refused too).  A wrong dtype
+// or layout is a TypeError, never a silent copy that would lose the writes.
+template <class T>
+T* data_of(const py::array& a, const char* name, bool writable, py::ssize_t size = -1) {
+    if (!py::isinstance<py::array_t<T>>(a) || !(a.flags() & py::array::c_style))
+        throw py::type_error(std::string(name) + ": expected a C-contiguous " +
+                             py::str(py::dtype::of<T>()).cast<std::string>() + " array, got " +
+                             py::str(a.dtype()).cast<std::string>());
+    if (size >= 0 && a.size() != size)
+        throw py::value_error(std::string(name) + ": expected " + std::to_string(size) +
+                              " values, got " + std::to_string(a.size()));
+    if (writable && !a.writeable()) throw py::value_error(std::string(name) + ": array is read-only");
+    return static_cast<T*>(const_cast<void*>(a.data()));
 }
 }  // namespace tactiled

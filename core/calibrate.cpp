@@ -11,6 +11,7 @@
 #include <tuple>
 #include <vector>
 
+#include "arrays.hpp"
 #include "stages.hpp"
 
 namespace py = pybind11;
@@ -114,29 +115,6 @@ void follow_baseline(double* baseline, double* z, std::int64_t n, double weight,
 }  // namespace calib
 
 namespace {
-// Inputs the kernels only read: converted to C-contiguous arrays of their type where they are
-// not (a copy); outputs (py::array below) are never converted.
-template <class T>
-using In = py::array_t<T, py::array::c_style | py::array::forcecast>;
-
-// An array argument as the kernels read it: C-contiguous, of dtype T, of `size` elements when
-// given; `writable`: written in place (then a read-only array is refused too).
-template <class T>
-T* data_of(const py::array& a, const char* name, bool writable, py::ssize_t size = -1) {
-    if (!py::isinstance<py::array_t<T>>(a) || !(a.flags() & py::array::c_style))
-        throw py::type_error(std::string(name) + ": expected a C-contiguous " +
-                             py::str(py::dtype::of<T>()).cast<std::string>() + " array, got " +
-                             py::str(a.dtype()).cast<std::string>());
-    if (size >= 0 && a.size() != size)
-        throw py::value_error(std::string(name) + ": expected " + std::to_string(size) +
-                              " values, got " + std::to_string(a.size()));
-    if (writable) {
-        if (!a.writeable()) throw py::value_error(std::string(name) + ": array is read-only");
-        return static_cast<T*>(const_cast<void*>(a.data()));
-    }
-    return static_cast<T*>(const_cast<void*>(a.data()));
-}
-
 std::tuple<std::int64_t, double, double> zero_frame_py(
     py::array raw, In<double> offset, In<double> breaks, In<std::int64_t> first,
     In<double> params, In<double> baseline, py::array peak, double fraction, double decay,

@@ -17,5 +17,8 @@ void bind_all(pybind11::module_& m) {
     bind_window(m);
     bind_start(m);
     bind_flatfield(m);
+    bind_tracker(m);
+    bind_linewindow(m);
+    bind_halfspace(m);
 }
 }  // namespace tactiled

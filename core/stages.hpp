@@ -19,5 +19,8 @@ void bind_search(pybind11::module_& m);
 void bind_window(pybind11::module_& m);
 void bind_start(pybind11::module_& m);
 void bind_flatfield(pybind11::module_& m);
+void bind_tracker(pybind11::module_& m);
+void bind_linewindow(pybind11::module_& m);
+void bind_halfspace(pybind11::module_& m);
 void bind_all(pybind11::module_& m);
 }  // namespace tactiled

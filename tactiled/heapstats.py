@@ -6,9 +6,9 @@
 * :func:`pymalloc_figures`: Python's small-object allocator (1 MiB arenas held, bytes of live
   objects in them);
 * :func:`heap_figures`: all of them, one flat dict of numbers (MB, counts);
-* :func:`fitter_cache_figures` (the fitter's quadrature-rule caches and start tables, numba's
-  compiled specialisations), :func:`gc_figures` (the cyclic collector), and
-  :func:`worker_figures`, what a fit worker answers to the pool's ``memory`` request.
+* :func:`fitter_cache_figures` (the fitter's quadrature-rule caches and start tables),
+  :func:`gc_figures` (the cyclic collector), and :func:`worker_figures`, what a fit worker
+  answers to the pool's ``memory`` request.
 
 RSS that grows while the bytes in use do not is an allocator keeping freed memory
 (fragmentation), not a leak; bytes in use that grow are a leak or a cache filling up.  Linux
@@ -141,7 +141,7 @@ def pymalloc_figures() -> dict[str, float]:
 def rss_parts_mb(pid: int | str = "self") -> dict[str, float]:
     """The resident set split as the kernel books it (``/proc/PID/status``): ``rss_anon_mb``
     (heap, stacks, anonymous mappings: what allocators hold) and ``rss_file_mb`` (pages of
-    mapped files touched: code of the libraries and of numba's compiled kernels).  {} if
+    mapped files touched: code of the libraries and of the compiled core).  {} if
     unavailable."""
     keys = {"RssAnon:": "rss_anon_mb", "RssFile:": "rss_file_mb"}
     out: dict[str, float] = {}

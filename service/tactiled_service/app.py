@@ -23,7 +23,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, WebSocketRoute
 
 from tactiled import __version__
-from tactiled.calibration.model import constants_report
+from tactiled.calibration.identified import constants_report
 from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon, UnknownSensorError
 from tactiled.settings import Settings

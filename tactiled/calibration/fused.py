@@ -1,6 +1,6 @@
 """The calibration stage's per-frame arithmetic, as compiled kernels: the core's
 (core/calibrate.cpp, ``tactiled._core``) or, with ``TACTILED_CORE=python``, their reference
-in numba (:mod:`tactiled.calibration.fused_reference`, which says what each does).  The two
+in NumPy (:mod:`tactiled.calibration.fused_reference`, which says what each does).  The two
 take the same arguments and give the same bits (tests/native/test_calibrate_core.py).
 
 * :func:`zero_frame`: raw counts -> linearised, zeroed, hysteresis-compensated strain and the
@@ -10,7 +10,7 @@ take the same arguments and give the same bits (tests/native/test_calibrate_core
 * :func:`drift_error`, :func:`pull_baseline`: drift followed around a held contact;
 * :func:`learn_hysteresis`: a step of the hysteresis learner.
 
-With the core selected, numba is not imported here: nothing is compiled at first use.
+Nothing is compiled at first use: the core is built by ``pip install``.
 """
 
 from __future__ import annotations

@@ -21,8 +21,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from numba import njit
-
+from tactiled import native
 from tactiled.fit.regions import SUPPORT_Z
 from tactiled.fit.window import choose_window
 
@@ -47,37 +46,22 @@ def band(clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: flo
                       int(peak_idx[0]), int(peak_idx[1]), max(SUPPORT_Z * sigma, BAND_SHARE * peak))
 
 
-@njit(cache=True, nogil=True)
 def ridge_band(clean: np.ndarray, ok: np.ndarray, m: int, n: int, threshold: float) -> np.ndarray:
     """The usable tactels above ``threshold`` 8-connected to ``(m, n)`` (a flood fill), grown
-    by one tactel on every side, usable ones only."""
-    rows, cols = clean.shape
-    ridge = np.zeros((rows, cols), dtype=np.bool_)
-    stack = np.empty((rows * cols, 2), dtype=np.int64)
-    ridge[m, n] = True
-    stack[0, 0], stack[0, 1] = m, n
-    top = 1
-    while top > 0:
-        top -= 1
-        i, j = stack[top, 0], stack[top, 1]
-        for di in (-1, 0, 1):
-            for dj in (-1, 0, 1):
-                a, b = i + di, j + dj
-                if 0 <= a < rows and 0 <= b < cols and not ridge[a, b] and ok[a, b] \
-                        and clean[a, b] > threshold:
-                    ridge[a, b] = True
-                    stack[top, 0], stack[top, 1] = a, b
-                    top += 1
-    out = np.zeros((rows, cols), dtype=np.bool_)
-    for i in range(rows):
-        for j in range(cols):
-            if ridge[i, j]:
-                for di in (-1, 0, 1):
-                    for dj in (-1, 0, 1):
-                        a, b = i + di, j + dj
-                        if 0 <= a < rows and 0 <= b < cols and ok[a, b]:
-                            out[a, b] = True
-    return out
+    by one tactel on every side, usable ones only.  The core's (core/linewindow.cpp) fills
+    from the peak; this reference labels the 8-connected regions and keeps the peak's."""
+    from scipy import ndimage
+
+    eight = np.ones((3, 3), dtype=bool)
+    above = ok & (clean > threshold)
+    above[m, n] = True  # the peak starts the fill, whatever its value
+    labels, _ = ndimage.label(above, structure=eight)
+    ridge = labels == labels[m, n]
+    return ndimage.binary_dilation(ridge, structure=eight) & ok
+
+
+#: The Python body the core is held to (tests/native), whichever runs.
+REFERENCE = native.bind(globals(), ("ridge_band",))
 
 
 def bounding_window(tactels: np.ndarray) -> tuple[int, int, int, int]:
@@ -104,7 +88,8 @@ def line_frame(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, size: i
     """The line model's window on ``strain`` (a ``fitter._Frame``, or the FitResult saying
     there is none): the line's band, or with ``size`` a square window of that side on the
     ridge (:func:`square_window`)."""
-    from tactiled.fit.fitter import _LINE_MODEL, FitResult
+    from tactiled.fit.result import FitResult
+    from tactiled.fit.search import LINE_MODEL as _LINE_MODEL
 
     fr = fitter._window(strain, _LINE_MODEL, mask)
     if isinstance(fr, FitResult):
@@ -131,7 +116,7 @@ def chi2_on_band(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, model
     tactels, the band the line was fitted on (a ridge's segment that a finite ellipse explains
     in a 4x4 window, the ellipse's ends leave unexplained along the band).  ``(None, 0)``
     without a band or a prediction."""
-    from tactiled.fit.fitter import FitResult
+    from tactiled.fit.result import FitResult
     from tactiled.fit.multi import _point_strain
 
     fr = line_frame(fitter, strain, mask)
@@ -150,7 +135,7 @@ def runs_across(fitter: Any, flat: np.ndarray, mask: np.ndarray | None) -> tuple
     """Whether the strain through the peak of ``flat`` (after the flat field) is a ridge that
     runs across the array (a line contact: no ellipse has both its ends beyond the array),
     and the line's band there (None without a peak)."""
-    from tactiled.fit.fitter import FitResult
+    from tactiled.fit.result import FitResult
 
     fr = line_frame(fitter, flat, mask)
     if isinstance(fr, FitResult):

@@ -1,11 +1,11 @@
-"""The contact models' parameter vectors in user units, without the physics (no numba).
+"""The contact models' parameter vectors in user units, without the physics.
 
 Each model fits an unconstrained internal vector (see :mod:`tactiled.fit.models`):
 ``cylinder [ln R, psi, ln F, x0, y0]``, ``sphere [ln R, ln F, x0, y0]``, ``general [ln R_a,
 beta, psi, ln F, x0, y0]`` (mm, radians, N).  :func:`report` turns one into the values a user
 reads (mm, N, degrees) with the gradient for the delta method.  It lives here, apart from the
-compiled physics, so the daemon's main process (the temporal tracker) can report a contact
-without importing numba.
+physics, so the daemon's main process (the temporal tracker) can report a contact without
+importing the fitter.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Warm starts of several contacts: the tag a worker's answer carries and how a new frame's
-regions pick theirs.  Light (no numba, no scipy): the main process imports it."""
+regions pick theirs.  Light (no scipy): the main process imports it."""
 
 from __future__ import annotations
 

@@ -24,7 +24,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from tactiled import native
 
 
 def shear_modulus(modulus: float, nu: float) -> float:
@@ -66,45 +67,17 @@ def green(dx: np.ndarray, dy: np.ndarray, z: float, g: float, nu: float) -> np.n
     return out
 
 
-@njit(cache=True, nogil=True)
 def green_weighted(px: np.ndarray, py: np.ndarray, ox: np.ndarray, oy: np.ndarray, weights: np.ndarray,
                    z: float, g: float, nu: float) -> np.ndarray:
     """``out[k, i, j, p] = sum_n green(px[p] - ox[n], py[p] - oy[n])[i, j] * weights[k, j, n]``:
     the displacements at points ``p`` of ``k`` sets of point forces at nodes ``n`` (weights per
-    force axis ``j``), compiled (the same algebra as :func:`green`, which the tests compare)."""
-    nk, npts, nn = weights.shape[0], px.shape[0], ox.shape[0]
-    out = np.zeros((nk, 3, 3, npts))
-    k2 = 1.0 - 2.0 * nu
-    c = 1.0 / (4.0 * math.pi * g)
-    zz = z * z
-    for p in range(npts):
-        for n in range(nn):
-            dx = px[p] - ox[n]
-            dy = py[p] - oy[n]
-            rho2 = dx * dx + dy * dy + zz
-            rho = math.sqrt(rho2)
-            inv_r = 1.0 / rho
-            inv_r3 = inv_r / rho2
-            rz = rho + z
-            a = inv_r / rz
-            b = a / rz
-            gxx = c * (inv_r + dx * dx * inv_r3 + k2 * (1.0 / rz - dx * dx * b))
-            gyy = c * (inv_r + dy * dy * inv_r3 + k2 * (1.0 / rz - dy * dy * b))
-            gxy = c * dx * dy * (inv_r3 - k2 * b)
-            gzx = c * dx * (z * inv_r3 + k2 * a)
-            gzy = c * dy * (z * inv_r3 + k2 * a)
-            gxz = c * dx * (z * inv_r3 - k2 * a)
-            gyz = c * dy * (z * inv_r3 - k2 * a)
-            gzz = c * (zz * inv_r3 + 2.0 * (1.0 - nu) * inv_r)
-            for k in range(nk):
-                wx, wy, wz = weights[k, 0, n], weights[k, 1, n], weights[k, 2, n]
-                out[k, 0, 0, p] += gxx * wx
-                out[k, 1, 0, p] += gxy * wx
-                out[k, 2, 0, p] += gzx * wx
-                out[k, 0, 1, p] += gxy * wy
-                out[k, 1, 1, p] += gyy * wy
-                out[k, 2, 1, p] += gzy * wy
-                out[k, 0, 2, p] += gxz * wz
-                out[k, 1, 2, p] += gyz * wz
-                out[k, 2, 2, p] += gzz * wz
-    return out
+    force axis ``j``).  The core (core/halfspace.cpp) sums node after node; this reference
+    through :func:`green` and one ``einsum`` (another order of the sums: equal to rounding)."""
+    px, py = np.asarray(px, dtype=float), np.asarray(py, dtype=float)
+    gf = green(px[:, None] - np.asarray(ox, dtype=float)[None, :],
+               py[:, None] - np.asarray(oy, dtype=float)[None, :], z, g, nu)  # (3, 3, p, n)
+    return np.einsum("ijpn,kjn->kijp", gf, np.asarray(weights, dtype=float))
+
+
+#: The Python body the core is held to (tests/native), whichever runs.
+REFERENCE = native.bind(globals(), ("green_weighted",))

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 
 log = logging.getLogger("tactiled.pipeline.sensor")
 

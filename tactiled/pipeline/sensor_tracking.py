@@ -27,7 +27,7 @@ from tactiled.pipeline.contact_filter import untracked
 
 if TYPE_CHECKING:
     from tactiled.pipeline.multi_contact import ContactTrackers
-    from tactiled.pipeline.pool import FitJob
+    from tactiled.pipeline.jobs import FitJob
     from tactiled.pipeline.sensor import SensorPipeline
 
 log = logging.getLogger("tactiled.pipeline.sensor")

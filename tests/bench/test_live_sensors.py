@@ -1,7 +1,7 @@
 """``tactiled bench --suite sensors``'s live part: the daemon's own estimates of the demo scene
 on a coarse pad (XELA 4x4: without the gate's carry limit one fit was reused for 220 frames
 while the cylinder rolled), through the whole daemon with real worker processes, scored
-against the simulator's truth (tactiled/bench/live_sensors.py).
+against the simulator's truth (benchmarks/tactiled_bench/live_sensors.py).
 
 Bars: no value bit-identical for more than ``MAX_CARRIED`` + 1 estimates while its contact
 moves; no estimate listing a second contact on a pad touched once; at least 85 % of the
@@ -17,7 +17,7 @@ import math
 
 import pytest
 
-from tactiled.bench import live_sensors
+from tactiled_bench import live_sensors
 from tactiled.fit.params import VALUE_KEYS
 from tactiled.fit.verdict import ArrayLimits, ellipse_of
 from tactiled.pipeline.gate import MAX_CARRIED

@@ -1,4 +1,4 @@
-"""The core's calibration kernels (core/calibrate.cpp) against their numba reference
+"""The core's calibration kernels (core/calibrate.cpp) against their NumPy reference
 (tactiled.calibration.fused_reference): the same bits out, on hypothesis-drawn frames, tables,
 baselines and hysteresis states, and frame after frame through a whole calibration stage on a
 simulated finger (contacts, drift followed, hysteresis learnt)."""

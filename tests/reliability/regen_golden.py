@@ -52,14 +52,12 @@ def replay_command(path: Path) -> list[str]:
 
 
 #: The replay's numerics pinned to baseline x86-64, so that the golden files do not depend on
-#: the CPU that runs the test.  Unpinned, the fits are built for the host: numba's kernels
-#: (fastmath reassoc/contract: vector width and FMA), OpenBLAS's kernels, numpy's SIMD loops and
-#: glibc's libm (FMA variants of exp, log, sin, ...) all follow the CPU's features, and a fit
+#: the CPU that runs the test.  Unpinned, the fits follow the host: OpenBLAS's kernels, numpy's
+#: SIMD loops and glibc's libm (FMA variants of exp, log, sin, ...) all follow the CPU's features, and a fit
 #: near the edge of what the data supports (force too low for curvature) then takes another
 #: path from a last-bit difference: other iteration counts, even another convergence verdict.
 #: The goldens made on an AVX2 machine differed from an AVX-512 machine in ~40 % of the lines.
 PINNED_ENV = {
-    "NUMBA_CPU_NAME": "generic",
     "OPENBLAS_CORETYPE": "Prescott",
     "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
     "GLIBC_TUNABLES": "glibc.cpu.hwcaps=-AVX2,-FMA,-FMA4,-AVX512F,-AVX",

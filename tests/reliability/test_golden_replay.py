@@ -10,7 +10,7 @@ and waits for it, so the output depends only on the recording.
 
 Comparison: the parsed JSON of every line, exactly for strings, integers, booleans and nulls
 (gate, model, iterations, converged, seq, ...), and within a relative 1e-9 for floats.  The
-replay runs with its numerics pinned to baseline x86-64 (``regen_golden.PINNED_ENV``: numba,
+replay runs with its numerics pinned to baseline x86-64 (``regen_golden.PINNED_ENV``:
 OpenBLAS, numpy's SIMD loops and glibc's libm), because unpinned they follow the host CPU, and
 fits near the edge of what the data supports take another path from a last-bit difference:
 goldens made on an AVX2 machine differed on an AVX-512 one in 65-73 of each session's 90
@@ -95,11 +95,10 @@ def outline(estimate: dict) -> dict:
 
 
 def test_the_host_cpu_changes_nothing_but_last_digits() -> None:
-    """The daemon itself is not pinned: replayed with the host's own numerics (numba for the
-    host CPU, OpenBLAS's and numpy's SIMD kernels, libm's FMA variants), every session must
-    give the golden estimates with every verdict, model, gate, iteration count and message the
-    same, and every float within a relative 1e-6.  Before the convergence verdict was made
-    robust (docs/concepts/fitting.md), an AVX2 host changed 2 verdicts, 8 models and 24 iteration
+    """The daemon itself is not pinned: replayed with the host's own numerics (OpenBLAS's and
+    numpy's SIMD kernels, libm's FMA variants), every session must give the golden estimates
+    with every verdict, model, gate, iteration count and message the same, and every float
+    within a relative 1e-6.  Before the convergence verdict was made robust (docs/concepts/fitting.md), an AVX2 host changed 2 verdicts, 8 models and 24 iteration
     counts of these sessions against the pinned goldens, and moved values by up to 0.35 sigma.
     An estimate whose fit measured nothing (:func:`unmeasured`) keeps its outline: in the press
     session's release a frame at 2.8 noise sigmas fitted as a line contact with a force sigma
