@@ -279,3 +279,13 @@ def withheld_since(before: dict[str, Any], after: dict[str, Any]) -> list[str]:
     pairs = [(before, after), *zip(before.get("contacts") or (), after.get("contacts") or ())]
     return [k for b, a in pairs for k in VALUE_KEYS
             if b.get(k) is not None and a.get(k) is None]
+
+
+def carry(fit: dict[str, Any], change: float, frames: int, limits: ArrayLimits, *,
+          withhold_relative_sigma: float | None = None) -> dict[str, Any] | None:
+    """``fit`` (a published fit dict) :func:`carried` to a later frame and judged by the rule;
+    None where that withholds a value ``fit`` published (:func:`withheld_since`): carrying
+    never costs a value a fit of the frame would give, so that frame is fitted instead."""
+    out = judge(carried(fit, change, frames), limits,
+                withhold_relative_sigma=withhold_relative_sigma)
+    return None if withheld_since(fit, out) else out
