@@ -176,7 +176,7 @@ def mismatch(fitter: Fitter, model: Model, sol: SolveResult, peak: float, zdata:
     else:
         learning = learn and not fitter.frozen  # not from a fit its budget stopped short
         if learning:
-            weight = learn(fitter, rows, excess_i, excess, s_f, g_f, dof, ts, tg)
+            weight = feed_floor(fitter, rows, excess_i, excess, s_f, g_f, dof, ts, tg)
         if fitter.flat is not None:
             r0, c0, nr, nc = win
             ii, jj = np.divmod(np.flatnonzero(valid), nc)
@@ -217,7 +217,7 @@ def mismatch(fitter: Fitter, model: Model, sol: SolveResult, peak: float, zdata:
         + (f" (flat field: {fitter.flat.note})" if corrections is not None else ""))
 
 
-def learn(fitter: Fitter, rows: np.ndarray, excess_i: np.ndarray, excess: float, s_f: float, g_f: float,
+def feed_floor(fitter: Fitter, rows: np.ndarray, excess_i: np.ndarray, excess: float, s_f: float, g_f: float,
            dof: int, ts: float, tg: float) -> float:
     """Feed one fit to the floor learner.  Every fit feeds it (leaving out the flagged
     ones, the heavy frames, would bias it low), scaled down to a cap near what the pool
