@@ -39,6 +39,8 @@ EDGE_MM = 1.0
 #: The words of the reason (the tracker keeps such a radius withheld until the frames it
 #: pools give it a relative sigma of at most ``TEST_RELATIVE_SIGMA``, where it is not tested).
 FLAT = "the likelihood is flat below it"
+#: ... and of a line's orientation found flat (the one rule withholds the line's place with it)
+FLAT_ACROSS = "the likelihood is flat across it"
 #: A line's orientation whose linearised 1-sigma exceeds this (deg) has its profile tested
 #: on both sides (two more searches; below it the test is not worth its cost: a line whose
 #: angle is that sharp lies well above the noise along a window of several tactels).
@@ -118,7 +120,7 @@ def angle_profile(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndar
     flat = [(d, r) for d, r in points if r < FLAT_CHI2]
     if flat:
         dist, rise = max(flat)
-        return (f"orientation not observable: the likelihood is flat across it (chi^2 rises by "
+        return (f"orientation not observable: {FLAT_ACROSS} (chi^2 rises by "
                 f"{max(rise, 0.0):.2g}, not {(dist / sd_deg) ** 2:.3g}, {dist:.3g} deg to one "
                 "side): its sigma does not hold")
     # each point lies sqrt(rise) sigmas away: the widest sigma that says so

@@ -37,6 +37,7 @@ from tactiled.fit.params import (
     UNOBSERVABLE_RELATIVE_SIGMA,
     VALUE_KEYS,
 )
+from tactiled.fit.profile import FLAT_ACROSS
 from tactiled.physics.hertz import contact_ellipse_radii
 
 #: What the ellipse rule withholds: the values that say how large a contact is.
@@ -163,6 +164,15 @@ def judge_values(values: dict[str, Any], std: dict[str, Any], reasons: dict[str,
                                                            "angle_deg")):
             _withhold(values, std, reasons, key, why)
     if label == "line":
+        if FLAT_ACROSS in str(reasons.get("angle_deg", "")):
+            # the line's orientation is not known, its likelihood flat across it: the joint
+            # likelihood is not quadratic, so the linearised sigma of its place (which trades
+            # with the orientation) does not hold either
+            why = ("position not observable: the line's orientation is not (its likelihood is "
+                   "flat across it), and its place rests on it")
+            for key in ("x_mm", "y_mm"):
+                if values.get(key) is not None:
+                    _withhold(values, std, reasons, key, why)
         return None  # a line's radius and load are judged above; it has no ellipse to bound
     ell = ellipse_of(values, limits)
     if ell is None:
@@ -269,3 +279,13 @@ def withheld_since(before: dict[str, Any], after: dict[str, Any]) -> list[str]:
     pairs = [(before, after), *zip(before.get("contacts") or (), after.get("contacts") or ())]
     return [k for b, a in pairs for k in VALUE_KEYS
             if b.get(k) is not None and a.get(k) is None]
+
+
+def carry(fit: dict[str, Any], change: float, frames: int, limits: ArrayLimits, *,
+          withhold_relative_sigma: float | None = None) -> dict[str, Any] | None:
+    """``fit`` (a published fit dict) :func:`carried` to a later frame and judged by the rule;
+    None where that withholds a value ``fit`` published (:func:`withheld_since`): carrying
+    never costs a value a fit of the frame would give, so that frame is fitted instead."""
+    out = judge(carried(fit, change, frames), limits,
+                withhold_relative_sigma=withhold_relative_sigma)
+    return None if withheld_since(fit, out) else out

@@ -58,6 +58,9 @@ class Gate:
         self.configure(sigma=sigma, z=z, reuse_unchanged=reuse_unchanged)
         self._reference: np.ndarray | None = None
         self._carried = 0  # frames answered "unchanged" since the reference was fitted
+        #: frames found unchanged and fitted all the same: carried, their estimate would have
+        #: lost a value to the one rule (the pipeline counts them; ``reuse_refused``)
+        self.refused = 0
         #: the last ``decide``'s change since the reference, ``|delta s|^2 / sigma^2``: the
         #: upper bound at ``z`` of its estimate ``2 (chi2 - n)`` (never below 0; inf before a
         #: test): what an estimate carried to that frame must cover

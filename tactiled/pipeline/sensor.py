@@ -35,7 +35,7 @@ from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.result import FitResult
-from tactiled.fit.verdict import ArrayLimits, carried, judge, withheld_since
+from tactiled.fit.verdict import ArrayLimits, carry, judge
 from tactiled.frames import Frame
 from tactiled.pipeline.estimate import (
     GATE_FIT,
@@ -220,7 +220,6 @@ class SensorPipeline:
         self.published = 0
         self.skipped = {GATE_NO_CONTACT: 0, GATE_UNCHANGED: 0}
         self.stale_dropped = 0
-        self.reuse_refused = 0  # unchanged frames fitted: carried, a value would be withheld
         self.relinearize_lost = 0
         self.fit_failed = 0
         self.fit_errors = 0
@@ -432,10 +431,9 @@ class SensorPipeline:
             self.tracking.track(waiting, contact, nonfinite)
             return
         if self._waiting is not None or self._in_flight is not None:
-            # A fit is outstanding for a frame that had changed: its result will be fresher
-            # than the reference, so reusing the old estimate now would only make that result
-            # stale.  Only the contact flag matters here; the waiting frame is gated again
-            # against the new reference when the result arrives (_regate_waiting).
+            # A fit is outstanding for a frame that had changed: its result will be fresher than
+            # the reference, so reusing the old estimate now would make it stale.  Only the contact
+            # flag matters; the waiting frame is gated again when it arrives (_regate_waiting).
             action = GATE_NO_CONTACT if not contact else GATE_FIT
         else:
             action = self.gate.decide(strain, contact).action
@@ -454,25 +452,22 @@ class SensorPipeline:
             self.pool.wake()
 
     def _reuse_unchanged(self, w: _Waiting) -> bool:
-        """With nothing to track (the contact's last fit could not place it: a frame at the
-        noise, a light touch), a frame the gate finds unchanged since that fit is answered
-        with it, as without tracking (a justified reuse): refitting would give the same
-        unplaceable contact, at the price of the slowest fits there are."""
+        """With nothing to track (the contact's last fit could not place it: a light touch), a
+        frame the gate finds unchanged since that fit is answered with it, as without tracking:
+        refitting would give the same contact, at the price of the slowest fits there are."""
         last = self._last_fit
         if last is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
             return False
         return self._publish_reuse(w, last)
 
     def _publish_reuse(self, w: _Waiting, last: Estimate) -> bool:
-        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since),
-        its sigmas widened by the change the gate could have missed; False (nothing
-        published: the frame needs a fit) when the one rule would withhold a value so carried
-        that ``last`` published: a fit of the frame can still say it."""
+        """Answer ``w`` with ``last``'s fit carried to it (the gate found it unchanged since:
+        :func:`~tactiled.fit.verdict.carry`); False when a fit is due instead."""
         frames = w.seq - last.fitted_seq if last.fitted_seq is not None else 0
-        fit = judge(carried(last.fit, self.gate.change, frames), self._limits,
+        fit = carry(last.fit, self.gate.change, frames, self._limits,
                     withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
-        if withheld_since(last.fit, fit):
-            self.reuse_refused += 1
+        if fit is None:
+            self.gate.refused += 1
             return False
         self.skipped[GATE_UNCHANGED] += 1
         self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0, fit, fresh=True)
@@ -486,13 +481,11 @@ class SensorPipeline:
 
     def _regate_waiting(self) -> None:
         """After a new fit is published, a waiting frame unchanged since is answered with it."""
-        w = self._waiting
-        if w is not None and self._reuse_unchanged(w):
+        if self._waiting is not None and self._reuse_unchanged(self._waiting):
             self._waiting = None
 
     def _end_contact(self) -> None:
-        """The contact ended (or a tare, new settings): forget it and the fit to reuse; frames
-        still waiting for a fit are given up (counted superseded)."""
+        """The contact ended (a tare, new settings): forget it; waiting frames are given up."""
         self.tracking.clear()
         self.gate.reset()
         self._last_fit = None

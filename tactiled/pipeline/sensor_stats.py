@@ -118,7 +118,7 @@ class SensorStats:
             published=pipe.published,
             skipped=dict(pipe.skipped),
             stale_dropped=pipe.stale_dropped,
-            reuse_refused=pipe.reuse_refused,
+            reuse_refused=pipe.gate.refused,
             track=pipe.settings.track,
             tracked=tracking.tracked,
             track_resets=tracking.tracker.resets,

@@ -60,6 +60,27 @@ def test_a_contact_mostly_off_the_array_has_no_force_nor_radii() -> None:
     assert fit["x_mm"] == 10.0 and fit["angle_deg"] == 80.0  # what is seen stays
 
 
+def test_a_lines_place_is_withheld_with_an_orientation_whose_likelihood_is_flat() -> None:
+    """The profile found a line's likelihood flat across its orientation: the linearised
+    sigma of its place, which trades with the orientation, does not hold either (live on the
+    Robotiq pad such a line was published 6.2 mm off with a sigma of 0.08 mm).  An orientation
+    withheld for its sigma alone leaves the place as it is."""
+    flat = _fit_dict(x_mm=12.2, y_mm=5.1, r1_mm=None)
+    flat.update(label="line", model="cylinder", angle_deg=None)
+    flat["reasons"]["angle_deg"] = ("orientation not observable: the likelihood is flat across it "
+                                    "(chi^2 rises by 0, not 4, 4.92 deg to one side): its sigma "
+                                    "does not hold")
+    judge(flat, ArrayLimits.of(load_description("robotiq_tsf85").sensor_model()))
+    for key in ("x_mm", "y_mm"):
+        assert flat[key] is None and flat["std"][key] is None
+        assert "orientation is not" in flat["reasons"][key]
+    wide = _fit_dict(x_mm=12.2, y_mm=5.1)
+    wide.update(label="line", model="cylinder", angle_deg=30.0)
+    wide["std"]["angle_deg"] = 60.0
+    judge(wide, ArrayLimits.of(load_description("robotiq_tsf85").sensor_model()))
+    assert wide["angle_deg"] is None and wide["x_mm"] == 12.2 and wide["y_mm"] == 5.1
+
+
 def test_a_value_its_own_sigma_does_not_bound_is_withheld_on_every_contact() -> None:
     one = _fit_dict(x_mm=10.0, y_mm=12.0, force_n=0.5, r1_mm=8.0, r2_mm=8.0)
     one["std"]["force_n"] = 20.0  # 40 times the force
