@@ -32,17 +32,21 @@ import argparse
 import asyncio
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactiled import io
 from tactiled.commands import replay
 from tactiled.errors import ConfigError, TactiledError
-from tactiled.files import check_input, check_output
+from tactiled.io.files import check_input, check_output
 from tactiled.frames import new_decoder
 from tactiled.progress import Progress
-from tactiled.recording import RecordingReader
+from tactiled.io.recording import RecordingReader
 from tactiled.settings import load_settings
+
+if TYPE_CHECKING:
+    from tactiled.pipeline.sensor_stats import SensorStats
 
 FORMATS = (".mcap", ".npz")
 
@@ -92,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"exported {n} frame(s) to {out}", file=sys.stderr)
         return 0
     try:
-        from tactiled_service.ros2.mcap_file import McapWriter
-    except ImportError as err:
+        McapWriter = io.writer("messages", out)  # tactiled_service's, through its entry point
+    except (ImportError, ValueError) as err:
         return _fail(f"writing MCAP needs the ros2 extra: pip install 'tactiled[ros2]' ({err})")
     try:
         settings = load_settings(None, {}, {**_overrides(args), "ros2.namespace": args.namespace})
@@ -141,7 +145,8 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
         progress.step()
         if stamp >= state["due"]:
             state["due"] = stamp + 1.0
-            writer.write_diagnostics(_health(daemon.stats(name), state), stamp, hardware_ids)
+            writer.write_diagnostics(_health(daemon.sensor_stats(name), state), stamp,
+                                     hardware_ids)
 
     daemon.hub.add_listener(on_item)
     await daemon.start()
@@ -153,23 +158,22 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
     return stats
 
 
-def _health(stats: dict[str, Any], state: dict[str, Any]) -> dict[str, Any]:
+def _health(stats: SensorStats, state: dict[str, Any]) -> dict[str, Any]:
     """A health document from a replayed sensor's counters: WARN when frames were corrupt,
     lost or duplicated, or fits failed, since the previous one (the recording's own health;
     the daemon's timing rules -- silence, stale estimates -- mean nothing in a replay)."""
-    dec = stats.get("decoder", {})
-    counts = {"corrupt chunks": int(dec.get("crc_errors", 0)) + int(dec.get("length_errors", 0)),
-              "lost frames": int(dec.get("lost", 0)),
-              "duplicated frames": int(dec.get("duplicated", 0)),
-              "fit errors": int(stats.get("fit_errors", 0))}
+    counts = {"corrupt chunks": stats.decoded("crc_errors") + stats.decoded("length_errors"),
+              "lost frames": stats.decoded("lost"),
+              "duplicated frames": stats.decoded("duplicated"),
+              "fit errors": stats.fit_errors}
     total = sum(counts.values())
     grew = total > state["errors"]
     state["errors"] = total
     reason = ", ".join(f"{n} {what}" for what, n in counts.items() if n) if grew else ""
-    return {"sensors": {stats["sensor"]: {
+    return {"sensors": {stats.sensor: {
         "status": "WARN" if grew else "OK",
         "reason": f"since start: {reason}" if reason else "",
-        "frames": stats.get("frames"), "published": stats.get("published")}}}
+        "frames": stats.frames, "published": stats.published}}}
 
 
 def export_npz(path: str, out: Path, progress: Progress) -> int:

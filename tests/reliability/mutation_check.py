@@ -14,7 +14,7 @@ import os, shutil, subprocess, sys, tempfile, time
 from pathlib import Path
 SRC = str(Path(__file__).resolve().parents[2])
 DST = tempfile.mkdtemp(prefix="tactiled-mut-") + "/repo"
-ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/drivers:{DST}/service")
+ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/benchmarks:{DST}/drivers:{DST}/service")
 PY = sys.executable
 
 MUTATIONS = [
@@ -39,10 +39,10 @@ MUTATIONS = [
  ("M6 decoder not reset on reconnect", "drivers/tactiled_drivers/serial.py",
   "        self.decoder.reset()", "        pass",
   ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
- ("M7 worker death not noticed (sentinel and EOF)", "tactiled/pipeline/pool.py",
+ ("M7 worker death not noticed (sentinel and EOF)", "tactiled/pipeline/supervision.py",
   '        if w.state in ("starting", "ready"):\n            self._lose(w, "died"', '        if False:\n            self._lose(w, "died"',
-  ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/pool.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
- ("M8 hung worker never killed", "tactiled/pipeline/pool.py",
+  ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/supervision.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
+ ("M8 hung worker never killed", "tactiled/pipeline/supervision.py",
   "                        if now - w.head_since > head.timeout:", "                        if False:",
   ["tests/reliability/test_worker_faults.py::test_hung_worker[2]"]),
  ("M8b fit time budget ignored", "tactiled/fit/fitter.py",
@@ -61,11 +61,11 @@ MUTATIONS = [
  ("M11 superseded frames not counted", "tactiled/pipeline/sensor.py",
   "            if self._waiting is not None:\n                self.superseded += 1", "            if self._waiting is not None:\n                pass",
   ["tests/reliability/test_serial_faults.py::test_damaged_stream[garbage]", "tests/reliability/test_soak.py::test_soak_short"]),
- ("M12 calibration version not checked", "tactiled/calibration/fileformat.py",
+ ("M12 calibration version not checked", "tactiled/io/calibration.py",
   "    if not _is_int(version) or version != VERSION:", "    if not _is_int(version):",
   ["tests/reliability/test_bad_files.py::test_bad_calibration_files_are_refused_before_any_worker_starts",
    "tests/reliability/test_bad_files.py::test_replay_and_record_commands_refuse_bad_files"]),
- ("M13 recording version not checked", "tactiled/recording.py",
+ ("M13 recording version not checked", "tactiled/io/recording.py",
   "    if version != VERSION:", "    if False:",
   ["tests/reliability/test_bad_files.py::test_replay_and_record_commands_refuse_bad_files"]),
  ("M14 fitter numerics changed (solver tolerance)", "tactiled/fit/fitter.py",
@@ -80,7 +80,7 @@ MUTATIONS = [
  ("M17 bytes held between reads are dropped", "tactiled/frames.py",
   "        chunks[0] = bytes(self._buf) + chunks[0]", "        chunks[0] = chunks[0]",
   ["tests/reliability/test_serial_faults.py::test_every_split_point_across_reads"]),
- ("M18 a config file that is not valid TOML is read as empty", "tactiled/settings.py",
+ ("M18 a config file that is not valid TOML is read as empty", "tactiled/settings/loading.py",
   "            doc = tomllib.load(fh)", "            doc = {}",
   ["tests/reliability/test_bad_files.py::test_truncated_and_invalid_config_files_are_refused"]),
  ("M19 frames of the wrong shape reach the calibration stage", "tactiled/pipeline/sensor.py",
@@ -95,7 +95,7 @@ MUTATIONS = [
   "        self._last_seq[frame.sensor_id] = frame.seq\n        self.__dict__.setdefault('_kept', []).append(frame)",
   ["tests/reliability/test_decoder_fuzz.py::test_sequence_memory_is_bounded_by_the_sensor_id_space[16384]",
    "tests/reliability/test_decoder_fuzz.py::test_memory_is_bounded_over_a_long_stream[4]"]),
- ("M22 a truncated last record is an error", "tactiled/recording.py",
+ ("M22 a truncated last record is an error", "tactiled/io/recording.py",
   "            if have < length:\n                self._truncate(offset, RECORD_HEADER_SIZE + have, warn)\n                return",
   "            if have < length:\n                raise FrameError('cut')",
   ["tests/reliability/test_bad_files.py::test_replay_of_a_recording_cut_short_replays_the_complete_records"]),
