@@ -106,7 +106,7 @@ class SensorSettings:
     detector_average: int = 2  # frames the contact detector averages (latency for sensitivity)
     reuse_unchanged: bool = True  # gate: reuse the last fit for a frame unchanged within noise
     unchanged_z: float = 3.0  # gate: "unchanged" means chi^2 <= n + z sqrt(2n), see gate.py
-    #: Follow the contact through time (tactiled/pipeline/tracker.py): every contact frame
+    #: Follow the contact through time (tactiled/pipeline/contact_filter.py): every contact frame
     #: measured through the last fit, a held contact sharpened, rates estimated.  False: each
     #: estimate is one frame's fit, reused while frames are unchanged (the gate).
     track: bool = True

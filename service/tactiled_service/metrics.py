@@ -15,7 +15,7 @@ varies inside one quantity (``gate``, ``reason``, ``process``).  docs/reference/
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, generate_latest
@@ -33,6 +33,7 @@ from tactiled import __version__
 from tactiled.heapstats import rss_mb
 from tactiled.pipeline import Daemon
 from tactiled.pipeline.meters import Histogram
+from tactiled.pipeline.sensor_stats import SensorStats
 from tactiled_service.health import REJECTED_KEYS, SEVERITY, HealthMonitor
 from tactiled_service.inbound import HttpStats
 from tactiled_service.stream import StreamManager
@@ -40,46 +41,46 @@ from tactiled_service.stream import StreamManager
 #: Content type of the exposition (text format 0.0.4).
 CONTENT_TYPE = CONTENT_TYPE_LATEST
 
-#: Per-sensor counters read from ``Daemon.stats(name)``: metric name (without ``_total``),
-#: help text, and how to read the value from the stats.
-SENSOR_COUNTERS: tuple[tuple[str, str, Any], ...] = (
+#: Per-sensor counters read from ``Daemon.sensor_stats(name)``: metric name (without
+#: ``_total``), help text, and how to read the value from the :class:`SensorStats`.
+SENSOR_COUNTERS: tuple[tuple[str, str, Callable[[SensorStats], float]], ...] = (
     ("tactiled_frames", "Frames decoded from the sensor's source.",
-     lambda st: st["frames"]),
+     lambda st: st.frames),
     ("tactiled_frames_lost", "Frames missing from the sequence (gaps in seq seen by the "
-     "decoder).", lambda st: st["decoder"].get("lost", 0)),
+     "decoder).", lambda st: st.decoded("lost")),
     ("tactiled_frames_duplicated", "Frames received twice (repeated seq).",
-     lambda st: st["decoder"].get("duplicated", 0)),
+     lambda st: st.decoded("duplicated")),
     ("tactiled_crc_errors", "Wire chunks whose CRC-32 did not match.",
-     lambda st: st["decoder"].get("crc_errors", 0)),
+     lambda st: st.decoded("crc_errors")),
     ("tactiled_chunks_rejected", "Wire chunks the decoder rejected for any reason (CRC, "
      "COBS, length, version, truncated, oversize, a vendor format's parse errors).",
-     lambda st: sum(int(st["decoder"].get(k, 0)) for k in REJECTED_KEYS)),
+     lambda st: sum(st.decoded(k) for k in REJECTED_KEYS)),
     ("tactiled_frames_dropped", "Decoded frames the pipeline dropped (another sensor's wire "
      "id, wrong shape, a pipeline error).",
-     lambda st: st["wrong_sensor"] + st["bad_shape"] + st["errors"]),
+     lambda st: st.dropped),
     ("tactiled_fits", "Fits answered by a worker (including those whose fitter raised).",
-     lambda st: st["fitted"]),
+     lambda st: st.fitted),
     ("tactiled_frames_superseded", "Frames replaced by a newer one while waiting for a fit "
-     "(latest frame wins).", lambda st: st["superseded"]),
+     "(latest frame wins).", lambda st: st.superseded),
     ("tactiled_estimates_reused", "Estimates that repeat the last fit for a frame unchanged "
-     "within noise (gate 'unchanged').", lambda st: st["skipped"].get("unchanged", 0)),
+     "within noise (gate 'unchanged').", lambda st: st.skipped.get("unchanged", 0)),
     ("tactiled_estimates_no_contact", "No-contact estimates published without a fit (gate "
-     "'no_contact').", lambda st: st["skipped"].get("no_contact", 0)),
+     "'no_contact').", lambda st: st.skipped.get("no_contact", 0)),
     ("tactiled_estimates_published", "Estimates published, every gate.",
-     lambda st: st["published"]),
+     lambda st: st.published),
     ("tactiled_estimates_stale_dropped", "Fit results dropped because a later frame's "
-     "estimate was already out.", lambda st: st["stale_dropped"]),
+     "estimate was already out.", lambda st: st.stale_dropped),
     ("tactiled_fit_errors", "Fits whose fitter raised (the frame is lost, not the worker).",
-     lambda st: st["fit_errors"]),
+     lambda st: st.fit_errors),
     ("tactiled_fits_budget_spent", "Fits their budget stopped short of the least-squares "
      "minimum (not converged: a frame the model cannot explain).",
-     lambda st: st["fits_budget_spent"]),
+     lambda st: st.fits_budget_spent),
     ("tactiled_fits_lost", "Fits lost with their worker (died, hung, or stopped).",
-     lambda st: st["fit_failed"]),
+     lambda st: st.fit_failed),
     ("tactiled_source_errors", "Failures of the sensor's source (open failed, device lost).",
-     lambda st: st["source_errors"]),
+     lambda st: st.source_errors),
     ("tactiled_source_reconnects", "Times the source came back after being lost.",
-     lambda st: st["reconnects"]),
+     lambda st: st.reconnects),
 )
 
 
@@ -120,7 +121,7 @@ class DaemonCollector(Collector):
 
     def _sensors(self, daemon: Daemon) -> Iterator[Metric]:
         names = list(daemon.sensors)
-        stats = {name: daemon.stats(name) for name in names}
+        stats = {name: daemon.sensor_stats(name) for name in names}
         for metric, doc, read in SENSOR_COUNTERS:
             family = CounterMetricFamily(metric, doc, labels=["sensor"])
             for name in names:
@@ -145,14 +146,14 @@ class DaemonCollector(Collector):
                                     labels=["sensor"])
         for name in names:
             st = stats[name]
-            connected.add_metric([name], 1.0 if st["connected"] else 0.0)
-            backlog.add_metric([name], float(st.get("read_backlog_bytes", 0)))
-            backlog_peak.add_metric([name], float(st.get("read_backlog_peak_bytes", 0)))
-            if st["last_frame_age_s"] is not None:
-                age.add_metric([name], float(st["last_frame_age_s"]))
-            rate.add_metric([name], float(st["frame_rate_hz"]))
-            if st.get("rate_hz"):
-                nominal.add_metric([name], float(st["rate_hz"]))
+            connected.add_metric([name], 1.0 if st.connected else 0.0)
+            backlog.add_metric([name], float(st.read_backlog_bytes))
+            backlog_peak.add_metric([name], float(st.read_backlog_peak_bytes))
+            if st.last_frame_age_s is not None:
+                age.add_metric([name], float(st.last_frame_age_s))
+            rate.add_metric([name], float(st.frame_rate_hz))
+            if st.rate_hz:
+                nominal.add_metric([name], float(st.rate_hz))
         yield from (connected, backlog, backlog_peak, age, rate, nominal)
         yield from self._hysteresis(names, stats)
         latency = _histogram("tactiled_estimate_latency_seconds",
@@ -185,7 +186,7 @@ class DaemonCollector(Collector):
             yield share
 
     @staticmethod
-    def _hysteresis(names: list[str], stats: dict[str, Any]) -> Iterator[Metric]:
+    def _hysteresis(names: list[str], stats: dict[str, SensorStats]) -> Iterator[Metric]:
         fraction = GaugeMetricFamily("tactiled_hysteresis_fraction",
                                      "The rubber's hysteresis fraction the zeroer has learnt "
                                      "(absent before it has learnt any).", labels=["sensor"])
@@ -196,7 +197,7 @@ class DaemonCollector(Collector):
                                "1 while the zeroer takes the learnt hysteresis out of the "
                                "frames.", labels=["sensor"])
         for name in names:
-            h = stats[name].get("hysteresis")
+            h = stats[name].hysteresis
             if h is None:
                 continue
             if h["fraction"] is not None:

@@ -32,15 +32,16 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("detector", ("ContactDetector.", "calibration/contact.py", "stage_kernel")),
     ("calibration stage", ("CalibrationStage.", "Zeroer.", "Hysteresis", "LookupTable.",
                            "Segments.", "calibration/")),
-    ("tracker step", ("Tracker.step", "Tracker._", "SensorPipeline._track",
-                      "SensorPipeline._follow_drift")),
+    ("tracker step", ("Tracker.step", "Tracker._", "ContactTracking.track",
+                      "ContactTracking.follow_drift")),
     ("estimate building", ("make_estimate", "Tracker.estimate", "SensorPipeline._publish",
                            "SensorPipeline._frame_peak", "pipeline/estimate.py")),
     ("hub fan-out and JSON", ("Hub.publish", "pipeline/hub.py", "tactiled_service/", "json")),
     ("decoding and reading", ("FrameDecoder", "tactiled/frames.py", "tactiled/sources.py",
                               "tactiled_drivers/", "serial/")),
     ("fit dispatch (pool IPC)", ("pipeline/pool.py", "multiprocessing/")),
-    ("pipeline, other", ("pipeline/sensor.py", "pipeline/meters.py")),
+    ("pipeline, other", ("pipeline/sensor.py", "pipeline/sensor_tracking.py",
+                         "pipeline/meters.py")),
     ("bench listener", ("bench/acquisition.py:listen", "listen (tactiled/bench")),
     ("garbage collection", ("tactiled/heap.py", "gc_")),
     ("event loop", ("asyncio/", "selectors.py")),
@@ -204,7 +205,7 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
         pipes = daemon.sensors
         total = sum(p.frames for p in pipes.values())
         return {"us_per_frame": 1e6 * cpu / max(total, 1), "frames": total,
-                "relinearized": {n: p.relinearized for n, p in pipes.items()},
+                "relinearized": {n: p.tracking.relinearized for n, p in pipes.items()},
                 "fits": {n: p.fitted for n, p in pipes.items()}}
 
     with tempfile.TemporaryDirectory(prefix="tactiled-budget-") as d:

@@ -217,7 +217,7 @@ class SeveralLinearizations:
     """The linearisations of several contacts of one frame, each taken on the frame less the
     others' predicted strain (:func:`tactiled.fit.multi.linearize_several`), in the order of
     the contacts they were asked for.  The temporal tracker measures each contact through its
-    own (:class:`tactiled.pipeline.several.ContactTrackers`)."""
+    own (:class:`tactiled.pipeline.multi_contact.ContactTrackers`)."""
 
     lins: tuple[Linearization, ...]
     #: the tag of several contacts (``tactiled.fit.warm.SEVERAL``)

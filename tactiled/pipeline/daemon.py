@@ -20,6 +20,7 @@ from tactiled.files import check_output
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.pool import WorkerPool
 from tactiled.pipeline.sensor import SensorPipeline
+from tactiled.pipeline.sensor_stats import SensorStats
 from tactiled.settings import (
     FIT_FIELDS,
     RUNTIME_SENSOR_KEYS,
@@ -168,16 +169,20 @@ class Daemon:
         """Re-zero ``sensor`` on its next frame (nothing may touch it then)."""
         self._sensor(sensor).tare()
 
+    def sensor_stats(self, sensor: str) -> SensorStats:
+        """The counters of ``sensor`` as a typed record (``UnknownSensorError``)."""
+        return self._sensor(sensor).stats()
+
     def stats(self, sensor: str | None = None) -> dict[str, Any]:
         """Counters of one sensor, or of all (``{"sensors": {...}, "workers": ..., "hub":
         ...}``); JSON-ready."""
         if sensor is not None:
-            return self._sensor(sensor).stats()
+            return self._sensor(sensor).stats().to_json_dict()
         return {
             "state": self._state,
             "uptime_s": None if self.started_at is None else time.monotonic() - self.started_at,
             "lossless": self.lossless,
-            "sensors": {name: p.stats() for name, p in self.sensors.items()},
+            "sensors": {name: p.stats().to_json_dict() for name, p in self.sensors.items()},
             "workers": self.pool.stats(),
             "hub": self.hub.stats(),
         }

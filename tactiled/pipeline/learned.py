@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,8 @@ from typing import Any
 import numpy as np
 
 from tactiled.config import SensorModel
+
+log = logging.getLogger("tactiled.pipeline.sensor")
 
 #: Bumped when the file's content changes meaning; older files are refused.
 VERSION = 1
@@ -120,3 +123,51 @@ def load(path: Path, owner: Owner) -> dict[str, np.ndarray] | None:
             raise Refused(f"{path}: learned by another {what} ({meta.get(key)!r}, this one is "
                           f"{getattr(owner, key)!r}): not applied")
     return state
+
+
+@dataclass
+class LearnedFile:
+    """One sensor's flat-field file in the state ``directory`` (None: nothing kept): whether
+    the workers start from it (``restore``), the fits it was loaded with, the files refused
+    (and why)."""
+
+    directory: Path | None
+    restore: bool = False
+    loaded_fits: int | None = None
+    refused: int = 0
+    refusal: str = ""
+
+    def check(self, owner: Owner) -> None:
+        """Load the file's verdict: restored when ``owner`` learned it through this model; a
+        file that is not is logged, counted and left alone (the workers overwrite it once this
+        sensor has learned)."""
+        self.restore = False
+        if self.directory is None:
+            return
+        path = state_path(self.directory, owner.name)
+        try:
+            state = load(path, owner)
+        except Refused as err:
+            self.refused += 1
+            self.refusal = str(err)
+            log.warning("%s: learned flat field refused: %s", owner.name, err)
+            return
+        if state is None:
+            return
+        self.loaded_fits = int(state["fits"])
+        self.restore = True
+        log.info("%s: learned flat field loaded from %s (%d fits)", owner.name, path,
+                 self.loaded_fits)
+
+    def fit_options(self, owner: Owner) -> tuple[tuple[str, Any], ...]:
+        """The workers' fit option saying where ``owner``'s flat field is kept (none without
+        a state directory)."""
+        if self.directory is None:
+            return ()
+        path = str(state_path(self.directory, owner.name))
+        return (("learned", (path, owner.name, owner.wire_id, owner.fingerprint, self.restore)),)
+
+    def summary(self) -> dict[str, Any]:
+        """``{"loaded_fits", "refused", "refusal"}``: the stats' ``learned_state``."""
+        return {"loaded_fits": self.loaded_fits, "refused": self.refused,
+                "refusal": self.refusal}

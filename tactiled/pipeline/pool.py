@@ -123,7 +123,7 @@ class FitJob:
     #: the sensor's previous fit on a persisting contact, ``(model, params)``: a warm start
     warm: tuple[str, tuple[float, ...]] | None = None
     #: "fit"; "fit+lin": a fit and its linearisation; "lin": only the linearisation of the
-    #: frame at ``warm`` (the tracker's state, see tactiled.pipeline.tracker)
+    #: frame at ``warm`` (the tracker's state, see tactiled.pipeline.contact_filter)
     kind: str = "fit"
     sent_at: float = 0.0
 

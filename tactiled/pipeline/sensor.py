@@ -16,7 +16,7 @@ reading the next frame: every frame gets its estimate and the output is determin
 
 This module holds the frame's path and the pool's side; what happens to a contact frame with
 tracking on (the tracker, the frames waiting for a fit, relinearisation, drift following) is
-in :mod:`tactiled.pipeline.tracking`.
+in :mod:`tactiled.pipeline.sensor_tracking`.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.result import FitResult
-from tactiled.fit.verdict import ArrayLimits, judge
+from tactiled.fit.verdict import ArrayLimits, carried, judge
 from tactiled.frames import Frame
 from tactiled.pipeline.estimate import (
     GATE_FIT,
@@ -62,16 +62,11 @@ from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
 from tactiled.pipeline.pool import FitJob, WorkerPool
-from tactiled.pipeline.several import ContactTrackers
+from tactiled.pipeline.sensor_stats import SensorStats
+from tactiled.pipeline.multi_contact import ContactTrackers
 from tactiled.pipeline import shear_track
-from tactiled.pipeline.tracker import Tracker, untracked, within_reason
-from tactiled.pipeline.tracking import (  # noqa: F401  (MAX_*: re-exported for tests)
-    MAX_PENDING,
-    MAX_WAIT_S,
-    MIN_RELINEARIZE_S,
-    ContactTracking,
-    _Waiting,
-)
+from tactiled.pipeline.contact_filter import Tracker, untracked, within_reason
+from tactiled.pipeline.sensor_tracking import ContactTracking, _Waiting
 from tactiled.recording import Recorder
 from tactiled.settings import SensorSettings
 from tactiled.sources import FrameSource, open_source
@@ -118,7 +113,7 @@ def _warm_start(warm: tuple[str, tuple[float, ...]] | None,
     return warm[0], tuple([round(v / WARM_GRID) * WARM_GRID for v in p])
 
 
-class SensorPipeline(ContactTracking):
+class SensorPipeline:
     """The acquisition loop of one sensor, publishing to ``hub`` and fitting on ``pool``.
 
     Construction loads the calibration file (``CalibrationError``) and builds the source from
@@ -167,10 +162,9 @@ class SensorPipeline(ContactTracking):
                                    f"not the sensor's {(g.rows, g.cols)}")
         self.state_dir = state_dir
         #: the learned flat field's file: fits it was loaded with, files refused (and why)
-        self.learned_loaded_fits: int | None = None
-        self.learned_refused = 0
-        self.learned_refusal = ""
-        self._restore = self._check_learned()
+        self.learned = learned.LearnedFile(state_dir)
+        if state_dir is not None:
+            self.learned.check(self._owner())
         self.spec = pool.register_spec(self.sensor_model, self._fit_options(), self.name)
         self.model = settings.model
         self.gate = Gate(settings.noise_sigma, settings.unchanged_z, settings.reuse_unchanged)
@@ -205,16 +199,12 @@ class SensorPipeline(ContactTracking):
         self._limits = ArrayLimits.of(self.sensor_model)
         self.ids = ContactIds(gate_mm=max(self.sensor_model.impulse.depth_x,
                                           self.sensor_model.impulse.depth_y))
-        #: the contact through time (settings.track), the frames waiting for a fit before it
-        #: can measure them (in arrival order), and the fit its estimates build on
-        self.tracker = ContactTrackers(
+        #: the contact through time (settings.track) and the frames waiting for its fits
+        self.tracking = ContactTracking(self, ContactTrackers(
             lambda: Tracker(withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA, geometry=g),
-            gate_mm=self.ids.gate_mm)
-        self._pending: list[_Waiting] = []
-        self._base: dict[str, Any] | None = None
+            gate_mm=self.ids.gate_mm))
         #: every frame's time (tactiled/clock.py): the estimates' ``time``, ROS 2's stamps
         self.clock = FrameClock(settings.rate_hz)
-        self._base_seq: int | None = None
         # -- state
         self._ordinal = 0
         self._last_published = 0  # ordinal of the last estimate published
@@ -225,12 +215,6 @@ class SensorPipeline(ContactTracking):
         self._lin_in_flight: _Waiting | None = None
         self._last_fit: Estimate | None = None
         self._warm: tuple[str, tuple[float, ...]] | None = None  # previous fit: a warm start
-        #: (strain on the whole array, window mask) of the tracker's linearisation: what the
-        #: zeroer follows drift around while the contact is held (_follow_drift)
-        self._drift_ref: tuple[np.ndarray, np.ndarray] | None = None
-        #: (flat indices outside the linearisation's window, its strain there)
-        self._outside: tuple[np.ndarray, np.ndarray] | None = None
-        self._lin_asked_t = -math.inf  # device time (s) a relinearisation was last asked for
         self._settled = asyncio.Event()
         self._task: asyncio.Task[None] | None = None
         self._recorder: Recorder | None = None
@@ -244,14 +228,7 @@ class SensorPipeline(ContactTracking):
         self.published = 0
         self.skipped = {GATE_NO_CONTACT: 0, GATE_UNCHANGED: 0}
         self.stale_dropped = 0
-        self.tracked = 0  # contact frames measured by the tracker, without a fit of their own
-        self.predicted = 0  # ... of which the tracker could only predict, not measure
-        self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
         self.relinearize_lost = 0
-        self.drift_followed = 0  # times the zeroer followed drift around a held contact
-        #: tracked frames sent to a fit because a tactel outside the contact's window rose
-        #: (another contact pressed)
-        self.pressed_elsewhere = 0
         self.fit_failed = 0
         self.fit_errors = 0
         self.fits_budget_spent = 0  # fits the fit budget stopped (tactiled.fit.budget)
@@ -364,7 +341,7 @@ class SensorPipeline(ContactTracking):
 
     @property
     def settled(self) -> bool:
-        return self._idle() and not self._pending
+        return self._idle() and not self.tracking.pending
 
     def _check_settled(self) -> None:
         if self._idle():
@@ -442,7 +419,7 @@ class SensorPipeline(ContactTracking):
                            frame.host_time, strain, now, frame.device_time_us * 1e-6,
                            peak=self.stage.peak if contact else math.nan, stamp=frame.time)
         if self.settings.track:
-            self._track(waiting, contact, nonfinite)
+            self.tracking.track(waiting, contact, nonfinite)
             return
         if self._waiting is not None or self._in_flight is not None:
             # A fit is outstanding for a frame that had changed: its result will be fresher
@@ -466,6 +443,49 @@ class SensorPipeline(ContactTracking):
                 self.superseded += 1
             self._waiting = waiting
             self.pool.wake()
+
+    def _reuse_unchanged(self, w: _Waiting) -> bool:
+        """With nothing to track (the contact's last fit could not place it: a frame at the
+        noise, a light touch), a frame the gate finds unchanged since that fit is answered
+        with it, as without tracking (a justified reuse): refitting would give the same
+        unplaceable contact, at the price of the slowest fits there are."""
+        last = self._last_fit
+        if last is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
+            return False
+        self._publish_reuse(w, last)
+        return True
+
+    def _publish_reuse(self, w: _Waiting, last: Estimate) -> None:
+        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since)."""
+        self.skipped[GATE_UNCHANGED] += 1
+        frames = w.seq - last.fitted_seq if last.fitted_seq is not None else 0
+        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0,
+                      carried(last.fit, self.gate.change, frames), fresh=True)
+
+    def _fit_due(self, before: _Waiting | None) -> bool:
+        """A frame has just started waiting for a fit (it was not ``before``), and no fit of
+        this sensor is in flight: a worker could take it at once."""
+        w = self._waiting
+        return w is not None and w is not before and w.kind != "lin" and self._in_flight is None
+
+    def _regate_waiting(self) -> None:
+        """After a new fit is published, a waiting frame unchanged since is answered with it."""
+        w = self._waiting
+        if w is not None and self._reuse_unchanged(w):
+            self._waiting = None
+
+    def _end_contact(self) -> None:
+        """The contact ended (or a tare, new settings): forget it and the fit to reuse; frames
+        still waiting for a fit are given up (counted superseded)."""
+        self.tracking.clear()
+        self.gate.reset()
+        self._last_fit = None
+        self._warm = None
+        self._waiting = None
+        for busy in (self._in_flight, self._lin_in_flight):
+            if busy is not None:
+                busy.dropped = True
+        self._check_settled()
 
     def _build_stage(self, sensor_id: int) -> None:
         g = self.sensor_model.geometry
@@ -548,7 +568,7 @@ class SensorPipeline(ContactTracking):
         else:
             self._waiting, self._in_flight = None, w
         if w.kind == "fit+lin":  # the tracker's prediction at the frame's time, now
-            w.at = self.tracker.predicted(w.t) or self._warm
+            w.at = self.tracking.tracker.predicted(w.t) or self._warm
         warm = _warm_start(w.at if w.kind != "fit" else self._warm, self.sensor_model.geometry)
         return FitJob(owner=self, ordinal=w.ordinal, seq=w.seq, strain=w.strain,
                       model=self.model, spec=self.spec, mask=self.mask, warm=warm, kind=w.kind)
@@ -568,11 +588,11 @@ class SensorPipeline(ContactTracking):
                     return
                 self.fit_rate.tick(time.monotonic())  # a fit all the same (workers.fits counts it)
                 if self.settings.track:
-                    self._tracked_result(w, job, {}, worker_ms, warm, lin)
+                    self.tracking.result(w, job, {}, worker_ms, warm, lin)
                 return
             self.fitted += 1
             if error is not None or fit is None:
-                self.fit_errors += 1 if not self.settings.track else self._drop_pending(w)
+                self.fit_errors += 1 if not self.settings.track else self.tracking.drop_pending(w)
                 self.last_error = f"fit of seq {w.seq} failed: {error}"
                 log.error("%s: %s", self.name, self.last_error)
                 return
@@ -583,7 +603,7 @@ class SensorPipeline(ContactTracking):
             self.worker_ms.add(now, worker_ms)
             self.fit_hist.observe(worker_ms / 1e3)
             if self.settings.track:
-                self._tracked_result(w, job, fit or {}, worker_ms, warm, lin)
+                self.tracking.result(w, job, fit or {}, worker_ms, warm, lin)
                 return
             fit = untracked(fit, 1, "tracking off (sensor setting track = false)")
             if w.ordinal <= self._last_published:
@@ -619,7 +639,7 @@ class SensorPipeline(ContactTracking):
         elif not self.settings.track:
             self.fit_failed += 1
         elif w is not None:
-            self.fit_failed += self._drop_pending(w)
+            self.fit_failed += self.tracking.drop_pending(w)
         self._check_settled()
 
     # -- control --------------------------------------------------------------------------------
@@ -642,7 +662,7 @@ class SensorPipeline(ContactTracking):
         self.model = s.model
         if s.noise_sigma != self.sensor_model.noise.sigma:
             self.sensor_model = replace(self.sensor_model, noise=NoiseModel(sigma=s.noise_sigma))
-            self._restore = False  # the file was learned through the model before the change
+            self.learned.restore = False  # it was learned through the model before the change
         self.spec = self.pool.register_spec(self.sensor_model, self._fit_options(), self.name)
         self._elsewhere_strain = SIGNIFICANT_Z * s.noise_sigma
         self.gate.configure(sigma=s.noise_sigma, z=s.unchanged_z,
@@ -660,101 +680,14 @@ class SensorPipeline(ContactTracking):
                              learned.fingerprint(self.sensor_model, self.settings.calibration,
                                                  self.description.fingerprint()))
 
-    def _check_learned(self) -> bool:
-        """Whether the state directory holds a flat field this sensor learned through this
-        model (then the workers start from it); a file that is not is logged, counted and
-        left alone (the workers overwrite it once this sensor has learned)."""
-        if self.state_dir is None:
-            return False
-        path = learned.state_path(self.state_dir, self.name)
-        try:
-            state = learned.load(path, self._owner())
-        except learned.Refused as err:
-            self.learned_refused += 1
-            self.learned_refusal = str(err)
-            log.warning("%s: learned flat field refused: %s", self.name, err)
-            return False
-        if state is None:
-            return False
-        self.learned_loaded_fits = int(state["fits"])
-        log.info("%s: learned flat field loaded from %s (%d fits)", self.name, path,
-                 self.learned_loaded_fits)
-        return True
-
     def _fit_options(self) -> tuple[tuple[str, Any], ...]:
         """The workers' fit options, with where this sensor's flat field is kept."""
         options = worker_fit_options(self.settings.window)
-        if self.state_dir is None:
-            return options
-        owner = self._owner()
-        path = str(learned.state_path(self.state_dir, self.name))
-        return (*options, ("learned", (path, owner.name, owner.wire_id, owner.fingerprint,
-                                       self._restore)))
+        return options if self.state_dir is None else (*options,
+                                                       *self.learned.fit_options(self._owner()))
 
     # -- reporting ------------------------------------------------------------------------------
 
-    def stats(self) -> dict[str, Any]:
-        """Counters and rates of this sensor, JSON-ready (rates in Hz, times in s / ms)."""
-        now = time.monotonic()
-        src = self.source.status()
-        zeroer = self.stage.zeroer if self.stage is not None else None
-        return {
-            "sensor": self.name,
-            "sensor_id": self.sensor_id,
-            "url": src.url,
-            "connected": bool(src.connected),
-            "finished": self.finished,
-            "last_error": self.last_error or src.last_error,
-            "reconnects": src.reconnects,
-            "disconnects": src.disconnects,
-            "source_errors": self.source_errors,
-            "frames": self.frames,
-            "frame_rate_hz": self.frame_rate.rate(now),
-            "fit_rate_hz": self.fit_rate.rate(now),
-            "tracked_rate_hz": self.tracked_rate.rate(now),
-            "last_frame_age_s": None if self.last_frame_at is None else now - self.last_frame_at,
-            # bytes read from the device and not yet decoded: now, and the most at once
-            "read_backlog_bytes": self.source.read_backlog_now,
-            "read_backlog_peak_bytes": self.source.read_backlog,
-            "decoder": dict(src.decoder),
-            "superseded": self.superseded,
-            "fitted": self.fitted,
-            "fits_budget_spent": self.fits_budget_spent,
-            "learned_state": {"loaded_fits": self.learned_loaded_fits,
-                              "refused": self.learned_refused, "refusal": self.learned_refusal},
-            "published": self.published,
-            "skipped": dict(self.skipped),
-            "stale_dropped": self.stale_dropped,
-            "track": self.settings.track,
-            "tracked": self.tracked,
-            "track_resets": self.tracker.resets,
-            "track_skipped": self.tracker.skipped,
-            "predicted": self.predicted,
-            "relinearized": self.relinearized,
-            "relinearize_lost": self.relinearize_lost,
-            "drift_followed": self.drift_followed,
-            "pressed_elsewhere": self.pressed_elsewhere,
-            "hysteresis": None if zeroer is None else zeroer.hysteresis_summary(),
-            "pending": len(self._pending),
-            # frames received and neither answered nor counted yet (waiting for a fit)
-            "in_hand": (len(self._pending) if self.settings.track
-                        else int(self._waiting is not None) + int(self._in_flight is not None)),
-            "fit_failed": self.fit_failed,
-            "fit_errors": self.fit_errors,
-            "wrong_sensor": self.wrong_sensor,
-            "bad_shape": self.bad_shape,
-            "errors": self.errors,
-            "nonfinite_frames": 0 if zeroer is None else zeroer.nonfinite_frames,
-            "in_contact": bool(zeroer is not None and zeroer.in_contact),
-            "waiting": self._waiting is not None,
-            "in_flight": self._in_flight is not None,
-            "latency_ms": self.latency_ms.summary(now),
-            "worker_ms": self.worker_ms.summary(now),
-            "worker_restarts": self.pool.restarts,
-            "rate_hz": self.settings.rate_hz,
-            "recorded": 0 if self._recorder is None else self._recorder.frames_written,
-            "record_errors": self.record_errors,
-            "model": self.model,
-            "shear": None if self.shear is None else self.shear.stats(),
-        }
-
+    def stats(self) -> SensorStats:
+        """Counters and rates of this sensor now (rates in Hz, times in s / ms)."""
+        return SensorStats.of(self)

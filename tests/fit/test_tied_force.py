@@ -23,7 +23,7 @@ from tactiled.fit.models import get_model
 from tactiled.fit.params import TIED_FORCE_SHARE, TOO_LIGHT, radius_tied_force
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
-from tactiled.pipeline.tracker import Tracker
+from tactiled.pipeline.contact_filter import Tracker
 from tactiled.sensors import load_description
 
 TIED = "trades with a radius the window does not resolve"

@@ -49,7 +49,7 @@ def _held(seed: int, follow: bool = True, *, force: float = FORCE, rate: float =
     pool = InProcessPool()
     p = SensorPipeline(SensorSettings(name="f", url="sim://"), pool=pool, hub=hub)
     if not follow:
-        p._follow_drift = lambda w, fitted=False: None  # the code before: the baseline frozen whole
+        p.tracking.follow_drift = lambda w, fitted=False: None  # the code before: the baseline frozen whole
     fitter = Fitter(pool.sensor, FitOptions(**dict(pool.options)))
     released = 1.0 + 0.3 + HOLD + 0.1
     exit_after, late = None, 0
@@ -76,8 +76,8 @@ def test_a_contact_held_for_40_s_keeps_its_force_and_is_let_go(seed: int) -> Non
     assert late == 0
     # the drift of 40 s (up to 1.6e-3 strain, ~3 noise sigmas) is not read as force
     assert force == pytest.approx(FORCE, rel=0.03), force
-    assert p.drift_followed > 0.5 * HOLD / 0.01  # followed most of the hold, every 10 ms at most
-    assert p.stats()["drift_followed"] == p.drift_followed
+    assert p.tracking.drift_followed > 0.5 * HOLD / 0.01  # followed most of the hold, every 10 ms at most
+    assert p.stats().drift_followed == p.tracking.drift_followed
 
 
 def test_without_following_the_drift_the_finger_never_lets_go() -> None:
@@ -98,5 +98,5 @@ def test_a_finger_that_departs_from_its_model_is_let_go_too() -> None:
     exit_after, late, force, p = _held(1, force=2.0, rate=100.0, finger=finger)
     assert exit_after is not None and exit_after < 1.5, exit_after
     assert late == 0
-    assert p.drift_followed > 0.5 * HOLD / 0.01
+    assert p.tracking.drift_followed > 0.5 * HOLD / 0.01
     # (its force reads high, 2.33 N: the finger's departure, which only identifying it removes)

@@ -59,7 +59,7 @@ def control():
 
 def test_the_simulated_fingers_hysteresis_is_learnt_and_taken_out(control):
     p, phantom, fits, compensated = _moving(DEFAULT_HYSTERESIS)
-    h = p.stats()["hysteresis"]
+    h = p.stats().hysteresis
     assert h["compensating"], h
     grid = float(TAUS_S[1] / TAUS_S[0])
     assert DEFAULT_HYSTERESIS.tau_s / grid < h["tau_s"] < DEFAULT_HYSTERESIS.tau_s * grid, h
@@ -77,7 +77,7 @@ def test_the_simulated_fingers_hysteresis_is_learnt_and_taken_out(control):
 
 def test_a_finger_without_hysteresis_is_left_alone():
     p, phantom, fits, compensated = _moving(None)
-    h = p.stats()["hysteresis"]
+    h = p.stats().hysteresis
     assert h["steps"] > 500, h  # it looked: the trail was there to learn from
     assert compensated == 0 and not h["compensating"], h
     assert abs(h["fraction"]) < 0.01, h
@@ -85,7 +85,7 @@ def test_a_finger_without_hysteresis_is_left_alone():
 
 def test_the_sensor_setting_turns_it_off_and_on_while_running():
     p, phantom, fits, compensated = _moving(DEFAULT_HYSTERESIS, setting=False)
-    h = p.stats()["hysteresis"]
+    h = p.stats().hysteresis
     assert compensated == 0 and h["steps"] == 0 and h["fraction"] is None, h
     assert phantom > 100  # as the control: the residual is left in
     zeroer = p.stage.zeroer

@@ -71,8 +71,8 @@ def test_several_contacts_with_overlapping_windows_measure_as_the_plain_arithmet
     others' (moved to their states where windows overlap) through the kernel: the same
     measurement as the numpy arithmetic written out."""
     from tactiled.fit.linearize import Linearization, SeveralLinearizations
-    from tactiled.pipeline.several import ContactTrackers
-    from tactiled.pipeline.tracker import Tracker
+    from tactiled.pipeline.multi_contact import ContactTrackers
+    from tactiled.pipeline.contact_filter import Tracker
 
     rng = np.random.default_rng(8)
     size, k = 64, 4

@@ -185,17 +185,17 @@ def test_a_result_older_than_the_last_estimate_is_dropped(arun) -> None:
     async def main() -> tuple[list, dict]:
         # one-frame contact decisions, so a single release frame ends the contact
         # (tracking off: with it, the frame waiting for that fit is given up when the contact
-        # ends, counted superseded; test_tracking.py)
+        # ends, counted superseded; test_sensor_tracking.py)
         daemon, estimates = await _settled_daemon(source, track=False)
         sensor = daemon.sensors["finger0"]
         # Keep the worker busy for 0.3 s (under the 1 s fit timeout): the fit of the pressed
         # frame queues behind it, and the release frame is published first.
         assert daemon.pool.debug_sleep(0, 0.3) is not None
         source.put(pressed)
-        while not sensor.stats()["in_flight"]:
+        while not sensor.stats().in_flight:
             await asyncio.sleep(0.001)
         source.put(released)
-        while sensor.stats()["published"] < len(settle) + 1:
+        while sensor.stats().published < len(settle) + 1:
             await asyncio.sleep(0.001)
         await sensor.wait_settled()
         source.end()
@@ -422,7 +422,7 @@ def test_a_frame_that_needs_a_fit_is_sent_before_the_rest_of_its_read(arun) -> N
         sensor = daemon.sensors["finger0"]
         for frame in burst:  # queued at once: one read's worth, taken without waiting
             source.put(frame)
-        while sensor.stats()["published"] + sensor.stats()["superseded"] < SETTLE_FRAMES + len(burst):
+        while sensor.stats().published + sensor.stats().superseded < SETTLE_FRAMES + len(burst):
             await asyncio.sleep(0.005)
         source.end()
         await daemon.stop()

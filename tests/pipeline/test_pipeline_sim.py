@@ -35,7 +35,7 @@ def test_a_simulated_press_is_measured(arun) -> None:
     fits = [e.fit for e in held]
     assert len(fits) > 150
     # The tracker holds the contact through the hold: one estimate rests on more and more
-    # frames; its radius would sharpen like 1/sqrt(frames) on an ideal finger (test_tracking
+    # frames; its radius would sharpen like 1/sqrt(frames) on an ideal finger (test_sensor_tracking
     # .py), but the simulated drift (a 0.002 strain wave, 4 noise sigmas) shows in the frames'
     # mean residual and stops it within tens of frames: it stays honest, the truth within
     # 3 sigma, rather than shrinking past the error.

@@ -81,7 +81,7 @@ def test_sigkilled_worker_is_replaced_within_a_second(tmp_path: Path, arun) -> N
 
 def test_hung_worker_is_killed_and_replaced(tmp_path: Path, arun) -> None:
     # tracking off: every contact frame wants a fit of its own (the tracked case is in
-    # test_tracking.py)
+    # test_sensor_tracking.py)
     overrides = {"sensor[0].url": live_stream(tmp_path, 500), "fit.timeout": 0.3,
                  "sensor[0].reuse_unchanged": False, "sensor[0].model": "cylinder",
                  "sensor[0].track": False}

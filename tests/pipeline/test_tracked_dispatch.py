@@ -21,7 +21,8 @@ from tactiled.physics.contact import Contact
 from tactiled.physics.strain import predict_strain
 from tactiled.pipeline.estimate import GATE_FIT
 from tactiled.pipeline.hub import Hub
-from tactiled.pipeline.sensor import SensorPipeline, _Waiting
+from tactiled.pipeline.sensor import SensorPipeline
+from tactiled.pipeline.sensor_tracking import _Waiting
 from tactiled.settings import SensorSettings
 
 SIGMA = 0.0005
@@ -48,21 +49,21 @@ def test_a_frames_fit_goes_out_while_a_relinearisation_is_in_flight() -> None:
         return frame(k, predict_strain(c) + rng.normal(0.0, SIGMA, (8, 8)))
 
     # the contact's first frame: a fit, then frames measured by the tracker as it rolls
-    p._track(pressed(1, 11.0, 1.0), True, False)
+    p.tracking.track(pressed(1, 11.0, 1.0), True, False)
     answer(p, fitter, p.take_job())
-    assert p.tracker.active and p.fitted == 1
+    assert p.tracking.tracker.active and p.fitted == 1
     k = 1
     while not p.job_background():  # rolling 20 um a frame: soon a relinearisation is due
         k += 1
         assert k < 40, "the tracker never asked to relinearise"
-        p._track(pressed(k, 11.0 + 0.02 * (k - 1), 1.0), True, False)
+        p.tracking.track(pressed(k, 11.0 + 0.02 * (k - 1), 1.0), True, False)
     relin = p.take_job()
     assert relin.kind == "lin" and not p.settled
 
     # the force doubles: outside the linear range, the frame waits for a fit of its own, and
     # that fit can go to a worker now, while the relinearisation is still in flight
     k += 1
-    p._track(pressed(k, 11.0 + 0.02 * (k - 1), 2.0), True, False)
+    p.tracking.track(pressed(k, 11.0 + 0.02 * (k - 1), 2.0), True, False)
     assert p.job_waiting_since() is not None and not p.job_background()
     fit_job = p.take_job()
     assert fit_job.kind == "fit+lin" and fit_job.seq == k
@@ -73,15 +74,15 @@ def test_a_frames_fit_goes_out_while_a_relinearisation_is_in_flight() -> None:
     est = [e for e in seen if e.kind == "estimate"]
     assert (est[-1].seq, est[-1].gate) == (k, GATE_FIT)
     assert abs(est[-1].fit["force_n"] - 2.0) < 0.2
-    lin_of_fit = p.tracker.lin
+    lin_of_fit = p.tracking.tracker.lin
     assert p.fitted == 2
     # ... and the relinearisation asked for before the step, answered after it, is ignored
-    relinearized = p.relinearized
+    relinearized = p.tracking.relinearized
     answer(p, fitter, relin)
-    assert p.tracker.lin is lin_of_fit and p.relinearized == relinearized
+    assert p.tracking.tracker.lin is lin_of_fit and p.tracking.relinearized == relinearized
     assert p.settled
     # the frames after the step are measured at the new force
-    p._track(pressed(k + 1, 11.0 + 0.02 * k, 2.0), True, False)
+    p.tracking.track(pressed(k + 1, 11.0 + 0.02 * k, 2.0), True, False)
     est = [e for e in seen if e.kind == "estimate"]
     assert est[-1].seq == k + 1 and abs(est[-1].fit["force_n"] - 2.0) < 0.2
 
@@ -110,7 +111,7 @@ def _lin_times(first_asked: float | None = None, frames: int = 1500) -> list[flo
     """Device times (s) of the relinearisations a moving contact (the moving scene, 1 kHz)
     asks for, every job answered at once; ``first_asked``: the time the pipeline last asked,
     as left by an earlier run of the device's clock."""
-    from tactiled.pipeline import sensor as sensor_module
+    from tactiled.pipeline import sensor_tracking as sensor_module
     from tactiled.sim import FingerSimulator
 
     sim = FingerSimulator(scene="moving", seed=1, sensor_id=1)
@@ -118,7 +119,7 @@ def _lin_times(first_asked: float | None = None, frames: int = 1500) -> list[flo
     p = SensorPipeline(SensorSettings(name="f", url="sim://"), pool=pool, hub=Hub())
     fitter = Fitter(pool.sensor, FitOptions(**dict(pool.options)))
     if first_asked is not None:
-        p._lin_asked_t = first_asked
+        p.tracking.lin_asked_t = first_asked
     asked = []
     for _ in range(frames):
         p.on_frame(sim.next_frame())

@@ -11,7 +11,8 @@ import numpy as np
 
 from tactiled.pipeline.estimate import GATE_FIT, GATE_UNCHANGED
 from tactiled.pipeline.hub import Hub
-from tactiled.pipeline.sensor import SensorPipeline, _Waiting
+from tactiled.pipeline.sensor import SensorPipeline
+from tactiled.pipeline.sensor_tracking import _Waiting
 from tactiled.settings import SensorSettings
 
 SIGMA = 0.0005
@@ -56,17 +57,17 @@ def test_frames_unchanged_since_an_unplaceable_fit_reuse_it() -> None:
     light = np.zeros((8, 8))
     light[3:5, 3:5] = 2 * SIGMA  # a touch at the noise
 
-    p._track(frame(1, light + rng.normal(0, SIGMA, (8, 8))), True, False)
+    p.tracking.track(frame(1, light + rng.normal(0, SIGMA, (8, 8))), True, False)
     assert p.job_waiting_since() is not None and not p.job_background()
     job = p.take_job()
-    p._track(frame(2, light + rng.normal(0, SIGMA, (8, 8))), True, False)  # waits behind it
+    p.tracking.track(frame(2, light + rng.normal(0, SIGMA, (8, 8))), True, False)  # waits behind it
     p.on_fit_result(job, unplaced_fit(), 3.0, None, None, None)
     # frame 1 gets its fit; frame 2, unchanged but for the noise, reuses it at once
     assert [(e.seq, e.gate, e.fitted_seq) for e in seen if e.kind == "estimate"] == [
         (1, GATE_FIT, 1), (2, GATE_UNCHANGED, 1)]
     assert p.job_waiting_since() is None and p.settled
     for k in range(3, 8):  # and so do the frames after it, with no fit
-        p._track(frame(k, light + rng.normal(0, SIGMA, (8, 8))), True, False)
+        p.tracking.track(frame(k, light + rng.normal(0, SIGMA, (8, 8))), True, False)
     est = [e for e in seen if e.kind == "estimate"]
     assert [e.gate for e in est[2:]] == [GATE_UNCHANGED] * 5
     assert all(e.fitted_seq == 1 and e.fit["x_mm"] is None for e in est)
@@ -74,7 +75,7 @@ def test_frames_unchanged_since_an_unplaceable_fit_reuse_it() -> None:
 
     # a frame that changed (the contact pressed on) waits for a fit of its own
     firm = light * 20
-    p._track(frame(8, firm + rng.normal(0, SIGMA, (8, 8))), True, False)
+    p.tracking.track(frame(8, firm + rng.normal(0, SIGMA, (8, 8))), True, False)
     assert p.job_waiting_since() is not None and len(est) == 7
     assert len([e for e in seen if e.kind == "estimate"]) == 7
 
@@ -88,9 +89,9 @@ def test_without_reuse_every_such_frame_waits_for_a_fit() -> None:
                                       reuse_unchanged=False), pool=Pool(), hub=hub)
     light = np.zeros((8, 8))
     light[3:5, 3:5] = 2 * SIGMA
-    p._track(frame(1, light), True, False)
+    p.tracking.track(frame(1, light), True, False)
     job = p.take_job()
     p.on_fit_result(job, unplaced_fit(), 3.0, None, None, None)
-    p._track(frame(2, light), True, False)
+    p.tracking.track(frame(2, light), True, False)
     assert p.job_waiting_since() is not None
     assert [e.gate for e in seen if e.kind == "estimate"] == [GATE_FIT]

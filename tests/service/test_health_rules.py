@@ -8,12 +8,22 @@ from typing import Any
 
 import pytest
 
+from tactiled.pipeline.sensor_stats import SensorStats
 from tactiled_service.health import HealthMonitor
 from tactiled_service.options import ServiceOptions
 
 
 def sensor_stats(**changes: Any) -> dict[str, Any]:
+    """A sensor's stats' fields: every counter at rest but those ``changes`` sets."""
     st: dict[str, Any] = {
+        "sensor": "f", "sensor_id": 1, "url": "sim://", "disconnects": 0,
+        "tracked_rate_hz": 0.0, "read_backlog_bytes": 0, "read_backlog_peak_bytes": 0,
+        "fits_budget_spent": 0, "learned_state": {}, "skipped": {}, "track": True,
+        "tracked": 0, "track_resets": 0, "track_skipped": 0, "predicted": 0,
+        "relinearized": 0, "relinearize_lost": 0, "drift_followed": 0, "pressed_elsewhere": 0,
+        "hysteresis": None, "pending": 0, "in_hand": 0, "bad_shape": 0, "nonfinite_frames": 0,
+        "waiting": False, "in_flight": False, "rate_hz": None, "recorded": 0,
+        "record_errors": 0, "shear": None,
         "connected": True, "finished": False, "last_error": "", "frame_rate_hz": 1000.0,
         "fit_rate_hz": 30.0, "frames": 5000, "superseded": 10, "published": 4990,
         "fitted": 100, "fit_errors": 0, "fit_failed": 0, "stale_dropped": 0,
@@ -41,9 +51,10 @@ class FakeDaemon:
                else SimpleNamespace(published_time=time.monotonic() - estimate_age))
         self.hub = SimpleNamespace(latest_estimate=lambda name: est)
 
-    def stats(self, name: str | None = None) -> dict[str, Any]:
-        if name is not None:
-            return self._stats
+    def sensor_stats(self, name: str) -> SensorStats:
+        return SensorStats(**self._stats)  # a mock daemon: the rules read nothing else of it
+
+    def stats(self) -> dict[str, Any]:
         return {"uptime_s": 100.0, "workers": {"size": 1, "restarts": 0, "workers": []}}
 
 

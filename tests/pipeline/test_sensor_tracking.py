@@ -66,7 +66,7 @@ def test_a_held_contact_sharpens(run) -> None:
     first, last = held[0].fit, held[-1].fit
     # ~600 -> ~3300 frames: sigma down by sqrt(5.4) but for the zeroing's own error (the zero
     # of each tactel is a mean of the idle frames), which the mean residual reveals and which
-    # leaves ~0.035 mm; the single-frame bound here is 0.86 mm (test_tracker.py checks
+    # leaves ~0.035 mm; the single-frame bound here is 0.86 mm (test_contact_filter.py checks
     # 1/sqrt(frames) exactly).  Every 300 frames the sigma is smaller than before.
     sds = [e.fit["std"]["r1_mm"] for e in held[::300]]
     assert all(b < a for a, b in zip(sds, sds[1:])), sds

@@ -1,4 +1,4 @@
-"""Each contact's filter follows its contact across fits (tactiled.pipeline.several): matched by
+"""Each contact's filter follows its contact across fits (tactiled.pipeline.multi_contact): matched by
 place, a new contact starts a filter, a contact gone ends its own, a relinearisation that no
 longer fits the contacts held is refused.  Real fits and linearisations of the paper's finger."""
 
@@ -15,8 +15,8 @@ from tactiled.fit.warm import SEVERAL
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 from tactiled.pipeline.estimate import plain
-from tactiled.pipeline.several import ContactTrackers
-from tactiled.pipeline.tracker import Tracker
+from tactiled.pipeline.multi_contact import ContactTrackers
+from tactiled.pipeline.contact_filter import Tracker
 
 A = Contact(5.0, 5.0, 0.0, 1.2, 7.0, 11.0)
 B = Contact(8.0, 8.0, 0.0, 0.6, 18.0, 16.0)

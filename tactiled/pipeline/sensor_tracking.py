@@ -6,9 +6,8 @@ tracker at once when it can, else keep it (with the frames after it, in arrival 
 fit comes back, then measure them all through that fit's linearisation; ask for
 relinearisations as the contact moves; follow drift around a held contact; and hand a frame to
 a fit when another contact is pressed beside the tracked one.  The rules are in
-docs/concepts/pipeline.md ("The tracker").  It is a mixin: the state it reads and writes
-(``tracker``, ``_pending``, ``_waiting``, the counters) is the pipeline's own, set up in its
-constructor.
+docs/concepts/pipeline.md ("The tracker").  The pipeline owns one and hands it each contact
+frame (:meth:`ContactTracking.track`) and each fit's answer (:meth:`ContactTracking.result`).
 """
 
 from __future__ import annotations
@@ -21,14 +20,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactiled.fit.verdict import carried
 from tactiled.fit.warm import SEVERAL
-from tactiled.pipeline.estimate import GATE_FIT, GATE_NO_CONTACT, GATE_UNCHANGED, Estimate
+from tactiled.pipeline.estimate import GATE_FIT, GATE_NO_CONTACT, GATE_UNCHANGED
 from tactiled.pipeline.kernels import largest_excess
-from tactiled.pipeline.tracker import untracked
+from tactiled.pipeline.contact_filter import untracked
 
 if TYPE_CHECKING:
+    from tactiled.pipeline.multi_contact import ContactTrackers
     from tactiled.pipeline.pool import FitJob
+    from tactiled.pipeline.sensor import SensorPipeline
 
 log = logging.getLogger("tactiled.pipeline.sensor")
 
@@ -71,22 +71,46 @@ MIN_RELINEARIZE_S = 0.004
 
 
 class ContactTracking:
-    """The tracking methods of :class:`~tactiled.pipeline.sensor.SensorPipeline`."""
+    """A sensor's contact through time (``settings.track``): the tracker, the frames waiting
+    for a fit before it can measure them (in arrival order), the fit its estimates build on,
+    and the tracking counters.  It answers frames through its pipeline ``pipe`` (publishing,
+    the one-frame slot, the gate), which owns it."""
 
-    def _track(self, w: _Waiting, contact: bool, nonfinite: bool) -> None:
+    def __init__(self, pipe: SensorPipeline, tracker: ContactTrackers) -> None:
+        self.pipe = pipe
+        self.tracker = tracker
+        self.pending: list[_Waiting] = []
+        #: the fit the tracked estimates build on, and its frame's seq
+        self.base: dict[str, Any] | None = None
+        self.base_seq: int | None = None
+        #: (strain on the whole array, window mask) of the tracker's linearisation: what the
+        #: zeroer follows drift around while the contact is held (follow_drift)
+        self._drift_ref: tuple[np.ndarray, np.ndarray] | None = None
+        #: (flat indices outside the linearisation's window, its strain there)
+        self._outside: tuple[np.ndarray, np.ndarray] | None = None
+        self.lin_asked_t = -math.inf  # device time (s) a relinearisation was last asked for
+        self.tracked = 0  # contact frames measured by the tracker, without a fit of their own
+        self.predicted = 0  # ... of which the tracker could only predict, not measure
+        self.relinearized = 0  # the tracker's point moved (a linearisation, no fit)
+        self.drift_followed = 0  # times the zeroer followed drift around a held contact
+        #: tracked frames sent to a fit because a tactel outside the contact's window rose
+        #: (another contact pressed)
+        self.pressed_elsewhere = 0
+
+    def track(self, w: _Waiting, contact: bool, nonfinite: bool) -> None:
         """One frame through the tracker: measured at once when it can be, else it waits for
         a fit (with the frames after it, so the estimates keep their order)."""
         tracker = self.tracker
         if not contact:
-            self._end_contact()
-            self.skipped[GATE_NO_CONTACT] += 1
-            self._publish(w, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
+            self.pipe._end_contact()
+            self.pipe.skipped[GATE_NO_CONTACT] += 1
+            self.pipe._publish(w, GATE_NO_CONTACT, None, 0.0, self.pipe._no_contact_fit)
             return
-        if (self._pending and not self.lossless
-                and w.since - self._pending[0].since > MAX_WAIT_S):
+        if (self.pending and not self.pipe.lossless
+                and w.since - self.pending[0].since > MAX_WAIT_S):
             self._flush_pending()
-        if self._pending or not tracker.active or not self.settings.reuse_unchanged:
-            if not self._pending and self._reuse_unchanged(w):
+        if self.pending or not tracker.active or not self.pipe.settings.reuse_unchanged:
+            if not self.pending and self.pipe._reuse_unchanged(w):
                 return
             self._wait_for_fit(w)
             return
@@ -96,7 +120,7 @@ class ContactTracking:
                 self.predicted += 1
                 self._publish_tracked(w, predicted=True)
             else:
-                self.superseded += 1
+                self.pipe.superseded += 1
             return
         if self._pressed_elsewhere(w.strain):
             self.pressed_elsewhere += 1
@@ -106,7 +130,7 @@ class ContactTracking:
             self._wait_for_fit(w)
             return
         self._publish_tracked(w)
-        self._follow_drift(w)
+        self.follow_drift(w)
         self._maybe_relinearize(w)
 
     def _pressed_elsewhere(self, strain: np.ndarray) -> bool:
@@ -117,25 +141,7 @@ class ContactTracking:
         if ref is None:
             return False
         index, predicted = ref
-        return largest_excess(strain.ravel(), index, predicted) > self._elsewhere_strain
-
-    def _reuse_unchanged(self, w: _Waiting) -> bool:
-        """With nothing to track (the contact's last fit could not place it: a frame at the
-        noise, a light touch), a frame the gate finds unchanged since that fit is answered
-        with it, as without tracking (a justified reuse): refitting would give the same
-        unplaceable contact, at the price of the slowest fits there are."""
-        last = self._last_fit
-        if last is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
-            return False
-        self._publish_reuse(w, last)
-        return True
-
-    def _publish_reuse(self, w: _Waiting, last: Estimate) -> None:
-        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since)."""
-        self.skipped[GATE_UNCHANGED] += 1
-        frames = w.seq - last.fitted_seq if last.fitted_seq is not None else 0
-        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0,
-                      carried(last.fit, self.gate.change, frames), fresh=True)
+        return largest_excess(strain.ravel(), index, predicted) > self.pipe._elsewhere_strain
 
     def _flush_pending(self) -> None:
         """The waiting frames' fit is late: publish each with the contact predicted to its
@@ -144,87 +150,72 @@ class ContactTracking:
         all but the one being fitted, so what is published stays fresh, as latest-frame-wins
         keeps it without tracking."""
         if self.tracker.started:
-            for p in self._pending:
+            for p in self.pending:
                 self.predicted += 1
                 self._publish_tracked(p, predicted=True)
-            self._pending.clear()
+            self.pending.clear()
             return
-        busy = self._in_flight.ordinal if self._in_flight is not None else None
-        keep = [p for p in self._pending if p.ordinal == busy]
-        self.superseded += len(self._pending) - len(keep)
-        self._pending = keep
+        busy = self.pipe._in_flight.ordinal if self.pipe._in_flight is not None else None
+        keep = [p for p in self.pending if p.ordinal == busy]
+        self.pipe.superseded += len(self.pending) - len(keep)
+        self.pending = keep
 
     def _wait_for_fit(self, w: _Waiting) -> None:
-        self._pending.append(w)
-        if len(self._pending) > MAX_PENDING:
+        self.pending.append(w)
+        if len(self.pending) > MAX_PENDING:
             # give up the oldest, but never the frame being fitted: its fit may be slow (a
             # frame far outside the model runs into its time budget) and it is answered
-            busy = self._in_flight.ordinal if self._in_flight is not None else None
-            drop = 1 if self._pending[0].ordinal == busy else 0
-            self._pending.pop(drop)
-            self.superseded += 1
+            busy = self.pipe._in_flight.ordinal if self.pipe._in_flight is not None else None
+            drop = 1 if self.pending[0].ordinal == busy else 0
+            self.pending.pop(drop)
+            self.pipe.superseded += 1
         # latest frame wins: the newest pending frame is the one to fit (a waiting
         # relinearisation is no longer wanted); its warm start is computed when it is taken
         w.kind = "fit+lin"
-        self._waiting = w
-        self.pool.wake()
-
-    def _fit_due(self, before: _Waiting | None) -> bool:
-        """A frame has just started waiting for a fit (it was not ``before``), and no fit of
-        this sensor is in flight: a worker could take it at once."""
-        w = self._waiting
-        return w is not None and w is not before and w.kind != "lin" and self._in_flight is None
+        self.pipe._waiting = w
+        self.pipe.pool.wake()
 
     def _maybe_relinearize(self, w: _Waiting) -> None:
         """The state has moved from the linearisation point (or sharpened well past it):
         a worker linearises again where the contact now is (no frame waits for it)."""
-        if self._waiting is not None and self._waiting.kind != "lin":
+        if self.pipe._waiting is not None and self.pipe._waiting.kind != "lin":
             return
-        if 0.0 <= w.t - self._lin_asked_t < MIN_RELINEARIZE_S:
+        if 0.0 <= w.t - self.lin_asked_t < MIN_RELINEARIZE_S:
             return  # (a device clock that went back, a restarted device, asks at once)
         at = self.tracker.wants_linearization()
         if at is not None:
-            self._lin_asked_t = w.t
+            self.lin_asked_t = w.t
             point = at if at[0] == SEVERAL else (at[0], tuple(map(float, at[1])))
-            self._waiting = _Waiting(w.ordinal, w.seq, w.sensor_id, w.device_time_us,
-                                     w.host_time, w.strain, w.since, w.t, "lin", point,
-                                     stamp=w.stamp)
-            self.pool.wake()
+            self.pipe._waiting = _Waiting(w.ordinal, w.seq, w.sensor_id, w.device_time_us,
+                                          w.host_time, w.strain, w.since, w.t, "lin", point,
+                                          stamp=w.stamp)
+            self.pipe.pool.wake()
 
     def _publish_tracked(self, w: _Waiting, gate: str = GATE_UNCHANGED,
                          worker_ms: float = 0.0, predicted: bool = False) -> None:
-        assert self._base is not None
+        assert self.base is not None
         if gate == GATE_UNCHANGED:
             if not predicted:
                 self.tracked += 1
-                self.tracked_rate.tick(time.monotonic())
-            self.skipped[GATE_UNCHANGED] += 1
-        fit = self.tracker.estimate(self._base, at=w.t if predicted else None)
-        self._publish(w, gate, self._base_seq, worker_ms, fit, fresh=True)
+                self.pipe.tracked_rate.tick(time.monotonic())
+            self.pipe.skipped[GATE_UNCHANGED] += 1
+        fit = self.tracker.estimate(self.base, at=w.t if predicted else None)
+        self.pipe._publish(w, gate, self.base_seq, worker_ms, fit, fresh=True)
 
     def _zero_var(self) -> float:
-        return 0.0 if self.stage is None else self.stage.zeroer.baseline_var
+        return 0.0 if self.pipe.stage is None else self.pipe.stage.zeroer.baseline_var
 
-    def _end_contact(self) -> None:
+    def clear(self) -> None:
         """The contact ended (or a tare, new settings): forget it; frames still waiting for a
         fit are given up (counted superseded)."""
         self.tracker.clear()
-        self.gate.reset()
-        self._last_fit = None
-        self._warm = None
-        self._base = self._base_seq = None
+        self.base = self.base_seq = None
         self._drift_ref = self._outside = None
-        self.superseded += len(self._pending)
-        self._pending.clear()
-        if self._waiting is not None:
-            self._waiting = None
-        for busy in (self._in_flight, self._lin_in_flight):
-            if busy is not None:
-                busy.dropped = True
-        self._check_settled()
+        self.pipe.superseded += len(self.pending)
+        self.pending.clear()
 
-    def _tracked_result(self, w: _Waiting, job: FitJob, fit: dict[str, Any], worker_ms: float,
-                        warm: tuple[str, tuple[float, ...]] | None, lin: Any) -> None:
+    def result(self, w: _Waiting, job: FitJob, fit: dict[str, Any], worker_ms: float,
+               warm: tuple[str, tuple[float, ...]] | None, lin: Any) -> None:
         """A fit (or relinearisation) came back: measure the frames that waited for it."""
         tracker = self.tracker
         if job.kind == "lin":
@@ -236,20 +227,20 @@ class ContactTracking:
             return
         if w.dropped:
             return  # the contact ended while it was fitted (its frames were counted then)
-        if self._waiting is not None and self._waiting.kind != "lin":
-            self._waiting = None  # set again below if a frame still needs a fit
+        if self.pipe._waiting is not None and self.pipe._waiting.kind != "lin":
+            self.pipe._waiting = None  # set again below if a frame still needs a fit
         # ``w`` itself may be gone: given up past MAX_PENDING, or out already with a
         # prediction (MAX_WAIT_S); its fit still serves the tracker and the frames after it
-        pending, self._pending = self._pending, []
+        pending, self.pending = self.pending, []
         mine = any(p.ordinal == w.ordinal for p in pending)
         usable = fit.get("contact") and lin is not None and all(
             fit.get(k) is not None for k in ("x_mm", "y_mm"))
         if not usable and not mine and tracker.started:
             # a late fit with nothing to give: the tracker goes on predicting; any frame
             # waiting now needs a fit of its own
-            self._pending = pending
+            self.pending = pending
             if pending:
-                self._wait_for_fit(self._pending.pop())
+                self._wait_for_fit(self.pending.pop())
             return
         if not usable:
             # nothing to track from (no contact in the window, a fit without a linearisation):
@@ -257,60 +248,60 @@ class ContactTracking:
             # reuse it while the gate finds them unchanged
             tracker.clear()
             self._obsolete_lin()
-            self._base = self._base_seq = None
+            self.base = self.base_seq = None
             # several contacts: each next fit starts from this one's (tactiled.fit.multi)
-            self._warm = warm if warm is not None and warm[0] == SEVERAL else None
+            self.pipe._warm = warm if warm is not None and warm[0] == SEVERAL else None
             later = [p for p in pending if p.ordinal > w.ordinal]
-            self.superseded += len(pending) - len(later) - mine
-            self._last_fit = None
+            self.pipe.superseded += len(pending) - len(later) - mine
+            self.pipe._last_fit = None
             if mine:
-                est = self._publish(w, GATE_FIT, w.seq, worker_ms,
+                est = self.pipe._publish(w, GATE_FIT, w.seq, worker_ms,
                                     untracked(fit, 1, "no tracked contact"))
                 if est.contact:
-                    self._last_fit = est
-                    self.gate.fitted(w.strain)
-            while later and self._reuse_unchanged(later[0]):
+                    self.pipe._last_fit = est
+                    self.pipe.gate.fitted(w.strain)
+            while later and self.pipe._reuse_unchanged(later[0]):
                 later.pop(0)
             if later:
-                self._pending = later
-                self._wait_for_fit(self._pending.pop())
+                self.pending = later
+                self._wait_for_fit(self.pending.pop())
             return
-        self._last_fit = None  # the tracker answers from here
-        self.gate.reset()
+        self.pipe._last_fit = None  # the tracker answers from here
+        self.pipe.gate.reset()
         self._adopt(lin, fit)
-        self._follow_drift(w, fitted=True)
+        self.follow_drift(w, fitted=True)
         self._obsolete_lin()
-        self._base, self._base_seq, self._warm = fit, w.seq, warm
+        self.base, self.base_seq, self.pipe._warm = fit, w.seq, warm
         if not mine and (tracker.t is None or w.t >= tracker.t):
             tracker.step(w.strain.ravel(), w.t, fitted=True)  # its estimate went out already
         if not pending:
             self._maybe_relinearize(w)
             return
-        self._pending, last = pending, pending[-1]
+        self.pending, last = pending, pending[-1]
         try:
-            while self._pending:
-                p = self._pending[0]
+            while self.pending:
+                p = self.pending[0]
                 if p.ordinal == w.ordinal:
                     tracker.step(p.strain.ravel(), p.t, fitted=True)
-                    self._publish_tracked(self._pending.pop(0), GATE_FIT, worker_ms)
+                    self._publish_tracked(self.pending.pop(0), GATE_FIT, worker_ms)
                 elif tracker.step(p.strain.ravel(), p.t) != "refit":
-                    self._publish_tracked(self._pending.pop(0))
+                    self._publish_tracked(self.pending.pop(0))
                 elif p.ordinal > w.ordinal:  # it and those after it wait for the next fit
-                    self._wait_for_fit(self._pending.pop())
+                    self._wait_for_fit(self.pending.pop())
                     return
                 elif tracker.started:
                     # older than the fit and outside its linear range too (a fast move): the
                     # contact predicted to its time, not a stale estimate, and not none
                     self.predicted += 1
-                    self._publish_tracked(self._pending.pop(0), predicted=True)
+                    self._publish_tracked(self.pending.pop(0), predicted=True)
                 else:  # the contact's first frames, before any estimate: nothing to predict
-                    self._pending.pop(0)
-                    self.superseded += 1
+                    self.pending.pop(0)
+                    self.pipe.superseded += 1
         except Exception:  # a bug must cost these frames (counted), not the sensor's stream
-            self.errors += len(self._pending)
-            self._pending.clear()
-            log.exception("%s: the frames waiting for the fit of seq %d failed", self.name, w.seq)
-            self._end_contact()
+            self.pipe.errors += len(self.pending)
+            self.pending.clear()
+            log.exception("%s: the frames waiting for the fit of seq %d failed", self.pipe.name, w.seq)
+            self.pipe._end_contact()
             return
         self._maybe_relinearize(last)
 
@@ -335,34 +326,28 @@ class ContactTracking:
                                                              dtype=np.float64))
         return True
 
-    def _follow_drift(self, w: _Waiting, fitted: bool = False) -> None:
+    def follow_drift(self, w: _Waiting, fitted: bool = False) -> None:
         """A frame the tracker measured as it came (or, ``fitted``, the frame the fit whose
         linearisation it adopted was of): the zeroer follows drift around the contact where
         the linearisation's prediction explains the frame (``Zeroer.follow_drift``; a contact
         held for minutes would otherwise drift off its frozen baseline until the finger never
         let go)."""
         ref = self._drift_ref
-        if ref is not None and self.stage is not None:
-            self.drift_followed += self.stage.zeroer.follow_drift(w.strain, w.t, *ref, fitted=fitted)
+        if ref is not None and self.pipe.stage is not None:
+            self.drift_followed += self.pipe.stage.zeroer.follow_drift(w.strain, w.t, *ref, fitted=fitted)
 
     def _obsolete_lin(self) -> None:
         """A relinearisation in flight was asked for at a point the tracker no longer holds (a
         fit brought its own linearisation, or nothing to track): its answer is ignored."""
-        if self._lin_in_flight is not None:
-            self._lin_in_flight.dropped = True
+        if self.pipe._lin_in_flight is not None:
+            self.pipe._lin_in_flight.dropped = True
 
-    def _regate_waiting(self) -> None:
-        """After a new fit is published, a waiting frame unchanged since is answered with it."""
-        w = self._waiting
-        if w is not None and self._reuse_unchanged(w):
-            self._waiting = None
-
-    def _drop_pending(self, w: _Waiting) -> int:
+    def drop_pending(self, w: _Waiting) -> int:
         """The fit of pending frame ``w`` is lost: the frames still waiting get a fit of the
         newest of them.  1 if ``w`` was still waiting (the caller counts it), else 0 (it was
         given up before, and counted then)."""
-        before = len(self._pending)
-        self._pending = [p for p in self._pending if p.ordinal != w.ordinal]
-        if self._pending and (self._waiting is None or self._waiting.kind == "lin"):
-            self._wait_for_fit(self._pending.pop())
-        return before - len(self._pending)
+        before = len(self.pending)
+        self.pending = [p for p in self.pending if p.ordinal != w.ordinal]
+        if self.pending and (self.pipe._waiting is None or self.pipe._waiting.kind == "lin"):
+            self._wait_for_fit(self.pending.pop())
+        return before - len(self.pending)

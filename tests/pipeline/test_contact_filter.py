@@ -1,4 +1,4 @@
-"""The temporal tracker on its own (tactiled/pipeline/tracker.py), fed the way the daemon feeds
+"""The temporal tracker on its own (tactiled/pipeline/contact_filter.py), fed the way the daemon feeds
 it: real fits and real linearisations from the worker's code, frames from the physics with
 Gaussian noise, played synchronously (no processes, so the numbers are exact to the frame).
 Bounds are in units of the single-frame Cramer-Rao bound at the truth, computed by the fitter
@@ -16,7 +16,7 @@ from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.linearize import linearize
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
-from tactiled.pipeline.tracker import MAX_FORCE_N, RATE_KEYS, Tracker, untracked, within_reason
+from tactiled.pipeline.contact_filter import MAX_FORCE_N, RATE_KEYS, Tracker, untracked, within_reason
 
 SIGMA = 0.0005
 RATE = 1000.0  # frames/s
@@ -238,7 +238,7 @@ def test_a_contact_at_the_noise_is_measured_its_values_held_within_reason(kit) -
     sigmas high, and the old code, in the one seed it got through, 4.8.  A known weakness
     (measured when frames at the noise stopped being refitted; the history of
     docs/performance/benchmarks.md in git), not this test's subject."""
-    from tactiled.pipeline.tracker import LN_R_BOUNDS
+    from tactiled.pipeline.contact_filter import LN_R_BOUNDS
 
     faint = Contact(r1=10.0, psi_deg=60.0, force=0.07, x0=8.0, y0=9.0)
     assert crb(kit, faint)["r1_mm"] / faint.r1 > 5.0
@@ -256,7 +256,7 @@ def test_a_centre_no_frame_locates_is_withheld_not_run_off() -> None:
     whose sigma exceeds OFF_ARRAY_MM is withheld ("not observable"), not published as a
     number kilometres off the array."""
     from tactiled.config import Geometry
-    from tactiled.pipeline.tracker import OFF_ARRAY_MM, reasonable_bounds, within_reason
+    from tactiled.pipeline.contact_filter import OFF_ARRAY_MM, reasonable_bounds, within_reason
 
     g = Geometry()
     box = {i: (lo, hi) for i, lo, hi in reasonable_bounds(("ln_r", "psi", "ln_f", "x0", "y0"), g)}
@@ -285,7 +285,7 @@ def test_a_press_ramp_the_filter_lags_is_covered_by_its_sigma(kit) -> None:
             if e.get("force_n") is not None and e["std"]["force_n"]:
                 z.append((e["force_n"] - c.force) / e["std"]["force_n"])
     # the same frames with the lag term off
-    from tactiled.pipeline import tracker as tracker_module
+    from tactiled.pipeline import contact_filter as tracker_module
 
     bare = tracker_module.LAG_Z
     tracker_module.LAG_Z = math.inf  # no drift detector's mean is beyond it
