@@ -18,7 +18,7 @@ constexpr std::size_t MAX_DIGITS = 4300;
 
 enum class Sep { comma, space, tab };
 
-// FramerStats' counters, in its field order (tactiled_drivers.framing.FramerStats)
+// FramerStats' counters, in its field order (tactiled_drivers.plumbing.framing.FramerStats)
 struct Stats {
     std::uint64_t frames = 0, bytes = 0, resyncs = 0, discarded = 0, truncated = 0,
                   length_errors = 0, oversize = 0, crc_errors = 0, parse_errors = 0,

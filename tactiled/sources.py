@@ -10,7 +10,9 @@ A source is named by a URL whose scheme picks the driver::
 
 Drivers are registered by name as ``"module:Class"`` strings (the pattern of python-can's
 ``can/interfaces/__init__.py``) plus the ``tactiled.drivers`` entry-point group, so a third
-party can add one.  Nothing is imported until a source is opened: the core never imports
+party can add one; the shipped ones also list their URL query keys, so
+:func:`check_source_url` checks a URL without importing its driver.  Nothing is imported until
+a source is built: the core never imports
 ``tactiled_drivers`` or pyserial at module level, and a missing optional library breaks only
 its own driver (with a :class:`~tactiled.errors.DriverError` naming it).
 
@@ -35,26 +37,49 @@ from collections.abc import AsyncIterator, Iterable, Mapping
 from dataclasses import asdict, dataclass, field, is_dataclass
 from importlib import metadata
 from types import MappingProxyType, TracebackType
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol, runtime_checkable
 from urllib.parse import parse_qsl, unquote, urlsplit
 
-from tactiled.devices import DeviceArray
+from tactiled.sensors.devices import DeviceArray
 from tactiled.errors import DeviceTimeoutError, DriverError
-from tactiled.frames import Frame, FrameDecoder, new_decoder
+from tactiled.frames import Frame, new_decoder
 
 log = logging.getLogger(__name__)
 
 ENTRY_POINT_GROUP = "tactiled.drivers"
 
-#: URL scheme -> ``"module:Class"`` of the built-in drivers.  Strings, not classes, so that
-#: importing this module imports no driver (and no optional library).
-BUILTIN_DRIVERS: Mapping[str, str] = MappingProxyType(
-    {
-        "serial": "tactiled_drivers.serial_source:SerialSource",
-        "sim": "tactiled_drivers.sim:SimSource",
-        "replay": "tactiled_drivers.replay_source:ReplaySource",
-    }
-)
+@dataclass(frozen=True)
+class DriverSpec:
+    """A shipped driver as the registry knows it without importing its module: its class as
+    ``"module:Class"`` and the URL query keys it accepts (the class's ``PARAMS``, which
+    tests/drivers/test_driver_registry.py holds equal to these)."""
+
+    target: str
+    params: frozenset[str]
+
+
+_SERIAL = frozenset({"baud", "exclusive"})
+_FINGER = frozenset({"depth_x", "nu_x", "depth_y", "nu_y", "modulus", "gain_error",
+                     "position_error", "offset_counts", "finger_seed"})  # FingerSpec.PARAMS
+
+#: URL scheme -> the driver shipped in ``tactiled_drivers`` (one module per scheme).  Strings,
+#: not classes, so that importing this module imports no driver (and no optional library).
+BUILTIN_DRIVERS: Mapping[str, DriverSpec] = MappingProxyType({
+    "serial": DriverSpec("tactiled_drivers.serial:SerialSource", _SERIAL),
+    "sim": DriverSpec("tactiled_drivers.sim:SimSource", _FINGER | {
+        "seed", "scene", "rate", "sensor_id", "loop", "speed", "noise", "drift", "hysteresis",
+        "sensor"}),
+    "replay": DriverSpec("tactiled_drivers.replay:ReplaySource",
+                         frozenset({"speed", "loop", "clock"})),
+    "lines": DriverSpec("tactiled_drivers.lines:LinesSource", _SERIAL | {
+        "rows", "cols", "sep", "time_col", "time_unit"}),
+    "flexitac": DriverSpec("tactiled_drivers.flexitac:FlexiTacSource", _SERIAL | {"rows", "cols"}),
+    "robotiq": DriverSpec("tactiled_drivers.robotiq:RobotiqSource", _SERIAL | {"finger",
+                                                                               "period_ms"}),
+    "xela": DriverSpec("tactiled_drivers.xela:XelaSource", frozenset({"sensor", "rows", "cols"})),
+    "paxini": DriverSpec("tactiled_drivers.paxini:PaxiniSource", _SERIAL | {"module", "rows",
+                                                                            "cols"}),
+})
 
 # Drivers added at run time with register_driver(); they win over built-ins and entry points.
 _registered: dict[str, str | type[FrameSource]] = {}
@@ -195,6 +220,39 @@ def parse_source_url(url: str) -> SourceURL:
 
 
 # --------------------------------------------------------------------------------------------
+# Framers
+
+
+@runtime_checkable
+class Framer(Protocol):
+    """What a source's bytes go through: a pure ``bytes -> frames`` parser, no I/O.
+
+    Every framer implements it: the wire format's :class:`~tactiled.frames.FrameDecoder` and
+    its compiled twin, each vendor driver's Python framer and the compiled ones
+    (``tactiled_drivers.plumbing.framing.NativeFramer``).  ``feed`` never raises on any
+    input, holds a bounded number of bytes between calls and counts what it drops in
+    ``stats``, a dataclass of counters that only grow (``frames``, ``bytes``,
+    ``crc_errors``...: the same name for the same count in every framer, so health,
+    ``/metrics`` and ``tactiled record`` read every driver alike).
+    """
+
+    @property
+    def stats(self) -> Any:
+        """The counters: a dataclass instance (a snapshot, for a compiled framer)."""
+
+    @property
+    def buffered(self) -> int:
+        """Bytes of an incomplete unit held between calls."""
+
+    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
+        """Consume ``data``; return the frames it completes, in order, each stamped with
+        ``host_time`` (``time.monotonic()`` seconds; now when ``None``)."""
+
+    def reset(self) -> None:
+        """Forget partial data and sequence history (the device was reopened)."""
+
+
+# --------------------------------------------------------------------------------------------
 # The base class
 
 
@@ -231,10 +289,10 @@ class FrameSource(abc.ABC):
     #: Query parameters the driver understands; anything else in the URL is a ValueError.
     PARAMS: ClassVar[frozenset[str]] = frozenset()
 
-    def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
+    def __init__(self, url: str | SourceURL, *, decoder: Framer | None = None) -> None:
         self.url: SourceURL = url if isinstance(url, SourceURL) else parse_source_url(url)
         self.url.reject_unknown(self.PARAMS)
-        self.decoder: Any = decoder if decoder is not None else self._new_decoder()
+        self.decoder: Framer = decoder if decoder is not None else self._new_decoder()
         self.connected = False
         self.reconnects = 0
         self.disconnects = 0
@@ -377,10 +435,9 @@ class FrameSource(abc.ABC):
 
     # -- for drivers ----------------------------------------------------------------------
 
-    def _new_decoder(self) -> Any:
-        """The framer this source's bytes go through (called once, from the constructor, after
-        ``self.url`` is set): ``feed(bytes, host_time) -> list[Frame]``, ``reset()`` and a
-        ``stats`` dataclass.  The default is the tactiled wire format's
+    def _new_decoder(self) -> Framer:
+        """The :class:`Framer` this source's bytes go through (called once, from the
+        constructor, after ``self.url`` is set).  The default is the tactiled wire format's
         :class:`~tactiled.frames.FrameDecoder` (the compiled core's,
         :func:`~tactiled.frames.new_decoder`); a vendor driver names its own framer here."""
         return new_decoder()
@@ -431,7 +488,7 @@ def _load_entry_points() -> dict[str, str]:
             points = ()
         for point in points:
             scheme = point.name.lower()
-            if scheme in BUILTIN_DRIVERS and BUILTIN_DRIVERS[scheme] != point.value:
+            if scheme in BUILTIN_DRIVERS and BUILTIN_DRIVERS[scheme].target != point.value:
                 # A plug-in must not silently replace a built-in (say, the serial driver).
                 log.warning("ignoring entry point %s=%s: scheme %r is built in",
                             point.name, point.value, scheme)
@@ -478,7 +535,9 @@ def driver_class(scheme: str) -> type[FrameSource]:
     the driver or a library it needs cannot be imported.
     """
     key = scheme.lower()
-    target = _registered.get(key) or BUILTIN_DRIVERS.get(key) or _load_entry_points().get(key)
+    builtin = BUILTIN_DRIVERS.get(key)
+    target = (_registered.get(key) or (builtin.target if builtin else None)
+              or _load_entry_points().get(key))
     if target is None:
         raise ValueError(
             f"unknown frame source scheme {scheme!r}; known: {', '.join(known_schemes())}"
@@ -499,6 +558,22 @@ def driver_class(scheme: str) -> type[FrameSource]:
     if not (isinstance(cls, type) and issubclass(cls, FrameSource)):
         raise DriverError(f"driver {scheme!r}: {target} is not a FrameSource subclass")
     return cls
+
+
+def check_source_url(url: str) -> SourceURL:
+    """``url`` parsed, its scheme known and its query keys ones its driver accepts, checked
+    without importing a shipped driver's module (a plug-in's is imported to read its
+    ``PARAMS``).  ``ValueError`` naming what is wrong (:class:`DriverError` for a plug-in that
+    cannot be imported); the values are checked when the source is built (:func:`open_source`).
+    """
+    parsed = parse_source_url(url)
+    spec = BUILTIN_DRIVERS.get(parsed.scheme)
+    if spec is None or parsed.scheme in _registered:
+        params = driver_class(parsed.scheme).PARAMS
+    else:
+        params = spec.params
+    parsed.reject_unknown(params)
+    return parsed
 
 
 def open_source(url: str, **kwargs: Any) -> FrameSource:

@@ -1,5 +1,5 @@
 """Nothing a user reads may send them outside the repository: the README, the docs, the
-package sources (tactiled/, drivers/, service/ with its static files), deploy/ and
+package sources (tactiled/, drivers/, service/ with its static files, benchmarks/), deploy/ and
 pyproject.toml name only files that ship with them.
 
 "A path outside the repository" here is a reference to a project file that is not shipped:
@@ -27,7 +27,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SHIPPED_DIRS = ("docs", "tactiled", "drivers", "service", "deploy")
+SHIPPED_DIRS = ("docs", "tactiled", "drivers", "service", "benchmarks", "deploy")
 SHIPPED_FILES = ("README.md", "pyproject.toml")
 TEXT_SUFFIXES = {".py", ".md", ".toml", ".txt", ".html", ".js", ".css", ".service", ".rules",
                  ".json", ".cfg", ".ini", ".sh", ""}

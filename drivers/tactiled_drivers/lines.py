@@ -25,11 +25,11 @@ from typing import ClassVar
 import numpy as np
 
 from tactiled import native
-from tactiled.devices import DeviceArray, device_array
+from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.frames import Frame
-from tactiled.sources import SourceURL
-from tactiled_drivers.framing import FramerBase, NativeFramer, now_if_none
-from tactiled_drivers.serial_source import SerialSource
+from tactiled.sources import Framer, SourceURL
+from tactiled_drivers.plumbing.framing import FramerBase, NativeFramer, now_if_none
+from tactiled_drivers.serial import SerialSource
 
 DEFAULT_BAUD = 115_200
 MAX_CELLS = 4096
@@ -159,7 +159,7 @@ class LinesSource(SerialSource):
         "rows", "cols", "sep", "time_col", "time_unit"}
     DEFAULT_BAUD: ClassVar[int] = DEFAULT_BAUD
 
-    def __init__(self, url: str | SourceURL, *, decoder: LinesFramer | None = None) -> None:
+    def __init__(self, url: str | SourceURL, *, decoder: Framer | None = None) -> None:
         super().__init__(url, decoder=decoder)  # type: ignore[arg-type]
 
     def _new_decoder(self) -> LinesFramer | NativeLinesFramer:

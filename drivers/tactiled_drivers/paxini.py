@@ -41,11 +41,11 @@ from typing import ClassVar
 import numpy as np
 import serial
 
-from tactiled.devices import DeviceArray, device_array
+from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import SourceURL
-from tactiled_drivers.framing import FramerBase, now_if_none
-from tactiled_drivers.serial_source import SerialSource
+from tactiled_drivers.plumbing.framing import FramerBase, now_if_none
+from tactiled_drivers.serial import SerialSource
 
 log = logging.getLogger(__name__)
 

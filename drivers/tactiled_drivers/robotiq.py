@@ -64,11 +64,11 @@ from typing import Any, ClassVar
 import numpy as np
 import serial
 
-from tactiled.devices import DeviceArray, device_array
+from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import FrameSource, SourceURL, parse_source_url
-from tactiled_drivers.framing import FramerBase, FramerStats, now_if_none
-from tactiled_drivers.serial_source import SerialSource
+from tactiled_drivers.plumbing.framing import FramerBase, FramerStats, now_if_none
+from tactiled_drivers.serial import SerialSource
 
 log = logging.getLogger(__name__)
 

@@ -20,7 +20,7 @@ URL parameters (all optional):
 - ``drift``: peak of the slow baseline drift wave, strain (default 0.002; 0 turns drift off);
 - ``hysteresis``: fraction of a released strain the rubber keeps, decaying with tau 0.5 s
   (default 0.05; 0 for none);
-- a finger that is not the paper's (:class:`~tactiled.finger.FingerSpec`, default the paper's):
+- a finger that is not the paper's (:class:`~tactiled.sensors.finger.FingerSpec`, default the paper's):
   ``depth_x``, ``nu_x``, ``depth_y``, ``nu_y`` (impulse response, mm), ``modulus`` (N/mm^2),
   ``gain_error`` (relative sd of tactel gains), ``position_error`` (sd of tactel displacements,
   mm), ``offset_counts`` (half-width of the tactels' zero offsets, counts) and ``finger_seed``.
@@ -40,9 +40,9 @@ import asyncio
 import logging
 from typing import ClassVar
 
-from tactiled.finger import FingerSpec
+from tactiled.sensors.finger import FingerSpec
 from tactiled.sensors import DEFAULT_NAME, load_description
-from tactiled.frames import FrameDecoder, encode_frame
+from tactiled.frames import encode_frame
 from tactiled.sim import (
     DEFAULT_DRIFT,
     DEFAULT_HYSTERESIS,
@@ -52,8 +52,8 @@ from tactiled.sim import (
     HysteresisModel,
     scene_from_spec,
 )
-from tactiled.sources import FrameSource, SourceURL
-from tactiled_drivers.futures import resolve
+from tactiled.sources import FrameSource, Framer, SourceURL
+from tactiled_drivers.plumbing.futures import resolve
 
 log = logging.getLogger(__name__)
 
@@ -68,7 +68,7 @@ class SimSource(FrameSource):
         {"seed", "scene", "rate", "sensor_id", "loop", "speed", "noise", "drift", "hysteresis",
          "sensor", *FingerSpec.PARAMS})
 
-    def __init__(self, url: str | SourceURL, *, decoder: FrameDecoder | None = None) -> None:
+    def __init__(self, url: str | SourceURL, *, decoder: Framer | None = None) -> None:
         super().__init__(url, decoder=decoder)
         u = self.url
         self.seed: int = u.get_int("seed", 0, minimum=0)

@@ -39,11 +39,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from tactiled.devices import DeviceArray, device_array
+from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.errors import DeviceConnectionError
 from tactiled.frames import Frame
 from tactiled.sources import FrameSource, SourceURL
-from tactiled_drivers.framing import FramerBase, now_if_none
+from tactiled_drivers.plumbing.framing import FramerBase, now_if_none
 
 log = logging.getLogger(__name__)
 

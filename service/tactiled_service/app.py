@@ -23,7 +23,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, WebSocketRoute
 
 from tactiled import __version__
-from tactiled.calibration.model import constants_report
+from tactiled.calibration.identified import constants_report
 from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon, UnknownSensorError
 from tactiled.settings import Settings
@@ -38,7 +38,7 @@ from tactiled_service.inbound import (
     encodable,
     read_body,
 )
-from tactiled_service.messages import Encoder
+from tactiled_service.json_messages import Encoder
 from tactiled_service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
 from tactiled_service.metrics import Metrics
 from tactiled_service.options import ServiceOptions

@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from tactiled.calibration.fused import average_maps, filter_bands
-from tactiled.config import DEFAULT_SENSOR, SensorModel
+from tactiled.sensors.model import DEFAULT_SENSOR, SensorModel
 from tactiled.physics.impulse import line_response
 
 DEFAULT_FALSE_RATE = 1e-4

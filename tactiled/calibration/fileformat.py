@@ -52,8 +52,8 @@ from typing import Any
 import numpy as np
 
 from tactiled.calibration.lut import LookupTable, tactel_label
-from tactiled.calibration.model import FingerModel
-from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.calibration.identified import FingerModel
+from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
 from tactiled.errors import CalibrationError
 from tactiled.files import atomic_output, read_text
 

@@ -42,9 +42,11 @@ import numpy as np
 from scipy.optimize import minimize
 
 from tactiled.calibration.lut import LookupTable
-from tactiled.calibration.model import RANGES, FingerModel
+from tactiled.calibration.identified import FingerModel
 from tactiled.calibration.presses import PressSet
-from tactiled.config import (
+from tactiled.sensors.model import (
+    COVER_KEYS,
+    COVER_RANGES,
     Geometry,
     ImpulseResponse,
     Material,
@@ -52,13 +54,14 @@ from tactiled.config import (
     NoiseModel,
     SensorModel,
     TactelPositions,
+    cover_constants,
 )
 from tactiled.errors import CalibrationError
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 
 #: The rubber's constants, in the order of the parameter vector.
-RUBBER = ("depth_x", "nu_x", "depth_y", "nu_y", "modulus")
+RUBBER = COVER_KEYS
 #: Constants estimated in logarithm (positive, scale-like); the others directly.
 _LOG = {"depth_x": True, "nu_x": False, "depth_y": True, "nu_y": False, "modulus": True}
 #: A constant whose 1-sigma bound exceeds this is held at the nominal value: relative for
@@ -412,8 +415,7 @@ def identify(
     prob = _Problem(y, contacts, g)
     imp0 = nominal.impulse if nominal is not None else ImpulseResponse()
     mat0 = nominal.material if nominal is not None else Material()
-    paper = {k: v for k, v in zip(RUBBER, (imp0.depth_x, imp0.nu_x, imp0.depth_y, imp0.nu_y,
-                                           mat0.modulus))}
+    paper = cover_constants(imp0, mat0)
     theta = _internal(paper)
 
     # Start: offsets from the unloaded presses (else the lowest reading), gains by least squares.
@@ -534,7 +536,7 @@ def identify(
 
 
 def _in_range(key: str, value: float) -> bool:
-    lo, hi = RANGES[key]
+    lo, hi = COVER_RANGES[key]
     return lo <= value <= hi
 
 

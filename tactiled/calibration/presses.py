@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from tactiled.config import Geometry
+from tactiled.sensors.model import Geometry
 from tactiled.errors import CalibrationError
 from tactiled.files import plain, read_npz, write_npz
-from tactiled.finger import FingerSpec
+from tactiled.sensors.finger import FingerSpec
 
 
 #: Columns of a press file's ``contacts`` array.

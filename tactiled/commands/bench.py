@@ -110,10 +110,10 @@ def _header(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tactiled.bench import foundation, runner
-    from tactiled.bench.estimators import default_configurations
-    from tactiled.bench.suite import BENCH_NOISE, build_suite
-    from tactiled.config import SensorModel
+    from tactiled_bench import foundation, runner
+    from tactiled_bench.estimators import default_configurations
+    from tactiled_bench.suite import BENCH_NOISE, build_suite
+    from tactiled.sensors.model import SensorModel
     from tactiled.fit.fitter import FitOptions, Fitter
 
     if args.plot:
@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         check_output(args.plot)  # before the run, not after it
     suites = SUITES if args.suite == "all" else (args.suite,)
     if "acquisition" in suites:
-        from tactiled.bench.acquisition import HAND, known_scene
+        from tactiled_bench.acquisition_runs import HAND, known_scene
         from tactiled.sim import SCENES
 
         if not known_scene(args.scene.strip().lower()):
@@ -202,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
                 out.append(f"| {name} | {kind} | {len(items)} | {np.median(times):.3f} | "
                            f"{np.median(errs) if errs else float('nan'):.1f} | {share} |")
     if "skip" in suites:
-        from tactiled.bench import skipping
+        from tactiled_bench import skipping
 
         out += ["", "## Skipping: no contact", "", skipping.no_contact(args.quick, args.progress)]
         out += ["", "## Skipping: unchanged frames (chi-square test against the last fitted frame)", "",
@@ -217,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
         out += ["", "## Foundation: the paper's Table 1 in simulation", "", foundation.paper_table1(args.quick, args.progress)]
         out += ["", "## Foundation: speed", "", foundation.speed(args.quick, args.progress)]
     if "acquisition" in suites:
-        from tactiled.bench import acquisition
+        from tactiled_bench import acquisition
 
         scene = args.scene.strip().lower()
         what = "a hand: six devices" if scene == acquisition.HAND else "three fingers"
@@ -226,12 +226,12 @@ def run(args: argparse.Namespace) -> int:
                                 seconds=args.seconds, baseline=args.baseline, sim_nice=args.sim_nice,
                                 json_path=args.json)]
     if "speed" in suites and (args.suite == "speed" or args.baseline):
-        from tactiled.bench import speed
+        from tactiled_bench import speed
 
         out += ["", "## Fitter speed" + (f" against {args.baseline}" if args.baseline else ""), "",
                 speed.run(args.quick, args.progress, args.baseline)]
     if "temporal" in suites:
-        from tactiled.bench import temporal
+        from tactiled_bench import temporal
 
         out += ["", "## Time: held contacts sharpen, moving ones are tracked", "",
                 temporal.run(args.quick, _say if args.progress is not False else None,
@@ -246,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
 
         from tactiled.errors import ConfigError
 
-        module = importlib.import_module(f"tactiled.bench.{suite}")
+        module = importlib.import_module(f"tactiled_bench.{suite}")
         try:
             report = module.run(args.quick, args.progress, args.sensor, args.seed)
         except ConfigError as err:
@@ -254,11 +254,11 @@ def run(args: argparse.Namespace) -> int:
             return 2
         out += ["", f"## {title}", "", report]
     if "identify" in suites:
-        from tactiled.bench import identify
+        from tactiled_bench import identify
 
         out += ["", "## Identification: a finger that is not the paper's", "", identify.run(args.quick, args.progress)]
     if "unexplained" in suites:
-        from tactiled.bench import unexplained
+        from tactiled_bench import unexplained
 
         out += ["", "## Frames the model cannot explain: the fit budget", "",
                 unexplained.run(args.quick, args.progress)]

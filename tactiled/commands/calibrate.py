@@ -80,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.bench:
-        from tactiled.calibration.bench import main as bench_main
+        from tactiled_bench.calibration_cost import main as bench_main
 
         return bench_main()
     if not args.presses or not args.output:

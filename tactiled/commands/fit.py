@@ -58,7 +58,7 @@ import numpy as np
 
 from tactiled.calibration.contact import ContactDetector
 from tactiled.calibration.fileformat import Calibration, load_calibration_file
-from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
 from tactiled.errors import TactiledError
 from tactiled.fit.result import FitResult  # light: no scipy
 from tactiled.framefile import load_frame_file

@@ -51,10 +51,10 @@ from pathlib import Path
 
 import numpy as np
 
-from tactiled.config import Geometry, NoiseModel, SensorModel
+from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
 from tactiled.errors import TactiledError
 from tactiled.files import check_output
-from tactiled.finger import FingerSpec
+from tactiled.sensors.finger import FingerSpec
 from tactiled.sensors import SensorDescription, load_description
 from tactiled.framefile import save_frame_file
 from tactiled.frames import encode_frame

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit.params import wrap_deg
 from tactiled.physics.line import (across_rule, along_line, half_width, line_points, line_residual,
                                    line_strain_points)

@@ -19,7 +19,7 @@ import numpy as np
 
 from tactiled import native
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.fit.window import interpolated_peak, peak_centre
 from tactiled.physics.strain import StrainModel

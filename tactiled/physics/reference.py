@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.physics.contact import Contact
 from tactiled.physics.hertz import contact_ellipse
 from tactiled.physics.impulse import line_response

@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import bisect
 import math
+from collections.abc import Callable
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from scipy.special import roots_chebyu, roots_jacobi
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.hertz import Ellipse, contact_ellipse, ellipse_core
 from tactiled.physics.impulse import line_response, line_response_and_slope
@@ -371,3 +373,13 @@ class StrainModel:
 def predict_strain(contact: Contact, sensor: SensorModel | None = None) -> np.ndarray:
     """Predicted strain frame ``(rows, cols)`` for ``contact`` on ``sensor`` (default: docs/concepts/model.md's)."""
     return StrainModel(sensor).predict(contact)
+
+
+def scaled_to_peak(model: StrainModel, make: Callable[[float], Any], peak: float) -> Any:
+    """The contact ``make(scale)`` whose noise-free peak strain on ``model`` is ``peak``
+    (strain units; a reference contact ``n`` noise sigmas strong is ``peak = n * sigma``).
+    Two passes: the peak is nearly linear in the load."""
+    scale = 1.0
+    for _ in range(2):
+        scale *= peak / float(model.predict(make(scale)).max())
+    return make(scale)

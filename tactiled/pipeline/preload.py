@@ -12,7 +12,7 @@ Nothing here may raise: the forkserver would die with it.  (It ignores only Impo
 from __future__ import annotations
 
 try:
-    from tactiled.config import DEFAULT_SENSOR
+    from tactiled.sensors.model import DEFAULT_SENSOR
     from tactiled.fit.fitter import Fitter
 
     Fitter(DEFAULT_SENSOR)  # builds and caches the start table

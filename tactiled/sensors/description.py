@@ -47,7 +47,14 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.config import Geometry, ImpulseResponse, Material, NoiseModel, SensorModel
+from tactiled.sensors.model import (
+    COVER_RANGES,
+    Geometry,
+    ImpulseResponse,
+    Material,
+    NoiseModel,
+    SensorModel,
+)
 from tactiled.errors import ConfigError
 
 #: Wire orders a description may name (or an explicit list of indices).
@@ -56,16 +63,16 @@ WIRE_ORDERS = ("row-major", "column-major", "serpentine-rows")
 #: format carries (tactiled/frames.py MAX_TACTELS).
 MIN_SIDE, MAX_SIDE = 2, 64
 MAX_TACTELS = 4096
-#: Physical ranges of the cover's constants (the same as a calibration file's, see
-#: tactiled/calibration/model.py RANGES) and of the grid.
+#: Physical ranges of the grid and of the cover's constants (the cover's are the model's
+#: :data:`~tactiled.sensors.model.COVER_RANGES`, under this file's key names).
 RANGES: dict[str, tuple[float, float]] = {
     "pitch_x_mm": (0.1, 100.0),
     "pitch_y_mm": (0.1, 100.0),
-    "depth_x_mm": (0.5, 30.0),
-    "depth_y_mm": (0.5, 30.0),
-    "nu_x": (-0.5, 0.99),
-    "nu_y": (-0.5, 0.99),
-    "modulus_n_mm2": (0.005, 100.0),
+    "depth_x_mm": COVER_RANGES["depth_x"],
+    "depth_y_mm": COVER_RANGES["depth_y"],
+    "nu_x": COVER_RANGES["nu_x"],
+    "nu_y": COVER_RANGES["nu_y"],
+    "modulus_n_mm2": COVER_RANGES["modulus"],
     "noise_sigma": (1e-8, 0.1),
     "cover_poisson": (0.0, 0.5),
     "taxel_depth_mm": (0.1, 30.0),
@@ -127,7 +134,7 @@ class SensorDescription:
                         finger_radius=self.surface_radius_mm)
 
     def sensor_model(self, noise_sigma: float | None = None) -> SensorModel:
-        """The :class:`~tactiled.config.SensorModel` the physics and the fitter take
+        """The :class:`~tactiled.sensors.model.SensorModel` the physics and the fitter take
         (``noise_sigma`` overrides the description's)."""
         return SensorModel(
             geometry=self.geometry(),

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 
 #: Share of the largest window's information a recommended window keeps, for every parameter.
 KEEP = 0.9
@@ -24,9 +24,8 @@ PEAK_SNR = 60.0
 
 
 def _reference(sensor: SensorModel):
-    from tactiled.bench.sensors import _scaled
     from tactiled.physics.contact import Contact, LineContact
-    from tactiled.physics.strain import StrainModel
+    from tactiled.physics.strain import StrainModel, scaled_to_peak
 
     model = StrainModel(sensor)
     g = sensor.geometry
@@ -34,11 +33,12 @@ def _reference(sensor: SensorModel):
     cx, cy = 0.5 * g.span_x + 0.3 * g.dx, 0.5 * g.span_y + 0.2 * g.dy
     r = 2.0 * max(sensor.impulse.depth_x, sensor.impulse.depth_y)
     sigma = sensor.noise.sigma
-    sphere = _scaled(model, lambda s: Contact(r, r, 0.0, s, cx, cy), PEAK_SNR, sigma)
+    peak = PEAK_SNR * sigma
+    sphere = scaled_to_peak(model, lambda s: Contact(r, r, 0.0, s, cx, cy), peak)
     if g.flat:
-        cyl = _scaled(model, lambda s: LineContact(r, 70.0, 0.1 * s, cx, cy), PEAK_SNR, sigma)
+        cyl = scaled_to_peak(model, lambda s: LineContact(r, 70.0, 0.1 * s, cx, cy), peak)
     else:
-        cyl = _scaled(model, lambda s: Contact(r, math.inf, 70.0, s, cx, cy), PEAK_SNR, sigma)
+        cyl = scaled_to_peak(model, lambda s: Contact(r, math.inf, 70.0, s, cx, cy), peak)
     return model, sphere, cyl
 
 

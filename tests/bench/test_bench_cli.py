@@ -91,7 +91,7 @@ def test_unexplained_table_of_a_few_frames_respects_the_budget(monkeypatch):
     with and without the budget; with it, no fit exceeds its iterations, and the random
     patterns, which nothing explains, run it out.  The quick suite through the command line,
     20 frames a set (minutes), is the slow test below."""
-    from tactiled.bench import unexplained
+    from tactiled_bench import unexplained
 
     every = unexplained.frame_sets
     monkeypatch.setattr(unexplained, "frame_sets", lambda quick, seed=5: [

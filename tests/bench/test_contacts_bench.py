@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactiled.bench import contacts
+from tactiled_bench import contacts
 from tactiled.sensors import load_description
 
 
@@ -41,7 +41,7 @@ def test_short_run_finds_every_contact_at_the_joint_bound(name: str) -> None:
 def test_grasps_of_lines_edges_and_balls_are_found_at_their_bounds(name: str) -> None:
     """Lines (cylinders), edges and balls together: each found, no phantom, errors about
     their bounds and covered by their sigmas; a single contact is one."""
-    from tactiled.bench import grasps
+    from tactiled_bench import grasps
     from tactiled.fit.fitter import FitOptions, Fitter
     from tactiled.physics.strain import StrainModel
 
@@ -77,7 +77,7 @@ def test_the_report_names_its_figures(capsys) -> None:
 def test_tracked_contacts_through_the_daemon_are_filtered_within_their_sigmas() -> None:
     """The hand's palm grasp through the daemon: the frames of several contacts are measured
     by each contact's filter, not fitted, and the held contacts' errors match their sigmas."""
-    from tactiled.bench import tracked_contacts
+    from tactiled_bench import tracked_contacts
 
     desc = load_description("flat16")
     s = tracked_contacts.score(desc, seed=2)

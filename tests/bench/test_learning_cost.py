@@ -1,4 +1,4 @@
-"""The learning-cost probe (python -m tactiled.bench.learning_cost), short: it runs, measures
+"""The learning-cost probe (python -m tactiled_bench.learning_cost), short: it runs, measures
 both fitters on both fingers, and finds the flat field off on the paper's finger and on on the
 mismatched one.  Its figures are in docs/performance/benchmarks.md, not asserted here (rule 4)."""
 
@@ -7,7 +7,7 @@ import sys
 
 
 def test_the_probe_runs_and_reports_both_fingers() -> None:
-    out = subprocess.run([sys.executable, "-m", "tactiled.bench.learning_cost", "--fits", "40",
+    out = subprocess.run([sys.executable, "-m", "tactiled_bench.learning_cost", "--fits", "40",
                           "--rounds", "2", "--warmup", "400"],
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr

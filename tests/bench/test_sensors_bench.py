@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from tactiled.bench import sensors
+from tactiled_bench import sensors
 from tactiled.physics.contact import LineContact
 from tactiled.sensors import load_description
 

@@ -1,6 +1,6 @@
 """The shear bench's pieces on a few frames: figures computed against the simulator's truth."""
 
-from tactiled.bench import shear
+from tactiled_bench import shear
 
 
 def test_accuracy_and_slip_figures_on_a_small_run():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tactiled.calibration import ContactDetector, detection_threshold, filter_matrices
-from tactiled.config import DEFAULT_SENSOR, NoiseModel, SensorModel
+from tactiled.sensors.model import DEFAULT_SENSOR, NoiseModel, SensorModel
 
 SIGMA = 0.0005
 

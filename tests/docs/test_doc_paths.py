@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-SCANNED = ("tactiled", "drivers", "service", "deploy", "tests", "docs", "ros2", ".ci")
+SCANNED = ("tactiled", "drivers", "service", "benchmarks", "deploy", "tests", "docs", "ros2", ".ci")
 TOP_FILES = ("README.md", "CHANGELOG.md", "pyproject.toml", "mkdocs.yml")
 SUFFIXES = {".py", ".md", ".toml", ".yml", ".yaml", ".txt", ".html", ".js", ".css", ".json",
             ".service", ".rules", ".msg", ".sh", ""}

@@ -1,6 +1,6 @@
 import pytest
 
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.fit.fitter import Fitter
 
 

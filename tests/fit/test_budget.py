@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
-from tactiled.bench import unexplained
-from tactiled.bench.suite import build_suite
+from tactiled_bench import unexplained
+from tactiled_bench.suite import build_suite
 from tactiled.fit.budget import EXHAUSTED, budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.params import VALUE_KEYS
@@ -114,7 +114,7 @@ def test_a_frame_the_model_cannot_explain_keeps_its_budget_and_says_so():
     """A pattern no contact makes (random strains on the paper's finger, as the daemon fits
     it): the fit stays within its budget, and its sigmas are widened by the residuals' excess
     or its values withheld, with the reasons."""
-    from tactiled.bench.unexplained import FINGER_8, daemon_options
+    from tactiled_bench.unexplained import FINGER_8, daemon_options
 
     fitter = Fitter(FINGER_8, daemon_options())
     for seed in range(3):

@@ -265,7 +265,7 @@ def test_contacts_held_since_the_last_frame_are_fitted_as_several_at_once(monkey
 
 
 def test_a_line_contacts_ridge_is_one_contact_however_the_grid_samples_it() -> None:
-    from tactiled.config import NoiseModel
+    from tactiled.sensors.model import NoiseModel
     from tactiled.physics.contact import LineContact
     from tactiled.sim import add_noise
 

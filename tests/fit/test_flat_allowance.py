@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactiled.bench import unexplained
+from tactiled_bench import unexplained
 from tactiled.fit.budget import DEFAULT_WORK, DENIED, EXHAUSTED, budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.params import VALUE_KEYS

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.bench import identify as bench
-from tactiled.config import NoiseModel
-from tactiled.finger import FingerSpec
+from tactiled_bench import identify as bench
+from tactiled.sensors.model import NoiseModel
+from tactiled.sensors.finger import FingerSpec
 from tactiled.fit.flatfield import FlatField
 from tactiled.physics.strain import StrainModel
 
@@ -126,7 +126,7 @@ def test_residuals_that_follow_the_contacts_are_not_blamed_on_the_tactels():
     the model does not describe): the fits' residuals exceed the noise, but corrections for each
     tactel would explain only about half of that excess, so the flat field never switches on
     (when it did, its corrections cost the force's coverage 95 -> 78 %)."""
-    from tactiled.config import SensorModel
+    from tactiled.sensors.model import SensorModel
     from tactiled.fit.fitter import FitOptions, Fitter
     from tactiled.sim import FingerSimulator
 

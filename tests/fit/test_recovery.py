@@ -62,7 +62,7 @@ def test_noise_free_general_recovery(fitter, r1, r2, psi):
 def test_auto_picks_the_right_model(fitter):
     from tactiled.physics.strain import StrainModel
     from tactiled.sim import add_noise
-    from tactiled.config import NoiseModel
+    from tactiled.sensors.model import NoiseModel
 
     rng = np.random.default_rng(5)
     model = StrainModel()

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.params import VALUE_KEYS
 from tactiled.fit.verdict import OFF_ARRAY_LENGTH, ArrayLimits, carried, judge

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.linearize import linearize
 from tactiled.physics.contact import Contact

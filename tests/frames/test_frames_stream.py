@@ -369,7 +369,7 @@ def test_fuzz_huge_stream_of_garbage() -> None:
 
 
 # --- many frames in fixed pieces ----------------------------------------------------------------
-# (The decoder's speed is a benchmark's: ``python -m tactiled_drivers.bench_framers``.)
+# (The decoder's speed is a benchmark's: ``python -m tactiled_bench.framer_cost``.)
 
 def test_1000_frames_in_512_byte_pieces_come_out_whole_and_in_order(same_frame) -> None:
     rng = np.random.default_rng(2)

@@ -325,7 +325,7 @@ def test_the_work_units_are_the_budgets() -> None:
        force=st.floats(0.1, 5.0), x0=st.floats(4.0, 14.0), y0=st.floats(4.0, 14.0),
        shift=st.floats(-0.5, 0.5), max_iter=st.integers(0, 40))
 def test_the_search_agrees_with_the_reference(kind, r1, psi, force, x0, y0, shift, max_iter) -> None:
-    from tactiled.config import DEFAULT_SENSOR
+    from tactiled.sensors.model import DEFAULT_SENSOR
     from tactiled.fit import compiled
     from tactiled.fit.models import MODELS
     from tactiled.physics.contact import Contact

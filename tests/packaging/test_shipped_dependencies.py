@@ -1,4 +1,4 @@
-"""What ships runs with what the package installs: every module of the three packages imports,
+"""What ships runs with what the package installs: every module of the four packages imports,
 and every command and bench answers ``--help``, without the test-only packages (httpx, pytest,
 playwright, hypothesis, mpmath, matplotlib, schemathesis) or an optional extra's; what needs
 an extra says so in one line naming it.
@@ -40,7 +40,7 @@ EXTRA_MODULES = ("tactiled_service.bus", "tactiled_service.ros2.")
 WALK = textwrap.dedent("""
     import importlib, json, pkgutil, sys
     bad = {}
-    for top in ("tactiled", "tactiled_drivers", "tactiled_service"):
+    for top in ("tactiled", "tactiled_drivers", "tactiled_service", "tactiled_bench"):
         pkg = importlib.import_module(top)
         for info in pkgutil.walk_packages(pkg.__path__, top + "."):
             try:
@@ -67,27 +67,27 @@ HELP = {
     ("-m", "tactiled.cli", "--help"): "simulate",
     **{("-m", "tactiled.cli", name, "--help"): "usage: tactiled " + name
        for name in COMMANDS},
-    ("-m", "tactiled.bench.reliability", "--help"): "--quick",
-    ("-m", "tactiled.bench.learning_cost", "--help"): "--fits",
-    ("-m", "tactiled.bench.worker_memory", "--help"): "--fits",
-    ("-m", "tactiled.bench.clock", "--help"): "--seconds",
-    ("-m", "tactiled_service.bench_fanout", "--help"): "--clients",
-    ("-m", "tactiled_service.bench_zenoh", "--help"): "--subscribers",
-    ("-m", "tactiled_service.bench_ros2", "--help"): "--sensors",
-    ("-m", "tactiled.calibration.bench"): "linearise",  # no options: its whole run (~1 s)
+    ("-m", "tactiled_bench.reliability", "--help"): "--quick",
+    ("-m", "tactiled_bench.learning_cost", "--help"): "--fits",
+    ("-m", "tactiled_bench.worker_memory", "--help"): "--fits",
+    ("-m", "tactiled_bench.clock", "--help"): "--seconds",
+    ("-m", "tactiled_bench.websocket_fanout", "--help"): "--clients",
+    ("-m", "tactiled_bench.zenoh_fanout", "--help"): "--subscribers",
+    ("-m", "tactiled_bench.ros2_fanout", "--help"): "--sensors",
+    ("-m", "tactiled_bench.calibration_cost"): "linearise",  # no options: its whole run (~1 s)
 }
 
 #: What needs an extra, run without it: one line naming the extra, exit 2.
 NEEDS_EXTRA = {
     ("-m", "tactiled.cli", "run", "--zenoh", "--port", "0"): "tactiled[zenoh]",
     ("-m", "tactiled.cli", "watch", "--zenoh"): "tactiled[zenoh]",
-    ("-m", "tactiled_service.bench_zenoh", "--quick"): "tactiled[zenoh]",
+    ("-m", "tactiled_bench.zenoh_fanout", "--quick"): "tactiled[zenoh]",
     ("-m", "tactiled.cli", "bench", "--quick", "--plot", "pareto.png"): "tactiled[plot]",
     ("-m", "tactiled.cli", "run", "--ros2", "--port", "0"): "tactiled[zenoh",
     ("-m", "tactiled.cli", "watch", "--ros2"): "tactiled[ros2]",  # DDS: no [zenoh] here
     ("-m", "tactiled.cli", "watch", "--ros2", "--connect", "tcp/127.0.0.1:7447"):
         "tactiled[zenoh,ros2]",
-    ("-m", "tactiled_service.bench_ros2", "--quick"): "tactiled[zenoh,ros2]",
+    ("-m", "tactiled_bench.ros2_fanout", "--quick"): "tactiled[zenoh,ros2]",
     ("-m", "tactiled.cli", "export", "r.tact", "-o", "r.mcap"): "tactiled[ros2]",
 }
 
@@ -170,7 +170,7 @@ def test_a_venv_with_only_the_package(tmp_path: Path) -> None:
     check_environment(python, env, tmp_path)
     # The soak docs/performance/reliability.md quotes, in its quickest form: subscribers, stalled clients
     # and the daemon, every process of it in this environment.
-    soak = subprocess.run([python, "-m", "tactiled.bench.reliability", "--quick", "--seconds",
+    soak = subprocess.run([python, "-m", "tactiled_bench.reliability", "--quick", "--seconds",
                            "3", "--warmup", "1", "--subscribers", "5", "--stalled", "1"],
                           env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert "Traceback" not in soak.stderr, soak.stderr[-3000:]

@@ -44,7 +44,7 @@ def make_frames(contacts: list[Contact | None], *, sensor_id: int = 0, seed: int
                 sigma: float = 0.0005) -> list[Frame]:
     """Wire frames (uint16 counts through the nominal linear table) of ``settle`` empty frames,
     then ``contacts`` (None = no contact), then ``tail`` empty frames; strain noise ``sigma``."""
-    from tactiled.config import NoiseModel
+    from tactiled.sensors.model import NoiseModel
 
     scene: list[Contact | None] = [None] * settle + list(contacts) + [None] * tail
     strain = simulate_frames(scene, noise=NoiseModel(sigma=sigma), seed=seed)

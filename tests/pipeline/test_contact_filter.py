@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.config import NoiseModel, SensorModel
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.linearize import linearize
 from tactiled.physics.contact import Contact
@@ -255,7 +255,7 @@ def test_a_centre_no_frame_locates_is_withheld_not_run_off() -> None:
     """A measurement outside what a finger carries is held at its edge, and a position
     whose sigma exceeds OFF_ARRAY_MM is withheld ("not observable"), not published as a
     number kilometres off the array."""
-    from tactiled.config import Geometry
+    from tactiled.sensors.model import Geometry
     from tactiled.pipeline.contact_filter import OFF_ARRAY_MM, reasonable_bounds, within_reason
 
     g = Geometry()

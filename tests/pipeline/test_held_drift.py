@@ -18,8 +18,8 @@ import numpy as np
 import pytest
 from pipeline_helpers import InProcessPool, answer
 
-from tactiled.config import Geometry
-from tactiled.finger import FingerSpec
+from tactiled.sensors.model import Geometry
+from tactiled.sensors.finger import FingerSpec
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.sensor import SensorPipeline

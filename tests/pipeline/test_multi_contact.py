@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.fit.fitter import Fitter
 from tactiled.fit.multi import contacts_json, fit_contacts, linearize_several
 from tactiled.fit.linearize import linearize

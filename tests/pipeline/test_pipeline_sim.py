@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pipeline_helpers import accounted, check_estimates, collect, strict_json
 
-from tactiled.config import Geometry
+from tactiled.sensors.model import Geometry
 from tactiled.pipeline import Daemon
 from tactiled.settings import load_settings
 

@@ -14,7 +14,7 @@ import os, shutil, subprocess, sys, tempfile, time
 from pathlib import Path
 SRC = str(Path(__file__).resolve().parents[2])
 DST = tempfile.mkdtemp(prefix="tactiled-mut-") + "/repo"
-ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/drivers:{DST}/service")
+ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/benchmarks:{DST}/drivers:{DST}/service")
 PY = sys.executable
 
 MUTATIONS = [
@@ -27,22 +27,22 @@ MUTATIONS = [
   ["tests/reliability/test_decoder_fuzz.py::test_random_bytes_never_raise",
    "tests/reliability/test_decoder_fuzz.py::test_memory_is_bounded_over_a_long_stream[4]",
    "tests/reliability/test_decoder_fuzz.py::test_time_per_megabyte"]),
- ("M3 unplug not reported", "drivers/tactiled_drivers/serial_source.py",
+ ("M3 unplug not reported", "drivers/tactiled_drivers/serial.py",
   "        self.connected = False\n        self.disconnects += 1", "        self.disconnects += 1",
   ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
- ("M4 port not closed on unplug (fd leak)", "drivers/tactiled_drivers/serial_source.py",
+ ("M4 port not closed on unplug (fd leak)", "drivers/tactiled_drivers/serial.py",
   "                port.close()", "                self.__dict__.setdefault('_leak', []).append(port)",
   ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
- ("M5 no exclusive lock", "drivers/tactiled_drivers/serial_source.py",
+ ("M5 no exclusive lock", "drivers/tactiled_drivers/serial.py",
   'self.url.get_bool("exclusive", True)', 'self.url.get_bool("exclusive", False)',
   ["tests/reliability/test_unplug.py::test_second_process_is_refused_with_a_clear_error"]),
- ("M6 decoder not reset on reconnect", "drivers/tactiled_drivers/serial_source.py",
+ ("M6 decoder not reset on reconnect", "drivers/tactiled_drivers/serial.py",
   "        self.decoder.reset()", "        pass",
   ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
- ("M7 worker death not noticed (sentinel and EOF)", "tactiled/pipeline/pool.py",
+ ("M7 worker death not noticed (sentinel and EOF)", "tactiled/pipeline/supervision.py",
   '        if w.state in ("starting", "ready"):\n            self._lose(w, "died"', '        if False:\n            self._lose(w, "died"',
-  ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/pool.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
- ("M8 hung worker never killed", "tactiled/pipeline/pool.py",
+  ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/supervision.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
+ ("M8 hung worker never killed", "tactiled/pipeline/supervision.py",
   "                        if now - w.head_since > head.timeout:", "                        if False:",
   ["tests/reliability/test_worker_faults.py::test_hung_worker[2]"]),
  ("M8b fit time budget ignored", "tactiled/fit/fitter.py",
@@ -101,7 +101,7 @@ MUTATIONS = [
   ["tests/reliability/test_bad_files.py::test_replay_of_a_recording_cut_short_replays_the_complete_records"]),
  # The fixes of bugs 1-4: each test that was a strict xfail must fail again without its fix.
  ("M23 (bug 1) the device path is not watched while waiting to retry",
-  "drivers/tactiled_drivers/serial_source.py",
+  "drivers/tactiled_drivers/serial.py",
   "            if node is not None and node != self._node_at_attempt:", "            if False:",
   ["tests/reliability/test_unplug.py::test_resume_within_a_second_after_a_long_absence[1.6]",
    "tests/reliability/test_unplug.py::"
@@ -123,13 +123,17 @@ MUTATIONS = [
   "        self._buf = bytearray(chunks.pop())\n        self._check_bound()\n",
   ["tests/reliability/test_decoder_fuzz.py::"
    "test_an_oversize_tail_after_a_good_frame_is_not_a_resync"]),
- ("M28 (bug 9) the port is read only when the event loop reads it", "drivers/tactiled_drivers/read_thread.py",
+ ("M28 (bug 9) the port is read only when the event loop reads it",
+  "drivers/tactiled_drivers/plumbing/read_thread.py",
   "                if now - reader.last_read < STALL_S:",
   "                if True:",
-  ["tests/drivers/test_port_reader.py::test_drains_the_device_while_the_event_loop_is_stuck"]),
- ("M29 the reader thread reads into its ring over bytes not yet taken", "drivers/tactiled_drivers/port_reader.py",
+  ["tests/drivers/plumbing/test_port_reader.py::"
+   "test_drains_the_device_while_the_event_loop_is_stuck"]),
+ ("M29 the reader thread reads into its ring over bytes not yet taken",
+  "drivers/tactiled_drivers/plumbing/port_reader.py",
   "        free = self.limit - (at - self._taken)", "        free = self.limit",
-  ["tests/drivers/test_port_reader.py::test_stops_reading_at_its_limit_and_loses_nothing"]),
+  ["tests/drivers/plumbing/test_port_reader.py::"
+   "test_stops_reading_at_its_limit_and_loses_nothing"]),
  ("M30 (bug 10) the service leaves its collector to its thresholds", "tactiled/heap.py",
   "        await asyncio.sleep(period_s)\n        gc.collect()",
   "        await asyncio.sleep(period_s)\n        gc.collect(0)",

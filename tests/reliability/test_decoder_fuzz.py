@@ -199,7 +199,7 @@ def _patterns(size: int = MB) -> dict[str, bytes]:
 def test_each_megabyte_of_the_worst_patterns_is_accounted_for(make: type) -> None:
     """Each megabyte of the worst patterns is read to the end, every chunk ending as exactly
     one outcome, within the held-bytes bound.  The seconds per megabyte are printed (``-rP``),
-    not asserted: the decoder's speed is reported by ``python -m tactiled_drivers.bench_framers``
+    not asserted: the decoder's speed is reported by ``python -m tactiled_bench.framer_cost``
     (``wire``); a decoder that hung would hit the suite's timeout."""
     results = {}
     for name, data in _patterns().items():

@@ -27,7 +27,7 @@ import math
 import pytest
 import regen_golden as g
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.sim import FingerSimulator, named_scene
 
 KEYS = ("x_mm", "y_mm", "force_n", "r1_mm", "angle_deg")

@@ -1,6 +1,6 @@
 """Soak: three fingers at 1 kHz over ptys (``tactiled simulate --pty`` processes) into the
 real service (daemon + uvicorn) with 50 WebSocket subscribers, 5 of which never read; run by
-``python -m tactiled.bench.reliability`` in a process of its own so that its resident memory
+``python -m tactiled_bench.reliability`` in a process of its own so that its resident memory
 is the service's, the subscribers in another (see that module).
 
 Bars, all judged on every run whatever else the machine is doing:
@@ -54,7 +54,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
 LONG = float(os.environ.get("TACTILED_SOAK_SECONDS", "600"))
 SUBSCRIBERS, STALLED = 50, 5
 #: The fingers' scene: contacts that press, roll, turn and change shape all the time, so the
-#: fit workers are busy (tactiled.bench.scenes.busy_scene; the built-in ``moving`` scene of
+#: fit workers are busy (tactiled_bench.scenes.busy_scene; the built-in ``moving`` scene of
 #: tactiled.sim, once there, is meant for the same and may replace it).
 SCENE = "busy"
 
@@ -62,7 +62,7 @@ SCENE = "busy"
 def _soak(seconds: float, rate_hz: float = 1000.0, scene: str = SCENE,
           warmup: float | None = None) -> dict:
     extra = [] if warmup is None else ["--warmup", repr(warmup)]
-    done = subprocess.run([sys.executable, "-m", "tactiled.bench.reliability", "--seconds",
+    done = subprocess.run([sys.executable, "-m", "tactiled_bench.reliability", "--seconds",
                            repr(seconds), "--subscribers", str(SUBSCRIBERS), "--stalled",
                            str(STALLED), "--rate", repr(rate_hz), "--scene", scene, "--json",
                            *extra],

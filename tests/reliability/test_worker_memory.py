@@ -6,8 +6,8 @@ every rule a process keeps is built by ``warm_rules`` at start and nothing is ad
 Checked in a process (fits of the busy scene keep no new rule) and in a real worker, through
 the worker protocol's ``memory`` request: after the warm-up fits, hundreds more fits of new
 contacts leave the rule caches exactly as they were and malloc's bytes in use flat.  The
-hour-long figures come from the soak (``tactiled.bench.reliability``); the probe
-``python -m tactiled.bench.worker_memory`` measures a busy fitter alone."""
+hour-long figures come from the soak (``tactiled_bench.reliability``); the probe
+``python -m tactiled_bench.worker_memory`` measures a busy fitter alone."""
 
 from __future__ import annotations
 
@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 from rel_helpers import figures
 
-from tactiled.bench.scenes import busy_scene
-from tactiled.config import NoiseModel, SensorModel
+from tactiled_bench.scenes import busy_scene
+from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.pipeline.sensor import worker_fit_options
 from tactiled.heapstats import fitter_cache_figures

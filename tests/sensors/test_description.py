@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from tactiled.config import SensorModel
+from tactiled.sensors.model import SensorModel
 from tactiled.errors import ConfigError
 from tactiled.sensors import builtin_names, load_description
 from tactiled.sensors.description import parse_description_text

@@ -13,7 +13,7 @@ import pytest
 from tactiled.calibration.identify import identify
 from tactiled.calibration.presses import synthesize_contact_presses
 from tactiled.errors import CalibrationError, ConfigError
-from tactiled.finger import FingerSpec
+from tactiled.sensors.finger import FingerSpec
 from tactiled.pipeline import Daemon
 from tactiled.sensors import load_description
 from tactiled.settings import load_settings

@@ -7,7 +7,7 @@ def test_bench_client_parses_server_frames():
     """The benchmark's minimal client reads what the server sends (split anywhere)."""
     import struct
 
-    from tactiled_service.bench_fanout import Client, client_frame
+    from tactiled_bench.websocket_fanout import Client, client_frame
 
     est = b'{"type":"estimate","v":1,"sensor":"f","seq":1,"host_time":10.5,"latency_ms":0.25}'
     big = b'{"type":"estimate","host_time":10.0,"latency_ms":null,"pad":"' + b"x" * 300 + b'"}'
@@ -30,7 +30,7 @@ def test_bench_phase_smoke(shared_server):
     import os
     import time
 
-    from tactiled_service import bench_fanout
+    from tactiled_bench import websocket_fanout as bench_fanout
 
     args = argparse.Namespace(clients=4, stalled=1, max_rate=30.0, seconds=1.0,
                               stalled_want="same")

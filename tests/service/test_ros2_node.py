@@ -310,7 +310,7 @@ def test_stop_closes_the_mcap_recording(node: Node) -> None:
 
 @pytest.mark.slow
 def test_the_ros2_benchmark_runs() -> None:
-    done = subprocess.run([PYTHON, "-m", "tactiled_service.bench_ros2", "--quick"],
+    done = subprocess.run([PYTHON, "-m", "tactiled_bench.ros2_fanout", "--quick"],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     rows = [line for line in done.stdout.splitlines() if line.startswith("| ")]

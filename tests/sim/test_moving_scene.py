@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.config import Geometry
+from tactiled.sensors.model import Geometry
 from tactiled.physics.contact import Contact
 from tactiled.sim import (
     MOVING_FORCE_N,

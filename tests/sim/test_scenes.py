@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.config import Geometry
+from tactiled.sensors.model import Geometry
 from tactiled.physics.contact import Contact
 from tactiled.sim import (SCENES, MultiScene, Pose, Scene, SceneBuilder, Segment, named_scene,
                           scene_from_spec)

@@ -11,9 +11,8 @@ from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.zeroing import Zeroer
 from tactiled.frames import FrameDecoder, encode_frame
 from tactiled.physics.strain import StrainModel
+from tactiled.sensors.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS
 from tactiled.sim import (
-    COUNTS_PER_STRAIN,
-    ZERO_STRAIN_COUNTS,
     DriftModel,
     FingerSimulator,
     FrameSchedule,
@@ -24,7 +23,7 @@ from tactiled.sim import (
     render,
     simulate_frames,
 )
-from tactiled.config import NoiseModel
+from tactiled.sensors.model import NoiseModel
 from tactiled.physics.contact import Contact
 
 COUNT = 1.0 / COUNTS_PER_STRAIN  # strain per count

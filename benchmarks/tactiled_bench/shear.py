@@ -1,0 +1,159 @@
+"""``tactiled bench --suite shear``: tangential force, torsion, friction and slip on simulated
+3-axis arrays (docs/concepts/shear.md).
+
+Arrays: the XELA-like ``xela_uskin_4x4`` and ``xela_uskin_4x6``, ``flat16`` made 3-axis (a
+16x16 pad) and the paper's finger made 3-axis (:func:`~tactiled.physics.threeaxis.three_axis`:
+magnets at the cover's depth, 2 readings of noise per axis).  On each:
+
+* independent frames (tactiled/sim/shear.py ``random_frames``: sphere radius 5-20 mm, force
+  0.5-2 N, ``Q/(mu P)`` 0-0.95, ``mu`` 0.3-1, torsion +/-0.3 N mm): RMS error over the RMS
+  Cramer-Rao bound and the 2-sigma coverage of ``fx``, ``fy`` and the torsion; how often ``mu``
+  is resolved and its coverage there;
+* pull-until-slip scenes at 1 kHz: the slip onset's delay (frames from the true onset to the
+  declared one; the estimates and the detector run as the daemon's, a fit every :data:`FIT_EVERY`
+  frames and the step on every frame, from 50 frames before the onset, cold, to 30 after), the share declared
+  within :data:`ONSET_FRAMES` frames; with the friction turning kinetic at the onset (0.8 of
+  the static: the force drops) and with a constant friction (the motion alone shows it);
+* stick-only scenes (push and twist in turn, every frame of their tangential loading): slip
+  events declared (there should be none).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from tactiled.fit.shear import ShearFitter, ShearStep
+from tactiled.fit.slip import SlipDetector
+from tactiled.physics.threeaxis import three_axis
+from tactiled.sensors import load_description
+from tactiled.sensors.description import SensorDescription
+from tactiled.sim.shear import random_frames, sequence
+
+ONSET_FRAMES = 5
+#: A full fit on every this many frames, the linearised step (:class:`ShearStep`) on the rest,
+#: as the daemon runs it (a fit takes some 10-200 ms; the step microseconds).
+FIT_EVERY = 10
+#: The detector starts this many frames before a pull's true onset and stops this many after.
+LEAD, AFTER = 50, 30
+
+
+#: The suite's arrays: a description's name or path, or a 1-axis one's name + ``_3axis``.
+ARRAYS = ("xela_uskin_4x4", "xela_uskin_4x6", "flat16_3axis", "fearing1988_3axis")
+
+
+def resolve(spec: str) -> SensorDescription:
+    """The description ``spec`` names; ``NAME_3axis`` is 1-axis ``NAME`` made 3-axis."""
+    if spec.endswith("_3axis"):
+        return three_axis(load_description(spec[: -len("_3axis")]))
+    return load_description(spec)
+
+
+def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None = None,
+           every: int = FIT_EVERY) -> list[tuple[str, int]]:
+    """Estimate ``frames[first:last]`` in order through a slip detector, as the daemon does: a
+    fit (warm-started) on every ``every``-th frame, the step from the last fit on each frame;
+    the detector's events."""
+    det, prev, step, events = SlipDetector(), None, None, []
+    for i in range(first, len(frames) if last is None else min(last, len(frames))):
+        if step is None or (i - first) % every == 0:
+            fit = fitter.fit(frames[i], start=prev)
+            prev, step = fit.params, fitter.step(fit)
+        est = step(frames[i])
+        _, ev = det.feed(i, est)
+        if ev is not None:
+            events.append((ev.kind, ev.frame))
+    return events
+
+
+def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
+    """RMS/CRB and 2-sigma coverage of fx, fy, torque; mu's resolved share and coverage."""
+    frames, truth = random_frames(desc, n, np.random.default_rng(seed))
+    fitter = ShearFitter(desc)
+    err, sig, mu_z = [], [], []
+    for i in range(n):
+        est = fitter.fit(frames[i])
+        p, s = est.params, est.sigma
+        err.append((p[4] - truth["true_fx"][i], p[5] - truth["true_fy"][i], p[6] - truth["true_torque"][i]))
+        sig.append((s[4], s[5], s[6]))
+        mu, s_mu, _ = est.mu()
+        if mu is not None:
+            mu_z.append((mu - truth["true_mu"][i]) / s_mu)
+    e, s = np.array(err), np.array(sig)
+    out = {}
+    for k, name in enumerate(("fx", "fy", "torque")):
+        out[f"{name}_ratio"] = float(np.sqrt(np.mean(e[:, k] ** 2)) / np.sqrt(np.mean(s[:, k] ** 2)))
+        out[f"{name}_cover"] = float(np.mean(np.abs(e[:, k]) <= 2 * s[:, k]))
+        out[f"{name}_crb"] = float(np.sqrt(np.mean(s[:, k] ** 2)))
+    out["mu_resolved"] = len(mu_z) / n
+    out["mu_cover"] = float(np.mean(np.abs(mu_z) <= 2)) if mu_z else math.nan
+    return out
+
+
+def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: float = 0.8
+         ) -> dict[str, float]:
+    """Onset delays on pull scenes (friction turning kinetic at ``kinetic`` times the static),
+    slip events on stick-only scenes."""
+    rng = np.random.default_rng(seed)
+    fitter = ShearFitter(desc)
+    delays, early = [], 0
+    for _ in range(pulls):
+        frames, truth = sequence(desc, "pull", rng, kinetic=kinetic)
+        onset = int(truth["true_onset"])
+        events = _track(fitter, frames, onset - LEAD, onset + AFTER)
+        onsets = [f for kind, f in events if kind == "onset"]
+        declared = next((f for f in onsets if f >= onset), None)
+        early += sum(1 for f in onsets if f < onset)
+        delays.append(math.inf if declared is None else declared - onset)
+    false = 0
+    for k in range(sticks):
+        frames, truth = sequence(desc, ("push", "twist")[k % 2], rng)
+        loaded = int(np.argmax(np.abs(truth["true_fx"]) + np.abs(truth["true_fy"]) + np.abs(truth["true_torque"]) > 0))
+        false += sum(1 for kind, _ in _track(fitter, frames, max(0, loaded - 30)) if kind == "onset")
+    d = np.array(delays)
+    ok = d[np.isfinite(d)]
+    return {"pulls": pulls, "within": float(np.mean(d <= ONSET_FRAMES)) if pulls else math.nan,
+            "median_delay": float(np.median(ok)) if ok.size else math.nan,
+            "max_delay": float(ok.max()) if ok.size else math.nan, "missed": int(np.sum(~np.isfinite(d))),
+            "early": early, "sticks": sticks, "false": false}
+
+
+def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, seed: int = 1,
+        say: Callable[[str], None] | None = None) -> str:
+    """The suite's Markdown tables (``sensors`` replaces the arrays: 3-axis descriptions)."""
+    descs = [resolve(s) for s in (sensors or ARRAYS)]
+    for d in descs:
+        if d.axes != 3:
+            from tactiled.errors import ConfigError
+
+            raise ConfigError(f"sensor {d.name!r} is a 1-axis array: the shear suite needs axes = 3")
+    n, pulls, flat, sticks = (40, 3, 3, 2) if quick else (150, 20, 20, 6)
+    rows_a, rows_s = [], []
+    for k, d in enumerate(descs):
+        t0 = time.perf_counter()
+        a = accuracy(d, n, seed + 10 * k)
+        s = slip(d, pulls, sticks, seed + 10 * k + 1)
+        c = slip(d, flat, 0, seed + 10 * k + 2, kinetic=1.0)
+        if progress is not False:
+            import sys
+
+            print(f"shear: {d.name} in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        rows_a.append(f"| {d.name} | {d.rows}x{d.cols} | "
+                      + " | ".join(f"{a[f'{q}_ratio']:.2f} / {a[f'{q}_cover']:.0%}" for q in ("fx", "fy", "torque"))
+                      + f" | {a['fx_crb'] * 1000:.1f} mN, {a['torque_crb']:.3f} N mm"
+                      + f" | {a['mu_resolved']:.0%} | "
+                      + (f"{a['mu_cover']:.0%}" if math.isfinite(a["mu_cover"]) else "-") + " |")
+        rows_s.append(f"| {d.name} | {s['within']:.0%} ({s['pulls']}) | {s['median_delay']:g} / {s['max_delay']:g} | "
+                      f"{s['missed']} | {s['early']} | {c['within']:.0%} ({c['pulls']}), "
+                      f"{c['median_delay']:g} / {c['max_delay']:g}, {c['missed']} missed | {s['false']} ({s['sticks']}) |")
+    head_a = ["| array | taxels | fx RMS/CRB / 2-sigma cover | fy | torque | RMS CRB (fx, torque) "
+              "| mu resolved | mu cover |", "|---|---|---|---|---|---|---|---|"]
+    head_s = [f"| array | onset within {ONSET_FRAMES} frames (pulls) | delay median / max, frames (ms at 1 kHz) "
+              "| missed | early | constant friction: within, delay, missed | slip events on stick-only scenes (scenes) |",
+              "|---|---|---|---|---|---|---|"]
+    return "\n".join([f"Independent frames ({n} per array):", "", *head_a, *rows_a, "",
+                      f"Slip: pull-until-slip and stick-only scenes at 1 kHz (a fit every {FIT_EVERY} frames, "
+                      "the step on every frame, as the daemon runs):", "", *head_s, *rows_s])
