@@ -312,9 +312,11 @@ def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int
     return result
 
 
-#: Run in a checkout before its daemon starts: one fit of each model and a linearisation,
-#: so numba compiles the kernels into the checkout's own cache (a fresh one has none, and a
-#: worker compiling them on its first fit, ~20 s, would be killed as hung again and again).
+#: Run in a checkout before its daemon starts: one fit of each model and a linearisation, so
+#: a baseline revision whose kernels are numba's (before the compiled core held them; such a
+#: run needs numba installed) compiles them into the checkout's own cache (a fresh one has
+#: none, and a worker compiling them on its first fit, ~20 s, would be killed as hung again and
+#: again); for a revision with the whole core it only warms the page cache.
 #: Plain code, not a function of this tree: the checkout's own modules run it.
 COMPILE_KERNELS = """
 import math
@@ -383,7 +385,7 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
     pickled.  ``sim_nice``: the simulators' niceness (a device has a processor of its own:
     niced, they take only the CPU the daemon leaves), set from here as they appear, so a
     baseline's harness need not know the option.  ``compile_kernels``: first fill the
-    checkout's numba cache (:data:`COMPILE_KERNELS`; False when an earlier run of this
+    checkout's numba cache, a baseline revision's that has one (:data:`COMPILE_KERNELS`; False when an earlier run of this
     invocation did: the cache stays in the checkout)."""
     path = os.pathsep.join([tree, *(os.path.join(tree, d) for d in ("benchmarks", "drivers", "service"))])
     env = {**os.environ, "PYTHONPATH": path}

@@ -58,7 +58,7 @@ _LINE = re.compile(r":\d+\)")
 def main_process_stacks(lines: Iterable[str]) -> Iterable[tuple[list[str], int]]:
     """(frames outermost first, samples) of the daemon's main process in a raw py-spy
     profile of ``tactiled bench --suite acquisition`` (or of the daemon alone: stacks of one
-    process), leaving out numba compilation (a cold kernel cache) and the bench's own start."""
+    process), leaving out numba compilation (a baseline revision's cold kernel cache) and the bench's own start."""
     for line in lines:
         line = line.rstrip()
         if not line or " " not in line:

@@ -151,43 +151,21 @@ def nearest(table: np.ndarray, feat: np.ndarray, k: int) -> tuple[np.ndarray, np
     a table this small.  A row whose first four squares already reach the k-th distance so far
     is passed over: a sum of non-negative terms only grows, rounding included."""
     n, m = table.shape
-    q = np.empty(m)
-    for j in range(m):
-        v = feat[j]
-        q[j] = 0.0 if v != v else min(max(v, -1e6), 1e6)
+    q = np.clip(np.nan_to_num(np.asarray(feat, dtype=float), nan=0.0, posinf=1e6, neginf=-1e6),
+                -1e6, 1e6)
     k = min(k, n)
-    best_d = np.full(k, np.inf)
-    best_i = np.full(k, -1, dtype=np.int64)
-    for i in range(n):
-        row = table[i]
-        worst = best_d[k - 1]
-        a0 = a1 = a2 = a3 = 0.0
-        j = 0
-        while j + 4 <= m:
-            t0, t1 = row[j] - q[j], row[j + 1] - q[j + 1]
-            t2, t3 = row[j + 2] - q[j + 2], row[j + 3] - q[j + 3]
-            a0 += t0 * t0
-            a1 += t1 * t1
-            a2 += t2 * t2
-            a3 += t3 * t3
-            j += 4
-            if a0 + a1 + a2 + a3 >= worst:
-                break
-        d = a0 + a1 + a2 + a3
-        if d >= worst:
-            continue
-        while j < m:
-            t = row[j] - q[j]
-            d += t * t
-            j += 1
-        if d < worst:  # insert, keeping the buffer sorted (an equal one stays ahead)
-            pos = k - 1
-            while pos > 0 and best_d[pos - 1] > d:
-                best_d[pos] = best_d[pos - 1]
-                best_i[pos] = best_i[pos - 1]
-                pos -= 1
-            best_d[pos] = d
-            best_i[pos] = i
+    sq = (table - q) ** 2
+    lanes = m // 4 * 4
+    # four lanes summed in order (column j into lane j % 4), then the lanes, then the rest
+    a = np.zeros((n, 4)) if lanes == 0 else np.cumsum(
+        sq[:, :lanes].reshape(n, lanes // 4, 4), axis=1)[:, -1, :]
+    d = a[:, 0] + a[:, 1] + a[:, 2] + a[:, 3]
+    for j in range(lanes, m):
+        d = d + sq[:, j]
+    order = np.argsort(d, kind="stable")[:k]  # ties: the lower index first
+    best_d, best_i = d[order], order.astype(np.int64)
+    unfilled = ~(best_d < np.inf)  # never nearer than nothing (the core's empty slots)
+    best_d[unfilled], best_i[unfilled] = np.inf, -1
     return np.sqrt(best_d), best_i
 
 

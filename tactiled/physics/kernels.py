@@ -37,73 +37,57 @@ def strain_with_jacobian(
     (``HX[i, q]``, ``HY[j, q]`` and their slopes) and each tactel's value and derivatives are then
     sums over the nodes, which vectorise.
     """
-    x0, y0, a, b, theta, force, scale = geo[0], geo[1], geo[2], geo[3], geo[4], geo[5], geo[6]
-    dep_x, nu_x, dep_y, nu_y = imp[0], imp[1], imp[2], imp[3]
-    mx, ny, nq = xs.shape[0], ys.shape[0], u.shape[0]
+    x0, y0, a, b, theta, force, scale = (float(g) for g in geo[:7])
+    dep_x, nu_x, dep_y, nu_y = (float(g) for g in imp[:4])
     c, s = math.cos(theta), math.sin(theta)
     cx = 2.0 * dep_x * _INV_PI
     cy = 2.0 * dep_y * _INV_PI
     dx2 = dep_x * dep_x
     dy2 = dep_y * dep_y
     # node offsets from the centre and their motion per unit (a, b): (u c, u s), (-v s, v c)
-    ex = np.empty(nq)
-    ey = np.empty(nq)
-    uc = np.empty(nq)
-    us = np.empty(nq)
-    vs = np.empty(nq)
-    vc = np.empty(nq)
-    for q in range(nq):
-        au = a * u[q]
-        bv = b * v[q]
-        ex[q] = au * c - bv * s
-        ey[q] = au * s + bv * c
-        uc[q] = u[q] * c
-        us[q] = u[q] * s
-        vs[q] = -v[q] * s
-        vc[q] = v[q] * c
-    hx = np.empty((mx, nq))
-    dhx = np.empty((mx, nq))
-    hy = np.empty((ny, nq))
-    dhy = np.empty((ny, nq))
-    for i in range(mx):
-        for q in range(nq):
-            t = xs[i] - x0 - ex[q]
-            t2 = t * t
-            sx = t2 + dx2
-            inv = w[q] / (sx * sx)
-            hx[i, q] = cx * (dx2 - nu_x * t2) * inv
-            dhx[i, q] = 2.0 * cx * t * (nu_x * t2 - (nu_x + 2.0) * dx2) * inv / sx
-    for j in range(ny):
-        for q in range(nq):
-            t = ys[j] - y0 - ey[q]
-            t2 = t * t
-            sy = t2 + dy2
-            inv = 1.0 / (sy * sy)
-            hy[j, q] = cy * (dy2 - nu_y * t2) * inv
-            dhy[j, q] = 2.0 * cy * t * (nu_y * t2 - (nu_y + 2.0) * dy2) * inv / sy
+    au, bv = a * u, b * v
+    ex = au * c - bv * s
+    ey = au * s + bv * c
+    uc, us, vs, vc = u * c, u * s, -v * s, v * c
+    # the per-axis responses at every node, (tactels along the axis, nodes)
+    t = xs[:, None] - x0 - ex[None, :]
+    t2 = t * t
+    sx = t2 + dx2
+    inv = w / (sx * sx)
+    hx = cx * (dx2 - nu_x * t2) * inv
+    dhx = 2.0 * cx * t * (nu_x * t2 - (nu_x + 2.0) * dx2) * inv / sx
+    t = ys[:, None] - y0 - ey[None, :]
+    t2 = t * t
+    sy = t2 + dy2
+    inv = 1.0 / (sy * sy)
+    hy = cy * (dy2 - nu_y * t2) * inv
+    dhy = 2.0 * cy * t * (nu_y * t2 - (nu_y + 2.0) * dy2) * inv / sy
+    # every tactel's sums over the nodes, (M, N, nodes), each summed node after node as the
+    # core sums (a running difference from 0 is minus the running sum: rounding is symmetric)
+    ax_ = dhx[:, None, :] * hy[None, :, :]  # d/d(node x) is minus this
+    by_ = hx[:, None, :] * dhy[None, :, :]  # d/d(node y) is minus this
+    sv = _node_sum(hx[:, None, :] * hy[None, :, :])
+    d0 = -_node_sum(ax_)
+    d1 = -_node_sum(by_)
+    d2 = -_node_sum(ax_ * uc + by_ * us)
+    d3 = -_node_sum(ax_ * vs + by_ * vc)
+    d4 = _node_sum(ax_ * ey - by_ * ex)  # theta: node motion (-ey, ex)
     kf = scale * force
-    val = np.empty((mx, ny))
-    jac = np.empty((mx, ny, 6))
-    for i in range(mx):
-        for j in range(ny):
-            sv = d0 = d1 = d2 = d3 = d4 = 0.0
-            for q in range(nq):
-                # the kernel's argument is X - x_q, hence the minus signs on node motion
-                ax_ = dhx[i, q] * hy[j, q]  # d/d(node x) is minus this
-                by_ = hx[i, q] * dhy[j, q]  # d/d(node y) is minus this
-                sv += hx[i, q] * hy[j, q]
-                d0 -= ax_
-                d1 -= by_
-                d2 -= ax_ * uc[q] + by_ * us[q]
-                d3 -= ax_ * vs[q] + by_ * vc[q]
-                d4 += ax_ * ey[q] - by_ * ex[q]  # theta: node motion (-ey, ex)
-            for k in range(4):
-                jac[i, j, k] = kf * (d2 * hj[0, k] + d3 * hj[1, k] + d4 * hj[2, k])
-            jac[i, j, 3] += scale * sv
-            jac[i, j, 4] = kf * d0
-            jac[i, j, 5] = kf * d1
-            val[i, j] = kf * sv
-    return val, jac
+    jac = np.empty((xs.shape[0], ys.shape[0], 6))
+    for k in range(4):
+        jac[:, :, k] = kf * (d2 * hj[0, k] + d3 * hj[1, k] + d4 * hj[2, k])
+    jac[:, :, 3] += scale * sv
+    jac[:, :, 4] = kf * d0
+    jac[:, :, 5] = kf * d1
+    return kf * sv, jac
+
+
+def _node_sum(terms: np.ndarray) -> np.ndarray:
+    """``terms`` (..., nodes) summed over the last axis one node after another, from 0 (the
+    core's order; ``np.sum`` sums pairwise, to other bits)."""
+    if terms.shape[-1] == 0:
+        return np.zeros(terms.shape[:-1])
+    return 0.0 + np.cumsum(terms, axis=-1)[..., -1]
 
 
 def quadrature(
@@ -123,32 +107,23 @@ def quadrature(
     nu_y: float,
 ) -> np.ndarray:
     """``S[m, n]`` alone (see :func:`quadrature_with_derivatives`)."""
-    mx, ny, nq = xs.shape[0], ys.shape[0], u.shape[0]
-    val = np.zeros((mx, ny))
-    hx = np.empty(mx)
     c, s = math.cos(theta), math.sin(theta)
     cx = 2.0 * dep_x * _INV_PI
     cy = 2.0 * dep_y * _INV_PI
     dx2 = dep_x * dep_x
     dy2 = dep_y * dep_y
-    for q in range(nq):
-        au = a * u[q]
-        bv = b * v[q]
-        xq = x0 + au * c - bv * s
-        yq = y0 + au * s + bv * c
-        for i in range(mx):
-            t = xs[i] - xq
-            t2 = t * t
-            sx = t2 + dx2
-            hx[i] = cx * (dx2 - nu_x * t2) / (sx * sx) * w[q]
-        for j in range(ny):
-            t = ys[j] - yq
-            t2 = t * t
-            sy = t2 + dy2
-            hyj = cy * (dy2 - nu_y * t2) / (sy * sy)
-            for i in range(mx):
-                val[i, j] += hx[i] * hyj
-    return val
+    au, bv = a * u, b * v
+    xq = x0 + au * c - bv * s
+    yq = y0 + au * s + bv * c
+    t = xs[:, None] - xq[None, :]
+    t2 = t * t
+    sx = t2 + dx2
+    hx = cx * (dx2 - nu_x * t2) / (sx * sx) * w
+    t = ys[:, None] - yq[None, :]
+    t2 = t * t
+    sy = t2 + dy2
+    hy = cy * (dy2 - nu_y * t2) / (sy * sy)
+    return _node_sum(hx[:, None, :] * hy[None, :, :])
 
 
 def quadrature_points(

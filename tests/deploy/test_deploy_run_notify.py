@@ -20,7 +20,7 @@ from deploy_helpers import ROOT, NotifySocket
 RUN_MODULE = ROOT / "tactiled" / "commands" / "run.py"
 WATCHDOG_USEC = 2_000_000  # pings expected every 1 s
 GRACEFUL_STOP_S = 5.0  # tactiled.service's comment promises this (TimeoutStopSec=10s)
-START_TIMEOUT_S = 40.0  # worker warm-up; first start may compile numba kernels
+START_TIMEOUT_S = 40.0  # worker warm-up on a loaded machine
 
 
 def _free_port() -> int:

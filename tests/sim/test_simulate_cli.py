@@ -50,7 +50,7 @@ def test_pty_and_serial_are_exclusive(capsys: pytest.CaptureFixture[str]) -> Non
 
 
 def _first_line(proc: subprocess.Popen, timeout: float) -> str:
-    """The subprocess's first stdout line, or fail after ``timeout`` s (startup imports numba)."""
+    """The subprocess's first stdout line, or fail after ``timeout`` s (start-up imports numpy and the core)."""
     ready, _, _ = select.select([proc.stdout], [], [], timeout)
     if not ready:
         proc.kill()
