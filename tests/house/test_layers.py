@@ -43,17 +43,18 @@ COMPILED = ("tactiled._core",)
 #: The layers, lowest first: a module may import its own layer's modules and those below it.
 #: A module's layer is the one naming the longest prefix of its dotted name.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("tactiled", "tactiled._core", "tactiled.errors", "tactiled.files", "tactiled.native",
+    ("base", ("tactiled", "tactiled._core", "tactiled.errors", "tactiled.io.files", "tactiled.native",
               "tactiled.progress", "tactiled.heap", "tactiled.heapstats", "tactiled.systemd")),
     # a sensor: its model, description and vendor arrays, and the counts-to-strain table type
     # (calibration.lut, .segments: a vendor array's nominal table is one)
     ("sensor", ("tactiled.sensors", "tactiled.calibration.lut", "tactiled.calibration.segments")),
-    ("frames", ("tactiled.frames", "tactiled.clock", "tactiled.recording")),
+    ("frames", ("tactiled.frames", "tactiled.clock", "tactiled.io.recording")),
     ("physics", ("tactiled.physics",)),
     ("calibration", ("tactiled.calibration",)),
     ("fit", ("tactiled.fit", "tactiled.sensors.window")),
-    # sources holds the driver table (a URL checked by scheme, no driver imported)
-    ("sources", ("tactiled.sources", "tactiled.framefile", "tactiled.io", "tactiled.sim")),
+    # sources holds the driver table (a URL checked by scheme, no driver imported); the file
+    # formats above the calibration (a calibration or press file holds its types)
+    ("sources", ("tactiled.sources", "tactiled.io", "tactiled.sim")),
     ("settings", ("tactiled.settings",)),
     ("pipeline", ("tactiled.pipeline",)),
     ("drivers", ("tactiled_drivers",)),
