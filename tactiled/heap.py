@@ -2,12 +2,11 @@
 
 Objects that die in reference cycles (a closed WebSocket session: its protocol, transport,
 tasks and the ``Stalled``/``CancelledError`` tracebacks point at each other) are freed only by
-CPython's cyclic collector.  Left to its thresholds, the service's collector ran a full
-collection about every 10 minutes (6 in the 1-hour soak, each up to 85 ms over the 30+ MB
-that start-up leaves: FastAPI, pydantic, numpy, scipy); with never-reading subscribers
-closed every ~1.4 s, ~6 MB of dead sessions piled up in between, and pymalloc's 1 MiB arenas,
-sized for each pile and fragmented, were not all given back: the RSS crept by 9 MB in an
-hour (docs/performance/reliability.md, "Soak").
+CPython's cyclic collector.  Left to its thresholds, a long-running service collects fully
+only every few minutes, each pass over everything start-up left (30+ MB: FastAPI, pydantic,
+numpy, scipy); dead sessions pile up in between, and pymalloc's arenas, sized for each pile
+and fragmented, are not all given back, so the RSS creeps (docs/performance/reliability.md,
+"Soak").
 
 :func:`settle` moves what start-up left alive into the permanent generation
 (:func:`gc.freeze`), which the collector never scans again, so a full collection weighs only

@@ -10,10 +10,10 @@ the loop has not read for ``STALL_S``: the device never waits for the loop.  Whi
 keeps up the thread reads nothing and takes the GIL ``1 / GUARD_INTERVAL_S`` times a second
 whatever the number of ports.
 
-Why not a thread that does all the reading (this module's design before): each of its wakes
-took the GIL from the loop and woke the loop through its self-pipe, and it woke at most every
-millisecond, so a frame waited up to 1 ms in the kernel's buffer before it was read; read by
-the loop, a frame is read as it arrives (the hand's runs, docs/performance/hand.md).
+The loop, not this thread, does the reading: a thread that read every port would take the
+GIL from the loop and wake it through its self-pipe at each wake, and would let a frame wait
+up to its wake period in the kernel's buffer; read by the loop, a frame is read as it arrives
+(docs/performance/hand.md).
 
 A reader's reads, the loop's and this thread's, are serialized by its read lock, so its bytes
 keep their order; an error (the device unplugged) reaches the consumer after every byte read
