@@ -282,7 +282,7 @@ def _run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> 
     import subprocess
     import sys
 
-    path = os.pathsep.join([tree, os.path.join(tree, "drivers"), os.path.join(tree, "service")])
+    path = os.pathsep.join([tree, *(os.path.join(tree, d) for d in ("benchmarks", "drivers", "service"))])
     source = "\n".join(["from typing import Any", *preamble, inspect.getsource(func),
                         "if __name__ == '__main__':",
                         "    import json",

@@ -14,7 +14,7 @@ import os, shutil, subprocess, sys, tempfile, time
 from pathlib import Path
 SRC = str(Path(__file__).resolve().parents[2])
 DST = tempfile.mkdtemp(prefix="tactiled-mut-") + "/repo"
-ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/drivers:{DST}/service")
+ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/benchmarks:{DST}/drivers:{DST}/service")
 PY = sys.executable
 
 MUTATIONS = [
