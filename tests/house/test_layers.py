@@ -87,7 +87,6 @@ MAX_LINES = 700
 #: Modules over MAX_LINES today -> the split that mends it.
 LONG_KNOWN: dict[str, str] = {
     "tactiled.fit.fitter": "the Fitter split by strategy",
-    "tactiled.pipeline.pool": "the pool split into dispatch and supervision",
     "tactiled.settings": "settings.py split by what it holds",
     "tactiled.sim": "a simulation package",
 }
