@@ -184,7 +184,7 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
     from pathlib import Path
 
     from tactiled.pipeline import Daemon
-    from tactiled.recording import Recorder
+    from tactiled.io.recording import Recorder
     from tactiled.sensors import load_description
     from tactiled.settings import load_settings
     from tactiled.sim import FingerSimulator
