@@ -5,7 +5,7 @@ Arrays: the XELA-like ``xela_uskin_4x4`` and ``xela_uskin_4x6``, ``flat16`` made
 16x16 pad) and the paper's finger made 3-axis (:func:`~tactiled.physics.threeaxis.three_axis`:
 magnets at the cover's depth, 2 readings of noise per axis).  On each:
 
-* independent frames (tactiled/shearsim.py ``random_frames``: sphere radius 5-20 mm, force
+* independent frames (tactiled/sim/shear.py ``random_frames``: sphere radius 5-20 mm, force
   0.5-2 N, ``Q/(mu P)`` 0-0.95, ``mu`` 0.3-1, torsion +/-0.3 N mm): RMS error over the RMS
   Cramer-Rao bound and the 2-sigma coverage of ``fx``, ``fy`` and the torsion; how often ``mu``
   is resolved and its coverage there;
@@ -31,7 +31,7 @@ from tactiled.fit.slip import SlipDetector
 from tactiled.physics.threeaxis import three_axis
 from tactiled.sensors import load_description
 from tactiled.sensors.description import SensorDescription
-from tactiled.shearsim import random_frames, sequence
+from tactiled.sim.shear import random_frames, sequence
 
 ONSET_FRAMES = 5
 #: A full fit on every this many frames, the linearised step (:class:`ShearStep`) on the rest,

@@ -32,7 +32,7 @@ import argparse
 import asyncio
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,6 +43,9 @@ from tactiled.frames import new_decoder
 from tactiled.progress import Progress
 from tactiled.recording import RecordingReader
 from tactiled.settings import load_settings
+
+if TYPE_CHECKING:
+    from tactiled.pipeline.sensor_stats import SensorStats
 
 FORMATS = (".mcap", ".npz")
 
@@ -141,7 +144,8 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
         progress.step()
         if stamp >= state["due"]:
             state["due"] = stamp + 1.0
-            writer.write_diagnostics(_health(daemon.stats(name), state), stamp, hardware_ids)
+            writer.write_diagnostics(_health(daemon.sensor_stats(name), state), stamp,
+                                     hardware_ids)
 
     daemon.hub.add_listener(on_item)
     await daemon.start()
@@ -153,23 +157,22 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
     return stats
 
 
-def _health(stats: dict[str, Any], state: dict[str, Any]) -> dict[str, Any]:
+def _health(stats: SensorStats, state: dict[str, Any]) -> dict[str, Any]:
     """A health document from a replayed sensor's counters: WARN when frames were corrupt,
     lost or duplicated, or fits failed, since the previous one (the recording's own health;
     the daemon's timing rules -- silence, stale estimates -- mean nothing in a replay)."""
-    dec = stats.get("decoder", {})
-    counts = {"corrupt chunks": int(dec.get("crc_errors", 0)) + int(dec.get("length_errors", 0)),
-              "lost frames": int(dec.get("lost", 0)),
-              "duplicated frames": int(dec.get("duplicated", 0)),
-              "fit errors": int(stats.get("fit_errors", 0))}
+    counts = {"corrupt chunks": stats.decoded("crc_errors") + stats.decoded("length_errors"),
+              "lost frames": stats.decoded("lost"),
+              "duplicated frames": stats.decoded("duplicated"),
+              "fit errors": stats.fit_errors}
     total = sum(counts.values())
     grew = total > state["errors"]
     state["errors"] = total
     reason = ", ".join(f"{n} {what}" for what, n in counts.items() if n) if grew else ""
-    return {"sensors": {stats["sensor"]: {
+    return {"sensors": {stats.sensor: {
         "status": "WARN" if grew else "OK",
         "reason": f"since start: {reason}" if reason else "",
-        "frames": stats.get("frames"), "published": stats.get("published")}}}
+        "frames": stats.frames, "published": stats.published}}}
 
 
 def export_npz(path: str, out: Path, progress: Progress) -> int:

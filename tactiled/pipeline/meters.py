@@ -23,6 +23,14 @@ class RateMeter:
         while times and times[0] <= edge:
             times.popleft()
 
+    def tick_many(self, now: float, n: int) -> None:
+        """Count ``n`` events at ``now`` (s): the frames of one read."""
+        times = self._times
+        times.extend([now] * n)
+        edge = now - self.window
+        while times and times[0] <= edge:
+            times.popleft()
+
     def _prune(self, now: float) -> None:
         edge = now - self.window
         times = self._times

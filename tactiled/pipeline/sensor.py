@@ -1,22 +1,13 @@
 """One sensor's loop: read -> (decode, in the source) -> linearise -> zero -> gate -> fit -> publish.
 
-Each frame is handled synchronously as it arrives (:meth:`SensorPipeline.on_frame`); only the
-fit leaves the loop, to a worker process.  The queueing rule is **latest frame wins**: a frame
-to fit waits in a one-frame slot; a newer frame to fit replaces it (counted ``superseded``), so
-reading never waits for fitting and nothing queues up.  At most one fit per sensor is in
-flight, so results come back in order (beside it, at most one of the tracker's
-relinearisations, which answer no frame: one answered after a fit is ignored).  A frame the
-gate publishes at once (no contact, unchanged) also supersedes a waiting one; a fit result older than the last estimate published
-is dropped (``stale_dropped``), so no estimate ever appears under a newer seq than the frame it
-describes.  Order is judged by the pipeline's own arrival count (``ordinal``), not by ``seq``,
-which wraps at 2^32 and restarts when the device does.
-
-In ``lossless`` mode (replay, regression tests) the loop instead waits for each fit before
-reading the next frame: every frame gets its estimate and the output is deterministic.
-
-This module holds the frame's path and the pool's side; what happens to a contact frame with
-tracking on (the tracker, the frames waiting for a fit, relinearisation, drift following) is
-in :mod:`tactiled.pipeline.sensor_tracking`.
+The frames of each read are handled synchronously, in one call (:meth:`SensorPipeline.on_frames`);
+only the fit leaves the loop, to a worker process.  Latest frame wins: a frame to fit waits in a
+one-frame slot, a newer one replaces it (``superseded``), at most one fit per sensor is in
+flight, and a fit older than the last estimate published is dropped (``stale_dropped``); order
+is the pipeline's own arrival count (``ordinal``), not ``seq`` (it wraps, and restarts with the
+device).  ``lossless`` mode (replay, regression tests) waits for each fit instead: every frame
+gets its estimate, deterministically.  A contact through time (``settings.track``) is
+:mod:`tactiled.pipeline.sensor_tracking`'s.
 """
 
 from __future__ import annotations
@@ -28,6 +19,7 @@ import math
 import time
 from dataclasses import replace
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -43,7 +35,7 @@ from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.result import FitResult
-from tactiled.fit.verdict import ArrayLimits, carried, judge
+from tactiled.fit.verdict import ArrayLimits, carried, judge, withheld_since
 from tactiled.frames import Frame
 from tactiled.pipeline.estimate import (
     GATE_FIT,
@@ -61,7 +53,8 @@ from tactiled.fit.warm import SEVERAL
 from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
-from tactiled.pipeline.pool import FitJob, WorkerPool
+from tactiled.pipeline.jobs import FitJob
+from tactiled.pipeline.pool import WorkerPool
 from tactiled.pipeline.sensor_stats import SensorStats
 from tactiled.pipeline.multi_contact import ContactTrackers
 from tactiled.pipeline import shear_track
@@ -77,10 +70,11 @@ RETRY_MIN, RETRY_MAX = 0.1, 2.0  # s, backoff between attempts to open a failing
 #: Longest a sensor handles one read's frames before it lets the loop's other tasks run (s).
 SLICE_S = 0.01
 
-
 #: The daemon withholds a radius whose Cramer-Rao bound exceeds half of it ("force too low
 #: for curvature"; docs/concepts/model.md: radius is not observable at low force).
 WITHHOLD_RELATIVE_SIGMA = 0.5
+
+
 def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
     """``FitOptions`` keyword arguments as a hashable tuple: the worker builds the FitOptions,
     so this process never imports the fitter (and scipy with it)."""
@@ -91,11 +85,9 @@ def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
 #: Why a contact of several carries no rates: each such frame is fitted, none tracked.
 SEVERAL_UNTRACKED = "several contacts on the array: each frame is fitted, not tracked"
 
-#: Warm starts go to the workers rounded to this grid (internal units: ln mm, ln N, rad, mm).
-#: The tracker's state carries the last bits of whatever CPU computed its linearisations;
-#: a fit that stops short of convergence (a line contact, its iteration cap) ends where its
-#: start led it, so those bits would reach the estimate.  On the grid they do not, but for a
-#: start within 1e-16 of a grid line.
+#: Warm starts go to the workers rounded to this grid (internal units: ln mm, ln N, rad, mm),
+#: so the last bits of whatever CPU computed the tracker's state never reach an estimate
+#: through a fit that stops short of convergence (but for a start within 1e-16 of the grid).
 WARM_GRID = 1e-9
 
 
@@ -228,6 +220,7 @@ class SensorPipeline:
         self.published = 0
         self.skipped = {GATE_NO_CONTACT: 0, GATE_UNCHANGED: 0}
         self.stale_dropped = 0
+        self.reuse_refused = 0  # unchanged frames fitted: carried, a value would be withheld
         self.relinearize_lost = 0
         self.fit_failed = 0
         self.fit_errors = 0
@@ -289,23 +282,18 @@ class SensorPipeline:
                 delay = RETRY_MIN
                 async with contextlib.aclosing(self.source.frame_batches()) as batches:
                     async for batch in batches:  # the frames of one read
-                        began = time.monotonic()
                         self.clock.stamp(batch)  # together: they arrived together
-                        for frame in batch:
-                            before = self._waiting
-                            self.on_frame(frame)
-                            if self.lossless:
+                        if self.lossless:
+                            for frame in batch:
+                                self.on_frame(frame)
                                 await self.wait_settled()
-                                continue
-                            if self._fit_due(before):
-                                # the pool sends it now, not after the rest of this read's
-                                # frames and the other sensors' reads the loop holds
-                                self.pool.dispatch_now()
-                            if time.monotonic() - began > SLICE_S:
-                                # a read of many frames (after a stall): the other sensors
-                                # and the fit results get the loop between slices of it
-                                await asyncio.sleep(0)
-                                began = time.monotonic()
+                            continue
+                        done = self.on_frames(batch)
+                        while done < len(batch):
+                            # a read of many frames (after a stall): the other sensors and
+                            # the fit results get the loop between slices of it
+                            await asyncio.sleep(0)
+                            done = self.on_frames(batch, done)
                 break  # the stream ended (a replay finished)
             except DriverError as err:
                 # A device that failed to open or vanished: it may come back, so retry.
@@ -351,19 +339,41 @@ class SensorPipeline:
 
     def on_frame(self, frame: Frame) -> None:
         """Handle one decoded frame; never raises (problems are counted)."""
+        if frame.time is None:  # a frame handed over alone, not from this sensor's reads
+            self.clock.stamp([frame])
+        self.on_frames((frame,), dispatch=False)
+
+    def on_frames(self, frames: Sequence[Frame], start: int = 0, dispatch: bool = True) -> int:
+        """Handle the frames of one read (stamped by ``self.clock``), from index ``start``, in
+        one call: the time they arrived and the frame-rate meter are taken once per call, not
+        once per frame.  Stops after the frame that takes the call past
+        ``SLICE_S``, so the loop's other tasks get their turn; returns the index of the next
+        frame to handle (``len(frames)``: all done).  ``dispatch``: a fit due goes to the pool
+        at once (``WorkerPool.dispatch_now``).  Never raises (problems are counted)."""
         now = time.monotonic()
-        self.frames += 1
-        self.frame_rate.tick(now)
+        end = len(frames)
+        k = start
+        while k < end:
+            frame = frames[k]
+            k += 1
+            self.frames += 1
+            before = self._waiting
+            try:
+                self._record(frame)
+                self._process(frame, now)
+            except Exception as err:  # a bug must cost one frame, not the sensor's loop
+                self.errors += 1
+                self.last_error = f"{type(err).__name__}: {err}"
+                log.exception("%s: frame seq %d failed", self.name, frame.seq)
+            if dispatch and self._fit_due(before):
+                # the pool sends it now, not after the rest of this read's frames and the
+                # other sensors' reads the loop holds
+                self.pool.dispatch_now()
+            if k < end and time.monotonic() - now > SLICE_S:
+                break
+        self.frame_rate.tick_many(now, k - start)
         self.last_frame_at = now
-        try:
-            if frame.time is None:  # a frame handed over alone, not from this sensor's reads
-                self.clock.stamp([frame])
-            self._record(frame)
-            self._process(frame, now)
-        except Exception as err:  # a bug must cost one frame, not the sensor's loop
-            self.errors += 1
-            self.last_error = f"{type(err).__name__}: {err}"
-            log.exception("%s: frame seq %d failed", self.name, frame.seq)
+        return k
 
     def _record(self, frame: Frame) -> None:
         if self.record_path is None or self._record_failed:
@@ -436,9 +446,8 @@ class SensorPipeline:
             self.skipped[GATE_NO_CONTACT] += 1
             self._supersede_waiting()
             self._publish(waiting, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
-        elif action == GATE_UNCHANGED and self._last_fit is not None:
-            self._publish_reuse(waiting, self._last_fit)
-        else:
+        elif not (action == GATE_UNCHANGED and self._last_fit is not None
+                  and self._publish_reuse(waiting, self._last_fit)):
             if self._waiting is not None:
                 self.superseded += 1
             self._waiting = waiting
@@ -452,15 +461,22 @@ class SensorPipeline:
         last = self._last_fit
         if last is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
             return False
-        self._publish_reuse(w, last)
-        return True
+        return self._publish_reuse(w, last)
 
-    def _publish_reuse(self, w: _Waiting, last: Estimate) -> None:
-        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since)."""
-        self.skipped[GATE_UNCHANGED] += 1
+    def _publish_reuse(self, w: _Waiting, last: Estimate) -> bool:
+        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since),
+        its sigmas widened by the change the gate could have missed; False (nothing
+        published: the frame needs a fit) when the one rule would withhold a value so carried
+        that ``last`` published: a fit of the frame can still say it."""
         frames = w.seq - last.fitted_seq if last.fitted_seq is not None else 0
-        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0,
-                      carried(last.fit, self.gate.change, frames), fresh=True)
+        fit = judge(carried(last.fit, self.gate.change, frames), self._limits,
+                    withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
+        if withheld_since(last.fit, fit):
+            self.reuse_refused += 1
+            return False
+        self.skipped[GATE_UNCHANGED] += 1
+        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0, fit, fresh=True)
+        return True
 
     def _fit_due(self, before: _Waiting | None) -> bool:
         """A frame has just started waiting for a fit (it was not ``before``), and no fit of
@@ -672,8 +688,6 @@ class SensorPipeline:
             self.stage.zeroer.set_hysteresis(s.hysteresis)
         # A fit made under other settings must not be reused for new frames.
         self._end_contact()
-
-    # -- learned state --------------------------------------------------------------------------
 
     def _owner(self) -> learned.Owner:
         return learned.Owner(self.name, self.expected_id,

@@ -21,9 +21,6 @@ in order (which is what lets the parent give every outstanding request a deadlin
   (:func:`tactiled.heapstats.worker_figures`: RSS, malloc and pymalloc books, the fitter's
   caches, fits so far; ``flat_fields``: each spec's ``FlatField.summary()``), for the soak and
   for diagnosing growth;
-- ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
-- ``("garble", rid)`` -> bytes that do not unpickle: a test hook for an answer the parent
-  cannot read;
 - ``("stop",)``: exit.
 
 ``spec`` is a small integer naming a (SensorModel, FitOptions arguments) pair the parent
@@ -216,11 +213,6 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                     continue
                 broken.pop(spec, None)
                 conn.send(("setup_done", rid, time.perf_counter() - t, None))
-            elif kind == "sleep":
-                time.sleep(msg[2])  # deliberately unresponsive: the parent must notice
-                conn.send(("slept", msg[1]))
-            elif kind == "garble":
-                conn.send_bytes(b"\x80\x05not a pickle")  # test hook: an unreadable answer
             elif kind == "stop":
                 return
     except (BrokenPipeError, ConnectionResetError, EOFError):

@@ -10,7 +10,7 @@ from tactiled.fit.shear import MU_RESOLVED, NAMES, ShearFitter
 from tactiled.fit.slip import SlipDetector, motion_z
 from tactiled.physics.threeaxis import ShearContact, ThreeAxisModel, three_axis
 from tactiled.sensors import load_description
-from tactiled.shearsim import random_frames
+from tactiled.sim.shear import random_frames
 
 XELA = load_description("xela_uskin_4x4")
 PAD = three_axis(load_description("flat16"))

@@ -14,7 +14,7 @@ from tactiled.frames import Frame
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.shear_track import NO_ZERO, for_sensor
 from tactiled.sensors import load_description
-from tactiled.shearsim import sequence
+from tactiled.sim.shear import sequence
 
 REST = np.array([0x8000, 0x8000, 10000.0])
 
