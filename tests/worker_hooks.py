@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import time
 from multiprocessing.connection import Connection
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from tactiled.pipeline.pool import WorkerPool
 from tactiled.pipeline.worker import Spec, worker_main
+
+if TYPE_CHECKING:  # (a worker process imports this module: it needs no more than the worker)
+    from tactiled.pipeline.pool import WorkerPool
 
 #: what ``WorkerPool.worker_main`` names for a worker with these hooks
 HOOKED_WORKER_MAIN = f"{__name__}:hooked_worker_main"

@@ -307,7 +307,7 @@ def _attribute(s: dict[str, Any], sim: dict[str, Any], first: int | None, last: 
 
 def default_warmup(seconds: float, subscribers: int) -> float:
     """Warm-up before measuring, s.  Without subscribers 5 s.  With them 60 s: the service's
-    message and ellipse caches (``tactiled_service.messages.Encoder``: 1024 entries each,
+    message and ellipse caches (``tactiled_service.json_messages.Encoder``: 1024 entries each,
     filled at the paced rate and the fit rate) take 3-4 MB over the first minute or so, then
     stay (measured: +3.7 MB from 15 s to 75 s after the start, +0.25 MB over the next
     minute); measuring after they are full makes the growth show leaks, not them.  It also

@@ -11,7 +11,7 @@ Loaded only when ``[zenoh] enabled`` (it imports ``zenoh``, the ``zenoh`` extra)
 
 and answers queries on ``P/<sensor>/latest`` (the newest estimate) and ``P/health`` (the
 health now), and holds the liveliness token ``P`` while it runs.  Payloads are the exact JSON
-texts the WebSocket stream sends (one :class:`~tactiled_service.messages.Encoder`, shared), in
+texts the WebSocket stream sends (one :class:`~tactiled_service.json_messages.Encoder`, shared), in
 UTF-8, with the encoding ``application/json``.
 
 Publishing never blocks the event loop.  ``Publisher.put`` is synchronous and, with congestion
@@ -50,7 +50,7 @@ from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon, Estimate, ZeroedFrame
 from tactiled.pipeline.shear_track import SlipItem
 from tactiled.settings import ZenohSettings
-from tactiled_service.messages import Encoder, dumps
+from tactiled_service.json_messages import Encoder, dumps
 from tactiled_service.sender import QUEUE_SIZE, Sender
 
 log = logging.getLogger(__name__)

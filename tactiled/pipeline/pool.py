@@ -19,10 +19,10 @@ import logging
 import time
 from typing import Any
 
-from tactiled.sensors.model import SensorModel
 from tactiled.pipeline.jobs import FitJob, JobOwner
-from tactiled.pipeline.messages import pack_array
+from tactiled.pipeline.worker_packing import pack_array
 from tactiled.pipeline.supervision import WorkerSupervision
+from tactiled.sensors.model import SensorModel
 from tactiled.settings import FitSettings
 
 #: Share of ``fit.timeout`` a fit may spend before the fitter stops itself (its time budget);

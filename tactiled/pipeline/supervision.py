@@ -39,9 +39,9 @@ from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from typing import Any
 
-from tactiled.sensors.model import SensorModel
 from tactiled.pipeline.jobs import FitJob
-from tactiled.pipeline.messages import dumps
+from tactiled.pipeline.worker_packing import dumps
+from tactiled.sensors.model import SensorModel
 from tactiled.settings import FitSettings
 
 log = logging.getLogger(__name__)

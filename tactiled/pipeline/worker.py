@@ -9,7 +9,7 @@ in order (which is what lets the parent give every outstanding request a deadlin
   ``broken`` maps a spec whose fitter could not be built to the error (its fits then answer
   with that error: one sensor's bad model must not keep the worker from serving the others);
 - ``("fit", rid, spec, strain, model, mask, warm, budget_s, kind)`` (``strain`` and ``mask``
-  packed by :func:`tactiled.pipeline.messages.pack_array`) -> ``("result", rid,
+  packed by :func:`tactiled.pipeline.worker_packing.pack_array`) -> ``("result", rid,
   fit_json_dict | None, compute_s, error | None, warm | None, lin | None)`` (the fitter
   raising costs one frame, never the worker); ``warm`` is ``(model, params)`` of a converged
   fit, the next frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
@@ -45,7 +45,7 @@ from typing import Any
 from tactiled.sensors.model import SensorModel
 from tactiled.heap import pin_malloc, trim
 from tactiled.pipeline.estimate import plain
-from tactiled.pipeline.messages import unpack_array
+from tactiled.pipeline.worker_packing import unpack_array
 
 #: A worker gives malloc's free memory back to the system every this many fits (tactiled.heap
 #: .trim: about a minute of steady fitting, a few milliseconds each time).
