@@ -1,7 +1,7 @@
 """Process checks and fixtures shared by the pipeline and reliability suites (Linux /proc).
 
-Their conftests import :func:`no_leftover_workers` and :func:`arun` (pytest takes fixtures
-from a conftest's namespace); any test may import :func:`block_until`; the service suite has its own variants, which tolerate the
+Their conftests import :func:`no_leftover_workers`, :func:`arun` and
+:func:`hookable_workers` (pytest takes fixtures from a conftest's namespace); any test may import :func:`block_until`; the service suite has its own variants, which tolerate the
 workers of module-scoped servers and cap ``arun`` at 60 s.
 """
 
@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 
-from tactiled.pipeline import pool as pool_module
+from tactiled.pipeline import supervision
 
 
 def alive(pid: int) -> bool:
@@ -52,13 +52,23 @@ def block_until(condition: Callable[[], bool], timeout: float, what: str = "cond
     return time.monotonic() - start
 
 
+@pytest.fixture
+def hookable_workers(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every worker pool built in the test starts workers that obey the test hooks of
+    tests/worker_hooks.py (:func:`worker_hooks.hang`, :func:`worker_hooks.garble`)."""
+    from tactiled.pipeline.pool import WorkerPool
+    from worker_hooks import HOOKED_WORKER_MAIN
+
+    monkeypatch.setattr(WorkerPool, "worker_main", HOOKED_WORKER_MAIN)
+
+
 @pytest.fixture(autouse=True)
 def no_leftover_workers() -> Iterator[None]:
     """Fail a test that leaves a fit worker (or any multiprocessing child) or a pipeline thread
     running.  Workers are found through the pool's record of every pid it started."""
-    first = len(pool_module.SPAWNED_PIDS)
+    first = len(supervision.SPAWNED_PIDS)
     yield
-    started = pool_module.SPAWNED_PIDS[first:]
+    started = supervision.SPAWNED_PIDS[first:]
     running = leftover(started)
     children = [p for p in multiprocessing.active_children() if p.pid in started]
     threads = [t.name for t in threading.enumerate() if t.name.startswith("tactiled-")]

@@ -39,7 +39,8 @@ STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("hub fan-out and JSON", ("Hub.publish", "pipeline/hub.py", "tactiled_service/", "json")),
     ("decoding and reading", ("FrameDecoder", "tactiled/frames.py", "tactiled/sources.py",
                               "tactiled_drivers/", "serial/")),
-    ("fit dispatch (pool IPC)", ("pipeline/pool.py", "multiprocessing/")),
+    ("fit dispatch (pool IPC)", ("pipeline/pool.py", "pipeline/supervision.py",
+                                 "multiprocessing/")),
     ("pipeline, other", ("pipeline/sensor.py", "pipeline/sensor_tracking.py",
                          "pipeline/meters.py")),
     ("bench listener", ("tactiled_bench/acquisition.py:listen", "listen (tactiled_bench")),
@@ -281,7 +282,7 @@ def _run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> 
     import subprocess
     import sys
 
-    path = os.pathsep.join([tree, os.path.join(tree, "drivers"), os.path.join(tree, "service")])
+    path = os.pathsep.join([tree, *(os.path.join(tree, d) for d in ("benchmarks", "drivers", "service"))])
     source = "\n".join(["from typing import Any", *preamble, inspect.getsource(func),
                         "if __name__ == '__main__':",
                         "    import json",

@@ -80,9 +80,11 @@ def _errors(fit: dict[str, Any], c: Any, flat: bool) -> dict[str, tuple[float | 
     return out
 
 
-def score(desc: SensorDescription, rate: float = 200.0, seed: int = 1) -> dict[str, Any]:
-    """The live figures of one description (see the module's doc)."""
-    estimates = play(desc, rate, seed)
+def score(desc: SensorDescription, rate: float = 200.0, seed: int = 1,
+          estimates: list[tuple[int, dict[str, Any]]] | None = None) -> dict[str, Any]:
+    """The live figures of one description (see the module's doc); ``estimates``: those
+    :func:`play` gave already for ``desc``, ``rate`` and ``seed``."""
+    estimates = play(desc, rate, seed) if estimates is None else estimates
     ticks = max((t for t, _ in estimates), default=0) + 1
     true = truth(desc, rate, ticks)
     flat = math.isinf(desc.sensor_model().geometry.finger_radius)

@@ -28,12 +28,12 @@ After ``--warmup`` seconds the run is measured for ``--seconds``:
 * acquisition, per finger: frames decoded, frames lost (gaps in seq seen by the decoder),
   chunks rejected, frames not accounted for by the pipeline (``frames - published -
   superseded - ...``, corrected for a frame waiting or in flight).  Lost frames are attributed
-  by seq (a frame's seq is the simulator's tick index; :func:`simulator_main` records which
-  seqs were never written and why): *skipped* (the simulator, starved for more than a
-  second, never generated the frames it was late for), *overflowed* (its catch-up batch went
-  over its own pending-bytes limit before any write), both not the daemon's doing since they
-  never reached the wire; and *dropped* because the pty was full (the daemon did not read in
-  time).  Over the seqs the window decoded, ``daemon_lost = lost - skipped - overflowed``,
+  by seq (a frame's seq is the simulator's tick index;
+  :func:`tactiled_bench.soak_children.simulator_main` records which seqs were never written
+  and why): *skipped* (the simulator, starved for more than a second, never generated the
+  frames it was late for), *overflowed* (its catch-up batch went over its own pending-bytes
+  limit before any write), both not the daemon's doing since they never reached the wire;
+  and *dropped* because the pty was full (the daemon did not read in time).  Over the seqs the window decoded, ``daemon_lost = lost - skipped - overflowed``,
   and the decoder must have decoded every frame the simulators wrote in that range
   (``frames == sent``: the rate over frames actually sent is 100 %);
 * subscribers: per healthy subscriber, delivery = estimates received / (messages the server
@@ -67,15 +67,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import gc
 import json
 import logging
-import math
 import os
-import re
-import signal
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -83,9 +78,12 @@ from array import array
 from pathlib import Path
 from typing import Any
 
-from tactiled.heapstats import heap_figures, rss_mb, rss_parts_mb
+from tactiled.heapstats import rss_mb, rss_parts_mb
+from tactiled_bench.soak_children import FINGERS, Subscribers, in_range, start_simulators, stop_simulators
+from tactiled_bench.soak_meters import (SERVICE_HEAP_KEYS, WORKER_HEAP_KEYS, LoopLag, Series, fd_peak,
+                                        open_fds, proc_ticks, run_delay_s, seq_decoder,
+                                        service_heap, slope_mb_per_h, total_busy_ticks, tree_ticks)
 
-FINGERS = ("thumb", "index", "middle")
 RSS_BAR_MB = 5.0
 #: Bar on the slope of RSS (service and every fit worker) after ``SETTLE_S``, MB per hour ...
 SLOPE_BAR_MB_PER_H = 1.0
@@ -97,424 +95,9 @@ SLOPE_MIN_SPAN_S = 600.0
 #: scene for the same purpose (``moving``, tactiled.sim) may replace it.
 DEFAULT_SCENE = "busy"
 DELIVERY_BAR = 0.99
-_SUMMARY = re.compile(r"sent (\d+) frame\(s\), dropped (\d+) \(device full\), skipped (\d+)")
-_RUNS = re.compile(r"^seq runs: (\{.*\})$", re.MULTILINE)
-
-#: A simulator: ``tactiled simulate`` run through :func:`simulator_main` (arguments follow).
-_SIMULATOR = ("import sys; from tactiled_bench.reliability import simulator_main; "
-              "sys.exit(simulator_main(sys.argv[1:]))")
-#: The subscribers: :func:`subscribers_main` with the port and counts as arguments.
-_SUBSCRIBERS = ("import sys; from tactiled_bench.reliability import subscribers_main; "
-                "sys.exit(subscribers_main(*sys.argv[1:]))")
-
-
-def open_fds(pid: int | str = "self") -> int:
-    """Open file descriptors of a process (Linux /proc)."""
-    return len(os.listdir(f"/proc/{pid}/fd"))
-
-
-def _total_busy_ticks() -> int:
-    """Busy CPU time of the whole machine (all cores), in clock ticks (/proc/stat)."""
-    with open("/proc/stat", encoding="ascii") as fh:
-        fields = [int(x) for x in fh.readline().split()[1:]]
-    idle = fields[3] + (fields[4] if len(fields) > 4 else 0)  # idle + iowait
-    return sum(fields[:8]) - idle
-
-
-def _proc_ticks(pid: int) -> int:
-    """CPU time of one process (user + system, its threads included), in ticks; 0 if gone."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-            rest = fh.read().rsplit(")", 1)[1].split()
-    except (FileNotFoundError, ProcessLookupError, IndexError):
-        return 0
-    return int(rest[11]) + int(rest[12])
-
-
-def _run_delay_s(pid: int) -> float:
-    """Time the main thread of ``pid`` has spent runnable but waiting for a CPU (s; Linux
-    schedstat), 0 if gone or unknown: how much other processes kept it off the CPU."""
-    try:
-        with open(f"/proc/{pid}/schedstat", encoding="ascii") as fh:
-            return int(fh.read().split()[1]) / 1e9
-    except (FileNotFoundError, ProcessLookupError, IndexError, ValueError):
-        return 0.0
-
-
-def _tree_ticks(root: int) -> int:
-    """CPU time of ``root`` and its live descendants, including the children each has reaped
-    (so fit workers replaced meanwhile, reaped by the forkserver, still count), in ticks."""
-    parents: dict[int, int] = {}
-    ticks: dict[int, int] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat", encoding="ascii") as fh:
-                rest = fh.read().rsplit(")", 1)[1].split()
-        except (FileNotFoundError, ProcessLookupError, IndexError):
-            continue
-        pid = int(entry)
-        parents[pid] = int(rest[1])
-        ticks[pid] = sum(int(x) for x in rest[11:15])  # utime stime cutime cstime
-    total = 0
-    for pid, t in ticks.items():
-        p, seen = pid, 0
-        while p and p != root and seen < 64:
-            p, seen = parents.get(p, 0), seen + 1
-        if p == root:
-            total += t
-    return total
-
-
-# -- the simulators -------------------------------------------------------------------------------
-
-
-def simulator_main(argv: list[str]) -> int:
-    """``tactiled simulate ARGV`` (the real command, in this process), which also prints, at
-    exit, ``seq runs: {"skipped": [[seq, n], ...], "dropped": [...], "overflowed": [...]}``
-    on stderr, so the soak can tell which of the frames missing at the daemon's decoder were
-    ever offered to the device (the seq of a frame is its tick index):
-
-    * ``skipped``: behind schedule by more than ``MAX_LAG_S`` (starved), never generated;
-    * ``dropped``: refused because the device was full: the last write left bytes pending
-      (``EAGAIN``), i.e. the reader had not emptied the pty in time;
-    * ``overflowed``: refused by the writer's own limit with the device not full: after a
-      starved spell the command queues a catch-up batch of up to ``MAX_BATCH`` (32) frames
-      before writing any, and 32 frames of 152 bytes exceed ``PENDING_LIMIT`` (4096), so the
-      frames past the 26th of such a batch are dropped without the device being tried.
-
-    ``dropped + overflowed`` is the command's own "dropped (device full)" count and
-    ``skipped`` its "skipped"; only the positions and the split are added here."""
-    from tactiled_bench.scenes import register_bench_scenes
-    from tactiled.cli import main as cli_main
-    from tactiled.commands import simulate
-
-    _exit_with_parent()
-    register_bench_scenes()  # --scene busy
-    runs: dict[str, list[list[int]]] = {"skipped": [], "dropped": [], "overflowed": []}
-    tick = [0]  # seq of the next frame handed to the writer
-
-    def add(kind: str, seq: int, n: int) -> None:
-        r = runs[kind]
-        if r and r[-1][0] + r[-1][1] == seq:
-            r[-1][1] += n
-        else:
-            r.append([seq, n])
-
-    class Schedule(simulate.FrameSchedule):
-        def take(self, now: float, limit: int) -> tuple[int, int]:
-            first = self.sent
-            skip, send = super().take(now, limit)
-            if skip:
-                add("skipped", first, skip)  # the command calls sim.skip(skip): seqs jump
-            tick[0] = first + skip
-            return skip, send
-
-    class Writer(simulate.FrameWriter):
-        full = False  # the last flush left bytes pending: the device refused them
-
-        def send(self, data: bytes) -> None:
-            dropped = self.dropped
-            super().send(data)
-            if self.dropped != dropped:
-                add("dropped" if self.full else "overflowed", tick[0], 1)
-            tick[0] += 1
-
-        def flush(self) -> None:
-            super().flush()
-            self.full = bool(self.pending)
-
-    simulate.FrameSchedule = Schedule  # type: ignore[misc]  # looked up by _serve at run time
-    simulate.FrameWriter = Writer  # type: ignore[misc]
-    code = cli_main(["simulate", *argv])
-    print("seq runs: " + json.dumps(runs), file=sys.stderr, flush=True)
-    return code
-
-
-def _exit_with_parent() -> None:
-    """Be sent SIGTERM when the soak process dies (killed by a test's timeout, say), so no
-    simulator outlives it (Linux ``prctl(PR_SET_PDEATHSIG)``; elsewhere nothing)."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        return
-    if os.getppid() == 1:  # the parent is already gone
-        os.kill(os.getpid(), signal.SIGTERM)
-
-
-def _start_simulators(tmp: Path, rate: float, scene: str) -> list[tuple[subprocess.Popen, Path]]:
-    sims = []
-    for i, _ in enumerate(FINGERS):
-        log = tmp / f"sim{i}.log"
-        with open(log, "w") as err:
-            p = subprocess.Popen(
-                [sys.executable, "-c", _SIMULATOR, "--pty", "--link", str(tmp / f"tty{i}"),
-                 "--scene", scene, "--rate", repr(rate), "--sensor-id", str(i + 1),
-                 "--seed", str(i + 1)],
-                stdout=subprocess.PIPE, stderr=err, text=True)
-        sims.append((p, log))
-    for i, (p, log) in enumerate(sims):
-        line = p.stdout.readline() if p.stdout else ""
-        if not line.startswith("pty:"):
-            _stop_simulators(sims)
-            raise RuntimeError(f"simulator {i} did not start: {line!r} {log.read_text()}")
-    return sims
-
-
-def _stop_simulators(sims: list[tuple[subprocess.Popen, Path]]) -> list[dict[str, Any]]:
-    for p, _ in sims:
-        if p.poll() is None:
-            p.send_signal(signal.SIGTERM)
-    out = []
-    for p, log in sims:
-        try:
-            p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-        if p.stdout:
-            p.stdout.close()
-        text = log.read_text()
-        m, runs = _SUMMARY.search(text), _RUNS.search(text)
-        out.append({"sent": int(m[1]), "dropped": int(m[2]), "skipped": int(m[3]),
-                    "runs": json.loads(runs[1]) if runs else None} if m else {})
-    return out
-
-
-def _in_range(runs: list[list[int]] | None, lo: int, hi: int) -> int:
-    """How many seqs of ``runs`` ([first, count] pairs) fall within ``lo..hi`` inclusive."""
-    return sum(max(0, min(hi, s + n - 1) - max(lo, s) + 1) for s, n in runs or ())
-
-
-# -- the subscribers (a child process) ------------------------------------------------------------
-
-
-def subscribers_main(port: str, healthy: str, stalled: str, max_rate: str) -> int:
-    """Subscribers of ``ws://127.0.0.1:PORT/v1/stream``, driven through stdin / stdout lines.
-
-    ``healthy`` readers (one selector thread) and ``stalled`` never-reading subscribers, all
-    asking for the estimates of every sensor at ``max_rate``; a never-reading one the server
-    has closed reconnects (within 0.2 s) and stalls again.  Prints ``ready`` once all are
-    connected; on ``stop``: stops reconnecting, sends every reader an ``unsubscribe``, waits
-    for the confirmations (the server's counters are then final) and prints one JSON line
-    (per reader: local port, estimates received, closed; the never-reading ones'
-    connections); on ``exit`` (or end of input): closes everything.
-    """
-    from tactiled_bench.websocket_fanout import Readers, Restaller, Staller
-
-    sub = json.dumps({"type": "subscribe", "streams": ["estimates"],
-                      "max_rate": float(max_rate)}).encode()
-    stallers = [Staller(int(port), sub) for _ in range(int(stalled))]
-    readers = Readers()
-    restaller = Restaller(stallers, name="soak-stallers")
-    try:
-        for s in stallers:
-            s.connect()
-        for _ in range(int(healthy)):
-            readers.add(int(port), sub)
-        readers.start()
-        restaller.start()
-        print("ready", flush=True)
-        for line in sys.stdin:
-            command = line.strip()
-            if command == "exit":
-                break
-            if command != "stop":
-                continue
-            restaller.stop()
-            # A reader without its confirmation is reported, and counts as failed.
-            readers.unsubscribe_all(30.0)
-            print(json.dumps({
-                "readers": [{"port": c.port, "received": c.total, "closed": c.closed,
-                             "unsubscribed": c.unsubscribed} for c in readers.clients],
-                "stalled_connects": [s.connects for s in stallers]}), flush=True)
-    finally:
-        restaller.stop()
-        for s in stallers:
-            s.close()
-        readers.stop()
-    return 0
-
-
-class _Subscribers:
-    """The subscriber child process, seen from the soak (asyncio)."""
-
-    def __init__(self, proc: asyncio.subprocess.Process) -> None:
-        self.proc = proc
-
-    @classmethod
-    async def start(cls, port: int, healthy: int, stalled: int,
-                    max_rate: float) -> _Subscribers:
-        proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-c", _SUBSCRIBERS, str(port), str(healthy), str(stalled),
-            repr(max_rate), stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE)
-        self = cls(proc)
-        line = await self._line(60.0)
-        if line != "ready":
-            await self.close()
-            raise RuntimeError(f"the subscribers did not start (printed {line!r})")
-        return self
-
-    async def _line(self, timeout: float) -> str:
-        assert self.proc.stdout is not None
-        return (await asyncio.wait_for(self.proc.stdout.readline(), timeout)).decode().strip()
-
-    async def stop(self) -> dict[str, Any]:
-        """Unsubscribe the readers (flushing the server's counters); their tallies."""
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(b"stop\n")
-        await self.proc.stdin.drain()
-        return json.loads(await self._line(60.0))
-
-    async def close(self) -> None:
-        if self.proc.returncode is None:
-            try:
-                assert self.proc.stdin is not None
-                self.proc.stdin.write(b"exit\n")
-                await self.proc.stdin.drain()
-                self.proc.stdin.close()
-                await asyncio.wait_for(self.proc.wait(), 10)
-            except (OSError, TimeoutError):
-                self.proc.kill()
-                await self.proc.wait()
 
 
 # -- the soak -------------------------------------------------------------------------------------
-
-
-def _seq_decoder() -> Any:
-    """The daemon's own decoder, also keeping the seq of the last frame it delivered (so the
-    window's seq range is known exactly)."""
-    from tactiled.frames import Frame, FrameDecoder
-
-    class SeqDecoder(FrameDecoder):
-        last_seq: int | None = None
-
-        def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
-            frames = super().feed(data, host_time)
-            if frames:
-                self.last_seq = frames[-1].seq
-            return frames
-
-    return SeqDecoder()
-
-
-class _LoopLag:
-    """How late the service's event loop wakes a task that sleeps 10 ms (the loop reads the
-    ptys too: one late by more than ~125 ms lets a 1 kHz finger's pty fill, 15 KB, plus the
-    simulator's 4 KB).  Counters only, so a long soak's memory does not grow by them."""
-
-    TICK = 0.01
-    EDGES_MS = (10, 25, 50, 100, 125, 250, 1000)
-
-    def __init__(self) -> None:
-        self.over = [0] * len(self.EDGES_MS)
-        self.ticks = 0
-        self.max_ms = 0.0
-        self._task: asyncio.Task[None] | None = None
-        # Garbage-collector pauses of the service process (every thread waits for them).
-        self.gc_runs = [0, 0, 0]
-        self.gc_max_ms = [0.0, 0.0, 0.0]
-        self.gc_total_ms = 0.0
-        self._gc_t0 = 0.0
-
-    def _on_gc(self, phase: str, info: dict[str, Any]) -> None:
-        if phase == "start":
-            self._gc_t0 = time.perf_counter()
-            return
-        ms = (time.perf_counter() - self._gc_t0) * 1e3
-        g = info["generation"]
-        self.gc_runs[g] += 1
-        self.gc_max_ms[g] = max(self.gc_max_ms[g], ms)
-        self.gc_total_ms += ms
-
-    def start(self) -> None:
-        self._task = asyncio.create_task(self._run(), name="soak-loop-lag")
-        gc.callbacks.append(self._on_gc)
-
-    def stop(self) -> None:
-        if self._on_gc in gc.callbacks:
-            gc.callbacks.remove(self._on_gc)
-        if self._task is not None:
-            self._task.cancel()
-            self._task = None
-
-    async def _run(self) -> None:
-        while True:
-            t = time.monotonic()
-            await asyncio.sleep(self.TICK)
-            late = (time.monotonic() - t - self.TICK) * 1e3
-            self.ticks += 1
-            self.max_ms = max(self.max_ms, late)
-            for i, edge in enumerate(self.EDGES_MS):
-                if late > edge:
-                    self.over[i] += 1
-
-    def figures(self) -> dict[str, Any]:
-        return {"ticks": self.ticks, "max_ms": round(self.max_ms, 1),
-                **{f"over_{e}ms": n for e, n in zip(self.EDGES_MS, self.over)},
-                "gc": {"runs": self.gc_runs, "max_ms": [round(v, 1) for v in self.gc_max_ms],
-                       "total_ms": round(self.gc_total_ms)}}
-
-
-def _heap() -> dict[str, float]:
-    """The service's heap figures (:func:`tactiled.heapstats.heap_figures`)."""
-    return heap_figures()
-
-
-class _Series:
-    """Rows of floats kept in ``array('d')`` columns: the soak runs in the process it
-    measures, so its own records must not grow its heap (a list of per-sample dicts did, by
-    ~2 MB an hour of pymalloc's live bytes)."""
-
-    def __init__(self, columns: int) -> None:
-        self._cols = [array("d") for _ in range(columns)]
-
-    def append(self, *row: float | None) -> None:
-        for col, value in zip(self._cols, row):
-            col.append(math.nan if value is None else float(value))
-
-    def __len__(self) -> int:
-        return len(self._cols[0])
-
-    def rows(self) -> list[tuple[float | None, ...]]:
-        """Every row (NaN back to None), for the report, after the measurement."""
-        return [tuple(None if math.isnan(v) else v for v in row) for row in zip(*self._cols)]
-
-
-#: The columns of a worker's heap series: its answers to the memory request.
-_WORKER_HEAP_KEYS = ("rss_anon_mb", "malloc_in_use_mb", "pymalloc_live_mb", "cache_rule_mb",
-                     "fits")
-#: ... and of the service's.
-_SERVICE_HEAP_KEYS = ("pymalloc_arenas", "pymalloc_live_mb", "malloc_in_use_mb",
-                      "malloc_free_kept_mb", "rss_anon_mb")
-
-
-async def _fd_peak(span: float = 1.0, samples: int = 11) -> int:
-    """The most descriptors this process had open over ``span`` s: a never-reading subscriber
-    between two connections (~0.3 s of its ~7 s cycle) is not counted as a descriptor less,
-    so the counts at the warm-up's end and at the end compare like with like."""
-    peak = open_fds()
-    for _ in range(samples - 1):
-        await asyncio.sleep(span / (samples - 1))
-        peak = max(peak, open_fds())
-    return peak
-
-
-def _slope_mb_per_h(samples: list[tuple[float, float]]) -> float | None:
-    """Least-squares slope of ``(t s, MB)`` samples, MB per hour (None below 3 samples)."""
-    if len(samples) < 3:
-        return None
-    t0 = samples[0][0]
-    xs = [t - t0 for t, _ in samples]
-    ys = [v for _, v in samples]
-    mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
-    sxx = sum((x - mx) ** 2 for x in xs)
-    return 3600.0 * sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sxx if sxx else None
 
 
 async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subscribers: int,
@@ -533,10 +116,10 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
         overrides[f"sensor[{i}].name"] = name
         overrides[f"sensor[{i}].url"] = url
         overrides[f"sensor[{i}].wire_id"] = i + 1
-        sources[name] = open_source(url, decoder=_seq_decoder())
+        sources[name] = open_source(url, decoder=seq_decoder())
     settings = load_settings(None, {}, overrides)
     service: Any = None
-    subs: _Subscribers | None = None
+    subs: Subscribers | None = None
     if subscribers:
         try:
             from tactiled_service.options import ServiceOptions
@@ -564,15 +147,15 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
                 "read_backlog": {n: getattr(daemon.sensors[n].source, "read_backlog", None)
                                  for n in FINGERS},
                 "stalled_closed": manager.stalled if manager is not None else 0,
-                "heap": _heap()}
+                "heap": service_heap()}
 
-    lag = _LoopLag()
+    lag = LoopLag()
     try:
         if subscribers:
-            subs = await _Subscribers.start(service.port, subscribers - stalled, stalled,
+            subs = await Subscribers.start(service.port, subscribers - stalled, stalled,
                                             max_rate)
         await asyncio.sleep(max(0.0, warmup - 1.0))
-        fds_before = await _fd_peak()
+        fds_before = await fd_peak()
         before = marks()
         lag.start()
         t0 = time.monotonic()
@@ -580,23 +163,23 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
         child = subs.proc.pid if subs is not None else None
 
         def cpu() -> dict[str, int]:
-            return {"machine": _total_busy_ticks(), "tree": _tree_ticks(me),
-                    "service": _proc_ticks(me), "simulators": sum(map(_proc_ticks, sim_pids)),
-                    "subscribers": _proc_ticks(child) if child else 0}
+            return {"machine": total_busy_ticks(), "tree": tree_ticks(me),
+                    "service": proc_ticks(me), "simulators": sum(map(proc_ticks, sim_pids)),
+                    "subscribers": proc_ticks(child) if child else 0}
 
         cpu0, w0 = cpu(), time.monotonic()
-        waits0 = [_run_delay_s(me)] + [_run_delay_s(p) for p in sim_pids]
+        waits0 = [run_delay_s(me)] + [run_delay_s(p) for p in sim_pids]
         base = rss_mb()
         offset = t0 - started
-        samples = _Series(2)  # (t, rss)
+        samples = Series(2)  # (t, rss)
         samples.append(0.0, base or 0.0)
         fds = array("i", [open_fds()])
-        heaps = _Series(1 + len(_SERVICE_HEAP_KEYS))
-        heaps.append(0.0, *(before["heap"].get(k) for k in _SERVICE_HEAP_KEYS))
-        # per worker pid: (t, rss, anon, file); its own heap answers (t, *_WORKER_HEAP_KEYS),
+        heaps = Series(1 + len(SERVICE_HEAP_KEYS))
+        heaps.append(0.0, *(before["heap"].get(k) for k in SERVICE_HEAP_KEYS))
+        # per worker pid: (t, rss, anon, file); its own heap answers (t, *WORKER_HEAP_KEYS),
         # with the whole answer kept twice only: the first after settling and the last
-        workers: dict[int, _Series] = {}
-        worker_heaps: dict[int, _Series] = {}
+        workers: dict[int, Series] = {}
+        worker_heaps: dict[int, Series] = {}
         worker_ends: dict[int, list[dict[str, Any] | None]] = {}
         seen_answers: dict[int, float] = {}
 
@@ -608,8 +191,8 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
                     answered = round(t - age, 3)
                     if seen_answers.get(pid) != answered:
                         seen_answers[pid] = answered
-                        worker_heaps.setdefault(pid, _Series(1 + len(_WORKER_HEAP_KEYS))).append(
-                            answered, *(mem.get(k) for k in _WORKER_HEAP_KEYS))
+                        worker_heaps.setdefault(pid, Series(1 + len(WORKER_HEAP_KEYS))).append(
+                            answered, *(mem.get(k) for k in WORKER_HEAP_KEYS))
                         ends = worker_ends.setdefault(pid, [None, None])
                         if ends[0] is None and answered + offset >= settle:
                             ends[0] = mem
@@ -617,7 +200,7 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
             for pid in pool.pids():
                 if pid and (r := rss_mb(pid)) is not None:
                     parts = rss_parts_mb(pid)
-                    workers.setdefault(pid, _Series(4)).append(
+                    workers.setdefault(pid, Series(4)).append(
                         t, r, parts.get("rss_anon_mb"), parts.get("rss_file_mb"))
             pool.request_memory()  # answered after the fit each holds: read next time
 
@@ -627,7 +210,7 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
             now = time.monotonic() - t0
             samples.append(now, rss_mb() or 0.0)
             fds.append(open_fds())
-            heaps.append(now, *(_heap().get(k) for k in _SERVICE_HEAP_KEYS))
+            heaps.append(now, *(service_heap().get(k) for k in SERVICE_HEAP_KEYS))
             sample_workers(now)
         await asyncio.sleep(min(interval, 1.0))
         sample_workers(time.monotonic() - t0)  # the last answers
@@ -635,8 +218,8 @@ async def _soak(tmp: Path, seconds: float, warmup: float, interval: float, subsc
         lag.stop()
         elapsed = time.monotonic() - t0
         cpu1, w1 = cpu(), time.monotonic()
-        waits1 = [_run_delay_s(me)] + [_run_delay_s(p) for p in sim_pids]
-        fds_after = await _fd_peak()
+        waits1 = [run_delay_s(me)] + [run_delay_s(p) for p in sim_pids]
+        fds_after = await fd_peak()
         delivery: dict[str, Any] | None = None
         if subs is not None:
             tally = await subs.stop()
@@ -710,9 +293,9 @@ def _attribute(s: dict[str, Any], sim: dict[str, Any], first: int | None, last: 
         s.update(skipped_by_simulator=None, overflowed_in_simulator=None,
                  dropped_device_full=None, daemon_lost=None, sent=None)
         return
-    skipped = _in_range(runs["skipped"], first + 1, last)
-    dropped = _in_range(runs["dropped"], first + 1, last)
-    overflowed = _in_range(runs["overflowed"], first + 1, last)
+    skipped = in_range(runs["skipped"], first + 1, last)
+    dropped = in_range(runs["dropped"], first + 1, last)
+    overflowed = in_range(runs["overflowed"], first + 1, last)
     # Frames written to the pty in that range: all but those the simulator never offered.
     sent = (last - first) - skipped - overflowed - dropped
     s.update(skipped_by_simulator=skipped, overflowed_in_simulator=overflowed,
@@ -724,7 +307,7 @@ def _attribute(s: dict[str, Any], sim: dict[str, Any], first: int | None, last: 
 
 def default_warmup(seconds: float, subscribers: int) -> float:
     """Warm-up before measuring, s.  Without subscribers 5 s.  With them 60 s: the service's
-    message and ellipse caches (``tactiled_service.messages.Encoder``: 1024 entries each,
+    message and ellipse caches (``tactiled_service.json_messages.Encoder``: 1024 entries each,
     filled at the paced rate and the fit rate) take 3-4 MB over the first minute or so, then
     stay (measured: +3.7 MB from 15 s to 75 s after the start, +0.25 MB over the next
     minute); measuring after they are full makes the growth show leaks, not them.  It also
@@ -741,9 +324,9 @@ def _worker_figures(series: list[tuple[float, float, float | None, float | None]
     """One worker's memory over the soak: RSS (and its anonymous and file parts) at its
     first and last sample, growth, the slope after ``settle`` s since the start (samples are
     ``offset`` s after it), and its own heap figures first after ``settle`` and last
-    (``ends``; ``heaps`` rows are ``(t, *_WORKER_HEAP_KEYS)``)."""
+    (``ends``; ``heaps`` rows are ``(t, *WORKER_HEAP_KEYS)``)."""
     late = [row for row in series if row[0] + offset >= settle]
-    slope = _slope_mb_per_h([(t, r) for t, r, _, _ in late])
+    slope = slope_mb_per_h([(t, r) for t, r, _, _ in late])
     first, last = series[0], series[-1]
     return {
         "rss_first": round(first[1], 2), "rss_last": round(last[1], 2),
@@ -772,12 +355,12 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
     warmup = warmup if warmup is not None else default_warmup(seconds, subscribers)
     with tempfile.TemporaryDirectory(prefix="tactiled-soak-") as d:
         tmp = Path(d)
-        sims = _start_simulators(tmp, rate, scene)
+        sims = start_simulators(tmp, rate, scene)
         try:
             run = asyncio.run(_soak(tmp, seconds, warmup, interval, subscribers, stalled,
                                     max_rate, [p.pid for p, _ in sims], fit_timeout, settle))
         finally:
-            simulators = _stop_simulators(sims)
+            simulators = stop_simulators(sims)
     before, after, elapsed = run["before"], run["after"], run["elapsed"]
     sensors = {}
     for i, name in enumerate(FINGERS):
@@ -792,7 +375,7 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
     growth = max(v for _, v in rss) - base
     offset = run["offset"]
     settled = [(t, v) for t, v in rss if t + offset >= settle]
-    slope_settled = _slope_mb_per_h(settled)
+    slope_settled = slope_mb_per_h(settled)
     settled_span = settled[-1][0] - settled[0][0] if settled else 0.0
     workers = {str(pid): _worker_figures(v, run["worker_heaps"].get(pid, []),
                                          run["worker_ends"].get(pid, [None, None]), offset,
@@ -813,7 +396,7 @@ def soak(seconds: float, warmup: float | None = None, rate: float = 1000.0,
             if v - bw["restarts_by_reason"].get(k, 0)},
         "rss_mb": {"after_warmup": round(base, 2), "max": round(max(v for _, v in rss), 2),
                    "last": round(rss[-1][1], 2), "growth": round(growth, 2),
-                   "slope_mb_per_h": (None if (s := _slope_mb_per_h(rss)) is None
+                   "slope_mb_per_h": (None if (s := slope_mb_per_h(rss)) is None
                                       else round(s, 2)),
                    "settle_s": settle, "settled_span_s": round(settled_span, 1),
                    "slope_after_settle_mb_per_h": (None if slope_settled is None

@@ -38,7 +38,7 @@ from tactiled_service.inbound import (
     encodable,
     read_body,
 )
-from tactiled_service.messages import Encoder
+from tactiled_service.json_messages import Encoder
 from tactiled_service.metrics import CONTENT_TYPE as METRICS_CONTENT_TYPE
 from tactiled_service.metrics import Metrics
 from tactiled_service.options import ServiceOptions

@@ -5,11 +5,13 @@ Loaded only when ``[zenoh] enabled`` (it imports ``zenoh``, the ``zenoh`` extra)
 
 * ``P/<sensor>/estimate``: every estimate, the stream's estimate message;
 * ``P/<sensor>/frame``: zeroed frames, at most ``zenoh.frame_rate_hz`` per sensor (0: none);
+* ``P/<sensor>/slip``: a 3-axis array's slip events (onset, end: the stream's ``slip``
+  message), every one, never paced (a controller may subscribe to this key alone);
 * ``P/health``: the ``GET /v1/health`` document, once a second and on every status change;
 
 and answers queries on ``P/<sensor>/latest`` (the newest estimate) and ``P/health`` (the
 health now), and holds the liveliness token ``P`` while it runs.  Payloads are the exact JSON
-texts the WebSocket stream sends (one :class:`~tactiled_service.messages.Encoder`, shared), in
+texts the WebSocket stream sends (one :class:`~tactiled_service.json_messages.Encoder`, shared), in
 UTF-8, with the encoding ``application/json``.
 
 Publishing never blocks the event loop.  ``Publisher.put`` is synchronous and, with congestion
@@ -46,8 +48,9 @@ import zenoh
 
 from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon, Estimate, ZeroedFrame
+from tactiled.pipeline.shear_track import SlipItem
 from tactiled.settings import ZenohSettings
-from tactiled_service.messages import Encoder, dumps
+from tactiled_service.json_messages import Encoder, dumps
 from tactiled_service.sender import QUEUE_SIZE, Sender
 
 log = logging.getLogger(__name__)
@@ -183,7 +186,7 @@ class Bus:
         self.health = health
         self.prefix = settings.prefix
         self.config = session_config(settings)
-        self.sender = Sender(queue_size)
+        self.sender = Sender(queue_size, kinds=("estimate", "frame", "slip", "health"))
         self.session: zenoh.Session | None = None
         self.state = "new"  # new, connecting (a client retrying its router), open, closed
         self.queries = 0
@@ -191,6 +194,7 @@ class Bus:
         self.health_key = f"{self.prefix}/health"
         self._estimate_pubs: dict[str, Any] = {}
         self._frame_pubs: dict[str, Any] = {}
+        self._slip_pubs: dict[str, Any] = {}
         self._health_pub: Any = None
         #: key -> a subscriber matches it (kept by Zenoh's matching listeners).
         self._matching: dict[str, bool] = {}
@@ -262,9 +266,12 @@ class Bus:
         self.session = session
         drop = zenoh.CongestionControl.DROP
         for name in self.daemon.sensors:
-            for kind, pubs in (("estimate", self._estimate_pubs), ("frame", self._frame_pubs)):
+            for kind, pubs in (("estimate", self._estimate_pubs), ("frame", self._frame_pubs),
+                               ("slip", self._slip_pubs)):
                 if kind == "frame" and self._frame_period is None:
                     continue
+                if kind == "slip" and getattr(self.daemon.sensors[name], "shear", None) is None:
+                    continue  # a 1-axis array has no slip events
                 key = f"{self.prefix}/{name}/{kind}"
                 pub = session.declare_publisher(key, encoding=JSON, congestion_control=drop)
                 pubs[name] = pub
@@ -281,7 +288,7 @@ class Bus:
         self._declared.append(session.liveliness().declare_token(self.prefix))
         for front in self.fronts:
             self._declared.extend(front.declare(session))
-        self._remove_listener = self.daemon.hub.add_listener(self._on_item)
+        self._remove_listener = self.daemon.hub.add_listener(self._on_item, events=True)
         self.state = "open"
         self._open_error = ""
         self._last_health = None  # publish the health at once
@@ -331,10 +338,12 @@ class Bus:
 
         return on_status
 
-    def _on_item(self, item: Estimate | ZeroedFrame) -> None:
+    def _on_item(self, item: Estimate | ZeroedFrame | SlipItem) -> None:
         """The hub's listener (the event loop's thread): queue the item's text, never wait."""
         if item.kind == "estimate":
             pub = self._estimate_pubs.get(item.sensor)
+        elif item.kind == "slip":  # an event: every one goes out
+            pub = self._slip_pubs.get(item.sensor)
         else:
             if self._frame_period is None:
                 return
@@ -460,10 +469,11 @@ class Bus:
 
 
 def prefix_of(key: str) -> tuple[str, str, str]:
-    """``(prefix, sensor, kind)`` of a published key: ``P/<sensor>/estimate`` or ``.../frame``
-    -> (P, sensor, kind); ``P/health`` -> (P, "", "health"); anything else -> ("", "", "")."""
+    """``(prefix, sensor, kind)`` of a published key: ``P/<sensor>/estimate``, ``.../frame``
+    or ``.../slip`` -> (P, sensor, kind); ``P/health`` -> (P, "", "health"); anything else
+    -> ("", "", "")."""
     parts = key.rsplit("/", 2)
-    if len(parts) == 3 and parts[2] in ("estimate", "frame"):
+    if len(parts) == 3 and parts[2] in ("estimate", "frame", "slip"):
         return parts[0], parts[1], parts[2]
     if key.endswith("/health"):
         return key[: -len("/health")], "", "health"
@@ -483,7 +493,7 @@ def open_reader(settings: ZenohSettings) -> zenoh.Session:
 def watch(settings: ZenohSettings, key: str, out: TextIO, *, kinds: Iterable[str] = ("estimate",),
           sensors: Iterable[str] | None = None, count: int | None = None,
           stop: threading.Event | None = None) -> int:
-    """Print every estimate (and frame, with ``kinds``) published under ``key``, one JSON
+    """Print every estimate (and frame or slip event, with ``kinds``) published under ``key``, one JSON
     object per line tagged with its daemon's ``prefix``, until ``count`` lines or ``stop``.
     Returns the exit code."""
     wanted_kinds = frozenset(kinds)

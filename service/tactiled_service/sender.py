@@ -81,7 +81,7 @@ class Sender:
                 self.put_s += dt
                 if dt > self.put_max_s:
                     self.put_max_s = dt
-                self.sent[kind] += 1
+                self.sent[kind] = self.sent.get(kind, 0) + 1  # a kind not listed counts too
                 if self._stop:
                     return
 

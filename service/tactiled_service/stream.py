@@ -38,7 +38,7 @@ from tactiled import __version__
 from tactiled.pipeline import Daemon, Estimate, Subscription, SubscriptionClosed, ZeroedFrame
 from tactiled_service.auth import AuthPolicy, Denial
 from tactiled_service.inbound import BadJson, decode_json, shown
-from tactiled_service.messages import STREAM_KINDS, Encoder, control, dumps, error
+from tactiled_service.json_messages import STREAM_KINDS, Encoder, control, dumps, error
 from tactiled_service.options import ServiceOptions
 from tactiled_service.protocol import FORCE_CLOSE
 from tactiled_service.schemas import SubscribeRequest, format_validation_error

@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         check_output(args.plot)  # before the run, not after it
     suites = SUITES if args.suite == "all" else (args.suite,)
     if "acquisition" in suites:
-        from tactiled_bench.acquisition import HAND, known_scene
+        from tactiled_bench.acquisition_runs import HAND, known_scene
         from tactiled.sim import SCENES
 
         if not known_scene(args.scene.strip().lower()):

@@ -3,7 +3,7 @@
 A 3-axis frame file is an .npz holding ``taxels``, a float array ``(N, rows, cols, 3)`` of
 zeroed readings (x, y, z; z positive into the cover), and ``sensor``, the description's name
 or path; ``tactiled simulate --sensor NAME`` on a 3-axis description writes one, with the truth
-(``true_*``, tactiled/shearsim.py), and ``tactiled fit`` reads it.  Frames of a ``sequence``
+(``true_*``, tactiled/sim/shear.py), and ``tactiled fit`` reads it.  Frames of a ``sequence``
 index (written with ``--load push|twist|pull``) are consecutive frames at ``rate_hz``, and the
 slip detector (tactiled/fit/slip.py) runs along each sequence.
 
@@ -68,7 +68,7 @@ def _pair(text: str, name: str) -> tuple[float, float]:
 
 def simulate(args: argparse.Namespace, desc: SensorDescription) -> int:
     """``tactiled simulate OUT.npz --sensor NAME`` on a 3-axis description."""
-    from tactiled.shearsim import random_frames, sequence
+    from tactiled.sim.shear import random_frames, sequence
 
     try:
         rng = np.random.default_rng(args.seed)

@@ -17,7 +17,7 @@ its shape, pitch and nominal counts scaling) and streams them in the vendor's ow
 - ``xela``: a WebSocket server on 127.0.0.1 (``--device PORT``, 0 for any free port) speaking as
   ``xela_server`` does (a welcome message, then one message per tick with sensors 1 and 2).
   Prints ``xela: ws://127.0.0.1:PORT``.  With ``--scene push``, ``twist`` or ``pull`` (the
-  tangential scenes of :mod:`tactiled.shearsim`) every taxel's x, y and z follow the 3-axis model
+  tangential scenes of :mod:`tactiled.sim.shear`) every taxel's x, y and z follow the 3-axis model
   on ``xela_uskin_4x4`` (sensor 1; sensor 2 rests): 300 frames at rest, then the scene, looped
   with a new sphere each time.
 
@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         return _error(f"--rate must be a frame rate in Hz in (0, 10000], got {args.rate!r}")
     if args.seed < 0:
         return _error(f"--seed must be >= 0, got {args.seed}")
-    from tactiled.shearsim import SEQUENCES
+    from tactiled.sim.shear import SEQUENCES
 
     if args.scene in SEQUENCES and args.as_kind != "xela":
         return _error(f"--scene {args.scene} (a tangential scene) needs --as xela")
@@ -277,7 +277,7 @@ def _serve_xela(args: argparse.Namespace, sims: list[FingerSimulator], stop: lis
 
 class _ShearScenes:
     """XELA counts of a tangential scene on ``xela_uskin_4x4``, looped: each loop 300 frames at
-    rest, then :func:`tactiled.shearsim.sequence` of a new sphere; x, y about
+    rest, then :func:`tactiled.sim.shear.sequence` of a new sphere; x, y about
     :data:`XELA_REST`, z about the nominal table's zero (10000 counts)."""
 
     REST_FRAMES = 300
@@ -293,7 +293,7 @@ class _ShearScenes:
         self.queue: list[np.ndarray] = []
 
     def _refill(self) -> None:
-        from tactiled.shearsim import sequence
+        from tactiled.sim.shear import sequence
 
         shape = (self.desc.rows, self.desc.cols, 3)
         rest = [self.rng.normal(size=shape) * self.noise for _ in range(self.REST_FRAMES)]

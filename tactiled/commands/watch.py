@@ -1,9 +1,10 @@
 """Subscribe to a running daemon and print what it streams, one JSON object per line.
 
-Like gpspipe: every estimate (and, with --frames, every zeroed frame) the daemon's stream
-sends, as it arrives, flushed line by line so it can be piped (`tactiled watch | jq .r1_mm`).
-Each line is the stream's message: "type" ("estimate" or "frame"), "v", "sensor", "seq", the
-keys of a `tactiled fit` line, and "ellipse".  Control messages (version, subscribed) are not
+Like gpspipe: every estimate (and, with --frames, every zeroed frame; with --slip, every slip
+event of a 3-axis array) the daemon's stream sends, as it arrives, flushed line by line so it
+can be piped (`tactiled watch | jq .r1_mm`).  Each line is the stream's message: "type"
+("estimate", "frame" or "slip"), "v", "sensor", "seq", the keys of a `tactiled fit` line, and
+"ellipse" (a slip event: "event", "contact_id", "state", docs/concepts/shear.md).  Control messages (version, subscribed) are not
 printed; an error message from the server goes to stderr.
 
 Exit status: 0 when the daemon closes the stream normally (or on Ctrl-C), 1 when the
@@ -61,6 +62,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sensor", action="append", default=None, metavar="NAME",
                    help="only this sensor; repeatable (default: all)")
     p.add_argument("--frames", action="store_true", help="also print the zeroed strain frames")
+    p.add_argument("--slip", action="store_true",
+                   help="also print a 3-axis array's slip events (onset, end)")
     p.add_argument("--rate", type=float, default=None, metavar="HZ",
                    help="at most this many messages per second per sensor and stream "
                         "(default: every one)")
@@ -104,8 +107,8 @@ def stream_url(url: str | None) -> str:
 
 
 def subscribe_message(args: argparse.Namespace) -> dict[str, Any]:
-    msg: dict[str, Any] = {"type": "subscribe",
-                           "streams": ["estimates", "frames"] if args.frames else ["estimates"]}
+    streams = ["estimates"] + (["frames"] if args.frames else []) + (["slip"] if args.slip else [])
+    msg: dict[str, Any] = {"type": "subscribe", "streams": streams}
     if args.sensor:
         msg["sensors"] = list(args.sensor)
     if args.rate is not None:
@@ -133,7 +136,7 @@ async def watch(args: argparse.Namespace, out: TextIO) -> int:
                     print(f"tactiled watch: server: {msg.get('message')}", file=sys.stderr)
                     if msg.get("request") == "subscribe":
                         return 2
-                elif kind in ("estimate", "frame"):
+                elif kind in ("estimate", "frame", "slip"):
                     out.write(text + "\n")
                     out.flush()
                     count += 1
@@ -219,7 +222,7 @@ def watch_zenoh(args: argparse.Namespace, out: TextIO) -> int:
                 out.write(json.dumps(entry) + "\n")
             out.flush()
             return 0
-        kinds = ("estimate", "frame") if args.frames else ("estimate",)
+        kinds = ("estimate",) + (("frame",) if args.frames else ()) + (("slip",) if args.slip else ())
         return bus.watch(settings, key, out, kinds=kinds, sensors=args.sensor, count=args.count)
     except TactiledError:
         raise

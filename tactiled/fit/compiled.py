@@ -1,20 +1,15 @@
-"""The Levenberg-Marquardt search of one start, whole, in the compiled core (core/search.cpp).
+"""A model's window evaluation and the whole search of one start, compiled (core/search.cpp).
 
-:func:`tactiled.fit.solver.levenberg_marquardt` calls back into Python for every evaluation of
-the forward model: the model's parameter map, the Hertz solve, the quadrature rule's size and
-the window residual are each a compiled kernel, but the glue between them (argument packing,
-dispatch, the damping loop) cost three times the arithmetic.  Here the same steps run in one
-call of the core (the Python bodies below are its reference): the same parameter maps (``tactiled.fit.models``), the same Hertz solve and
-window residual kernels, the same node-count rule and 1-D Gauss rules (packed into arrays), and
-the same damping loop, operation for operation, so a fit gives the numbers the Python path
-gives.
+The Python bodies here are the core's reference: :func:`_evaluate` (the model's parameter
+map, the Hertz solve, the quadrature rule's size, the window residual) and :func:`search`,
+which runs the one Levenberg-Marquardt loop (:func:`tactiled.fit.solver.descend`) on it; the
+core runs the same steps in one call, operation for operation (tests/native).
 
-A search with a work budget (:mod:`tactiled.fit.budget`) runs every evaluation here: the
-budget refuses any it cannot pay for, so none runs long.  Without one, what it does not do,
-it hands back: a contact needing more than :data:`MAX_COMPILED_NODES` nodes per axis (a
-contact many rubber depths long, where one evaluation costs milliseconds and the fitter's
-time budget must be able to stop the search) returns :data:`FALLBACK`, and the caller runs the
-Python solver, which checks the wall clock between evaluations.
+With a work budget (:mod:`tactiled.fit.budget`) every evaluation runs here: the budget refuses
+any it cannot pay for.  Without one, a contact needing more than :data:`MAX_COMPILED_NODES`
+nodes per axis returns :data:`FALLBACK`, and the caller runs
+:func:`tactiled.fit.solver.levenberg_marquardt`, which checks the wall clock between
+evaluations.
 """
 
 from __future__ import annotations
@@ -28,9 +23,11 @@ from tactiled import native
 
 from tactiled.fit.budget import DENIED, LINE_CHARGED_TACTELS, Budget, evaluation_work, line_work
 from tactiled.fit.models import physical_map
-from tactiled.fit.solver import BUDGET_MESSAGE, STALLED, WITHIN_TOLERANCE, SolveResult
+from tactiled.fit.solver import (BUDGET_MESSAGE, DAMPING_EXHAUSTED, DECREASE_BELOW_FTOL,
+                                 MAX_ITERATIONS, STEP_BELOW_XTOL, SolveResult, Stop, descend,
+                                 remaining_decrease, verdict)
 from tactiled.physics.hertz import ellipse_core
-from tactiled.physics.kernels import damped_step, finite_cost, normal_equations, window_residual
+from tactiled.physics.kernels import finite_cost, window_residual
 from tactiled.physics.line import line_points, line_residual
 from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
 
@@ -46,8 +43,8 @@ LINE = 3
 # status codes of an evaluation and of a search
 _OK, _INVALID_LINE, _INVALID_LONG, FALLBACK, _BUDGET = 0, 1, 2, 3, 4
 #: messages, by code, as the Python solver words them
-MESSAGES = ("maximum iterations reached", "step below xtol", "predicted decrease below ftol",
-            "no step reduces the cost (damping exhausted)", BUDGET_MESSAGE)
+MESSAGES = (MAX_ITERATIONS, STEP_BELOW_XTOL, DECREASE_BELOW_FTOL, DAMPING_EXHAUSTED, BUDGET_MESSAGE)
+_FALLBACK_MESSAGE = "a rule past the compiled limit"
 
 
 @lru_cache(maxsize=1)
@@ -174,37 +171,10 @@ def ellipse_at(kind: int, p: np.ndarray, rf: float, comp: float) -> tuple[float,
     return ellipse_core(ka, kb, psi, force, rf, comp, np.empty((0, 0)))
 
 
-def _pin(p: np.ndarray, jtj: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray):
-    """``solver._pin``: parameters on a bound that the descent pushes out are held."""
-    k = p.shape[0]
-    any_pinned = False
-    for i in range(k):
-        if (p[i] <= lo[i] and g[i] > 0.0) or (p[i] >= hi[i] and g[i] < 0.0):
-            any_pinned = True
-    if not any_pinned:
-        return jtj, g
-    jtj, g = jtj.copy(), g.copy()
-    for i in range(k):
-        if (p[i] <= lo[i] and g[i] > 0.0) or (p[i] >= hi[i] and g[i] < 0.0):
-            for j in range(k):
-                jtj[i, j] = 0.0
-                jtj[j, i] = 0.0
-            g[i] = 0.0
-    return jtj, g
-
-
-def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """``np.clip(x, lo, hi)``."""
-    out = np.empty_like(x)
-    for i in range(x.shape[0]):
-        out[i] = min(max(x[i], lo[i]), hi[i])
-    return out
-
-
 def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, comp, scale, dmin, tol,
            imp, xs, ys, target, valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
            work_left, max_nodes, noise_cost, reserve, grant_cost, start_ok):
-    """``solver.levenberg_marquardt`` for one model and start, compiled (the box ``lo``,
+    """:func:`tactiled.fit.solver.descend` on :func:`_evaluate` for one model and start (the box ``lo``,
     ``hi`` as its ``bounds``; the verdict is the caller's).  Returns ``(status, p, r, J, cost,
     iterations, evaluations, converged, message code, remaining, work)``; status ``_OK``,
     ``_INVALID_LINE`` / ``_INVALID_LONG`` (invalid start; semi-axis in ``cost``), ``_BUDGET``
@@ -219,7 +189,7 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
     the start's evaluation when ``start_ok`` (a start whose cost is known to be within it).
     A search that drew on it has ``work`` over ``work_left``: the allowance is granted."""
     k = p0.shape[0]
-    p = _clip(p0, lo, hi)
+    p = np.clip(p0, lo, hi)
     status, r, jac, work = _evaluate(kind, p, k, rf, comp, scale, dmin, tol, imp, xs, ys, target,
                                      valid, inv_scale, ex, ey, ladder, offsets, ru, rwu, rs, rws,
                                      work_left + (reserve if start_ok else 0.0), max_nodes)
@@ -229,67 +199,27 @@ def search(kind, p0, max_step, max_iter, xtol, ftol, lam0, atol, lo, hi, rf, com
     cost = finite_cost(r, jac)
     if not math.isfinite(cost):  # non-finite residual at start
         return _OK, p, r, jac, math.inf, 0, 1, False, -2, math.inf, work
-    lam, nu = lam0, 2.0
-    evals = 1
-    message = 0
-    converged = False
-    it = 0
-    trial = p
-    r_new, jac_new, cost_new = r, jac, cost
-    for it in range(1, max_iter + 1):
-        jtj, g, diag = normal_equations(jac, r)
-        jtj, g = _pin(p, jtj, g, lo, hi)
-        accepted = False
-        while lam < 1e12:
-            step, over, predicted = damped_step(jtj, g, diag, lam, max_step)
-            if over < xtol:
-                converged, message = True, 1
-                break
-            if predicted <= ftol * cost + atol * max(1.0, cost / noise_cost):
-                converged, message = True, 2
-                break
-            trial = _clip(p + step, lo, hi)
-            avail = work_left + (reserve if cost <= grant_cost or work > work_left else 0.0)
-            st, r_new, jac_new, w = _evaluate(kind, trial, k, rf, comp, scale, dmin, tol, imp, xs,
-                                              ys, target, valid, inv_scale, ex, ey, ladder, offsets,
-                                              ru, rwu, rs, rws, avail - work, max_nodes)
-            if st == FALLBACK:
-                return FALLBACK, p, r, jac, cost, it, evals, False, 0, math.inf, work
-            if st == _BUDGET:
-                message = 4
-                break
-            work += w
-            cost_new = finite_cost(r_new, jac_new) if st == _OK else math.inf
-            evals += 1
-            if cost_new < math.inf:
-                if cost_new < cost:
-                    rho = (cost - cost_new) / predicted
-                    lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12)
-                    nu = 2.0
-                    accepted = True
-                    break
-            lam *= nu
-            nu *= 2.0
-        if converged or message == 4:
-            break
-        if not accepted:
-            message = 3
-            break
-        p, r, jac, cost = trial, r_new, jac_new, cost_new
-    return (_OK, p, r, jac, cost, it, evals, converged, message,
-            _remaining(jac, r, max_step, p, lo, hi), work)
+    spent = [work]
 
+    def evaluate(trial: np.ndarray, cost_from: float) -> tuple[np.ndarray, np.ndarray, float]:
+        work = spent[0]
+        avail = work_left + (reserve if cost_from <= grant_cost or work > work_left else 0.0)
+        st, r_new, jac_new, w = _evaluate(kind, trial, k, rf, comp, scale, dmin, tol, imp, xs, ys,
+                                          target, valid, inv_scale, ex, ey, ladder, offsets, ru,
+                                          rwu, rs, rws, avail - work, max_nodes)
+        if st == FALLBACK:
+            raise Stop(_FALLBACK_MESSAGE)
+        if st == _BUDGET:
+            raise Stop(BUDGET_MESSAGE)
+        spent[0] = work + w
+        return r_new, jac_new, finite_cost(r_new, jac_new) if st == _OK else math.inf
 
-def _remaining(jac, r, scale, p, lo, hi) -> float:
-    """``solver.remaining_decrease(jac, r, scale, p, (lo, hi))``, step for step (an unbounded
-    box pins nothing, as no ``bounds`` there)."""
-    jtj, g, diag = normal_equations(jac, r)
-    jtj, g = _pin(p, jtj, g, lo, hi)
-    try:
-        _, _, predicted = damped_step(jtj, g, diag, 1e-9, scale)
-    except Exception:  # pragma: no cover - the damping makes it definite
-        return math.inf
-    return predicted if math.isfinite(predicted) else math.inf
+    p, r, jac, cost, it, evals, converged, message = descend(
+        evaluate, p, r, jac, cost, max_step, max_iter, xtol, ftol, lam0, atol, noise_cost, (lo, hi))
+    if message == _FALLBACK_MESSAGE:
+        return FALLBACK, p, r, jac, cost, it, evals + 1, False, 0, math.inf, spent[0]
+    return (_OK, p, r, jac, cost, it, evals + 1, converged, MESSAGES.index(message),
+            remaining_decrease(jac, r, max_step, p, (lo, hi)), spent[0])
 
 
 #: the Python bodies (the reference); the module's names run the compiled core's
@@ -356,12 +286,8 @@ def solve(kind: int, p0: np.ndarray, max_step: np.ndarray, max_iter: int, atol: 
     if msg == 4:
         return SolveResult(p, r, jac, cost, it, evals, False, message)
     if verdict_tol is not None:
-        close = remaining <= verdict_tol * max(1.0, cost / noise_cost)
-        if close and not converged:
-            message = f"{message}, {WITHIN_TOLERANCE}"
-        elif converged and not close:
-            message = STALLED
-        converged = close
+        converged, message = verdict(bool(converged), message, remaining, cost, verdict_tol,
+                                     noise_cost)
     return SolveResult(p, r, jac, cost, it, evals, bool(converged), message)
 
 

@@ -88,7 +88,8 @@ def line_frame(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, size: i
     """The line model's window on ``strain`` (a ``fitter._Frame``, or the FitResult saying
     there is none): the line's band, or with ``size`` a square window of that side on the
     ridge (:func:`square_window`)."""
-    from tactiled.fit.fitter import _LINE_MODEL, FitResult
+    from tactiled.fit.result import FitResult
+    from tactiled.fit.search import LINE_MODEL as _LINE_MODEL
 
     fr = fitter._window(strain, _LINE_MODEL, mask)
     if isinstance(fr, FitResult):
@@ -115,7 +116,7 @@ def chi2_on_band(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, model
     tactels, the band the line was fitted on (a ridge's segment that a finite ellipse explains
     in a 4x4 window, the ellipse's ends leave unexplained along the band).  ``(None, 0)``
     without a band or a prediction."""
-    from tactiled.fit.fitter import FitResult
+    from tactiled.fit.result import FitResult
     from tactiled.fit.multi import _point_strain
 
     fr = line_frame(fitter, strain, mask)
@@ -134,7 +135,7 @@ def runs_across(fitter: Any, flat: np.ndarray, mask: np.ndarray | None) -> tuple
     """Whether the strain through the peak of ``flat`` (after the flat field) is a ridge that
     runs across the array (a line contact: no ellipse has both its ends beyond the array),
     and the line's band there (None without a peak)."""
-    from tactiled.fit.fitter import FitResult
+    from tactiled.fit.result import FitResult
 
     fr = line_frame(fitter, flat, mask)
     if isinstance(fr, FitResult):

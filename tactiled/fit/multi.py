@@ -363,7 +363,8 @@ def _refine_jointly(fitter: Any, strain: np.ndarray, usable: np.ndarray, results
     their strains (the others' predicted strain removed), and move each to the joint
     solution: its values from there, its sigmas kept (they are widened for the shared
     information afterwards)."""
-    from tactiled.fit.fitter import _bounds, _steps
+    from tactiled.fit.search import bounds_of as _bounds
+    from tactiled.fit.search import steps_of as _steps
     from tactiled.fit.solver import levenberg_marquardt
 
     shape = usable.shape

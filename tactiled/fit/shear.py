@@ -54,6 +54,11 @@ class ShearEstimate:
     rms: float
     converged: bool
     reasons: dict[str, str] = field(default_factory=dict)
+    #: The fit's window (row-major taxel indices) and the Jacobian of its noise-scaled
+    #: residuals at ``params`` (None for an estimate that is not a fit's):
+    #: what :class:`ShearStep` follows the frames from.
+    window: np.ndarray | None = None
+    jac: np.ndarray | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -249,4 +254,47 @@ class ShearFitter:
             reasons["shear"] = "the information matrix is singular"
         dof = max(1, data.size - 8)
         rms = float(math.sqrt(2.0 * res.cost / dof))
-        return ShearEstimate(p, cov, rms, bool(res.success), reasons)
+        return ShearEstimate(p, cov, rms, bool(res.success), reasons, idx, jac)
+
+    def step(self, est: ShearEstimate) -> ShearStep:
+        """Frame-rate estimates from the fit ``est``: :class:`ShearStep`."""
+        return ShearStep(self, est)
+
+
+class ShearStep:
+    """Estimates at frame rate between fits: one Gauss-Newton step from a fit.
+
+    The fit (:meth:`ShearFitter.fit`, some 10 ms or more) runs on some frames; every frame in
+    between is estimated by linearising the model at the last fit: ``p = p_fit + C J^T r``
+    with ``r`` the frame's noise-scaled residual from the fit's prediction, ``J`` the fit's
+    Jacobian and ``C = (J^T J)^-1`` its covariance (which the step keeps).  A matrix-vector
+    product over the fit's window: no model evaluation per frame.  Exact for the parameters
+    the readings are linear in (the tangential force and torsion at a given contact size);
+    first order in the others (the centre, the size, ``lam``), which move little between two
+    fits; ``rms`` is the residual after the step (the linear model's), in units of the noise.
+    """
+
+    def __init__(self, fitter: ShearFitter, est: ShearEstimate) -> None:
+        if est.window is None or est.jac is None:
+            raise ValueError("a shear step starts from a fit's estimate (its window and Jacobian)")
+        self.base = est
+        self.window = est.window
+        self._noise = fitter.model.noise
+        self._pred = fitter._predict(est.params, est.window).ravel()
+        self._keep = np.nonzero(np.isfinite(np.diag(est.cov)))[0]
+        jac = est.jac[:, self._keep]
+        self._jac = jac
+        self._gain = est.cov[np.ix_(self._keep, self._keep)] @ jac.T
+        self._dof = max(1, self._pred.size - len(self._keep))
+
+    def __call__(self, frame: np.ndarray) -> ShearEstimate:
+        """The estimate of one frame ``(rows, cols, 3)`` of readings (``lam`` clipped to [0, 1])."""
+        data = (np.asarray(frame, dtype=float).reshape(-1, 3)[self.window] / self._noise).ravel()
+        r = data - self._pred
+        delta = self._gain @ r
+        p = self.base.params.copy()
+        p[self._keep] += delta
+        p = np.clip(p, _LO, _HI)
+        rest = r - self._jac @ delta
+        rms = float(math.sqrt(float(rest @ rest) / self._dof))
+        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons))

@@ -260,3 +260,12 @@ def carried(fit: dict[str, Any], change: float, frames: int) -> dict[str, Any]:
     if contacts:
         out["contacts"] = [c if c is fit else carried(c, change, frames) for c in contacts]
     return out
+
+
+def withheld_since(before: dict[str, Any], after: dict[str, Any]) -> list[str]:
+    """The values (``VALUE_KEYS``, of the top-level contact and of each of ``contacts`` in
+    order) that ``before`` published and ``after`` (the same estimate carried and judged)
+    withholds: where carrying costs a value, a fit of the frame can still say it."""
+    pairs = [(before, after), *zip(before.get("contacts") or (), after.get("contacts") or ())]
+    return [k for b, a in pairs for k in VALUE_KEYS
+            if b.get(k) is not None and a.get(k) is None]

@@ -596,7 +596,7 @@ class Tracker:
 
     def _withheld(self, key: str, v: float, sd: float, flat: bool = False) -> str | None:
         """Why ``key`` (value ``v``, 1-sigma ``sd`` over the frames used) is withheld, by the
-        fitter's rules (tactiled.fit.fitter.Fitter._unobservable); None to report it.
+        fitter's rules (tactiled.fit.uncertainty.unobservable); None to report it.
         ``flat``: the fit found the likelihood flat below this radius
         (:mod:`tactiled.fit.profile`), or left it outside the range that test vouches for
         (a relative sigma over ``TEST_RELATIVE_SIGMA``), or withheld it: reported only once

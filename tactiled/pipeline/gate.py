@@ -58,9 +58,10 @@ class Gate:
         self.configure(sigma=sigma, z=z, reuse_unchanged=reuse_unchanged)
         self._reference: np.ndarray | None = None
         self._carried = 0  # frames answered "unchanged" since the reference was fitted
-        #: the last ``decide``'s change since the reference, ``|delta s|^2 / sigma^2``
-        #: estimated as ``2 (chi2 - n)`` (never below 0; inf before a test): what an estimate
-        #: carried to that frame must cover (:func:`tactiled.fit.verdict.carried`)
+        #: the last ``decide``'s change since the reference, ``|delta s|^2 / sigma^2``: the
+        #: upper bound at ``z`` of its estimate ``2 (chi2 - n)`` (never below 0; inf before a
+        #: test): what an estimate carried to that frame must cover
+        #: (:func:`tactiled.fit.verdict.carried`)
         self.change = math.inf
 
     def configure(self, *, sigma: float | None = None, z: float | None = None,
@@ -93,7 +94,12 @@ class Gate:
         d = strain - ref
         n = d.size
         chi2 = float(np.dot(d.ravel(), d.ravel())) / (2.0 * self.sigma * self.sigma)
-        self.change = max(2.0 * (chi2 - n), 0.0)
+        # the change is estimated by 2 (chi2 - n), whose noise has a standard deviation of
+        # 2 sqrt(2 (n + change)) (chi-square of noncentrality change / 2): what an estimate
+        # carried to this frame must cover is its upper bound at the test's own z, the change
+        # the test cannot tell from none (a contact moving slowly under the noise)
+        est = 2.0 * (chi2 - n)
+        self.change = max(est + 2.0 * self.z * math.sqrt(2.0 * (n + max(est, 0.0))), 0.0)
         if chi2 <= n + self.z * math.sqrt(2.0 * n) and self._carried < MAX_CARRIED:
             self._carried += 1
             return GateDecision(GATE_UNCHANGED, chi2)

@@ -1,12 +1,12 @@
 """The tracker's per-frame arithmetic, one call per step.
 
 A tracked contact's frame is measured through its linearisation
-(:meth:`tactiled.pipeline.tracker.Tracker.measure`) and tested for another contact pressed
-beside it (:meth:`tactiled.pipeline.tracking.ContactTracking._pressed_elsewhere`): a gather,
+(:meth:`tactiled.pipeline.contact_filter.Tracker.measure`) and tested for another contact pressed
+beside it (:meth:`tactiled.pipeline.sensor_tracking.ContactTracking._pressed_elsewhere`): a gather,
 two small matrix products and a weighted sum of squares on 20 to 100 tactels, which as numpy
 calls cost more in call overhead than in arithmetic, on every frame of every array; its
 measurement then goes through the per-parameter Kalman filters
-(:meth:`~tactiled.pipeline.tracker.Tracker.step`), a few dozen float operations per parameter
+(:meth:`~tactiled.pipeline.contact_filter.Tracker.step`), a few dozen float operations per parameter
 that cost as Python far more than as machine code.  Here each is one call, on the tracker's
 state and constants as two small tables (the ``X .. DRIFT`` and ``C_R .. C_LIN_SD`` rows).
 
@@ -117,7 +117,7 @@ def measure_point(frame: np.ndarray, index: np.ndarray, at: np.ndarray, gain: np
                   ln_f: int, reset_sigma: float, max_log_force_step: float
                   ) -> tuple[bool, np.ndarray, np.ndarray]:
     """:func:`measure_window`, then the tracker's tests of the step (see
-    :meth:`tactiled.pipeline.tracker.Tracker.measure_at`): ``(ok, z, e)``, ``z`` the measured
+    :meth:`tactiled.pipeline.contact_filter.Tracker.measure_at`): ``(ok, z, e)``, ``z`` the measured
     parameters (the point plus the step, clipped to the box), ``e`` the residual; ``ok``
     False when the frame needs a fit of its own (``chi2`` beyond ``limit``, a non-finite step,
     a logarithm moved by more than 1 and beyond ``reset_sigma`` single-frame sigmas, or the
@@ -242,7 +242,7 @@ _RAD_TO_DEG = 180.0 / math.pi
 def estimate_numbers(model: int, s: np.ndarray, const: np.ndarray, dt: float, excess: float,
                      corr: np.ndarray, sys: np.ndarray, has_sys: bool,
                      lag_noise: float) -> tuple[np.ndarray, np.ndarray, float, int]:
-    """The numbers of a tracker's estimate (:meth:`~tactiled.pipeline.tracker.Tracker.estimate`):
+    """The numbers of a tracker's estimate (:meth:`~tactiled.pipeline.contact_filter.Tracker.estimate`):
     the state ``s`` predicted ``dt`` s ahead (0: as it is), each value of
     ``tactiled.fit.params.VALUE_KEYS`` (:func:`~tactiled.fit.params.report_terms` of
     ``model``, a :data:`MODEL_CODES` code; the orientation as psi in radians, for the caller

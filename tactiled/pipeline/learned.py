@@ -27,22 +27,6 @@ log = logging.getLogger("tactiled.pipeline.sensor")
 
 #: Bumped when the file's content changes meaning; older files are refused.
 VERSION = 1
-#: What the daemon reads when ``[state] dir`` is not set: the service's state directory, then
-#: the user's (XDG).
-ENV_SYSTEMD = "STATE_DIRECTORY"
-
-
-def default_state_dir(env: dict[str, str] | None = None) -> Path:
-    """``$STATE_DIRECTORY`` (systemd sets it from the unit's ``StateDirectory=``: the first of
-    a colon-separated list), else ``$XDG_STATE_HOME/tactiled``, else
-    ``~/.local/state/tactiled``."""
-    env = dict(os.environ) if env is None else env
-    if env.get(ENV_SYSTEMD):
-        return Path(env[ENV_SYSTEMD].split(":")[0])
-    base = env.get("XDG_STATE_HOME") or str(Path(env.get("HOME") or Path.home()) / ".local" / "state")
-    return Path(base) / "tactiled"
-
-
 def fingerprint(sensor: SensorModel, calibration: str | os.PathLike[str] | None = None,
                 description: str = "") -> str:
     """A digest of everything the fits take from the sensor model: every field of ``sensor``

@@ -35,7 +35,7 @@ from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.result import FitResult
-from tactiled.fit.verdict import ArrayLimits, carried, judge
+from tactiled.fit.verdict import ArrayLimits, carried, judge, withheld_since
 from tactiled.frames import Frame
 from tactiled.pipeline.estimate import (
     GATE_FIT,
@@ -53,7 +53,8 @@ from tactiled.fit.warm import SEVERAL
 from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
-from tactiled.pipeline.pool import FitJob, WorkerPool
+from tactiled.pipeline.jobs import FitJob
+from tactiled.pipeline.pool import WorkerPool
 from tactiled.pipeline.sensor_stats import SensorStats
 from tactiled.pipeline.multi_contact import ContactTrackers
 from tactiled.pipeline import shear_track
@@ -219,6 +220,7 @@ class SensorPipeline:
         self.published = 0
         self.skipped = {GATE_NO_CONTACT: 0, GATE_UNCHANGED: 0}
         self.stale_dropped = 0
+        self.reuse_refused = 0  # unchanged frames fitted: carried, a value would be withheld
         self.relinearize_lost = 0
         self.fit_failed = 0
         self.fit_errors = 0
@@ -444,9 +446,8 @@ class SensorPipeline:
             self.skipped[GATE_NO_CONTACT] += 1
             self._supersede_waiting()
             self._publish(waiting, GATE_NO_CONTACT, None, 0.0, self._no_contact_fit)
-        elif action == GATE_UNCHANGED and self._last_fit is not None:
-            self._publish_reuse(waiting, self._last_fit)
-        else:
+        elif not (action == GATE_UNCHANGED and self._last_fit is not None
+                  and self._publish_reuse(waiting, self._last_fit)):
             if self._waiting is not None:
                 self.superseded += 1
             self._waiting = waiting
@@ -460,15 +461,22 @@ class SensorPipeline:
         last = self._last_fit
         if last is None or self.gate.decide(w.strain, True).action != GATE_UNCHANGED:
             return False
-        self._publish_reuse(w, last)
-        return True
+        return self._publish_reuse(w, last)
 
-    def _publish_reuse(self, w: _Waiting, last: Estimate) -> None:
-        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since)."""
-        self.skipped[GATE_UNCHANGED] += 1
+    def _publish_reuse(self, w: _Waiting, last: Estimate) -> bool:
+        """Answer ``w`` with the fit ``last`` published (the gate found it unchanged since),
+        its sigmas widened by the change the gate could have missed; False (nothing
+        published: the frame needs a fit) when the one rule would withhold a value so carried
+        that ``last`` published: a fit of the frame can still say it."""
         frames = w.seq - last.fitted_seq if last.fitted_seq is not None else 0
-        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0,
-                      carried(last.fit, self.gate.change, frames), fresh=True)
+        fit = judge(carried(last.fit, self.gate.change, frames), self._limits,
+                    withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
+        if withheld_since(last.fit, fit):
+            self.reuse_refused += 1
+            return False
+        self.skipped[GATE_UNCHANGED] += 1
+        self._publish(w, GATE_UNCHANGED, last.fitted_seq, 0.0, fit, fresh=True)
+        return True
 
     def _fit_due(self, before: _Waiting | None) -> bool:
         """A frame has just started waiting for a fit (it was not ``before``), and no fit of

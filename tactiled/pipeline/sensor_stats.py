@@ -53,6 +53,7 @@ class SensorStats:
     published: int
     skipped: dict[str, int]
     stale_dropped: int
+    reuse_refused: int
     track: bool
     tracked: int
     track_resets: int
@@ -62,6 +63,7 @@ class SensorStats:
     relinearize_lost: int
     drift_followed: int
     pressed_elsewhere: int
+    signal_grown: int
     hysteresis: dict[str, Any] | None
     pending: int
     #: frames received and neither answered nor counted yet (waiting for a fit)
@@ -116,6 +118,7 @@ class SensorStats:
             published=pipe.published,
             skipped=dict(pipe.skipped),
             stale_dropped=pipe.stale_dropped,
+            reuse_refused=pipe.reuse_refused,
             track=pipe.settings.track,
             tracked=tracking.tracked,
             track_resets=tracking.tracker.resets,
@@ -125,6 +128,7 @@ class SensorStats:
             relinearize_lost=pipe.relinearize_lost,
             drift_followed=tracking.drift_followed,
             pressed_elsewhere=tracking.pressed_elsewhere,
+            signal_grown=tracking.signal_grown,
             hysteresis=None if zeroer is None else zeroer.hysteresis_summary(),
             pending=len(tracking.pending),
             in_hand=(len(tracking.pending) if pipe.settings.track

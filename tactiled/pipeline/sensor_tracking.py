@@ -27,7 +27,7 @@ from tactiled.pipeline.contact_filter import untracked
 
 if TYPE_CHECKING:
     from tactiled.pipeline.multi_contact import ContactTrackers
-    from tactiled.pipeline.pool import FitJob
+    from tactiled.pipeline.jobs import FitJob
     from tactiled.pipeline.sensor import SensorPipeline
 
 log = logging.getLogger("tactiled.pipeline.sensor")
@@ -68,6 +68,11 @@ MAX_PENDING = 64
 MAX_WAIT_S = 0.005
 #: A relinearisation is asked for at most once per this much device time (s).
 MIN_RELINEARIZE_S = 0.004
+#: A tracked contact whose frame's largest strain grows past this many times that of the frame
+#: its fit was of is fitted again (:meth:`ContactTracking._signal_grown`): each value's
+#: single-frame sigma is then half what that fit had, or less.  A contact pressed from a light
+#: touch costs a fit each time its signal doubles.
+REFIT_SIGNAL_RATIO = 2.0
 
 
 class ContactTracking:
@@ -96,6 +101,9 @@ class ContactTracking:
         #: tracked frames sent to a fit because a tactel outside the contact's window rose
         #: (another contact pressed)
         self.pressed_elsewhere = 0
+        #: tracked frames sent to a fit because their signal doubled since the tracked fit's
+        #: frame (a light touch pressed harder: its model and curvatures fitted again)
+        self.signal_grown = 0
 
     def track(self, w: _Waiting, contact: bool, nonfinite: bool) -> None:
         """One frame through the tracker: measured at once when it can be, else it waits for
@@ -126,12 +134,28 @@ class ContactTracking:
             self.pressed_elsewhere += 1
             self._wait_for_fit(w)
             return
+        if self._signal_grown(w):
+            self.signal_grown += 1
+            self._wait_for_fit(w)
+            return
         if tracker.step(w.strain.ravel(), w.t) == "refit":
             self._wait_for_fit(w)
             return
         self._publish_tracked(w)
         self.follow_drift(w)
         self._maybe_relinearize(w)
+
+    def _signal_grown(self, w: _Waiting) -> bool:
+        """The frame's largest strain is over ``REFIT_SIGNAL_RATIO`` times that of the frame
+        the tracked estimates rest on: a contact pressed well beyond the frame whose fit chose
+        its model and its curvatures.  What that frame could not resolve (a light touch's
+        radius, a ball taken for a plane) the filter cannot learn from linearised steps about
+        that fit's point, which hold the curvature the fit gave; a fit of this frame, with
+        twice the signal (half the sigma on every value), can."""
+        peak0 = None if self.base is None else self.base.get("peak")
+        if peak0 is None or not peak0 > 0.0:
+            return False
+        return self.pipe._frame_peak(w, 0.0) > REFIT_SIGNAL_RATIO * peak0
 
     def _pressed_elsewhere(self, strain: np.ndarray) -> bool:
         """Outside the tracked contact's window, a tactel stands above what the contact
@@ -233,8 +257,10 @@ class ContactTracking:
         # prediction (MAX_WAIT_S); its fit still serves the tracker and the frames after it
         pending, self.pending = self.pending, []
         mine = any(p.ordinal == w.ordinal for p in pending)
-        usable = fit.get("contact") and lin is not None and all(
-            fit.get(k) is not None for k in ("x_mm", "y_mm"))
+        # (a contact whose radii both lie beyond the array's span, label "plane", gives the
+        # filter no curvature to hold: its frames are fitted, each as it comes)
+        usable = (fit.get("contact") and lin is not None and fit.get("label") != "plane"
+                  and all(fit.get(k) is not None for k in ("x_mm", "y_mm")))
         if not usable and not mine and tracker.started:
             # a late fit with nothing to give: the tracker goes on predicting; any frame
             # waiting now needs a fit of its own

@@ -9,17 +9,20 @@ pipeline hands every frame here (:meth:`ShearTrack.on_frame`) beside its own 1-a
   (:class:`tactiled.fit.shear.ShearFitter`, warm-started from the contact's previous fit) in
   one background thread, one fit at a time, the newest frame winning (a frame superseded while
   a fit runs is counted, never queued);
-* each fit feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`, over the
-  fitted frames in order); an onset or end is published on the hub as a ``slip`` item;
+* every frame of the contact after its first fit is estimated at frame rate by the step from
+  the newest fit (:class:`tactiled.fit.shear.ShearStep`: one matrix-vector product, no fit)
+  and feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`); an onset or
+  end is published on the hub as a ``slip`` item with the frame it was declared on;
 * :meth:`ShearTrack.annotate` gives every estimate the contact's newest ``shear`` and ``slip``
-  tables (the strongest contact's: the fit's window is centred on the array's peak), or null
-  with the reason in ``reasons``.
+  tables (the strongest contact's: the fit's window is centred on the array's peak; the tables
+  are the newest frame's step estimate), or null with the reason in ``reasons``.
 """
 
 from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextlib
 import logging
 import time
 from collections import deque
@@ -45,7 +48,7 @@ NOT_STRONGEST = "shear is fitted for the strongest contact only"
 class SlipItem:
     """A slip event of one contact, published on the hub (kind ``slip``): ``event`` is
     ``onset`` or ``end``; ``seq``, ``device_time_us``, ``host_time`` and ``wall_time`` are the
-    fitted frame's it was declared on."""
+    frame's it was declared on."""
 
     sensor: str
     sensor_id: int
@@ -99,8 +102,9 @@ class ShearTrack:
         self._busy = False
         self._start: np.ndarray | None = None
         self._detector = SlipDetector()
-        self._fitted_frames = 0
-        self._tables: tuple[dict[str, Any], dict[str, Any]] | None = None
+        self._tracked = 0
+        self._step: Any = None  # the newest fit's ShearStep for this contact
+        self._newest: tuple[int, Any, str | None] | None = None  # (seq, estimate, slip state)
         self._onset: dict[str, Any] | None = None
         self._end: dict[str, Any] | None = None
         self._closed = False
@@ -109,6 +113,7 @@ class ShearTrack:
         self.frames = 0
         self.without_taxels = 0
         self.fits = 0
+        self.steps = 0
         self.fit_errors = 0
         self.superseded = 0
         self.events = {"onset": 0, "end": 0}
@@ -140,6 +145,8 @@ class ShearTrack:
             self._contact += 1
         if readings is None:
             return None
+        if self._step is not None:
+            self._track(frame, readings)
         job = _Job(readings, frame.seq, frame.sensor_id, frame.device_time_us, frame.host_time,
                    time.time(), self._contact)
         if self._busy:
@@ -158,10 +165,11 @@ class ShearTrack:
         self._in_contact = False
         self._next = None
         self._start = None
-        self._tables = None
+        self._step = None
+        self._newest = None
         self._onset = self._end = None
         self._detector = self._detector_type()
-        self._fitted_frames = 0
+        self._tracked = 0
 
     def _submit(self, job: _Job) -> None:
         if self._closed:
@@ -169,38 +177,58 @@ class ShearTrack:
         self._busy = True
         start = self._start
         loop = asyncio.get_running_loop()
-        fut = self._pool.submit(self._fitter.fit, job.readings, start)
-        fut.add_done_callback(lambda f: loop.call_soon_threadsafe(self._done, job, f))
+        fut = self._pool.submit(self._fit, job.readings, start)
+        def done(f: concurrent.futures.Future) -> None:  # the fit's thread
+            if not f.cancelled():
+                with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+                    loop.call_soon_threadsafe(self._done, job, f)
+
+        fut.add_done_callback(done)
+
+    def _fit(self, readings: np.ndarray, start: np.ndarray | None) -> tuple[Any, Any]:
+        """In the fit's thread: the fit of ``readings`` and its step."""
+        est = self._fitter.fit(readings, start)
+        return est, self._fitter.step(est)
 
     def _done(self, job: _Job, fut: concurrent.futures.Future) -> None:
         self._busy = False
         try:
-            est = fut.result()
+            est, step = fut.result()
         except Exception as err:  # a fit that fails costs its frame, never the sensor
             self.fit_errors += 1
             log.warning("%s: shear fit of seq %d failed: %s", self.sensor, job.seq, err)
-            est = None
+            est = step = None
         if est is not None and job.contact == self._contact and self._in_contact:
             self.fits += 1
-            self._measured(job, est)
+            self._start = est.params.copy() if est.converged else None
+            self._step = step
         nxt, self._next = self._next, None
         if nxt is not None and nxt.contact == self._contact:
             self._submit(nxt)
 
-    def _measured(self, job: _Job, est: Any) -> None:
-        self._start = est.params.copy() if est.converged else None
-        self._fitted_frames += 1
-        sliding, event = self._detector.feed(self._fitted_frames, est)
-        doc = est.to_json()
-        state = sliding or doc["slip"]["state"]
+    def _track(self, frame: Frame, readings: np.ndarray) -> None:
+        """One frame of the contact: its step estimate through the slip detector."""
+        est = self._step(readings)
+        self.steps += 1
+        self._tracked += 1
+        sliding, event = self._detector.feed(self._tracked, est)
+        state = sliding or est.state()
         if event is not None:
-            self._event(event.kind, job.seq, job.sensor_id, job.device_time_us, job.host_time,
-                        job.wall_time, state)
-        shear = {**doc["shear"], "seq": job.seq, "rms_over_noise": doc["rms_over_noise"],
+            self._event(event.kind, frame.seq, frame.sensor_id, frame.device_time_us,
+                        frame.host_time, time.time(), state)
+        self._newest = (frame.seq, est, state)
+
+    def _tables(self) -> tuple[dict[str, Any], dict[str, Any]] | None:
+        """The ``shear`` and ``slip`` tables of the newest step estimate."""
+        if self._newest is None:
+            return None
+        seq, est, state = self._newest
+        doc = est.to_json()
+        shear = {**doc["shear"], "seq": seq, "rms_over_noise": doc["rms_over_noise"],
                  "reasons": doc["reasons"]}
         slip = {"state": state, "lam": doc["slip"]["lam"], "lam_std": doc["slip"]["lam_std"],
                 "onset": self._onset, "end": self._end}
-        self._tables = (shear, slip)
+        return shear, slip
 
     def _event(self, kind: str, seq: int, sensor_id: int, device_time_us: int,
                host_time: float, wall_time: float, state: str | None = None) -> None:
@@ -220,7 +248,7 @@ class ShearTrack:
         if not fit.get("contact"):
             return fit
         self._contact_id = fit.get("contact_id")
-        tables = self._tables
+        tables = self._tables()
         if tables is None:
             why = NO_TAXELS if self.without_taxels == self.frames else (
                 NO_ZERO if not self._free else NO_FIT)
@@ -245,7 +273,7 @@ class ShearTrack:
 
     def stats(self) -> dict[str, Any]:
         return {"frames": self.frames, "without_taxels": self.without_taxels,
-                "fits": self.fits, "fit_errors": self.fit_errors,
+                "fits": self.fits, "steps": self.steps, "fit_errors": self.fit_errors,
                 "superseded": self.superseded, "events": dict(self.events),
                 "zero_frames": len(self._free), "in_contact": self._in_contact}
 

@@ -9,7 +9,7 @@ in order (which is what lets the parent give every outstanding request a deadlin
   ``broken`` maps a spec whose fitter could not be built to the error (its fits then answer
   with that error: one sensor's bad model must not keep the worker from serving the others);
 - ``("fit", rid, spec, strain, model, mask, warm, budget_s, kind)`` (``strain`` and ``mask``
-  packed by :func:`tactiled.pipeline.messages.pack_array`) -> ``("result", rid,
+  packed by :func:`tactiled.pipeline.worker_packing.pack_array`) -> ``("result", rid,
   fit_json_dict | None, compute_s, error | None, warm | None, lin | None)`` (the fitter
   raising costs one frame, never the worker); ``warm`` is ``(model, params)`` of a converged
   fit, the next frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
@@ -21,9 +21,6 @@ in order (which is what lets the parent give every outstanding request a deadlin
   (:func:`tactiled.heapstats.worker_figures`: RSS, malloc and pymalloc books, the fitter's
   caches, fits so far; ``flat_fields``: each spec's ``FlatField.summary()``), for the soak and
   for diagnosing growth;
-- ``("sleep", rid, seconds)`` -> ``("slept", rid)`` after sleeping: a test hook for hangs;
-- ``("garble", rid)`` -> bytes that do not unpickle: a test hook for an answer the parent
-  cannot read;
 - ``("stop",)``: exit.
 
 ``spec`` is a small integer naming a (SensorModel, FitOptions arguments) pair the parent
@@ -48,7 +45,7 @@ from typing import Any
 from tactiled.sensors.model import SensorModel
 from tactiled.heap import pin_malloc, trim
 from tactiled.pipeline.estimate import plain
-from tactiled.pipeline.messages import unpack_array
+from tactiled.pipeline.worker_packing import unpack_array
 
 #: A worker gives malloc's free memory back to the system every this many fits (tactiled.heap
 #: .trim: about a minute of steady fitting, a few milliseconds each time).
@@ -216,11 +213,6 @@ def worker_main(conn: Connection, specs: dict[int, Spec]) -> None:
                     continue
                 broken.pop(spec, None)
                 conn.send(("setup_done", rid, time.perf_counter() - t, None))
-            elif kind == "sleep":
-                time.sleep(msg[2])  # deliberately unresponsive: the parent must notice
-                conn.send(("slept", msg[1]))
-            elif kind == "garble":
-                conn.send_bytes(b"\x80\x05not a pickle")  # test hook: an unreadable answer
             elif kind == "stop":
                 return
     except (BrokenPipeError, ConnectionResetError, EOFError):

@@ -13,10 +13,14 @@ simulator's strain.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 from tactiled.calibration.lut import LookupTable
 from tactiled.sensors.model import SensorModel
 from tactiled.sensors import load_description
+
+if TYPE_CHECKING:
+    from tactiled.sources import SourceURL
 
 #: The kinds of device with a driver and a simulated device.
 KINDS = ("lines", "flexitac", "robotiq", "xela", "paxini")
@@ -89,11 +93,33 @@ def device_model(kind: str, rows: int | None = None, cols: int | None = None) ->
     return model
 
 
+def device_description(kind: str, rows: int | None = None, cols: int | None = None) -> str | None:
+    """The built-in description of a ``kind`` device's array, or None when ``rows`` x
+    ``cols`` make it another array (which then needs a description of its own)."""
+    name = description_name(kind, rows, cols)
+    g = load_description(name).geometry()
+    return name if (rows or g.rows, cols or g.cols) == (g.rows, g.cols) else None
+
+
+def url_description(url: SourceURL) -> str | None:
+    """:func:`device_description` of the device a source URL names (its scheme is the kind,
+    ``rows=``/``cols=`` its size), read from the URL alone, so the configuration finds it
+    without building the driver; None for a scheme that is no vendor device (``sim``,
+    ``replay``...) or a size that is not a whole number."""
+    if url.scheme not in DESCRIPTIONS:
+        return None
+    size: list[int | None] = []
+    for key in ("rows", "cols"):
+        raw = url.params.get(key) if url.scheme != "robotiq" else None  # robotiq: fixed 7x4
+        try:
+            size.append(int(raw, 10) if raw else None)
+        except ValueError:
+            return None  # refused when the source is built
+    return device_description(url.scheme, size[0], size[1])
+
+
 def device_array(kind: str, rows: int | None = None, cols: int | None = None) -> DeviceArray:
     """The :class:`DeviceArray` of a ``kind`` device (see :func:`device_model`)."""
     cps, zero = _COUNTS[kind] if kind in _COUNTS else (0.0, 0.0)
-    model = device_model(kind, rows, cols)
-    name = description_name(kind, rows, cols)
-    g = load_description(name).geometry()
-    same = (model.geometry.rows, model.geometry.cols) == (g.rows, g.cols)
-    return DeviceArray(kind, model, cps, zero, name if same else None)
+    return DeviceArray(kind, device_model(kind, rows, cols), cps, zero,
+                       device_description(kind, rows, cols))

@@ -12,6 +12,8 @@ import sys
 import pytest
 
 from tactiled_bench import acquisition as acq
+from tactiled_bench import acquisition_report as report
+from tactiled_bench import acquisition_runs as runs
 from tactiled.physics.contact import Contact
 from tactiled.sim import SCENES, FingerSimulator, Pose, SceneBuilder, named_scene
 
@@ -25,7 +27,7 @@ def counters(frames: int = 0, superseded: int = 0, stale: int = 0, predicted: in
 
 
 def stats(**per_finger: dict) -> dict:
-    return {"sensors": {name: per_finger.get(name, counters()) for name in acq.FINGERS}}
+    return {"sensors": {name: per_finger.get(name, counters()) for name in runs.FINGERS}}
 
 
 def fit_line(c: Contact | None, **changes) -> dict:
@@ -45,23 +47,23 @@ def test_what_a_run_keeps_of_an_estimate_is_left_alone_by_the_collector() -> Non
     line does."""
     c = Contact(8.0, math.inf, 40.0, 1.2, 10.5, 12.5)
     line = {**fit_line(c), "std": {"x_mm": 0.01}, "reasons": {}, "model": "cylinder"}
-    record = (0, 7, "fit", 1.5, acq.slim(line))
+    record = (0, 7, "fit", 1.5, runs.slim(line))
     whole = (0, 7, "fit", 1.5, line)
     gc.collect()
     gc.collect()  # (the inner tuple is let go in one pass, the record holding it in the next)
     assert not gc.is_tracked(record)
     assert gc.is_tracked(whole)  # (the test can fail: a record keeping the line would be)
-    seen = acq.Seen.from_record(record)
-    assert seen.fit == {k: line.get(k) for k in acq.SLIM_KEYS}
+    seen = runs.Seen.from_record(record)
+    assert seen.fit == {k: line.get(k) for k in runs.SLIM_KEYS}
     truth = lambda seq: c  # noqa: E731
-    run = acq.RunResult(2, stats(), stats(), 1.0, [seen], {})
-    full = acq.RunResult(2, stats(), stats(), 1.0, [acq.Seen(0, 7, "fit", 1.5, line)], {})
-    a, b = acq.summarise(run, truth), acq.summarise(full, truth)
+    run = runs.RunResult(2, stats(), stats(), 1.0, [seen], {})
+    full = runs.RunResult(2, stats(), stats(), 1.0, [runs.Seen(0, 7, "fit", 1.5, line)], {})
+    a, b = runs.summarise(run, truth), runs.summarise(full, truth)
     assert (a.own_fit, a.fit_ms, a.accuracy["all"].errors) == (b.own_fit, b.fit_ms, b.accuracy["all"].errors)
 
 
 def test_truth_by_seq_is_the_simulators_contact() -> None:
-    truth = acq.scene_truth("moving", 1000.0)
+    truth = runs.scene_truth("moving", 1000.0)
     sim = FingerSimulator(scene="moving", seed=3, rate_hz=1000.0)
     sim.skip(2 * sim.ticks_per_pass - 300)  # across the loop
     for _ in range(600):
@@ -71,28 +73,28 @@ def test_truth_by_seq_is_the_simulators_contact() -> None:
 
 def test_tare_window_lies_in_the_first_long_idle(monkeypatch: pytest.MonkeyPatch) -> None:
     for scene in ("moving", "demo", "press"):
-        lo, hi = acq.tare_window(scene, 1000.0)
+        lo, hi = runs.tare_window(scene, 1000.0)
         sc = named_scene(scene)
         assert all(sc.contact_at(k / 1000.0) is None for k in range(lo, hi + 250))  # + settling
     monkeypatch.setitem(SCENES, "busy", lambda g: (
         SceneBuilder(Pose(x0=10, y0=10)).idle(0.2).press(0.5, force=1.0).release(0.5).build("busy")))
-    assert acq.tare_window("busy", 1000.0) is None  # no idle of 0.4 s
+    assert runs.tare_window("busy", 1000.0) is None  # no idle of 0.4 s
 
 
 def test_errors_in_reporting_units() -> None:
     c = Contact(10.0, math.inf, 170.0, 1.0, 5.0, 6.0)
-    assert acq.abs_error("r1_mm", 11.0, c) == pytest.approx(10.0)
-    assert acq.abs_error("force_n", 0.9, c) == pytest.approx(10.0)
-    assert acq.abs_error("angle_deg", 5.0, c) == pytest.approx(15.0)  # across the fold at 180
-    assert acq.abs_error("x_mm", 5.02, c) == pytest.approx(20.0)
-    assert acq.abs_error("y_mm", 5.99, c) == pytest.approx(10.0)
-    assert acq.abs_error("angle_deg", 5.0, Contact(8.0, 8.0, 90.0, 1.0, 5.0, 6.0)) is None
-    assert [acq.indentor(Contact(r, r2)) for r, r2 in ((8, 8), (0.5, math.inf), (10, math.inf), (5, 9))] \
+    assert runs.abs_error("r1_mm", 11.0, c) == pytest.approx(10.0)
+    assert runs.abs_error("force_n", 0.9, c) == pytest.approx(10.0)
+    assert runs.abs_error("angle_deg", 5.0, c) == pytest.approx(15.0)  # across the fold at 180
+    assert runs.abs_error("x_mm", 5.02, c) == pytest.approx(20.0)
+    assert runs.abs_error("y_mm", 5.99, c) == pytest.approx(10.0)
+    assert runs.abs_error("angle_deg", 5.0, Contact(8.0, 8.0, 90.0, 1.0, 5.0, 6.0)) is None
+    assert [runs.indentor(Contact(r, r2)) for r, r2 in ((8, 8), (0.5, math.inf), (10, math.inf), (5, 9))] \
         == ["sphere", "edge", "cylinder", "general"]
 
 
 def test_shares_latency_and_accuracy_of_a_run() -> None:
-    truth = acq.scene_truth("moving", 1000.0)
+    truth = runs.scene_truth("moving", 1000.0)
     base = 5450 * 3  # a later pass: the truth repeats
     rolling = [base + 700 + k for k in range(10)]  # the cylinder rolling at 20 mm/s
     assert all(truth(s) is not None for s in rolling)
@@ -100,18 +102,18 @@ def test_shares_latency_and_accuracy_of_a_run() -> None:
     # frames 0, 4, 8: fitted exactly; 1-3, 5-7: reused; 9: superseded (no estimate)
     for k, seq in enumerate(rolling[:9]):
         if k % 4 == 0:
-            seen.append(acq.Seen(0, seq, "fit", 2.0, fit_line(truth(seq))))
+            seen.append(runs.Seen(0, seq, "fit", 2.0, fit_line(truth(seq))))
         else:
             fitted = rolling[k - k % 4]
-            seen.append(acq.Seen(0, seq, "unchanged", 0.5, fit_line(truth(fitted))))
-    seen.append(acq.Seen(1, base + 200, "no_contact", 0.1, fit_line(None)))  # idle: right
-    seen.append(acq.Seen(1, base + 201, "fit", 3.0, fit_line(truth(rolling[0]))))  # phantom
-    seen.append(acq.Seen(2, rolling[0], "fit", 4.0, fit_line(truth(rolling[0]), r1_mm=None)))
-    seen.append(acq.Seen(2, rolling[1], "no_contact", 0.1, fit_line(None)))  # missed
+            seen.append(runs.Seen(0, seq, "unchanged", 0.5, fit_line(truth(fitted))))
+    seen.append(runs.Seen(1, base + 200, "no_contact", 0.1, fit_line(None)))  # idle: right
+    seen.append(runs.Seen(1, base + 201, "fit", 3.0, fit_line(truth(rolling[0]))))  # phantom
+    seen.append(runs.Seen(2, rolling[0], "fit", 4.0, fit_line(truth(rolling[0]), r1_mm=None)))
+    seen.append(runs.Seen(2, rolling[1], "no_contact", 0.1, fit_line(None)))  # missed
     before = stats()
     after = stats(thumb=counters(frames=10, superseded=1, predicted=2), index=counters(frames=2),
                   middle=counters(frames=2, stale=1))
-    a = acq.summarise(acq.RunResult(2, before, after, 1.0, seen, {}), truth)
+    a = runs.summarise(runs.RunResult(2, before, after, 1.0, seen, {}), truth)
     assert (a.own_fit, a.reused, a.superseded, a.unanswered) == (5, 6, 1, 1)
     assert a.predicted == 2 and a.share(a.predicted) == "15.4 %"  # of the reuses, not beside
     assert a.contact == 13 and a.frames == 14
@@ -130,17 +132,17 @@ def test_a_finger_that_never_sees_its_contact_end_is_marked_locked() -> None:
     """The moving scene leaves a finger untouched 15.6 % of the time (0.85 s of 5.45 s): over
     20 000 frames about 3100 "no contact" frames; under a tenth of that, the finger is locked
     in contact (the zeroer's known limitation), and its run is marked so."""
-    untouched = acq.untouched_share("moving", 1000.0)
-    truth = acq.scene_truth("moving", 1000.0)
+    untouched = report.untouched_share("moving", 1000.0)
+    truth = runs.scene_truth("moving", 1000.0)
     assert untouched == sum(truth(k) is None for k in range(5450)) / 5450
     assert 0.15 < untouched < 0.16
     before = stats()
     after = stats(thumb=counters(frames=20000, free=3000), index=counters(frames=20000, free=250),
                   middle=counters(frames=20000, free=0))
-    run = acq.RunResult(2, before, after, 20.0, [], {})
-    assert acq.locked_fingers(run, untouched) == ["index", "middle"]
+    run = runs.RunResult(2, before, after, 20.0, [], {})
+    assert report.locked_fingers(run, untouched) == ["index", "middle"]
     after["sensors"]["index"]["skipped"]["no_contact"] = 350  # above a tenth: free
-    assert acq.locked_fingers(run, untouched) == ["middle"]
+    assert report.locked_fingers(run, untouched) == ["middle"]
 
 
 @pytest.mark.parametrize("workers, seconds", [
@@ -168,12 +170,12 @@ def test_the_moving_scene_on_ptys_with_a_workers_sweep(table_rows, workers: str,
         assert own + reused + superseded + lost == pytest.approx(100.0, abs=0.25)
         assert 0.0 <= predicted <= reused  # predicted frames go out as reuses
         assert len(r[7].split(" / ")) == 2  # latency p50 / p99
-        assert r[13] == "none" or set(r[13].split(", ")) <= set(acq.FINGERS)
+        assert r[13] == "none" or set(r[13].split(", ")) <= set(runs.FINGERS)
     accuracy = rows("| workers | estimates of |")
     kinds = {(r[0], r[1]) for r in accuracy}
     assert {(w, "all") for w in sweep} | {(sweep[-1], "own fits")} <= kinds
     integrity = rows("| workers | finger |")
-    assert len(integrity) == 3 * len(sweep) and {r[1] for r in integrity} == set(acq.FINGERS)
+    assert len(integrity) == 3 * len(sweep) and {r[1] for r in integrity} == set(runs.FINGERS)
     assert all(r[-1] == "0" for r in integrity), integrity  # every frame accounted for
 
 
@@ -250,9 +252,9 @@ def test_a_tare_is_repeated_until_the_baseline_forms_on_untouched_frames() -> No
             self.tared.append(sensor)
 
     rate, per_pass = 1000.0, 5450
-    window = acq.tare_window("moving", rate)
+    window = runs.tare_window("moving", rate)
     daemon = FakeDaemon()
-    tarer = acq._Tarer(daemon, window, per_pass, rate, acq.scene_truth("moving", rate))
+    tarer = acq._Tarer(daemon, window, per_pass, rate, runs.scene_truth("moving", rate))
     lo = window[0]
     # thumb: tared in the window, then a starved simulator skips into the next contact
     tarer.frame("thumb", 100)  # touching, outside the window: nothing

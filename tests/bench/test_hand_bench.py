@@ -10,18 +10,19 @@ import sys
 
 import pytest
 
-from tactiled_bench import acquisition as acq
+from tactiled_bench import acquisition_report as report
+from tactiled_bench import acquisition_runs as runs
 from tactiled.sim import HAND_PARTS
 
 TACTILED = [sys.executable, "-m", "tactiled.cli", "bench", "--no-progress"]
 
 
 def test_the_hand_devices_and_their_timeline() -> None:
-    devs = acq.devices("hand")
+    devs = runs.devices("hand")
     assert [d.name for d in devs] == list(HAND_PARTS)
     assert {d.description for d in devs} == {"flat16", "fearing1988"}
     # the timeline says whether each part touches: every part's contacts start and end together
-    truth = acq.scene_truth("hand", 1000.0)
+    truth = runs.scene_truth("hand", 1000.0)
     from tactiled.sensors import load_description
     from tactiled.sim import named_scene
 
@@ -29,7 +30,7 @@ def test_the_hand_devices_and_their_timeline() -> None:
         sc = named_scene(d.scene, load_description(d.description).sensor_model().geometry)
         for k in range(0, 4000, 7):
             assert (truth(k) is None) == (not sc.contacts_at(k / 1000.0))
-    lo, hi = acq.tare_window("hand", 1000.0)
+    lo, hi = runs.tare_window("hand", 1000.0)
     assert all(truth(k) is None for k in range(lo, hi + 300))
 
 
@@ -94,9 +95,9 @@ def test_a_run_without_collections_recorded_says_so() -> None:
     """A baseline's code records no collections: its figures are None, not 0."""
     from types import SimpleNamespace
 
-    assert acq.garbage_collection(SimpleNamespace()) == {  # type: ignore[arg-type]
+    assert report.garbage_collection(SimpleNamespace()) == {  # type: ignore[arg-type]
         "collections": None, "total_ms": None, "max_ms": None}
-    assert acq.garbage_collection(SimpleNamespace(gc_s=[0.002, 0.0005])) == {  # type: ignore[arg-type]
+    assert report.garbage_collection(SimpleNamespace(gc_s=[0.002, 0.0005])) == {  # type: ignore[arg-type]
         "collections": 2, "total_ms": pytest.approx(2.5), "max_ms": pytest.approx(2.0)}
 
 

@@ -6,17 +6,22 @@ against the simulator's truth (benchmarks/tactiled_bench/live_sensors.py).
 Bars: no value bit-identical for more than ``MAX_CARRIED`` + 1 estimates while its contact
 moves; no estimate listing a second contact on a pad touched once; at least 85 % of the
 published values within 2 of their sigmas; the share of estimates with a value beyond 4
-sigma under 5 % (what this pad gives: 2.6 %, docs/performance/fit-time.md; the 1 % the
-paper's finger and the 16x16 pad meet is not met on the coarse pads).
+sigma under 5 % on the XELA 4x4 pad and, the live bar, under 1 % on the paper's finger and
+the XELA 4x6 pad (every built-in description: ``-m slow``, about 2 minutes), with nothing
+stale.
 """
 
 from __future__ import annotations
 
 import math
 
+import pytest
+
 from tactiled_bench import live_sensors
+from tactiled.fit.params import VALUE_KEYS
+from tactiled.fit.verdict import ArrayLimits, ellipse_of
 from tactiled.pipeline.gate import MAX_CARRIED
-from tactiled.sensors import load_description
+from tactiled.sensors import builtin_names, load_description
 
 
 def test_the_daemon_on_a_coarse_pad_against_the_truth() -> None:
@@ -61,3 +66,82 @@ def test_the_daemons_tracked_radii_on_a_coarse_pad_stay_within_their_sigmas() ->
             far.append((tick, r, sd, c.r1))
     assert held >= 20, held  # withheld while the frames do not resolve it
     assert not far, far
+
+
+#: The live bar: no more than this share of a description's contact estimates carries a value
+#: beyond ``live_sensors.FAR_SIGMAS`` of its sigma from the simulator's truth.
+LIVE_BAR = 0.01
+#: Descriptions whose simulated finger the daemon does not yet keep within the bar (what is
+#: left there: weak lines' fits, docs/performance/fit-time.md)
+_NOT_YET = {"robotiq_tsf85": "a weak line's fitted orientation and place, 1.2 % of estimates",
+            "flexitac_12x32": "a weak line's fitted orientation and place on the 12x32 mat, "
+                              "5 % of estimates"}
+
+
+def _live_bar(s: dict) -> None:
+    c = s["counts"]
+    assert c["contact_estimates"] >= 1000, c
+    assert c["phantom"] == 0, c
+    assert max(s["stale"].values()) <= MAX_CARRIED + 1, s["stale"]
+    assert c["with_far"] <= LIVE_BAR * c["contact_estimates"], (c, s["far"])
+    # withholding is not how the bar is met: at most 40 % of the values (the demo's line is
+    # 10 mm at 1 N, whose radius no flat description here resolves: those radii are most of it)
+    assert sum(s["withheld"].values()) <= 0.4 * sum(s["n"].values()), s["withheld"]
+
+
+def _nothing_stale(desc, estimates: list) -> tuple[int, int]:
+    """Every published estimate of a contact says how old its values are (``frames_used``; a
+    reused one its fit's frame and ``reasons["carried"]``), and its ellipse is the one its
+    published values give for that frame (null with a reason where they give none).  Returns
+    how many were carried and how many ellipses were compared."""
+    limits = ArrayLimits.of(desc.sensor_model())
+    carried = checked = 0
+    for _, fit in estimates:
+        if not fit.get("contact"):
+            continue
+        assert (fit.get("frames_used") or 0) >= 1, fit
+        why = fit["reasons"].get("carried")
+        if why is not None:
+            carried += 1
+            assert "frame(s) earlier" in why and fit["frames_used"] == 1, fit
+        if fit.get("label") == "line" or fit.get("line") is not None:
+            continue
+        want = ellipse_of({k: fit.get(k) for k in VALUE_KEYS}, limits)
+        if want is None:
+            assert fit.get("ellipse") is None and fit["reasons"].get("ellipse"), fit
+        else:
+            checked += 1
+            got = fit["ellipse"]
+            for key in ("a_mm", "b_mm", "theta_deg"):
+                assert got[key] == pytest.approx(want[key], rel=1e-9, abs=1e-9), (got, want)
+    return carried, checked
+
+
+def test_no_stale_and_no_confident_wrong_value_live_on_a_coarse_pad() -> None:
+    """XELA 4x6 (4.7 mm pitch): a light ball first fitted as a plane (the tracker then held its
+    curvature and published forces 4-8 sigmas low), a weak line reused for frames it moved in
+    (its angle and place carried beyond 4 sigmas).  Through the daemon, against the truth:
+    within the live bar, and nothing stale."""
+    desc = load_description("xela_uskin_4x6")
+    estimates = live_sensors.play(desc, 100.0, seed=1)
+    _live_bar(live_sensors.score(desc, 100.0, 1, estimates))
+    carried, _ = _nothing_stale(desc, estimates)
+    assert carried >= 50, carried
+
+
+def test_the_live_bar_on_the_papers_finger() -> None:
+    """The paper's finger (tracked cylinders and spheres, each with its Hertz ellipse):
+    within the live bar, and every ellipse the one its tracked values give."""
+    desc = load_description("fearing1988")
+    estimates = live_sensors.play(desc, 100.0, seed=1)
+    _live_bar(live_sensors.score(desc, 100.0, 1, estimates))
+    _, checked = _nothing_stale(desc, estimates)
+    assert checked >= 500, checked
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [
+    pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=_NOT_YET[n])) if n in _NOT_YET
+    else n for n in builtin_names()])
+def test_the_live_bar_on_every_builtin_description(name: str) -> None:
+    _live_bar(live_sensors.score(load_description(name), 100.0, 1))

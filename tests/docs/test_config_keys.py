@@ -27,7 +27,7 @@ def existing_keys() -> set[str]:
             keys |= {f"{section}.{key}" for key in table}
         elif isinstance(table, list):
             keys |= {f"{section}[i].{key}" for key in table[0]}
-    for section, checks in getattr(settings_module, "_SECTIONS", {}).items():
+    for section, checks in settings_module.SECTIONS.items():
         keys |= {f"{section}.{key}" for key in checks}
     keys |= {f"sensor[i].{key}" for key in SENSOR_FIELDS}
     return keys

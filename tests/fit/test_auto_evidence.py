@@ -1,5 +1,5 @@
 """``auto`` gives a ``general`` contact only on evidence: its two extra parameters must buy
-their ``ln n`` each against the sphere at its best (tactiled/fit/fitter.py ``_fit_auto``).
+their ``ln n`` each against the sphere at its best (tactiled/fit/auto.py ``ModelSelector.fit``).
 
 A light ball on the XELA 4x6 pad (4.7 mm pitch, peak 3-10 noise sigmas): the sphere's
 scout, started from the cylinder's point, can stop far above the noise (chi^2 190 where the

@@ -94,7 +94,7 @@ def test_the_compiled_line_search_is_the_python_one(flat16) -> None:
     """The line model's compiled search (kind LINE) against the Python solver on the same
     residual and start: the same steps, the same end."""
     from tactiled.fit import compiled
-    from tactiled.fit.fitter import _LINE_BOUNDS
+    from tactiled.fit.search import LINE_BOUNDS as _LINE_BOUNDS
     from tactiled.fit.line import STEPS
     from tactiled.fit.solver import levenberg_marquardt
 

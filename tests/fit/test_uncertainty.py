@@ -76,7 +76,7 @@ def test_the_mismatch_quantile_is_scipy_stats_chi2() -> None:
     the same numbers as ``scipy.stats.chi2.ppf``, bit for bit, for every window size."""
     from scipy.stats import chi2
 
-    from tactiled.fit.fitter import MISMATCH_LEVEL, _chi2_limit
+    from tactiled.fit.search import MISMATCH_LEVEL, _chi2_limit
 
     for dof in range(1, 300):
         assert _chi2_limit(dof) == chi2.ppf(MISMATCH_LEVEL, dof)

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from tactiled.sensors.model import NoiseModel, SensorModel
-from tactiled.fit.fitter import CONVERGED_CHI2, FitOptions, Fitter
+from tactiled.fit.fitter import FitOptions, Fitter
+from tactiled.fit.search import CONVERGED_CHI2
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 from tactiled.sim import add_noise

@@ -7,4 +7,5 @@ plug-in.  Worker processes are real (forkserver children running the real fitter
 
 from __future__ import annotations
 
-from procs import arun, no_leftover_workers  # noqa: F401 - fixtures, shared with reliability
+from procs import (  # noqa: F401 - fixtures, shared with reliability
+    arun, hookable_workers, no_leftover_workers)

@@ -15,7 +15,7 @@ import pytest
 from tactiled.fit.flatfield import FlatField
 from tactiled.pipeline import Daemon, learned
 from tactiled.sensors import load_description
-from tactiled.settings import load_settings
+from tactiled.settings import default_state_dir, load_settings
 
 #: A finger whose tactels depart from the model (5 % gains, 0.1 mm positions), pressed over
 #: and over; every contact frame fitted (no tracker, no reuse) so the flat field learns fast.
@@ -151,9 +151,9 @@ def test_the_right_file_is_applied_and_a_corrupt_one_refused(tmp_path: Path, aru
 
 
 def test_the_state_directory_defaults(tmp_path: Path) -> None:
-    assert learned.default_state_dir({"STATE_DIRECTORY": "/var/lib/tactiled"}) == Path("/var/lib/tactiled")
-    assert learned.default_state_dir({"XDG_STATE_HOME": "/x"}) == Path("/x/tactiled")
-    assert learned.default_state_dir({"HOME": "/home/u"}) == Path("/home/u/.local/state/tactiled")
+    assert default_state_dir({"STATE_DIRECTORY": "/var/lib/tactiled"}) == Path("/var/lib/tactiled")
+    assert default_state_dir({"XDG_STATE_HOME": "/x"}) == Path("/x/tactiled")
+    assert default_state_dir({"HOME": "/home/u"}) == Path("/home/u/.local/state/tactiled")
     cfg = tmp_path / "t.toml"
     cfg.write_text('[state]\ndir = "here"\n')
     assert load_settings(cfg).state.directory() == tmp_path / "here"

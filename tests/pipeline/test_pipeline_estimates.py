@@ -23,6 +23,7 @@ from pipeline_helpers import (
     strict_json,
     write_recording,
 )
+from worker_hooks import hang
 
 from tactiled.errors import ConfigError
 from tactiled.frames import Frame
@@ -176,7 +177,7 @@ async def _settled_daemon(source: QueueSource, **sensor: object) -> tuple[Daemon
     return daemon, estimates
 
 
-def test_a_result_older_than_the_last_estimate_is_dropped(arun) -> None:
+def test_a_result_older_than_the_last_estimate_is_dropped(arun, hookable_workers) -> None:
     source = QueueSource()
     settle = make_frames([], settle=SETTLE_FRAMES)
     pressed = make_frames(contact_path(1), settle=0, start_seq=SETTLE_FRAMES)[0]
@@ -190,7 +191,7 @@ def test_a_result_older_than_the_last_estimate_is_dropped(arun) -> None:
         sensor = daemon.sensors["finger0"]
         # Keep the worker busy for 0.3 s (under the 1 s fit timeout): the fit of the pressed
         # frame queues behind it, and the release frame is published first.
-        assert daemon.pool.debug_sleep(0, 0.3) is not None
+        assert hang(daemon.pool, 0, 0.3) is not None
         source.put(pressed)
         while not sensor.stats().in_flight:
             await asyncio.sleep(0.001)
@@ -316,7 +317,8 @@ def test_runtime_config_tare_and_unknown_sensors(arun) -> None:
     assert len(after_tare) == 5 and not any(e.contact for e in after_tare)
 
 
-def test_stop_is_graceful_and_flushes_the_recording(tmp_path: Path, arun) -> None:
+def test_stop_is_graceful_and_flushes_the_recording(tmp_path: Path, arun,
+                                                   hookable_workers) -> None:
     frames = make_frames(contact_path(100), seed=7)
     url = f"replay://{write_recording(tmp_path / 'in.tact', frames, period_s=0.002)}?speed=1"
     overrides = {"sensor[0].url": url, "record.path": str(tmp_path / "{sensor}.tact"),
@@ -328,7 +330,7 @@ def test_stop_is_graceful_and_flushes_the_recording(tmp_path: Path, arun) -> Non
         sensor = daemon.sensors["finger0"]
         while sensor.frames < SETTLE_FRAMES + 20:
             await asyncio.sleep(0.005)
-        daemon.pool.debug_sleep(0, 30.0)  # a worker that will not finish: stop must kill it
+        hang(daemon.pool, 0, 30.0)  # a worker that will not finish: stop must kill it
         await asyncio.sleep(0.05)
         t0 = time.monotonic()
         await daemon.stop(timeout=0.3)

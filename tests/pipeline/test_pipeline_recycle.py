@@ -19,7 +19,7 @@ from pipeline_helpers import (
 from procs import alive
 
 from tactiled.pipeline import Daemon
-from tactiled.pipeline import pool as pool_module
+from tactiled.pipeline import supervision
 from tactiled.settings import load_settings
 
 
@@ -34,7 +34,7 @@ def test_recycled_workers_lose_no_fit_in_a_lossless_replay(tmp_path: Path, arun)
     overrides = {"sensor[0].url": f"replay://{path}?speed=0", "fit.workers": 1,
                  "fit.max_fits_per_worker": 25, "sensor[0].model": "cylinder",
                  "sensor[0].reuse_unchanged": False}
-    first_pid = len(pool_module.SPAWNED_PIDS)
+    first_pid = len(supervision.SPAWNED_PIDS)
 
     async def main() -> tuple[list, dict, dict, list[dict]]:
         daemon = Daemon(load_settings(None, {}, overrides), lossless=True)
@@ -79,7 +79,7 @@ def test_recycled_workers_lose_no_fit_in_a_lossless_replay(tmp_path: Path, arun)
     assert all(r["old_stopped_at"] is None or r["old_stopped_at"] >= r["successor_ready_at"]
                for r in recycles), recycles
     assert workers["last_recycle"]["old_fits"] >= 25
-    started = pool_module.SPAWNED_PIDS[first_pid:]
+    started = supervision.SPAWNED_PIDS[first_pid:]
     assert len(set(started)) == 1 + workers["recycles"]
     assert not [p for p in started if alive(p)]  # every retired worker has exited
 

@@ -78,7 +78,9 @@ def test_environment_can_add_a_sensor_and_paths_are_relative_to_the_file(tmp_pat
 @pytest.mark.parametrize("text, env, overrides, message", [
     ('[[sensor]]\nurl = "replay://a"\n[[sensor]]\nurl = "foo://bar"\n', {}, {},
      "sensor[1].url: unknown scheme 'foo'"),
-    ('[[sensor]]\nurl = "sim://?seed=x"\n', {}, {}, "sensor[0].url: "),
+    ('[[sensor]]\nurl = "sim://?sed=1"\n', {}, {}, "sensor[0].url: "),
+    ('[[sensor]]\nurl = "serial:///dev/ttyUSB0?baud=9600&parity=odd"\n', {}, {},
+     "sensor[0].url: "),
     ('[[sensor]]\nurl = "replay://a"\nwindw = 4\n', {}, {}, "sensor[0].windw: unknown key"),
     ('[[sensor]]\nurl = "replay://a"\nmodel = "cone"\n', {}, {},
      "sensor[0].model: must be one of auto, cylinder, sphere, general"),
@@ -154,3 +156,41 @@ def test_the_example_config_is_valid_and_documents_every_key() -> None:
     keys += list(data["sensor"][0])
     missing = [k for k in keys if f"{k} =" not in text and f"# {k} =" not in text]
     assert not missing, f"deploy/tactiled.toml does not show {missing}"
+
+
+def test_a_bad_url_value_is_refused_when_the_daemon_builds_the_source(tmp_path: Path) -> None:
+    """The configuration checks a URL's scheme and keys without building its driver; the
+    driver checks the values when the daemon builds it, and the error still names the key."""
+    from tactiled.pipeline import Daemon
+
+    settings = load_settings(write(tmp_path, '[[sensor]]\nurl = "sim://?seed=x"\n'), {}, {})
+    assert settings.sensors[0].url == "sim://?seed=x"
+    with pytest.raises(ConfigError) as info:
+        Daemon(settings)
+    assert str(info.value).startswith("sensor[0].url: "), str(info.value)
+    assert "seed" in str(info.value)
+
+
+def test_loading_settings_imports_no_driver_and_no_pipeline(tmp_path: Path) -> None:
+    """A configuration of every shipped driver's URL loads (with each vendor device's own
+    description) in a fresh interpreter that never imports a driver module or the pipeline."""
+    import subprocess
+    import sys
+
+    cfg = write(tmp_path, "".join(f'[[sensor]]\nname = "s{i}"\nurl = "{url}"\n' for i, url in enumerate((
+        "serial:///dev/ttyUSB0?baud=115200", "sim://?scene=demo", "replay://r.tact",
+        "lines:///dev/ttyACM0?rows=8&cols=8", "flexitac:///dev/ttyUSB1", "robotiq:///dev/ttyUSB2",
+        "xela://localhost:5000?rows=4&cols=6", "paxini:///dev/ttyUSB3?rows=4&cols=4"))))
+    code = (
+        "import sys\n"
+        "from tactiled.settings import load_settings\n"
+        f"s = load_settings({str(cfg)!r}, {{}}, {{}})\n"
+        "print([x.description for x in s.sensors])\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('tactiled_drivers', 'tactiled.pipeline',"
+        " 'serial', 'websockets'))))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                         check=True).stdout.splitlines()
+    assert out[0] == str(["fearing1988", "fearing1988", "fearing1988", "fearing1988",
+                          "flexitac_12x32", "robotiq_tsf85", "xela_uskin_4x6", "fearing1988"])
+    assert out[1] == "[]"

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 from procs import leftover
+from worker_hooks import garble, hang
 from pipeline_helpers import (
     SETTLE_FRAMES,
     accounted,
@@ -27,7 +28,8 @@ from tactiled.sensors.model import DEFAULT_SENSOR
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import predict_strain
 from tactiled.pipeline import Daemon
-from tactiled.pipeline.pool import FitJob, WorkerPool
+from tactiled.pipeline.jobs import FitJob
+from tactiled.pipeline.pool import WorkerPool
 from tactiled.settings import FitSettings, load_settings
 
 
@@ -79,7 +81,7 @@ def test_sigkilled_worker_is_replaced_within_a_second(tmp_path: Path, arun) -> N
     assert st["frames"] == accounted(st)
 
 
-def test_hung_worker_is_killed_and_replaced(tmp_path: Path, arun) -> None:
+def test_hung_worker_is_killed_and_replaced(tmp_path: Path, arun, hookable_workers) -> None:
     # tracking off: every contact frame wants a fit of its own (the tracked case is in
     # test_sensor_tracking.py)
     overrides = {"sensor[0].url": live_stream(tmp_path, 500), "fit.timeout": 0.3,
@@ -96,7 +98,7 @@ def test_hung_worker_is_killed_and_replaced(tmp_path: Path, arun) -> None:
             await asyncio.sleep(0.002)
         superseded_before = sensor.superseded
         hung_at = time.monotonic()
-        victim = pool.debug_sleep(0, 30.0)  # the fit queued behind it never gets answered
+        victim = hang(pool, 0, 30.0)  # the fit queued behind it never gets answered
         assert victim is not None
         while pool.restarts == 0:
             assert time.monotonic() - hung_at < 3.0, "hung worker not noticed"
@@ -371,7 +373,8 @@ def test_workers_run_without_a_blas_thread_pool(tmp_path) -> None:
     script = tmp_path / "pool_env.py"
     script.write_text(
         "import asyncio, os\n"
-        "from tactiled.pipeline.pool import BLAS_THREADS, WorkerPool\n"
+        "from tactiled.pipeline.pool import WorkerPool\n"
+        "from tactiled.pipeline.supervision import BLAS_THREADS\n"
         "from tactiled.settings import FitSettings\n"
         "async def main():\n"
         "    pool = WorkerPool(1, FitSettings())\n"
@@ -388,7 +391,8 @@ def test_workers_run_without_a_blas_thread_pool(tmp_path) -> None:
     assert out.stdout.split() == ["1", "1", "1"], out.stdout
 
 
-def test_a_worker_answer_that_does_not_unpickle_replaces_the_worker(arun) -> None:
+def test_a_worker_answer_that_does_not_unpickle_replaces_the_worker(arun,
+                                                                    hookable_workers) -> None:
     """An answer this process cannot read (bytes that are no pickle; a worker of other code,
     an upgrade under a running daemon, would send one) costs that worker, counted as a
     protocol loss, not the event loop's callback: the replacement answers the next fit."""
@@ -399,7 +403,7 @@ def test_a_worker_answer_that_does_not_unpickle_replaces_the_worker(arun) -> Non
         owner = Owner(pool.register_spec(DEFAULT_SENSOR, (("window", 4),)))
         pool.attach(owner)
         await pool.start()
-        pid = pool.debug_garble(0)
+        pid = garble(pool, 0)
         t0 = time.monotonic()
         while pool.restarts == 0:
             assert time.monotonic() - t0 < 5, "the unreadable answer went unnoticed"

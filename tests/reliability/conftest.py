@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from procs import arun, no_leftover_workers  # noqa: F401 - fixtures, shared with pipeline
+from procs import (  # noqa: F401 - fixtures, shared with pipeline
+    arun, hookable_workers, no_leftover_workers)
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ import os, shutil, subprocess, sys, tempfile, time
 from pathlib import Path
 SRC = str(Path(__file__).resolve().parents[2])
 DST = tempfile.mkdtemp(prefix="tactiled-mut-") + "/repo"
-ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/drivers:{DST}/service")
+ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/benchmarks:{DST}/drivers:{DST}/service")
 PY = sys.executable
 
 MUTATIONS = [
@@ -39,10 +39,10 @@ MUTATIONS = [
  ("M6 decoder not reset on reconnect", "drivers/tactiled_drivers/serial.py",
   "        self.decoder.reset()", "        pass",
   ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
- ("M7 worker death not noticed (sentinel and EOF)", "tactiled/pipeline/pool.py",
+ ("M7 worker death not noticed (sentinel and EOF)", "tactiled/pipeline/supervision.py",
   '        if w.state in ("starting", "ready"):\n            self._lose(w, "died"', '        if False:\n            self._lose(w, "died"',
-  ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/pool.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
- ("M8 hung worker never killed", "tactiled/pipeline/pool.py",
+  ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/supervision.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
+ ("M8 hung worker never killed", "tactiled/pipeline/supervision.py",
   "                        if now - w.head_since > head.timeout:", "                        if False:",
   ["tests/reliability/test_worker_faults.py::test_hung_worker[2]"]),
  ("M8b fit time budget ignored", "tactiled/fit/fitter.py",

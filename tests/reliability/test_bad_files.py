@@ -19,7 +19,7 @@ from tactiled.calibration.fileformat import save_calibration
 from tactiled.calibration.lut import LookupTable
 from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon
-from tactiled.pipeline import pool as pool_module
+from tactiled.pipeline import supervision
 from tactiled.recording import HEADER_SIZE, RECORD_HEADER_SIZE, Recorder
 from tactiled.settings import load_settings
 
@@ -143,7 +143,7 @@ def test_truncated_and_invalid_config_files_are_refused(tmp_path: Path) -> None:
 
 
 def test_bad_calibration_files_are_refused_before_any_worker_starts(tmp_path: Path) -> None:
-    spawned = len(pool_module.SPAWNED_PIDS)
+    spawned = len(supervision.SPAWNED_PIDS)
     messages = {}
     for name, (path, expect) in _bad_calibrations(tmp_path).items():
         settings = load_settings(None, {}, {"sensor[0].url": "sim://?scene=press",
@@ -160,7 +160,7 @@ def test_bad_calibration_files_are_refused_before_any_worker_starts(tmp_path: Pa
                                         "sensor[0].calibration": str(tmp_path / "good.json")})
     with pytest.raises(ConfigError, match=f"calibration of sensor {SENSOR_ID}"):
         Daemon(settings)
-    assert len(pool_module.SPAWNED_PIDS) == spawned, "a worker started for a refused config"
+    assert len(supervision.SPAWNED_PIDS) == spawned, "a worker started for a refused config"
     figures("calibration_files_refused", messages=messages)
 
 

@@ -1,6 +1,6 @@
 """Fit worker faults under the real daemon: two fingers streaming over ptys (serial://) at
-500 Hz into a pool of two real worker processes, while a worker is SIGKILLed, hangs (the pool's
-``debug_sleep`` test hook), or is given work that makes the fitter raise.
+500 Hz into a pool of two real worker processes, while a worker is SIGKILLed, hangs
+(``worker_hooks.hang``), or is given work that makes the fitter raise.
 
 Bars: a lost worker is replaced (ready to fit) within 1 s and the restart is counted in health
 (``worker_restarts``); no estimate ever holds NaN/inf (``json.dumps(allow_nan=False)`` on every
@@ -38,6 +38,7 @@ from rel_helpers import (
     wait_for,
     wait_open,
 )
+from worker_hooks import hang
 
 from tactiled.frames import Frame, encode_frame
 from tactiled.pipeline import Daemon
@@ -196,7 +197,7 @@ async def _hangs(more_ptys, hangs: int, timeout: float) -> dict:
         for k in range(hangs):
             slot = k % pool.size
             t0 = time.monotonic()
-            victim = pool.debug_sleep(slot, 30.0)
+            victim = hang(pool, slot, 30.0)
             assert victim is not None
             noticed.append(await wait_for(lambda: victim not in pool.pids(), 5,
                                           f"hang {k} noticed"))
@@ -213,7 +214,7 @@ async def _hangs(more_ptys, hangs: int, timeout: float) -> dict:
 
 
 @pytest.mark.parametrize("hangs", [2, pytest.param(10, marks=pytest.mark.slow)])
-def test_hung_worker(more_ptys, arun, hangs: int) -> None:
+def test_hung_worker(more_ptys, arun, hookable_workers, hangs: int) -> None:
     timeout = 0.5
     r = arun(_hangs(more_ptys, hangs, timeout))
     # Noticed at the deadline (fit.timeout from when the worker could start on the request,

@@ -29,9 +29,9 @@ CONTACT_ARRAY_MSG = CONTACT_MSG.with_name("ContactArray.msg")
 #: ros2/tactiled_msgs reports (``ros2 interface show`` / ``ros2 topic info -v``).
 TACTILED_HASHES = {
     "tactiled_msgs/msg/Contact":
-        "RIHS01_f512bcfeecc8ff647860f7e421155b530aaef896debbe141253b032c5abb22fd",
+        "RIHS01_546e8129eb3b97c6489596dc81cb49dfcaa162f3a1323df4db7088a71095d2ca",
     "tactiled_msgs/msg/ContactArray":
-        "RIHS01_adb7fcd120b965c920f83a7bccf51bb3ec9fc0736723245b75c05cac06c4f436",
+        "RIHS01_d4a8bf810955d7afc5fd911539894650411c624b5f817acdc42ad3c4f3932475",
 }
 
 #: RIHS01 hashes as ROS 2 (Jazzy, Kilted) reports them, hard-coded from outside this project:
@@ -382,3 +382,20 @@ def test_watch_prints_fields_not_a_definitions_constants() -> None:
     assert plain(cls(x_mm=1.5, state=2)) == {"x_mm": 1.5, "state": 2}
     field = store.types["sensor_msgs/msg/PointField"](name="z", offset=8, datatype=7, count=1)
     assert plain(field) == {"name": "z", "offset": 8, "datatype": 7, "count": 1}
+
+
+def test_a_3axis_contacts_shear_and_slip_ride_in_the_contact_message() -> None:
+    """The JSON's shear and slip tables (docs/concepts/shear.md) as the Contact's fields, the
+    same names; null (mu withheld) as NaN; a 1-axis estimate has NaN and an empty state."""
+    shear = {"fx_n": 0.213, "fy_n": -0.087, "torque_nmm": 0.041, "q_over_p": 0.1796,
+             "mu": None, "slip_margin": None, "seq": 17,
+             "std": {"fx_n": 0.0031, "fy_n": 0.0029, "torque_nmm": 0.0052, "q_over_p": 0.0024,
+                     "mu": None, "slip_margin": None}}
+    est = {**ESTIMATE, "shear": shear, "slip": {"state": "partial", "lam": 0.41, "lam_std": 0.12}}
+    msg = decode("contact", m.serialize(m.contact(est, STAMP, "xela"), m.TYPES["contact"]))
+    for key in ("fx_n", "fy_n", "torque_nmm", "q_over_p", "mu", "slip_margin"):
+        assert same(getattr(msg, key), shear[key]), key
+        assert same(getattr(msg, f"std_{key}"), shear["std"][key]), key
+    assert msg.slip_state == "partial"
+    plain = decode("contact", m.serialize(m.contact(ESTIMATE, STAMP, "f"), m.TYPES["contact"]))
+    assert math.isnan(plain.fx_n) and math.isnan(plain.std_torque_nmm) and plain.slip_state == ""

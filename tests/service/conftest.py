@@ -30,7 +30,7 @@ from live import TEST_OPTIONS, LiveServer
 from procs import alive as pid_alive
 from svc_helpers import sim_settings
 
-from tactiled.pipeline import pool as pool_module
+from tactiled.pipeline import supervision
 from tactiled.settings import Settings
 from tactiled_service.options import ServiceOptions
 
@@ -174,7 +174,7 @@ def daemon_process() -> Callable[..., DaemonProcess]:
 def no_leftovers() -> Iterator[None]:
     """Fail a test that leaves a server thread, a `tactiled run` process or a fit worker
     running (servers of module fixtures excepted while they run)."""
-    first_pid = len(pool_module.SPAWNED_PIDS)
+    first_pid = len(supervision.SPAWNED_PIDS)
     servers_before = set(map(id, LiveServer.instances))
     procs_before = len(DaemonProcess.instances)
     yield
@@ -196,7 +196,7 @@ def no_leftovers() -> Iterator[None]:
              for pid in s.worker_pids()}
     deadline = time.monotonic() + 3.0
     while True:
-        alive = [p for p in pool_module.SPAWNED_PIDS[first_pid:]
+        alive = [p for p in supervision.SPAWNED_PIDS[first_pid:]
                  if p and p not in owned and pid_alive(p)]
         if not alive or time.monotonic() > deadline:
             break

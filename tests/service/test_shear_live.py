@@ -1,12 +1,13 @@
 """Shear and slip live: a real `tactiled run` (uvicorn) on a simulated 3-axis XELA server
 (`tactiled simulate --as xela --scene pull`, a real WebSocket server playing the 3-axis model's
-pull-until-slip scene) gives estimates with `shear` and `slip` tables over REST, and a
+pull-until-slip scene) gives estimates with `shear` and `slip` tables over REST, a
 WebSocket client subscribed to the `slip` stream alone receives the slip events and nothing
-else."""
+else, and a Zenoh subscriber to the sensor's `slip` key receives the same events."""
 
 from __future__ import annotations
 
 import asyncio
+import os
 import sys
 
 import numpy as np
@@ -15,6 +16,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from svc_helpers import http, recv_json, subscribe, wait_for, ws_connect
 from test_vendor_devices import first_line, write_config
+from test_zenoh import Collector, free_port, zconfig, zenoh
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux")
 
@@ -37,8 +39,13 @@ def test_slip_stream_and_shear_tables(daemon_process, tmp_path) -> None:
         addr = line.removeprefix("xela: ws://")
         config = write_config(tmp_path / "xela.toml", {"xela": f"xela://{addr}?sensor=1"},
                               {"xela": "xela_uskin_4x4"})
+        port = free_port()
         config.write_text(config.read_text() + "[fit]\nworkers = 1\nstartup_timeout = 300\n"
-                          + f'[record]\npath = "{tmp_path}/live"\nformat = "mcap"\n')
+                          + f'[record]\npath = "{tmp_path}/live"\nformat = "mcap"\n'
+                          + '[zenoh]\nenabled = true\nmulticast_scouting = false\n'
+                          + f'prefix = "shear/test"\nlisten = ["tcp/127.0.0.1:{port}"]\n')
+        reader = zenoh.open(zconfig("peer", connect=[f"tcp/127.0.0.1:{port}"]))
+        bus = Collector(reader, "shear/test/**")
         proc = daemon_process(["--config", str(config)])
         url = proc.wait_url()
         ws_url = url.replace("http://", "ws://") + "v1/stream"
@@ -75,6 +82,28 @@ def test_slip_stream_and_shear_tables(daemon_process, tmp_path) -> None:
         onset = next(m for m in events if m["event"] == "onset")
         assert isinstance(onset["seq"], int) and onset["time"] > 0
         assert onset["state"] == "slip"
+        # the same events on Zenoh, under P/<sensor>/slip, the stream's JSON
+        wait_for(lambda: any(m["event"] == "onset" and m["seq"] == onset["seq"]
+                             for m in bus.of("shear/test", "slip")), 30.0, poll=0.1,
+                 what="the onset on Zenoh")
+        zmsg = next(m for m in bus.of("shear/test", "slip") if m["seq"] == onset["seq"])
+        assert {k: v for k, v in zmsg.items() if k != "_text"} == onset
+        assert all(m["sensor"] == "xela" for m in bus.of("shear/test", "slip"))
+        bus.close()
+        reader.close()
+        # `tactiled watch --zenoh --slip` on the slip key alone prints the next event
+        import json
+        import subprocess
+
+        watch = subprocess.run(
+            [sys.executable, "-m", "tactiled.cli", "watch", "--zenoh", "--slip", "--connect",
+             f"tcp/127.0.0.1:{port}", "--key", "shear/test/xela/slip", "--count", "1"],
+            capture_output=True, text=True, timeout=120,
+            env={**os.environ, "TACTILED_ZENOH_MULTICAST_SCOUTING": "false"})
+        assert watch.returncode == 0, watch.stderr
+        line = json.loads(watch.stdout)
+        assert line["prefix"] == "shear/test" and line["type"] == "slip"
+        assert line["event"] in ("onset", "end") and line["sensor"] == "xela"
         async def frame_with_taxels() -> dict:
             async with ws_connect(ws_url) as ws:
                 await subscribe(ws, streams=["frames"])

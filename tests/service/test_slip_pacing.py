@@ -7,7 +7,7 @@ from __future__ import annotations
 from tactiled.pipeline.estimate import make_estimate
 from tactiled.pipeline.hub import Subscription
 from tactiled.pipeline.shear_track import SlipItem
-from tactiled_service.messages import Encoder
+from tactiled_service.json_messages import Encoder
 from tactiled_service.stream import PaceGroup, Spec
 
 

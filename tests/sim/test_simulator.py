@@ -11,9 +11,8 @@ from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.zeroing import Zeroer
 from tactiled.frames import FrameDecoder, encode_frame
 from tactiled.physics.strain import StrainModel
+from tactiled.sensors.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS
 from tactiled.sim import (
-    COUNTS_PER_STRAIN,
-    ZERO_STRAIN_COUNTS,
     DriftModel,
     FingerSimulator,
     FrameSchedule,

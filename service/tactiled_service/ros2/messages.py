@@ -52,6 +52,8 @@ DISTRO = "jazzy"
 _VALUE_KEYS = ("x_mm", "y_mm", "force_n", "r1_mm", "r2_mm", "angle_deg",
                "vx_mm_s", "vy_mm_s", "angle_rate_deg_s", "force_rate_n_s")
 _FIT_KEYS = ("rms", "peak", "condition", "latency_ms", "worker_ms", "fit_ms")
+#: Contact fields filled from the estimate's ``shear`` table (with their ``std_``).
+_SHEAR_KEYS = ("fx_n", "fy_n", "torque_nmm", "q_over_p", "mu", "slip_margin")
 #: tactiled health status -> diagnostic_msgs/DiagnosticStatus level (OK 0, WARN 1, ERROR 2,
 #: STALE 3): DEGRADED (a rate below nominal) is a warning, STALE (no estimates) is STALE.
 LEVELS = {"OK": 0, "WARN": 1, "DEGRADED": 1, "ERROR": 2, "STALE": 3}
@@ -246,6 +248,13 @@ def contact(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
         fields[f"std_{key}"] = _num(std.get(key))
     for key in _FIT_KEYS:
         fields[key] = _num(est.get(key))
+    shear = est.get("shear") or {}
+    shear_std = shear.get("std") or {}
+    for key in _SHEAR_KEYS:
+        fields[key] = _num(shear.get(key))
+        fields[f"std_{key}"] = _num(shear_std.get(key))
+    slip = est.get("slip") or {}
+    fields["slip_state"] = str(slip.get("state") or "")
     return _cls(CONTACT_TYPE)(**fields)
 
 

@@ -13,8 +13,9 @@ import time
 
 import pytest
 
-from tactiled.pipeline import pool as pool_module
-from tactiled.pipeline.pool import STARVED_MAX_S, WorkerPool, _Request, _Worker, cpu_state
+from tactiled.pipeline import supervision
+from tactiled.pipeline.pool import WorkerPool
+from tactiled.pipeline.supervision import STARVED_MAX_S, _Request, _Worker, cpu_state
 
 
 def test_cpu_state_reads_the_kernel() -> None:
@@ -39,7 +40,7 @@ def test_cpu_state_reads_the_kernel() -> None:
 def scripted(monkeypatch: pytest.MonkeyPatch) -> list[tuple[float, str]]:
     """The worker's (CPU s, state) as the test scripts them, one per read."""
     script: list[tuple[float, str]] = []
-    monkeypatch.setattr(pool_module, "cpu_state", lambda pid: script.pop(0))
+    monkeypatch.setattr(supervision, "cpu_state", lambda pid: script.pop(0))
     return script
 
 

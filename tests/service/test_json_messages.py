@@ -11,7 +11,7 @@ import pytest
 from tactiled.fit.result import FitResult
 from tactiled.physics.hertz import contact_ellipse_radii
 from tactiled.pipeline.estimate import ZeroedFrame, make_estimate
-from tactiled_service.messages import SCHEMA_VERSION, Encoder, display_ellipse
+from tactiled_service.json_messages import SCHEMA_VERSION, Encoder, display_ellipse
 
 
 def fit_line(**values) -> dict:

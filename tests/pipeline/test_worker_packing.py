@@ -1,10 +1,10 @@
-"""The fit request's arrays travel as bytes (tactiled.pipeline.messages) and come back equal."""
+"""The fit request's arrays travel as bytes (tactiled.pipeline.worker_packing) and come back equal."""
 
 import pickle
 
 import numpy as np
 
-from tactiled.pipeline.messages import dumps, pack_array, unpack_array
+from tactiled.pipeline.worker_packing import dumps, pack_array, unpack_array
 
 
 def test_arrays_round_trip_exactly_through_a_pickled_message() -> None:

@@ -1,0 +1,215 @@
+"""A line contact's fit: a cylinder on a flat array, over the tactels that see the line.
+
+The line's window follows it across the array (:mod:`tactiled.fit.linewindow`); the model is
+:mod:`tactiled.fit.line`'s (radius, angle, load per length, offset), searched by the one
+Levenberg-Marquardt (:mod:`tactiled.fit.search`), reported as model 'cylinder', label 'line'.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tactiled.fit import budget as fit_budget
+from tactiled.fit import compiled, search, uncertainty
+from tactiled.fit.line import FORCE_REASON as LINE_FORCE_REASON
+from tactiled.fit.line import PARAMS as LINE_PARAMS
+from tactiled.fit.line import STEPS as LINE_STEPS
+from tactiled.fit.line import LineProblem
+from tactiled.fit.linewindow import line_frame
+from tactiled.fit.models import VALUE_KEYS
+from tactiled.fit.profile import angle_profile, flat_below, withhold_flat
+from tactiled.fit.result import FitResult
+from tactiled.fit.search import LINE_BOUNDS, SCOUT_ITERATIONS, STOP_CHI2
+from tactiled.fit.solver import SolveResult
+from tactiled.physics.contact import LineContact
+
+if TYPE_CHECKING:
+    from tactiled.fit.fitter import Fitter, _Frame
+
+
+class LineFit:
+    """The line model's fit on one fitter's frames."""
+
+    def __init__(self, fitter: Fitter) -> None:
+        self.fitter = fitter
+        #: set by :meth:`fit`: auto's line stayed a scout (:meth:`ruled_out`)
+        self.scouted = False
+        #: set by :meth:`fit`: where the line passes and its load ``(x, y, load)``, even where
+        #: its values are withheld (auto's other models start there)
+        self.point: tuple[float, float, float] | None = None
+
+    def fit(self, strain: np.ndarray, start: np.ndarray | None,
+                  mask: np.ndarray | None, scout_first: bool = False,
+                  start_chi2: float | None = None) -> FitResult:
+        """A cylinder on a flat array: the line model on this frame's window.
+
+        ``scout_first`` (auto, cold): the first cold start is searched with a scout's iteration
+        cap and tolerance (:meth:`tactiled.fit.point.PointFit.fit`); where that rules the line out
+        (:meth:`ruled_out`) the scout is the answer and ``scouted`` is set,
+        else the search goes on from where it stopped, as a full fit."""
+        f = self.fitter
+        self.scouted = False
+        self.point = None
+        fr = self.frame(strain, mask)
+        if isinstance(fr, FitResult):
+            fr.model = "cylinder"
+            return fr
+        peak = fr.peak
+        prob = self.problem(fr)
+        if start is not None and np.shape(start) != (len(LINE_PARAMS),):
+            start = None  # a start of another model (a curved finger's cylinder): start cold
+        starts = ([np.asarray(start, dtype=float)] if start is not None
+                  else prob.starts(fr.clean, f.model.xs_full, f.model.ys_full, peak))
+        scout = None
+        if scout_first:
+            scout, _ = search.search(f, fr, compiled.LINE, starts[:1], LINE_STEPS, LINE_BOUNDS,
+                                    SCOUT_ITERATIONS, 1e-2, lambda: prob.residual_and_jacobian)
+            start_chi2 = scout.cost * peak * peak / f.sigma**2
+            # (a scout denied the flat allowance is over GRANT_CHI2_FACTOR >= 2 times a right
+            # model's chi^2: as far from a line as a converged scout the test rules out)
+            self.scouted = self.ruled_out(scout.converged, start_chi2, fr.n_points) \
+                or scout.message == fit_budget.DENIED
+            starts = [scout.p, *starts[1:]]
+        if self.scouted:
+            best, tried = scout, 1
+        else:
+            best, tried = search.search(f, fr, compiled.LINE, starts, LINE_STEPS, LINE_BOUNDS,
+                                       f.options.max_iter, STOP_CHI2,
+                                       lambda: prob.residual_and_jacobian,
+                                       start_chi2)
+            if scout is not None:
+                if best.jacobian.size == 0 and scout.jacobian.size:
+                    # the budget refused the search's first evaluation: the scout's point stands
+                    best = SolveResult(scout.p, scout.residual, scout.jacobian, scout.cost, 0, 0,
+                                       False, best.message)
+                best.iterations += scout.iterations
+                best.evaluations += scout.evaluations
+        reasons: dict[str, str] = {}
+        jraw = best.jacobian * peak
+        cov, condition = uncertainty.covariance(jraw, f.sigma)
+        if cov is None:
+            reasons.update(dict.fromkeys(("x_mm", "y_mm", "r1_mm", "angle_deg"),
+                                         "Jacobian singular: parameter not identifiable from this window"))
+        elif condition > uncertainty.ILL_CONDITION:
+            reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
+        values, std, line = prob.report(best.p, cov)
+        # where the line passes and its load, even if withheld below (auto's other starts)
+        self.point = (values["x_mm"], values["y_mm"], line["load_n_per_mm"])
+        reasons["force_n"] = LINE_FORCE_REASON
+        reasons["r2_mm"] = "infinite: cylinder model"
+        if search.stopped(best):
+            uncertainty.unsettled(f, best, peak, values, std, reasons)
+            if all(values.get(k) is None for k in VALUE_KEYS):
+                line = None  # the load and offset of a search stopped short are no measurement
+        uncertainty.unobservable(f, values, std, reasons)
+        if best.converged:
+            withhold_flat(values, std, reasons, flat_below(
+                f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
+                lambda: prob.residual_and_jacobian, best.cost * peak * peak / f.sigma**2,
+                values.get("r1_mm"), std.get("r1_mm")))
+            withhold_flat(values, std, reasons, angle_profile(
+                f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
+                lambda: prob.residual_and_jacobian, best.cost * peak * peak / f.sigma**2,
+                LINE_PARAMS.index("psi"), std.get("angle_deg")), "angle_deg")
+        else:
+            reasons.setdefault("fit", best.message)
+        label = uncertainty.label(f, values, "line")
+        if line is None:  # withheld: a search its budget stopped far from any line
+            label = None
+        return FitResult(
+            contact=True, model="cylinder", label="line" if label == "plane" else label,
+            values=values, std=std,
+            rms=math.sqrt(best.cost / max(fr.n_points, 1)),
+            chi2=best.cost * peak * peak / f.sigma**2,
+            iterations=best.iterations, evaluations=best.evaluations, converged=best.converged,
+            condition=condition, peak=peak, n_points=fr.n_points, window=fr.win, starts=tried,
+            message=best.message, reasons=reasons, params=tuple(best.p.tolist()), line=line,
+        )
+
+    def as_point(self, cyl: FitResult) -> tuple[float, float, float, float, float]:
+        """A cylinder fit as ``(ln R, psi, ln F, x0, y0)``, a start for the other models: on a
+        flat array the line's point nearest the window's peak, with the load over one cover
+        depth's length (the part of the line a sphere's start should explain)."""
+        f = self.fitter
+        p = cyl.params
+        if not f.sensor.geometry.flat:
+            return tuple(p)  # type: ignore[return-value]
+        x, y = cyl.values.get("x_mm"), cyl.values.get("y_mm")
+        load = (cyl.line or {}).get("load_n_per_mm") or 0.1
+        if (x is None or y is None) and self.point is not None:
+            x, y, load = self.point  # a line stopped short: its values withheld, not its place
+        if x is None or y is None:
+            g = f.sensor.geometry
+            x, y = 0.5 * g.span_x, 0.5 * g.span_y
+        if cyl.window is not None:  # slide along the line to the window's centre
+            r0, c0, nr, nc = cyl.window
+            g = f.sensor.geometry
+            wx, wy = (r0 + 0.5 * (nr - 1)) * g.dx, (c0 + 0.5 * (nc - 1)) * g.dy
+            c, s = math.cos(p[1]), math.sin(p[1])
+            t = (wx - x) * c + (wy - y) * s
+            x, y = x + t * c, y + t * s
+        depth = min(f.sensor.impulse.depth_x, f.sensor.impulse.depth_y)
+        return p[0], p[1], math.log(load * 4.0 * depth), x, y
+
+    def explains(self, cyl: FitResult) -> bool:
+        """On a flat array: the line fit converged with chi^2 consistent with the noise (the
+        test a warm fit's model is kept by).  Auto then keeps it without scouting the sphere
+        and the general ellipse: where the window shows a line, those can only follow it
+        into ever larger contacts (a circle, an ellipse running off the array), the costliest
+        searches a flat array's fit has, to land on what :meth:`tactiled.fit.auto.ModelSelector.runs_off` turns back into
+        the line."""
+        f = self.fitter
+        return f.sensor.geometry.flat and cyl.converged and search.consistent(f, cyl)
+
+    def ruled_out(self, converged: bool, chi2: float, n_points: int) -> bool:
+        """The line's scout converged (the next step would lower chi^2 by under its
+        tolerance: it sits at a minimum) with chi^2 over twice the most a right model reaches
+        (:func:`tactiled.fit.search.consistent`): solving on cannot bring it to the noise, so the window shows
+        no line (a ball's blob: tens to hundreds of times its degrees of freedom) and the
+        line stays a scout, ranked with the others and solved fully only if chosen."""
+        dof = max(n_points - len(LINE_PARAMS), 1)
+        return converged and chi2 > 2.0 * (dof + 3.0 * math.sqrt(2.0 * dof))
+
+    def frame(self, strain: np.ndarray, mask: np.ndarray | None) -> _Frame | FitResult:
+        """The line model's window: the tactels that see the line, along its whole length
+        (:func:`tactiled.fit.linewindow.line_frame`)."""
+        f = self.fitter
+        return line_frame(f, strain, mask)
+
+    def problem(self, fr: _Frame) -> LineProblem:
+        f = self.fitter
+        return LineProblem(f.sensor, fr.xs, fr.ys, fr.ex, fr.ey, fr.target, fr.valid,
+                           fr.inv_scale, f.options.tol)
+
+    def cramer_rao(self, strain: np.ndarray, contact: LineContact,
+                        window: int | None = None) -> dict[str, float | None]:
+        """1-sigma Cramer-Rao bounds of a line contact (a cylinder on a flat array) at the
+        truth ``contact``, for the window this fitter would choose on ``strain`` (with
+        ``window``: a square window of that side on the ridge,
+        :func:`tactiled.fit.linewindow.square_window`): ``r1_mm``, ``angle_deg``, ``x_mm``,
+        ``y_mm``, ``load_n_per_mm`` and ``offset_mm``."""
+        f = self.fitter
+        fr = line_frame(f, f.flattened(strain), None, window)
+        keys = ("x_mm", "y_mm", "r1_mm", "angle_deg", "load_n_per_mm", "offset_mm")
+        if isinstance(fr, FitResult):
+            return dict.fromkeys(keys)
+        prob = self.problem(fr)
+        psi = contact.psi
+        c = -math.sin(psi) * (contact.x0 - prob.ref[0]) + math.cos(psi) * (contact.y0 - prob.ref[1])
+        p = np.array([math.log(contact.r1), psi, math.log(contact.load), c])
+        _, jac = prob.residual_and_jacobian(p)
+        cov, _ = uncertainty.covariance(jac * fr.peak, f.sigma)
+        _, std, line = prob.report(p, cov)
+        return {**{k: std[k] for k in keys[:4]}, "load_n_per_mm": line["load_n_per_mm_std"],
+                "offset_mm": line["offset_mm_std"]}
+
+    def solve(self, strain: np.ndarray, scout: FitResult, mask: np.ndarray | None) -> FitResult:
+        """The line fully solved from where its scout stopped, counting the scout's
+        iterations and evaluations."""
+        full = self.fit(strain, np.asarray(scout.params), mask, start_chi2=scout.chi2)
+        full.iterations += scout.iterations
+        full.evaluations += scout.evaluations
+        return full

@@ -1,0 +1,147 @@
+"""A point contact's fit (paper secs. 6-7): a Hertz ellipse, one object per model.
+
+Residuals are taken over a window around the peak (4x4 by default), normalised by the peak
+strain; the search (:mod:`tactiled.fit.search`) works on the model's unconstrained parameters
+with the forward model's exact Jacobian.  The cylinder on a curved finger, the sphere and the
+general ellipse are each a :class:`PointFit`; a flat array's cylinder is the line
+(:mod:`tactiled.fit.linefit`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from tactiled.fit import compiled, search, uncertainty
+from tactiled.fit.models import Model
+from tactiled.fit.profile import flat_below, withhold_flat
+from tactiled.fit.result import FitResult
+from tactiled.fit.search import SCOUT_ITERATIONS, STOP_CHI2, bounds_of, steps_of
+from tactiled.fit.solver import SolveResult
+from tactiled.fit.start import start_point, start_table
+from tactiled.physics.hertz import Ellipse
+
+if TYPE_CHECKING:
+    from tactiled.fit.fitter import Fitter
+
+
+class PointFit:
+    """The fit of one point-contact model (``spec``: cylinder, sphere or general)."""
+
+    def __init__(self, fitter: Fitter, spec: Model) -> None:
+        self.fitter = fitter
+        self.spec = spec
+
+    def fit(
+        self,
+        strain: np.ndarray,
+        start: np.ndarray | None,
+        mask: np.ndarray | None,
+        scouting: bool = False,
+        start_chi2: float | None = None,
+    ) -> FitResult:
+        """Fit one model.  ``scouting`` (auto's candidate models) stops at a chi^2 decrease
+        below 0.01 and after ``SCOUT_ITERATIONS``: enough to rank models by an information
+        criterion, whose differences that matter are units of chi^2; the chosen one is then
+        solved fully.  ``start_chi2``: the chi^2 at ``start``, where a scout left it."""
+        f, model = self.fitter, self.spec
+        fr = f._window(strain, model, mask)
+        if isinstance(fr, FitResult):
+            return fr
+        peak, win, n_points = fr.peak, fr.win, fr.n_points
+        starts = [start] if start is not None else self.cold_starts(fr.clean, fr.peak_idx, model)
+        cap = SCOUT_ITERATIONS if scouting else f.options.max_iter
+        # stop once the next step would lower chi^2 by less than STOP_CHI2 (0.01 scouting): a
+        # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
+        best, tried = search.search(f, fr, compiled.KINDS[model.name], starts, steps_of(model),
+                                   bounds_of(model), cap, 1e-2 if scouting else STOP_CHI2,
+                                   lambda: f._residual(fr, model), start_chi2)
+        if scouting:  # only ranked by chi^2, then solved again in full if chosen: no report
+            return FitResult(contact=True, model=model.name, chi2=best.cost * peak * peak / f.sigma**2,
+                             iterations=best.iterations, evaluations=best.evaluations,
+                             converged=best.converged, peak=peak, n_points=n_points, window=win,
+                             starts=tried, message=best.message,
+                             params=tuple(best.p.tolist()))
+        res = self.result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
+        r1 = res.values.get("r1_mm")
+        if best.converged and r1 is not None and abs(math.log(r1) - best.p[0]) < 1e-9:
+            # every model's first parameter is a log radius: r1's, or the general's r_a
+            withhold_flat(res.values, res.std, res.reasons, flat_below(
+                f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
+                lambda: f._residual(fr, model), res.chi2, res.values.get("r1_mm"),
+                res.std.get("r1_mm")))
+        return res
+
+    def cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
+        """Up to ``max_starts`` starts from the start table's nearest shapes at the peak."""
+        f = self.fitter
+        # interpolated_peak, force_estimate and features in one compiled call
+        x0, y0, f0, feat = start_point(strain, peak_idx[0], peak_idx[1], float(strain.sum()),
+                                       *f._force_constants)
+        if f._starts is None:
+            f._starts = start_table(f.sensor)
+        cands = f._starts.candidates(feat, count=f.options.max_starts)
+        out = []
+        for c in cands:
+            if model.name == "general":
+                out.append(model.from_values(c.radius, c.radius / 0.04, c.psi_deg, f0, x0, y0))
+            else:
+                out.append(model.from_values(c.radius, math.inf, c.psi_deg, f0, x0, y0))
+            if model.name == "sphere":
+                break  # orientation plays no part
+        return out
+
+    def result(self, model: Model, sol: SolveResult, peak: float, win, n_points: int, starts: int,
+               zdata: np.ndarray, valid: np.ndarray) -> FitResult:
+        """The FitResult of the search ``sol``: values, their sigmas (widened where the frame
+        says so), and what is withheld (:mod:`tactiled.fit.uncertainty`)."""
+        f = self.fitter
+        reasons: dict[str, str] = {}
+        values, std, condition = uncertainty.bounds(f, model, sol.p, sol.jacobian * peak, reasons)
+        chi2 = sol.cost * peak * peak / f.sigma**2
+        stopped = search.stopped(sol)
+        if condition is not None and std.get("x_mm") is not None:
+            uncertainty.mismatch(f, model, sol, peak, zdata, chi2, std, reasons, win, valid, learn=not stopped)
+        if stopped:
+            uncertainty.unsettled(f, sol, peak, values, std, reasons)
+        tied = uncertainty.tied_force(f, model, sol, values, std)  # before the radius may be withheld
+        uncertainty.unobservable(f, values, std, reasons)
+        if model.name == "cylinder":
+            reasons.setdefault("r2_mm", "infinite: cylinder model")
+        if model.name == "sphere":
+            reasons.setdefault("angle_deg", "undefined: sphere model")
+        if model.name == "general" and values.get("r2_mm") is None:
+            reasons.setdefault("r2_mm", "infinite: fitted as a cylinder")
+        ell = Ellipse(*compiled.ellipse_at(compiled.KINDS[model.name], sol.p, f.model._rf,
+                                           f.model._k))
+        line = ell.a >= 0.0 and uncertainty.line_contact(f, ell, values, std, reasons)
+        if tied is not None and values.get("force_n") is not None:  # else withheld for another reason
+            values["force_n"] = std["force_n"] = None
+            reasons["force_n"] = tied
+        if not sol.converged:
+            reasons.setdefault("fit", sol.message)
+        rms = math.sqrt(sol.cost / max(n_points, 1))
+        return FitResult(
+            contact=True,
+            model=model.name,
+            label="line" if line else uncertainty.label(f, values, model.name),
+            values=values,
+            std=std,
+            rms=rms,
+            chi2=chi2,
+            iterations=sol.iterations,
+            evaluations=sol.evaluations,
+            converged=sol.converged,
+            condition=condition,
+            peak=peak,
+            n_points=n_points,
+            window=win,
+            starts=starts,
+            message=sol.message,
+            reasons=reasons,
+            params=tuple(sol.p.tolist()),
+            ellipse=({"a_mm": ell.a, "b_mm": ell.b, "theta_deg": math.degrees(ell.theta) % 180.0}
+                     if ell.a >= 0.0 else None),  # a < 0: an infinite line (an invalid start)
+        )
