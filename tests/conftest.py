@@ -247,7 +247,7 @@ class FeedableSource:
         from urllib.parse import quote
 
         if self.kind == "replay":
-            from tactiled.recording import Recorder
+            from tactiled.io.recording import Recorder
 
             path = self.tmp_path / "feed.tact"
             path.unlink(missing_ok=True)
@@ -283,3 +283,26 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if "slow" in item.keywords:
             item.add_marker(skip)
+
+
+# -- random lookup-table knots (the calibration tests and the calibration file's) -------------
+
+
+@pytest.fixture(scope="session")
+def random_knots():
+    """:func:`random_table_knots`."""
+    return random_table_knots
+
+
+def random_table_knots(rng: np.random.Generator, n: int, knots: int = 6):
+    """Random valid knots for ``n`` tactels: counts strictly increasing in 2000..60000, strain
+    non-decreasing with some flat runs."""
+    counts, strain = [], []
+    for _ in range(n):
+        k = int(rng.integers(2, knots + 1))
+        c = np.sort(rng.choice(np.arange(2000, 60000), k, replace=False)).astype(float)
+        c += rng.uniform(0, 0.9, k)  # fractional knots, as the builder writes
+        s = np.cumsum(rng.choice([0.0, 1.0], k, p=[0.2, 0.8]) * rng.uniform(0, 0.05, k))
+        counts.append(c)
+        strain.append(s - 0.01)
+    return counts, strain

@@ -29,7 +29,7 @@ from typing import Any
 #: Stage -> substrings of a stack frame ``function (file)`` that put a sample in it; matched
 #: from the innermost frame outwards, so the first stage met wins.
 STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("detector", ("ContactDetector.", "calibration/contact.py", "stage_kernel")),
+    ("detector", ("ContactDetector.", "calibration/detection.py", "stage_kernel")),
     ("calibration stage", ("CalibrationStage.", "Zeroer.", "Hysteresis", "LookupTable.",
                            "Segments.", "calibration/")),
     ("tracker step", ("Tracker.step", "Tracker._", "ContactTracking.track",
@@ -128,7 +128,7 @@ def stage_cost(description: str, scene: str, compiled: bool, frames: int = 300,
     path: the best of ``repeats`` runs of ``frames`` frames, after 300 frames of warm-up."""
     import time
 
-    from tactiled.calibration.contact import ContactDetector
+    from tactiled.calibration.detection import ContactDetector
     from tactiled.calibration.lut import LookupTable
     from tactiled.calibration.stage import CalibrationStage
     from tactiled.calibration.zeroing import Zeroer
@@ -184,7 +184,7 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
     from pathlib import Path
 
     from tactiled.pipeline import Daemon
-    from tactiled.recording import Recorder
+    from tactiled.io.recording import Recorder
     from tactiled.sensors import load_description
     from tactiled.settings import load_settings
     from tactiled.sim import FingerSimulator

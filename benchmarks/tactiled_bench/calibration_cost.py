@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.detection import ContactDetector
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.zeroing import Zeroer
 

@@ -1,59 +1,15 @@
-"""Soak: three simulated fingers at 1 kHz over real ptys, WebSocket subscribers (some of which
-never read), for minutes or hours.
+"""The soak: three simulated fingers at 1 kHz over real ptys into the full service, with
+WebSocket subscribers of which some never read, for minutes or hours (the bars and the runs:
+docs/performance/reliability.md, "Soak").
 
-Each finger is a ``tactiled simulate --pty`` process streaming a looping scene at ``--rate`` Hz:
-by default ``busy`` (:func:`tactiled_bench.scenes.busy_scene`), whose contact presses, rolls,
-turns and changes shape all the time, so the fit workers are kept busy (``--scene demo`` plays
-the demo scene, mostly held contacts that the gate answers without a fit).
-This process runs the service (:class:`tactiled_service.server.Service`: the daemon with its
-``serial://`` sensors read by pyserial, the fit worker pool, the hub, and uvicorn on 127.0.0.1,
-an ephemeral port) and nothing else, so its resident memory is the service's.  ``--subscribers
-N`` WebSocket subscribers (default 50) run in a child process of their own, so they neither
-add to the measured memory nor compete for its GIL: minimal raw-socket clients sharing one
-selector thread (:mod:`tactiled_bench.websocket_fanout`'s).  The healthy ones subscribe as the
-dashboard does (estimates of every sensor, ``--max-rate`` 30 Hz) and read everything;
-``--stalled K`` of them (default 5) subscribe the same way and never read: the server closes
-them (1013) once a send has been stuck for its send timeout, and they reconnect and stall
-again.  ``--subscribers 0`` runs the bare daemon (acquisition only).
-
-After ``--warmup`` seconds the run is measured for ``--seconds``:
-
-* memory: the service's RSS (and each fit worker's) sampled every ``--interval`` s; growth =
-  the largest sample minus the one at the end of the warm-up, and the slope of a line fitted
-  to the samples taken ``--settle`` s (300) after the start; the heap figures of the service
-  and, asked over the worker protocol (``memory``), of each worker (:mod:`tactiled.heapstats`:
-  RSS split into anonymous and file pages, malloc's and pymalloc's books, the fitter's
-  caches); and the service's open file descriptors (the most over 1 s) at the end of the
-  warm-up and at the end;
-* acquisition, per finger: frames decoded, frames lost (gaps in seq seen by the decoder),
-  chunks rejected, frames not accounted for by the pipeline (``frames - published -
-  superseded - ...``, corrected for a frame waiting or in flight).  Lost frames are attributed
-  by seq (a frame's seq is the simulator's tick index;
-  :func:`tactiled_bench.soak_children.simulator_main` records which seqs were never written
-  and why): *skipped* (the simulator, starved for more than a second, never generated the
-  frames it was late for), *overflowed* (its catch-up batch went over its own pending-bytes
-  limit before any write), both not the daemon's doing since they never reached the wire;
-  and *dropped* because the pty was full (the daemon did not read in time).  Over the seqs the window decoded, ``daemon_lost = lost - skipped - overflowed``,
-  and the decoder must have decoded every frame the simulators wrote in that range
-  (``frames == sent``: the rate over frames actually sent is 100 %);
-* subscribers: per healthy subscriber, delivery = estimates received / (messages the server
-  sent it + messages it dropped for it), from the server's own per-session counters once an
-  ``unsubscribe`` has flushed the connection; the closes of never-reading subscribers (1013)
-  and their reconnections;
-* CPU: this soak's processes (service, fit workers, simulators, subscribers) and the other
-  jobs on the machine (``/proc/stat`` minus this process tree), in cores;
-* the service's event loop: how often a 10 ms sleep woke more than 50 / 125 ms late (a pty
-  holds ~125 ms of a 1 kHz finger), and the fraction of the time the service's loop thread
-  and each simulator were runnable but waiting for a CPU (``/proc/PID/schedstat``).
-
-Bars (docs/performance/reliability.md), judged whatever the load: RSS growth under 5 MB, and, on runs whose
-samples after the settling span at least 10 minutes, an RSS slope under 1 MB per hour for the
-service and for every fit worker; no frame lost
-through the daemon's fault (``daemon_lost == 0``) and none dropped on a full pty, every frame
-written decoded, none rejected, duplicated or unaccounted, no disconnect; every healthy
-subscriber >= 99 % delivered and none closed; the never-reading ones closed and back; no
-descriptor leaked.  Frames the simulators never wrote, worker restarts and the CPU of other
-jobs are reported, not judged.
+This process runs the service and nothing else, so its resident memory is the service's; the
+simulators and the subscribers are child processes (:mod:`tactiled_bench.soak_children`), and
+what it samples is in :mod:`tactiled_bench.soak_meters`.  After ``--warmup`` s it measures for
+``--seconds``: the RSS and heap books of the service and of every fit worker (growth, and the
+slope after ``--settle`` s), open descriptors, per finger the frames lost by the daemon (told
+apart by seq from those a starved simulator never wrote), every subscriber's delivery and the
+never-reading ones' closes, CPU, and how late the event loop woke.  :func:`soak` returns the
+figures with each bar's verdict (``passed``).
 
     python -m tactiled_bench.reliability --quick          # 20 s (after a 60 s warm-up)
     python -m tactiled_bench.reliability                  # 10 min

@@ -28,7 +28,7 @@ from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.models import get_model
 from tactiled.physics.contact import Contact, LineContact
-from tactiled.physics.strain import StrainModel
+from tactiled.physics.strain import StrainModel, scaled_to_peak
 from tactiled.progress import Progress
 from tactiled.sensors import SensorDescription, builtin_names, load_description
 
@@ -99,16 +99,6 @@ def _angle_err(est: float, true: float) -> float:
     return (est - true + 90.0) % 180.0 - 90.0
 
 
-def _scaled(model: StrainModel, make, snr: float, sigma: float):
-    """The contact ``make(scale)`` whose noise-free peak strain is ``snr`` sigmas (two
-    passes: the peak is nearly linear in the load)."""
-    scale = 1.0
-    for _ in range(2):
-        peak = float(model.predict(make(scale)).max())
-        scale *= snr * sigma / peak
-    return make(scale)
-
-
 def _truths(desc: SensorDescription, kind: str, n: int, rng: np.random.Generator,
             model: StrainModel) -> list[Contact | LineContact]:
     g = model.sensor.geometry
@@ -129,7 +119,7 @@ def _truths(desc: SensorDescription, kind: str, n: int, rng: np.random.Generator
         else:
             make = lambda s, r=r, psi=psi, x0=x0, y0=y0: Contact(r, math.inf, psi, s, x0, y0)  # noqa: E731
         try:
-            out.append(_scaled(model, make, snr, sigma))
+            out.append(scaled_to_peak(model, make, snr * sigma))
         except ValueError:  # a contact too long for the planar model at that load: draw again
             continue
     return out

@@ -21,7 +21,7 @@ import numpy as np
 
 from tactiled_bench.runner import Progress
 from tactiled_bench.suite import issue_cylinder
-from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.detection import ContactDetector
 from tactiled.sensors.model import NoiseModel, SensorModel
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.physics.contact import Contact

@@ -1,4 +1,4 @@
-"""``tactiled bench --suite temporal``: the tracker against issue 17's bars, through the whole
+"""``tactiled bench --suite temporal``: the tracker against its bars, through the whole
 daemon (simulated finger -> wire bytes -> decoder -> table -> zeroing -> tracker and real fit
 workers), the estimates taken from the daemon's stream and compared with the scene's truth.
 

@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from typing import ClassVar
 
 from tactiled.errors import DriverError
-from tactiled.recording import RecordingReader
+from tactiled.io.recording import RecordingReader
 from tactiled.sources import FrameSource, Framer, SourceURL
 from tactiled_drivers.plumbing.futures import resolve
 

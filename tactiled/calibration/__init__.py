@@ -1,25 +1,17 @@
 """Calibration: lookup-table linearisation, drift/hysteresis zeroing, contact detection.
 
-Pure numpy; the only I/O is reading and writing calibration and press files.  See
+Pure numpy; the calibration and press files are :mod:`tactiled.io`'s.  See
 ``docs/howto/calibration.md`` for the lab procedure, ``docs/reference/file-formats.md`` for the
 files and ``docs/concepts/calibration.md`` for the estimation and the time constants.
 """
 
 from tactiled.calibration.builder import CalibrationReport, build_table, format_report
-from tactiled.calibration.contact import ContactDetector, detection_threshold, filter_matrices
-from tactiled.calibration.fileformat import (
-    load_calibration,
-    save_calibration,
-    table_from_dict,
-    table_to_dict,
-)
+from tactiled.calibration.detection import ContactDetector, detection_threshold, filter_matrices
 from tactiled.calibration.isotonic import isotonic_increasing
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.presses import (
     PressSet,
     SyntheticResponse,
-    load_presses,
-    save_presses,
     synthesize_presses,
 )
 from tactiled.calibration.stage import CalibrationStage
@@ -38,11 +30,5 @@ __all__ = [
     "filter_matrices",
     "format_report",
     "isotonic_increasing",
-    "load_calibration",
-    "load_presses",
-    "save_calibration",
-    "save_presses",
     "synthesize_presses",
-    "table_from_dict",
-    "table_to_dict",
 ]

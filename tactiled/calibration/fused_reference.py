@@ -6,7 +6,7 @@ What :class:`~tactiled.calibration.stage.CalibrationStage` does to each frame, a
 objects do it (:class:`~tactiled.calibration.lut.LookupTable` ->
 :class:`~tactiled.calibration.zeroing.Zeroer` with its
 :class:`~tactiled.calibration.hysteresis.HysteresisCompensator` ->
-:class:`~tactiled.calibration.contact.ContactDetector`), is a dozen numpy calls on 64 to 256
+:class:`~tactiled.calibration.detection.ContactDetector`), is a dozen numpy calls on 64 to 256
 numbers, each costing more in call overhead than in arithmetic.  The core runs the same
 arithmetic in one pass over the tactels; here it is written as whole-array NumPy operations in
 the core's order of operations (each sum runs in tactel order, as ``np.cumsum`` sums, never

@@ -68,7 +68,7 @@ def read_contacts(path: str | os.PathLike[str]) -> np.ndarray:
 def recorded_counts(path: str | os.PathLike[str]) -> tuple[np.ndarray, int]:
     """The raw counts ``(N, rows, cols)`` of a recording's frames, and its sensor id."""
     from tactiled.frames import FrameDecoder
-    from tactiled.recording import RecordingReader
+    from tactiled.io.recording import RecordingReader
 
     decoder = FrameDecoder()
     frames: list[np.ndarray] = []

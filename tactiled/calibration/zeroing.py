@@ -79,7 +79,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike
 
-from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.detection import ContactDetector
 from tactiled.calibration.fused import drift_error, follow_baseline, pull_baseline
 from tactiled.calibration.hysteresis import HysteresisCompensator, HysteresisLearner
 

@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             print("tactiled bench: error: --plot needs matplotlib: pip install 'tactiled[plot]'", file=sys.stderr)
             return 2
-        from tactiled.files import check_output
+        from tactiled.io.files import check_output
 
         check_output(args.plot)  # before the run, not after it
     suites = SUITES if args.suite == "all" else (args.suite,)
@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr)
             return 2
         if args.json:
-            from tactiled.files import check_output
+            from tactiled.io.files import check_output
 
             check_output(args.json)  # before the run, not after it
         if args.seconds is not None and not args.seconds > 0:

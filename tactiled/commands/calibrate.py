@@ -98,9 +98,9 @@ def run(args: argparse.Namespace) -> int:
 
     from tactiled import __version__
     from tactiled.calibration.builder import build_table
-    from tactiled.calibration.fileformat import save_calibration
-    from tactiled.calibration.presses import load_presses
-    from tactiled.files import check_output
+    from tactiled.io.calibration import save_calibration
+    from tactiled.io.presses import load_presses
+    from tactiled.io.files import check_output
 
     check_output(args.output, CalibrationError)  # before the work, not after it
     presses = load_presses(args.presses)
@@ -147,7 +147,7 @@ def _identify(args: argparse.Namespace, presses) -> int:
     import time
 
     from tactiled import __version__
-    from tactiled.calibration.fileformat import save_calibration
+    from tactiled.io.calibration import save_calibration
     from tactiled.calibration.identify import identify, format_report
 
     if presses.contacts is None:

@@ -36,12 +36,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from tactiled import io
 from tactiled.commands import replay
 from tactiled.errors import ConfigError, TactiledError
-from tactiled.files import check_input, check_output
+from tactiled.io.files import check_input, check_output
 from tactiled.frames import new_decoder
 from tactiled.progress import Progress
-from tactiled.recording import RecordingReader
+from tactiled.io.recording import RecordingReader
 from tactiled.settings import load_settings
 
 if TYPE_CHECKING:
@@ -95,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"exported {n} frame(s) to {out}", file=sys.stderr)
         return 0
     try:
-        from tactiled_service.ros2.mcap_file import McapWriter
-    except ImportError as err:
+        McapWriter = io.writer("messages", out)  # tactiled_service's, through its entry point
+    except (ImportError, ValueError) as err:
         return _fail(f"writing MCAP needs the ros2 extra: pip install 'tactiled[ros2]' ({err})")
     try:
         settings = load_settings(None, {}, {**_overrides(args), "ros2.namespace": args.namespace})

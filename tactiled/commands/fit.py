@@ -56,12 +56,12 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from tactiled.calibration.contact import ContactDetector
-from tactiled.calibration.fileformat import Calibration, load_calibration_file
+from tactiled.calibration.detection import ContactDetector
+from tactiled.io.calibration import Calibration, load_calibration_file
 from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
 from tactiled.errors import TactiledError
 from tactiled.fit.result import FitResult  # light: no scipy
-from tactiled.framefile import load_frame_file
+from tactiled.io.framefile import load_frame_file
 from tactiled.progress import Progress
 from tactiled.sensors import load_description
 

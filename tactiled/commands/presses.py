@@ -58,9 +58,9 @@ def run(args: argparse.Namespace) -> int:
         raise CalibrationError("--quiet must be >= 2, --average >= 1 and --threshold > 0")
     if args.sensor_id is not None and not 0 <= args.sensor_id <= 0xFFFF:
         raise CalibrationError(f"--sensor-id must lie in 0..65535, got {args.sensor_id}")
-    from tactiled.calibration.presses import save_presses
+    from tactiled.io.presses import save_presses
     from tactiled.calibration.recorded import presses_from_recording, read_contacts, recorded_counts
-    from tactiled.files import check_output
+    from tactiled.io.files import check_output
 
     check_output(args.output, CalibrationError)
     contacts = read_contacts(args.contacts)

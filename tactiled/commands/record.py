@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 
 from tactiled.errors import TactiledError
-from tactiled.files import check_output
-from tactiled.recording import Recorder
+from tactiled.io.files import check_output
+from tactiled.io.recording import Recorder
 from tactiled.sources import FrameSource, open_source
 
 

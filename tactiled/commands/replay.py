@@ -28,8 +28,8 @@ from typing import Any
 from urllib.parse import quote
 
 from tactiled.errors import TactiledError
-from tactiled.files import check_input
-from tactiled.recording import RecordingReader
+from tactiled.io.files import check_input
+from tactiled.io.recording import RecordingReader
 from tactiled.settings import MODELS, load_settings
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from tactiled.errors import FrameError, TactiledError
-from tactiled.files import read_npz, write_npz
+from tactiled.io.files import read_npz, write_npz
 from tactiled.sensors import load_description
 from tactiled.sensors.description import SensorDescription
 

@@ -53,10 +53,10 @@ import numpy as np
 
 from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
 from tactiled.errors import TactiledError
-from tactiled.files import check_output
+from tactiled.io.files import check_output
 from tactiled.sensors.finger import FingerSpec
 from tactiled.sensors import SensorDescription, load_description
-from tactiled.framefile import save_frame_file
+from tactiled.io.framefile import save_frame_file
 from tactiled.frames import encode_frame
 from tactiled.physics.contact import Contact
 from tactiled.sim import (
@@ -194,7 +194,8 @@ def sensor_geometry(args: argparse.Namespace) -> Geometry:
 
 def _run_presses(args: argparse.Namespace) -> int:
     """Presses mode: a press file of known contacts on the finger the flags describe."""
-    from tactiled.calibration.presses import save_presses, synthesize_contact_presses
+    from tactiled.calibration.presses import synthesize_contact_presses
+    from tactiled.io.presses import save_presses
 
     if args.presses < 1:
         return _error(f"--presses must be at least 1, got {args.presses}")

@@ -95,6 +95,9 @@ class LineFit:
                                          "Jacobian singular: parameter not identifiable from this window"))
         elif condition > uncertainty.ILL_CONDITION:
             reasons["condition"] = f"ill-conditioned fit (condition number {condition:.3g})"
+        if cov is not None and not search.stopped(best):
+            cov = uncertainty.birge(cov, best.cost * peak * peak / f.sigma**2,
+                                    fr.n_points - len(LINE_PARAMS), reasons)
         values, std, line = prob.report(best.p, cov)
         # where the line passes and its load, even if withheld below (auto's other starts)
         self.point = (values["x_mm"], values["y_mm"], line["load_n_per_mm"])

@@ -159,15 +159,28 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     found = _fit_several(fitter, np.asarray(strain, dtype=float), model, mask,
                          [region_of(fitter, p) for _, p in kept], left,
                          [None] * len(kept), first=[r for r, _ in kept], predict=predict)
-    out = prune(fitter, flat, usable, found, predict)
-    if len(out) == 1:  # the joint fit left one contact paying its way: it alone, fitted alone
-        return [fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left)]
+    paying = prune(fitter, flat, usable, found, predict)
+    # a contact whose place the one rule withholds (its position's sigma beyond the array) is
+    # strain the others leave unexplained, not a contact found: at most one is reported
+    out = [r for r in paying if _located(r)]
+    if len(out) <= 1:  # the joint fit left one contact paying its way: it alone, fitted alone
+        alone = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left)
+        if len(out) < len(paying) and alone.contact:
+            alone.label = "merged"
+            alone.reasons["contacts"] = MERGED_REASON
+        return [alone]
     elapsed = (time.perf_counter() - t0) * 1e3
     for r in out:
         r.fit_ms = elapsed  # the whole frame's: the contacts' choice and fits together
         if len(out) < len(found):
             r.reasons["contacts"] = SEVERAL_REASON.format(n=len(out))
     return out
+
+
+def _located(r: FitResult) -> bool:
+    """The contact has a place: a line (its position across is its offset), or a point
+    contact whose centre the one rule publishes."""
+    return r.line is not None or not (r.values.get("x_mm") is None and r.values.get("y_mm") is None)
 
 
 def _all_held(warm: Any, starts: list[tuple[str, tuple[float, ...]] | None]) -> bool:

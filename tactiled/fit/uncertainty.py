@@ -62,6 +62,19 @@ def covariance(jraw: np.ndarray, sigma: float) -> tuple[np.ndarray | None, float
     return sigma * sigma * np.linalg.inv(jraw.T @ jraw), condition
 
 
+def birge(cov: np.ndarray, chi2: float, dof: int, reasons: dict[str, str]) -> np.ndarray:
+    """``cov`` times ``chi2 / dof`` (the Birge ratio squared) when chi^2 exceeds what the noise
+    gives ``MISMATCH_LEVEL`` of the time for ``dof`` degrees of freedom, saying so in
+    ``reasons["uncertainty"]``: residuals that large are errors the noise sigma does not
+    count, and the estimate scatters by them (a line's window, where the tactel-level floor
+    of :func:`mismatch` is not fitted)."""
+    if dof < 1 or not chi2 > _chi2_limit(dof):
+        return cov
+    reasons["uncertainty"] = (f"residuals exceed the noise (chi^2 {chi2:.3g} for {dof} degrees of "
+                              f"freedom): uncertainties widened {math.sqrt(chi2 / dof):.3g}x to match")
+    return cov * (chi2 / dof)
+
+
 def bounds(fitter: Fitter, model: Model, p: np.ndarray, jraw: np.ndarray, reasons: dict[str, str]
 ) -> tuple[dict[str, float | None], dict[str, float | None], float | None]:
     """User-unit values at ``p``, their Cramer-Rao 1-sigma bounds from ``jraw`` (the
@@ -176,7 +189,7 @@ def mismatch(fitter: Fitter, model: Model, sol: SolveResult, peak: float, zdata:
     else:
         learning = learn and not fitter.frozen  # not from a fit its budget stopped short
         if learning:
-            weight = learn(fitter, rows, excess_i, excess, s_f, g_f, dof, ts, tg)
+            weight = feed_floor(fitter, rows, excess_i, excess, s_f, g_f, dof, ts, tg)
         if fitter.flat is not None:
             r0, c0, nr, nc = win
             ii, jj = np.divmod(np.flatnonzero(valid), nc)
@@ -217,7 +230,7 @@ def mismatch(fitter: Fitter, model: Model, sol: SolveResult, peak: float, zdata:
         + (f" (flat field: {fitter.flat.note})" if corrections is not None else ""))
 
 
-def learn(fitter: Fitter, rows: np.ndarray, excess_i: np.ndarray, excess: float, s_f: float, g_f: float,
+def feed_floor(fitter: Fitter, rows: np.ndarray, excess_i: np.ndarray, excess: float, s_f: float, g_f: float,
            dof: int, ts: float, tg: float) -> float:
     """Feed one fit to the floor learner.  Every fit feeds it (leaving out the flagged
     ones, the heavy frames, would bias it low), scaled down to a cap near what the pool

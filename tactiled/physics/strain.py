@@ -377,8 +377,8 @@ def predict_strain(contact: Contact, sensor: SensorModel | None = None) -> np.nd
 
 def scaled_to_peak(model: StrainModel, make: Callable[[float], Any], peak: float) -> Any:
     """The contact ``make(scale)`` whose noise-free peak strain on ``model`` is ``peak``
-    (strain units; a reference contact ``n`` noise sigmas strong is ``peak = n * sigma``).
-    Two passes: the peak is nearly linear in the load."""
+    (strain units; a reference contact ``n`` noise sigmas strong is ``peak = n * sigma``),
+    within about 1 %: two passes of the scale, the peak being nearly linear in the load."""
     scale = 1.0
     for _ in range(2):
         scale *= peak / float(model.predict(make(scale)).max())

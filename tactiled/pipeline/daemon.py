@@ -16,7 +16,7 @@ from dataclasses import replace
 from typing import Any
 
 from tactiled.errors import CalibrationError, ConfigError, DriverError, TactiledError
-from tactiled.files import check_output
+from tactiled.io.files import check_output
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.pool import WorkerPool
 from tactiled.pipeline.sensor import SensorPipeline

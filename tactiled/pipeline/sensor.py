@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.calibration.contact import ContactDetector
-from tactiled.calibration.fileformat import Calibration, load_calibration_file
+from tactiled.calibration.detection import ContactDetector
+from tactiled.io.calibration import Calibration, load_calibration_file
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
@@ -59,7 +59,7 @@ from tactiled.pipeline.multi_contact import ContactTrackers
 from tactiled.pipeline import shear_track
 from tactiled.pipeline.contact_filter import Tracker, untracked
 from tactiled.pipeline.sensor_tracking import ContactTracking, _Waiting
-from tactiled.recording import Recorder
+from tactiled.io.recording import Recorder
 from tactiled.settings import SensorSettings
 from tactiled.sources import FrameSource, open_source
 

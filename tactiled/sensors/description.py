@@ -426,7 +426,7 @@ def load_description(spec: str | Path | None = None) -> SensorDescription:
     looks_like_path = isinstance(spec, Path) or text_spec.endswith(".toml") or "/" in text_spec
     if not looks_like_path:
         return parse_description_text(builtin_text(text_spec), f"built-in sensor {text_spec!r}")
-    from tactiled.files import read_text
+    from tactiled.io.files import read_text
 
     path = Path(text_spec)
     return parse_description_text(read_text(path, "sensor description (TOML)", ConfigError), str(path))

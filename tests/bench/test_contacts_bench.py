@@ -10,13 +10,7 @@ from tactiled_bench import contacts
 from tactiled.sensors import load_description
 
 
-#: Known to fail since the one rule (tactiled/fit/verdict.py) and the several-contacts
-#: selection (tactiled/fit/selection.py) came together: on flat16 3 close pairs of 10 report a
-#: phantom (the bar is 1).  Strict: the test fails the day it passes, and this mark goes.
-_CLOSE_PAIRS_PHANTOMS = pytest.mark.xfail(strict=True, reason="flat16's close pairs: 3 phantoms")
-
-
-@pytest.mark.parametrize("name", ["fearing1988", pytest.param("flat16", marks=_CLOSE_PAIRS_PHANTOMS)])
+@pytest.mark.parametrize("name", ["fearing1988", "flat16"])
 def test_short_run_finds_every_contact_at_the_joint_bound(name: str) -> None:
     s = contacts.score(load_description(name), frames=10, seed=3)
     r = s["resolved"]

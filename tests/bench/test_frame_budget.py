@@ -5,7 +5,7 @@ from __future__ import annotations
 from tactiled_bench import budget
 
 PROFILE = """\
-process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";<module> (run_baseline.py:5);measure (benchmarks/tactiled_bench/acquisition.py:590);SensorPipeline.on_frame (tactiled/pipeline/sensor.py:351);CalibrationStage.process (tactiled/calibration/stage.py:52);ContactDetector.update (tactiled/calibration/contact.py:230) 30
+process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";<module> (run_baseline.py:5);measure (benchmarks/tactiled_bench/acquisition.py:590);SensorPipeline.on_frame (tactiled/pipeline/sensor.py:351);CalibrationStage.process (tactiled/calibration/stage.py:52);ContactDetector.update (tactiled/calibration/detection.py:230) 30
 process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";<module> (run_baseline.py:5);measure (benchmarks/tactiled_bench/acquisition.py:590);SensorPipeline.on_frame (tactiled/pipeline/sensor.py:351);CalibrationStage.process (tactiled/calibration/stage.py:55) 50
 process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";Thread._bootstrap (threading.py:1002);PortReader._run (tactiled_drivers/port_reader.py:90);PortReader._wait (tactiled_drivers/port_reader.py:123) 400
 process 10:"python -m tactiled.cli bench --suite acquisition";process 11:"python run_baseline.py";<module> (run_baseline.py:5);measure (benchmarks/tactiled_bench/acquisition.py:590);FrameDecoder.feed (tactiled/frames.py:249) 20

@@ -7,13 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.calibration import (
-    PressSet,
-    build_table,
-    load_presses,
-    save_presses,
-    synthesize_presses,
-)
+from tactiled.calibration import PressSet, build_table, synthesize_presses
+from tactiled.io.presses import load_presses, save_presses
 from tactiled.errors import CalibrationError
 
 

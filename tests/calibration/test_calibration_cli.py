@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactiled.calibration import load_calibration, save_presses
+from tactiled.io.calibration import load_calibration
+from tactiled.io.presses import save_presses
 
 TACTILED = Path(sys.executable).with_name("tactiled")
 

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.detection import ContactDetector
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer

@@ -11,9 +11,10 @@ import sys
 import numpy as np
 import pytest
 
-from tactiled.calibration.fileformat import load_calibration, load_calibration_file
+from tactiled.io.calibration import load_calibration, load_calibration_file
 from tactiled.calibration.identify import RUBBER, identify
-from tactiled.calibration.presses import PressSet, save_presses, synthesize_contact_presses
+from tactiled.calibration.presses import PressSet, synthesize_contact_presses
+from tactiled.io.presses import save_presses
 from tactiled.sensors.model import NoiseModel, SensorModel, TactelPositions
 from tactiled.errors import CalibrationError
 from tactiled.sensors.finger import COUNTS_PER_STRAIN, ZERO_STRAIN_COUNTS, FingerSpec

@@ -14,11 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactiled.calibration.presses import CONTACT_COLUMNS, load_presses
+from tactiled.calibration.presses import CONTACT_COLUMNS
+from tactiled.io.presses import load_presses
 from tactiled.frames import Frame, encode_frame
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
-from tactiled.recording import RecordingWriter
+from tactiled.io.recording import RecordingWriter
 from tactiled.sensors import load_description
 
 TACTILED = Path(sys.executable).with_name("tactiled")

@@ -18,11 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactiled.calibration.fileformat import save_calibration
+from tactiled.io.calibration import save_calibration
 from tactiled.calibration.lut import LookupTable
 from tactiled.cli import main
 from tactiled.frames import Frame
-from tactiled.recording import Recorder
+from tactiled.io.recording import Recorder
 
 #: What must never reach a user: numpy's reprs, pickle hints, a traceback.
 LEAKS = re.compile(r"array\(|np\.[a-z_0-9]+\(|dtype\(|allow_pickle|Traceback|Error:")

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tactiled.calibration import LookupTable, save_calibration
+from tactiled.calibration import LookupTable
+from tactiled.io.calibration import save_calibration
 
 ROOT = Path(__file__).resolve().parents[2]
 TACTILED = Path(sys.executable).with_name("tactiled")

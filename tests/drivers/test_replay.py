@@ -11,7 +11,7 @@ import pytest
 
 from tactiled.errors import DeviceTimeoutError, DriverError, FrameError
 from tactiled.frames import encode_frame
-from tactiled.recording import Recorder, RecordingWriter
+from tactiled.io.recording import Recorder, RecordingWriter
 from tactiled.sources import open_source
 from tactiled_drivers.replay import ReplaySource
 

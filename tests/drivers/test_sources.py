@@ -138,7 +138,7 @@ def test_builtins_registered_by_name() -> None:
 
 
 def test_core_imports_no_driver_and_no_pyserial() -> None:
-    code = ("import sys, tactiled.sources, tactiled.recording\n"
+    code = ("import sys, tactiled.sources, tactiled.io.recording\n"
             "bad = [m for m in sys.modules if m == 'serial' or m.startswith('serial.')"
             " or m.startswith('tactiled_drivers')]\n"
             "print(bad); sys.exit(1 if bad else 0)")
@@ -154,7 +154,7 @@ def test_missing_library_breaks_only_its_driver(tmp_path) -> None:
 import asyncio, sys
 sys.modules["serial"] = None
 from tactiled.errors import DriverError
-from tactiled.recording import RecordingWriter
+from tactiled.io.recording import RecordingWriter
 from tactiled.sources import open_source
 try:
     open_source("serial:///dev/ttyACM0")

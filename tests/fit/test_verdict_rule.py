@@ -118,9 +118,6 @@ def test_a_coarse_pads_line_radius_is_never_published_far_from_the_truth() -> No
     assert published >= 5  # and it does not withhold every one
 
 
-@pytest.mark.xfail(strict=True, reason="a weak line fitted on its band (tactiled/fit/linewindow.py) "
-                   "locks onto angles 15-70 deg off, which a profile 2 sigma wide cannot see: "
-                   "16 of 154 published angles beyond 4 sigma (the bar is 3.5 %)")
 def test_a_weak_lines_angle_is_tested_on_its_profile() -> None:
     """A 10 mm cylinder at 1 N on the 12x32 mat (peak about 4 noise sigmas, a window of a few
     tactels): the angle's likelihood is far from quadratic, and its linearised sigma

@@ -43,18 +43,18 @@ COMPILED = ("tactiled._core",)
 #: The layers, lowest first: a module may import its own layer's modules and those below it.
 #: A module's layer is the one naming the longest prefix of its dotted name.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("tactiled", "tactiled._core", "tactiled.errors", "tactiled.files", "tactiled.native",
+    ("base", ("tactiled", "tactiled._core", "tactiled.errors", "tactiled.io.files", "tactiled.native",
               "tactiled.progress", "tactiled.heap", "tactiled.heapstats", "tactiled.systemd")),
     # a sensor: its model, description and vendor arrays, and the counts-to-strain table type
     # (calibration.lut, .segments: a vendor array's nominal table is one)
     ("sensor", ("tactiled.sensors", "tactiled.calibration.lut", "tactiled.calibration.segments")),
-    ("frames", ("tactiled.frames", "tactiled.clock", "tactiled.recording")),
+    ("frames", ("tactiled.frames", "tactiled.clock", "tactiled.io.recording")),
     ("physics", ("tactiled.physics",)),
     ("calibration", ("tactiled.calibration",)),
     ("fit", ("tactiled.fit", "tactiled.sensors.window")),
-    # sources holds the driver table (a URL checked by scheme, no driver imported)
-    ("sources", ("tactiled.sources", "tactiled.framefile", "tactiled.io", "tactiled.sim",
-                 "tactiled.shearsim")),
+    # sources holds the driver table (a URL checked by scheme, no driver imported); the file
+    # formats above the calibration (a calibration or press file holds its types)
+    ("sources", ("tactiled.sources", "tactiled.io", "tactiled.sim")),
     ("settings", ("tactiled.settings",)),
     ("pipeline", ("tactiled.pipeline",)),
     ("drivers", ("tactiled_drivers",)),
@@ -67,15 +67,12 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 BENCH_ENTRY = ("tactiled.commands.bench", "tactiled.commands.calibrate")
 
 #: Imports running up the layers today: (importer, imported) -> why, and the mend.
-UPWARD_KNOWN: dict[tuple[str, str], str] = {
-    ("tactiled.settings", "tactiled.pipeline.learned"):
-        "settings.py reads the learned state's default directory from the pipeline "
-        "(settings.py is to be the daemon's configuration only)",
-}
+UPWARD_KNOWN: dict[tuple[str, str], str] = {}
 #: Import cycles between modules today (their sorted members) -> the mend.
 CYCLES_KNOWN: dict[tuple[str, ...], str] = {
-    ("tactiled.fit.fitter", "tactiled.fit.linewindow", "tactiled.fit.multi",
-     "tactiled.fit.selection"): "the Fitter split by strategy",
+    ("tactiled.fit.linewindow", "tactiled.fit.multi", "tactiled.fit.selection"):
+        "the model selection, the several-contact fit and the line's band call one another "
+        "through function-level imports: a strategy interface they share mends it",
     ("tactiled.physics.line", "tactiled.physics.strain"):
         "line.py takes its quadrature rules from strain.py, which calls line_strain inside "
         "StrainModel: the rules belong in a module of their own",
@@ -86,10 +83,8 @@ CYCLES_KNOWN: dict[tuple[str, ...], str] = {
 MAX_LINES = 700
 #: Modules over MAX_LINES today -> the split that mends it.
 LONG_KNOWN: dict[str, str] = {
-    "tactiled.fit.fitter": "the Fitter split by strategy",
-    "tactiled.pipeline.pool": "the pool split into dispatch and supervision",
-    "tactiled.settings": "settings.py split by what it holds",
-    "tactiled.sim": "a simulation package",
+    "tactiled.pipeline.sensor": "one sensor's loop, 707 lines: its publishing or its frame "
+                                "path split out",
 }
 #: Words a long module's first lines use to say it holds compiled kernels (and why it is long).
 KERNEL_FILE = "compiled-kernel file"
@@ -317,14 +312,20 @@ def test_no_import_runs_up_the_layers() -> None:
     assert not bad, "\n".join(bad)
 
 
-@pytest.mark.parametrize("edge", [pytest.param(e, id=f"{e[0]}->{e[1]}", marks=pytest.mark.xfail(
-    strict=True, reason=why)) for e, why in UPWARD_KNOWN.items()])
-def test_known_upward_import_is_gone(edge: tuple[str, str]) -> None:
-    assert edge not in {(i.importer, i.imported) for i in upward()}
+def test_known_upward_imports_are_still_there() -> None:
+    """An entry of UPWARD_KNOWN whose import is gone is deleted (none today)."""
+    now = {(i.importer, i.imported) for i in upward()}
+    gone = [e for e in UPWARD_KNOWN if e not in now]
+    assert not gone, f"mended: delete from UPWARD_KNOWN: {gone}"
+
+
+def _known_cycle(cycle: tuple[str, ...]) -> bool:
+    """Whether ``cycle`` lies within a known one (a knot that shrinks is still that knot)."""
+    return any(set(cycle) <= set(known) for known in CYCLES_KNOWN)
 
 
 def test_no_import_cycle_between_modules() -> None:
-    bad = [" <-> ".join(c) for c in cycles() if c not in CYCLES_KNOWN]
+    bad = [" <-> ".join(c) for c in cycles() if not _known_cycle(c)]
     assert not bad, "\n".join(bad)
 
 

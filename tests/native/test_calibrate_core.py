@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from tactiled import _core
 from tactiled.calibration import fused_reference as ref
-from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.detection import ContactDetector
 from tactiled.calibration.fused import filter_bands
 from tactiled.calibration.lut import LookupTable
 from tactiled.sensors import load_description

@@ -22,7 +22,7 @@ import pytest
 
 from tactiled.cli import COMMANDS
 from tactiled.frames import Frame
-from tactiled.recording import Recorder
+from tactiled.io.recording import Recorder
 
 ROOT = Path(__file__).resolve().parents[2]
 BLOCKER = Path(__file__).resolve().parent / "blocked"

@@ -18,7 +18,7 @@ from tactiled.calibration.lut import LookupTable
 from tactiled.frames import Frame
 from tactiled.physics.contact import Contact
 from tactiled.pipeline import Daemon
-from tactiled.recording import Recorder
+from tactiled.io.recording import Recorder
 from tactiled.sim import simulate_frames
 from tactiled.sources import FrameSource
 

@@ -28,7 +28,7 @@ from worker_hooks import hang
 from tactiled.errors import ConfigError
 from tactiled.frames import Frame
 from tactiled.pipeline import Daemon, UnknownSensorError
-from tactiled.recording import read_recording
+from tactiled.io.recording import read_recording
 from tactiled.settings import load_settings
 
 
@@ -87,7 +87,8 @@ def test_every_frame_gets_its_estimate_with_its_sensor_and_seq(tmp_path: Path, a
 
 def test_the_calibration_file_is_applied_and_its_dead_tactels_are_left_out(
         tmp_path: Path, arun) -> None:
-    from tactiled.calibration import LookupTable, save_calibration
+    from tactiled.calibration import LookupTable
+    from tactiled.io.calibration import save_calibration
     from tactiled.sensors.model import NoiseModel
     from tactiled.sim import simulate_frames
 

@@ -10,7 +10,7 @@ from pipeline_helpers import contact_path, make_frames, np_frames_equal, write_r
 from tactiled.cli import main as cli
 from tactiled.pipeline import without_timing
 from tactiled.frames import decode_frame
-from tactiled.recording import read_recording
+from tactiled.io.recording import read_recording
 
 
 def scene_frames():

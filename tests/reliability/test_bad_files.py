@@ -15,12 +15,12 @@ from pathlib import Path
 import pytest
 from rel_helpers import figures, scene_frames
 
-from tactiled.calibration.fileformat import save_calibration
+from tactiled.io.calibration import save_calibration
 from tactiled.calibration.lut import LookupTable
 from tactiled.errors import ConfigError
 from tactiled.pipeline import Daemon
 from tactiled.pipeline import supervision
-from tactiled.recording import HEADER_SIZE, RECORD_HEADER_SIZE, Recorder
+from tactiled.io.recording import HEADER_SIZE, RECORD_HEADER_SIZE, Recorder
 from tactiled.settings import load_settings
 
 SENSOR_ID = 3

@@ -163,7 +163,7 @@ def test_golden_files_are_small_and_reproduce_their_recordings() -> None:
     from urllib.parse import parse_qs, urlsplit
 
     from tactiled.frames import decode_frame, encode_frame
-    from tactiled.recording import read_recording
+    from tactiled.io.recording import read_recording
     from tactiled.sim import FingerSimulator
 
     total = sum(p.stat().st_size for p in g.GOLDEN.iterdir())

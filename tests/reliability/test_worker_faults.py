@@ -429,7 +429,7 @@ def test_a_fit_in_a_fresh_worker_stays_well_inside_the_deadline() -> None:
 def test_one_glitch_frame_barely_moves_the_baseline(gap_frames: int) -> None:
     """The zeroer's side of the glitch above, without processes: a held contact, a short gap,
     one frame of zero counts (strain -0.5 on every tactel), the contact again."""
-    from tactiled.calibration.contact import ContactDetector
+    from tactiled.calibration.detection import ContactDetector
     from tactiled.calibration.lut import LookupTable
     from tactiled.calibration.stage import CalibrationStage
     from tactiled.calibration.zeroing import Zeroer

@@ -24,7 +24,7 @@ from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.pipeline.sensor import worker_fit_options
 from tactiled.heapstats import fitter_cache_figures
 from tactiled.pipeline import Daemon
-from tactiled.recording import Recorder
+from tactiled.io.recording import Recorder
 from tactiled.settings import load_settings
 from tactiled.sim import FingerSimulator
 

@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from tactiled.frames import encode_frame
-from tactiled.recording import RecordingReader
+from tactiled.io.recording import RecordingReader
 from tactiled_service.ros2 import messages
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -83,7 +83,7 @@ def test_run_prints_the_address_serves_and_stops_on_sigterm(daemon_process, arun
     assert "STOPPING=1" in fields and fields.index("STOPPING=1") > fields.index("READY=1")
     assert any(f.startswith("STATUS=") for f in fields)
     # The recording was flushed and closed: complete records, none cut short.
-    from tactiled.recording import RecordingReader
+    from tactiled.io.recording import RecordingReader
 
     with RecordingReader(record) as reader:
         count = sum(1 for _ in reader)

@@ -14,7 +14,7 @@ from svc_helpers import http, wait_for
 
 from tactiled.cli import main as cli_main
 from tactiled.frames import decode_frame
-from tactiled.recording import RecordingReader
+from tactiled.io.recording import RecordingReader
 
 SHAPES = {"lines": (8, 8), "flexitac": (12, 32), "robotiq": (7, 4), "xela": (4, 4),
           "paxini": (10, 12)}

@@ -15,7 +15,7 @@ import pytest
 import serial
 
 from tactiled.cli import main
-from tactiled.framefile import load_frame_file
+from tactiled.io.framefile import load_frame_file
 from tactiled.frames import FrameDecoder
 
 

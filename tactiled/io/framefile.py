@@ -16,7 +16,7 @@ import numpy as np
 
 from tactiled.calibration.lut import LookupTable
 from tactiled.errors import FrameError
-from tactiled.files import plain, read_npz, write_npz
+from tactiled.io.files import plain, read_npz, write_npz
 
 
 @dataclass

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.calibration.contact import ContactDetector
+from tactiled.calibration.detection import ContactDetector
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 

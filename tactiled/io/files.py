@@ -5,8 +5,8 @@ Every command that takes a file goes through here: ``tactiled fit`` (frames, cal
 ``simulate`` (frames or presses out), ``calibrate`` (presses in, calibration out), ``replay``
 (recording, calibration), ``record`` (recording out) and ``bench --plot`` (picture out).
 What each file must *hold* (keys, shapes, values) is checked by its own module
-(:mod:`tactiled.framefile`, :mod:`tactiled.calibration.presses`,
-:mod:`tactiled.calibration.fileformat`), with :func:`plain` to show values: a message never
+(:mod:`tactiled.io.framefile`, :mod:`tactiled.calibration.presses`,
+:mod:`tactiled.io.calibration`), with :func:`plain` to show values: a message never
 holds a numpy repr such as ``array(5)`` or ``np.float64(nan)``.
 
 The errors raised are the caller's :class:`~tactiled.errors.TactiledError` subclass (a frame
@@ -35,7 +35,7 @@ ErrorType = type[TactiledError]
 
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")  # a local file header; an empty archive's end
-_RECORDING_MAGIC = b"TACTREC\x00"  # tactiled.recording.MAGIC (not imported: keep this light)
+_RECORDING_MAGIC = b"TACTREC\x00"  # tactiled.io.recording.MAGIC (not imported: keep this light)
 
 
 def plain(value: Any) -> str:

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactiled.calibration import LookupTable, load_calibration, save_calibration, table_to_dict
+from tactiled.calibration import LookupTable
+from tactiled.io.calibration import load_calibration, save_calibration, table_to_dict
 from tactiled.errors import CalibrationError
 
 

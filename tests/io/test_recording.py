@@ -10,7 +10,7 @@ import pytest
 
 from tactiled.errors import FrameError
 from tactiled.frames import FrameDecoder, encode_frame
-from tactiled.recording import (
+from tactiled.io.recording import (
     HEADER_SIZE,
     MAGIC,
     RECORD_HEADER_SIZE,
@@ -65,7 +65,7 @@ def test_truncated_last_record_reported_not_raised(tmp_path, frame_factory, capl
     complete_end = size - record
     with open(path, "r+b") as f:
         f.truncate(complete_end + cut)
-    with caplog.at_level(logging.WARNING, logger="tactiled.recording"), \
+    with caplog.at_level(logging.WARNING, logger="tactiled.io.recording"), \
             RecordingReader(path) as reader:
         records = list(reader)
     assert len(records) == 4

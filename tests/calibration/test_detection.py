@@ -35,7 +35,7 @@ def test_default_sigma_comes_from_the_noise_model():
     d = ContactDetector(sensor=quantised)
     assert d.sigma == pytest.approx(math.sqrt(0.0004**2 + 0.001**2 / 12))
     # entries get half the false-contact budget: hysteresis holds a false entry ~2 frames
-    from tactiled.calibration.contact import DEFAULT_FALSE_RATE, HYSTERESIS_DWELL
+    from tactiled.calibration.detection import DEFAULT_FALSE_RATE, HYSTERESIS_DWELL
 
     assert d.enter_threshold == pytest.approx(detection_threshold(d.sigma, DEFAULT_FALSE_RATE / HYSTERESIS_DWELL))
     # without hysteresis (exit = enter) the whole budget goes to entries

@@ -55,7 +55,7 @@ from tactiled.calibration.lut import LookupTable, tactel_label
 from tactiled.calibration.identified import FingerModel
 from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
 from tactiled.errors import CalibrationError
-from tactiled.files import atomic_output, read_text
+from tactiled.io.files import atomic_output, read_text
 
 FORMAT = "tactiled-calibration"
 VERSION = 1
