@@ -8,6 +8,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from tactiled.fit.warm import SEVERAL
+from tactiled.pipeline.contact_filter import within_reason
+from tactiled.sensors.model import Geometry
+
 
 class JobOwner(Protocol):
     """What the pool needs of a sensor pipeline."""
@@ -54,3 +58,22 @@ class FitJob:
     kind: str = "fit"
     sent_at: float = 0.0
 
+
+#: Warm starts go to the workers rounded to this grid (internal units: ln mm, ln N, rad, mm),
+#: so the last bits of whatever CPU computed the tracker's state never reach an estimate
+#: through a fit that stops short of convergence (but for a start within 1e-16 of the grid).
+WARM_GRID = 1e-9
+
+
+def warm_start(warm: tuple[str, tuple[float, ...]] | None,
+                geometry: Geometry) -> tuple[str, tuple[float, ...]] | None:
+    """A warm start as it goes to a worker: within what a finger carries (a filter whose
+    radius ran off, an edge too light for its curvature, must not start a fit whose first
+    evaluation outlasts the worker's deadline), on the grid."""
+    if warm is None:
+        return None
+    if warm[0] == SEVERAL:
+        each = (warm_start(w, geometry) for w in warm[1])  # type: ignore[arg-type]
+        return SEVERAL, tuple(w for w in each if w is not None)  # type: ignore[return-value]
+    p = within_reason(warm[1], geometry)
+    return warm[0], tuple([round(v / WARM_GRID) * WARM_GRID for v in p])

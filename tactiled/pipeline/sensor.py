@@ -30,7 +30,7 @@ from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
 from tactiled.calibration.zeroing import Zeroer
 from tactiled.clock import FrameClock
-from tactiled.sensors.model import Geometry, NoiseModel
+from tactiled.sensors.model import NoiseModel
 from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
@@ -49,16 +49,15 @@ from tactiled.pipeline.estimate import (
 from tactiled.pipeline.gate import Gate
 from tactiled.pipeline import learned
 from tactiled.fit.regions import SIGNIFICANT_Z
-from tactiled.fit.warm import SEVERAL
 from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.meters import Histogram, RateMeter, WindowMean
-from tactiled.pipeline.jobs import FitJob
+from tactiled.pipeline.jobs import FitJob, warm_start
 from tactiled.pipeline.pool import WorkerPool
 from tactiled.pipeline.sensor_stats import SensorStats
 from tactiled.pipeline.multi_contact import ContactTrackers
 from tactiled.pipeline import shear_track
-from tactiled.pipeline.contact_filter import Tracker, untracked, within_reason
+from tactiled.pipeline.contact_filter import Tracker, untracked
 from tactiled.pipeline.sensor_tracking import ContactTracking, _Waiting
 from tactiled.io.recording import Recorder
 from tactiled.settings import SensorSettings
@@ -84,26 +83,6 @@ def worker_fit_options(window: int) -> tuple[tuple[str, Any], ...]:
 
 #: Why a contact of several carries no rates: each such frame is fitted, none tracked.
 SEVERAL_UNTRACKED = "several contacts on the array: each frame is fitted, not tracked"
-
-#: Warm starts go to the workers rounded to this grid (internal units: ln mm, ln N, rad, mm),
-#: so the last bits of whatever CPU computed the tracker's state never reach an estimate
-#: through a fit that stops short of convergence (but for a start within 1e-16 of the grid).
-WARM_GRID = 1e-9
-
-
-def _warm_start(warm: tuple[str, tuple[float, ...]] | None,
-                geometry: Geometry) -> tuple[str, tuple[float, ...]] | None:
-    """A warm start as it goes to a worker: within what a finger carries (a filter whose
-    radius ran off, an edge too light for its curvature, must not start a fit whose first
-    evaluation outlasts the worker's deadline), on the grid."""
-    if warm is None:
-        return None
-    if warm[0] == SEVERAL:
-        each = (_warm_start(w, geometry) for w in warm[1])  # type: ignore[arg-type]
-        return SEVERAL, tuple(w for w in each if w is not None)  # type: ignore[return-value]
-    p = within_reason(warm[1], geometry)
-    return warm[0], tuple([round(v / WARM_GRID) * WARM_GRID for v in p])
-
 
 class SensorPipeline:
     """The acquisition loop of one sensor, publishing to ``hub`` and fitting on ``pool``.
@@ -578,7 +557,7 @@ class SensorPipeline:
             self._waiting, self._in_flight = None, w
         if w.kind == "fit+lin":  # the tracker's prediction at the frame's time, now
             w.at = self.tracking.tracker.predicted(w.t) or self._warm
-        warm = _warm_start(w.at if w.kind != "fit" else self._warm, self.sensor_model.geometry)
+        warm = warm_start(w.at if w.kind != "fit" else self._warm, self.sensor_model.geometry)
         return FitJob(owner=self, ordinal=w.ordinal, seq=w.seq, strain=w.strain,
                       model=self.model, spec=self.spec, mask=self.mask, warm=warm, kind=w.kind)
 

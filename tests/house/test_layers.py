@@ -82,10 +82,7 @@ CYCLES_KNOWN: dict[tuple[str, ...], str] = {
 }
 MAX_LINES = 700
 #: Modules over MAX_LINES today -> the split that mends it.
-LONG_KNOWN: dict[str, str] = {
-    "tactiled.pipeline.sensor": "one sensor's loop, 707 lines: its publishing or its frame "
-                                "path split out",
-}
+LONG_KNOWN: dict[str, str] = {}
 #: Words a long module's first lines use to say it holds compiled kernels (and why it is long).
 KERNEL_FILE = "compiled-kernel file"
 

@@ -202,7 +202,7 @@ def test_a_start_beyond_what_a_finger_carries_is_clipped() -> None:
     there, or at a contact larger than the array, outlasts the worker's deadline (on the
     moving scene the workers were killed as hung, one after the other)."""
     from tactiled.fit.models import get_model
-    from tactiled.pipeline.sensor import WARM_GRID, _warm_start
+    from tactiled.pipeline.jobs import WARM_GRID, warm_start as _warm_start
 
     geometry = SensorModel().geometry
     cyl = get_model("cylinder")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from types import SimpleNamespace
 from typing import Any
@@ -18,7 +19,7 @@ def sensor_stats(**changes: Any) -> dict[str, Any]:
     st: dict[str, Any] = {
         "sensor": "f", "sensor_id": 1, "url": "sim://", "disconnects": 0,
         "tracked_rate_hz": 0.0, "read_backlog_bytes": 0, "read_backlog_peak_bytes": 0,
-        "fits_budget_spent": 0, "learned_state": {}, "skipped": {}, "track": True,
+        "fits_budget_spent": 0, "learned_state": {}, "skipped": {}, "reuse_refused": 0, "track": True,
         "tracked": 0, "track_resets": 0, "track_skipped": 0, "predicted": 0,
         "relinearized": 0, "relinearize_lost": 0, "drift_followed": 0, "pressed_elsewhere": 0,
         "hysteresis": None, "pending": 0, "in_hand": 0, "bad_shape": 0, "nonfinite_frames": 0,
@@ -52,7 +53,9 @@ class FakeDaemon:
         self.hub = SimpleNamespace(latest_estimate=lambda name: est)
 
     def sensor_stats(self, name: str) -> SensorStats:
-        return SensorStats(**self._stats)  # a mock daemon: the rules read nothing else of it
+        # a mock daemon: a counter the rules do not read is 0
+        return SensorStats(**{f.name: self._stats.get(f.name, 0)
+                              for f in dataclasses.fields(SensorStats)})
 
     def stats(self) -> dict[str, Any]:
         return {"uptime_s": 100.0, "workers": {"size": 1, "restarts": 0, "workers": []}}
