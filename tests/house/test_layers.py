@@ -73,9 +73,6 @@ CYCLES_KNOWN: dict[tuple[str, ...], str] = {
     ("tactiled.fit.linewindow", "tactiled.fit.multi", "tactiled.fit.selection"):
         "the model selection, the several-contact fit and the line's band call one another "
         "through function-level imports: a strategy interface they share mends it",
-    ("tactiled.commands.simulate", "tactiled.commands.simulate_as"):
-        "simulate --as runs simulate_as, which takes the pty and frame writer from simulate: "
-        "those belong in a module of their own",
 }
 MAX_LINES = 700
 #: Modules over MAX_LINES today -> the split that mends it.
