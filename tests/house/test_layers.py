@@ -70,9 +70,6 @@ BENCH_ENTRY = ("tactiled.commands.bench", "tactiled.commands.calibrate")
 UPWARD_KNOWN: dict[tuple[str, str], str] = {}
 #: Import cycles between modules today (their sorted members) -> the mend.
 CYCLES_KNOWN: dict[tuple[str, ...], str] = {
-    ("tactiled.fit.linewindow", "tactiled.fit.multi", "tactiled.fit.selection"):
-        "the model selection, the several-contact fit and the line's band call one another "
-        "through function-level imports: a strategy interface they share mends it",
 }
 MAX_LINES = 700
 #: Modules over MAX_LINES today -> the split that mends it.
