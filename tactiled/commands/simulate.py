@@ -49,14 +49,7 @@ import numpy as np
 from tactiled.sensors.model import Geometry, NoiseModel, SensorModel
 from tactiled.errors import TactiledError
 from tactiled.io.files import check_output
-from tactiled.commands.device_stream import (
-    MAX_BATCH,
-    MAX_LAG_S,
-    FrameWriter,
-    make_pty,
-    remove_link,
-    until_signal,
-)
+from tactiled.commands.device_stream import MAX_BATCH, MAX_LAG_S, FrameWriter, make_pty, remove_link, until_signal
 from tactiled.sensors.finger import FingerSpec
 from tactiled.sensors import SensorDescription, load_description
 from tactiled.io.framefile import save_frame_file

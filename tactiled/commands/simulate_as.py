@@ -40,14 +40,7 @@ import numpy as np
 
 from tactiled.sensors.devices import KINDS, DeviceArray, device_array
 from tactiled.errors import TactiledError
-from tactiled.commands.device_stream import (
-    MAX_BATCH,
-    MAX_LAG_S,
-    FrameWriter,
-    make_pty,
-    remove_link,
-    until_signal,
-)
+from tactiled.commands.device_stream import MAX_BATCH, MAX_LAG_S, FrameWriter, make_pty, remove_link, until_signal
 from tactiled.sim import DriftModel, FingerSimulator, FrameSchedule, HysteresisModel
 
 #: XELA magnetic taxels: x and y counts at rest (mid-range of 16 bits), and their wobble.
