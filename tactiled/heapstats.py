@@ -179,14 +179,14 @@ def _lru_keys(fn: Any) -> list[Any]:
     return []
 
 
-def rule_cache_bytes(strain: Any) -> int:
-    """Bytes of the quadrature rules cached by :mod:`tactiled.physics.strain`, from the cache
+def rule_cache_bytes(rules: Any) -> int:
+    """Bytes of the quadrature rules cached by :mod:`tactiled.physics.quadrature_rules`, from the cache
     keys (node counts): a 1-D rule of n nodes holds 2 arrays of n doubles, a disk rule of
     ``(n_u, n_s)`` nodes 3 arrays of ``n_u n_s``."""
     total = 0
     for name, arrays in (("_rule_u", 2), ("_rule_s", 2), ("_kept_disk_rule", 3),
                          ("disk_rule", 3)):
-        fn = getattr(strain, name, None)
+        fn = getattr(rules, name, None)
         for key in _lru_keys(fn) if fn is not None else ():
             nodes = key if isinstance(key, int) else math.prod(k for k in key if isinstance(k, int))
             total += arrays * 8 * nodes
@@ -195,17 +195,17 @@ def rule_cache_bytes(strain: Any) -> int:
 
 def fitter_cache_figures() -> dict[str, int]:
     """Entries of the fitter's per-process caches: the quadrature rules of
-    :mod:`tactiled.physics.strain` (1-D Gauss rules by node count, 2-D disk rules by pair of
+    :mod:`tactiled.physics.quadrature_rules` (1-D Gauss rules by node count, 2-D disk rules by pair of
     counts) and the start tables.  Only modules already imported are looked at."""
     out: dict[str, int] = {}
-    strain = sys.modules.get("tactiled.physics.strain")
-    if strain is not None:
+    rules = sys.modules.get("tactiled.physics.quadrature_rules")
+    if rules is not None:
         for name, key in (("_rule_u", "rule_u"), ("_rule_s", "rule_s"),
                           ("_kept_disk_rule", "disk_rule"), ("disk_rule", "disk_rule")):
-            fn = getattr(strain, name, None)
+            fn = getattr(rules, name, None)
             if fn is not None and hasattr(fn, "cache_info"):
                 out[f"cache_{key}"] = fn.cache_info().currsize
-        out["cache_rule_mb"] = round(rule_cache_bytes(strain) * _MB, 3)
+        out["cache_rule_mb"] = round(rule_cache_bytes(rules) * _MB, 3)
     start = sys.modules.get("tactiled.fit.start")
     if start is not None and hasattr(start, "start_table"):
         out["cache_start_table"] = start.start_table.cache_info().currsize

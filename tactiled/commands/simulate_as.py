@@ -40,10 +40,9 @@ import numpy as np
 
 from tactiled.sensors.devices import KINDS, DeviceArray, device_array
 from tactiled.errors import TactiledError
+from tactiled.commands.device_stream import MAX_BATCH, MAX_LAG_S, FrameWriter, make_pty, remove_link, until_signal
 from tactiled.sim import DriftModel, FingerSimulator, FrameSchedule, HysteresisModel
 
-MAX_BATCH = 32
-MAX_LAG_S = 1.0
 #: XELA magnetic taxels: x and y counts at rest (mid-range of 16 bits), and their wobble.
 XELA_REST = 0x8000
 XELA_SHEAR_SD = 40.0
@@ -110,7 +109,6 @@ def run(args: argparse.Namespace) -> int:
                 else simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1))
     except (ValueError, TactiledError) as err:
         return _error(str(err))
-    from tactiled.commands.simulate import until_signal
 
     serve = _serve_xela if args.as_kind == "xela" else _serve_pty
     return until_signal(lambda stop: serve(args, sims, stop))
@@ -167,10 +165,8 @@ class _AutoSend:
 
 
 def _serve_pty(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[int]) -> int:
-    from tactiled.commands.simulate import FrameWriter, _make_pty, _remove_link
-
     try:
-        fd, name = _make_pty(args.device)
+        fd, name = make_pty(args.device)
     except OSError as err:
         return _error(f"cannot create the pty link {args.device}: {err}")
     print(f"pty: {name}", flush=True)
@@ -181,7 +177,7 @@ def _serve_pty(args: argparse.Namespace, sims: list[FingerSimulator], stop: list
         (_answer_paxini if paxini else _stream)(args, sims, stop, fd, writer)
     finally:
         os.close(fd)
-        _remove_link(args.device, name)
+        remove_link(args.device, name)
     what = "answered {} request(s)" if paxini else "sent {} frame(s)"
     print(f"tactiled simulate: {what.format(writer.sent)}, dropped {writer.dropped}",
           file=sys.stderr)

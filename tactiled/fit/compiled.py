@@ -29,7 +29,7 @@ from tactiled.fit.solver import (BUDGET_MESSAGE, DAMPING_EXHAUSTED, DECREASE_BEL
 from tactiled.physics.hertz import ellipse_core
 from tactiled.physics.kernels import finite_cost, window_residual
 from tactiled.physics.line import line_points, line_residual
-from tactiled.physics.strain import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
+from tactiled.physics.quadrature_rules import _LADDER, MAX_NODES, MIN_NODES, _rule_s, _rule_u
 
 #: Largest rule (nodes per axis) the compiled search uses without a work budget; beyond it,
 #: the Python solver.
@@ -69,7 +69,7 @@ def rule_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.nd
 
 
 def _nodes(extent: float, depth: float, tol: float, ladder: np.ndarray) -> int:
-    """``strain.nodes_for``: the ladder size, or -1 beyond MAX_NODES (too long to integrate)."""
+    """``quadrature_rules.nodes_for``: the ladder size, or -1 beyond MAX_NODES (too long to integrate)."""
     r = depth / max(extent, 1e-12)
     log_rho = math.asinh(r)
     n = math.ceil(0.5 * math.log(1.0 / tol) / log_rho) if log_rho > 0 else MAX_NODES + 1

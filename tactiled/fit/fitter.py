@@ -35,7 +35,8 @@ from tactiled.fit.start import StartTable, force_constants, start_table
 from tactiled.fit.verdict import ArrayLimits, judge_values
 from tactiled.fit.window import choose_window, plain_frame, plain_window
 from tactiled.physics.contact import Contact, LineContact
-from tactiled.physics.strain import StrainModel, warm_rules
+from tactiled.physics.quadrature_rules import warm_rules
+from tactiled.physics.strain import StrainModel
 
 #: A peak below this is no contact at all (far below any sensor's noise).
 MIN_PEAK = 1e-9

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 from tactiled import native
+from tactiled.fit.pointstrain import point_strain
 from tactiled.fit.regions import SUPPORT_Z
 from tactiled.fit.window import choose_window
 
@@ -140,12 +141,11 @@ def chi2_on_band(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, model
     in a 4x4 window, the ellipse's ends leave unexplained along the band).  ``(None, 0)``
     without a band or a prediction."""
     from tactiled.fit.result import FitResult
-    from tactiled.fit.multi import _point_strain
 
     fr = line_frame(fitter, strain, mask)
     if isinstance(fr, FitResult) or params is None:
         return None, 0
-    pred = _point_strain(fitter, model, params)
+    pred = point_strain(fitter, model, params)
     if pred is None:
         return None, 0
     r0, c0, nr, nc = fr.win

@@ -28,6 +28,7 @@ import numpy as np
 from tactiled.fit.linearize import SeveralLinearizations
 from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
+from tactiled.fit.pointstrain import point_contact, point_strain
 from tactiled.fit.regions import (
     ABSORBED_SHARE,
     SIGNIFICANT_Z,
@@ -49,15 +50,6 @@ MERGED_REASON = ("another pressed place within the cover's spread of this one, o
                  "too close to tell apart, reported as one")
 
 
-def _point_contact(model: str, params: tuple[float, ...]) -> tuple[float, ...] | None:
-    """``(kappa_a, kappa_b, psi, F, x0, y0)`` of a point contact's internal parameters."""
-    try:
-        phys, _ = get_model(model).physical(np.asarray(params, dtype=float))
-    except (ValueError, KeyError):
-        return None
-    return tuple(float(v) for v in phys)
-
-
 def predicted_strain(fitter: Any, res: FitResult) -> np.ndarray | None:
     """The strain ``res`` predicts on the whole array, as the fits read frames (after the
     flat field), or None when it predicts nothing (no contact, a withheld place)."""
@@ -75,22 +67,7 @@ def predicted_strain(fitter: Any, res: FitResult) -> np.ndarray | None:
             return m.predict(contact, m.xs_full, m.ys_full)
         except (ValueError, OverflowError):
             return None  # a line too wide to integrate (a radius the frame leaves open)
-    return _point_strain(fitter, res.model, res.params)
-
-
-def _point_strain(fitter: Any, model: str, params: tuple[float, ...]) -> np.ndarray | None:
-    """The strain on the whole array of a point contact's internal parameters (None: not a
-    point contact, or no valid contact)."""
-    phys = _point_contact(model, params)
-    if phys is None:
-        return None
-    ka, kb, psi, force, x0, y0 = phys
-    m = fitter.model
-    try:
-        ell, _ = m.ellipse(ka, kb, psi, force)
-    except ValueError:
-        return None
-    return m.strain_from_ellipse(ell, force, x0, y0, m.xs_full, m.ys_full)
+    return point_strain(fitter, res.model, res.params)
 
 
 def _raw(fitter: Any, flat_strain: np.ndarray) -> np.ndarray:
@@ -251,7 +228,7 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
     # every contact held since the last frame: its neighbours' strain is known from their
     # last fits at once, and one pass does what the cold start's two do
     if all(st is not None for st in starts):
-        preds = [_point_strain(fitter, *st) for st in starts]  # type: ignore[misc]
+        preds = [point_strain(fitter, *st) for st in starts]  # type: ignore[misc]
     warm_all = all(p is not None for p in preds)
     sweeps = 1 if warm_all or first is not None else SWEEPS
     frozen = fitter.frozen
@@ -440,7 +417,7 @@ def _refine_jointly(fitter: Any, strain: np.ndarray, usable: np.ndarray, results
 def _point_jacobian(fitter: Any, model: str, params: tuple[float, ...]) -> np.ndarray | None:
     """d(strain on the whole array)/d(internal parameters), ``(rows*cols, size)``; None for a
     contact that is not a point contact of a known model."""
-    phys = _point_contact(model, params)
+    phys = point_contact(model, params)
     if phys is None:
         return None
     m = fitter.model

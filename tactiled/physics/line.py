@@ -29,7 +29,7 @@ import numpy as np
 
 from tactiled import native
 
-from tactiled.physics.strain import _rule_s, nodes_for
+from tactiled.physics.quadrature_rules import _rule_s, nodes_for
 
 #: Below this |cos psi| or |sin psi| the line lies along an axis and the residue's far pole
 #: is at infinity: its limit, a principal value, is taken.  Near an axis the formula loses

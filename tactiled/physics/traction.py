@@ -36,7 +36,7 @@ from scipy.special import roots_chebyt, roots_legendre
 
 from tactiled.physics.halfspace import green_weighted
 from tactiled.physics.hertz import Ellipse
-from tactiled.physics.strain import DEFAULT_TOL, disk_rule, nodes_for
+from tactiled.physics.quadrature_rules import DEFAULT_TOL, disk_rule, nodes_for
 
 #: Above this ``1 - lam`` the partial-slip traction is evaluated as full stick: the difference
 #: of the two Hertz-like integrals divided by ``lam`` would lose the quadrature's accuracy.

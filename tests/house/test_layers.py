@@ -70,15 +70,6 @@ BENCH_ENTRY = ("tactiled.commands.bench", "tactiled.commands.calibrate")
 UPWARD_KNOWN: dict[tuple[str, str], str] = {}
 #: Import cycles between modules today (their sorted members) -> the mend.
 CYCLES_KNOWN: dict[tuple[str, ...], str] = {
-    ("tactiled.fit.linewindow", "tactiled.fit.multi", "tactiled.fit.selection"):
-        "the model selection, the several-contact fit and the line's band call one another "
-        "through function-level imports: a strategy interface they share mends it",
-    ("tactiled.physics.line", "tactiled.physics.strain"):
-        "line.py takes its quadrature rules from strain.py, which calls line_strain inside "
-        "StrainModel: the rules belong in a module of their own",
-    ("tactiled.commands.simulate", "tactiled.commands.simulate_as"):
-        "simulate --as runs simulate_as, which takes the pty and frame writer from simulate: "
-        "those belong in a module of their own",
 }
 MAX_LINES = 700
 #: Modules over MAX_LINES today -> the split that mends it.

@@ -107,7 +107,7 @@ def test_model_maps_equal_the_reference(kind: int, p: np.ndarray) -> None:
 # --- quadrature --------------------------------------------------------------------------------
 
 def _rule(nu: int, ns: int):
-    from tactiled.physics.strain import disk_rule
+    from tactiled.physics.quadrature_rules import disk_rule
 
     return disk_rule(nu, ns)
 
@@ -216,7 +216,7 @@ def test_line_response_equals_the_reference(dist, psi, px, py, want) -> None:
        nodes=st.integers(3, 9), seed=st.integers(0, 1000))
 def test_line_residual_and_strain_equal_the_reference(ln_r, psi, ln_p, off, rows, cols, nodes, seed) -> None:
     from tactiled.physics import line
-    from tactiled.physics.strain import _rule_s
+    from tactiled.physics.quadrature_rules import _rule_s
 
     ref = line.REFERENCE
     rng = np.random.default_rng(seed)
@@ -329,7 +329,8 @@ def test_the_search_agrees_with_the_reference(kind, r1, psi, force, x0, y0, shif
     from tactiled.fit import compiled
     from tactiled.fit.models import MODELS
     from tactiled.physics.contact import Contact
-    from tactiled.physics.strain import MAX_NODES, StrainModel
+    from tactiled.physics.quadrature_rules import MAX_NODES
+    from tactiled.physics.strain import StrainModel
 
     model = StrainModel(DEFAULT_SENSOR)
     g = DEFAULT_SENSOR.geometry

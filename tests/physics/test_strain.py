@@ -10,7 +10,8 @@ from tactiled.physics.contact import Contact
 from tactiled.physics.hertz import contact_ellipse
 from tactiled.physics.impulse import line_response
 from tactiled.physics.reference import reference_strain
-from tactiled.physics.strain import StrainModel, disk_rule
+from tactiled.physics.quadrature_rules import disk_rule
+from tactiled.physics.strain import StrainModel
 
 SENSOR = SensorModel()
 MODEL = StrainModel(SENSOR)
