@@ -1,36 +1,38 @@
 """Frame time: the one place every stamp comes from (``Frame.time``, the estimate's ``time``,
 ROS 2's ``header.stamp``).
 
-A frame's time is when the device measured it, on the host's clock (Unix seconds), so stamps
-of different sensors and hosts compare, and a controller can compute rates from them.  Two
-cases:
-
-* **The device sends its clock** (the wire protocol's ``device_time_us``, Robotiq's
-  timestamp field, XELA's ``time``; ``Frame.clocked`` True): device time ``d`` is mapped onto
-  host time by :class:`OffsetDriftFilter`.  Each frame's arrival ``h`` (``Frame.host_time``,
-  monotonic s) is its send time plus a transport delay that is never negative, so ``h - d`` is
-  the clock offset plus that delay; the filter follows the *lower envelope* of ``h - d`` (the
-  frames that came fastest), as NTP's clock filter keeps its least-delay samples: a sample
-  below the envelope moves it down at once; the envelope's slope (the device crystal's drift
-  against the host's, parts per million) is the slope between the least-delay samples of
-  successive windows of :data:`WINDOW_S`, smoothed; at each window's end the envelope moves
-  up to that window's least-delay sample if it lies above (a device clock slower than the
-  host's), unless it lies further above than :data:`MAX_DRIFT` allows: then the host stalled
-  and every frame of the window came late, and the window is no evidence at all.  A device clock that goes back or jumps (a restarted device, a wrapped counter the
-  driver did not unwrap) starts the filter afresh.
-* **The device sends no clock** (FlexiTac, text lines without a time column; ``clocked``
-  False): the frames of one read arrived together, but were sent one period apart.  The last
-  of them is stamped with the arrival time and each earlier one a period per sequence step
-  before it; the period is ``1 / rate_hz`` of the sensor's settings, else the measured mean
-  interval between frames.
-
-Either way the stamps of a sensor **strictly increase and never go back**: where the mapping
-would put a frame at or before its predecessor (the envelope moved down, reads came late),
-the stamp advances by at least half the frame's own interval instead, so time slews back
-onto the mapping within a few frames rather than stepping back or repeating.
-
-Clear Python on purpose: this is the reference a faster frame path is checked against.
+A frame's time is when the device measured it, on the host's clock (Unix seconds).
 """
+
+# A frame's time is when the device measured it, on the host's clock (Unix seconds), so stamps
+# of different sensors and hosts compare, and a controller can compute rates from them.  Two
+# cases:
+#
+# * **The device sends its clock** (the wire protocol's ``device_time_us``, Robotiq's
+#   timestamp field, XELA's ``time``; ``Frame.clocked`` True): device time ``d`` is mapped onto
+#   host time by :class:`OffsetDriftFilter`.  Each frame's arrival ``h`` (``Frame.host_time``,
+#   monotonic s) is its send time plus a transport delay that is never negative, so ``h - d`` is
+#   the clock offset plus that delay; the filter follows the *lower envelope* of ``h - d`` (the
+#   frames that came fastest), as NTP's clock filter keeps its least-delay samples: a sample
+#   below the envelope moves it down at once; the envelope's slope (the device crystal's drift
+#   against the host's, parts per million) is the slope between the least-delay samples of
+#   successive windows of :data:`WINDOW_S`, smoothed; at each window's end the envelope moves
+#   up to that window's least-delay sample if it lies above (a device clock slower than the
+#   host's), unless it lies further above than :data:`MAX_DRIFT` allows: then the host stalled
+#   and every frame of the window came late, and the window is no evidence at all.  A device clock that goes back or jumps (a restarted device, a wrapped counter the
+#   driver did not unwrap) starts the filter afresh.
+# * **The device sends no clock** (FlexiTac, text lines without a time column; ``clocked``
+#   False): the frames of one read arrived together, but were sent one period apart.  The last
+#   of them is stamped with the arrival time and each earlier one a period per sequence step
+#   before it; the period is ``1 / rate_hz`` of the sensor's settings, else the measured mean
+#   interval between frames.
+#
+# Either way the stamps of a sensor **strictly increase and never go back**: where the mapping
+# would put a frame at or before its predecessor (the envelope moved down, reads came late),
+# the stamp advances by at least half the frame's own interval instead, so time slews back
+# onto the mapping within a few frames rather than stepping back or repeating.
+#
+# Clear Python on purpose: this is the reference a faster frame path is checked against.
 
 from __future__ import annotations
 

@@ -1,17 +1,16 @@
-"""The long-running process's garbage-collection policy.
+"""The long-running process's garbage-collection policy."""
 
-Objects that die in reference cycles (a closed WebSocket session: its protocol, transport,
-tasks and the ``Stalled``/``CancelledError`` tracebacks point at each other) are freed only by
-CPython's cyclic collector.  Left to its thresholds, a long-running service collects fully
-only every few minutes, each pass over everything start-up left (30+ MB: FastAPI, pydantic,
-numpy, scipy); dead sessions pile up in between, and pymalloc's arenas, sized for each pile
-and fragmented, are not all given back, so the RSS creeps (docs/performance/reliability.md,
-"Soak").
-
-:func:`settle` moves what start-up left alive into the permanent generation
-(:func:`gc.freeze`), which the collector never scans again, so a full collection weighs only
-what was made since; :func:`collect_every` then runs one every few seconds.
-"""
+# Objects that die in reference cycles (a closed WebSocket session: its protocol, transport,
+# tasks and the ``Stalled``/``CancelledError`` tracebacks point at each other) are freed only by
+# CPython's cyclic collector.  Left to its thresholds, a long-running service collects fully
+# only every few minutes, each pass over everything start-up left (30+ MB: FastAPI, pydantic,
+# numpy, scipy); dead sessions pile up in between, and pymalloc's arenas, sized for each pile
+# and fragmented, are not all given back, so the RSS creeps (docs/performance/reliability.md,
+# "Soak").
+#
+# :func:`settle` moves what start-up left alive into the permanent generation
+# (:func:`gc.freeze`), which the collector never scans again, so a full collection weighs only
+# what was made since; :func:`collect_every` then runs one every few seconds.
 
 from __future__ import annotations
 

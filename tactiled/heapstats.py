@@ -1,19 +1,18 @@
-"""Where a process's memory is: figures for the soak, the worker-memory probe and the metrics.
+"""Where a process's memory is: figures for the soak, the worker-memory probe and the metrics."""
 
-* :func:`rss_mb`: resident set size of any process (``/proc/PID/statm``);
-* :func:`malloc_figures`: glibc malloc's own books (``mallinfo2``: bytes in use, free but kept,
-  mmapped; and from ``malloc_info`` the number of arenas and what each holds from the system);
-* :func:`pymalloc_figures`: Python's small-object allocator (1 MiB arenas held, bytes of live
-  objects in them);
-* :func:`heap_figures`: all of them, one flat dict of numbers (MB, counts);
-* :func:`fitter_cache_figures` (the fitter's quadrature-rule caches and start tables),
-  :func:`gc_figures` (the cyclic collector), and :func:`worker_figures`, what a fit worker
-  answers to the pool's ``memory`` request.
-
-RSS that grows while the bytes in use do not is an allocator keeping freed memory
-(fragmentation), not a leak; bytes in use that grow are a leak or a cache filling up.  Linux
-and glibc only; elsewhere the functions return ``None`` or ``{}``.
-"""
+# * :func:`rss_mb`: resident set size of any process (``/proc/PID/statm``);
+# * :func:`malloc_figures`: glibc malloc's own books (``mallinfo2``: bytes in use, free but kept,
+#   mmapped; and from ``malloc_info`` the number of arenas and what each holds from the system);
+# * :func:`pymalloc_figures`: Python's small-object allocator (1 MiB arenas held, bytes of live
+#   objects in them);
+# * :func:`heap_figures`: all of them, one flat dict of numbers (MB, counts);
+# * :func:`fitter_cache_figures` (the fitter's quadrature-rule caches and start tables),
+#   :func:`gc_figures` (the cyclic collector), and :func:`worker_figures`, what a fit worker
+#   answers to the pool's ``memory`` request.
+#
+# RSS that grows while the bytes in use do not is an allocator keeping freed memory
+# (fragmentation), not a leak; bytes in use that grow are a leak or a cache filling up.  Linux
+# and glibc only; elsewhere the functions return ``None`` or ``{}``.
 
 from __future__ import annotations
 

@@ -1,28 +1,27 @@
-"""Frame sources: where wire bytes come from, chosen by URL and found by name.
+"""Frame sources: where wire bytes come from, chosen by URL and found by name."""
 
-A source is named by a URL whose scheme picks the driver::
-
-    serial:///dev/ttyACM0?baud=1000000     the fingertip on a serial port (pyserial)
-    sim://?seed=3&scene=press               the scene simulator, encoded to wire bytes
-    replay://session.tact?speed=0           a recording (speed 0: as fast as possible)
-    flexitac:///dev/ttyUSB0?rows=12&cols=32 a lab's own device: lines://, flexitac://,
-                                            robotiq://, xela:// (docs/howto/drivers.md)
-
-Drivers are registered by name as ``"module:Class"`` strings (the pattern of python-can's
-``can/interfaces/__init__.py``) plus the ``tactiled.drivers`` entry-point group, so a third
-party can add one; the shipped ones also list their URL query keys, so
-:func:`check_source_url` checks a URL without importing its driver.  Nothing is imported until
-a source is built: the core never imports
-``tactiled_drivers`` or pyserial at module level, and a missing optional library breaks only
-its own driver (with a :class:`~tactiled.errors.DriverError` naming it).
-
-Every source delivers *bytes*; :meth:`FrameSource.frames` feeds them through one
-:class:`~tactiled.frames.FrameDecoder`, so simulated and replayed frames travel the same
-decoding path as the hardware's.  Following python-can's ``BusABC.recv`` /
-``_recv_internal``, the base class does the common work (state checks, timeout, counters,
-timestamps) in the public :meth:`FrameSource.read`; a driver implements only
-:meth:`FrameSource._read_internal` (and ``_open_internal`` / ``_close_internal``).
-"""
+# A source is named by a URL whose scheme picks the driver::
+#
+#     serial:///dev/ttyACM0?baud=1000000     the fingertip on a serial port (pyserial)
+#     sim://?seed=3&scene=press               the scene simulator, encoded to wire bytes
+#     replay://session.tact?speed=0           a recording (speed 0: as fast as possible)
+#     flexitac:///dev/ttyUSB0?rows=12&cols=32 a lab's own device: lines://, flexitac://,
+#                                             robotiq://, xela:// (docs/howto/drivers.md)
+#
+# Drivers are registered by name as ``"module:Class"`` strings (the pattern of python-can's
+# ``can/interfaces/__init__.py``) plus the ``tactiled.drivers`` entry-point group, so a third
+# party can add one; the shipped ones also list their URL query keys, so
+# :func:`check_source_url` checks a URL without importing its driver.  Nothing is imported until
+# a source is built: the core never imports
+# ``tactiled_drivers`` or pyserial at module level, and a missing optional library breaks only
+# its own driver (with a :class:`~tactiled.errors.DriverError` naming it).
+#
+# Every source delivers *bytes*; :meth:`FrameSource.frames` feeds them through one
+# :class:`~tactiled.frames.FrameDecoder`, so simulated and replayed frames travel the same
+# decoding path as the hardware's.  Following python-can's ``BusABC.recv`` /
+# ``_recv_internal``, the base class does the common work (state checks, timeout, counters,
+# timestamps) in the public :meth:`FrameSource.read`; a driver implements only
+# :meth:`FrameSource._read_internal` (and ``_open_internal`` / ``_close_internal``).
 
 from __future__ import annotations
 

@@ -1,27 +1,26 @@
-"""The systemd notification protocol (sd_notify(3)), without libsystemd.
+"""The systemd notification protocol (sd_notify(3)), without libsystemd."""
 
-A notification is one datagram to the ``AF_UNIX`` socket named by ``$NOTIFY_SOCKET``: an
-absolute path, or a Linux abstract-namespace name when it starts with ``@`` (the ``@`` becomes a
-leading NUL byte).  The payload is newline-separated ``NAME=value`` assignments with no
-trailing newline (``READY=1``, ``STATUS=...``, ``STOPPING=1``, ``WATCHDOG=1``).  Outside systemd
-the variable is unset and every call is a no-op, so the daemon calls these unconditionally.
-
-Watchdog: with ``WatchdogSec=`` systemd passes ``$WATCHDOG_USEC`` and ``$WATCHDOG_PID`` (the
-main process).  A process whose pid is not ``$WATCHDOG_PID`` (a child that inherited the
-environment) must not ping; the recommended ping period is half the timeout
-(sd_watchdog_enabled(3)).  systemd arms the watchdog when start-up completes (READY=1).
-
-Use in ``tactiled run``::
-
-    notifier = Notifier.from_env(unset_environment=True)   # before fit workers start
-    interval = watchdog_interval(unset_environment=True)
-    ...  # bind the port
-    notifier.ready(status="serving on 127.0.0.1:8765")
-    if interval is not None:
-        tasks.add(asyncio.create_task(watchdog_loop(notifier, WatchdogGate(progress), interval)))
-    ...  # on SIGTERM
-    notifier.stopping()
-"""
+# A notification is one datagram to the ``AF_UNIX`` socket named by ``$NOTIFY_SOCKET``: an
+# absolute path, or a Linux abstract-namespace name when it starts with ``@`` (the ``@`` becomes a
+# leading NUL byte).  The payload is newline-separated ``NAME=value`` assignments with no
+# trailing newline (``READY=1``, ``STATUS=...``, ``STOPPING=1``, ``WATCHDOG=1``).  Outside systemd
+# the variable is unset and every call is a no-op, so the daemon calls these unconditionally.
+#
+# Watchdog: with ``WatchdogSec=`` systemd passes ``$WATCHDOG_USEC`` and ``$WATCHDOG_PID`` (the
+# main process).  A process whose pid is not ``$WATCHDOG_PID`` (a child that inherited the
+# environment) must not ping; the recommended ping period is half the timeout
+# (sd_watchdog_enabled(3)).  systemd arms the watchdog when start-up completes (READY=1).
+#
+# Use in ``tactiled run``::
+#
+#     notifier = Notifier.from_env(unset_environment=True)   # before fit workers start
+#     interval = watchdog_interval(unset_environment=True)
+#     ...  # bind the port
+#     notifier.ready(status="serving on 127.0.0.1:8765")
+#     if interval is not None:
+#         tasks.add(asyncio.create_task(watchdog_loop(notifier, WatchdogGate(progress), interval)))
+#     ...  # on SIGTERM
+#     notifier.stopping()
 
 from __future__ import annotations
 

@@ -1,28 +1,27 @@
-"""Build lookup tables from recorded presses with known loads (``tactiled calibrate``).
+"""Build lookup tables from recorded presses with known loads (``tactiled calibrate``)."""
 
-Per tactel, from the ``N`` pairs (reference strain ``s_i``, raw counts ``c_i``):
-
-1. **Fit the response counts = f(strain)**, not strain = f(counts): the noise is in the counts
-   while the reference strain is exact by assumption, so regressing counts on strain has no
-   errors-in-variables bias.  ``f`` is continuous piecewise linear (a least-squares fit in the
-   hat-function basis) on knots in strain: the distinct reference levels if there are at most
-   ``knots`` of them, else ``knots`` evenly spaced from the smallest to the largest reference;
-   an interior knot with no data on either side is dropped.
-2. **Measure**: ``gain`` = total variation of the fitted counts / strain span (counts per unit
-   strain, the tactel's response); ``violation`` = the share of that variation running
-   *backwards* (counts falling as strain rises).
-3. **Make it monotone** by weighted pool-adjacent-violators on the knot values (weights: the data
-   mass each knot carries), then **invert**: table knots are (fitted counts, strain); knots the
-   PAV pooled to equal counts merge into one, at their mean strain.
-4. **Flag** (after all tactels are fitted): *unexercised* if the tactel's reference strain spans
-   less than ``min_strain_span``; *dead* if its gain is below ``dead_fraction`` of the median
-   gain of the exercised tactels; *non-monotone* if ``violation > nonmonotone_fraction``.
-   Dead and unexercised tactels get a flat table at strain 0 (they read 0 after zeroing and can
-   never raise a contact); non-monotone ones keep their best monotone fit.  All flags go into the
-   file so the pipeline can mask those tactels.
-5. **Residuals**: the finished table applied to the recorded counts minus the reference, RMS and
-   max per tactel, in strain.  With good data the RMS is about ``noise_counts / gain``.
-"""
+# Per tactel, from the ``N`` pairs (reference strain ``s_i``, raw counts ``c_i``):
+#
+# 1. **Fit the response counts = f(strain)**, not strain = f(counts): the noise is in the counts
+#    while the reference strain is exact by assumption, so regressing counts on strain has no
+#    errors-in-variables bias.  ``f`` is continuous piecewise linear (a least-squares fit in the
+#    hat-function basis) on knots in strain: the distinct reference levels if there are at most
+#    ``knots`` of them, else ``knots`` evenly spaced from the smallest to the largest reference;
+#    an interior knot with no data on either side is dropped.
+# 2. **Measure**: ``gain`` = total variation of the fitted counts / strain span (counts per unit
+#    strain, the tactel's response); ``violation`` = the share of that variation running
+#    *backwards* (counts falling as strain rises).
+# 3. **Make it monotone** by weighted pool-adjacent-violators on the knot values (weights: the data
+#    mass each knot carries), then **invert**: table knots are (fitted counts, strain); knots the
+#    PAV pooled to equal counts merge into one, at their mean strain.
+# 4. **Flag** (after all tactels are fitted): *unexercised* if the tactel's reference strain spans
+#    less than ``min_strain_span``; *dead* if its gain is below ``dead_fraction`` of the median
+#    gain of the exercised tactels; *non-monotone* if ``violation > nonmonotone_fraction``.
+#    Dead and unexercised tactels get a flat table at strain 0 (they read 0 after zeroing and can
+#    never raise a contact); non-monotone ones keep their best monotone fit.  All flags go into the
+#    file so the pipeline can mask those tactels.
+# 5. **Residuals**: the finished table applied to the recorded counts minus the reference, RMS and
+#    max per tactel, in strain.  With good data the RMS is about ``noise_counts / gain``.
 
 from __future__ import annotations
 

@@ -1,37 +1,37 @@
 """Contact detection on zeroed strain frames: a matched-filter bank, a noise-calibrated threshold
 and hysteresis.
-
-Statistic
----------
-The rubber spreads even a point contact over 3x3 to 4x4 tactels (impulse response depth 4-6 mm
-against 3.3-3.9 mm pitch), so the detector correlates the frame with the point-load response
-``w_u(i, j) = h_x((i - u_x) dx) h_y((j - u_y) dy)`` for template centres ``u`` on a grid of half
-a tactel pitch (15 x 15 centres on 8x8; ``subdivide``), keeping tactels within ``reach`` = 1.5
-pitches of the centre, and normalises each output by its template's norm:
-
-    T[u] = sum_ij w_u(i, j) z[i, j] / sqrt(sum_ij w_u(i, j)^2)
-
-On noise-only frames (i.i.d. ``N(0, sigma^2)``) every ``T[u]`` is exactly ``N(0, sigma^2)``,
-at the array edge too.  For a point contact at ``u`` its mean is the frame's full matched-filter
-SNR there (about 1.2 times the peak strain for a contact over a tactel); the half-pitch centres
-matter for contacts between tactels, where a tactel-centred template loses a quarter of the
-signal (at 0.05 N between four tactels: miss 9 % with tactel centres, 3 % with the bank).  The
-statistic is ``max T``.  ``w`` is separable, so the map is ``Ax @ z @ Ay.T`` with banded
-``Ax``, ``Ay`` (normalisation folded into their rows): two tiny BLAS calls per frame.
-
-Threshold
----------
-``P(max T > t) <= P * Q(t / sigma)`` over the ``P`` centres (union bound; ``Q`` the normal
-tail), so ``t = sigma * Q^-1(false_rate / P)`` guarantees at most ``false_rate`` false contacts
-per noise-only frame: 4.92 sigma for 1e-4 with 225 centres.  Neighbouring centres are strongly
-correlated, so the true rate is lower (about 0.6e-4; ``method="montecarlo"`` measures the
-quantile on simulated noise instead, 4.85 sigma).
-
-Non-finite entries
-------------------
-NaN or inf in the frame are treated as 0 (no evidence either way), the frame is decided on the
-rest, and :attr:`ContactDetector.nonfinite_frames` counts such frames.
 """
+
+# Statistic
+# ---------
+# The rubber spreads even a point contact over 3x3 to 4x4 tactels (impulse response depth 4-6 mm
+# against 3.3-3.9 mm pitch), so the detector correlates the frame with the point-load response
+# ``w_u(i, j) = h_x((i - u_x) dx) h_y((j - u_y) dy)`` for template centres ``u`` on a grid of half
+# a tactel pitch (15 x 15 centres on 8x8; ``subdivide``), keeping tactels within ``reach`` = 1.5
+# pitches of the centre, and normalises each output by its template's norm:
+#
+#     T[u] = sum_ij w_u(i, j) z[i, j] / sqrt(sum_ij w_u(i, j)^2)
+#
+# On noise-only frames (i.i.d. ``N(0, sigma^2)``) every ``T[u]`` is exactly ``N(0, sigma^2)``,
+# at the array edge too.  For a point contact at ``u`` its mean is the frame's full matched-filter
+# SNR there (about 1.2 times the peak strain for a contact over a tactel); the half-pitch centres
+# matter for contacts between tactels, where a tactel-centred template loses a quarter of the
+# signal (at 0.05 N between four tactels: miss 9 % with tactel centres, 3 % with the bank).  The
+# statistic is ``max T``.  ``w`` is separable, so the map is ``Ax @ z @ Ay.T`` with banded
+# ``Ax``, ``Ay`` (normalisation folded into their rows): two tiny BLAS calls per frame.
+#
+# Threshold
+# ---------
+# ``P(max T > t) <= P * Q(t / sigma)`` over the ``P`` centres (union bound; ``Q`` the normal
+# tail), so ``t = sigma * Q^-1(false_rate / P)`` guarantees at most ``false_rate`` false contacts
+# per noise-only frame: 4.92 sigma for 1e-4 with 225 centres.  Neighbouring centres are strongly
+# correlated, so the true rate is lower (about 0.6e-4; ``method="montecarlo"`` measures the
+# quantile on simulated noise instead, 4.85 sigma).
+#
+# Non-finite entries
+# ------------------
+# NaN or inf in the frame are treated as 0 (no evidence either way), the frame is decided on the
+# rest, and :attr:`ContactDetector.nonfinite_frames` counts such frames.
 
 from __future__ import annotations
 

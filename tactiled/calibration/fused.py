@@ -2,16 +2,16 @@
 (core/calibrate.cpp, ``tactiled._core``) or, with ``TACTILED_CORE=python``, their reference
 in NumPy (:mod:`tactiled.calibration.fused_reference`, which says what each does).  The two
 take the same arguments and give the same bits (tests/native/test_calibrate_core.py).
-
-* :func:`zero_frame`: raw counts -> linearised, zeroed, hysteresis-compensated strain and the
-  matched filter's statistic, in one pass;
-* :func:`follow_baseline`: the baseline's step towards an untouched frame;
-* :func:`average_maps`: the detector's running mean of its filter maps;
-* :func:`drift_error`, :func:`pull_baseline`: drift followed around a held contact;
-* :func:`learn_hysteresis`: a step of the hysteresis learner.
-
-Nothing is compiled at first use: the core is built by ``pip install``.
 """
+
+# * :func:`zero_frame`: raw counts -> linearised, zeroed, hysteresis-compensated strain and the
+#   matched filter's statistic, in one pass;
+# * :func:`follow_baseline`: the baseline's step towards an untouched frame;
+# * :func:`average_maps`: the detector's running mean of its filter maps;
+# * :func:`drift_error`, :func:`pull_baseline`: drift followed around a held contact;
+# * :func:`learn_hysteresis`: a step of the hysteresis learner.
+#
+# Nothing is compiled at first use: the core is built by ``pip install``.
 
 from __future__ import annotations
 

@@ -1,35 +1,35 @@
 """The calibration stage's per-frame arithmetic in NumPy: the Python reference of the compiled
 core's (core/calibrate.cpp), which :mod:`tactiled.calibration.fused` selects when
 ``TACTILED_CORE=python``.
-
-What :class:`~tactiled.calibration.stage.CalibrationStage` does to each frame, as the reference
-objects do it (:class:`~tactiled.calibration.lut.LookupTable` ->
-:class:`~tactiled.calibration.zeroing.Zeroer` with its
-:class:`~tactiled.calibration.hysteresis.HysteresisCompensator` ->
-:class:`~tactiled.calibration.detection.ContactDetector`), is a dozen numpy calls on 64 to 256
-numbers, each costing more in call overhead than in arithmetic.  The core runs the same
-arithmetic in one pass over the tactels; here it is written as whole-array NumPy operations in
-the core's order of operations (each sum runs in tactel order, as ``np.cumsum`` sums, never
-pairwise), so the two give the same bits (tests/native/test_calibrate_core.py):
-
-* :func:`zero_frame`: raw counts -> strain through the table's segments (the same search and
-  the same clamped affine map as :class:`~tactiled.calibration.segments.Segments`), minus the
-  baseline, less the hysteresis residual (updating the compensator's peak-hold), and the
-  matched-filter statistic ``max(Ax z Ay^T)`` of the result;
-* :func:`follow_baseline`: the baseline's step towards an untouched frame, its pull clipped
-  when most tactels are implausibly far out (:data:`~tactiled.calibration.zeroing.MAX_STEP_SIGMAS`).
-
-and under a held contact (:meth:`~tactiled.calibration.zeroing.Zeroer.follow_drift`), every
-``DRIFT_STEP_S``: :func:`drift_error` and :func:`pull_baseline`, the baseline following drift
-around the contact, and :func:`learn_hysteresis`, a step of the hysteresis learner.
-
-The decisions (contact, settling, release hold-off, tare) stay in Python, in the stage, with
-the state of the objects above, so either path can take any frame.  The core's kernels keep the
-interpreter's lock: released for the few microseconds of a frame, it went to the serial read
-thread, and the loop then waited to take it back (live on the simulated hand, niced: 105-115
-us a frame with the lock kept, 113-122 released, four runs each alternating,
-docs/performance/hand.md).
 """
+
+# What :class:`~tactiled.calibration.stage.CalibrationStage` does to each frame, as the reference
+# objects do it (:class:`~tactiled.calibration.lut.LookupTable` ->
+# :class:`~tactiled.calibration.zeroing.Zeroer` with its
+# :class:`~tactiled.calibration.hysteresis.HysteresisCompensator` ->
+# :class:`~tactiled.calibration.detection.ContactDetector`), is a dozen numpy calls on 64 to 256
+# numbers, each costing more in call overhead than in arithmetic.  The core runs the same
+# arithmetic in one pass over the tactels; here it is written as whole-array NumPy operations in
+# the core's order of operations (each sum runs in tactel order, as ``np.cumsum`` sums, never
+# pairwise), so the two give the same bits (tests/native/test_calibrate_core.py):
+#
+# * :func:`zero_frame`: raw counts -> strain through the table's segments (the same search and
+#   the same clamped affine map as :class:`~tactiled.calibration.segments.Segments`), minus the
+#   baseline, less the hysteresis residual (updating the compensator's peak-hold), and the
+#   matched-filter statistic ``max(Ax z Ay^T)`` of the result;
+# * :func:`follow_baseline`: the baseline's step towards an untouched frame, its pull clipped
+#   when most tactels are implausibly far out (:data:`~tactiled.calibration.zeroing.MAX_STEP_SIGMAS`).
+#
+# and under a held contact (:meth:`~tactiled.calibration.zeroing.Zeroer.follow_drift`), every
+# ``DRIFT_STEP_S``: :func:`drift_error` and :func:`pull_baseline`, the baseline following drift
+# around the contact, and :func:`learn_hysteresis`, a step of the hysteresis learner.
+#
+# The decisions (contact, settling, release hold-off, tare) stay in Python, in the stage, with
+# the state of the objects above, so either path can take any frame.  The core's kernels keep the
+# interpreter's lock: released for the few microseconds of a frame, it goes to the serial
+# read thread, and the loop then waits to take it back (live on the simulated hand, niced: 105-115
+# us a frame with the lock kept, 113-122 released, four runs each alternating,
+# docs/performance/hand.md).
 
 from __future__ import annotations
 

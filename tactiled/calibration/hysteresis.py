@@ -4,43 +4,43 @@ Rubber springs back a little late.  A tactel unloaded from a strain ``P`` does n
 once but a residual that decays over a fraction of a second.  Left in the frames, that residual
 is a phantom pressure: the trail behind a rolling contact (which the fitter then explains with
 the general model, or a larger contact) and a light "contact" after each lift-off.
-
-**The model.**  Each tactel keeps a peak-hold ``P`` of its compressive strain ``s+ = max(s, 0)``
-that decays with a time constant ``tau``, ``P = max(s+, P exp(-dt / tau))``, and reads the
-residual ``R = f (P - s+)`` on top of ``s``: nothing while loading or holding, after a release
-from ``s_r`` the residual ``f s_r exp(-t / tau)``.  It is the simplest memory that has the two
-facts every elastomer shows (the residual scales with the load released and fades with time),
-with two constants, the fraction ``f`` and ``tau`` (s).
-
-**Learning them** (:class:`HysteresisLearner`) needs no calibration press: the daemon learns
-them in use, from contacts it tracks.  Where a fit's model explains a frame, the tactels
-outside the fit's window read what the model does not explain (``zeroed - predicted``): noise,
-drift, and, behind a contact that moved or eased, the residual.  For each ``tau`` of a grid
-(0.1-5 s), a peak-hold ``P_k`` of the *predicted* compressive strain (noise-free, and blind to
-a held contact's own misfit) gives the regressor ``q_k = P_k - max(predicted, 0)`` (what the
-tactel carried once, less what it carries now).  A
-least-squares fit of the unexplained strain on ``q_k``, beside the predicted load itself (so a
-model that is a few per cent off in scale is not read as hysteresis) and a constant (common
-drift), gives ``f_k`` and its significance ``z_k`` in noise sigmas; the ``tau`` whose ``q_k``
-explains most, refined between grid points, is the estimate.  Sums decay with each step (a
-memory of ``1 / (1 - FORGET)`` steps), so the estimate follows a finger that warms or ages.
-
-**Taking it out** (:class:`HysteresisCompensator`) is switched on only when the estimate is
-significant (``z >= Z_ON`` after ``MIN_STEPS`` steps), its ``tau`` lies inside the grid (at an edge it is a slope of
-something else: drift, a model that misfits) and its fraction is plausible; it goes off again
-below ``Z_OFF``.  A finger without hysteresis stays as it was.  The compensator inverts the
-model frame by frame: where a tactel reads below its peak-hold, ``s = (z - f P) / (1 - f)``,
-and it subtracts ``R = f (P - s)``.  Its peak-hold forgets the noise: it holds a strain less
-``NOISE_MARGIN`` noise sigmas, so a held contact's noise does not ratchet it up and read as a
-release.
-
-On the simulated finger (``f`` = 0.05, ``tau`` = 0.5 s) the learner finds ``tau`` = 0.52-0.58 s
-and ``f`` = 0.043-0.045 on the moving scene, and compensates from its third second on
-(docs/concepts/calibration.md has the figures, and those on other fingers).
-
-Numpy, a compiled kernel for the learner's step (:func:`tactiled.calibration.fused.learn_hysteresis`)
-and no I/O.  Strains are on the zeroed scale (strain, no unit); times in seconds.
 """
+
+# **The model.**  Each tactel keeps a peak-hold ``P`` of its compressive strain ``s+ = max(s, 0)``
+# that decays with a time constant ``tau``, ``P = max(s+, P exp(-dt / tau))``, and reads the
+# residual ``R = f (P - s+)`` on top of ``s``: nothing while loading or holding, after a release
+# from ``s_r`` the residual ``f s_r exp(-t / tau)``.  It is the simplest memory that has the two
+# facts every elastomer shows (the residual scales with the load released and fades with time),
+# with two constants, the fraction ``f`` and ``tau`` (s).
+#
+# **Learning them** (:class:`HysteresisLearner`) needs no calibration press: the daemon learns
+# them in use, from contacts it tracks.  Where a fit's model explains a frame, the tactels
+# outside the fit's window read what the model does not explain (``zeroed - predicted``): noise,
+# drift, and, behind a contact that moved or eased, the residual.  For each ``tau`` of a grid
+# (0.1-5 s), a peak-hold ``P_k`` of the *predicted* compressive strain (noise-free, and blind to
+# a held contact's own misfit) gives the regressor ``q_k = P_k - max(predicted, 0)`` (what the
+# tactel carried once, less what it carries now).  A
+# least-squares fit of the unexplained strain on ``q_k``, beside the predicted load itself (so a
+# model that is a few per cent off in scale is not read as hysteresis) and a constant (common
+# drift), gives ``f_k`` and its significance ``z_k`` in noise sigmas; the ``tau`` whose ``q_k``
+# explains most, refined between grid points, is the estimate.  Sums decay with each step (a
+# memory of ``1 / (1 - FORGET)`` steps), so the estimate follows a finger that warms or ages.
+#
+# **Taking it out** (:class:`HysteresisCompensator`) is switched on only when the estimate is
+# significant (``z >= Z_ON`` after ``MIN_STEPS`` steps), its ``tau`` lies inside the grid (at an edge it is a slope of
+# something else: drift, a model that misfits) and its fraction is plausible; it goes off again
+# below ``Z_OFF``.  A finger without hysteresis stays as it was.  The compensator inverts the
+# model frame by frame: where a tactel reads below its peak-hold, ``s = (z - f P) / (1 - f)``,
+# and it subtracts ``R = f (P - s)``.  Its peak-hold forgets the noise: it holds a strain less
+# ``NOISE_MARGIN`` noise sigmas, so a held contact's noise does not ratchet it up and read as a
+# release.
+#
+# On the simulated finger (``f`` = 0.05, ``tau`` = 0.5 s) the learner finds ``tau`` = 0.52-0.58 s
+# and ``f`` = 0.043-0.045 on the moving scene, and compensates from its third second on
+# (docs/concepts/calibration.md has the figures, and those on other fingers).
+#
+# Numpy, a compiled kernel for the learner's step (:func:`tactiled.calibration.fused.learn_hysteresis`)
+# and no I/O.  Strains are on the zeroed scale (strain, no unit); times in seconds.
 
 from __future__ import annotations
 

@@ -1,36 +1,39 @@
 """Identification: a finger's own rubber constants, tactel responses and positions, from presses
 of known contacts, by maximum likelihood.  No I/O.
 
-Each press ``p`` gives every tactel's raw counts ``y[p, i]``; the press's contact is known
-(indentor radii and orientation, force, centre).  The model of a reading is
-
-    y[p, i] = o[i] + G[i] * s_i(contact_p; theta) + noise
-
-with ``theta`` the rubber's constants ``(depth_x, nu_x, depth_y, nu_y, modulus)``, ``s_i`` the
-contact model's strain at tactel ``i`` where it really sits (its displacement ``(ex[i], ey[i])``
-from the nominal pitch, taken to first order as in the fitter), ``o[i]`` its counts at zero
-load and ``G[i]`` its counts per unit strain.  All of it (5 + 4 per tactel parameters) is
-estimated jointly by damped Gauss-Newton on the weighted squared residuals; the weights are the
-inverse variances of a reading, ``sigma_c^2 + G^2 (a^2 + (r s)^2)``: the count noise plus the
-**model-error floor** ``(a, r)`` (absolute and relative, in strain), itself estimated by maximum
-likelihood from the residuals and then used to re-weight (two rounds).  The 1-sigma bounds come
-from the inverse of the weighted normal matrix: the Cramer-Rao bound of the presses.
-
-What the presses cannot determine is held rather than guessed:
-
-* a rubber constant whose 1-sigma bound exceeds :data:`HOLD_LIMIT` is held at the nominal value
-  (the sensor description's cover; the paper's finger's by default)
-  (the report says so, with the bound it would have had);
-* a tactel's position whose 1-sigma bound exceeds :data:`POSITION_SIGMA_LIMIT` stays on the grid;
-* a tactel whose model strain never spans :data:`MIN_STRAIN_SPAN` keeps the median gain and is
-  flagged ``unexercised``.
-
-The overall gain of the tactels and the modulus trade against each other except through the
-contact's size (``a^3 ~ F / E``): both are estimated, and their bounds say how well the presses
-told them apart.  Finally, each tactel's table (offset, gain and shape) is built by the
-lookup-table builder from the counts against the identified model's strains, so a response that
-is not a straight line keeps its shape.
+All parameters are estimated jointly by damped Gauss-Newton; the 1-sigma bounds are the
+Cramer-Rao bounds of the presses, and what the presses cannot determine is held, not guessed.
 """
+
+# Each press ``p`` gives every tactel's raw counts ``y[p, i]``; the press's contact is known
+# (indentor radii and orientation, force, centre).  The model of a reading is
+#
+#     y[p, i] = o[i] + G[i] * s_i(contact_p; theta) + noise
+#
+# with ``theta`` the rubber's constants ``(depth_x, nu_x, depth_y, nu_y, modulus)``, ``s_i`` the
+# contact model's strain at tactel ``i`` where it really sits (its displacement ``(ex[i], ey[i])``
+# from the nominal pitch, taken to first order as in the fitter), ``o[i]`` its counts at zero
+# load and ``G[i]`` its counts per unit strain.  All of it (5 + 4 per tactel parameters) is
+# estimated jointly by damped Gauss-Newton on the weighted squared residuals; the weights are the
+# inverse variances of a reading, ``sigma_c^2 + G^2 (a^2 + (r s)^2)``: the count noise plus the
+# **model-error floor** ``(a, r)`` (absolute and relative, in strain), itself estimated by maximum
+# likelihood from the residuals and then used to re-weight (two rounds).  The 1-sigma bounds come
+# from the inverse of the weighted normal matrix: the Cramer-Rao bound of the presses.
+#
+# What the presses cannot determine is held rather than guessed:
+#
+# * a rubber constant whose 1-sigma bound exceeds :data:`HOLD_LIMIT` is held at the nominal value
+#   (the sensor description's cover; the paper's finger's by default)
+#   (the report says so, with the bound it would have had);
+# * a tactel's position whose 1-sigma bound exceeds :data:`POSITION_SIGMA_LIMIT` stays on the grid;
+# * a tactel whose model strain never spans :data:`MIN_STRAIN_SPAN` keeps the median gain and is
+#   flagged ``unexercised``.
+#
+# The overall gain of the tactels and the modulus trade against each other except through the
+# contact's size (``a^3 ~ F / E``): both are estimated, and their bounds say how well the presses
+# told them apart.  Finally, each tactel's table (offset, gain and shape) is built by the
+# lookup-table builder from the counts against the identified model's strains, so a response that
+# is not a straight line keeps its shape.
 
 from __future__ import annotations
 

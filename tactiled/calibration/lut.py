@@ -1,21 +1,20 @@
-"""Per-tactel lookup tables: raw counts -> strain (linearisation), and strain -> counts.
+"""Per-tactel lookup tables: raw counts -> strain (linearisation), and strain -> counts."""
 
-Conventions
------------
-* Raw counts are the sensor's ``uint16`` capacitance readings; they rise with compression.
-* Strain is dimensionless and positive under compression (``docs/concepts/model.md``).  The table gives strain
-  *before zeroing*: the calibration's zero-load strain is 0, but drift and rubber hysteresis are
-  removed later by :class:`~tactiled.calibration.zeroing.Zeroer`.
-* Tactel ``[m, n]`` has knots ``counts`` (strictly increasing) and ``strain`` (non-decreasing);
-  between knots the map is linear.  Beyond the end knots it is **linearly extrapolated** with the
-  end segment's slope, not clamped: counts a little below the zero-load knot (baseline drift) must
-  give small negative strains for the zeroer to average, and presses harder than the calibration
-  reached must still rise (a clamp would flatten the peak the fitter needs).  The result stays
-  monotone because every slope is ``>= 0``.
-
-The counts domain is ``0 .. 65535``; float inputs outside ``[-65536, 131071]`` (or NaN) give an
-unspecified (but non-raising) result.
-"""
+# Conventions
+# -----------
+# * Raw counts are the sensor's ``uint16`` capacitance readings; they rise with compression.
+# * Strain is dimensionless and positive under compression (``docs/concepts/model.md``).  The table gives strain
+#   *before zeroing*: the calibration's zero-load strain is 0, but drift and rubber hysteresis are
+#   removed later by :class:`~tactiled.calibration.zeroing.Zeroer`.
+# * Tactel ``[m, n]`` has knots ``counts`` (strictly increasing) and ``strain`` (non-decreasing);
+#   between knots the map is linear.  Beyond the end knots it is **linearly extrapolated** with the
+#   end segment's slope, not clamped: counts a little below the zero-load knot (baseline drift) must
+#   give small negative strains for the zeroer to average, and presses harder than the calibration
+#   reached must still rise (a clamp would flatten the peak the fitter needs).  The result stays
+#   monotone because every slope is ``>= 0``.
+#
+# The counts domain is ``0 .. 65535``; float inputs outside ``[-65536, 131071]`` (or NaN) give an
+# unspecified (but non-raising) result.
 
 from __future__ import annotations
 

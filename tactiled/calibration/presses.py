@@ -1,19 +1,18 @@
-"""Recorded calibration presses: the builder's input, checked, and a synthesiser for tests.
+"""Recorded calibration presses: the builder's input, checked, and a synthesiser for tests."""
 
-A press set is ``N`` frames of raw counts, each with the strain frame the lab's reference says
-the sensor should read (``docs/howto/calibration.md`` describes the procedure); its file is
-:mod:`tactiled.io.presses`.  A press set holds
-
-* ``counts``: ``(N, rows, cols)`` integer raw counts in 0..65535 (stored as ``uint16``);
-* ``strain_ref``: ``(N, rows, cols)`` float reference strain (positive under compression);
-* ``sensor_id`` (optional): integer scalar, the sensor's id.
-
-For identification (``tactiled calibrate --identify``) a press file may carry, in place of
-``strain_ref``, the known contact of each press:
-
-* ``contacts``: ``(N, 6)`` float, columns ``r1_mm, r2_mm (inf = cylinder), angle_deg, force_n,
-  x_mm, y_mm``; a press with ``force_n`` 0 is unloaded (its other columns are ignored).
-"""
+# A press set is ``N`` frames of raw counts, each with the strain frame the lab's reference says
+# the sensor should read (``docs/howto/calibration.md`` describes the procedure); its file is
+# :mod:`tactiled.io.presses`.  A press set holds
+#
+# * ``counts``: ``(N, rows, cols)`` integer raw counts in 0..65535 (stored as ``uint16``);
+# * ``strain_ref``: ``(N, rows, cols)`` float reference strain (positive under compression);
+# * ``sensor_id`` (optional): integer scalar, the sensor's id.
+#
+# For identification (``tactiled calibrate --identify``) a press file may carry, in place of
+# ``strain_ref``, the known contact of each press:
+#
+# * ``contacts``: ``(N, 6)`` float, columns ``r1_mm, r2_mm (inf = cylinder), angle_deg, force_n,
+#   x_mm, y_mm``; a press with ``force_n`` 0 is unloaded (its other columns are ignored).
 
 from __future__ import annotations
 

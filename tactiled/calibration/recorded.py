@@ -1,27 +1,26 @@
-"""A press file from a recording: the presses found in the frames, paired with known contacts.
+"""A press file from a recording: the presses found in the frames, paired with known contacts."""
 
-The lab records the whole session with ``tactiled record`` (the array unloaded at the start,
-then each press: load, hold, lift off fully) and writes down, in the order pressed, the known
-contact of every press: a CSV file with the header ``r1_mm,r2_mm,angle_deg,force_n,x_mm,y_mm``
-(``inf`` for a cylinder's ``r2``; ``#`` starts a comment).  A row with ``force_n`` 0 is an
-unloaded sample (its other columns are ignored).
-
-How the frames are read:
-
-* the **rest**: each tactel's median over the first ``quiet`` frames, and its noise, their
-  standard deviation (at least half a count, the rounding of an integer count);
-* a frame is **loaded** when some tactel departs from its rest by more than ``threshold``
-  times its noise; a **press** is a run of loaded frames (runs less than ``gap`` frames apart
-  are one press; shorter than ``average`` frames is an error naming it);
-* a press's counts are the mean of its last ``average`` frames before its release (the last
-  tenth of the run is left out: the indenter lifting off), the settled load;
-* an unloaded row is the mean of the ``average`` unloaded frames just before the next loaded
-  press (after the last press: the recording's last ``average`` frames); the contacts'
-  own checks (:class:`PressSet`) then apply.
-
-The presses found must be as many as the loaded rows, else :class:`CalibrationError` with both
-counts, so a missed or extra press never shifts every contact onto the wrong frames.
-"""
+# The lab records the whole session with ``tactiled record`` (the array unloaded at the start,
+# then each press: load, hold, lift off fully) and writes down, in the order pressed, the known
+# contact of every press: a CSV file with the header ``r1_mm,r2_mm,angle_deg,force_n,x_mm,y_mm``
+# (``inf`` for a cylinder's ``r2``; ``#`` starts a comment).  A row with ``force_n`` 0 is an
+# unloaded sample (its other columns are ignored).
+#
+# How the frames are read:
+#
+# * the **rest**: each tactel's median over the first ``quiet`` frames, and its noise, their
+#   standard deviation (at least half a count, the rounding of an integer count);
+# * a frame is **loaded** when some tactel departs from its rest by more than ``threshold``
+#   times its noise; a **press** is a run of loaded frames (runs less than ``gap`` frames apart
+#   are one press; shorter than ``average`` frames is an error naming it);
+# * a press's counts are the mean of its last ``average`` frames before its release (the last
+#   tenth of the run is left out: the indenter lifting off), the settled load;
+# * an unloaded row is the mean of the ``average`` unloaded frames just before the next loaded
+#   press (after the last press: the recording's last ``average`` frames); the contacts'
+#   own checks (:class:`PressSet`) then apply.
+#
+# The presses found must be as many as the loaded rows, else :class:`CalibrationError` with both
+# counts, so a missed or extra press never shifts every contact onto the wrong frames.
 
 from __future__ import annotations
 

@@ -1,16 +1,15 @@
-"""Many independent piecewise-affine maps evaluated with one ``np.searchsorted`` call.
+"""Many independent piecewise-affine maps evaluated with one ``np.searchsorted`` call."""
 
-The lookup tables need, for every tactel ``t`` of a frame, ``y = f_t(x_t)`` where each ``f_t`` is
-piecewise affine with its own breakpoints.  A Python loop over 64 tactels costs ~100 us; instead
-all tactels' interior breakpoints live in *one* sorted array, tactel ``t``'s shifted by ``t * B``
-(``B`` larger than the span of any breakpoint or query), so a single ``searchsorted`` of the
-shifted queries finds every tactel's segment at once.  Segments are stored flat, tactel after
-tactel, so the segment found is a plain integer index into flat parameter arrays.
-
-Inside a segment ``y = y0 + slope * (x - x0)`` (the form ``np.interp`` uses, so results agree to
-rounding), clamped to ``[y0, cap]`` (its own start value and the next segment's start value) so
-that rounding can never make a non-decreasing table decrease across a breakpoint.
-"""
+# The lookup tables need, for every tactel ``t`` of a frame, ``y = f_t(x_t)`` where each ``f_t`` is
+# piecewise affine with its own breakpoints.  A Python loop over 64 tactels costs ~100 us; instead
+# all tactels' interior breakpoints live in *one* sorted array, tactel ``t``'s shifted by ``t * B``
+# (``B`` larger than the span of any breakpoint or query), so a single ``searchsorted`` of the
+# shifted queries finds every tactel's segment at once.  Segments are stored flat, tactel after
+# tactel, so the segment found is a plain integer index into flat parameter arrays.
+#
+# Inside a segment ``y = y0 + slope * (x - x0)`` (the form ``np.interp`` uses, so results agree to
+# rounding), clamped to ``[y0, cap]`` (its own start value and the next segment's start value) so
+# that rounding can never make a non-decreasing table decrease across a breakpoint.
 
 from __future__ import annotations
 

@@ -3,13 +3,13 @@
 ``Frame(raw) -> LookupTable.to_strain -> Zeroer.update (ContactDetector inside) -> frame.strain``,
 one call per frame, no I/O.  Times come from the device clock (``device_time_us``), so the zeroing
 time constants hold whatever the host's scheduling jitter.
-
-A frame of counts takes the compiled path (:mod:`tactiled.calibration.fused`): the same
-arithmetic in two kernel calls instead of a dozen numpy calls, with the decisions and the state
-kept in the objects above.  The objects' own methods (the reference path) take the frames the
-kernels do not cover: the first frame and the one after a tare, a frame with non-finite values,
-a detector averaging several frames.
 """
+
+# A frame of counts takes the compiled path (:mod:`tactiled.calibration.fused`): the same
+# arithmetic in two kernel calls instead of a dozen numpy calls, with the decisions and the state
+# kept in the objects above.  The objects' own methods (the reference path) take the frames the
+# kernels do not cover: the first frame and the one after a tare, a frame with non-finite values,
+# a detector averaging several frames.
 
 from __future__ import annotations
 

@@ -2,75 +2,81 @@
 
 A high-pass filter (subtract a running mean of everything) is the usual drift compensation, and
 it fails exactly where a fingertip matters: a grasp held for minutes decays into the baseline and
-vanishes.  Here the baseline moves on a contact's tactels only while no contact is detected:
-
-* **idle** (no contact): ``baseline += a * (x - baseline)``, ``a = 1 - exp(-dt / tau_drift)``
-  with ``tau_drift`` = 5 s: slow enough to average noise (an EMA of time constant tau over frames
-  at rate r averages about ``2 tau r`` frames), fast enough for thermal drift;
-* **in contact**: frozen, so the contact's strain is kept however long it is held, except
-  that drift is followed around a contact the caller can predict (below);
-* **after a release**, for ``holdoff`` s (default 1.5 s = 5 ``tau_release``): the faster
-  ``tau_release`` = 0.3 s, so the rubber's hysteresis residual (and drift accumulated while frozen)
-  is absorbed within about a second instead of lingering as a phantom pressure.
-
-``dt`` is the difference of the caller's timestamps (seconds; device time preferred), so the
-behaviour does not depend on the frame rate; a frame whose ``dt <= 0`` (duplicate or backwards
-clock) does not move the baseline.  The zeroed output of a frame is computed against the baseline
-*before* that frame updates it.
-
-The first frame starts the baseline (an implicit tare: start with the finger unloaded), and
-:meth:`Zeroer.tare` restarts it on demand.  A baseline taken from one frame carries that frame's
-noise, which would double the noise variance of every zeroed frame and multiply the false-contact
-rate; so after a (re)start the baseline is the running *mean* of the frames seen so far until the
-EMA weight catches up (update weight ``max(1/n, a)`` after ``n`` frames: the bias-corrected EMA),
-and for ``settle`` s (default 0.25 s) no contact is reported while the mean forms.  By then the
-baseline's noise is ``sigma/sqrt(n)`` (``n`` = 25 frames at 100 Hz: +2 % on the zeroed noise).
-
-NaN/inf entries are output as 0 and do not touch their tactel's baseline;
-:attr:`Zeroer.nonfinite_frames` counts such frames.
-
-**One implausible frame cannot drag the baseline.**  A no-contact frame on which most tactels
-(more than half) sit beyond ``MAX_STEP_SIGMAS`` (10) noise sigmas of the detector's ``sigma``
-is no physical state of an unloaded finger: a glitch (an ADC returning zero counts for a few
-frames, which the detector rightly does not call a contact).  Outside the running-mean
-start-up, such a frame's pull on each tactel's baseline is clipped to 10 sigma, so it moves
-the baseline by at most ``weight x 10 sigma`` instead of ``weight x`` its full deviation (was
-7-39 sigma per glitch frame with the 0.3 s release constant; every contact after it then
-carried that pedestal).  Ordinary frames are not clipped: a release residual is a local bump
-and drift is slow, so both are followed exactly as before.  A genuine step of the whole
-unloaded frame by more than 10 sigma is absorbed at 10 sigma per time constant; ``tare``
-takes it at once.
-
-**Drift is followed around a held contact.**  Frozen whole, the baseline let drift pile up
-under a long hold: on the simulated finger (drift up to 4e-5 strain/s, a tenth of a noise sigma
-a second) a 1 N grasp held for 40 s read 7-8 % heavy by its end, and after the release the drift
-alone, 1-3 sigma on every tactel, kept the matched filter above its exit threshold: the finger
-never let go.  Which part of a loaded frame is drift, the zeroer cannot tell alone (the rubber
-spreads a 1 N contact over the whole array, to -5 sigma eight millimetres off); the contact's
-model can.  :meth:`Zeroer.follow_drift` takes a frame with the strain a fit's model predicts on
-the whole array and the tactels the fit reads (its window).  Where the prediction explains the
-window within noise (a contact that has not moved from it), at most every ``DRIFT_STEP_S``:
-
-* outside the window, each tactel's baseline follows what the model does not explain
-  (``zeroed - predicted``, clipped to ``DRIFT_CLIP_SIGMAS``) with ``tau_drift``, as when idle:
-  there it is drift and noise, and no fit reads those tactels;
-* inside it, the baseline takes the outside tactels' mean pull, the drift common to the finger
-  (temperature moves every tactel the same way, if not by the same amount), never its own
-  tactels' values, which carry the contact.
-
-The daemon calls it with the tracker's linearisation (``tactiled.pipeline.sensor``): for each
-frame the tracker measures, and, untested (``fitted``), for the frame a fit was of, whose fit
-is the best the model explains it by (on a finger that departs from its model no prediction
-explains a frame within noise, and its drift must be followed all the same).  What it
-leaves is each window tactel's own drift against the mean (the simulator's tactels drift by
-0.5-1 times a common wave: about a sixth of the drift).
-
-**The rubber's hysteresis is taken out before zeroing** (:mod:`tactiled.calibration.hysteresis`):
-at the drift steps a learner estimates the residual a release leaves (its fraction and time
-constant) from the tactels outside the window, and once that estimate is significant a
-compensator subtracts the residual from every frame, so the baseline, the detector and the fit
-all see the frame without it.  ``hysteresis=False`` (the sensor setting) leaves frames as read.
+vanishes.  Here the baseline moves on a contact's tactels only while no contact is detected,
+drift is followed around a held contact through its model, and the rubber's hysteresis is taken
+out first.  Times are the caller's timestamps in seconds; strains are on the zeroed scale.
 """
+
+# How the baseline moves:
+#
+
+# * **idle** (no contact): ``baseline += a * (x - baseline)``, ``a = 1 - exp(-dt / tau_drift)``
+#   with ``tau_drift`` = 5 s: slow enough to average noise (an EMA of time constant tau over frames
+#   at rate r averages about ``2 tau r`` frames), fast enough for thermal drift;
+# * **in contact**: frozen, so the contact's strain is kept however long it is held, except
+#   that drift is followed around a contact the caller can predict (below);
+# * **after a release**, for ``holdoff`` s (default 1.5 s = 5 ``tau_release``): the faster
+#   ``tau_release`` = 0.3 s, so the rubber's hysteresis residual (and drift accumulated while frozen)
+#   is absorbed within about a second instead of lingering as a phantom pressure.
+#
+# ``dt`` is the difference of the caller's timestamps (seconds; device time preferred), so the
+# behaviour does not depend on the frame rate; a frame whose ``dt <= 0`` (duplicate or backwards
+# clock) does not move the baseline.  The zeroed output of a frame is computed against the baseline
+# *before* that frame updates it.
+#
+# The first frame starts the baseline (an implicit tare: start with the finger unloaded), and
+# :meth:`Zeroer.tare` restarts it on demand.  A baseline taken from one frame carries that frame's
+# noise, which would double the noise variance of every zeroed frame and multiply the false-contact
+# rate; so after a (re)start the baseline is the running *mean* of the frames seen so far until the
+# EMA weight catches up (update weight ``max(1/n, a)`` after ``n`` frames: the bias-corrected EMA),
+# and for ``settle`` s (default 0.25 s) no contact is reported while the mean forms.  By then the
+# baseline's noise is ``sigma/sqrt(n)`` (``n`` = 25 frames at 100 Hz: +2 % on the zeroed noise).
+#
+# NaN/inf entries are output as 0 and do not touch their tactel's baseline;
+# :attr:`Zeroer.nonfinite_frames` counts such frames.
+#
+# **One implausible frame cannot drag the baseline.**  A no-contact frame on which most tactels
+# (more than half) sit beyond ``MAX_STEP_SIGMAS`` (10) noise sigmas of the detector's ``sigma``
+# is no physical state of an unloaded finger: a glitch (an ADC returning zero counts for a few
+# frames, which the detector rightly does not call a contact).  Outside the running-mean
+# start-up, such a frame's pull on each tactel's baseline is clipped to 10 sigma, so it moves
+# the baseline by at most ``weight x 10 sigma`` instead of ``weight x`` its full deviation
+# (unclipped, 7-39 sigma per glitch frame with the 0.3 s release constant, a pedestal every
+# later contact would carry).  Ordinary frames are not clipped: a release residual is a local bump
+# and drift is slow, so both are followed exactly.  A genuine step of the whole
+# unloaded frame by more than 10 sigma is absorbed at 10 sigma per time constant; ``tare``
+# takes it at once.
+#
+# **Drift is followed around a held contact.**  Frozen whole, the baseline would let drift pile
+# up under a long hold: on the simulated finger (drift up to 4e-5 strain/s, a tenth of a noise
+# sigma a second) a 1 N grasp held for 40 s would read 7-8 % heavy by its end, and after the
+# release the drift alone, 1-3 sigma on every tactel, would keep the matched filter above its exit
+# threshold: the finger would never let go.  Which part of a loaded frame is drift, the zeroer
+# cannot tell alone (the rubber
+# spreads a 1 N contact over the whole array, to -5 sigma eight millimetres off); the contact's
+# model can.  :meth:`Zeroer.follow_drift` takes a frame with the strain a fit's model predicts on
+# the whole array and the tactels the fit reads (its window).  Where the prediction explains the
+# window within noise (a contact that has not moved from it), at most every ``DRIFT_STEP_S``:
+#
+# * outside the window, each tactel's baseline follows what the model does not explain
+#   (``zeroed - predicted``, clipped to ``DRIFT_CLIP_SIGMAS``) with ``tau_drift``, as when idle:
+#   there it is drift and noise, and no fit reads those tactels;
+# * inside it, the baseline takes the outside tactels' mean pull, the drift common to the finger
+#   (temperature moves every tactel the same way, if not by the same amount), never its own
+#   tactels' values, which carry the contact.
+#
+# The daemon calls it with the tracker's linearisation (``tactiled.pipeline.sensor``): for each
+# frame the tracker measures, and, untested (``fitted``), for the frame a fit was of, whose fit
+# is the best the model explains it by (on a finger that departs from its model no prediction
+# explains a frame within noise, and its drift must be followed all the same).  What it
+# leaves is each window tactel's own drift against the mean (the simulator's tactels drift by
+# 0.5-1 times a common wave: about a sixth of the drift).
+#
+# **The rubber's hysteresis is taken out before zeroing** (:mod:`tactiled.calibration.hysteresis`):
+# at the drift steps a learner estimates the residual a release leaves (its fraction and time
+# constant) from the tactels outside the window, and once that estimate is significant a
+# compensator subtracts the residual from every frame, so the baseline, the detector and the fit
+# all see the frame without it.  ``hysteresis=False`` (the sensor setting) leaves frames as read.
 
 from __future__ import annotations
 

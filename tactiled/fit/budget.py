@@ -1,27 +1,26 @@
-"""A fit's budget: what one frame may cost before the fitter stops and says so.
+"""A fit's budget: what one frame may cost before the fitter stops and says so."""
 
-A frame the contact model describes converges in a few tens of solver iterations, each a
-model evaluation of a few microseconds.  A frame it cannot describe (several contacts at once,
-a hand print, a saturated patch, noise) has no good minimum: the search wanders until its caps,
-through starts and models, and where it wanders to a contact many rubber depths long, every
-evaluation integrates a quadrature of up to a million nodes.  Unbounded, such a frame cost
-tens to thousands of milliseconds.  The budget bounds it in two counts that do not depend on
-the machine, so a frame gets the same answer on every CPU:
-
-- **iterations**: Levenberg-Marquardt iterations summed over every start and model of the fit;
-- **work**: the model evaluations' cost, each ``EVALUATION_OVERHEAD`` plus its quadrature
-  nodes times the window's tactels (the inner loop's count: 2.3-3.4 ns each, measured from
-  7x7 to 96x40 nodes on a 4x4 window; beyond ``LARGE_RULE_NODES`` nodes the tables leave the
-  cache and a unit costs up to 7 ns, so those count ``LARGE_RULE_FACTOR`` times); a line
-  model's evaluation (a flat array's cylinder) ``line_work``, in the same units.
-
-An evaluation that the work left cannot pay for is not started.  A wall-clock ``deadline``
-(``Fitter.fit(budget_s=)``) stays the last resort, checked between evaluations.
-
-The defaults are set from the fits the model explains: every fit that converges on the
-simulated suites and in the golden replays stays within both with a margin (figures below), so
-the budget changes none of them (``tactiled bench --suite unexplained``, docs/performance/benchmarks.md).
-"""
+# A frame the contact model describes converges in a few tens of solver iterations, each a
+# model evaluation of a few microseconds.  A frame it cannot describe (several contacts at once,
+# a hand print, a saturated patch, noise) has no good minimum: the search wanders until its caps,
+# through starts and models, and where it wanders to a contact many rubber depths long, every
+# evaluation integrates a quadrature of up to a million nodes.  Unbounded, such a frame cost
+# tens to thousands of milliseconds.  The budget bounds it in two counts that do not depend on
+# the machine, so a frame gets the same answer on every CPU:
+#
+# - **iterations**: Levenberg-Marquardt iterations summed over every start and model of the fit;
+# - **work**: the model evaluations' cost, each ``EVALUATION_OVERHEAD`` plus its quadrature
+#   nodes times the window's tactels (the inner loop's count: 2.3-3.4 ns each, measured from
+#   7x7 to 96x40 nodes on a 4x4 window; beyond ``LARGE_RULE_NODES`` nodes the tables leave the
+#   cache and a unit costs up to 7 ns, so those count ``LARGE_RULE_FACTOR`` times); a line
+#   model's evaluation (a flat array's cylinder) ``line_work``, in the same units.
+#
+# An evaluation that the work left cannot pay for is not started.  A wall-clock ``deadline``
+# (``Fitter.fit(budget_s=)``) stays the last resort, checked between evaluations.
+#
+# The defaults are set from the fits the model explains: every fit that converges on the
+# simulated suites and in the golden replays stays within both with a margin (figures below), so
+# the budget changes none of them (``tactiled bench --suite unexplained``, docs/performance/benchmarks.md).
 
 from __future__ import annotations
 

@@ -4,13 +4,13 @@ The Python bodies here are the core's reference: :func:`_evaluate` (the model's 
 map, the Hertz solve, the quadrature rule's size, the window residual) and :func:`search`,
 which runs the one Levenberg-Marquardt loop (:func:`tactiled.fit.solver.descend`) on it; the
 core runs the same steps in one call, operation for operation (tests/native).
-
-With a work budget (:mod:`tactiled.fit.budget`) every evaluation runs here: the budget refuses
-any it cannot pay for.  Without one, a contact needing more than :data:`MAX_COMPILED_NODES`
-nodes per axis returns :data:`FALLBACK`, and the caller runs
-:func:`tactiled.fit.solver.levenberg_marquardt`, which checks the wall clock between
-evaluations.
 """
+
+# With a work budget (:mod:`tactiled.fit.budget`) every evaluation runs here: the budget refuses
+# any it cannot pay for.  Without one, a contact needing more than :data:`MAX_COMPILED_NODES`
+# nodes per axis returns :data:`FALLBACK`, and the caller runs
+# :func:`tactiled.fit.solver.levenberg_marquardt`, which checks the wall clock between
+# evaluations.
 
 from __future__ import annotations
 

@@ -1,53 +1,52 @@
-"""Each tactel's gain and position on the user's finger, learned from the finger's own fits.
+"""Each tactel's gain and position on the user's finger, learned from the finger's own fits."""
 
-A finger nobody identified (``tactiled calibrate --identify``) has tactels whose gains and
-positions depart from the model's.  :mod:`tactiled.fit.floor` widens the uncertainties by the
-size of that departure; it cannot remove the bias it leaves.  A gain error common to the
-tactels under a contact is the worst of it: the fit reads it as a force scale and leaves no
-residual, so a finger whose central tactels happen to read 2.5 % low reports every central
-force 2.5 % low, however wide its sigmas.  One window cannot see that; many can.  Contacts
-land all over the array, a tactel is under a window's peak in one fit and on its flank in
-another, and overlapping windows tie every tactel to its neighbours: the departure of each
-tactel is observable up to what no contact can tell apart (the array's mean gain is a force
-scale, its mean displacement a location).  Astronomers call this a flat field.
-
-The residual model.  In units of each tactel's noise, a fit's residuals (model minus reading)
-are ``r = M e`` with ``M = I - H`` the residual operator of the fit (H the hat matrix) and
-``e`` the readings' errors.  Tactel ``i`` with gain ``1 + g_i`` and displacement
-``(dx_i, dy_i)`` mm errs by
-
-    e_i = -m_i g_i + jx_i dx_i + jy_i dy_i   (+ noise)
-
-with ``m_i`` the model's strain there and ``(jx_i, jy_i)`` its slope in the contact's position
-(:mod:`tactiled.physics.kernels` applies displacements to first order the same way).  Stacking
-``u = (g, dx, dy)`` over the array, each fit adds ``X = M E`` (``E`` the window's columns of
-the error model above) to the normal equations ``N = sum X^T X``, ``b = sum X^T (r + X u_f)``,
-where ``u_f`` is the correction that fit ran with (so ``b`` estimates the whole departure, not
-what was left of it).  Old fits fade with weights of mean age ``MEMORY`` fits.
-
-The estimate.  Each tactel's gain error and displacement are drawn, as far as anyone knows
-before the fits, from zero-mean spreads of variances ``v_g`` and ``v_d``; the estimate is the
-posterior mean ``u = (N + P)^-1 b``, ``P = diag(1/v_g, 1/v_d, 1/v_d)``, with covariance
-``(N + P)^-1``.  The spreads are themselves estimated from the fits (maximum likelihood by
-expectation-maximisation, ``v <- mean(u_i^2 + cov_ii)`` per kind, a few steps per solve,
-starting wide).  What no contact can tell apart stays with the prior: a gain common to every
-tactel is a force scale (the fit absorbs it exactly), a displacement common to every tactel a
-location; the prior then says "the array reads nominal on average", and the covariance carries
-how well that is known (the spread over ``sqrt(rows*cols)``).  That posterior covariance is
-what the corrections add to each fit's uncertainty (:meth:`FlatField.error_covariance`): the
-residuals cannot show a correction that is wrong along a direction the fit absorbs.
-
-It is switched on only when it says something, and only when what it says is the tactels':
-when ``q = b^T (N + P)^-1 b`` (the chi^2 the corrections take off the pooled fits) exceeds
-what the noise alone gives by ``SIGNIFICANCE`` of its standard deviations (under the noise
-``b`` has covariance ``N2 = sum w_f^2 X^T X``, taken as ``N`` times the weights' mean), and explains at least ``MIN_EXPLAINED`` of the
-fits' excess chi^2.  Residuals that follow the contacts (a rubber that is not the model's,
-contacts the model does not describe, hysteresis) also look significant, but no set of
-per-tactel corrections explains much of them; nor do they keep plausible spreads (beyond
-``MAX_GAIN_SPREAD``, ``MAX_SHIFT_SPREAD`` it stands down too).  A finger that matches its
-model (the paper's, or one identified) is never corrected; its fits keep their Cramer-Rao
-bounds exactly.
-"""
+# A finger nobody identified (``tactiled calibrate --identify``) has tactels whose gains and
+# positions depart from the model's.  :mod:`tactiled.fit.floor` widens the uncertainties by the
+# size of that departure; it cannot remove the bias it leaves.  A gain error common to the
+# tactels under a contact is the worst of it: the fit reads it as a force scale and leaves no
+# residual, so a finger whose central tactels happen to read 2.5 % low reports every central
+# force 2.5 % low, however wide its sigmas.  One window cannot see that; many can.  Contacts
+# land all over the array, a tactel is under a window's peak in one fit and on its flank in
+# another, and overlapping windows tie every tactel to its neighbours: the departure of each
+# tactel is observable up to what no contact can tell apart (the array's mean gain is a force
+# scale, its mean displacement a location).  Astronomers call this a flat field.
+#
+# The residual model.  In units of each tactel's noise, a fit's residuals (model minus reading)
+# are ``r = M e`` with ``M = I - H`` the residual operator of the fit (H the hat matrix) and
+# ``e`` the readings' errors.  Tactel ``i`` with gain ``1 + g_i`` and displacement
+# ``(dx_i, dy_i)`` mm errs by
+#
+#     e_i = -m_i g_i + jx_i dx_i + jy_i dy_i   (+ noise)
+#
+# with ``m_i`` the model's strain there and ``(jx_i, jy_i)`` its slope in the contact's position
+# (:mod:`tactiled.physics.kernels` applies displacements to first order the same way).  Stacking
+# ``u = (g, dx, dy)`` over the array, each fit adds ``X = M E`` (``E`` the window's columns of
+# the error model above) to the normal equations ``N = sum X^T X``, ``b = sum X^T (r + X u_f)``,
+# where ``u_f`` is the correction that fit ran with (so ``b`` estimates the whole departure, not
+# what was left of it).  Old fits fade with weights of mean age ``MEMORY`` fits.
+#
+# The estimate.  Each tactel's gain error and displacement are drawn, as far as anyone knows
+# before the fits, from zero-mean spreads of variances ``v_g`` and ``v_d``; the estimate is the
+# posterior mean ``u = (N + P)^-1 b``, ``P = diag(1/v_g, 1/v_d, 1/v_d)``, with covariance
+# ``(N + P)^-1``.  The spreads are themselves estimated from the fits (maximum likelihood by
+# expectation-maximisation, ``v <- mean(u_i^2 + cov_ii)`` per kind, a few steps per solve,
+# starting wide).  What no contact can tell apart stays with the prior: a gain common to every
+# tactel is a force scale (the fit absorbs it exactly), a displacement common to every tactel a
+# location; the prior then says "the array reads nominal on average", and the covariance carries
+# how well that is known (the spread over ``sqrt(rows*cols)``).  That posterior covariance is
+# what the corrections add to each fit's uncertainty (:meth:`FlatField.error_covariance`): the
+# residuals cannot show a correction that is wrong along a direction the fit absorbs.
+#
+# It is switched on only when it says something, and only when what it says is the tactels':
+# when ``q = b^T (N + P)^-1 b`` (the chi^2 the corrections take off the pooled fits) exceeds
+# what the noise alone gives by ``SIGNIFICANCE`` of its standard deviations (under the noise
+# ``b`` has covariance ``N2 = sum w_f^2 X^T X``, taken as ``N`` times the weights' mean), and explains at least ``MIN_EXPLAINED`` of the
+# fits' excess chi^2.  Residuals that follow the contacts (a rubber that is not the model's,
+# contacts the model does not describe, hysteresis) also look significant, but no set of
+# per-tactel corrections explains much of them; nor do they keep plausible spreads (beyond
+# ``MAX_GAIN_SPREAD``, ``MAX_SHIFT_SPREAD`` it stands down too).  A finger that matches its
+# model (the paper's, or one identified) is never corrected; its fits keep their Cramer-Rao
+# bounds exactly.
 
 from __future__ import annotations
 

@@ -1,28 +1,27 @@
-"""Learning how far a finger departs from its model, from the residuals of its own fits.
+"""Learning how far a finger departs from its model, from the residuals of its own fits."""
 
-A single frame cannot show all of a finger's departure from the model: of the model error on a
-window's tactels, the part that looks like a change of the contact's parameters is absorbed by
-the fit and leaves no residual.  What is left shows in chi^2, but on one light frame it is lost
-in the noise, while the estimate is biased all the same.  The departure is a property of the
-finger (gains and tactel positions the model does not know), so it is estimated across fits.
-
-Two kinds of departure, each with its own footprint on a tactel ``i`` (in units of its noise):
-a gain error adds variance ``tau_s^2 z_i^2`` (``z_i`` the tactel's strain), a displaced tactel
-``tau_g^2 |grad z_i|^2`` (``tau_g`` in mm; the gradient is the strain's slope in the contact's
-position).  A fit's residuals are ``r = M e`` for the readings' errors ``e``, ``M = I - H`` (H the
-hat matrix), so each residual's expected square is ``sum_j M_ij^2 V_j``:
-
-    r_i^2 - M_ii = tau_s^2 sum_j M_ij^2 z_j^2 + tau_g^2 sum_j M_ij^2 |grad z_j|^2  (+ zero-mean)
-
-One frame's sums cannot tell the two kinds apart (both grow with the force); its tactels can
-(gain errors sit on the peak, displacements on the flanks), so every residual of every recent
-fit is one equation, and ``(tau_s^2, tau_g^2)`` is the non-negative least-squares solution over the recent fits
-(exponential weights, memory ``MEMORY`` fits): the method of moments.  It is used only once the
-pooled excess is significant (beyond ``SIGNIFICANCE`` standard deviations of what the noise
-alone gives, after at least ``MIN_FITS`` fits), so a finger that matches its model (or its identified floor) keeps its
-Cramer-Rao bounds exactly.  The fitter caps each fit's excess near what the pool expects, so
-one contact far outside the model does not widen every later estimate.
-"""
+# A single frame cannot show all of a finger's departure from the model: of the model error on a
+# window's tactels, the part that looks like a change of the contact's parameters is absorbed by
+# the fit and leaves no residual.  What is left shows in chi^2, but on one light frame it is lost
+# in the noise, while the estimate is biased all the same.  The departure is a property of the
+# finger (gains and tactel positions the model does not know), so it is estimated across fits.
+#
+# Two kinds of departure, each with its own footprint on a tactel ``i`` (in units of its noise):
+# a gain error adds variance ``tau_s^2 z_i^2`` (``z_i`` the tactel's strain), a displaced tactel
+# ``tau_g^2 |grad z_i|^2`` (``tau_g`` in mm; the gradient is the strain's slope in the contact's
+# position).  A fit's residuals are ``r = M e`` for the readings' errors ``e``, ``M = I - H`` (H the
+# hat matrix), so each residual's expected square is ``sum_j M_ij^2 V_j``:
+#
+#     r_i^2 - M_ii = tau_s^2 sum_j M_ij^2 z_j^2 + tau_g^2 sum_j M_ij^2 |grad z_j|^2  (+ zero-mean)
+#
+# One frame's sums cannot tell the two kinds apart (both grow with the force); its tactels can
+# (gain errors sit on the peak, displacements on the flanks), so every residual of every recent
+# fit is one equation, and ``(tau_s^2, tau_g^2)`` is the non-negative least-squares solution over the recent fits
+# (exponential weights, memory ``MEMORY`` fits): the method of moments.  It is used only once the
+# pooled excess is significant (beyond ``SIGNIFICANCE`` standard deviations of what the noise
+# alone gives, after at least ``MIN_FITS`` fits), so a finger that matches its model (or its identified floor) keeps its
+# Cramer-Rao bounds exactly.  The fitter caps each fit's excess near what the pool expects, so
+# one contact far outside the model does not widen every later estimate.
 
 from __future__ import annotations
 

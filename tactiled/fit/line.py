@@ -2,13 +2,14 @@
 
 Internal vector ``[ln R, psi, ln P, c]``: the cylinder's radius (mm), the line's direction
 (radians from +x toward +y), its load per length (N/mm) and its signed offset (mm) along the
-normal ``n = (-sin psi, cos psi)`` from a reference point (the fit window's centre).  The
-user-unit report gives ``r1_mm``, ``angle_deg`` and the line's point nearest the array's centre
-as ``x_mm``, ``y_mm``; ``load_n_per_mm`` and ``offset_mm`` (the signed distance of the line from
-the array's centre along ``n``) come in the result's ``line`` table.  The total force and the
-position along the line do not exist for a line longer than the array: ``force_n`` is None
-with that reason.
+normal ``n = (-sin psi, cos psi)`` from a reference point (the fit window's centre).
 """
+
+# The user-unit report gives ``r1_mm``, ``angle_deg`` and the line's point nearest the array's
+# centre as ``x_mm``, ``y_mm``; ``load_n_per_mm`` and ``offset_mm`` (the signed distance of the
+# line from the array's centre along ``n``) come in the result's ``line`` table.  The total force
+# and the position along the line do not exist for a line longer than the array: ``force_n`` is
+# None with that reason.
 
 from __future__ import annotations
 

@@ -1,15 +1,14 @@
-"""A fit's linearisation: what the temporal tracker needs to measure later frames without a fit.
+"""A fit's linearisation: what the temporal tracker needs to measure later frames without a fit."""
 
-Near a contact ``p`` the window's strains are ``s(p + dp) ~ s(p) + J dp``, so a later frame
-``f`` of the same contact measures the parameters by one weighted least-squares step,
-``p + G (f - s(p))`` with ``G = (J^T W J)^-1 J^T W``: a matrix-vector product, microseconds,
-where a fit costs hundreds.  Its noise covariance is ``sigma^2 G G^T`` (the single-frame
-Cramer-Rao bound when ``W`` is the noise's), and the part of ``f - s(p)`` that ``J dp`` does not
-explain says whether the frame still lies in the linear range (or a new fit is due).
-
-Computed in the fit worker, at a fit's solution or at a point the tracker asks for, and sent
-to the daemon's main process, which has no physics of its own.
-"""
+# Near a contact ``p`` the window's strains are ``s(p + dp) ~ s(p) + J dp``, so a later frame
+# ``f`` of the same contact measures the parameters by one weighted least-squares step,
+# ``p + G (f - s(p))`` with ``G = (J^T W J)^-1 J^T W``: a matrix-vector product, microseconds,
+# where a fit costs hundreds.  Its noise covariance is ``sigma^2 G G^T`` (the single-frame
+# Cramer-Rao bound when ``W`` is the noise's), and the part of ``f - s(p)`` that ``J dp`` does not
+# explain says whether the frame still lies in the linear range (or a new fit is due).
+#
+# Computed in the fit worker, at a fit's solution or at a point the tracker asks for, and sent
+# to the daemon's main process, which has no physics of its own.
 
 from __future__ import annotations
 

@@ -1,20 +1,19 @@
-"""The line model's window: the tactels that see the line, however far it runs (docs/concepts/fitting.md).
+"""The line model's window: the tactels that see the line, however far it runs (docs/concepts/fitting.md)."""
 
-A line contact's angle lives in its length: two tactels on the ridge ``L`` apart fix the
-direction to about ``sigma_offset / L``, so a square window cut from the middle of the ridge
-throws the angle's information away (on a 16x16 pad a 4x4 window's bound on the angle is ~10
-times the whole ridge's).  The line's window is therefore its *band*: the tactels 8-connected
-to the peak whose strain stands above the noise (``SUPPORT_Z`` sigmas) and above a share of the
-peak (``BAND_SHARE``: a neighbouring contact's strain, which dips to zero between two contacts
-some cover depths apart, does not join the band), grown by one tactel on every side (the flanks,
-where the strain falls fastest, carry the line's offset and width).  The window is the band's
-bounding box, only the band's tactels valid in it.  On a small array (at most
-``WHOLE_ARRAY_TACTELS``) the whole array is the window: there every tactel's reading bears on
-the line and a fit over all of them costs what a 8x8 window's does.
-
-A line evaluation costs per tactel what a point contact's does, and a line fit over 100 tactels
-about 0.5 ms (a 4x4 window's: 0.25 ms), so following the line costs little.
-"""
+# A line contact's angle lives in its length: two tactels on the ridge ``L`` apart fix the
+# direction to about ``sigma_offset / L``, so a square window cut from the middle of the ridge
+# throws the angle's information away (on a 16x16 pad a 4x4 window's bound on the angle is ~10
+# times the whole ridge's).  The line's window is therefore its *band*: the tactels 8-connected
+# to the peak whose strain stands above the noise (``SUPPORT_Z`` sigmas) and above a share of the
+# peak (``BAND_SHARE``: a neighbouring contact's strain, which dips to zero between two contacts
+# some cover depths apart, does not join the band), grown by one tactel on every side (the flanks,
+# where the strain falls fastest, carry the line's offset and width).  The window is the band's
+# bounding box, only the band's tactels valid in it.  On a small array (at most
+# ``WHOLE_ARRAY_TACTELS``) the whole array is the window: there every tactel's reading bears on
+# the line and a fit over all of them costs what a 8x8 window's does.
+#
+# A line evaluation costs per tactel what a point contact's does, and a line fit over 100 tactels
+# about 0.5 ms (a 4x4 window's: 0.25 ms), so following the line costs little.
 
 from __future__ import annotations
 

@@ -1,17 +1,20 @@
 """Contact models: how each model's free parameters map onto the physics' six inputs.
 
-The physics takes ``(kappa_a, kappa_b, psi, F, x0, y0)`` (curvatures in 1/mm, radians, N, mm).
-Each model fits an unconstrained vector whose every value is a valid contact, so the solver
-needs no clipping (lmfit's habit of bounded parameters, done by reparameterisation):
-
-- ``cylinder`` ``[ln R, psi, ln F, x0, y0]``: ``kappa_a = 1/R``, ``kappa_b = 0``.
-- ``sphere`` ``[ln R, ln F, x0, y0]``: ``kappa_a = kappa_b = 1/R``, ``psi = 0``.
-- ``general`` ``[ln R_a, beta, psi, ln F, x0, y0]``: ``kappa_a = 1/R_a``,
-  ``kappa_b = beta^2 kappa_a``.  ``beta^2 > 1`` means the axes swapped roles; reporting swaps
-  them back so that ``r1 <= r2`` and psi is the R2 axis.  ``beta = 0`` is a cylinder.
-
-``psi`` is periodic: it is reported modulo 180 degrees.  Positive R and F hold by construction.
+Each model fits an unconstrained vector whose every value is a valid contact (log radii, log
+force), so the solver needs no clipping.  Units: curvatures 1/mm, angles rad, force N, mm.
 """
+
+# The physics takes ``(kappa_a, kappa_b, psi, F, x0, y0)`` (curvatures in 1/mm, radians, N, mm).
+# Each model fits an unconstrained vector whose every value is a valid contact, so the solver
+# needs no clipping (lmfit's habit of bounded parameters, done by reparameterisation):
+#
+# - ``cylinder`` ``[ln R, psi, ln F, x0, y0]``: ``kappa_a = 1/R``, ``kappa_b = 0``.
+# - ``sphere`` ``[ln R, ln F, x0, y0]``: ``kappa_a = kappa_b = 1/R``, ``psi = 0``.
+# - ``general`` ``[ln R_a, beta, psi, ln F, x0, y0]``: ``kappa_a = 1/R_a``,
+#   ``kappa_b = beta^2 kappa_a``.  ``beta^2 > 1`` means the axes swapped roles; reporting swaps
+#   them back so that ``r1 <= r2`` and psi is the R2 axis.  ``beta = 0`` is a cylinder.
+#
+# ``psi`` is periodic: it is reported modulo 180 degrees.  Positive R and F hold by construction.
 
 from __future__ import annotations
 

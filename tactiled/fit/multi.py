@@ -1,21 +1,20 @@
-"""Several contacts on one array: each pressed region fitted, the neighbours' strain accounted for.
+"""Several contacts on one array: each pressed region fitted, the neighbours' strain accounted for."""
 
-The physics is linear in the pressure, so the strain of several contacts is the sum of their
-strains.  :func:`fit_contacts` fits the frame as one contact first (:meth:`Fitter.fit`: a
-one-contact frame gets the same result bit for bit), then looks at the frame's other separate
-regions (:func:`tactiled.fit.regions.find_regions`): those whose peak that contact's strain
-leaves unexplained are contacts of their own.  With several, each contact is fitted on the frame less its neighbours' predicted strain (block coordinate descent on the
-joint least-squares problem: ``SWEEPS`` passes, each contact refitted from where the last pass
-left it), with the neighbours' cores left out of its window while their own fits are rough.
-When every contact was there in the last frame (``warm``), their last fits predict the
-neighbours' strain from the start and one pass does.
-
-Each contact's sigmas are those of the joint model: the fitter's own (its window, its
-model-error floor) times the ratio of the joint Cramer-Rao bound, where the neighbours'
-parameters are unknown too, to the bound with them known, both on the union of the contacts'
-windows (:func:`joint_bounds`).  Far apart the ratio is 1; contacts whose strains overlap share
-information and each one's sigmas widen accordingly.  No I/O.
-"""
+# The physics is linear in the pressure, so the strain of several contacts is the sum of their
+# strains.  :func:`fit_contacts` fits the frame as one contact first (:meth:`Fitter.fit`: a
+# one-contact frame gets the same result bit for bit), then looks at the frame's other separate
+# regions (:func:`tactiled.fit.regions.find_regions`): those whose peak that contact's strain
+# leaves unexplained are contacts of their own.  With several, each contact is fitted on the frame less its neighbours' predicted strain (block coordinate descent on the
+# joint least-squares problem: ``SWEEPS`` passes, each contact refitted from where the last pass
+# left it), with the neighbours' cores left out of its window while their own fits are rough.
+# When every contact was there in the last frame (``warm``), their last fits predict the
+# neighbours' strain from the start and one pass does.
+#
+# Each contact's sigmas are those of the joint model: the fitter's own (its window, its
+# model-error floor) times the ratio of the joint Cramer-Rao bound, where the neighbours'
+# parameters are unknown too, to the bound with them known, both on the union of the contacts'
+# windows (:func:`joint_bounds`).  Far apart the ratio is 1; contacts whose strains overlap share
+# information and each one's sigmas widen accordingly.  No I/O.
 
 from __future__ import annotations
 

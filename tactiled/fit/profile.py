@@ -1,22 +1,21 @@
-"""Is a radius's linearised sigma valid?  One point of its profile likelihood says.
+"""Is a radius's linearised sigma valid?  One point of its profile likelihood says."""
 
-The Cramer-Rao sigma is the curvature of chi^2 at the solution: it is the error bar only
-where chi^2 stays quadratic over the interval it spans.  A radius under a cover that is
-thick beside the contact is not: below some size every contact is a point (a line: a knife
-edge) to the tactels, and chi^2 is flat from there down to zero (measured on a 4x6 pad of
-4.7 mm pitch under a 2.5-3 mm cover: a 10 mm cylinder at 1 N fits anywhere from 1 to 30 mm
-within a chi^2 of 1, and sometimes lands at 120-450 mm with a linearised sigma of 15 %, 25
-of its sigmas above the truth).  So where the radius's relative sigma is large enough for
-the question to matter (``TEST_RELATIVE_SIGMA``), chi^2 is minimised again with the log
-radius held at two of its sigmas below the solution.  Were chi^2 quadratic it would rise by
-4 there; if it rises by less than ``FLAT_CHI2`` (1: the likelihood's own 1-sigma interval
-reaches past the linearised 2-sigma point, so the sigma understates that side over two-fold)
-the value is not a measurement and is withheld, with the reason and the profile's figure;
-between that and 4 its sigma is widened so the tested point lies ``sqrt(rise)`` sigmas away,
-as the profile says.
-The test costs one search, started at the solution, within the fit's budget; a search the
-budget cuts short is not used (its chi^2 only overstates the rise: never a withholding).
-"""
+# The Cramer-Rao sigma is the curvature of chi^2 at the solution: it is the error bar only
+# where chi^2 stays quadratic over the interval it spans.  A radius under a cover that is
+# thick beside the contact is not: below some size every contact is a point (a line: a knife
+# edge) to the tactels, and chi^2 is flat from there down to zero (measured on a 4x6 pad of
+# 4.7 mm pitch under a 2.5-3 mm cover: a 10 mm cylinder at 1 N fits anywhere from 1 to 30 mm
+# within a chi^2 of 1, and sometimes lands at 120-450 mm with a linearised sigma of 15 %, 25
+# of its sigmas above the truth).  So where the radius's relative sigma is large enough for
+# the question to matter (``TEST_RELATIVE_SIGMA``), chi^2 is minimised again with the log
+# radius held at two of its sigmas below the solution.  Were chi^2 quadratic it would rise by
+# 4 there; if it rises by less than ``FLAT_CHI2`` (1: the likelihood's own 1-sigma interval
+# reaches past the linearised 2-sigma point, so the sigma understates that side over two-fold)
+# the value is not a measurement and is withheld, with the reason and the profile's figure;
+# between that and 4 its sigma is widened so the tested point lies ``sqrt(rise)`` sigmas away,
+# as the profile says.
+# The test costs one search, started at the solution, within the fit's budget; a search the
+# budget cuts short is not used (its chi^2 only overstates the rise: never a withholding).
 
 from __future__ import annotations
 

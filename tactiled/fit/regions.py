@@ -1,20 +1,19 @@
-"""Separate pressed regions of one strain frame: where one array is touched in several places.
+"""Separate pressed regions of one strain frame: where one array is touched in several places."""
 
-A contact's strain is one smooth bump, as wide as the cover spreads it (a few depths).  Two
-contacts are told apart by the dip between them: a region is a contact of its own when its peak
-stands out from the saddle that joins it to a higher one by more than the noise can make
-(``SEPARATION_Z`` sigmas) and by a share of its height (``SEPARATION_SHARE``) that no single
-contact's bump shows (a contact's strain has a single maximum; a flat top or a ridge wobbles by
-the noise and by the model error, a small share of its height).  Two contacts closer than the
-cover spreads them leave no such dip: they are one region, and the region says that it holds a
-second maximum (``absorbed``), so the fit reports one contact labelled ``merged`` rather than
-two guesses.
-
-The search is the topographic prominence of the strain surface: tactels are visited from the
-highest down and joined to their 8-neighbours already visited (a union-find); when two regions
-meet at a saddle, the lower one's prominence decides whether it stays a contact of its own.
-No I/O; a frame of 32x32 tactels costs well under a millisecond.
-"""
+# A contact's strain is one smooth bump, as wide as the cover spreads it (a few depths).  Two
+# contacts are told apart by the dip between them: a region is a contact of its own when its peak
+# stands out from the saddle that joins it to a higher one by more than the noise can make
+# (``SEPARATION_Z`` sigmas) and by a share of its height (``SEPARATION_SHARE``) that no single
+# contact's bump shows (a contact's strain has a single maximum; a flat top or a ridge wobbles by
+# the noise and by the model error, a small share of its height).  Two contacts closer than the
+# cover spreads them leave no such dip: they are one region, and the region says that it holds a
+# second maximum (``absorbed``), so the fit reports one contact labelled ``merged`` rather than
+# two guesses.
+#
+# The search is the topographic prominence of the strain surface: tactels are visited from the
+# highest down and joined to their 8-neighbours already visited (a union-find); when two regions
+# meet at a saddle, the lower one's prominence decides whether it stays a contact of its own.
+# No I/O; a frame of 32x32 tactels costs well under a millisecond.
 
 from __future__ import annotations
 

@@ -1,22 +1,21 @@
-"""How many contacts a frame holds: each extra one must pay for its parameters (docs/concepts/fitting.md).
+"""How many contacts a frame holds: each extra one must pay for its parameters (docs/concepts/fitting.md)."""
 
-The strain of several contacts is the sum of theirs, so a frame is explained contact by
-contact (a greedy matching pursuit): after the contacts accepted so far, the next candidate is
-fitted where the frame less their predicted strain stands highest, outside their cores, and it
-is accepted only when it lowers the whole array's chi^2 (with the noise sigma, and the
-model-error floor where the sensor has one) by more than the Bayesian information criterion
-charges for its parameters,
-
-    chi^2(without) - chi^2(with) > k ln N,
-
-``k`` the candidate's parameters (a line 4, a sphere 4, a cylinder 5, a general ellipse 6) and
-``N`` the array's usable tactels.  Noise alone, fitted by a contact at its highest tactel,
-lowers chi^2 by about the largest of N chi-square(1) draws plus one per other parameter
-(~2 ln N + k; 15-17 on a 16x16 pad), under the charge (22-33 there), while a real contact
-whose peak stands 8 sigmas above the noise lowers it by hundreds.  A contact that explains a
-ridge, a line's, explains the ridge's every bump: they are not contacts of their own.  After
-the joint fit every contact must still pay its way with the others fitted (:func:`prune`).
-"""
+# The strain of several contacts is the sum of theirs, so a frame is explained contact by
+# contact (a greedy matching pursuit): after the contacts accepted so far, the next candidate is
+# fitted where the frame less their predicted strain stands highest, outside their cores, and it
+# is accepted only when it lowers the whole array's chi^2 (with the noise sigma, and the
+# model-error floor where the sensor has one) by more than the Bayesian information criterion
+# charges for its parameters,
+#
+#     chi^2(without) - chi^2(with) > k ln N,
+#
+# ``k`` the candidate's parameters (a line 4, a sphere 4, a cylinder 5, a general ellipse 6) and
+# ``N`` the array's usable tactels.  Noise alone, fitted by a contact at its highest tactel,
+# lowers chi^2 by about the largest of N chi-square(1) draws plus one per other parameter
+# (~2 ln N + k; 15-17 on a 16x16 pad), under the charge (22-33 there), while a real contact
+# whose peak stands 8 sigmas above the noise lowers it by hundreds.  A contact that explains a
+# ridge, a line's, explains the ridge's every bump: they are not contacts of their own.  After
+# the joint fit every contact must still pay its way with the others fitted (:func:`prune`).
 
 from __future__ import annotations
 

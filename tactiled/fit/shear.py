@@ -1,21 +1,21 @@
 """Fit a 3-axis frame: the normal contact and its tangential force, torsion and friction state,
 with Cramer-Rao bounds (docs/concepts/shear.md).
-
-The model is :class:`~tactiled.physics.threeaxis.ThreeAxisModel` (a sphere's Hertz pressure, a
-Cattaneo-Mindlin tangential traction, Lubkin's torsion; the half-space's displacement at the
-taxels' depth).  Parameters ``(ln r_mm, ln force, x0, y0, fx, fy, torque, lam)``, ``lam = Q /
-(mu P)`` in [0, 1]; residuals are every live taxel's three readings in a window around the
-contact, each divided by its axis's noise.  A linear solve at full stick starts the search
-(the readings are linear in P, fx, fy and the torsion at a given contact size), then a
-bounded Levenberg-Marquardt (scipy's trust region reflective) finishes it.  The covariance is
-``(J^T J)^-1`` at the estimate (central differences).
-
-From ``lam`` follow the friction coefficient ``mu = |Q| / (lam P)`` and the margin to slip
-``1 - lam``, reported only where the bound resolves them (a relative sigma of ``mu`` under
-:data:`MU_RESOLVED`): a stick zone of radius ``c = a (1 - lam)^(1/3)`` changes the readings
-by little when ``Q`` is small or the taxels lie deep under a small contact, and then ``mu`` is
-``None`` with the reason.
 """
+
+# The model is :class:`~tactiled.physics.threeaxis.ThreeAxisModel` (a sphere's Hertz pressure, a
+# Cattaneo-Mindlin tangential traction, Lubkin's torsion; the half-space's displacement at the
+# taxels' depth).  Parameters ``(ln r_mm, ln force, x0, y0, fx, fy, torque, lam)``, ``lam = Q /
+# (mu P)`` in [0, 1]; residuals are every live taxel's three readings in a window around the
+# contact, each divided by its axis's noise.  A linear solve at full stick starts the search
+# (the readings are linear in P, fx, fy and the torsion at a given contact size), then a
+# bounded Levenberg-Marquardt (scipy's trust region reflective) finishes it.  The covariance is
+# ``(J^T J)^-1`` at the estimate (central differences).
+#
+# From ``lam`` follow the friction coefficient ``mu = |Q| / (lam P)`` and the margin to slip
+# ``1 - lam``, reported only where the bound resolves them (a relative sigma of ``mu`` under
+# :data:`MU_RESOLVED`): a stick zone of radius ``c = a (1 - lam)^(1/3)`` changes the readings
+# by little when ``Q`` is small or the taxels lie deep under a small contact, and then ``mu`` is
+# ``None`` with the reason.
 
 from __future__ import annotations
 

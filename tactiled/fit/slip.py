@@ -1,32 +1,31 @@
-"""Slip events from a sequence of 3-axis estimates (docs/concepts/shear.md, "Slip").
+"""Slip events from a sequence of 3-axis estimates (docs/concepts/shear.md, "Slip")."""
 
-A contact slides when the stick zone is gone and the object moves over the skin.  Frame by
-frame an estimate gives ``lam = Q / (mu P)`` (the stick zone's radius is ``a (1 - lam)^(1/3)``),
-the tangential force ``Q`` and the contact's centre, with their bounds.  The detector keeps the
-centre's *stick anchor*, the mean of the centre over :data:`WINDOW` frames ending :data:`LAG`
-frames ago, and tests the residuals of the stick hypothesis (the centre stays at its anchor)
-against a slide starting from rest on one of the last :data:`LAG` + 1 frames, ``t0``: the
-centre's displacement from the anchor along ``Q`` growing as ``(t - t0 + 1)^2`` (a constant
-net force on the object).  The test is the generalised likelihood ratio of that template, in
-units of its own sigma (the frames' bounds and the anchor's, which every frame shares),
-maximised over ``t0``: the evidence of several frames adds up, so a slide is seen a few frames
-after it starts even where one frame's motion is within the noise.
-
-A slip onset is declared on the first frame where the stick zone has shrunk to nothing within
-the bound, ``lam + 2 sigma >= 1``, and either
-
-* the motion test exceeds :data:`ONSET_Z` (with ``Q`` resolved: over :data:`MIN_Q_SIGMAS`
-  sigma, so that its direction is known), or
-* the tangential force has fallen by more than :data:`DROP_Z` sigma below its mean over the
-  :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction).
-
-No threshold on raw readings enters: both tests are in units of the estimates' own bounds.
-The slip ends when the object sticks again: the stick zone resolved (``lam + 2 sigma < 1``)
-and the centre at rest (moved by less than :data:`REST_Z` sigma over the last
-:data:`REST_FRAMES` frames) on :data:`END_FRAMES` frames in a row.  A sliding contact's
-estimate may show a stick zone on a frame or two (the fit of a contact that moves fast);
-the centre's motion does not stop there.
-"""
+# A contact slides when the stick zone is gone and the object moves over the skin.  Frame by
+# frame an estimate gives ``lam = Q / (mu P)`` (the stick zone's radius is ``a (1 - lam)^(1/3)``),
+# the tangential force ``Q`` and the contact's centre, with their bounds.  The detector keeps the
+# centre's *stick anchor*, the mean of the centre over :data:`WINDOW` frames ending :data:`LAG`
+# frames ago, and tests the residuals of the stick hypothesis (the centre stays at its anchor)
+# against a slide starting from rest on one of the last :data:`LAG` + 1 frames, ``t0``: the
+# centre's displacement from the anchor along ``Q`` growing as ``(t - t0 + 1)^2`` (a constant
+# net force on the object).  The test is the generalised likelihood ratio of that template, in
+# units of its own sigma (the frames' bounds and the anchor's, which every frame shares),
+# maximised over ``t0``: the evidence of several frames adds up, so a slide is seen a few frames
+# after it starts even where one frame's motion is within the noise.
+#
+# A slip onset is declared on the first frame where the stick zone has shrunk to nothing within
+# the bound, ``lam + 2 sigma >= 1``, and either
+#
+# * the motion test exceeds :data:`ONSET_Z` (with ``Q`` resolved: over :data:`MIN_Q_SIGMAS`
+#   sigma, so that its direction is known), or
+# * the tangential force has fallen by more than :data:`DROP_Z` sigma below its mean over the
+#   :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction).
+#
+# No threshold on raw readings enters: both tests are in units of the estimates' own bounds.
+# The slip ends when the object sticks again: the stick zone resolved (``lam + 2 sigma < 1``)
+# and the centre at rest (moved by less than :data:`REST_Z` sigma over the last
+# :data:`REST_FRAMES` frames) on :data:`END_FRAMES` frames in a row.  A sliding contact's
+# estimate may show a stick zone on a frame or two (the fit of a contact that moves fast);
+# the centre's motion does not stop there.
 
 from __future__ import annotations
 

@@ -2,12 +2,13 @@
 
 ``(J^T J + lam diag(J^T J)) dp = -J^T r`` on a few parameters, the damping raised on a rejected
 step and lowered on an accepted one, a per-parameter step cap (a trust region) so a poor start
-cannot throw the contact off the array in one step, and an optional box.  :func:`descend` is
-the loop; :func:`levenberg_marquardt` runs it on a Python residual function (finite-difference
-Jacobians, contacts past the compiled rules, the several-contacts joint fit), and
-``tactiled.fit.compiled.search`` runs it on the compiled evaluation, the reference of the
-core's own search (core/search.cpp), which the fitter calls.
+cannot throw the contact off the array in one step, and an optional box.
 """
+
+# :func:`descend` is the loop; :func:`levenberg_marquardt` runs it on a Python residual function
+# (finite-difference Jacobians, contacts past the compiled rules, the several-contacts joint
+# fit), and ``tactiled.fit.compiled.search`` runs it on the compiled evaluation, the reference of
+# the core's own search (core/search.cpp), which the fitter calls.
 
 from __future__ import annotations
 

@@ -1,13 +1,16 @@
 """Cold-start estimates: centre, force, and candidate (radius, orientation) pairs.
 
 Position comes from the interpolated peak and force from the total strain over the impulse
-response summed on the array (see :func:`force_estimate`).  Radius and orientation have no closed form
-(the rubber's low-pass blurs them; the paper's Fig. 10), so a table of predicted patterns is
-built once per sensor: the 3x3 neighbourhood of the peak, normalised by the peak, plus the
-peak-to-force ratio, for a grid of cylinders (radius x orientation x force x sub-tactel offset).
-The nearest entries in that feature space are the starts; the fitter tries a second one only
-where the first fit is poor or the two nearest orientations fit the features about equally.
+response summed on the array (see :func:`force_estimate`).  Radius and orientation have no
+closed form, so the starts are the nearest entries of a table of predicted patterns built once
+per sensor.
 """
+
+# Radius and orientation are blurred by the rubber's low-pass (the paper's Fig. 10).  The table
+# holds the 3x3 neighbourhood of the peak, normalised by the peak, plus the peak-to-force ratio,
+# for a grid of cylinders (radius x orientation x force x sub-tactel offset).  The fitter tries
+# a second start only where the first fit is poor or the two nearest orientations fit the
+# features about equally.
 
 from __future__ import annotations
 

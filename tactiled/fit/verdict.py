@@ -1,28 +1,27 @@
-"""The one rule every estimate passes before it is published: never a guess.
+"""The one rule every estimate passes before it is published: never a guess."""
 
-``tactiled fit``, the daemon's fits, its trackers' estimates, the estimates it reuses for an
-unchanged frame and each contact of a frame of several go through :func:`judge` (the fitter
-through :func:`judge_values` on its own dicts, the daemon through :func:`judge` on the JSON
-form it publishes).  A value is ``null`` with its reason when
-
-* **its own uncertainty says it is unknown**: a radius or force whose 1-sigma bound exceeds
-  ``UNOBSERVABLE_RELATIVE_SIGMA`` of it (or the caller's ``withhold_relative_sigma``, for a
-  radius), a radius outside ``RADIUS_LIMITS``, an orientation uncertain by more than
-  ``MAX_ANGLE_SIGMA``, a position uncertain by more than the array's span along it (it could
-  lie anywhere on the array);
-* **the frame rejects its model**: the Hertz ellipse of the reported radii, orientation and
-  force is longer than ``OFF_ARRAY_LENGTH`` times the array along its major axis (a contact
-  mostly beyond the array, which the planar model describes
-  only inside the array: the part beyond it is not seen, so the force and radii that say how
-  large it is are not measured; the position and orientation of what is seen stay);
-* **it is physically implausible for the array**: a value that is not a finite number, a
-  force or radius that is not positive.
-
-The same rule applies however the value was made (a fit of this frame, a filter over many,
-a fit reused for an unchanged frame), so the daemon publishes nothing ``tactiled fit`` would
-not.  Everything here is derived from the array (its span, its pitch) and the model (Hertz:
-:mod:`tactiled.physics.hertz`); no threshold is tuned to a scene.
-"""
+# ``tactiled fit``, the daemon's fits, its trackers' estimates, the estimates it reuses for an
+# unchanged frame and each contact of a frame of several go through :func:`judge` (the fitter
+# through :func:`judge_values` on its own dicts, the daemon through :func:`judge` on the JSON
+# form it publishes).  A value is ``null`` with its reason when
+#
+# * **its own uncertainty says it is unknown**: a radius or force whose 1-sigma bound exceeds
+#   ``UNOBSERVABLE_RELATIVE_SIGMA`` of it (or the caller's ``withhold_relative_sigma``, for a
+#   radius), a radius outside ``RADIUS_LIMITS``, an orientation uncertain by more than
+#   ``MAX_ANGLE_SIGMA``, a position uncertain by more than the array's span along it (it could
+#   lie anywhere on the array);
+# * **the frame rejects its model**: the Hertz ellipse of the reported radii, orientation and
+#   force is longer than ``OFF_ARRAY_LENGTH`` times the array along its major axis (a contact
+#   mostly beyond the array, which the planar model describes
+#   only inside the array: the part beyond it is not seen, so the force and radii that say how
+#   large it is are not measured; the position and orientation of what is seen stay);
+# * **it is physically implausible for the array**: a value that is not a finite number, a
+#   force or radius that is not positive.
+#
+# The same rule applies however the value was made (a fit of this frame, a filter over many,
+# a fit reused for an unchanged frame), so the daemon publishes nothing ``tactiled fit`` would
+# not.  Everything here is derived from the array (its span, its pitch) and the model (Hertz:
+# :mod:`tactiled.physics.hertz`); no threshold is tuned to a scene.
 
 from __future__ import annotations
 

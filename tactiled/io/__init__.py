@@ -1,21 +1,21 @@
 """tactiled's file formats, one module each, and the registry that picks a reader or a writer
 by what a file holds and its suffix.
-
-* :mod:`~tactiled.io.recording`: ``.tact`` recordings (raw wire frames with host times);
-* :mod:`~tactiled.io.framefile`: ``.npz`` frame files (strain, or counts with a table);
-* :mod:`~tactiled.io.calibration`: ``.json`` calibration files;
-* :mod:`~tactiled.io.presses`: ``.npz`` press files;
-* :mod:`~tactiled.io.files`: what every format shares (checked paths, atomic writes, errors
-  naming the file).
-
-The registry follows python-can's ``can.io`` (hardbyte/python-can, ``can/io/logger.py``'s
-``MESSAGE_WRITERS`` and ``can/io/player.py``'s ``MESSAGE_READERS``: a table from suffix to
-class, extended through entry points).  Two formats share ``.npz``, so a format is keyed by
-what it holds (``kind``) and its suffix.  Entries are ``"module:attribute"`` strings, imported
-on first use, so importing this package imports no format.  A layer above the core adds its
-own format through the ``tactiled.io.writers`` / ``tactiled.io.readers`` entry-point groups
-(name ``KIND.SUFFIX``): the service's MCAP writer is ``messages.mcap``.
 """
+
+# * :mod:`~tactiled.io.recording`: ``.tact`` recordings (raw wire frames with host times);
+# * :mod:`~tactiled.io.framefile`: ``.npz`` frame files (strain, or counts with a table);
+# * :mod:`~tactiled.io.calibration`: ``.json`` calibration files;
+# * :mod:`~tactiled.io.presses`: ``.npz`` press files;
+# * :mod:`~tactiled.io.files`: what every format shares (checked paths, atomic writes, errors
+#   naming the file).
+#
+# The registry follows python-can's ``can.io`` (hardbyte/python-can, ``can/io/logger.py``'s
+# ``MESSAGE_WRITERS`` and ``can/io/player.py``'s ``MESSAGE_READERS``: a table from suffix to
+# class, extended through entry points).  Two formats share ``.npz``, so a format is keyed by
+# what it holds (``kind``) and its suffix.  Entries are ``"module:attribute"`` strings, imported
+# on first use, so importing this package imports no format.  A layer above the core adds its
+# own format through the ``tactiled.io.writers`` / ``tactiled.io.readers`` entry-point groups
+# (name ``KIND.SUFFIX``): the service's MCAP writer is ``messages.mcap``.
 
 from __future__ import annotations
 

@@ -1,43 +1,45 @@
 """The calibration file: a versioned JSON document holding one sensor's lookup tables.
 
-Format (``docs/reference/file-formats.md`` is the reference)::
-
-    {
-      "format": "tactiled-calibration",
-      "version": 1,
-      "sensor_id": 3,                      # integer 0..65535, the id the sensor sends in frames
-      "rows": 8, "cols": 8,
-      "created": "2024-05-01T12:00:00Z",   # ISO 8601, informational
-      "tactels": [                         # rows*cols entries, row-major: k = m*cols + n
-        {"index": [0, 0],                  # optional; if present must equal [m, n]
-         "counts": [9980.0, 10512.5, ...], # strictly increasing, raw counts
-         "strain": [0.0, 0.0251, ...],     # non-decreasing, same length (>= 2)
-         "flags": [],                      # optional: "dead", "non-monotone", "unexercised"
-         "rms_residual": 0.00049},         # optional: calibration residual in strain
-        ...
-      ],
-      "build": {...}                       # optional, informational: how the builder ran
-    }
-
-Version 2 (written by ``tactiled calibrate --identify``) adds the finger's identified model::
-
-      "version": 2,
-      "model": {
-        "impulse": {"depth_x": 5.0, "nu_x": 0.4, "depth_y": 6.6, "nu_y": 0.6},   # mm; ratios
-        "modulus": 0.32,                                   # N/mm^2
-        "sigma": {"depth_x": 0.002, ..., "modulus": 0.0003},  # 1-sigma bounds (null: held)
-        "held": {"nu_y": "why it was held at the paper's value"},
-        "model_error": {"strain": 0.0, "relative": 0.004},  # the model-error floor
-        "positions_mm": {"ex": [...], "ey": [...]},          # rows*cols each, or null
-        "identification": {...}                              # informational report
-      }
-
-Version 1 files keep working (the paper's model, nominal positions, no floor).
-
-The loader refuses anything else with a :class:`CalibrationError` naming the file and the key
-(and the tactel); it never returns a half-valid table.  Writing is atomic (temp file + rename)
-so a crash never leaves a truncated file where the daemon will look for it.
+``docs/reference/file-formats.md`` is the format's reference.
 """
+
+# Format (``docs/reference/file-formats.md`` is the reference)::
+#
+#     {
+#       "format": "tactiled-calibration",
+#       "version": 1,
+#       "sensor_id": 3,                      # integer 0..65535, the id the sensor sends in frames
+#       "rows": 8, "cols": 8,
+#       "created": "2024-05-01T12:00:00Z",   # ISO 8601, informational
+#       "tactels": [                         # rows*cols entries, row-major: k = m*cols + n
+#         {"index": [0, 0],                  # optional; if present must equal [m, n]
+#          "counts": [9980.0, 10512.5, ...], # strictly increasing, raw counts
+#          "strain": [0.0, 0.0251, ...],     # non-decreasing, same length (>= 2)
+#          "flags": [],                      # optional: "dead", "non-monotone", "unexercised"
+#          "rms_residual": 0.00049},         # optional: calibration residual in strain
+#         ...
+#       ],
+#       "build": {...}                       # optional, informational: how the builder ran
+#     }
+#
+# Version 2 (written by ``tactiled calibrate --identify``) adds the finger's identified model::
+#
+#       "version": 2,
+#       "model": {
+#         "impulse": {"depth_x": 5.0, "nu_x": 0.4, "depth_y": 6.6, "nu_y": 0.6},   # mm; ratios
+#         "modulus": 0.32,                                   # N/mm^2
+#         "sigma": {"depth_x": 0.002, ..., "modulus": 0.0003},  # 1-sigma bounds (null: held)
+#         "held": {"nu_y": "why it was held at the paper's value"},
+#         "model_error": {"strain": 0.0, "relative": 0.004},  # the model-error floor
+#         "positions_mm": {"ex": [...], "ey": [...]},          # rows*cols each, or null
+#         "identification": {...}                              # informational report
+#       }
+#
+# Version 1 files keep working (the paper's model, nominal positions, no floor).
+#
+# The loader refuses anything else with a :class:`CalibrationError` naming the file and the key
+# (and the tactel); it never returns a half-valid table.  Writing is atomic (temp file + rename)
+# so a crash never leaves a truncated file where the daemon will look for it.
 
 from __future__ import annotations
 

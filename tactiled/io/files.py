@@ -1,19 +1,19 @@
 """The files the commands read and write: one place that turns every way a file can be wrong
 into one line naming the file and what is wrong.
-
-Every command that takes a file goes through here: ``tactiled fit`` (frames, calibration),
-``simulate`` (frames or presses out), ``calibrate`` (presses in, calibration out), ``replay``
-(recording, calibration), ``record`` (recording out) and ``bench --plot`` (picture out).
-What each file must *hold* (keys, shapes, values) is checked by its own module
-(:mod:`tactiled.io.framefile`, :mod:`tactiled.calibration.presses`,
-:mod:`tactiled.io.calibration`), with :func:`plain` to show values: a message never
-holds a numpy repr such as ``array(5)`` or ``np.float64(nan)``.
-
-The errors raised are the caller's :class:`~tactiled.errors.TactiledError` subclass (a frame
-file's problems are :class:`~tactiled.errors.FrameError`, a press file's
-:class:`~tactiled.errors.CalibrationError`), which the command line turns into one line and
-exit code 2.
 """
+
+# Every command that takes a file goes through here: ``tactiled fit`` (frames, calibration),
+# ``simulate`` (frames or presses out), ``calibrate`` (presses in, calibration out), ``replay``
+# (recording, calibration), ``record`` (recording out) and ``bench --plot`` (picture out).
+# What each file must *hold* (keys, shapes, values) is checked by its own module
+# (:mod:`tactiled.io.framefile`, :mod:`tactiled.calibration.presses`,
+# :mod:`tactiled.io.calibration`), with :func:`plain` to show values: a message never
+# holds a numpy repr such as ``array(5)`` or ``np.float64(nan)``.
+#
+# The errors raised are the caller's :class:`~tactiled.errors.TactiledError` subclass (a frame
+# file's problems are :class:`~tactiled.errors.FrameError`, a press file's
+# :class:`~tactiled.errors.CalibrationError`), which the command line turns into one line and
+# exit code 2.
 
 from __future__ import annotations
 

@@ -1,27 +1,26 @@
-"""Recording files: raw wire frames with host timestamps, for replay and regression tests.
+"""Recording files: raw wire frames with host timestamps, for replay and regression tests."""
 
-A recording keeps the *wire bytes* of each frame (not decoded arrays), so replaying it runs
-the very decoder the hardware's bytes went through, the way gpsd's ``gpsfake`` replays device
-logs.  Format (version 1, all integers and floats little-endian)::
-
-    header, 32 bytes
-      offset size  type     field
-      0      8     bytes    magic b"TACTREC\\x00"
-      8      2     uint16   version (1)
-      10     2     uint16   header_size: bytes from file start to the first record (32)
-      12     4     uint32   sensor_id
-      16     8     float64  created: wall-clock time.time() seconds (Unix epoch) at creation
-      24     8     bytes    reserved, zero
-    then records until end of file, each
-      0      8     float64  host_time: time.monotonic() seconds when the frame was received
-      8      4     uint32   length: number of wire bytes that follow (1 .. 1 MiB)
-      12     length bytes   one encoded frame, trailing 0x00 delimiter included
-
-``host_time`` is monotonic, so only differences within one file mean anything (replay paces
-frames by them); ``created`` anchors the file in wall-clock time.  A reader skips
-``header_size`` bytes, so a later version may grow the header.  A trailing record cut short
-(a crash, a full disk) is reported through :attr:`RecordingReader.truncated`, never raised.
-"""
+# A recording keeps the *wire bytes* of each frame (not decoded arrays), so replaying it runs
+# the very decoder the hardware's bytes went through, the way gpsd's ``gpsfake`` replays device
+# logs.  Format (version 1, all integers and floats little-endian)::
+#
+#     header, 32 bytes
+#       offset size  type     field
+#       0      8     bytes    magic b"TACTREC\\x00"
+#       8      2     uint16   version (1)
+#       10     2     uint16   header_size: bytes from file start to the first record (32)
+#       12     4     uint32   sensor_id
+#       16     8     float64  created: wall-clock time.time() seconds (Unix epoch) at creation
+#       24     8     bytes    reserved, zero
+#     then records until end of file, each
+#       0      8     float64  host_time: time.monotonic() seconds when the frame was received
+#       8      4     uint32   length: number of wire bytes that follow (1 .. 1 MiB)
+#       12     length bytes   one encoded frame, trailing 0x00 delimiter included
+#
+# ``host_time`` is monotonic, so only differences within one file mean anything (replay paces
+# frames by them); ``created`` anchors the file in wall-clock time.  A reader skips
+# ``header_size`` bytes, so a later version may grow the header.  A trailing record cut short
+# (a crash, a full disk) is reported through :attr:`RecordingReader.truncated`, never raised.
 
 from __future__ import annotations
 

@@ -1,18 +1,17 @@
-"""Eccentricity of a Hertz contact ellipse from its curvature ratio (docs/concepts/model.md).
+"""Eccentricity of a Hertz contact ellipse from its curvature ratio (docs/concepts/model.md)."""
 
-With ``m = e^2`` and K, E the complete elliptic integrals of parameter m, the ratio of the
-relative curvatures fixes m through
-
-    lambda = A'/C' = (E/(1-m) - K) / (K - E).
-
-We solve it for ``lambda - 1`` over 1e-19 .. 1e12 (sphere limit to near-line contact) without a
-root finder on the hot path: a precomputed table of ``x = log(lambda - 1)`` against
-``y = logit(m)`` (where the relation is smooth and nearly linear over the whole range) gives a
-start good to ~1e-6, and Newton steps on ``x(y)`` polish it to machine precision.  ``m`` and
-``m1 = 1 - m`` are both carried so that near-line contacts (``m1`` ~ 1e-12) keep full relative
-precision; below ``m = 0.05`` power series replace the scipy integrals, whose differences cancel
-there.
-"""
+# With ``m = e^2`` and K, E the complete elliptic integrals of parameter m, the ratio of the
+# relative curvatures fixes m through
+#
+#     lambda = A'/C' = (E/(1-m) - K) / (K - E).
+#
+# We solve it for ``lambda - 1`` over 1e-19 .. 1e12 (sphere limit to near-line contact) without a
+# root finder on the hot path: a precomputed table of ``x = log(lambda - 1)`` against
+# ``y = logit(m)`` (where the relation is smooth and nearly linear over the whole range) gives a
+# start good to ~1e-6, and Newton steps on ``x(y)`` polish it to machine precision.  ``m`` and
+# ``m1 = 1 - m`` are both carried so that near-line contacts (``m1`` ~ 1e-12) keep full relative
+# precision; below ``m = 0.05`` power series replace the scipy integrals, whose differences cancel
+# there.
 
 from __future__ import annotations
 

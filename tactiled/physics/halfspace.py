@@ -1,23 +1,23 @@
 """Green's functions of the elastic half-space: the displacement under the surface of the cover
 caused by a point force on it (Boussinesq for a normal force, Cerruti for a tangential one).
-
-Conventions (docs/concepts/shear.md): ``x`` along rows, ``y`` along columns, ``z`` the depth
-into the cover, positive inward, so a normal force pressing on the cover is ``+z`` and the
-displacement it causes below it is ``u_z > 0`` (compression positive, as the strain of the
-normal model).  A point at offset ``(dx, dy)`` from the force and depth ``z > 0`` has
-``rho = sqrt(dx^2 + dy^2 + z^2)``; with shear modulus ``G`` and Poisson ratio ``nu``
-(K. L. Johnson, Contact Mechanics, 1985, eqs. 3.19 and 3.86):
-
-    normal force P (Boussinesq):
-        u_x = P/(4 pi G) [ dx z / rho^3 - (1 - 2 nu) dx / (rho (rho + z)) ]
-        u_z = P/(4 pi G) [ z^2 / rho^3 + 2 (1 - nu) / rho ]
-    tangential force Q along x (Cerruti):
-        u_x = Q/(4 pi G) [ 1/rho + dx^2/rho^3 + (1 - 2 nu) (1/(rho + z) - dx^2/(rho (rho + z)^2)) ]
-        u_y = Q/(4 pi G) [ dx dy / rho^3 - (1 - 2 nu) dx dy / (rho (rho + z)^2) ]
-        u_z = Q/(4 pi G) [ dx z / rho^3 + (1 - 2 nu) dx / (rho (rho + z)) ]
-
-and the same with ``x`` and ``y`` exchanged.  Units: mm, N, N/mm^2; displacements in mm.
 """
+
+# Conventions (docs/concepts/shear.md): ``x`` along rows, ``y`` along columns, ``z`` the depth
+# into the cover, positive inward, so a normal force pressing on the cover is ``+z`` and the
+# displacement it causes below it is ``u_z > 0`` (compression positive, as the strain of the
+# normal model).  A point at offset ``(dx, dy)`` from the force and depth ``z > 0`` has
+# ``rho = sqrt(dx^2 + dy^2 + z^2)``; with shear modulus ``G`` and Poisson ratio ``nu``
+# (K. L. Johnson, Contact Mechanics, 1985, eqs. 3.19 and 3.86):
+#
+#     normal force P (Boussinesq):
+#         u_x = P/(4 pi G) [ dx z / rho^3 - (1 - 2 nu) dx / (rho (rho + z)) ]
+#         u_z = P/(4 pi G) [ z^2 / rho^3 + 2 (1 - nu) / rho ]
+#     tangential force Q along x (Cerruti):
+#         u_x = Q/(4 pi G) [ 1/rho + dx^2/rho^3 + (1 - 2 nu) (1/(rho + z) - dx^2/(rho (rho + z)^2)) ]
+#         u_y = Q/(4 pi G) [ dx dy / rho^3 - (1 - 2 nu) dx dy / (rho (rho + z)^2) ]
+#         u_z = Q/(4 pi G) [ dx z / rho^3 + (1 - 2 nu) dx / (rho (rho + z)) ]
+#
+# and the same with ``x`` and ``y`` exchanged.  Units: mm, N, N/mm^2; displacements in mm.
 
 from __future__ import annotations
 

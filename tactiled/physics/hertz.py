@@ -1,21 +1,20 @@
-"""Hertz contact ellipse of a rigid paraboloid on the cylindrical finger (paper eqs. 5-12).
+"""Hertz contact ellipse of a rigid paraboloid on the cylindrical finger (paper eqs. 5-12)."""
 
-Curvatures rather than radii are the natural inputs: ``kappa_a = 1/R1`` is the indentor's
-curvature across its R2 axis, ``kappa_b = 1/R2`` along it (0 for a cylinder), and ``psi`` is the
-direction of the R2 axis from +x toward +y.  Then
-
-    M = 1/2 ( Rot(psi) diag(kappa_b, kappa_a) Rot(psi)^T + diag(0, 1/R_f) )
-
-has eigenvalues ``A' >= C'``; the major semi-axis ``a`` lies along the eigenvector of ``C'``
-(direction ``theta``), ``b = a sqrt(1 - m)`` along that of ``A'``, and
-
-    a^3 = 3 F k (K(m) - E(m)) / (2 pi m C'),    k = (1 - nu_f^2)/E.
-
-The core is scalar code, compiled (core/hertz.cpp; this Python body is its reference): the
-fitter calls it once per iteration, and numpy's per-call overhead on scalars would cost more
-than the algebra.  With ``jac=True`` the analytic
-derivatives of ``(a, b, theta)`` with respect to ``(kappa_a, kappa_b, psi, F)`` come too.
-"""
+# Curvatures rather than radii are the natural inputs: ``kappa_a = 1/R1`` is the indentor's
+# curvature across its R2 axis, ``kappa_b = 1/R2`` along it (0 for a cylinder), and ``psi`` is the
+# direction of the R2 axis from +x toward +y.  Then
+#
+#     M = 1/2 ( Rot(psi) diag(kappa_b, kappa_a) Rot(psi)^T + diag(0, 1/R_f) )
+#
+# has eigenvalues ``A' >= C'``; the major semi-axis ``a`` lies along the eigenvector of ``C'``
+# (direction ``theta``), ``b = a sqrt(1 - m)`` along that of ``A'``, and
+#
+#     a^3 = 3 F k (K(m) - E(m)) / (2 pi m C'),    k = (1 - nu_f^2)/E.
+#
+# The core is scalar code, compiled (core/hertz.cpp; this Python body is its reference): the
+# fitter calls it once per iteration, and numpy's per-call overhead on scalars would cost more
+# than the algebra.  With ``jac=True`` the analytic
+# derivatives of ``(a, b, theta)`` with respect to ``(kappa_a, kappa_b, psi, F)`` come too.
 
 from __future__ import annotations
 

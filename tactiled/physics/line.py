@@ -1,25 +1,24 @@
-"""Line contact on a flat array: a cylinder pressed on a flat cover (docs/concepts/model.md, "Other arrays").
+"""Line contact on a flat array: a cylinder pressed on a flat cover (docs/concepts/model.md, "Other arrays")."""
 
-On a flat surface a cylinder's relative curvature along its axis is 0, the Hertz ellipse is
-unbounded and the contact is a line.  Across the line the pressure is the 2-D Hertz line
-contact's,
-
-    p(s) = 2 P / (pi b) sqrt(1 - s^2 / b^2),    b = sqrt(4 P R k / pi),   k = (1 - nu_f^2) / E,
-
-with ``P`` the load per unit length (N/mm) and ``R`` the cylinder's radius (``1/R* = 2 A' =
-1/R``).  The line runs along ``psi`` (degrees from +x toward +y) through every point ``r`` with
-``n . (r - ref) = c``, ``n = (-sin psi, cos psi)``.  A tactel at ``(X, Y)`` reads
-
-    strain = (1/E) integral p(s) ds integral h_x(X - x(s, t)) h_y(Y - y(s, t)) dt.
-
-The integral along the (infinite) line is exact: writing the impulse response as
-``h(u) = Re g(u) / pi`` with ``g(u) = (1 + nu) d / (d - i u)^2 + (1 - nu) / (d - i u)`` (one
-double pole, in the lower half-plane), ``h_x h_y = Re[g_x g_y + g_x conj(g_y)] / (2 pi^2)`` and
-each product's integral over the real line is one residue.  Across the line a Gauss-Chebyshev
-(second kind) rule integrates the square-root pressure.  Compiled (core/line.cpp; these bodies
-are its reference); the total force and the position along the line do not exist for such a
-contact.
-"""
+# On a flat surface a cylinder's relative curvature along its axis is 0, the Hertz ellipse is
+# unbounded and the contact is a line.  Across the line the pressure is the 2-D Hertz line
+# contact's,
+#
+#     p(s) = 2 P / (pi b) sqrt(1 - s^2 / b^2),    b = sqrt(4 P R k / pi),   k = (1 - nu_f^2) / E,
+#
+# with ``P`` the load per unit length (N/mm) and ``R`` the cylinder's radius (``1/R* = 2 A' =
+# 1/R``).  The line runs along ``psi`` (degrees from +x toward +y) through every point ``r`` with
+# ``n . (r - ref) = c``, ``n = (-sin psi, cos psi)``.  A tactel at ``(X, Y)`` reads
+#
+#     strain = (1/E) integral p(s) ds integral h_x(X - x(s, t)) h_y(Y - y(s, t)) dt.
+#
+# The integral along the (infinite) line is exact: writing the impulse response as
+# ``h(u) = Re g(u) / pi`` with ``g(u) = (1 + nu) d / (d - i u)^2 + (1 - nu) / (d - i u)`` (one
+# double pole, in the lower half-plane), ``h_x h_y = Re[g_x g_y + g_x conj(g_y)] / (2 pi^2)`` and
+# each product's integral over the real line is one residue.  Across the line a Gauss-Chebyshev
+# (second kind) rule integrates the square-root pressure.  Compiled (core/line.cpp; these bodies
+# are its reference); the total force and the position along the line do not exist for such a
+# contact.
 
 from __future__ import annotations
 

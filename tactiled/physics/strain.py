@@ -1,21 +1,21 @@
 """Predicted tactel strains: the impulse response convolved with the Hertz pressure (eq. 13).
 
     strain[m, n] = (1/E) * integral h_x(X_m - x) h_y(Y_n - y) p(x, y) dx dy
-
-Mapping the contact ellipse onto the unit disk, ``x = x0 + a u cos(theta) - b v sin(theta)``,
-``y = y0 + a u sin(theta) + b v cos(theta)``, the Jacobian ``a b`` cancels the pressure's
-``3F/(2 pi a b)``, so
-
-    strain = 3F/(2 pi E) * integral over the unit disk sqrt(1 - u^2 - v^2) h_x(...) h_y(...).
-
-With ``v = sqrt(1 - u^2) s`` that is ``integral (1 - u^2) du integral sqrt(1 - s^2) ds``: a
-Gauss-Jacobi(1, 1) rule in u times a Gauss-Chebyshev (second kind) rule in s integrates the
-square-root edge of the pressure exactly and converges geometrically for the smooth kernel.
-The node counts follow from the kernel's pole at distance ``d`` (the rubber depth) from the real
-axis: ``n = ln(1/tol) / (2 ln rho)``, ``rho = d/a + sqrt(1 + (d/a)^2)``, so knife edges use a few
-nodes and near-plane contacts many.  Node positions depend smoothly on (a, b, theta, x0, y0), so
-derivatives are exact chain rules through ``h'`` (no finite differences).
 """
+
+# Mapping the contact ellipse onto the unit disk, ``x = x0 + a u cos(theta) - b v sin(theta)``,
+# ``y = y0 + a u sin(theta) + b v cos(theta)``, the Jacobian ``a b`` cancels the pressure's
+# ``3F/(2 pi a b)``, so
+#
+#     strain = 3F/(2 pi E) * integral over the unit disk sqrt(1 - u^2 - v^2) h_x(...) h_y(...).
+#
+# With ``v = sqrt(1 - u^2) s`` that is ``integral (1 - u^2) du integral sqrt(1 - s^2) ds``: a
+# Gauss-Jacobi(1, 1) rule in u times a Gauss-Chebyshev (second kind) rule in s integrates the
+# square-root edge of the pressure exactly and converges geometrically for the smooth kernel.
+# The node counts follow from the kernel's pole at distance ``d`` (the rubber depth) from the real
+# axis: ``n = ln(1/tol) / (2 ln rho)``, ``rho = d/a + sqrt(1 + (d/a)^2)``, so knife edges use a few
+# nodes and near-plane contacts many.  Node positions depend smoothly on (a, b, theta, x0, y0), so
+# derivatives are exact chain rules through ``h'`` (no finite differences).
 
 from __future__ import annotations
 

@@ -1,15 +1,14 @@
-"""Forward model of a 3-axis array: a contact's loads -> every taxel's x, y, z readings.
+"""Forward model of a 3-axis array: a contact's loads -> every taxel's x, y, z readings."""
 
-Each taxel of a 3-axis description (``axes = 3``, docs/concepts/shear.md) reads the
-displacement of a point at ``taxel_depth_mm`` under the cover's surface (a magnet over a Hall
-sensor), times its per-axis gain (readings per mm), plus Gaussian noise of ``axis_noise``
-readings.  The displacement is the half-space's (tactiled/physics/traction.py) under the Hertz
-pressure of a spherical indentor of radius ``r_mm`` on the array's surface (a curved array
-unrolled to a plane, as the normal model does: the contact is the Hertz ellipse of the sphere on
-the cylinder), the Cattaneo-Mindlin tangential traction and Lubkin's torsion.
-
-Frames are ``(rows, cols, 3)``: x along rows, y along columns, z positive into the cover.
-"""
+# Each taxel of a 3-axis description (``axes = 3``, docs/concepts/shear.md) reads the
+# displacement of a point at ``taxel_depth_mm`` under the cover's surface (a magnet over a Hall
+# sensor), times its per-axis gain (readings per mm), plus Gaussian noise of ``axis_noise``
+# readings.  The displacement is the half-space's (tactiled/physics/traction.py) under the Hertz
+# pressure of a spherical indentor of radius ``r_mm`` on the array's surface (a curved array
+# unrolled to a plane, as the normal model does: the contact is the Hertz ellipse of the sphere on
+# the cylinder), the Cattaneo-Mindlin tangential traction and Lubkin's torsion.
+#
+# Frames are ``(rows, cols, 3)``: x along rows, y along columns, z positive into the cover.
 
 from __future__ import annotations
 

@@ -1,29 +1,29 @@
 """The displacement of the cover at the taxels' depth under a contact's tractions: the Hertz
 pressure, a Cattaneo-Mindlin tangential traction and a torsion (docs/concepts/shear.md).
-
-A contact on an ellipse of semi-axes ``a >= b`` (major axis at ``theta``), centre
-``(x0, y0)``, carries, with ``rho^2 = x'^2/a^2 + y'^2/b^2`` in the ellipse's axes:
-
-* the normal force ``P`` as the Hertz pressure ``p = 3P/(2 pi a b) sqrt(1 - rho^2)``;
-* the tangential force ``Q = (fx, fy)`` after Cattaneo and Mindlin (Johnson, Contact Mechanics,
-  sec. 7.2): with ``lam = Q/(mu P)`` (the friction mobilised, 0..1) the stick zone is the
-  similar ellipse of scale ``kappa = c/a = (1 - lam)^(1/3)`` and
-
-      q = Q/lam * 3/(2 pi a b) [ sqrt(1 - rho^2) - kappa sqrt(1 - rho^2/kappa^2) ]    (rho < kappa: both)
-
-  which at ``lam -> 0`` tends to full stick, ``q = Q / (2 pi a b sqrt(1 - rho^2))``, and at
-  ``lam = 1`` (gross slip) is ``mu p``.  The traction is taken along ``Q`` everywhere (Mindlin's
-  approximation: exact for ``nu = 0``);
-* the torsion ``T`` about the normal (N mm) as Lubkin's full-stick traction, circumferential,
-  ``q = K r / sqrt(1 - rho^2)`` with ``K = 3T / (2 pi a b (a^2 + b^2))`` (exact for a circle).
-
-The displacement at a point at depth ``d`` is each traction convolved with the half-space
-Green's functions (tactiled/physics/halfspace.py).  The integrals map the ellipse to the unit
-disk, as the normal model's (tactiled/physics/strain.py): ``sqrt(1 - rho^2)`` tractions by its
-Gauss-Jacobi x Gauss-Chebyshev-U rule, ``1/sqrt(1 - rho^2)`` ones by Gauss-Legendre x
-Gauss-Chebyshev-T, node counts from the kernel's pole at distance ``d`` (``nodes_for``).
-A curved array is unrolled to a plane as the normal model does.
 """
+
+# A contact on an ellipse of semi-axes ``a >= b`` (major axis at ``theta``), centre
+# ``(x0, y0)``, carries, with ``rho^2 = x'^2/a^2 + y'^2/b^2`` in the ellipse's axes:
+#
+# * the normal force ``P`` as the Hertz pressure ``p = 3P/(2 pi a b) sqrt(1 - rho^2)``;
+# * the tangential force ``Q = (fx, fy)`` after Cattaneo and Mindlin (Johnson, Contact Mechanics,
+#   sec. 7.2): with ``lam = Q/(mu P)`` (the friction mobilised, 0..1) the stick zone is the
+#   similar ellipse of scale ``kappa = c/a = (1 - lam)^(1/3)`` and
+#
+#       q = Q/lam * 3/(2 pi a b) [ sqrt(1 - rho^2) - kappa sqrt(1 - rho^2/kappa^2) ]    (rho < kappa: both)
+#
+#   which at ``lam -> 0`` tends to full stick, ``q = Q / (2 pi a b sqrt(1 - rho^2))``, and at
+#   ``lam = 1`` (gross slip) is ``mu p``.  The traction is taken along ``Q`` everywhere (Mindlin's
+#   approximation: exact for ``nu = 0``);
+# * the torsion ``T`` about the normal (N mm) as Lubkin's full-stick traction, circumferential,
+#   ``q = K r / sqrt(1 - rho^2)`` with ``K = 3T / (2 pi a b (a^2 + b^2))`` (exact for a circle).
+#
+# The displacement at a point at depth ``d`` is each traction convolved with the half-space
+# Green's functions (tactiled/physics/halfspace.py).  The integrals map the ellipse to the unit
+# disk, as the normal model's (tactiled/physics/strain.py): ``sqrt(1 - rho^2)`` tractions by its
+# Gauss-Jacobi x Gauss-Chebyshev-U rule, ``1/sqrt(1 - rho^2)`` ones by Gauss-Legendre x
+# Gauss-Chebyshev-T, node counts from the kernel's pole at distance ``d`` (``nodes_for``).
+# A curved array is unrolled to a plane as the normal model does.
 
 from __future__ import annotations
 

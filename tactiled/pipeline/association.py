@@ -1,18 +1,17 @@
-"""Which contact is which from one frame to the next: stable ``contact_id`` numbers.
+"""Which contact is which from one frame to the next: stable ``contact_id`` numbers."""
 
-Each contact of a frame is matched to a contact of the previous estimate by place (within
-``gate_mm``) and shape (radii within a factor ``SHAPE_FACTOR`` when both are well measured).  A
-contact keeps its id while exactly one contact of the next frame matches it and matches
-nothing else; anything else is a new contact with a new id:
-
-* a **merge** (two held contacts match one new one) ends both ids and starts one;
-* a **split** (one held contact matches two new ones) ends its id and starts two;
-* a contact that appears, or one that no held contact is near, starts a new id; one that
-  is not seen again ends.
-
-Ids count up from 1 per sensor and are never reused while the daemon runs.  No I/O, no physics:
-the main process runs this on every estimate, a few microseconds for a few contacts.
-"""
+# Each contact of a frame is matched to a contact of the previous estimate by place (within
+# ``gate_mm``) and shape (radii within a factor ``SHAPE_FACTOR`` when both are well measured).  A
+# contact keeps its id while exactly one contact of the next frame matches it and matches
+# nothing else; anything else is a new contact with a new id:
+#
+# * a **merge** (two held contacts match one new one) ends both ids and starts one;
+# * a **split** (one held contact matches two new ones) ends its id and starts two;
+# * a contact that appears, or one that no held contact is near, starts a new id; one that
+#   is not seen again ends.
+#
+# Ids count up from 1 per sensor and are never reused while the daemon runs.  No I/O, no physics:
+# the main process runs this on every estimate, a few microseconds for a few contacts.
 
 from __future__ import annotations
 

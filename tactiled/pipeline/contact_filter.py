@@ -1,37 +1,37 @@
 """The temporal tracker: every contact frame measured, a held contact sharpened, a moving one
 followed without lag.
-
-A fit describes one frame.  Between fits the tracker measures each new frame through the last
-fit's linearisation (:class:`tactiled.fit.linearize.Linearization`): one least-squares step,
-``z = p + G (f - s(p))``, with the single-frame noise covariance ``R``.  Those measurements feed
-a Kalman filter per parameter of the model (the fitter's own parameters: ln R, psi, ln F, x0,
-y0, ...):
-
-* the **moving** parameters (orientation, force, position) follow a constant-velocity model
-  whose white-acceleration noise gives the filter a memory of about ``memory_s`` seconds; their
-  rates are the reported velocities;
-* the **curvatures** (ln R, beta: a property of the object) are held constant, with a memory
-  of ``hold_s``: on a held contact they average every frame, so their uncertainty shrinks like
-  1/sqrt(frames) until the model-error floor (:attr:`Linearization.systematic`, added to every
-  reported variance, never averaged) dominates.
-
-A change is caught three ways, each the moment it happens:
-
-* the frame leaves the linear range (the part of ``f - s(p)`` that ``J dz`` cannot explain is
-  beyond the noise: chi^2 over ``n - k`` degrees of freedom past ``LINEAR_Z`` sigmas): the frame
-  needs a fit of its own (:meth:`Tracker.step` says ``"refit"``);
-* a parameter jumps (its innovation beyond ``RESET_SIGMA`` of its predicted spread): the filter
-  restarts from this frame (``"reset"``: a step in force, a jump in place);
-* a parameter drifts away from the model (an exponentially weighted mean of its normalised
-  innovations beyond ``DRIFT_LIMIT`` of its spread: an acceleration): its rate's uncertainty is
-  widened so the filter catches up within tens of frames.
-
-The filters of different parameters run independently (a frame's measurements are correlated,
-``R`` is not diagonal): on a held contact, whose ``R`` is the same every frame, that loses
-nothing (the joint estimate of a constant is the plain mean as well); the reported covariance
-puts the single-frame correlation back.  No I/O and no physics here: the main process runs
-it for every frame, in tens of microseconds.
 """
+
+# A fit describes one frame.  Between fits the tracker measures each new frame through the last
+# fit's linearisation (:class:`tactiled.fit.linearize.Linearization`): one least-squares step,
+# ``z = p + G (f - s(p))``, with the single-frame noise covariance ``R``.  Those measurements feed
+# a Kalman filter per parameter of the model (the fitter's own parameters: ln R, psi, ln F, x0,
+# y0, ...):
+#
+# * the **moving** parameters (orientation, force, position) follow a constant-velocity model
+#   whose white-acceleration noise gives the filter a memory of about ``memory_s`` seconds; their
+#   rates are the reported velocities;
+# * the **curvatures** (ln R, beta: a property of the object) are held constant, with a memory
+#   of ``hold_s``: on a held contact they average every frame, so their uncertainty shrinks like
+#   1/sqrt(frames) until the model-error floor (:attr:`Linearization.systematic`, added to every
+#   reported variance, never averaged) dominates.
+#
+# A change is caught three ways, each the moment it happens:
+#
+# * the frame leaves the linear range (the part of ``f - s(p)`` that ``J dz`` cannot explain is
+#   beyond the noise: chi^2 over ``n - k`` degrees of freedom past ``LINEAR_Z`` sigmas): the frame
+#   needs a fit of its own (:meth:`Tracker.step` says ``"refit"``);
+# * a parameter jumps (its innovation beyond ``RESET_SIGMA`` of its predicted spread): the filter
+#   restarts from this frame (``"reset"``: a step in force, a jump in place);
+# * a parameter drifts away from the model (an exponentially weighted mean of its normalised
+#   innovations beyond ``DRIFT_LIMIT`` of its spread: an acceleration): its rate's uncertainty is
+#   widened so the filter catches up within tens of frames.
+#
+# The filters of different parameters run independently (a frame's measurements are correlated,
+# ``R`` is not diagonal): on a held contact, whose ``R`` is the same every frame, that loses
+# nothing (the joint estimate of a constant is the plain mean as well); the reported covariance
+# puts the single-frame correlation back.  No I/O and no physics here: the main process runs
+# it for every frame, in tens of microseconds.
 
 from __future__ import annotations
 

@@ -1,26 +1,25 @@
-"""The scene gate: which frames are worth a fit.
+"""The scene gate: which frames are worth a fit."""
 
-Fitting costs milliseconds in a worker process; most frames of a hand at rest need none:
-
-* **no contact** (the contact detector says so): publish a no-contact estimate at once;
-* **unchanged**: the frame differs from the last *fitted* frame only by noise, so a new fit
-  would return the same contact within its uncertainty: republish that estimate under the new
-  frame's seq (``gate = "unchanged"``, ``fitted_seq`` = the frame actually fitted), for at
-  most ``MAX_CARRIED`` frames;
-* otherwise **fit**.
-
-"Within noise" is a chi-square test.  With i.i.d. strain noise of standard deviation sigma on
-every tactel, the difference of two frames of the same contact has variance ``2 sigma^2`` per
-tactel, so ``chi2 = sum(d^2) / (2 sigma^2)`` over the ``n`` tactels follows chi-square with
-``n`` degrees of freedom (mean ``n``, standard deviation ``sqrt(2n)``).  The frame is unchanged
-when ``chi2 <= n + z sqrt(2n)``; with ``z = 3`` (the default) and 64 tactels a static contact
-is refitted on 0.4 % of frames (the chi-square tail beyond 97.9), while a change the fit could resolve (several sigma on the tactels under the
-contact) exceeds it.  Comparing against the last fitted frame, not the previous frame, means
-slow drift accumulates until it triggers a refit instead of creeping by unnoticed.
-
-The gate is a small object of its own so other rules ("too light for curvature", rate
-limits) can be added and tested without the pipeline around it.
-"""
+# Fitting costs milliseconds in a worker process; most frames of a hand at rest need none:
+#
+# * **no contact** (the contact detector says so): publish a no-contact estimate at once;
+# * **unchanged**: the frame differs from the last *fitted* frame only by noise, so a new fit
+#   would return the same contact within its uncertainty: republish that estimate under the new
+#   frame's seq (``gate = "unchanged"``, ``fitted_seq`` = the frame actually fitted), for at
+#   most ``MAX_CARRIED`` frames;
+# * otherwise **fit**.
+#
+# "Within noise" is a chi-square test.  With i.i.d. strain noise of standard deviation sigma on
+# every tactel, the difference of two frames of the same contact has variance ``2 sigma^2`` per
+# tactel, so ``chi2 = sum(d^2) / (2 sigma^2)`` over the ``n`` tactels follows chi-square with
+# ``n`` degrees of freedom (mean ``n``, standard deviation ``sqrt(2n)``).  The frame is unchanged
+# when ``chi2 <= n + z sqrt(2n)``; with ``z = 3`` (the default) and 64 tactels a static contact
+# is refitted on 0.4 % of frames (the chi-square tail beyond 97.9), while a change the fit could resolve (several sigma on the tactels under the
+# contact) exceeds it.  Comparing against the last fitted frame, not the previous frame, means
+# slow drift accumulates until it triggers a refit instead of creeping by unnoticed.
+#
+# The gate is a small object of its own so other rules ("too light for curvature", rate
+# limits) can be added and tested without the pipeline around it.
 
 from __future__ import annotations
 

@@ -1,22 +1,21 @@
-"""The tracker's per-frame arithmetic, one call per step.
+"""The tracker's per-frame arithmetic, one call per step."""
 
-A tracked contact's frame is measured through its linearisation
-(:meth:`tactiled.pipeline.contact_filter.Tracker.measure`) and tested for another contact pressed
-beside it (:meth:`tactiled.pipeline.sensor_tracking.ContactTracking._pressed_elsewhere`): a gather,
-two small matrix products and a weighted sum of squares on 20 to 100 tactels, which as numpy
-calls cost more in call overhead than in arithmetic, on every frame of every array; its
-measurement then goes through the per-parameter Kalman filters
-(:meth:`~tactiled.pipeline.contact_filter.Tracker.step`), a few dozen float operations per parameter
-that cost as Python far more than as machine code.  Here each is one call, on the tracker's
-state and constants as two small tables (the ``X .. DRIFT`` and ``C_R .. C_LIN_SD`` rows).
-
-The functions below are the Python reference; the compiled core (core/tracker.cpp) replaces
-them unless ``TACTILED_CORE=python`` (:func:`tactiled.native.bind`).  The core sums in plain
-order; the reference's :func:`measure_window` sums through numpy's BLAS (vectorised), so the
-two agree to rounding there and to the bit elsewhere (tests/native/test_tracker_core.py).
-The reference works on Python floats, as the core on doubles: a float division by zero raises
-``ZeroDivisionError`` in both.
-"""
+# A tracked contact's frame is measured through its linearisation
+# (:meth:`tactiled.pipeline.contact_filter.Tracker.measure`) and tested for another contact pressed
+# beside it (:meth:`tactiled.pipeline.sensor_tracking.ContactTracking._pressed_elsewhere`): a gather,
+# two small matrix products and a weighted sum of squares on 20 to 100 tactels, which as numpy
+# calls cost more in call overhead than in arithmetic, on every frame of every array; its
+# measurement then goes through the per-parameter Kalman filters
+# (:meth:`~tactiled.pipeline.contact_filter.Tracker.step`), a few dozen float operations per parameter
+# that cost as Python far more than as machine code.  Here each is one call, on the tracker's
+# state and constants as two small tables (the ``X .. DRIFT`` and ``C_R .. C_LIN_SD`` rows).
+#
+# The functions below are the Python reference; the compiled core (core/tracker.cpp) replaces
+# them unless ``TACTILED_CORE=python`` (:func:`tactiled.native.bind`).  The core sums in plain
+# order; the reference's :func:`measure_window` sums through numpy's BLAS (vectorised), so the
+# two agree to rounding there and to the bit elsewhere (tests/native/test_tracker_core.py).
+# The reference works on Python floats, as the core on doubles: a float division by zero raises
+# ``ZeroDivisionError`` in both.
 
 from __future__ import annotations
 

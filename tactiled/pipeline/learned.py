@@ -1,13 +1,14 @@
 """What the daemon learns of a finger from its own fits, kept across restarts.
 
-The flat field (:mod:`tactiled.fit.flatfield`: each tactel's gain and position, with the
-normal equations they come from) is saved per sensor in the state directory (``[state]
-dir``), one file a sensor, ``flatfield-<name>.npz``.  A file is loaded at start only when it
-was learned by the same sensor (its name and wire id) through the same sensor model (the
-:func:`fingerprint` of the SensorModel the fits use and of the calibration file it came from);
-any other file is refused with one clear reason and never applied.  Files are written whole:
-a temporary file in the same directory, flushed to disk, then renamed over the old one.
+The flat field (:mod:`tactiled.fit.flatfield`) is saved per sensor in the state directory
+(``[state] dir``) as ``flatfield-<name>.npz``, and loaded at start only when it was learned by
+the same sensor through the same sensor model; any other file is refused with one clear reason.
 """
+
+# The flat field is each tactel's gain and position, with the normal equations they come from.
+# "The same sensor" is its name and wire id; "the same sensor model" is the :func:`fingerprint`
+# of the SensorModel the fits use and of the calibration file it came from.  Files are written
+# whole: a temporary file in the same directory, flushed to disk, then renamed over the old one.
 
 from __future__ import annotations
 

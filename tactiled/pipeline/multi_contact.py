@@ -1,24 +1,23 @@
-"""Several contacts of one array tracked at once: a temporal filter per contact.
+"""Several contacts of one array tracked at once: a temporal filter per contact."""
 
-A frame of several contacts is fitted as such (:func:`tactiled.fit.multi.fit_contacts`), and
-the worker linearises each contact on the frame less the others' predicted strain
-(:func:`tactiled.fit.multi.linearize_several`).  From then on each later frame is measured
-without a fit: contact ``i``'s :class:`~tactiled.pipeline.contact_filter.Tracker` reads the frame
-less the strain the others have *now* (their linearisation's whole-array strain, moved to
-their current state through their Jacobian over their own window), so a neighbour's motion
-does not leak into it.  A frame any contact cannot measure (outside its linear range, a
-jump) goes to a fit of the whole frame, before any filter has moved: the contacts stay in
-step.  The strain is linear in the pressure, so this is the joint model's measurement to
-first order wherever the contacts' windows do not overlap, and close to it where they do
-(the core of a neighbour is out of each window).
-
-:class:`ContactTrackers` holds the filters and answers the pipeline as one
-:class:`~tactiled.pipeline.contact_filter.Tracker` does (``adopt``, ``step``, ``estimate``, ...):
-with one contact it *is* that tracker, call for call, so a one-contact stream's estimates
-are unchanged.  Contacts keep their filters across fits by place (the nearest filter within
-``gate_mm``); a new contact starts a filter, a contact gone ends its own.  No I/O and no
-physics: the main process runs it per frame.
-"""
+# A frame of several contacts is fitted as such (:func:`tactiled.fit.multi.fit_contacts`), and
+# the worker linearises each contact on the frame less the others' predicted strain
+# (:func:`tactiled.fit.multi.linearize_several`).  From then on each later frame is measured
+# without a fit: contact ``i``'s :class:`~tactiled.pipeline.contact_filter.Tracker` reads the frame
+# less the strain the others have *now* (their linearisation's whole-array strain, moved to
+# their current state through their Jacobian over their own window), so a neighbour's motion
+# does not leak into it.  A frame any contact cannot measure (outside its linear range, a
+# jump) goes to a fit of the whole frame, before any filter has moved: the contacts stay in
+# step.  The strain is linear in the pressure, so this is the joint model's measurement to
+# first order wherever the contacts' windows do not overlap, and close to it where they do
+# (the core of a neighbour is out of each window).
+#
+# :class:`ContactTrackers` holds the filters and answers the pipeline as one
+# :class:`~tactiled.pipeline.contact_filter.Tracker` does (``adopt``, ``step``, ``estimate``, ...):
+# with one contact it *is* that tracker, call for call, so a one-contact stream's estimates
+# are unchanged.  Contacts keep their filters across fits by place (the nearest filter within
+# ``gate_mm``); a new contact starts a filter, a contact gone ends its own.  No I/O and no
+# physics: the main process runs it per frame.
 
 from __future__ import annotations
 

@@ -3,13 +3,13 @@
 One pool serves every sensor of the daemon (``fit.workers`` processes, by default
 ``min(sensors, CPUs)``); docs/concepts/pipeline.md gives the reasons.  Keeping the processes
 alive (deadlines, pings, restarts, recycling) is :mod:`tactiled.pipeline.supervision`'s part.
-
-A sensor (a :class:`JobOwner`) decides what it offers: the pipeline keeps at most one frame's
-fit in flight (its results come back in order) and beside it at most one background job; the
-pool hands a free worker to the sensor whose waiting frame is oldest, background jobs last, and
-with more than one worker never the last free one to a background job (a frame's fit may come
-next).
 """
+
+# A sensor (a :class:`JobOwner`) decides what it offers: the pipeline keeps at most one frame's
+# fit in flight (its results come back in order) and beside it at most one background job; the
+# pool hands a free worker to the sensor whose waiting frame is oldest, background jobs last, and
+# with more than one worker never the last free one to a background job (a frame's fit may come
+# next).
 
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
 """Imported once by the forkserver, so every fit worker forked from it starts warm.
 
-A worker started from nothing spends about a second importing numpy, scipy and the fitter and
-building the fitter's start table, far too long for a restart after a crash.  The forkserver
-imports this module once; workers are forked from it with the modules imported and the
-default sensor's start table built (``start_table`` is cached per SensorModel), so a
-replacement worker for a default sensor is ready in milliseconds.
-
+Workers are forked with numpy, scipy and the fitter imported and the default sensor's start
+table built (``start_table`` is cached per SensorModel), so a replacement worker for a default
+sensor is ready in milliseconds instead of the second a cold start takes.
 Nothing here may raise: the forkserver would die with it.  (It ignores only ImportError.)
 """
 

@@ -1,14 +1,16 @@
 """One sensor's loop: read -> (decode, in the source) -> linearise -> zero -> gate -> fit -> publish.
 
 The frames of each read are handled synchronously, in one call (:meth:`SensorPipeline.on_frames`);
-only the fit leaves the loop, to a worker process.  Latest frame wins: a frame to fit waits in a
-one-frame slot, a newer one replaces it (``superseded``), at most one fit per sensor is in
-flight, and a fit older than the last estimate published is dropped (``stale_dropped``); order
-is the pipeline's own arrival count (``ordinal``), not ``seq`` (it wraps, and restarts with the
-device).  ``lossless`` mode (replay, regression tests) waits for each fit instead: every frame
-gets its estimate, deterministically.  A contact through time (``settings.track``) is
-:mod:`tactiled.pipeline.sensor_tracking`'s.
+only the fit leaves the loop, to a worker process.  Latest frame wins, except in ``lossless``
+mode (replay, regression tests), where every frame gets its estimate, deterministically.  A
+contact through time (``settings.track``) is :mod:`tactiled.pipeline.sensor_tracking`'s.
 """
+
+# Latest frame wins: a frame to fit waits in a one-frame slot, a newer one replaces it
+# (``superseded``), at most one fit per sensor is in flight, and a fit older than the last
+# estimate published is dropped (``stale_dropped``); order is the pipeline's own arrival count
+# (``ordinal``), not ``seq`` (it wraps, and restarts with the device).  ``lossless`` mode waits
+# for each fit instead.
 
 from __future__ import annotations
 

@@ -1,14 +1,16 @@
 """A contact's track and its fits: the tracking half of a sensor's loop (``settings.track``).
 
 :class:`ContactTracking` holds what :class:`~tactiled.pipeline.sensor.SensorPipeline` does with
-a contact frame once the frame's path (linearise, zero, gate) is done: measure it through the
-tracker at once when it can, else keep it (with the frames after it, in arrival order) until a
-fit comes back, then measure them all through that fit's linearisation; ask for
-relinearisations as the contact moves; follow drift around a held contact; and hand a frame to
-a fit when another contact is pressed beside the tracked one.  The rules are in
-docs/concepts/pipeline.md ("The tracker").  The pipeline owns one and hands it each contact
-frame (:meth:`ContactTracking.track`) and each fit's answer (:meth:`ContactTracking.result`).
+a contact frame once the frame's path (linearise, zero, gate) is done.  The rules are in
+docs/concepts/pipeline.md ("The tracker").
 """
+
+# It measures a contact frame through the tracker at once when it can, else keeps it (with the
+# frames after it, in arrival order) until a fit comes back, then measures them all through that
+# fit's linearisation; asks for relinearisations as the contact moves; follows drift around a
+# held contact; and hands a frame to a fit when another contact is pressed beside the tracked
+# one.  The pipeline owns one and hands it each contact frame (:meth:`ContactTracking.track`) and
+# each fit's answer (:meth:`ContactTracking.result`).
 
 from __future__ import annotations
 

@@ -1,22 +1,21 @@
-"""A 3-axis array's shear, torsion, friction and slip in the daemon (docs/concepts/shear.md).
+"""A 3-axis array's shear, torsion, friction and slip in the daemon (docs/concepts/shear.md)."""
 
-For a sensor whose description says ``axes = 3`` and whose frames carry ``Frame.taxels``, the
-pipeline hands every frame here (:meth:`ShearTrack.on_frame`) beside its own 1-axis path:
-
-* the readings' zero (what the zeroed frames' ``taxels`` are read from) is the mean of the last :data:`ZERO_FRAMES` frames the contact detector
-  called free of contact (x, y and z of every taxel; frozen while a contact lasts);
-* during a contact the newest zeroed frame is fitted with the shear fit
-  (:class:`tactiled.fit.shear.ShearFitter`, warm-started from the contact's previous fit) in
-  one background thread, one fit at a time, the newest frame winning (a frame superseded while
-  a fit runs is counted, never queued);
-* every frame of the contact after its first fit is estimated at frame rate by the step from
-  the newest fit (:class:`tactiled.fit.shear.ShearStep`: one matrix-vector product, no fit)
-  and feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`); an onset or
-  end is published on the hub as a ``slip`` item with the frame it was declared on;
-* :meth:`ShearTrack.annotate` gives every estimate the contact's newest ``shear`` and ``slip``
-  tables (the strongest contact's: the fit's window is centred on the array's peak; the tables
-  are the newest frame's step estimate), or null with the reason in ``reasons``.
-"""
+# For a sensor whose description says ``axes = 3`` and whose frames carry ``Frame.taxels``, the
+# pipeline hands every frame here (:meth:`ShearTrack.on_frame`) beside its own 1-axis path:
+#
+# * the readings' zero (what the zeroed frames' ``taxels`` are read from) is the mean of the last :data:`ZERO_FRAMES` frames the contact detector
+#   called free of contact (x, y and z of every taxel; frozen while a contact lasts);
+# * during a contact the newest zeroed frame is fitted with the shear fit
+#   (:class:`tactiled.fit.shear.ShearFitter`, warm-started from the contact's previous fit) in
+#   one background thread, one fit at a time, the newest frame winning (a frame superseded while
+#   a fit runs is counted, never queued);
+# * every frame of the contact after its first fit is estimated at frame rate by the step from
+#   the newest fit (:class:`tactiled.fit.shear.ShearStep`: one matrix-vector product, no fit)
+#   and feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`); an onset or
+#   end is published on the hub as a ``slip`` item with the frame it was declared on;
+# * :meth:`ShearTrack.annotate` gives every estimate the contact's newest ``shear`` and ``slip``
+#   tables (the strongest contact's: the fit's window is centred on the array's peak; the tables
+#   are the newest frame's step estimate), or null with the reason in ``reasons``.
 
 from __future__ import annotations
 

@@ -1,27 +1,26 @@
-"""The fit worker processes' supervision: starting, deadlines, pings, restarts, recycling.
+"""The fit worker processes' supervision: starting, deadlines, pings, restarts, recycling."""
 
-:class:`WorkerSupervision` is the half of :class:`~tactiled.pipeline.pool.WorkerPool` that keeps
-its processes alive (the other half, in ``pool.py``, hands them jobs).  Nothing here blocks the
-loop:
-
-* answers arrive through ``loop.add_reader`` on each worker's Connection, and a death through
-  ``add_reader`` on the process sentinel, so a SIGKILLed worker is noticed at once;
-* process starts run in a one-thread executor (the first one waits for the forkserver to
-  import and warm up, about 2 s);
-* every request has a deadline, counted from when the worker could start on it (it answers in
-  order), and a supervisor task ticking every 50 ms kills (SIGKILL) a worker that misses one:
-  a fit must answer within ``fit.timeout``, an idle worker is pinged every
-  ``fit.ping_interval`` and must answer within ``fit.ping_timeout`` (as uvicorn's supervisor
-  pings its workers), a new one must be ready within ``fit.startup_timeout``;
-* a lost worker is replaced at once; one that keeps dying before it answers a single fit is
-  restarted with backoff (0.1 s doubling to 5 s), so a crash loop cannot eat the CPU the other
-  workers need;
-* with ``fit.max_fits_per_worker`` set (a safety net, off by default), a worker that has
-  answered that many fits is *recycled*: a successor is started beside it, and only once the
-  successor is ready does the old one stop taking fits; it finishes the fit it holds (whose
-  result is delivered as usual), is told to stop and is reaped.  No fit is lost, and the slot
-  always has a ready worker (``WorkerPool.stats()["last_recycle"]``).
-"""
+# :class:`WorkerSupervision` is the half of :class:`~tactiled.pipeline.pool.WorkerPool` that keeps
+# its processes alive (the other half, in ``pool.py``, hands them jobs).  Nothing here blocks the
+# loop:
+#
+# * answers arrive through ``loop.add_reader`` on each worker's Connection, and a death through
+#   ``add_reader`` on the process sentinel, so a SIGKILLed worker is noticed at once;
+# * process starts run in a one-thread executor (the first one waits for the forkserver to
+#   import and warm up, about 2 s);
+# * every request has a deadline, counted from when the worker could start on it (it answers in
+#   order), and a supervisor task ticking every 50 ms kills (SIGKILL) a worker that misses one:
+#   a fit must answer within ``fit.timeout``, an idle worker is pinged every
+#   ``fit.ping_interval`` and must answer within ``fit.ping_timeout`` (as uvicorn's supervisor
+#   pings its workers), a new one must be ready within ``fit.startup_timeout``;
+# * a lost worker is replaced at once; one that keeps dying before it answers a single fit is
+#   restarted with backoff (0.1 s doubling to 5 s), so a crash loop cannot eat the CPU the other
+#   workers need;
+# * with ``fit.max_fits_per_worker`` set (a safety net, off by default), a worker that has
+#   answered that many fits is *recycled*: a successor is started beside it, and only once the
+#   successor is ready does the old one stop taking fits; it finishes the fit it holds (whose
+#   result is delivered as usual), is told to stop and is reaped.  No fit is lost, and the slot
+#   always has a ready worker (``WorkerPool.stats()["last_recycle"]``).
 
 from __future__ import annotations
 

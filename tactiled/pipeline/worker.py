@@ -1,36 +1,35 @@
-"""The fit worker process: builds its fitters once, then answers requests over a Connection.
+"""The fit worker process: builds its fitters once, then answers requests over a Connection."""
 
-Runs in a child started with the ``forkserver`` (or ``spawn``) method, never ``fork``: the
-parent runs an asyncio loop, and forking a process with a running loop and threads is unsafe.
-The protocol is tuples pickled over one duplex ``multiprocessing`` Connection, answered strictly
-in order (which is what lets the parent give every outstanding request a deadline):
-
-- started with its initial specs, it answers ``("ready", pid, warm_up_s, broken)``, where
-  ``broken`` maps a spec whose fitter could not be built to the error (its fits then answer
-  with that error: one sensor's bad model must not keep the worker from serving the others);
-- ``("fit", rid, spec, strain, model, mask, warm, budget_s, kind)`` (``strain`` and ``mask``
-  packed by :func:`tactiled.pipeline.worker_packing.pack_array`) -> ``("result", rid,
-  fit_json_dict | None, compute_s, error | None, warm | None, lin | None)`` (the fitter
-  raising costs one frame, never the worker); ``warm`` is ``(model, params)`` of a converged
-  fit, the next frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
-  ``kind`` "fit", "fit+lin" (and the fit's :class:`~tactiled.fit.linearize.Linearization`) or
-  "lin" (only the linearisation of the frame at the sent ``warm``: no fit);
-- ``("setup", rid, spec, SensorModel, options)`` -> ``("setup_done", rid, build_s, error)``;
-- ``("ping", rid)`` -> ``("pong", rid)``;
-- ``("memory", rid)`` -> ``("memory", rid, figures)``: where this process's memory is
-  (:func:`tactiled.heapstats.worker_figures`: RSS, malloc and pymalloc books, the fitter's
-  caches, fits so far; ``flat_fields``: each spec's ``FlatField.summary()``), for the soak and
-  for diagnosing growth;
-- ``("stop",)``: exit.
-
-``spec`` is a small integer naming a (SensorModel, FitOptions arguments) pair the parent
-registered.  Its arguments may carry ``("learned", (path, name, wire_id, fingerprint,
-restore))``: the fitter's flat field is then kept in that file (:mod:`tactiled.pipeline.learned`):
-loaded when the fitter is built if ``restore`` (the parent checked the file belongs to the
-sensor), saved after each of its re-solves and when the worker stops.
-The worker exits when told to, or when the parent's end of the pipe closes (EOF): a daemon
-killed with SIGKILL leaves no orphaned workers behind.
-"""
+# Runs in a child started with the ``forkserver`` (or ``spawn``) method, never ``fork``: the
+# parent runs an asyncio loop, and forking a process with a running loop and threads is unsafe.
+# The protocol is tuples pickled over one duplex ``multiprocessing`` Connection, answered strictly
+# in order (which is what lets the parent give every outstanding request a deadline):
+#
+# - started with its initial specs, it answers ``("ready", pid, warm_up_s, broken)``, where
+#   ``broken`` maps a spec whose fitter could not be built to the error (its fits then answer
+#   with that error: one sensor's bad model must not keep the worker from serving the others);
+# - ``("fit", rid, spec, strain, model, mask, warm, budget_s, kind)`` (``strain`` and ``mask``
+#   packed by :func:`tactiled.pipeline.worker_packing.pack_array`) -> ``("result", rid,
+#   fit_json_dict | None, compute_s, error | None, warm | None, lin | None)`` (the fitter
+#   raising costs one frame, never the worker); ``warm`` is ``(model, params)`` of a converged
+#   fit, the next frame's warm start; ``budget_s`` the fit's time budget (``Fitter.fit``);
+#   ``kind`` "fit", "fit+lin" (and the fit's :class:`~tactiled.fit.linearize.Linearization`) or
+#   "lin" (only the linearisation of the frame at the sent ``warm``: no fit);
+# - ``("setup", rid, spec, SensorModel, options)`` -> ``("setup_done", rid, build_s, error)``;
+# - ``("ping", rid)`` -> ``("pong", rid)``;
+# - ``("memory", rid)`` -> ``("memory", rid, figures)``: where this process's memory is
+#   (:func:`tactiled.heapstats.worker_figures`: RSS, malloc and pymalloc books, the fitter's
+#   caches, fits so far; ``flat_fields``: each spec's ``FlatField.summary()``), for the soak and
+#   for diagnosing growth;
+# - ``("stop",)``: exit.
+#
+# ``spec`` is a small integer naming a (SensorModel, FitOptions arguments) pair the parent
+# registered.  Its arguments may carry ``("learned", (path, name, wire_id, fingerprint,
+# restore))``: the fitter's flat field is then kept in that file (:mod:`tactiled.pipeline.learned`):
+# loaded when the fitter is built if ``restore`` (the parent checked the file belongs to the
+# sensor), saved after each of its re-solves and when the worker stops.
+# The worker exits when told to, or when the parent's end of the pipe closes (EOF): a daemon
+# killed with SIGKILL leaves no orphaned workers behind.
 
 from __future__ import annotations
 

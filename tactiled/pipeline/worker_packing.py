@@ -1,13 +1,15 @@
 """How the daemon and its fit workers pack what they send each other (see
 :mod:`tactiled.pipeline.worker` for the protocol).
 
-Messages are tuples pickled over a ``multiprocessing`` Connection.  The parent sends a frame to
-fit or linearise a few hundred times a second; pickling a numpy array goes through its
-``__reduce__`` (its dtype, flags and a copy), several times the cost of pickling its bytes, so
-the arrays of a fit request travel as ``(bytes, shape, dtype)`` and the tuple is pickled once
-by :func:`pickle.dumps` (which :meth:`Connection.recv` loads as it loads any message).  The
-linearisations coming back pack themselves (:mod:`tactiled.fit.linearize`).
+The arrays of a fit request travel as ``(bytes, shape, dtype)`` and the tuple is pickled once
+by :func:`pickle.dumps`; the linearisations coming back pack themselves
+(:mod:`tactiled.fit.linearize`).
 """
+
+# Messages are tuples pickled over a ``multiprocessing`` Connection, and the parent sends a frame
+# to fit or linearise a few hundred times a second.  Pickling a numpy array goes through its
+# ``__reduce__`` (its dtype, flags and a copy), several times the cost of pickling its bytes;
+# :meth:`Connection.recv` loads a message pickled by :func:`pickle.dumps` as it loads any other.
 
 from __future__ import annotations
 

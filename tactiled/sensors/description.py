@@ -1,37 +1,36 @@
-"""A sensor description: everything the physics needs to know about one taxel array.
+"""A sensor description: everything the physics needs to know about one taxel array."""
 
-A description is one TOML file (docs/howto/sensors.md)::
-
-    name = "flat16"
-    rows = 16                  # tactels along x
-    cols = 16                  # tactels along y
-    pitch_x_mm = 2.5
-    pitch_y_mm = 2.5
-    surface_radius_mm = inf    # the surface's radius around y; inf (or absent): a flat array
-    depth_x_mm = 2.0           # the cover's impulse response (docs/concepts/model.md)
-    nu_x = 0.5
-    depth_y_mm = 2.0
-    nu_y = 0.5
-    modulus_n_mm2 = 0.25       # the cover's modulus (force scale)
-    noise_sigma = 0.0005       # one zeroed tactel's strain noise, 1 sigma
-    wire_order = "row-major"   # or "column-major", "serpentine-rows", or a list of indices
-    dead = [[0, 3]]            # tactels to ignore (broken, covered)
-    axes = 1                   # 1: one reading per taxel (strain); 3: x, y, z per taxel
-    # with axes = 3 (docs/concepts/shear.md): what each taxel measures, the displacement of a
-    # point at taxel_depth_mm under the surface (a magnet over a Hall sensor), in readings
-    # per mm along x, y, z, and each axis's noise in readings, 1 sigma:
-    taxel_depth_mm = 3.0
-    axis_gain = [1000.0, 1000.0, 1000.0]
-    axis_noise = [2.0, 2.0, 2.0]
-
-Units are in the key names.  Built-in descriptions are package data
-(``tactiled/sensors/builtin/NAME.toml``); :func:`load_description` takes a path or a built-in's
-name.  A bad description is a :class:`~tactiled.errors.ConfigError` naming the key.
-
-Conventions (docs/concepts/model.md): tactel ``[m, n]`` sits at ``x = m * pitch_x_mm`` (``m < rows``),
-``y = n * pitch_y_mm``; raw counts arrive in wire order, and :meth:`SensorDescription.to_grid`
-puts them on the ``(rows, cols)`` grid.
-"""
+# A description is one TOML file (docs/howto/sensors.md)::
+#
+#     name = "flat16"
+#     rows = 16                  # tactels along x
+#     cols = 16                  # tactels along y
+#     pitch_x_mm = 2.5
+#     pitch_y_mm = 2.5
+#     surface_radius_mm = inf    # the surface's radius around y; inf (or absent): a flat array
+#     depth_x_mm = 2.0           # the cover's impulse response (docs/concepts/model.md)
+#     nu_x = 0.5
+#     depth_y_mm = 2.0
+#     nu_y = 0.5
+#     modulus_n_mm2 = 0.25       # the cover's modulus (force scale)
+#     noise_sigma = 0.0005       # one zeroed tactel's strain noise, 1 sigma
+#     wire_order = "row-major"   # or "column-major", "serpentine-rows", or a list of indices
+#     dead = [[0, 3]]            # tactels to ignore (broken, covered)
+#     axes = 1                   # 1: one reading per taxel (strain); 3: x, y, z per taxel
+#     # with axes = 3 (docs/concepts/shear.md): what each taxel measures, the displacement of a
+#     # point at taxel_depth_mm under the surface (a magnet over a Hall sensor), in readings
+#     # per mm along x, y, z, and each axis's noise in readings, 1 sigma:
+#     taxel_depth_mm = 3.0
+#     axis_gain = [1000.0, 1000.0, 1000.0]
+#     axis_noise = [2.0, 2.0, 2.0]
+#
+# Units are in the key names.  Built-in descriptions are package data
+# (``tactiled/sensors/builtin/NAME.toml``); :func:`load_description` takes a path or a built-in's
+# name.  A bad description is a :class:`~tactiled.errors.ConfigError` naming the key.
+#
+# Conventions (docs/concepts/model.md): tactel ``[m, n]`` sits at ``x = m * pitch_x_mm`` (``m < rows``),
+# ``y = n * pitch_y_mm``; raw counts arrive in wire order, and :meth:`SensorDescription.to_grid`
+# puts them on the ``(rows, cols)`` grid.
 
 from __future__ import annotations
 

@@ -1,14 +1,15 @@
 """The tactile arrays the vendor drivers read, and how their counts read as strain.
 
-A vendor driver (``lines://``, ``flexitac://``, ``robotiq://``, ``xela://``, ``paxini://``) delivers raw counts
-in its array's own shape; what the array is (shape, pitch, surface, cover) is the sensor's
-description (``tactiled/sensors``, docs/howto/sensors.md).  :func:`device_model` is the one place that
-says which built-in description each kind of device has; :class:`DeviceArray` adds the nominal
-linear table its counts go through until a calibration file says otherwise.  The simulated
-devices (``tactiled simulate --as KIND``) render their frames from the same
-:class:`DeviceArray`, so a daemon on a simulated device reads its counts back as the
-simulator's strain.
+A vendor driver (``lines://``, ``flexitac://``, ``robotiq://``, ``xela://``, ``paxini://``)
+delivers raw counts in its array's own shape.  :func:`device_model` says which built-in
+description each kind of device has; :class:`DeviceArray` adds the nominal linear table its
+counts go through until a calibration file says otherwise.
 """
+
+# What an array is (shape, pitch, surface, cover) is the sensor's description (``tactiled/sensors``,
+# docs/howto/sensors.md).  The simulated devices (``tactiled simulate --as KIND``) render their
+# frames from the same :class:`DeviceArray`, so a daemon on a simulated device reads its counts
+# back as the simulator's strain.
 
 from __future__ import annotations
 

@@ -1,19 +1,18 @@
-"""A finger that is not the paper's: the simulator's description of one physical fingertip.
+"""A finger that is not the paper's: the simulator's description of one physical fingertip."""
 
-No real finger matches the paper's constants.  A :class:`FingerSpec` says how a simulated
-finger differs: its rubber (impulse-response depths and ratios, modulus), and each tactel's
-gain error, displacement from the nominal pitch and count offset at zero load, all drawn from
-one seed so the same spec always gives the same finger.  It yields
-
-* :meth:`FingerSpec.sensor`: the true :class:`~tactiled.sensors.model.SensorModel` (rubber and tactel
-  positions): the physics the simulator renders;
-* :meth:`FingerSpec.gains` / :meth:`FingerSpec.offsets`: the tactels' true response,
-  ``counts = ZERO_STRAIN_COUNTS + offset + COUNTS_PER_STRAIN * gain * strain``.
-
-The fitter knows none of this; ``tactiled calibrate --identify`` estimates it from presses.
-Used by the sim driver (``sim://?depth_x=5&gain_error=0.05...``), ``tactiled simulate`` and the
-benchmarks.  Units: mm, N/mm^2, counts.
-"""
+# No real finger matches the paper's constants.  A :class:`FingerSpec` says how a simulated
+# finger differs: its rubber (impulse-response depths and ratios, modulus), and each tactel's
+# gain error, displacement from the nominal pitch and count offset at zero load, all drawn from
+# one seed so the same spec always gives the same finger.  It yields
+#
+# * :meth:`FingerSpec.sensor`: the true :class:`~tactiled.sensors.model.SensorModel` (rubber and tactel
+#   positions): the physics the simulator renders;
+# * :meth:`FingerSpec.gains` / :meth:`FingerSpec.offsets`: the tactels' true response,
+#   ``counts = ZERO_STRAIN_COUNTS + offset + COUNTS_PER_STRAIN * gain * strain``.
+#
+# The fitter knows none of this; ``tactiled calibrate --identify`` estimates it from presses.
+# Used by the sim driver (``sim://?depth_x=5&gain_error=0.05...``), ``tactiled simulate`` and the
+# benchmarks.  Units: mm, N/mm^2, counts.
 
 from __future__ import annotations
 

@@ -1,13 +1,15 @@
 """Which fit window suits an array: the Fisher information each window size keeps.
 
-A fit reads a square window of tactels around the contact (docs/concepts/fitting.md).  A larger window
-holds more of the contact's information and costs more per fit.  For an array's reference
-contacts -- a sphere and a cylinder (a line on a flat array) of radius twice the cover's depth,
-pressed at the array's middle to a peak of 60 noise sigmas -- :func:`information` gives, per
-window size and parameter, the share of the largest window's Fisher information it keeps,
-``(sigma_largest / sigma_N)^2`` from the Cramer-Rao bounds; :func:`recommended` the smallest
-size keeping :data:`KEEP` of it for every parameter.  On the paper's finger that is its 4x4.
+A fit reads a square window of tactels around the contact (docs/concepts/fitting.md).  A larger
+window holds more of the contact's information and costs more per fit.  :func:`information`
+gives, per window size and parameter, the share of the largest window's Fisher information it
+keeps; :func:`recommended` the smallest size keeping :data:`KEEP` of it for every parameter.
 """
+
+# The reference contacts are a sphere and a cylinder (a line on a flat array) of radius twice the
+# cover's depth, pressed at the array's middle to a peak of 60 noise sigmas; the share kept is
+# ``(sigma_largest / sigma_N)^2`` from the Cramer-Rao bounds.  On the paper's finger the
+# recommended window is its 4x4.
 
 from __future__ import annotations
 

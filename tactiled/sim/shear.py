@@ -1,30 +1,30 @@
 """Simulated 3-axis frames: a sphere pressed on a 3-axis array and loaded tangentially
 (docs/concepts/shear.md).  Used by ``tactiled simulate --sensor NAME`` on a 3-axis description,
 the ``shear`` bench and the tests.
-
-Two kinds of output, both ``(N, rows, cols, 3)`` readings (x, y, z; the description's gains and
-Gaussian noise of its ``axis_noise``) with the truth per frame:
-
-* :func:`random_frames`: independent frames, each a sphere of random radius, force, centre,
-  tangential force ``Q = lam mu P`` in a random direction, torsion, friction coefficient;
-* :func:`sequence`: a scene at ``rate_hz`` (1 kHz by default): the sphere pressed (50 ms),
-  held (20 ms), then loaded:
-
-  - ``push``: ``Q`` ramps to ``0.8 mu P`` over 200 ms and holds 100 ms (stick only);
-  - ``twist``: the torsion ramps to half Lubkin's gross-slip torque ``3 pi mu P a / 16`` over
-    200 ms and holds 100 ms (stick only);
-  - ``pull``: ``Q`` ramps to ``1.5 mu P`` over 300 ms; when it reaches ``mu P`` (``mu`` the
-    static coefficient) the contact slides (the true slip onset): the friction becomes kinetic,
-    ``Q = kinetic mu P`` (``kinetic`` 0.8 by default; 1 for none), the traction is
-    ``kinetic mu p`` (gross slip, ``lam = 1``) and the object moves over the skin along ``Q``
-    from rest at ``accel`` mm/s^2 (default 5000 mm/s^2: 0.2 mu P of unbalanced force on some
-    20-60 g) for the rest of the scene.
-
-Truth keys: ``true_r1`` (the sphere's radius), ``true_force``, ``true_x``, ``true_y``,
-``true_fx``, ``true_fy``, ``true_torque``, ``true_mu``, ``true_lam`` (``Q / (mu P)``),
-``true_slip`` (1 while sliding) and, for a sequence, ``true_onset`` (the first sliding frame,
--1 for none).
 """
+
+# Two kinds of output, both ``(N, rows, cols, 3)`` readings (x, y, z; the description's gains and
+# Gaussian noise of its ``axis_noise``) with the truth per frame:
+#
+# * :func:`random_frames`: independent frames, each a sphere of random radius, force, centre,
+#   tangential force ``Q = lam mu P`` in a random direction, torsion, friction coefficient;
+# * :func:`sequence`: a scene at ``rate_hz`` (1 kHz by default): the sphere pressed (50 ms),
+#   held (20 ms), then loaded:
+#
+#   - ``push``: ``Q`` ramps to ``0.8 mu P`` over 200 ms and holds 100 ms (stick only);
+#   - ``twist``: the torsion ramps to half Lubkin's gross-slip torque ``3 pi mu P a / 16`` over
+#     200 ms and holds 100 ms (stick only);
+#   - ``pull``: ``Q`` ramps to ``1.5 mu P`` over 300 ms; when it reaches ``mu P`` (``mu`` the
+#     static coefficient) the contact slides (the true slip onset): the friction becomes kinetic,
+#     ``Q = kinetic mu P`` (``kinetic`` 0.8 by default; 1 for none), the traction is
+#     ``kinetic mu p`` (gross slip, ``lam = 1``) and the object moves over the skin along ``Q``
+#     from rest at ``accel`` mm/s^2 (default 5000 mm/s^2: 0.2 mu P of unbalanced force on some
+#     20-60 g) for the rest of the scene.
+#
+# Truth keys: ``true_r1`` (the sphere's radius), ``true_force``, ``true_x``, ``true_y``,
+# ``true_fx``, ``true_fy``, ``true_torque``, ``true_mu``, ``true_lam`` (``Q / (mu P)``),
+# ``true_slip`` (1 while sliding) and, for a sequence, ``true_onset`` (the first sliding frame,
+# -1 for none).
 
 from __future__ import annotations
 
