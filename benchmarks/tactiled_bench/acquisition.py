@@ -1,22 +1,20 @@
 """Acquisition under load: simulated fingers at 1 kHz over real pseudo-terminals.
 
-Each finger is a separate ``tactiled simulate --pty`` process writing encoded frames to a pty at
-its scene rate; the daemon reads them with pyserial (``serial://`` on a stable symlink), decodes,
-linearises, zeroes, gates and fits in its worker pool, exactly as it would a device.  Measured:
-frames the decoder lost or rejected (the bar: none), that every frame was published, superseded
-or otherwise accounted for, the fit rate, and latency from frame arrival to published estimate.
-The daemon runs under the heap policy of the process that serves (``tactiled.heap.serving``, as
-``tactiled run`` does), and what the run keeps of each estimate is flat, so the collector's
-work is the daemon's own.
-
-On a scene of moving contacts (``--scene moving``) the question is whether every contact frame
-gets an answer of its own: by its own fit, or by a gate reuse the chi-square test justifies (the
-frame is the fitted one within noise), rather than being superseded while a fit runs.  Each
-run (one per worker count of the sweep) reports those shares, latency, and the accuracy of the
-streamed estimates against the scene's truth, matched by seq: the simulator's frame ``seq`` is
-its tick index, so the truth of any frame is ``scene.contact_at((seq mod ticks per pass) /
-rate)``, recomputed here without talking to the simulator.
+Each finger is a ``tactiled simulate --pty`` process; the daemon reads it with pyserial and
+decodes, linearises, zeroes, gates and fits exactly as it would a device.  Measured: frames lost
+or rejected (the bar: none), every frame accounted for, the fit rate, latency from frame
+arrival to published estimate, and, on moving contacts, the share of frames answered by their
+own fit or a justified gate reuse, and accuracy against the scene's truth.
 """
+# The daemon reads serial:// on a stable symlink, under the serving process's heap policy
+# (tactiled.heap.serving, as tactiled run does), and what the run keeps of each estimate is flat,
+# so the collector's work is the daemon's own.
+# --scene moving asks whether every contact frame gets an answer of its own: its own fit, or a
+# gate reuse the chi-square test justifies (the frame is the fitted one within noise), rather
+# than being superseded while a fit runs.  Each run (one per worker count of the sweep) reports
+# those shares, latency, and the streamed estimates' accuracy, matched by seq: the simulator's
+# frame seq is its tick index, so the truth of any frame is
+# scene.contact_at((seq mod ticks per pass) / rate), recomputed without talking to the simulator.
 
 from __future__ import annotations
 

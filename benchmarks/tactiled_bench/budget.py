@@ -1,21 +1,22 @@
 """Where the daemon's main process spends its CPU per frame: a py-spy profile, by stage.
 
-Record a running acquisition bench with py-spy (``--format raw``: one collapsed stack per
-line, its sample count last) and split the samples of the daemon's main process (the event
-loop and the serial read thread, not its fit workers nor the simulators) by pipeline stage::
-
-    py-spy record --subprocesses --nonblocking --format raw -r 250 -o prof.txt -- \\
-        tactiled bench --suite acquisition --scene hand --seconds 15 --sim-nice 10
     python -m tactiled_bench.budget prof.txt --frames-per-s 6000 --cpu-share 0.46
 
-``python -m tactiled_bench.budget --stage`` times the calibration stage alone, compiled and
-reference paths; ``--replay`` the whole main process on the hand's parts replayed lossless,
-nothing else competing (:func:`replay_cost`); ``--fits`` a fit worker's time per job on the
-palm's and a fingertip's frames (:func:`fit_cost`).  A sample belongs to the innermost stage its stack passes through (the detector inside the
-calibration stage counts as the detector).  With ``--cpu-share`` (the main process's CPU in
-cores over the window, as the bench's table gives it) and ``--frames-per-s`` the shares become
-microseconds per frame.
+Splits a ``py-spy --format raw`` profile of a running acquisition bench by pipeline stage, for
+the daemon's main process only (event loop and serial read thread); ``--stage``, ``--replay``
+and ``--fits`` time the calibration stage, the whole main process on a replay, and a fit worker.
 """
+# Record the profile with:
+#     py-spy record --subprocesses --nonblocking --format raw -r 250 -o prof.txt -- \
+#         tactiled bench --suite acquisition --scene hand --seconds 15 --sim-nice 10
+# (one collapsed stack per line, its sample count last; fit workers and simulators excluded).
+# A sample belongs to the innermost stage its stack passes through (the detector inside the
+# calibration stage counts as the detector).  With --cpu-share (the main process's CPU in cores
+# over the window, as the bench's table gives it) and --frames-per-s the shares become
+# microseconds per frame.
+# --stage: the calibration stage alone, compiled and reference paths; --replay: the hand's parts
+# replayed lossless, nothing else competing (replay_cost); --fits: a fit worker's time per job on
+# the palm's and a fingertip's frames (fit_cost).
 
 from __future__ import annotations
 

@@ -1,13 +1,13 @@
 """Per-frame cost of the calibration stage: ``python -m tactiled_bench.calibration_cost`` (or
 ``tactiled calibrate --bench``).
 
-Each timing is the minimum, over many short bursts (``burst`` frames, about a millisecond each),
-of the mean time per frame within a burst, looping over distinct pre-generated frames.  The
-minimum over short bursts is the usual micro-benchmark convention (``timeit``): it is the cost
-of the code, while longer or averaged runs also measure whatever else the machine was doing.
-The median burst is reported too, as what a loaded machine gives.  Speed is shown here, not
-asserted in tests, where shared CI machines make timings meaningless.
+Each timing is the minimum, over many short bursts of distinct pre-generated frames, of the
+mean time per frame in a burst (the ``timeit`` convention: the code's cost, not the machine's
+load); the median burst is reported too, as what a loaded machine gives.
 """
+# Bursts are `burst` frames, about a millisecond each; longer or averaged runs also measure
+# whatever else the machine was doing.  Speed is shown here, not asserted in tests, where shared
+# CI machines make timings meaningless.
 
 from __future__ import annotations
 

@@ -1,16 +1,15 @@
 """How well frame stamps hold: :class:`tactiled.clock.FrameClock` against the simulated
 device's true send times.
 
-``python -m tactiled_bench.clock --seconds 10 --rate 1000`` plays a simulated finger
-(``sim://``, paced in real time on the event loop, up to 8 frames a read) and stamps its
-frames as the daemon does, twice: mapped from the device clock (``clocked``), and as a device
-that sends no clock would be (its arrival times spread by sequence number and the rate).
-Frame ``k`` is sent at ``start + k / rate`` on the host's monotonic clock and carries device
-time ``k / rate``, so each stamp's error against its true send time is known.  Printed, in
-ms: bias (mean error), jitter (standard deviation), the 1st and 99th percentiles and the
-largest error, for both stamps and for the raw arrival time; and whether the stamps strictly
-increased.
+``python -m tactiled_bench.clock --seconds 10 --rate 1000`` stamps a simulated finger's frames
+as the daemon does, from the device clock and as a device without a clock, and prints in ms the
+bias, jitter, 1st and 99th percentiles and largest error of each stamp (and of the raw arrival
+time), and whether the stamps strictly increased.
 """
+# The finger is sim://, paced in real time on the event loop, up to 8 frames a read.  Without a
+# device clock the stamps are the arrival times spread by sequence number and the rate.  Frame k
+# is sent at start + k / rate on the host's monotonic clock and carries device time k / rate, so
+# each stamp's error against its true send time is known.
 
 from __future__ import annotations
 

@@ -1,28 +1,27 @@
 """Several contacts on one array (``tactiled bench --suite contacts``).
 
-Frames of two and three simultaneous contacts on the paper's finger and on a flat 16x16 array
-(or ``--sensor``'s descriptions): spheres, and on a curved finger cylinders too, each pressed
-to a peak of 40-120 noise sigmas at random places in the array's middle, all contacts of a
-frame of one kind and fitted with that model by :func:`tactiled.fit.multi.fit_contacts`.
-
-* **Resolved** frames hold contacts at least ``RESOLVED_DEPTHS`` cover depths apart whose
-  noise-free strain dips between every two of them (what tells contacts apart: a large
-  contact spreads wider than the cover alone): each must be found.  Fits are matched to the truths by position (within ``MATCH_PITCHES``
-  pitches); the table gives the share of truths missed, of fits that match no truth
-  (phantoms), and per parameter the RMS error over the joint model's Cramer-Rao bound at the
-  truth (every contact's parameters unknown, on the union of the fitted windows:
-  :func:`tactiled.fit.multi.joint_bounds`) and the share of errors within twice the reported
-  sigma.
-* **Close** frames hold two contacts 1-2 depths apart whose noise-free strain shows no dip
-  between them: the table says how often they were reported as two, as one (``merged`` or not), or otherwise.
-* **Tracked** through time: the ``hand-palm`` grasp (up to three contacts) through the whole
-  daemon, each contact's filter against the scene's truth (:mod:`tactiled_bench.tracked_contacts`).
-* **Grasps**: lines, edges and balls together, and single contacts of each, fitted with
-  ``auto`` (:mod:`tactiled_bench.grasps`).
-* **Single** frames: one contact (on a flat array, spheres and line contacts, whose ridge the
-  grid samples as several bumps), fitted by ``fit_contacts`` and by the single-contact fitter;
-  the two results must be the same, key for key.
+Frames of two and three simultaneous contacts on the paper's finger and a flat 16x16 array (or
+``--sensor``'s), fitted by :func:`tactiled.fit.multi.fit_contacts`: resolved, close, tracked
+(:mod:`tactiled_bench.tracked_contacts`), grasps (:mod:`tactiled_bench.grasps`) and single
+frames.  Scores: missed, phantoms, RMS error over the joint model's Cramer-Rao bound, 2-sigma
+coverage.
 """
+# Contacts: spheres, and on a curved finger cylinders too, each pressed to a peak of 40-120 noise
+# sigmas at random places in the array's middle; all contacts of a frame of one kind, fitted with
+# that model.
+# * Resolved: contacts at least RESOLVED_DEPTHS cover depths apart whose noise-free strain dips
+#   between every two (what tells contacts apart: a large contact spreads wider than the cover
+#   alone); each must be found.  Fits match truths by position (within MATCH_PITCHES pitches);
+#   the bound is at the truth with every contact's parameters unknown, on the union of the fitted
+#   windows (tactiled.fit.multi.joint_bounds); coverage is within twice the reported sigma.
+# * Close: two contacts 1-2 depths apart with no dip between them: how often reported as two, as
+#   one (merged or not), or otherwise.
+# * Tracked: the hand-palm grasp (up to three contacts) through the whole daemon, each contact's
+#   filter against the scene's truth.
+# * Grasps: lines, edges and balls together, and single contacts of each, fitted with auto.
+# * Single: one contact (on a flat array, spheres and line contacts, whose ridge the grid samples
+#   as several bumps), fitted by fit_contacts and by the single-contact fitter; the two results
+#   must be the same, key for key.
 
 from __future__ import annotations
 

@@ -1,13 +1,15 @@
-"""The foundation benchmarks: how good the fitter is against the issue's bars.
+"""The foundation benchmarks: how good the fitter is against its bars.
 
-1. Noise-free frames from the independent reference integration: worst recovery errors of
-   cylinders R 1-50 mm, psi 30-150 deg, 0.5-2 N (bars: R 1 %, psi 0.2 deg, F 0.5 %, x/y 5 um).
-2. Noisy frames (quantised to 0.001 plus Gaussian 0.0003): each parameter's RMS error over its
-   Cramer-Rao bound at F >= 0.5 N (bar: 1.2) and the fraction of errors inside 2 reported sigma
-   (bar: 93 %).
-3. The paper's Table 1 in simulation: cylinders at 90 deg over tactel [2, 4].
-4. Speed: cold cylinder fits (median, p99), general fits, warm cylinder fits.
+Noise-free recovery from the independent reference integration, noisy efficiency (RMS error
+over the Cramer-Rao bound, 2-sigma coverage), the paper's Table 1 in simulation, and speed.
 """
+# 1. Noise-free frames: worst recovery errors of cylinders R 1-50 mm, psi 30-150 deg, 0.5-2 N
+#    (bars: R 1 %, psi 0.2 deg, F 0.5 %, x/y 5 um).
+# 2. Noisy frames (quantised to 0.001 plus Gaussian 0.0003): each parameter's RMS error over its
+#    Cramer-Rao bound at F >= 0.5 N (bar: 1.2) and the fraction of errors inside 2 reported sigma
+#    (bar: 93 %).
+# 3. The paper's Table 1 in simulation: cylinders at 90 deg over tactel [2, 4].
+# 4. Speed: cold cylinder fits (median, p99), general fits, warm cylinder fits.
 
 from __future__ import annotations
 

@@ -1,28 +1,24 @@
 """Grasps of lines, edges and balls together (``tactiled bench --suite contacts``'s grasp tables).
 
-Each frame presses an array with a grasp's contacts at random places, angles, radii (3-25 mm,
-log-uniform; an edge is a 0.5 mm cylinder) and loads (each contact's own peak 40-120 noise
-sigmas), adds the description's noise and is fitted by :func:`tactiled.fit.multi.fit_contacts`
-with ``auto`` (as ``tactiled fit --model auto`` does).  On a flat array a cylinder is a line
-contact, longer than the array; on a curved finger a cylinder is a Hertz ellipse 30-150 deg
-from the finger's axis.
-
-* flat: two parallel lines (a handle, two bars: within 5 deg of each other), a line and a
-  ball, an edge and a ball, a line and two balls; every two contacts at least
-  ``FLAT_APART_DEPTHS`` cover depths apart (12 mm on the 16x16 pad's 2 mm cover);
-* curved: two crossing cylinders (60-90 deg apart), a cylinder and a ball, an edge and a
-  ball, a cylinder and two balls; every two centres at least ``RESOLVED_DEPTHS`` depths apart
-  and their noise-free strain dipping between them (:func:`tactiled.fit.regions.find_regions`
-  finds each);
-* single: one line (cylinder), edge or ball, which must give exactly one contact.
-
-A fit is a truth's when its place is within ``MATCH_PITCHES`` pitches of it (a line's: of the
-line, measured across it); unmatched truths are missed, unmatched fits phantoms.  A matched
-contact fitted with its own model (a ball's sphere, a line's or a cylinder's cylinder) is
-scored against the Cramer-Rao bound of that contact alone on the window its fit would choose
-at the truth (its neighbours known: their strain dips to nothing between contacts this far
-apart) and by its own reported sigma (2-sigma coverage).
+Each frame presses an array with a grasp's contacts at random places, angles, radii and loads,
+adds the description's noise and is fitted by :func:`tactiled.fit.multi.fit_contacts` with
+``auto``.  Fits are matched to truths (missed, phantoms) and matched contacts fitted with their
+own model are scored against their single-contact Cramer-Rao bound and by 2-sigma coverage.
 """
+# Draws: radii 3-25 mm log-uniform (an edge is a 0.5 mm cylinder), each contact's own peak 40-120
+# noise sigmas.  On a flat array a cylinder is a line contact, longer than the array; on a
+# curved finger a cylinder is a Hertz ellipse 30-150 deg from the finger's axis.
+# * flat: two parallel lines (a handle, two bars: within 5 deg), a line and a ball, an edge and
+#   a ball, a line and two balls; every two contacts at least FLAT_APART_DEPTHS cover depths
+#   apart (12 mm on the 16x16 pad's 2 mm cover);
+# * curved: two crossing cylinders (60-90 deg apart), a cylinder and a ball, an edge and a ball,
+#   a cylinder and two balls; every two centres at least RESOLVED_DEPTHS depths apart and their
+#   noise-free strain dipping between them (tactiled.fit.regions.find_regions finds each);
+# * single: one line (cylinder), edge or ball, which must give exactly one contact.
+# A fit is a truth's when its place is within MATCH_PITCHES pitches of it (a line's: measured
+# across the line).  The bound is that contact's alone on the window its fit would choose at
+# the truth (its neighbours known: their strain dips to nothing between contacts this far
+# apart); coverage uses its own reported sigma.
 
 from __future__ import annotations
 

@@ -1,18 +1,22 @@
 """The identification benchmark (``tactiled bench --suite identify``): a finger that is not the
 paper's, identified from presses, then fitted.
 
-1. A truth finger (rubber d_x 5.0, nu_x 0.40, d_y 6.6, nu_y 0.60, E 0.32; 5 % tactel gains,
-   0.05 mm tactel displacements, +/-300-count offsets) and ~400 presses of known contacts
-   (spheres and cylinders of a few mm at all orientations, 0.25-2 N, centres over the array,
-   10 % unloaded), each the mean of 32 frames, as docs/howto/calibration.md's procedure records them.
-2. Identification: each constant against the truth, in units of its own 1-sigma bound.
-3. Cylinder frames (R 2-40 mm, psi 30-150 deg, 0.5-2 N, noise 0.0005 per frame) fitted three
-   ways: the identified model through the identified tables; docs/concepts/model.md's constants with ideal
-   zeroing and nominal gain (what a user gets without identifying); and, for reference, the
-   paper's ideal finger.  RMS error over the *true* finger's Cramer-Rao bound, 2-sigma
-   coverage and the median reported sigma.
-4. How each constant's accuracy falls with the number of presses (50, 100, 200, 400).
+Simulates a truth finger and ~400 presses of known contacts, identifies its constants (each
+against the truth in units of its 1-sigma bound), fits cylinder frames with the identified
+model, the nominal one and the paper's ideal finger, and shows how accuracy falls with fewer
+presses.
 """
+# 1. Truth finger: rubber d_x 5.0, nu_x 0.40, d_y 6.6, nu_y 0.60, E 0.32; 5 % tactel gains,
+#    0.05 mm tactel displacements, +/-300-count offsets.  Presses: spheres and cylinders of a few
+#    mm at all orientations, 0.25-2 N, centres over the array, 10 % unloaded, each the mean of 32
+#    frames, as docs/howto/calibration.md's procedure records them.
+# 2. Identification: each constant against the truth, in units of its own 1-sigma bound.
+# 3. Cylinder frames (R 2-40 mm, psi 30-150 deg, 0.5-2 N, noise 0.0005 per frame) fitted three
+#    ways: the identified model through the identified tables; docs/concepts/model.md's constants
+#    with ideal zeroing and nominal gain (what a user gets without identifying); and, for
+#    reference, the paper's ideal finger.  RMS error over the true finger's Cramer-Rao bound,
+#    2-sigma coverage and the median reported sigma.
+# 4. Each constant's accuracy against the number of presses (50, 100, 200, 400).
 
 from __future__ import annotations
 

@@ -1,17 +1,15 @@
 """What learning the finger costs a daemon worker's fits (docs/performance/benchmarks.md).
 
-A daemon worker's fitter learns its finger as it fits (``FitOptions(learn_floor=True)``: the
-model-error floor, tactiled.fit.floor, and the flat field, tactiled.fit.flatfield).  This
-measures the CPU time per cylinder fit of such a fitter with its flat field and without it, on
-the paper's finger (the flat field stays off: what it costs to watch) and on a finger with 5 %
-gains and 0.1 mm displacements (on: what correcting costs), in interleaved rounds of one run,
-after a warm-up of ``--warmup`` fits; the ratio is what counts.
-
     python -m tactiled_bench.learning_cost [--fits 1000] [--rounds 4] [--warmup 2000]
 
-Run it as a worker runs (``OPENBLAS_NUM_THREADS=1``, which the worker pool sets): a BLAS
-thread pool spins on the other core and bills this process for it.
+CPU time per cylinder fit of a learning fitter with its flat field and without, in interleaved
+rounds; the ratio is what counts.  Run it as a worker runs (``OPENBLAS_NUM_THREADS=1``).
 """
+# A worker's fitter learns its finger as it fits (FitOptions(learn_floor=True): the model-error
+# floor, tactiled.fit.floor, and the flat field, tactiled.fit.flatfield).  Fingers: the paper's
+# (the flat field stays off: what it costs to watch) and one with 5 % gains and 0.1 mm
+# displacements (on: what correcting costs), after --warmup fits.  OPENBLAS_NUM_THREADS=1 is
+# what the worker pool sets: a BLAS thread pool spins on the other core and bills this process.
 
 from __future__ import annotations
 

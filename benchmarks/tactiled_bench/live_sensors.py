@@ -1,26 +1,25 @@
 """The daemon's own estimates on every built-in description, against the truth (part of
 ``tactiled bench --suite sensors``).
 
-The ``demo`` scene (a 10 mm cylinder pressed, rolled, turned, held and released; an 8 mm
-sphere; a 0.5 mm knife edge) is played once by the description's simulated finger, without
-drift or hysteresis, through the whole daemon in lossless mode (wire bytes -> decoder ->
-zeroing -> detector -> gate -> fits in a real worker process -> the tracker, reuse and the
-several-contacts association -> the one rule of :mod:`tactiled.fit.verdict`), the model
-``auto``.  Every published contact value is compared with the scene's truth at its frame:
-
-* **2-sigma**: the share of published values within twice their reported sigma (95 % for
-  honest sigmas);
-* **beyond 4 sigma**: the share of published values further than four of their sigmas from
-  the truth (6e-5 for honest Gaussian sigmas), and the share of contact estimates with any;
-* **withheld**: the share of values published as null with a reason;
-* **stale**: the longest run of estimates in which a value stayed bit-identical while its
-  contact moved (its true centre or orientation changed);
-* **phantoms**: contact estimates listing more than one contact (the scene touches once).
-
-A line on a flat array (the cylinder there) has no centre along it: its place is scored
-across the line only (``offset``), and its total force is not a value it reports.
-Deterministic (seeded scene noise, lossless): the same figures on every machine.
+The ``demo`` scene is played once by each description's simulated finger (no drift or
+hysteresis) through the whole daemon in lossless mode, model ``auto``; every published contact
+value is compared with the scene's truth at its frame.  Deterministic (seeded scene noise,
+lossless): the same figures on every machine.
 """
+# The scene: a 10 mm cylinder pressed, rolled, turned, held and released; an 8 mm sphere; a
+# 0.5 mm knife edge.  The path: wire bytes -> decoder -> zeroing -> detector -> gate -> fits in a
+# real worker process -> the tracker, reuse and the several-contacts association -> the one rule
+# of tactiled.fit.verdict.  Scores:
+# * 2-sigma: the share of published values within twice their reported sigma (95 % for honest
+#   sigmas);
+# * beyond 4 sigma: the share further than four sigmas from the truth (6e-5 for honest Gaussian
+#   sigmas), and the share of contact estimates with any;
+# * withheld: the share of values published as null with a reason;
+# * stale: the longest run of estimates in which a value stayed bit-identical while its contact
+#   moved (its true centre or orientation changed);
+# * phantoms: contact estimates listing more than one contact (the scene touches once).
+# A line on a flat array (the cylinder there) has no centre along it: its place is scored across
+# the line only (offset), and its total force is not a value it reports.
 
 from __future__ import annotations
 

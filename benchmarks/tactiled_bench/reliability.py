@@ -2,22 +2,21 @@
 WebSocket subscribers of which some never read, for minutes or hours (the bars and the runs:
 docs/performance/reliability.md, "Soak").
 
-This process runs the service and nothing else, so its resident memory is the service's; the
-simulators and the subscribers are child processes (:mod:`tactiled_bench.soak_children`), and
-what it samples is in :mod:`tactiled_bench.soak_meters`.  After ``--warmup`` s it measures for
-``--seconds``: the RSS and heap books of the service and of every fit worker (growth, and the
-slope after ``--settle`` s), open descriptors, per finger the frames lost by the daemon (told
-apart by seq from those a starved simulator never wrote), every subscriber's delivery and the
-never-reading ones' closes, CPU, and how late the event loop woke.  :func:`soak` returns the
-figures with each bar's verdict (``passed``).
-
     python -m tactiled_bench.reliability --quick          # 20 s (after a 60 s warm-up)
-    python -m tactiled_bench.reliability                  # 10 min
     python -m tactiled_bench.reliability --seconds 3600   # 1 h (the slope bar: after 5 min)
-    python -m tactiled_bench.reliability --scene demo     # the demo scene (mostly gated)
-    python -m tactiled_bench.reliability --subscribers 0  # acquisition only (the bare daemon)
     python -m tactiled_bench.reliability --quick --json   # one JSON object (what the test reads)
 """
+# This process runs the service and nothing else, so its resident memory is the service's; the
+# simulators and the subscribers are child processes (tactiled_bench.soak_children), and what it
+# samples is in tactiled_bench.soak_meters.  After --warmup s it measures for --seconds: the RSS
+# and heap books of the service and of every fit worker (growth, and the slope after --settle
+# s), open descriptors, per finger the frames lost by the daemon (told apart by seq from those a
+# starved simulator never wrote), every subscriber's delivery and the never-reading ones'
+# closes, CPU, and how late the event loop woke.  soak() returns the figures with each bar's
+# verdict (passed).  More runs:
+#   python -m tactiled_bench.reliability                  # 10 min
+#   python -m tactiled_bench.reliability --scene demo     # the demo scene (mostly gated)
+#   python -m tactiled_bench.reliability --subscribers 0  # acquisition only (the bare daemon)
 
 from __future__ import annotations
 

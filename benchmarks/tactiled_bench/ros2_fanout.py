@@ -2,31 +2,26 @@
 
     python -m tactiled_bench.ros2_fanout [--quick] [--sensors 3] [--rate 1000] [--seconds 10]
 
-Starts ``tactiled run --ros2`` (a separate process) with simulated fingers publishing on
-Zenoh (peer mode, listening on a loopback port, multicast scouting off), and measures four
-phases against it, alternated over ``--rounds`` rounds so that the machine's drift hits each
-alike, with one Zenoh client session of this process as the subscriber:
-
-* **idle**: no subscriber (the daemon publishes nothing: the bus and the ROS node skip a topic
-  no one matches) -- the baseline;
-* **json**: every sensor's JSON estimates (``<prefix>/*/estimate``);
-* **ros2**: every sensor's ``tactiled_msgs/Contact`` (one ROS message per estimate, the key
-  expressions rmw_zenoh uses);
-* **both**: the JSON estimates and every ROS topic of the estimates (wrench, contact, contacts,
-  markers).
-
-Per phase: **delivered/s**, estimates the subscriber received per second (for ROS, Contact
-messages), against **published/s** (the pipeline's counters over the phase); **ROS gaps**,
-rmw_zenoh attachment sequence numbers (consecutive per publisher) the subscriber never saw
-(the JSON has no such number: an estimate's ``seq`` skips the frames superseded while waiting
-for a fit); **latency p50/p99**, frame arrival -> received
-(JSON: ``host_time``, monotonic; ROS: ``header.stamp``, wall clock -- same machine);
-**daemon CPU per frame**, the daemon process's CPU time (not its fit workers) over the frames
-it processed, and **added**, that minus the idle phase's: what publishing costs.  Samples
-queue in Zenoh's own channel (Rust, no GIL) and are counted by a thread, so the subscriber
-keeps up; reading a ROS message's stamp takes the two integers after the CDR encapsulation
-header (``builtin_interfaces/Time`` is the first field of every stamped message).
+Starts ``tactiled run --ros2`` (simulated fingers on Zenoh, peer mode on loopback) and
+alternates four phases over ``--rounds``, one Zenoh client session of this process
+subscribing: idle, json, ros2, both.  Per phase: delivered/s against published/s, ROS gaps,
+latency p50/p99, and the daemon's CPU per frame over the idle phase's (what publishing costs).
 """
+# Phases:
+# * idle: no subscriber (the bus and the ROS node skip a topic no one matches): the baseline;
+# * json: every sensor's JSON estimates (<prefix>/*/estimate);
+# * ros2: every sensor's tactiled_msgs/Contact (one per estimate, rmw_zenoh's key expressions);
+# * both: the JSON estimates and every ROS topic of the estimates (wrench, contact, contacts,
+#   markers).
+# delivered/s counts Contact messages for ROS; published/s is the pipeline's counters over the
+# phase.  ROS gaps: rmw_zenoh attachment sequence numbers (consecutive per publisher) never seen
+# (the JSON has no such number: an estimate's seq skips frames superseded while waiting for a
+# fit).  Latency: frame arrival -> received (JSON: host_time, monotonic; ROS: header.stamp,
+# wall clock, same machine).  Daemon CPU per frame: the daemon process's CPU time (not its fit
+# workers) over the frames it processed; "added" is that minus the idle phase's.
+# Samples queue in Zenoh's own channel (Rust, no GIL) and are counted by a thread, so the
+# subscriber keeps up; a ROS message's stamp is the two integers after the CDR encapsulation
+# header (builtin_interfaces/Time is the first field of every stamped message).
 
 from __future__ import annotations
 

@@ -1,18 +1,16 @@
 """Scenes of the benchmarks that must keep the fitter busy (the soak, the worker-memory probe).
 
-The built-in scenes of :mod:`tactiled.sim` were made to show the daemon working: most of the
-demo scene is a contact held still or nothing at all, which the gate answers without a fit
-(``unchanged``, ``no_contact``).  A soak on it measures a fitter that is mostly idle.
-
-:func:`busy_scene` never holds still: a seeded random walk of the indentor that presses,
-rolls, rotates and changes its shape (cylinder, general paraboloid, sphere, knife edge) all the
-time, at forces from light to firm, with a short release now and then, so nearly every frame
-needs a fit and the fitter keeps visiting new contact sizes, models and warm starts.  It is
-registered for the soak's simulators as :data:`BUSY_SCENE` (``busy``) by
-:func:`register_bench_scenes`, in the simulator processes only (not in :data:`tactiled.sim.SCENES`:
-a built-in scene for the same purpose, ``moving``, is planned there; the soak's ``--scene``
-takes either).
+:func:`busy_scene` never holds still: a seeded random walk of the indentor that presses, rolls,
+rotates and changes its shape all the time, so nearly every frame needs a fit.  It is registered
+as :data:`BUSY_SCENE` (``busy``) by :func:`register_bench_scenes`, in the simulator processes
+only (not in :data:`tactiled.sim.SCENES`).
 """
+# Why: the built-in scenes of tactiled.sim show the daemon working; most of the demo scene is a
+# contact held still or nothing at all, which the gate answers without a fit (unchanged,
+# no_contact), so a soak on it measures a mostly idle fitter.  The busy walk goes through
+# cylinder, general paraboloid, sphere and knife edge, at forces from light to firm, with a short
+# release now and then, so the fitter keeps visiting new contact sizes, models and warm starts.
+# The soak's --scene takes a built-in scene or this one.
 
 from __future__ import annotations
 

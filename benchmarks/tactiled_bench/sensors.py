@@ -1,16 +1,16 @@
 """Accuracy on every built-in sensor description (``tactiled bench --suite sensors``).
 
-For each description, simulated contacts the array can feel -- cylinders (on a flat array: line
-contacts), spheres and edges (0.5 mm cylinders), at random orientations (on a curved finger,
-30-150 deg from its axis: nearer, a cylinder is a line longer than the finger) and positions in
-the array's middle half, pressed to a peak strain of 40-120 noise sigmas -- are fitted with their
-own model under the description's noise, many noise draws each.  Per parameter the table gives
-the RMS error over the Cramer-Rao bound at the truth (1.0 is an efficient estimator), the share
-of errors within twice the fit's own reported sigma (95 % for honest sigmas), and the share of
-values withheld (with their reasons counted); and the fit time per frame (CPU time of the
-fitting thread), of the contact's own model and of ``auto`` (the daemon's choice among the
-models) on the same frame, with the share of auto's fits its budget stopped.
+Simulated cylinders, spheres and edges are fitted with their own model under each description's
+noise: per parameter the RMS error over the Cramer-Rao bound at the truth (1.0 is efficient),
+2-sigma coverage (95 % for honest sigmas) and the share withheld; and the fit time per frame of
+the contact's own model and of ``auto``.
 """
+# Contacts the array can feel: cylinders (on a flat array: line contacts), spheres and edges
+# (0.5 mm cylinders), at random orientations (on a curved finger 30-150 deg from its axis:
+# nearer, a cylinder is a line longer than the finger) and positions in the array's middle half,
+# pressed to a peak strain of 40-120 noise sigmas, many noise draws each.  Withheld values have
+# their reasons counted.  Fit time is the fitting thread's CPU time; auto (the daemon's choice
+# among the models) is timed on the same frame, with the share of its fits the budget stopped.
 
 from __future__ import annotations
 

@@ -1,22 +1,21 @@
 """``tactiled bench --suite shear``: tangential force, torsion, friction and slip on simulated
 3-axis arrays (docs/concepts/shear.md).
 
-Arrays: the XELA-like ``xela_uskin_4x4`` and ``xela_uskin_4x6``, ``flat16`` made 3-axis (a
-16x16 pad) and the paper's finger made 3-axis (:func:`~tactiled.physics.threeaxis.three_axis`:
-magnets at the cover's depth, 2 readings of noise per axis).  On each:
-
-* independent frames (tactiled/sim/shear.py ``random_frames``: sphere radius 5-20 mm, force
-  0.5-2 N, ``Q/(mu P)`` 0-0.95, ``mu`` 0.3-1, torsion +/-0.3 N mm): RMS error over the RMS
-  Cramer-Rao bound and the 2-sigma coverage of ``fx``, ``fy`` and the torsion; how often ``mu``
-  is resolved and its coverage there;
-* pull-until-slip scenes at 1 kHz: the slip onset's delay (frames from the true onset to the
-  declared one; the estimates and the detector run as the daemon's, a fit every :data:`FIT_EVERY`
-  frames and the step on every frame, from 50 frames before the onset, cold, to 30 after), the share declared
-  within :data:`ONSET_FRAMES` frames; with the friction turning kinetic at the onset (0.8 of
-  the static: the force drops) and with a constant friction (the motion alone shows it);
-* stick-only scenes (push and twist in turn, every frame of their tangential loading): slip
-  events declared (there should be none).
+On ``xela_uskin_4x4``, ``xela_uskin_4x6``, ``flat16`` and the paper's finger made 3-axis:
+independent frames (RMS error over the Cramer-Rao bound, coverage of fx, fy, torsion, mu),
+pull-until-slip scenes (onset delay), and stick-only scenes (no slip events should be declared).
 """
+# 3-axis versions by tactiled.physics.threeaxis.three_axis: magnets at the cover's depth, 2
+# readings of noise per axis.
+# * independent frames (tactiled/sim/shear.py random_frames: sphere radius 5-20 mm, force 0.5-2 N,
+#   Q/(mu P) 0-0.95, mu 0.3-1, torsion +/-0.3 N mm): RMS error over the RMS Cramer-Rao bound and
+#   the 2-sigma coverage of fx, fy and the torsion; how often mu is resolved and its coverage;
+# * pull-until-slip scenes at 1 kHz: the onset's delay (frames from the true onset to the
+#   declared one; estimates and detector run as the daemon's, a fit every FIT_EVERY frames and
+#   the step on every frame, from 50 frames before the onset, cold, to 30 after), the share
+#   declared within ONSET_FRAMES frames; with the friction turning kinetic at the onset (0.8 of
+#   the static: the force drops) and with a constant friction (the motion alone shows it);
+# * stick-only scenes (push and twist in turn, every frame of their tangential loading).
 
 from __future__ import annotations
 

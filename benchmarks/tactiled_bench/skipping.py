@@ -1,16 +1,17 @@
 """What skipping buys and costs: the daemon's per-frame decisions, each measured.
 
-- no contact: false contacts on noise-only frames, missed contacts at 0.05 N, cost of an empty
-  frame;
-- unchanged frame: share of a static hold reused, and the error of what is reused;
-- persisting contact: warm against cold fits;
-- too light for curvature: where the radius is withheld, by force;
-- a scripted scene at 1 kHz (approach, press, roll, rotate, hold, release) processed with all
-  skipping on and all of it off: frames per second and errors.
-
-The processing here is the daemon's per-frame work done in-line (detector, gate, fitter), with
-no worker process or sockets, so the numbers are the algorithm's and not the transport's.
+No contact, unchanged frame, persisting contact (warm against cold), too light for curvature,
+and a scripted 1 kHz scene with all skipping on and off.  The daemon's per-frame work is done
+in-line (detector, gate, fitter, no worker process or sockets), so the numbers are the
+algorithm's and not the transport's.
 """
+# - no contact: false contacts on noise-only frames, missed contacts at 0.05 N, cost of an empty
+#   frame;
+# - unchanged frame: share of a static hold reused, and the error of what is reused;
+# - persisting contact: warm against cold fits;
+# - too light for curvature: where the radius is withheld, by force;
+# - the scripted scene (approach, press, roll, rotate, hold, release): frames per second and
+#   errors.
 
 from __future__ import annotations
 

@@ -1,14 +1,15 @@
 """``tactiled bench --suite speed [--baseline REV]``: the fitter's CPU time per fit, against a
 baseline revision, interleaved in one run.
 
-The same noisy frames (cylinders R 1-50 mm, psi 30-150 deg, 0.5-2 N, as the foundation bench)
-are fitted by two fit servers (``speed_worker.py``), one importing this tree and one a checkout
-of ``REV`` (``git archive`` into a temporary folder, so the repository's own worktree is not
-touched).  Batches of 25 frames alternate between them, kind by kind, so whatever else the
-machine does falls on both alike; the ratios are what count.  Per kind: median and p99 CPU ms,
-the median number of model evaluations, the CPU time of one evaluation at the solution, and
-their product: the floor a fit of that many evaluations could reach with nothing else to do.
+Two fit servers (``speed_worker.py``), this tree and a ``git archive`` of ``REV``, fit the same
+noisy frames in alternating batches, so whatever else the machine does falls on both; the ratios
+are what count.
 """
+# Frames: cylinders R 1-50 mm, psi 30-150 deg, 0.5-2 N, as the foundation bench.  REV is archived
+# into a temporary folder, so the repository's own worktree is not touched.  Batches of 25 frames
+# alternate kind by kind.  Per kind: median and p99 CPU ms, the median number of model
+# evaluations, the CPU time of one evaluation at the solution, and their product: the floor a
+# fit of that many evaluations could reach with nothing else to do.
 
 from __future__ import annotations
 

@@ -1,13 +1,12 @@
 """A fit server for ``tactiled bench --suite speed``: times fits of whatever ``tactiled`` is
 importable (this tree, or a baseline revision's checkout on PYTHONPATH).
 
-Run as a script (``python speed_worker.py FRAMES.npz``), it loads the frames, then answers each
-line ``KIND START STOP`` on stdin with one JSON line: the CPU time of every fit of that kind on
-frames ``START:STOP`` (ms, ``time.thread_time``), the model evaluations each made and the CPU
-time of one evaluation of the forward model at the solution.  It uses only the fitter's public
-API as it has been since the foundation (``Fitter(sensor).fit(frame, model, start=, warm=)``),
-so an older revision runs it unchanged.
+``python speed_worker.py FRAMES.npz`` answers each stdin line ``KIND START STOP`` with one JSON
+line: the CPU time (ms, ``time.thread_time``) and model evaluations of every fit of that kind on
+frames ``START:STOP``, and the CPU time of one forward-model evaluation at the solution.
 """
+# It uses only the fitter's long-stable public API (Fitter(sensor).fit(frame, model, start=,
+# warm=)), so an older revision runs it unchanged.
 
 from __future__ import annotations
 

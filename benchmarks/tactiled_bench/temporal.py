@@ -1,22 +1,24 @@
 """``tactiled bench --suite temporal``: the tracker against its bars, through the whole
-daemon (simulated finger -> wire bytes -> decoder -> table -> zeroing -> tracker and real fit
-workers), the estimates taken from the daemon's stream and compared with the scene's truth.
+daemon, the estimates taken from the daemon's stream and compared with the scene's truth.
 
-* **hold**: a 10 mm cylinder at 60 deg pressed to 1.2 N and held; radius RMS error over seeds
-  at 100 ms and 1 s into the hold, against the single-frame Cramer-Rao bound at the truth
-  (bars: 1/3 and 1/10), and 2-sigma coverage of every value through the hold;
-* **roll** at 1, 3, 10 mm/s and **rotation** at 10, 45, 90 deg/s: the median signed error of x
-  (of the angle) in single-frame sigmas (the lag; bar 0.2) and the median reported rate
-  against the truth (bar 10 %);
-* **steps**: the ``temporal`` scene's 20 % force step and 0.5 mm jump, frames until the
-  estimate shows them;
-* **cost**: the daemon's CPU per frame on the ``moving`` scene in real time, tracking on
-  against off.
-
-The ideal finger (no drift, no hysteresis) shows what the noise allows; the default simulated
-finger (drift and hysteresis on) what its model error leaves.  Scenes are played lossless
-(each frame waits for any fit it needs: deterministic), except the cost run, in real time.
+Hold (radius error against the single-frame Cramer-Rao bound at 100 ms and 1 s), roll and
+rotation (lag, rates), steps (frames until shown), and the CPU per frame with tracking on and
+off; on the ideal finger (what the noise allows) and the default one (what model error leaves).
 """
+# Path: simulated finger -> wire bytes -> decoder -> table -> zeroing -> tracker and real fit
+# workers.
+# * hold: a 10 mm cylinder at 60 deg pressed to 1.2 N and held; radius RMS error over seeds at
+#   100 ms and 1 s into the hold against the bound at the truth (bars: 1/3 and 1/10), and
+#   2-sigma coverage of every value through the hold;
+# * roll at 1, 3, 10 mm/s and rotation at 10, 45, 90 deg/s: the median signed error of x (of the
+#   angle) in single-frame sigmas (the lag; bar 0.2) and the median reported rate against the
+#   truth (bar 10 %);
+# * steps: the temporal scene's 20 % force step and 0.5 mm jump, frames until the estimate
+#   shows them;
+# * cost: the daemon's CPU per frame on the moving scene in real time, tracking on against off.
+# The ideal finger has no drift and no hysteresis; the default simulated finger has both.
+# Scenes are played lossless (each frame waits for any fit it needs: deterministic), except the
+# cost run, in real time.
 
 from __future__ import annotations
 

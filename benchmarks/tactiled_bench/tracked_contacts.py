@@ -1,25 +1,22 @@
 """Several contacts tracked through time, through the whole daemon (part of ``tactiled bench
 --suite contacts``).
 
-The ``hand-palm`` scene (two knuckles pressed at once, the first sliding, a third coming and
-going: up to three contacts; positions are fractions of the array, so it plays on any
-description) is played once by the simulated finger of the description, without drift or
-hysteresis, at 1 kHz, through the daemon in lossless mode (wire bytes -> decoder -> zeroing ->
-detector -> fits in real worker processes -> each contact's filter), the model ``auto`` (the
-daemon's default).  Its estimates are compared with the scene's truth:
-
-* how the contact frames were answered: fitted, or every contact measured by its filter
-  (``frames_used`` > 1), and the frames of several contacts among them;
-* each listed contact matched to the nearest true contact (within ``MATCH_PITCHES``
-  pitches): missed and phantom contact-frames;
-* per value, the RMS of the error over the reported sigma and the share within twice the
-  sigma, over the contacts **held** (force and place unchanged over the last ``HELD_S``),
-  and over **all** contact frames (presses, the slide and releases
-  included: a filter's constant-velocity model lags a press's ramp, for one contact as for
-  several: docs/concepts/tracking.md).
-
-Deterministic (seeded scene noise, lossless): the same figures on every machine.
+The ``hand-palm`` scene (up to three contacts) is played once at 1 kHz through the daemon in
+lossless mode, model ``auto``, and each listed contact is matched to the nearest true contact:
+how frames were answered, missed and phantom contact-frames, and per value the error over the
+reported sigma, held and overall.  Deterministic (seeded scene noise, lossless).
 """
+# The scene: two knuckles pressed at once, the first sliding, a third coming and going;
+# positions are fractions of the array, so it plays on any description; no drift or hysteresis.
+# Path: wire bytes -> decoder -> zeroing -> detector -> fits in real worker processes -> each
+# contact's filter.  Scores:
+# * how the contact frames were answered: fitted, or every contact measured by its filter
+#   (frames_used > 1), and the frames of several contacts among them;
+# * matching within MATCH_PITCHES pitches: missed and phantom contact-frames;
+# * per value, the RMS of the error over the reported sigma and the share within twice the
+#   sigma, over the contacts held (force and place unchanged over the last HELD_S) and over all
+#   contact frames (presses, the slide and releases included: a filter's constant-velocity model
+#   lags a press's ramp, for one contact as for several: docs/concepts/tracking.md).
 
 from __future__ import annotations
 

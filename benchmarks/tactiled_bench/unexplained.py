@@ -1,24 +1,23 @@
 """``tactiled bench --suite unexplained``: the fit's cost on frames the contact model cannot
 explain, with its budget (:mod:`tactiled.fit.budget`) and without.
 
-Frame sets (seeded), each fitted as the daemon fits (model auto, the daemon's options, the
-sensor's learning on; the flat field's deferred re-solve run outside the timing, as a worker
-runs it after its answer):
-
-- ``contacts``: the simulated suite (cylinders, edges, spheres, ellipsoids; cold fits);
-- ``blobs``: sums of 2-4 simulated contacts pressed at once, on the paper's 8x8 finger and on
-  a 32x32 array;
-- ``hand print``: a palm and four or five fingers' pads on a 32x32 array (2.5 mm pitch);
-- ``random``: every tactel random (uniform strain up to a random level);
-- ``saturated``: contacts clipped flat at 30-70 % of their peak (an array at the end of its
-  range), and rectangular steps of uniform strain;
-- on the built-in flat 32x32 mat (``flat32``): ``lines``, sums of 2-3 cylinders pressed at once
-  (line contacts), and ``random`` patterns.
-
-Two fitters take turns frame by frame (so a busy spell of a shared machine falls on both):
-one with the default budget, one with none (what every fit did before the budget).  The
-figures are the fitting thread's CPU time; ratios within one run are what compare.
+Seeded frame sets (simulated contacts, blobs, a hand print, random and saturated patterns, and
+line sums on ``flat32``) are fitted as the daemon fits by two fitters taking turns frame by
+frame, one with the default budget and one with none.  Figures are the fitting thread's CPU
+time; ratios within one run are what compare.
 """
+# Each set is fitted with model auto, the daemon's options and the sensor's learning on; the
+# flat field's deferred re-solve runs outside the timing, as a worker runs it after its answer.
+# - contacts: the simulated suite (cylinders, edges, spheres, ellipsoids; cold fits);
+# - blobs: sums of 2-4 simulated contacts pressed at once, on the paper's 8x8 finger and on a
+#   32x32 array;
+# - hand print: a palm and four or five fingers' pads on a 32x32 array (2.5 mm pitch);
+# - random: every tactel random (uniform strain up to a random level);
+# - saturated: contacts clipped flat at 30-70 % of their peak (an array at the end of its
+#   range), and rectangular steps of uniform strain;
+# - on the built-in flat 32x32 mat (flat32): lines, sums of 2-3 cylinders pressed at once (line
+#   contacts), and random patterns.
+# Turns frame by frame, so a busy spell of a shared machine falls on both fitters.
 
 from __future__ import annotations
 

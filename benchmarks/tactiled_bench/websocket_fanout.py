@@ -2,39 +2,34 @@
 
     python -m tactiled_bench.websocket_fanout [--quick] [--clients 100] [--stalled 10]
 
-Starts ``tactiled run`` (a separate process) with three simulated fingers at 1 kHz each, then
-runs two phases against it from this process:
-
-1. **baseline**: ``clients - stalled`` healthy subscribers, all reading;
-2. **with never-reading**: as many healthy subscribers plus ``stalled`` that subscribe the same
-   way but never read (a 4 KiB receive buffer).  Once their socket buffers are full the
-   server closes them (1013) when a send has been stuck for its send timeout (2 s); they
-   reconnect and stall again, so there are always some filling, some stuck and some being
-   closed during the phase.  They connect 4 s before measuring starts.  ``--stalled-want everything`` makes them ask for estimates and frames of every
-   sensor without a rate limit instead (each then costs the server a few hundred messages per
-   reconnection, and a frame encoding the healthy subscribers do not need).
-
-Both phases measure the same stretch of the looping demo scene (each starts a whole number of
-scene periods after the first), so they see the same mix of fitted and unchanged estimates;
-``--rounds`` alternates several pairs and pools them, so that noise from other work on the
-machine falls on both phases alike.  Every healthy subscriber asks for the estimates of all sensors with ``max_rate``
-(default 30 Hz per sensor, what the dashboard uses) and is measured for:
-
-* **delivery**: estimates received / (messages the server sent it + messages it dropped for
-  it), from the server's own per-subscriber counters once an ``unsubscribe`` has flushed the
-  pipe.  Estimates skipped by ``max_rate`` are the subscription's contract, not losses.
-* **latency**: receive time minus the estimate's ``host_time`` (when the frame's bytes reached
-  the daemon).  Both are ``CLOCK_MONOTONIC`` (``time.monotonic()``), which processes on one
-  Linux machine share, so this is frame arrival -> client, the fit included.  The table also
-  gives publication -> client (``host_time + latency_ms``), the part the fan-out owns.
-
-The healthy subscribers are minimal raw-socket WebSocket clients sharing one selector thread
-(a few microseconds per message), so on a small machine the client side does not eat the CPU
-the daemon needs and the numbers describe the server.
-
-Pass criteria (printed): every healthy subscriber >= 99 % delivery in both phases, and the
-second phase's frame -> client p99 at most 5 ms above the baseline's.
+Starts ``tactiled run`` (three simulated fingers at 1 kHz) and measures the healthy
+subscribers' delivery and latency without, then with, ``--stalled`` never-reading ones.  Pass:
+every healthy subscriber >= 99 % delivery in both phases, and frame -> client p99 with the
+stalled ones at most 5 ms above the baseline's.
 """
+# Phases: 1. baseline: clients - stalled healthy subscribers, all reading; 2. with
+# never-reading: as many healthy subscribers plus `stalled` that subscribe the same way but
+# never read (a 4 KiB receive buffer).  Once their socket buffers are full the server closes
+# them (1013) when a send has been stuck for its send timeout (2 s); they reconnect and stall
+# again, so some are always filling, stuck or being closed.  They connect 4 s before measuring.
+# --stalled-want everything makes them ask for estimates and frames of every sensor without a
+# rate limit (each then costs the server a few hundred messages per reconnection, and a frame
+# encoding the healthy subscribers do not need).
+# Both phases measure the same stretch of the looping demo scene (a whole number of scene
+# periods after the first), so they see the same mix of fitted and unchanged estimates;
+# --rounds alternates several pairs and pools them, so noise from other work falls on both
+# alike.  Healthy subscribers ask for every sensor's estimates with max_rate (default 30 Hz, as
+# the dashboard) and are measured for:
+# * delivery: estimates received / (messages the server sent it + messages it dropped for it),
+#   from the server's per-subscriber counters once an unsubscribe has flushed the pipe;
+#   estimates skipped by max_rate are the subscription's contract, not losses;
+# * latency: receive time minus the estimate's host_time (the frame's bytes reaching the
+#   daemon), both CLOCK_MONOTONIC, shared by processes on one Linux machine: frame arrival ->
+#   client, the fit included.  Also publication -> client (host_time + latency_ms), the part
+#   the fan-out owns.
+# The healthy subscribers are minimal raw-socket WebSocket clients on one selector thread (a
+# few microseconds per message), so on a small machine the client side does not eat the CPU
+# the daemon needs and the numbers describe the server.
 
 from __future__ import annotations
 

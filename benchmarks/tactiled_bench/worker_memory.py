@@ -1,24 +1,24 @@
 """Where a fit worker's memory goes: many varied fits in one process, measured as they run.
 
-A fit worker (:mod:`tactiled.pipeline.worker`) is a process that does nothing but
-``Fitter.fit``.  This probe builds the same fitter as the worker does for a default sensor
-(window 4, radius withheld beyond 0.5 relative sigma), feeds it the frames of the busy scene
-(:func:`tactiled_bench.scenes.busy_scene`: pressing, rolling, turning and changing shape all
-the time, so nearly every frame is a fit and the fitter keeps meeting new contact sizes and
-models), with warm starts as the daemon gives them, and every ``--every`` fits records:
-
-* the RSS, glibc malloc's books (bytes in use, free but kept, mmapped, arenas) and pymalloc's
-  (arenas, live bytes): :mod:`tactiled.heapstats`;
-* with ``--tracemalloc``, the Python allocations that grew most since the first sample (by
-  file and line);
-* the sizes of the quadrature-rule caches (``tactiled.physics.strain``) and the start tables.
-
     python -m tactiled_bench.worker_memory --fits 20000 --every 1000
     python -m tactiled_bench.worker_memory --fits 5000 --tracemalloc --json
 
-Growth is judged after ``--warmup`` fits (the caches that fill on first use fill then): the
-slope of a line fitted to the later samples, in MB per 1000 fits.
+Fits the busy scene as a fit worker does and, every ``--every`` fits, records RSS, the malloc
+books, the largest Python allocation growth and the cache sizes; growth is the slope after
+``--warmup`` fits, in MB per 1000 fits.
 """
+# The probe builds the fitter a worker (tactiled.pipeline.worker, a process doing nothing but
+# Fitter.fit) builds for a default sensor (window 4, radius withheld beyond 0.5 relative sigma),
+# and feeds it tactiled_bench.scenes.busy_scene (pressing, rolling, turning and changing shape
+# all the time, so nearly every frame is a fit meeting new contact sizes and models), with warm
+# starts as the daemon gives them.  Each sample:
+# * the RSS, glibc malloc's books (bytes in use, free but kept, mmapped, arenas) and pymalloc's
+#   (arenas, live bytes): tactiled.heapstats;
+# * with --tracemalloc, the Python allocations that grew most since the first sample (by file
+#   and line);
+# * the sizes of the quadrature-rule caches (tactiled.physics.strain) and the start tables.
+# The warm-up lets caches that fill on first use fill; the slope is a line fitted to the later
+# samples.
 
 from __future__ import annotations
 

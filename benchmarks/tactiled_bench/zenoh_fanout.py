@@ -2,38 +2,32 @@
 
     python -m tactiled_bench.zenoh_fanout [--quick] [--subscribers 1,10,50]
 
-Starts ``tactiled run`` (a separate process) with three simulated fingers at 1 kHz, publishing
-on Zenoh (peer mode, listening on a loopback port, multicast scouting off), then for each
-subscriber count N runs two phases against it, alternated: **zenoh**, N Zenoh sessions
-(client mode, connected to the daemon's endpoint) each subscribed to every estimate
-(``<prefix>/*/estimate``); **websocket**, N stream connections each subscribed to every
-estimate without ``max_rate`` (the same data: about 3000 messages a second per reader).
-Each phase measures the same stretch of the looping demo scene (a whole number of periods
-after the first), so both see the same mix of fitted and unchanged estimates.
-
-Zenoh readers run in processes of their own (at most 10 sessions each: one process's GIL
-could not take the callbacks of 50), with plain callbacks (what an application would write);
-WebSocket readers are the fan-out benchmark's raw-socket clients on one selector thread.
-
-* **delivery**: per reader, the estimates it received over those the daemon published in the
-  measured span of sequence numbers.  What was published is the union of what every reader
-  of the phase received plus a **reference reader**, present in every phase: a Zenoh session
-  whose samples queue in Zenoh's own channel (Rust, no GIL), so it keeps up whatever Python
-  does.  An estimate no one received is missing from that union: the daemon's own counters
-  say whether it dropped any (``zenoh.dropped``; the stream's per-client ``dropped``), printed
-  beside.  "Readers that keep up" are those at >= 99.9 %.
-* **latency**: receive time minus the estimate's ``host_time`` (when the frame's bytes reached
-  the daemon; ``CLOCK_MONOTONIC``, shared by the processes of one machine): frame ->
-  subscriber, the fit included.
-* **daemon CPU**: the daemon's process (not its fit workers; the simulators, the pipeline,
-  the web server and Zenoh's threads) over the phase, % of one core; **reader CPU** the
-  readers' processes (Zenoh) or the selector thread (WebSocket).
-* **published/s**: estimates the pipeline published (health counters), all sensors;
-  **dropped by the daemon**: Zenoh, the bus's ``zenoh.dropped`` (its queue overflowed);
-  WebSocket, what the stream dropped for these readers (their queues overflowed); **frames
-  lost**: frames the simulated fingers skipped because the daemon's process did not get the
-  CPU in time (everything shares the machine: readers too).
+Starts ``tactiled run`` (three simulated fingers at 1 kHz, publishing on Zenoh in peer mode on
+loopback) and, per reader count, alternates a Zenoh phase and a WebSocket phase on every
+estimate: delivery, latency, daemon and reader CPU, what the daemon dropped, frames lost.
 """
+# Phases: zenoh, N client-mode sessions connected to the daemon's endpoint, each subscribed to
+# <prefix>/*/estimate; websocket, N stream connections each subscribed to every estimate without
+# max_rate (the same data: about 3000 messages a second per reader).  Each phase measures the
+# same stretch of the looping demo scene (a whole number of periods after the first).
+# Zenoh readers run in processes of their own (at most 10 sessions each: one process's GIL could
+# not take the callbacks of 50), with plain callbacks (what an application would write);
+# WebSocket readers are websocket_fanout's raw-socket clients on one selector thread.
+# * delivery: per reader, estimates received over those published in the measured span of
+#   sequence numbers.  Published = the union of what every reader of the phase received plus a
+#   reference reader in every phase: a Zenoh session whose samples queue in Zenoh's own channel
+#   (Rust, no GIL), so it keeps up whatever Python does.  The daemon's counters (zenoh.dropped;
+#   the stream's per-client dropped) say whether it dropped any, printed beside.  "Readers that
+#   keep up" are those at >= 99.9 %.
+# * latency: receive time minus the estimate's host_time (CLOCK_MONOTONIC, shared by one
+#   machine's processes): frame -> subscriber, the fit included.
+# * daemon CPU: the daemon's process (not its fit workers: the simulators, pipeline, web server
+#   and Zenoh's threads), % of one core; reader CPU: the readers' processes (Zenoh) or the
+#   selector thread (WebSocket).
+# * published/s: estimates published (health counters), all sensors; dropped by the daemon:
+#   Zenoh, the bus's zenoh.dropped; WebSocket, what the stream dropped for these readers; frames
+#   lost: frames the simulated fingers skipped because the daemon's process did not get the CPU
+#   in time (everything shares the machine, readers too).
 
 from __future__ import annotations
 

@@ -1,30 +1,29 @@
 """FlexiTac mats: ``flexitac:///dev/ttyUSB0?rows=12&cols=32`` (default 2000000 baud).
 
-The format (the FlexiTac Python package, ``flexitac/protocol.py`` ``FrameParser`` and
-``flexitac/firmware/template.ino``, repository WT-MM/PyFlexiTac): the firmware's ``loop()``
-writes the marker ``0xAA 0x55`` and then ``ROW_COUNT * COLUMN_COUNT`` bytes, row by row, each
-``analogRead(...) >> 2`` (a 10-bit reading as uint8); no length, no sequence number, no clock,
-no checksum.  ``Serial.begin(2000000)``; the template's array is 12 x 32.
-
-**A marker inside the data.**  ``0xAA`` (170) then ``0x55`` (85) is an ordinary pair of
-readings, so the marker alone cannot say where a frame starts.  This framer accepts a frame only
-when the *next* marker follows at exactly ``2 + rows*cols`` bytes (one frame of look-ahead: a
-frame is delivered when the next one starts, one frame period late).  Once in step it jumps
-from marker to marker and never looks inside the data, so a marker there costs nothing.  To get
-in step (at start, after garbage or a torn frame) it looks at every marker in one frame's span:
-exactly one that the next marker confirms is taken; none, and the bytes up to the next marker
-are discarded; two or more (a still image that holds ``AA 55`` at the same place in every
-frame confirms that phase too), and it counts ``ambiguous``, drops one frame's worth of bytes and
-looks again, so it never guesses: the data's noise tells the phases apart within frames.
-A frame whose successor's marker is not where due is never delivered: ``truncated`` if a marker
-came earlier (the frame was cut short), ``length_errors`` otherwise.  One torn unit is told
-apart: a lone ``0xAA`` right where the marker is due, then a whole marker (the device reset
-after the marker's first byte) confirms the frame before it, and the lone byte is counted
-``truncated``.  So a torn frame followed by good ones costs that frame alone (and, until the
-framer is in step, the one frame it needs to get in step).
-
-No seq, no device clock: seq is generated, the device time is the host receive time.
+Each frame is the marker ``0xAA 0x55`` then ``rows*cols`` bytes (10-bit readings >> 2), with no
+length, seq, clock or checksum.  The framer delivers a frame only when the next marker follows
+where due (one frame of look-ahead), so a marker inside the data is never taken for a start.
+seq is generated; the device time is the host receive time.
 """
+# The format (the FlexiTac Python package, repository WT-MM/PyFlexiTac: flexitac/protocol.py
+# FrameParser and flexitac/firmware/template.ino): the firmware's loop() writes 0xAA 0x55 and
+# then ROW_COUNT * COLUMN_COUNT bytes, row by row, each analogRead(...) >> 2 (a 10-bit reading
+# as uint8).  Serial.begin(2000000); the template's array is 12 x 32.
+#
+# A marker inside the data: 0xAA (170) then 0x55 (85) is an ordinary pair of readings, so the
+# marker alone cannot say where a frame starts.  A frame is accepted only when the next marker
+# follows at exactly 2 + rows*cols bytes (a frame is delivered one frame period late).  In step,
+# the framer jumps from marker to marker and never looks inside the data.  To get in step (at
+# start, after garbage or a torn frame) it looks at every marker in one frame's span: exactly one
+# that the next marker confirms is taken; none, and the bytes up to the next marker are
+# discarded; two or more (a still image holding AA 55 at the same place in every frame confirms
+# that phase too), and it counts ambiguous, drops one frame's worth of bytes and looks again, so
+# it never guesses: the data's noise tells the phases apart within frames.  A frame whose
+# successor's marker is not where due is never delivered: truncated if a marker came earlier,
+# length_errors otherwise.  One torn unit is told apart: a lone 0xAA right where the marker is
+# due, then a whole marker (reset after the marker's first byte) confirms the frame before it,
+# and the lone byte counts as truncated.  So a torn frame costs that frame alone (plus, until in
+# step, the one frame needed to get in step).
 
 from __future__ import annotations
 

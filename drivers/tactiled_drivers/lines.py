@@ -1,22 +1,20 @@
 """Text lines of integers: ``lines:///dev/ttyACM0?baud=115200&rows=8&cols=8&sep=,``.
 
-One frame per line of ``rows*cols`` integers, row by row, separated by ``sep``: ``,`` (default),
-``space`` (any run of spaces) or ``tab``; ``\\r\\n`` or ``\\n`` ends a line.  This is what a
-firmware printing its matrix with ``Serial.print(value); Serial.print(',')`` ...
-``Serial.println()`` sends.  ``time_col=0`` says the line starts with the device's own clock
-(one more column, an integer in ``time_unit``: ``ms``, the default, as Arduino's ``millis()``,
-``us`` or ``s``); without it the device time is the host receive time.  The seq is generated.
-
-Bad lines are counted and skipped, never delivered: fewer values than ``rows*cols``
-(``truncated``), more (``length_errors``), a value that is not an integer, or a negative time
-(``parse_errors``), a line longer than :data:`MAX_LINE` bytes (``oversize``: its bytes are
-dropped as they arrive, up to the next newline, so a device that never sends one costs no
-memory).  Blank lines are ignored.  The counts are the device's integers as they are
-(``int64``), and a clock must fit ``int64`` in microseconds (else ``parse_errors``); a
-trailing separator is allowed.  The calibration's counts domain is 0..65535, and a recording
-(``tactiled record``) stores 0..65535 only.  :class:`NativeLinesFramer` does the same in the
-compiled core.
+One frame per line of ``rows*cols`` integers, row by row, separated by ``sep`` (``,``,
+``space`` or ``tab``), as a firmware printing its matrix with ``Serial.print`` sends.
+``time_col=0`` says the line starts with the device's clock (``time_unit`` ``ms``, ``us`` or
+``s``); else the device time is the host receive time.  Bad lines are counted and skipped.
+:class:`NativeLinesFramer` does the same in the compiled core.
 """
+# ``\r\n`` or ``\n`` ends a line; ``space`` means any run of spaces; the default time_unit, ms,
+# matches Arduino's millis().  The seq is generated.
+# Bad lines: fewer values than rows*cols (truncated), more (length_errors), a value that is not
+# an integer or a negative time (parse_errors), a line longer than MAX_LINE bytes (oversize: its
+# bytes are dropped as they arrive, up to the next newline, so a device that never sends one
+# costs no memory).  Blank lines are ignored; a trailing separator is allowed.  Counts are the
+# device's integers as they are (int64), and a clock must fit int64 in microseconds (else
+# parse_errors).  The calibration's counts domain is 0..65535, and a recording stores 0..65535
+# only.
 
 from __future__ import annotations
 

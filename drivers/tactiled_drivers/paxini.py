@@ -1,36 +1,35 @@
 """PaXini PX-6AX 3-axis tactile modules on a serial port:
 ``paxini:///dev/ttyACM0?module=0&points=120&rows=10&cols=12`` (921600 baud by default).
 
-The module answers requests; it sends nothing unasked.  The request for the distributed force
-(every point's x, y, z) is, as PaXini's reference tool writes it (``adnan-saood/paxini_ros2``,
-``helper_scripts/UI_sensor.py``, ``get_commands``; the same bytes in that repository's
-``paxini_hardware/src/tactile_sensor.cpp``, ``distributed_command``)::
-
-    55 AA | 09 00 | ADDR | 00 | FB | 0E 04 00 00 | LEN_lo LEN_hi | LRC
-
-``ADDR`` the module number + 1, ``FB`` a read, ``0x040E`` (1038) the register of the points
-(``Gabriel-Ning/paxini_driver``, ``paxini_driver.py``, reads the same address), ``LEN`` the
-payload's length in bytes, 3 per point, little-endian; ``LRC`` the two's complement of the sum
-of every byte before it.  The answer is a 14-byte prefix, the payload, and its LRC::
-
-    AA 55 | N_lo N_hi | ADDR | 00 | FB | 0E 04 00 00 | LEN_lo LEN_hi | STATUS | payload | LRC
-
-The public drivers take the payload at offset 14 behind the ``AA 55`` header; this driver also
-checks what the request's layout implies of the prefix (``N`` counts the bytes from ``ADDR`` to
-the payload's end, ``10 + LEN``; the address, function, register and length echo the request's;
-status 0) and the trailing LRC over every byte before it: a torn or corrupt answer is then
-counted and dropped, never read as a frame.  The payload is ``x, y, z`` per point: x and y
-signed 8-bit, z unsigned 8-bit, in 0.1 N (``UI_sensor.py``, ``parse_distributed_force``).
-
-A frame is one answer: ``Frame.taxels`` ``(rows, cols, 3)`` the points in order, row-major
-(``rows`` x ``cols`` = ``points``), as signed counts offset by :data:`ZERO_COUNTS` so they fit
-the wire's unsigned 16 bits (``raw``, the z counts the 1-axis path reads, likewise); seq and
-device time are made on the host (the format sends neither).
-
-Counters: an answer whose prefix does not match (``parse_errors``), whose LRC does not
-(``crc_errors``), cut short by a newer header (``truncated``), whose length is not the
-request's (``length_errors``); bytes before a header are ``discarded``.
+The module answers requests and sends nothing unasked.  A frame is one answer to the
+distributed-force request: ``Frame.taxels`` ``(rows, cols, 3)`` (x, y, z per point, 0.1 N
+counts offset by :data:`ZERO_COUNTS`), checked prefix and LRC; seq and device time are made on
+the host.
 """
+# The request, as PaXini's reference tool writes it (adnan-saood/paxini_ros2,
+# helper_scripts/UI_sensor.py, get_commands; the same bytes in that repository's
+# paxini_hardware/src/tactile_sensor.cpp, distributed_command):
+#
+#     55 AA | 09 00 | ADDR | 00 | FB | 0E 04 00 00 | LEN_lo LEN_hi | LRC
+#
+# ADDR the module number + 1, FB a read, 0x040E (1038) the register of the points
+# (Gabriel-Ning/paxini_driver, paxini_driver.py, reads the same address), LEN the payload's
+# length in bytes, 3 per point, little-endian; LRC the two's complement of the sum of every byte
+# before it.  The answer is a 14-byte prefix, the payload, and its LRC:
+#
+#     AA 55 | N_lo N_hi | ADDR | 00 | FB | 0E 04 00 00 | LEN_lo LEN_hi | STATUS | payload | LRC
+#
+# The public drivers take the payload at offset 14 behind AA 55; this driver also checks what
+# the request implies of the prefix (N counts the bytes from ADDR to the payload's end, 10 + LEN;
+# address, function, register and length echo the request's; status 0) and the trailing LRC, so
+# a torn or corrupt answer is counted and dropped, never read as a frame.  The payload is x, y, z
+# per point: x and y signed 8-bit, z unsigned 8-bit, in 0.1 N (UI_sensor.py,
+# parse_distributed_force).  Points are in order, row-major (rows x cols = points), as signed
+# counts offset by ZERO_COUNTS to fit the wire's unsigned 16 bits (raw, the z counts the 1-axis
+# path reads, likewise).
+# Counters: prefix mismatch (parse_errors), LRC mismatch (crc_errors), cut short by a newer
+# header (truncated), length not the request's (length_errors); bytes before a header are
+# discarded.
 
 from __future__ import annotations
 

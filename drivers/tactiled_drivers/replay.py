@@ -1,20 +1,17 @@
 """Replay a recording: ``replay://session.tact?speed=1.0&loop=0&clock=live``.
 
-The original wire bytes of each frame are handed to the shared decoder, so a replayed frame is
-decoded exactly as it was live (seq, device time and counts are bit-identical).
-
-URL parameters:
-
-- ``speed``: pace multiplier (default 1: the recorded pace, from the recorded host times;
-  2: twice as fast; 0: as fast as possible, yielding to the event loop between frames);
-- ``loop``: 1 to start again at the end (default 0: the stream, and ``frames()``, end);
-- ``clock``: ``live`` (default) stamps frames with ``time.monotonic()`` at replay;
-  ``recorded`` stamps them with the host time stored in the file (for offline analysis).
-
-A file path is the URL's location: ``replay://rel/path.tact`` or ``replay:///abs/path.tact``.
-Reading the file is ordinary blocking I/O of ~100-byte records from a local disk, short
-enough not to need a thread.
+The original wire bytes of each frame go to the shared decoder, so a replayed frame is decoded
+exactly as it was live (seq, device time and counts bit-identical).  ``replay://rel/path.tact``
+or ``replay:///abs/path.tact``.
 """
+# URL parameters:
+# - speed: pace multiplier (default 1: the recorded pace, from the recorded host times;
+#   2: twice as fast; 0: as fast as possible, yielding to the event loop between frames);
+# - loop: 1 to start again at the end (default 0: the stream, and frames(), end);
+# - clock: live (default) stamps frames with time.monotonic() at replay; recorded stamps them
+#   with the host time stored in the file (for offline analysis).
+# Reading the file is ordinary blocking I/O of ~100-byte records from a local disk, short enough
+# not to need a thread.
 
 from __future__ import annotations
 

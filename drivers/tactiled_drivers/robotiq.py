@@ -1,59 +1,49 @@
 """Robotiq TSF-85 fingertip sensors: ``robotiq:///dev/rq_tsf85_0?finger=0`` (115200 baud).
 
-The format, from Robotiq's ``tactile_sensors`` repository (``tactile_sensor_ui/src/
-communicator.cpp``, ``sdk_cpp/RobotiqTactileSensor.cpp``, ``sdk_cpp/finger_data.h``,
-``sensor_quickstart/protocol.py``) and the ``pyrobotiqtactile`` package (``protocol.py``):
-
-- a packet is ``0x9A``, a CRC byte, a command byte, a data length, then that many data bytes
-  (at most 60: ``uint8_t data[60]`` of ``struct UsbPacket``);
-- the data is a run of fields: a type byte (high nibble the sensor type, bits 2-3 the finger,
-  bits 0-1 an index) and its big-endian payload: static tactile ``0x10``, 28 uint16 (7 rows x 4
-  columns, row by row); dynamic tactile ``0x20``, 1 int16; accelerometer ``0x30`` and gyroscope
-  ``0x40``, 3 int16; magnetometer ``0x50``, 3 int16 (the Python sources); temperature ``0x60``,
-  1 int16; timestamp ``0x70``, 1 uint16 in Robotiq's code, 1 uint64 in ``pyrobotiqtactile``;
-- the host starts streaming with command ``0x58`` (auto-send) and one data byte, the period in
-  ms, and stops it with period 0.
-
-**The CRC byte is not checked**, as in every source: Robotiq's ``calcCrc8`` is a placeholder
-that returns the packet's own CRC byte ("TODO: calculate CRC8"; the SDK: "the autosend
-command currently works without a valid CRC"), and ``pyrobotiqtactile`` sends 0.  So
-``crc_errors`` stays 0 and commands go out with CRC 0.  What stands in for a checksum is the
-structure: a packet is accepted only when its length is at most 60, its fields, each of a
-known type, end exactly at its end (a timestamp is tried as uint16, then as uint64, so both
-firmware readings parse), **and what follows it is the start of another packet** (``0x9A``
-with a length of at most 60 and, when it has data, a known field type) **or a pause** (the
-packet ends where the bytes read so far end, and all of it came in that one read: the line
-went quiet right after it) **or garbage** (bytes that start no packet, where no packet start
-lies inside the packet either).  A packet whose bytes span reads and end exactly at the last
-read's end waits for the next byte to confirm it.  Anything else is rejected
-(``length_errors`` for a length over 60, ``parse_errors`` for fields that do not fit,
-``truncated`` for a packet not followed by a start) and the search resumes at the byte after
-its ``0x9A``.  So a torn packet (the device reset mid-packet) whose declared length runs into
-the next packet is not delivered as a frame made of two packets' bytes: the byte after it is
-inside the next packet, not a start, and the search finds that next packet intact.  Where the
-torn packet's missing bytes happen to be exactly one whole next packet (so a start does
-follow), the whole packet inside its data gives it away: a packet whose data ends with a run
-of whole, parsing packets is rejected as torn too (a good packet's data holds such a run by
-chance about once in 10^5 packets; it is then lost, never misread).  A ``0x9A`` inside the
-data that follows a packet reads as a start only while that packet's bytes have not all
-arrived; once they are there they must parse.  Torn packets still slip through when the bytes
-their declared length reaches into happen to end on such a start before the rest has come:
-3 in 20,000 tears of the hostile-stream test (``tests/drivers/test_torn_units.py``'s tears, drawn
-20,000 times), one of them delivered as a frame.  Garbage
-that happens to hold ``0x9A`` costs no good packet behind it either.
-
-A frame is the 7x4 static array of this URL's finger, delivered when its field arrives, with the
-finger's other fields of that packet and the latest before it as ``extras`` (``dynamic``,
-``accelerometer``, ``gyroscope``, ``magnetometer``, ``temperature``, ``timestamp``).  Device
-time: the finger's timestamp field in ms (uint16, unwrapped across its wrap) once one has come,
-else the host receive time; seq is generated; ``sensor_id`` is the finger number.
-
-**Two fingers, one port.**  Both fingers' fields come through the same serial device, which
-only one reader may hold.  Every ``robotiq://`` source on the same device path shares one
-:class:`_SharedPort` (one serial connection, one reader thread, one reconnection loop): the
-source that reads takes the port's bytes and copies them to the others, each of which frames
-its own finger.  The first source to open starts the auto-send, the last to close stops it.
+A frame is the 7x4 static array of the URL's finger, with the finger's other fields (dynamic,
+accelerometer, gyroscope, magnetometer, temperature, timestamp) as ``extras``; device time is
+the finger's timestamp in ms (unwrapped) once one has come, else the host time; ``sensor_id`` is
+the finger number.  Both fingers share one port through :class:`_SharedPort`.
 """
+# The format, from Robotiq's ``tactile_sensors`` repository (``tactile_sensor_ui/src/
+# communicator.cpp``, ``sdk_cpp/RobotiqTactileSensor.cpp``, ``sdk_cpp/finger_data.h``,
+# ``sensor_quickstart/protocol.py``) and the ``pyrobotiqtactile`` package (``protocol.py``):
+# - a packet is 0x9A, a CRC byte, a command byte, a data length, then that many data bytes
+#   (at most 60: ``uint8_t data[60]`` of ``struct UsbPacket``);
+# - the data is a run of fields: a type byte (high nibble the sensor type, bits 2-3 the finger,
+#   bits 0-1 an index) and its big-endian payload: static tactile 0x10, 28 uint16 (7 rows x 4
+#   columns, row by row); dynamic tactile 0x20, 1 int16; accelerometer 0x30 and gyroscope 0x40,
+#   3 int16; magnetometer 0x50, 3 int16 (the Python sources); temperature 0x60, 1 int16;
+#   timestamp 0x70, 1 uint16 in Robotiq's code, 1 uint64 in ``pyrobotiqtactile``;
+# - the host starts streaming with command 0x58 (auto-send) and one data byte, the period in ms,
+#   and stops it with period 0.
+#
+# The CRC byte is not checked, as in every source: Robotiq's ``calcCrc8`` is a placeholder that
+# returns the packet's own CRC byte ("TODO: calculate CRC8"; the SDK: "the autosend command
+# currently works without a valid CRC"), and ``pyrobotiqtactile`` sends 0.  So ``crc_errors``
+# stays 0 and commands go out with CRC 0.  The structure stands in for a checksum: a packet is
+# accepted only when its length is at most 60, its fields, each of a known type, end exactly at
+# its end (a timestamp is tried as uint16, then uint64, so both firmware readings parse), and
+# what follows it is the start of another packet (0x9A, length <= 60 and, with data, a known
+# field type) or a pause (the packet ends where the bytes read so far end and all of it came in
+# that one read) or garbage (bytes that start no packet, with no packet start inside the packet
+# either).  A packet whose bytes span reads and end exactly at the last read's end waits for the
+# next byte.  Anything else is rejected (``length_errors`` for a length over 60, ``parse_errors``
+# for fields that do not fit, ``truncated`` for a packet not followed by a start) and the search
+# resumes at the byte after its 0x9A.  So a torn packet (device reset mid-packet) whose declared
+# length runs into the next packet is never delivered as a frame of two packets' bytes.  Where
+# the missing bytes are exactly one whole next packet, a packet whose data ends with a run of
+# whole, parsing packets is rejected as torn too (a good packet holds such a run by chance about
+# once in 10^5 packets; it is then lost, never misread).  A 0x9A inside the data after a packet
+# reads as a start only while that packet's bytes have not all arrived.  Torn packets still slip
+# through when their declared length ends on such a start before the rest has come: 3 in 20,000
+# tears of ``tests/drivers/test_torn_units.py``'s hostile stream, one delivered as a frame.
+# Garbage holding 0x9A costs no good packet behind it.
+#
+# Two fingers, one port: every ``robotiq://`` source on one device path shares one
+# :class:`_SharedPort` (one serial connection, reader thread and reconnection loop); the source
+# that reads copies the bytes to the others, each framing its own finger.  The first source to
+# open starts the auto-send, the last to close stops it.  seq is generated.
 
 from __future__ import annotations
 

@@ -1,38 +1,32 @@
 """The fingertip on a serial port: ``serial:///dev/ttyACM0?baud=1000000``.
 
 URL parameters: ``baud`` (bits/s, default 1000000; ignored by USB CDC-ACM devices and ptys),
-``exclusive`` (default 1: take an ``flock`` on the port so a second daemon cannot interleave
-reads with ours).
-
-**Read as bytes arrive** (:class:`~tactiled_drivers.plumbing.port_reader.PortReader`): the event
-loop reads the port when it has bytes (``loop.add_reader``) into a bounded ring, and one thread
-of the process (:mod:`tactiled_drivers.plumbing.read_thread`) reads any port the loop has not
-read for a few milliseconds, so a stalled loop never leaves the device waiting: a tty buffers 30
-ms to 0.4 s of an array at 1 kHz, and the loop, which also serves the WebSocket subscribers, can
-stall for longer than that under load (the soak lost frames at the device when the loop alone
-read). The consumer takes the bytes with ``await``, so read timeouts and shutdown are ordinary
-cancellation. See those modules for the details and the bound on memory. POSIX only, which suits
-a daemon deployed with systemd and udev.
-
-**A vanishing device** shows in two ways, both handled: pyserial raises ``SerialException``
-for ``EIO`` ("read failed"), and for a descriptor that polls readable but reads ``b""`` (what a
-Linux pty gives once its master is closed, and a USB serial adapter once unplugged).  ``OSError``
-(e.g. ``EIO`` from the ``TIOCINQ`` ioctl behind ``in_waiting``) is treated the same.  The reader
-hands the error over after the bytes it read before it; the driver then stops the
-reader, closes the port (releasing its descriptor and pyserial's two abort pipes, so nothing leaks),
-sets ``connected = False`` and ``last_error``, counts a disconnect, logs one warning, and retries
-opening the same path with backoff: 0.1 s, doubling, capped at 2 s.  A successful re-open logs,
-counts a reconnect and resumes reading; the decoder's half-received frame is dropped.
-
-**A device that comes back is tried at once.**  The backoff only spaces out attempts that keep
-failing the same way; while waiting, the driver calls ``stat`` on the device path every 50 ms,
-and when the node appears or changes (a new device number, inode, mode or owner: replugged,
-re-created by udev, given its permissions) the next attempt is made immediately.  So a device
-away for minutes resumes within ~50 ms of its return, not up to 2 s later, at the cost of one
-``stat`` per 50 ms while it is away (no inotify: ``/dev`` symlinks made by udev rules and
-ptys behind a symlink are covered alike).  :meth:`retry_pause` offers the same to the
-daemon, which retries a device absent at start-up.
+``exclusive`` (default 1: an ``flock`` on the port so a second daemon cannot interleave reads).
+Bytes are read as they arrive (:class:`~tactiled_drivers.plumbing.port_reader.PortReader`);
+a vanishing device is closed and re-opened with backoff, at once when its node reappears.
+POSIX only, which suits a daemon deployed with systemd and udev.
 """
+# Reading: the event loop reads the port when it has bytes (loop.add_reader) into a bounded
+# ring, and the process's read thread (tactiled_drivers.plumbing.read_thread) reads any port the
+# loop has not read for a few milliseconds: a tty buffers 30 ms to 0.4 s of an array at 1 kHz,
+# and the loop, which also serves the WebSocket subscribers, can stall longer under load.  The
+# consumer awaits the bytes, so read timeouts and shutdown are ordinary cancellation.
+#
+# A vanishing device shows two ways: pyserial raises SerialException for EIO ("read failed"),
+# or a descriptor polls readable but reads b"" (a Linux pty whose master closed, an unplugged
+# USB serial adapter); OSError (e.g. EIO from the TIOCINQ ioctl behind in_waiting) is treated
+# the same.  The reader hands the error over after the bytes read before it; the driver stops
+# the reader, closes the port (its descriptor and pyserial's two abort pipes, so nothing leaks),
+# sets connected = False and last_error, counts a disconnect, logs one warning and retries the
+# same path with backoff: 0.1 s, doubling, capped at 2 s.  A re-open logs, counts a reconnect
+# and resumes; the decoder's half-received frame is dropped.
+#
+# A device that comes back is tried at once: while waiting, the driver stats the device path
+# every 50 ms, and when the node appears or changes (device number, inode, mode or owner:
+# replugged, re-created by udev, given its permissions) the next attempt is immediate, so a
+# device resumes within ~50 ms of its return.  No inotify: udev symlinks under /dev and ptys
+# behind a symlink are covered alike.  retry_pause offers the same to the daemon, which retries
+# a device absent at start-up.
 
 from __future__ import annotations
 

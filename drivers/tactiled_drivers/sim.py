@@ -2,37 +2,32 @@
 
 A :class:`~tactiled.sim.FingerSimulator` plays a scripted scene; every frame is encoded with
 :func:`~tactiled.frames.encode_frame` and handed over as wire bytes, so the shared decoder (and
-everything after it) runs exactly as for the hardware.
-
-URL parameters (all optional):
-
-- ``sensor``: the simulated array, a sensor description's built-in name or ``.toml`` path
-  (default ``fearing1988``, the paper's finger; docs/howto/sensors.md); its cover is the finger's
-  unless the parameters below change it;
-- ``scene``: a built-in scene name (default ``demo``; see ``tactiled.sim.SCENES``);
-- ``seed``: integer seed of the noise and drift (default 0): the same seed gives the same bytes;
-- ``rate``: frames per second of device time, Hz (default 1000);
-- ``sensor_id``: the id the frames carry, 0..65535 (default 0);
-- ``loop``: 1 (default) plays the scene over and over; 0 plays it once, then the stream ends;
-- ``speed``: pace multiplier (default 1: real time; 2: twice as fast; 0: as fast as possible,
-  yielding to the event loop between reads);
-- ``noise``: Gaussian strain noise sigma (default 0.0005; 0 for none);
-- ``drift``: peak of the slow baseline drift wave, strain (default 0.002; 0 turns drift off);
-- ``hysteresis``: fraction of a released strain the rubber keeps, decaying with tau 0.5 s
-  (default 0.05; 0 for none);
-- a finger that is not the paper's (:class:`~tactiled.sensors.finger.FingerSpec`, default the paper's):
-  ``depth_x``, ``nu_x``, ``depth_y``, ``nu_y`` (impulse response, mm), ``modulus`` (N/mm^2),
-  ``gain_error`` (relative sd of tactel gains), ``position_error`` (sd of tactel displacements,
-  mm), ``offset_counts`` (half-width of the tactels' zero offsets, counts) and ``finger_seed``.
-
-Pacing: frame ``k`` is due at ``start + k / (rate * speed)`` on the event loop's clock, with
-``start`` the first read, so the stream never drifts; each read returns every frame already due
-(up to :data:`MAX_BATCH`, ~1 ms of work, so the loop is never held long; every read yields to
-the loop at least once, even when behind), or sleeps until the next one is due.  Fallen more
-than ``MAX_LAG_S`` behind (the loop was starved), the stale frames are skipped as a real device
-would lose them: the seq numbers jump and the decoder counts them in ``stats.lost``;
-:attr:`SimSource.frames_skipped` counts them too.
+everything after it) runs exactly as for the hardware.  Frames are paced on the event loop's
+clock; a starved loop skips stale frames as a real device would lose them.
 """
+# URL parameters (all optional):
+# - sensor: the simulated array, a description's built-in name or .toml path (default
+#   fearing1988, the paper's finger; docs/howto/sensors.md); its cover unless changed below;
+# - scene: a built-in scene name (default demo; see tactiled.sim.SCENES);
+# - seed: integer seed of the noise and drift (default 0): the same seed gives the same bytes;
+# - rate: frames per second of device time, Hz (default 1000);
+# - sensor_id: the id the frames carry, 0..65535 (default 0);
+# - loop: 1 (default) plays the scene over and over; 0 plays it once, then the stream ends;
+# - speed: pace multiplier (default 1: real time; 2: twice as fast; 0: as fast as possible,
+#   yielding to the event loop between reads);
+# - noise: Gaussian strain noise sigma (default 0.0005; 0 for none);
+# - drift: peak of the slow baseline drift wave, strain (default 0.002; 0 turns drift off);
+# - hysteresis: fraction of a released strain the rubber keeps, decaying with tau 0.5 s
+#   (default 0.05; 0 for none);
+# - a finger that is not the paper's (tactiled.sensors.finger.FingerSpec): depth_x, nu_x,
+#   depth_y, nu_y (impulse response, mm), modulus (N/mm^2), gain_error (relative sd of tactel
+#   gains), position_error (sd of tactel displacements, mm), offset_counts (half-width of the
+#   tactels' zero offsets, counts) and finger_seed.
+# Pacing: frame k is due at start + k / (rate * speed) on the loop's clock, start the first
+# read, so the stream never drifts; each read returns every frame already due (up to
+# MAX_BATCH, ~1 ms of work, and yields to the loop at least once), or sleeps until the next is
+# due.  Fallen more than MAX_LAG_S behind, the stale frames are skipped: seq jumps, the decoder
+# counts them in stats.lost, and SimSource.frames_skipped counts them too.
 
 from __future__ import annotations
 

@@ -1,33 +1,30 @@
 """XELA uSkin sensors through XELA's server: ``xela://127.0.0.1:5000?sensor=1`` (port 5000
 by default).
 
-The driver is a WebSocket client of ``xela_server`` (XELA Software), as XELA's ROS 2 node
-(``mcsix/xela_server_ros2``, ``scripts/xela_service``: ``websocket.WebSocketApp("ws://{ip}:
-{port}")``, default port 5000) and Penn's example (``penn-figueroa-lab/xela_setup``,
-``example.py``) are.  Each message is one JSON object: ``{"message": "Welcome", ...}`` first
-(ignored), then ``{"message": n, "type": "routine", "1": {...}, "2": {...}}`` where each key
-made of digits is a sensor: ``{"time": server time s, "sensor": "1", "model": "XR1944",
-"taxels": 16, "data": "hex,hex,...", "calibrated": [...]}``.  ``data`` holds x, y, z of every
-taxel (3 * taxels hexadecimal values; the ROS message types them int16/uint16 counts),
-taxels "starting from top left and continuing line-by-line" (xela_server_ros2 readme);
-``calibrated`` holds forces, optional.
-
-A frame is this URL's sensor, in the model's layout (4x4 for XR1944 and uSPa44, 4x6 for XR1946
-and uSPa46; ``rows=`` and ``cols=`` give any other): all three components as
-``Frame.taxels`` ``(rows, cols, 3)`` (x, y, z; xela_setup's ``example.py`` maps them the same
-way, ``[..., 0]`` x, ``[..., 1]`` y, ``[..., 2]`` z), the z components also as the array ``raw``
-the 1-axis path reads (``calibrated`` as ``extras["calibrated"]`` when sent).  seq is the message number (so gaps count as ``lost``), device time the sensor's
-``time``; ``sensor_id`` is the sensor number.
-
-Bad messages are counted and skipped: not JSON or not an object, a sensor entry without the
-keys above or with a value that is not a hexadecimal 16-bit count (``parse_errors``), a data
-list that is not 3 * taxels long or a taxel count the layout does not hold (``length_errors``),
-a message over :data:`MAX_MESSAGE` bytes (``oversize``; the server closes such a connection
-and the driver reconnects).  Messages without this sensor are not errors (another sensor's).
-
-The connection: refused or lost, the driver retries with backoff (0.1 s doubling to 2 s), counts
-``disconnects``/``reconnects`` and keeps its ``last_error``, as the serial driver does.
+A WebSocket client of ``xela_server`` (XELA Software).  A frame is the URL's sensor in its
+model's layout: x, y, z as ``Frame.taxels`` ``(rows, cols, 3)``, z also as ``raw``; seq is the
+message number, device time the sensor's ``time``, ``sensor_id`` the sensor number.  Bad
+messages are counted and skipped; a lost connection is retried with backoff.
 """
+# The protocol, as XELA's ROS 2 node (mcsix/xela_server_ros2, scripts/xela_service:
+# websocket.WebSocketApp("ws://{ip}:{port}"), default port 5000) and Penn's example
+# (penn-figueroa-lab/xela_setup, example.py) use it.  Each message is one JSON object:
+# {"message": "Welcome", ...} first (ignored), then {"message": n, "type": "routine", "1": {...},
+# "2": {...}} where each key made of digits is a sensor: {"time": server time s, "sensor": "1",
+# "model": "XR1944", "taxels": 16, "data": "hex,hex,...", "calibrated": [...]}.  data holds x,
+# y, z of every taxel (3 * taxels hexadecimal values; the ROS message types them int16/uint16
+# counts), taxels "starting from top left and continuing line-by-line" (xela_server_ros2
+# readme); calibrated holds forces, optional (passed on as extras["calibrated"]).
+# Layouts: 4x4 for XR1944 and uSPa44, 4x6 for XR1946 and uSPa46; rows= and cols= give any other.
+# Components map as xela_setup's example.py does: [..., 0] x, [..., 1] y, [..., 2] z.  Gaps in
+# the message number count as lost.
+# Bad messages: not JSON or not an object, a sensor entry without the keys above or with a value
+# that is not a hexadecimal 16-bit count (parse_errors), a data list not 3 * taxels long or a
+# taxel count the layout does not hold (length_errors), a message over MAX_MESSAGE bytes
+# (oversize; the server closes such a connection and the driver reconnects).  Messages without
+# this sensor are not errors.
+# Connection refused or lost: retried with backoff (0.1 s doubling to 2 s), counting
+# disconnects/reconnects and keeping last_error, as the serial driver does.
 
 from __future__ import annotations
 

@@ -1,26 +1,24 @@
 """Who may use the API: bearer token, dashboard session cookie, Origin and Host checks.
 
-The model (docs/reference/api.md, "Security"):
-
-* **Open mode** (listening on loopback, no token configured): no credentials are needed.
-  Browsers are still kept out of other sites' reach: a request whose ``Host`` is not a
-  loopback name is refused (DNS rebinding), and a WebSocket or control request carrying a
-  foreign ``Origin`` is refused (cross-site WebSocket hijacking, CSRF).
-* **Token mode** (a token is configured; required off loopback): ``/v1`` endpoints other than
-  ``/v1/health``, ``/v1/version`` and the OpenAPI document need ``Authorization: Bearer
-  <token>``, or the dashboard's session cookie.  The stream checks this at the handshake, so
-  an unauthorised client is answered 401/403 and never accepted.
-* The dashboard logs in by being loaded once as ``/?token=<token>``: the server sets an
-  HttpOnly, SameSite=Strict session cookie and redirects to ``/``, so the token leaves the
-  address bar and page scripts never see it.
-* CORS (:class:`Cors`): a page of an origin on the allow-list (``[server] allow_origins``)
-  may call the REST API with ``fetch`` (a JSON ``PATCH``, a bearer token): its preflight is
-  answered and its answers carry ``Access-Control-Allow-Origin``.  Other origins get no CORS
-  header at all, so browsers keep their pages from reading any answer.
-
-Everything here works on raw ASGI scopes, so REST routes and the raw WebSocket endpoint share
-it.
+Open mode (loopback, no token) needs no credentials but still refuses foreign Host and
+Origin; token mode needs a bearer token or the dashboard's session cookie; CORS
+(:class:`Cors`) only for allow-listed origins (docs/reference/api.md, "Security").  Works on
+raw ASGI scopes, so REST routes and the raw WebSocket endpoint share it.
 """
+# * Open mode (listening on loopback, no token configured): a request whose Host is not a
+#   loopback name is refused (DNS rebinding), and a WebSocket or control request carrying a
+#   foreign Origin is refused (cross-site WebSocket hijacking, CSRF).
+# * Token mode (a token is configured; required off loopback): /v1 endpoints other than
+#   /v1/health, /v1/version and the OpenAPI document need "Authorization: Bearer <token>" or the
+#   session cookie.  The stream checks this at the handshake, so an unauthorised client is
+#   answered 401/403 and never accepted.
+# * The dashboard logs in by being loaded once as /?token=<token>: the server sets an HttpOnly,
+#   SameSite=Strict session cookie and redirects to /, so the token leaves the address bar and
+#   page scripts never see it.
+# * CORS: a page of an origin on [server] allow_origins may call the REST API with fetch (a JSON
+#   PATCH, a bearer token): its preflight is answered and its answers carry
+#   Access-Control-Allow-Origin.  Other origins get no CORS header, so browsers keep their pages
+#   from reading any answer.
 
 from __future__ import annotations
 

@@ -1,36 +1,30 @@
 """Zenoh: a second front end beside the web server, fed by the same hub (``docs/howto/zenoh.md``).
 
-Loaded only when ``[zenoh] enabled`` (it imports ``zenoh``, the ``zenoh`` extra).  With
-``P`` = ``zenoh.prefix`` (default ``tactiled/<hostname>``) it publishes:
-
-* ``P/<sensor>/estimate``: every estimate, the stream's estimate message;
-* ``P/<sensor>/frame``: zeroed frames, at most ``zenoh.frame_rate_hz`` per sensor (0: none);
-* ``P/<sensor>/slip``: a 3-axis array's slip events (onset, end: the stream's ``slip``
-  message), every one, never paced (a controller may subscribe to this key alone);
-* ``P/health``: the ``GET /v1/health`` document, once a second and on every status change;
-
-and answers queries on ``P/<sensor>/latest`` (the newest estimate) and ``P/health`` (the
-health now), and holds the liveliness token ``P`` while it runs.  Payloads are the exact JSON
-texts the WebSocket stream sends (one :class:`~tactiled_service.json_messages.Encoder`, shared), in
-UTF-8, with the encoding ``application/json``.
-
-Publishing never blocks the event loop.  ``Publisher.put`` is synchronous and, with congestion
-control DROP, still waits up to ``wait_before_drop`` (1 ms by default) for a full
-transmission queue, so the loop only queues the text and :class:`Sender`, a thread of its
-own, calls ``put``: its queue is bounded, and when it is full the oldest item is dropped and
-counted (``zenoh.dropped`` in the health document).  Estimates of a key that no subscriber
-matches are not even encoded: an absent subscriber costs nothing.  A subscriber that stopped
-reading is Zenoh's business: its link's queue fills and Zenoh drops for that link only (those
-drops happen inside Zenoh and are not visible from Python).
-
-Queries arrive on Zenoh's threads; the answer is built on the event loop (the daemon and the
-encoder are not thread-safe) and sent from the query's thread.  Opening and closing the
-session also run on threads of their own, so a slow network never stalls acquisition; a
-client whose router cannot be reached keeps retrying in the background while the daemon runs.
-
-The reading side, for ``tactiled watch --zenoh``, is at the end: :func:`watch` and
-:func:`list_daemons`.
+Loaded only when ``[zenoh] enabled`` (the ``zenoh`` extra).  Publishes every estimate, paced
+frames, slip events and health under ``zenoh.prefix``, answers ``latest`` and ``health``
+queries, and holds a liveliness token; payloads are the WebSocket stream's JSON texts.
+Publishing never blocks the event loop (:class:`Sender`).  The reading side, for
+``tactiled watch --zenoh``: :func:`watch` and :func:`list_daemons`.
 """
+# Keys, with P = zenoh.prefix (default tactiled/<hostname>):
+# * P/<sensor>/estimate: every estimate, the stream's estimate message;
+# * P/<sensor>/frame: zeroed frames, at most zenoh.frame_rate_hz per sensor (0: none);
+# * P/<sensor>/slip: a 3-axis array's slip events (the stream's slip message), every one, never
+#   paced (a controller may subscribe to this key alone);
+# * P/health: the GET /v1/health document, once a second and on every status change;
+# queries on P/<sensor>/latest (the newest estimate) and P/health; liveliness token P.
+# Payloads: one shared json_messages.Encoder, UTF-8, encoding application/json.
+#
+# Why a sender thread: Publisher.put is synchronous and, with congestion control DROP, still
+# waits up to wait_before_drop (1 ms by default) for a full transmission queue, so the loop only
+# queues the text and Sender calls put.  Its queue is bounded; when full the oldest item is
+# dropped and counted (zenoh.dropped in the health document).  Estimates of a key no subscriber
+# matches are not even encoded.  A subscriber that stopped reading is Zenoh's business: its
+# link's queue fills and Zenoh drops for that link only (invisible from Python).
+# Queries arrive on Zenoh's threads; the answer is built on the event loop (daemon and encoder
+# are not thread-safe) and sent from the query's thread.  Opening and closing the session run on
+# threads of their own, so a slow network never stalls acquisition; a client whose router cannot
+# be reached keeps retrying in the background.
 
 from __future__ import annotations
 

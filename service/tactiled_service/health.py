@@ -1,26 +1,24 @@
 """``GET /v1/health``: one status per sensor, one overall, with the counters behind them.
 
-A sensor is, worst first:
-
-* ``ERROR``: its source is down, ended, or connected but silent for ``silent_after_s``
-  (0.5 s by default, so a device that stops talking shows within a second); or no first frame
-  ``startup_grace_s`` after start; or the daemon is not running;
-* ``STALE``: frames arrive but no estimate was published for ``stale_after_s`` (fits are not
-  coming back: every worker busy, hung or restarting), so what clients see is old;
-* ``DEGRADED``: the sensor has a nominal rate (``rate_hz``) and has delivered less than
-  ``RATE_TOLERANCE`` (0.9) of it, measured over the last second, for more than
-  ``RATE_GRACE_S`` (2 s) on end: a device or a link that slows down;
-* ``WARN``: connecting: the source's first open is under way (no frame and no error yet; a
-  driver's open times out into an error); or data flows, but error counters (CRC and other rejected chunks, lost or duplicated
-  frames, fit errors, lost fits, worker restarts, source errors) grew within the last
-  ``warn_window_s``;
-* ``OK`` otherwise.
-
-The overall ``status`` is the worst sensor's.  Counter growth, and the share of frames
-superseded over the last ``SHARE_WINDOW_S``, are judged against samples kept by
-:meth:`HealthMonitor.sample`, which the server calls every second.  The report also gives
-each sensor's read backlog and the resident memory of the daemon and of every fit worker.
+A sensor is, worst first, ERROR (source down or silent, no first frame, daemon not running),
+STALE (frames but no estimate for ``stale_after_s``), DEGRADED (below its nominal rate),
+WARN (connecting, or error counters grew lately) or OK; the overall ``status`` is the worst
+sensor's.  The report also gives each sensor's read backlog and the resident memory of the
+daemon and of every fit worker.
 """
+# The rules in full:
+# * ERROR: the source is down, ended, or connected but silent for silent_after_s (0.5 s by
+#   default, so a device that stops talking shows within a second); or no first frame
+#   startup_grace_s after start; or the daemon is not running;
+# * STALE: frames arrive but no estimate was published for stale_after_s (every worker busy,
+#   hung or restarting), so what clients see is old;
+# * DEGRADED: the sensor has a nominal rate (rate_hz) and delivered less than RATE_TOLERANCE
+#   (0.9) of it over the last second, for more than RATE_GRACE_S (2 s) on end;
+# * WARN: connecting (the source's first open under way; a driver's open times out into an
+#   error); or data flows but error counters (CRC and other rejected chunks, lost or duplicated
+#   frames, fit errors, lost fits, worker restarts, source errors) grew within warn_window_s.
+# Counter growth, and the share of frames superseded over SHARE_WINDOW_S, are judged against
+# samples kept by HealthMonitor.sample, which the server calls every second.
 
 from __future__ import annotations
 

@@ -1,22 +1,20 @@
 """What clients send: one JSON decoder for every request body and WebSocket message, request
 bodies read within their size limit and deadline, and the HTTP counters ``/metrics`` shows.
 
-:func:`decode_json` is the one path from a client's bytes to Python values.  It refuses, with
-a :class:`BadJson` that names the key (``fit.timeout: ...``), what the daemon could not
-represent or echo back: bytes that are not UTF-8; a lone UTF-16 surrogate (``"\\ud800"``: a
-legal JSON escape, but not Unicode, so no UTF-8 encoder can write it back); ``NaN``,
-``Infinity``, ``-Infinity`` (not JSON, though Python's parser takes them) and numbers beyond a
-double (``1e999``); integers longer than Python's int-string limit (4300 digits: converting
-one raises); nesting deeper than :data:`MAX_DEPTH`.  Whatever it echoes goes through
-:func:`shown` (``repr``: a surrogate or control character comes out as its escape), so the
-reply always encodes.
-
-:func:`read_body` counts a body's bytes as they arrive and answers 413 the moment they pass
-the limit, without reading the rest (the connection then closes), so a chunked body with no
-``Content-Length`` costs at most the limit; a body not in within ``timeout_s`` is 408.  A
-client that leaves mid-body raises :class:`ClientGone`: counted, logged at most once a minute
-(:class:`HttpStats`), never a traceback.
+:func:`decode_json` is the one path from a client's bytes to Python values: it refuses, with a
+:class:`BadJson` naming the key, what the daemon could not represent or echo back.
+:func:`read_body` answers 413 the moment a body passes its limit and 408 past its deadline.
 """
+# decode_json refuses: bytes that are not UTF-8; a lone UTF-16 surrogate ("\ud800": a legal
+# JSON escape, but not Unicode, so no UTF-8 encoder can write it back); NaN, Infinity, -Infinity
+# (not JSON, though Python's parser takes them) and numbers beyond a double (1e999); integers
+# longer than Python's int-string limit (4300 digits: converting one raises); nesting deeper than
+# MAX_DEPTH.  Whatever it echoes goes through shown (repr: a surrogate or control character comes
+# out as its escape), so the reply always encodes.
+# read_body counts a body's bytes as they arrive and answers 413 without reading the rest (the
+# connection then closes), so a chunked body with no Content-Length costs at most the limit; a
+# body not in within timeout_s is 408.  A client that leaves mid-body raises ClientGone:
+# counted, logged at most once a minute (HttpStats), never a traceback.
 
 from __future__ import annotations
 

@@ -1,16 +1,15 @@
 """What the service sends: estimates and frames as wire messages, and control messages.
 
-Every message is a JSON object with ``type``, ``v`` (the schema version, :data:`SCHEMA_VERSION`)
-and ``seq`` (the sensor's frame sequence number; null for messages about no frame).  An
-estimate message is the pipeline's estimate (``Estimate.to_json_dict()``: the envelope, then
-every key of a ``tactiled fit`` line) with ``type`` in place of ``class``, plus ``ellipse``:
-the contact ellipse to draw, ``{a_mm, b_mm, theta_deg}`` (semi-axes in mm, major axis from +x
-toward +y in degrees), or null; when the estimate lists several contacts (``contacts``), each
-element gets its own ``ellipse`` too.  The REST endpoints return the same objects.  A slip
-message is a 3-axis array's slip event (:class:`tactiled.pipeline.shear_track.SlipItem`).
-
-Encoding is done once per item whatever the number of subscribers (:class:`Encoder`).
+Every message is a JSON object with ``type``, ``v`` (:data:`SCHEMA_VERSION`) and ``seq`` (the
+sensor's frame sequence number; null for messages about no frame).  An estimate message is
+``Estimate.to_json_dict()`` with ``type`` in place of ``class``, plus ``ellipse``; the REST
+endpoints return the same objects.  :class:`Encoder` encodes each item once, whatever the
+number of subscribers.
 """
+# ellipse: the contact ellipse to draw, {a_mm, b_mm, theta_deg} (semi-axes in mm, major axis
+# from +x toward +y in degrees), or null; when the estimate lists several contacts (contacts),
+# each element gets its own ellipse too.  A slip message is a 3-axis array's slip event
+# (tactiled.pipeline.shear_track.SlipItem).
 
 from __future__ import annotations
 

@@ -1,16 +1,14 @@
 """``GET /metrics``: the daemon's counters in the Prometheus text format (``prometheus_client``).
 
-Nothing here counts anything: :class:`DaemonCollector` reads, at scrape time, the counters the
-pipeline, the worker pool, the hub and the stream manager already keep (so nothing is counted
-twice and the frame path is untouched), and the latency histograms the sensor pipelines fill
-where the latencies are measured (:class:`tactiled.pipeline.meters.Histogram`).  Each
-:class:`Metrics` has a registry of its own, not the library's global one: a process may run
-several services one after another (the tests do), and each must expose only its own daemon.
-
-Names follow the Prometheus conventions: a ``tactiled_`` prefix, ``_total`` on counters, the
-unit in the name (``_seconds``, ``_bytes``), labels for the sensor (``sensor``) and for what
-varies inside one quantity (``gate``, ``reason``, ``process``).  docs/reference/metrics.md lists them all.
+:class:`DaemonCollector` counts nothing itself: at scrape time it reads the counters and
+latency histograms the pipeline, worker pool, hub and stream manager already keep.  Names follow
+the Prometheus conventions (``tactiled_`` prefix, ``_total``, the unit in the name, labels
+``sensor``, ``gate``, ``reason``, ``process``); docs/reference/metrics.md lists them all.
 """
+# So nothing is counted twice and the frame path is untouched; the histograms are
+# tactiled.pipeline.meters.Histogram, filled where the latencies are measured.  Each Metrics has
+# a registry of its own, not the library's global one: a process may run several services one
+# after another (the tests do), and each must expose only its own daemon.
 
 from __future__ import annotations
 

@@ -1,23 +1,21 @@
 """uvicorn's WebSocket protocol, plus a way to close a connection whose peer stopped reading
-and a faster way to send many messages.
-
-ASGI can only close a WebSocket by ``send({"type": "websocket.close"})``, and uvicorn makes
-every send wait until the transport is writable again, which it never is when the peer has
-stopped reading: the close would wait for ever.  This subclass hands the app, as the scope
-extension :data:`FORCE_CLOSE`, a function that queues the close frame behind the backlog
-without waiting, closes the transport (it still flushes if the peer resumes reading), and
-``linger`` seconds later resets the connection (SO_LINGER 0: RST, nothing left in the kernel).
-Connections that end otherwise are bounded by the listening socket's TCP_USER_TIMEOUT (see
-:mod:`tactiled_service.server`).
-
-The HTTP side (:func:`http_protocol_class`) is uvicorn's h11 protocol with a read deadline,
-which uvicorn lacks (its keep-alive timeout only runs between requests, and any byte resets
-it): a connection must deliver its request's headers within ``read_timeout`` of opening, or
-of the end of the previous response, or it is answered 408 (if it sent anything) and closed;
-a client still sending a body after its answer (413, 401, a body the endpoint does not read)
-is disconnected rather than read to the end.  A body the endpoint reads has its own deadline
-(:func:`tactiled_service.inbound.read_body`).
+and a faster way to send many messages; and uvicorn's h11 HTTP protocol with a read deadline
+(:func:`http_protocol_class`).
 """
+# Why a forced close: ASGI can only close a WebSocket by send({"type": "websocket.close"}), and
+# uvicorn makes every send wait until the transport is writable again, which it never is when
+# the peer has stopped reading: the close would wait for ever.  This subclass hands the app, as
+# the scope extension FORCE_CLOSE, a function that queues the close frame behind the backlog
+# without waiting, closes the transport (it still flushes if the peer resumes reading), and
+# linger seconds later resets the connection (SO_LINGER 0: RST, nothing left in the kernel).
+# Connections that end otherwise are bounded by the listening socket's TCP_USER_TIMEOUT (see
+# tactiled_service.server).
+# Why a read deadline: uvicorn's keep-alive timeout only runs between requests, and any byte
+# resets it.  A connection must deliver its request's headers within read_timeout of opening, or
+# of the end of the previous response, or it is answered 408 (if it sent anything) and closed;
+# a client still sending a body after its answer (413, 401, a body the endpoint does not read)
+# is disconnected rather than read to the end.  A body the endpoint reads has its own deadline
+# (tactiled_service.inbound.read_body).
 
 from __future__ import annotations
 

@@ -2,31 +2,29 @@
 
 :class:`Service` builds the :class:`~tactiled.pipeline.Daemon` from the settings, starts it
 (the fit workers are separate processes), and runs uvicorn programmatically on a listening
-socket made here:
-
-* **The socket is ours** (:func:`listen_socket`) so it carries ``TCP_USER_TIMEOUT``, which
-  accepted sockets inherit: a peer that stops reading (zero window) or vanishes is dropped by
-  the kernel after ``tcp_user_timeout_s``, even after we closed the socket, when ``close()``
-  alone could never finish.  A bounded ``SO_SNDBUF`` (inherited too) keeps such a peer from
-  soaking up megabytes first.  Binding early also turns a busy port into a clear error before
-  any worker starts.
-* **Signals are ours**: uvicorn's own handlers are disabled (it would re-raise the signal
-  after shutting down); :meth:`Service.install_signal_handlers` makes SIGTERM and SIGINT start
-  the graceful stop, and a second SIGINT kill the workers and exit at once.
-* **Graceful stop** (:meth:`Service.stop`, within ``shutdown_timeout_s``): systemd is told
-  STOPPING=1; every stream subscriber gets close code 1001; then, concurrently, uvicorn stops
-  accepting and closes its connections, and the daemon stops reading, lets fits in flight
-  finish, releases the devices and flushes the recordings.
-* **sd_notify**: READY=1 once the socket is bound and served, WATCHDOG=1 only while the frame
-  counters advance (a stuck pipeline gets the daemon restarted), STATUS= a one-line summary.
-* **Zenoh** (``[zenoh] enabled``): :mod:`tactiled_service.bus`, a second front end on the same
-  hub, is imported only then (the ``zenoh`` extra), checked in :meth:`Service.bind`, opened
-  before the sensors start and closed first on the way out (its liveliness token goes at once).
-* **ROS 2** (``[ros2] enabled``): :mod:`tactiled_service.ros2`, on DDS (started here) and/or
-  as a guest of the Zenoh front end on its session (``bus.fronts``), as ``[ros2] middleware``
-  says; and with ``[record] format``
-  "mcap" or "both" an MCAP recorder on the hub, closed after the daemon stops.
+socket made here; it owns the signals, the graceful stop, sd_notify, and the optional Zenoh
+and ROS 2 front ends.
 """
+# * The socket is ours (listen_socket) so it carries TCP_USER_TIMEOUT, which accepted sockets
+#   inherit: a peer that stops reading (zero window) or vanishes is dropped by the kernel after
+#   tcp_user_timeout_s, even after we closed the socket, when close() alone could never finish.
+#   A bounded SO_SNDBUF (inherited too) keeps such a peer from soaking up megabytes first.
+#   Binding early turns a busy port into a clear error before any worker starts.
+# * Signals are ours: uvicorn's handlers are disabled (it would re-raise the signal after
+#   shutting down); Service.install_signal_handlers makes SIGTERM and SIGINT start the graceful
+#   stop, and a second SIGINT kill the workers and exit at once.
+# * Graceful stop (Service.stop, within shutdown_timeout_s): systemd is told STOPPING=1; every
+#   stream subscriber gets close code 1001; then, concurrently, uvicorn stops accepting and
+#   closes its connections, and the daemon stops reading, lets fits in flight finish, releases
+#   the devices and flushes the recordings.
+# * sd_notify: READY=1 once the socket is bound and served, WATCHDOG=1 only while the frame
+#   counters advance (a stuck pipeline gets the daemon restarted), STATUS= a one-line summary.
+# * Zenoh ([zenoh] enabled): tactiled_service.bus, imported only then (the zenoh extra),
+#   checked in Service.bind, opened before the sensors start and closed first on the way out
+#   (its liveliness token goes at once).
+# * ROS 2 ([ros2] enabled): tactiled_service.ros2, on DDS (started here) and/or as a guest of
+#   the Zenoh front end on its session (bus.fronts), as [ros2] middleware says; with
+#   [record] format "mcap" or "both" an MCAP recorder on the hub, closed after the daemon stops.
 
 from __future__ import annotations
 

@@ -1,24 +1,21 @@
 """The WebSocket stream ``/v1/stream``: handshake checks, subscriptions, fan-out, slow peers.
 
-A connection goes: handshake (Host, Origin, token: refused with HTTP 401/403 before accept) ->
-subscriber limit (accepted, then closed 1013) -> ``version`` message -> the client's
-``subscribe`` (gpsd's WATCH) -> estimate / frame messages until either side closes.
-
-Fan-out never waits for a subscriber.  Each session owns one bounded
-:class:`~tactiled.pipeline.Subscription` (newest wins; drops counted):
-
-* without ``max_rate`` it is the hub's own subscription (every item offered);
-* with ``max_rate`` the hub offers nothing to it directly; the manager's single hub listener
-  passes it at most one item per ``1/max_rate`` s per sensor and stream (:class:`PaceGroup`),
-  so a 30 Hz dashboard costs 30 wake-ups a second, not the sensor's 1000.  Sessions with the
-  same subscription share one pacing decision per item (and so the same items, encoded once):
-  the cost per published item does not grow with the number of paced subscribers.
-
-A session's sender drains its queue; a batch of sends that cannot complete within
-``send_timeout_s`` (the peer stopped reading and the socket buffers are full) ends the session
-with close code 1013, through :mod:`tactiled_service.protocol` since an ordinary close would
-wait for the same full buffers.  Other subscribers never notice.
+A connection: handshake (Host, Origin, token; 401/403 before accept) -> subscriber limit
+(closed 1013) -> ``version`` -> the client's ``subscribe`` (gpsd's WATCH) -> estimate / frame
+messages.  Fan-out never waits for a subscriber: each session owns one bounded
+:class:`~tactiled.pipeline.Subscription` (newest wins; drops counted), paced by
+:class:`PaceGroup` when it asks for ``max_rate``.
 """
+# Without max_rate a session's subscription is the hub's own (every item offered).  With
+# max_rate the hub offers nothing to it directly; the manager's single hub listener passes it at
+# most one item per 1/max_rate s per sensor and stream, so a 30 Hz dashboard costs 30 wake-ups a
+# second, not the sensor's 1000.  Sessions with the same subscription share one pacing decision
+# per item (and so the same items, encoded once): the cost per published item does not grow with
+# the number of paced subscribers.
+# A session's sender drains its queue; a batch of sends that cannot complete within
+# send_timeout_s (the peer stopped reading, socket buffers full) ends the session with close
+# code 1013, through tactiled_service.protocol since an ordinary close would wait for the same
+# full buffers.  Other subscribers never notice.
 
 from __future__ import annotations
 

@@ -1,29 +1,25 @@
 """A reader that empties a serial port's kernel buffer as soon as bytes arrive.
 
-A tty buffers little: a pseudo-terminal about 15 KB, a USB CDC-ACM port some 64 KB, that is 30
-ms to 0.4 s of an array streaming at 1 kHz.  A reader with a descriptor (pyserial's POSIX
-ports) is read by the event loop as bytes arrive (``loop.add_reader``), and guarded by the
-process's read thread (:class:`~tactiled_drivers.plumbing.read_thread.ReadThread`), which
-reads the port itself whenever the loop has not for a few milliseconds: every stall of the loop (the
-10-minute soak, docs/performance/reliability.md, saw it wake up to 1.5 s late and, read by the
-loop alone, lose 1.5-4 % of the frames on full ptys) is bridged by the thread, and while the
-loop keeps up no thread stands between a frame and its decoding.  A port without a descriptor
-(not POSIX) gets a thread of its own that blocks in pyserial's reads.  Decoding stays on the
-loop, which takes everything read so far in one piece when it gets round to it.
-
-The memory it holds is bounded and allocated once: a ring of ``limit`` bytes (4 MiB by
-default: ~27 s of a 1 kHz finger) that the loop and the thread read into (``os.readv`` into
-the ring, no allocation per read).  At the limit nobody reads the port, so the kernel buffer
-fills and the device drops.  What it holds goes to the loop in pieces of at most
-``TAKE_LIMIT`` (64 KiB) per :meth:`PortReader.take`.  Both rules come from the 1-hour soaks
-(docs/performance/reliability.md): a backlog handed over as one block of a megabyte, freed after decoding,
-left glibc's heap grown by as much for good (its mmap threshold rises to the largest block
-freed); and a backlog of thousands of few-kilobyte reads, each allocated in the reader thread's
-own malloc arena and freed later from the loop's thread, left that arena fragmented after a
-stall of minutes, beyond what ``malloc_trim`` gives back.  With the ring, a stall of any length
-costs no memory beyond the ring itself.  An error (the device unplugged) is handed to the
-consumer after every byte read before it, so no good frame is lost to it.
+The event loop reads the port as bytes arrive (``loop.add_reader``) and the process's
+:class:`~tactiled_drivers.plumbing.read_thread.ReadThread` reads it whenever the loop has not
+for a few milliseconds, into one preallocated ring of ``limit`` bytes (memory bounded, no
+allocation per read).  An error (device unplugged) reaches the consumer after every byte read
+before it, so no good frame is lost to it.
 """
+# Why: a tty buffers little (a pty about 15 KB, a USB CDC-ACM port some 64 KB: 30 ms to 0.4 s of
+# an array at 1 kHz), and the loop can wake up to 1.5 s late under load
+# (docs/performance/reliability.md), which, read by the loop alone, loses frames on full ptys.
+# While the loop keeps up no thread stands between a frame and its decoding.  A port without a
+# descriptor (not POSIX) gets a thread of its own that blocks in pyserial's reads.  Decoding
+# stays on the loop, which takes everything read so far when it gets round to it.
+# The ring: 4 MiB by default (~27 s of a 1 kHz finger), read into with os.readv.  At the limit
+# nobody reads the port, so the kernel buffer fills and the device drops.  The loop takes at most
+# TAKE_LIMIT (64 KiB) per PortReader.take.  Both rules keep glibc's heap flat over hour-long
+# runs: a megabyte backlog handed over as one block and freed leaves the heap grown for good
+# (the mmap threshold rises to the largest block freed), and thousands of few-kilobyte reads
+# allocated in the reader thread's arena and freed from the loop's thread fragment that arena
+# beyond what malloc_trim gives back.  With the ring, a stall of any length costs no memory
+# beyond the ring itself.
 
 from __future__ import annotations
 

@@ -1,24 +1,19 @@
 """The thread that stands guard over every serial port of the process (:class:`ReadThread`).
 
-A :class:`~tactiled_drivers.plumbing.port_reader.PortReader` with a file descriptor is read by
-the event loop itself: ``loop.add_reader`` calls it as soon as its port has bytes, it reads them into its
-ring and hands them on, with no thread in between.  What the loop cannot do is read while it
-is held up (a long garbage collection, a CPU-starved process, a callback that overruns), and a
-tty buffers little: a pseudo-terminal about 15 KB, 30 ms of a 16x16 palm at 1 kHz.  So this
-thread looks at every port every ``GUARD_INTERVAL_S`` and reads, into the same ring, any port
-the loop has not read for ``STALL_S``: the device never waits for the loop.  While the loop
-keeps up the thread reads nothing and takes the GIL ``1 / GUARD_INTERVAL_S`` times a second
-whatever the number of ports.
-
-The loop, not this thread, does the reading: a thread that read every port would take the
-GIL from the loop and wake it through its self-pipe at each wake, and would let a frame wait
-up to its wake period in the kernel's buffer; read by the loop, a frame is read as it arrives
-(docs/performance/hand.md).
-
-A reader's reads, the loop's and this thread's, are serialized by its read lock, so its bytes
-keep their order; an error (the device unplugged) reaches the consumer after every byte read
-before it, whichever side read them.
+It looks at every port every ``GUARD_INTERVAL_S`` and reads, into the port's ring, any port the
+event loop has not read for ``STALL_S``, so a held-up loop never leaves a device waiting.  The
+loop itself does the reading otherwise.  A reader's reads are serialized by its read lock, so
+its bytes keep their order.
 """
+# Why a guard and not a reading thread: a PortReader with a descriptor is read by the loop
+# (loop.add_reader) as soon as its port has bytes, with no thread in between.  The loop cannot
+# read while held up (a long garbage collection, a CPU-starved process, an overrunning callback),
+# and a pty buffers about 15 KB, 30 ms of a 16x16 palm at 1 kHz.  While the loop keeps up this
+# thread reads nothing and takes the GIL 1 / GUARD_INTERVAL_S times a second whatever the number
+# of ports.  A thread that read every port would take the GIL from the loop, wake it through its
+# self-pipe at each wake, and let a frame wait up to its wake period in the kernel's buffer
+# (docs/performance/hand.md).  An error (device unplugged) reaches the consumer after every byte
+# read before it, whichever side read them.
 
 from __future__ import annotations
 

@@ -1,31 +1,29 @@
 """ROS 2 over DDS: the same topics, types and bytes as on Zenoh, through Eclipse Cyclone DDS
 (``cyclonedds`` on PyPI, in the ``ros2`` extra), as ROS 2's DDS middlewares lay them out.
 
-How ROS 2 maps onto DDS (``rmw_dds_common`` and ``rmw_cyclonedds_cpp``,
-https://github.com/ros2/rmw_cyclonedds, ``rmw_cyclonedds_cpp/src/rmw_node.cpp``: ``ROS_TOPIC_PREFIX
-"rt"`` and ``make_fqtopic``; the type names from ``rosidl_typesupport_introspection``'s
-``create_type_name`` with ``dds_`` and a trailing ``_``, as
-https://design.ros2.org/articles/topic_and_service_names.html describes):
-
-* a topic ``/tactiled/finger0/wrench`` is the DDS topic ``rt/tactiled/finger0/wrench``;
-* its type ``geometry_msgs/msg/WrenchStamped`` is the DDS type
-  ``geometry_msgs::msg::dds_::WrenchStamped_`` (``tactiled_msgs::msg::dds_::Contact_`` ...);
-* a sample is the message in plain CDR (XCDR1, little-endian, ``00 01 00 00``), exactly the
-  bytes :func:`tactiled_service.ros2.messages.serialize` builds for Zenoh;
-* QoS as rclcpp's defaults: estimates and diagnostics reliable, volatile, keep-last 10;
-  strain images as ``rmw_qos_profile_sensor_data``: best effort, volatile, keep-last 5;
-* the domain is ``ROS_DOMAIN_ID`` (here ``[ros2] domain_id``); ``CYCLONEDDS_URI`` is read by
-  Cyclone DDS itself; ``ROS_LOCALHOST_ONLY=1`` (Humble) or
-  ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` / ``OFF`` (Jazzy and later) keep discovery on
-  this machine, as ``rmw_cyclonedds`` does by configuring the loopback interface.
-
-**One builder, two transports.**  Cyclone DDS's Python binding writes a sample by calling its
-``serialize()``; :func:`prebuilt` hands it the CDR bytes already built (once per message, for
-Zenoh and DDS alike), so the types registered here (:func:`idl_type`, generated from the same
-message definitions the builders use) serve for discovery and type matching only.
-``tests/ros2/test_ros2_dds.py`` checks that Cyclone's own serialisation of the same message
-gives the same bytes.
+One builder, two transports: :func:`prebuilt` hands Cyclone the CDR bytes already built for
+Zenoh, so the types registered here (:func:`idl_type`) serve for discovery and type matching
+only.  ``tests/ros2/test_ros2_dds.py`` checks Cyclone's own serialisation gives the same bytes.
 """
+# How ROS 2 maps onto DDS (rmw_dds_common and rmw_cyclonedds_cpp,
+# https://github.com/ros2/rmw_cyclonedds, rmw_cyclonedds_cpp/src/rmw_node.cpp:
+# ROS_TOPIC_PREFIX "rt" and make_fqtopic; the type names from rosidl_typesupport_introspection's
+# create_type_name with dds_ and a trailing _, as
+# https://design.ros2.org/articles/topic_and_service_names.html describes):
+# * a topic /tactiled/finger0/wrench is the DDS topic rt/tactiled/finger0/wrench;
+# * its type geometry_msgs/msg/WrenchStamped is the DDS type
+#   geometry_msgs::msg::dds_::WrenchStamped_ (tactiled_msgs::msg::dds_::Contact_ ...);
+# * a sample is the message in plain CDR (XCDR1, little-endian, 00 01 00 00), exactly the bytes
+#   tactiled_service.ros2.messages.serialize builds for Zenoh;
+# * QoS as rclcpp's defaults: estimates and diagnostics reliable, volatile, keep-last 10; strain
+#   images as rmw_qos_profile_sensor_data: best effort, volatile, keep-last 5;
+# * the domain is ROS_DOMAIN_ID (here [ros2] domain_id); CYCLONEDDS_URI is read by Cyclone DDS
+#   itself; ROS_LOCALHOST_ONLY=1 (Humble) or ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST / OFF
+#   (Jazzy and later) keep discovery on this machine, as rmw_cyclonedds does by configuring the
+#   loopback interface.
+# Cyclone DDS's Python binding writes a sample by calling its serialize(); prebuilt returns the
+# bytes built once per message, and idl_type is generated from the message definitions the
+# builders use.
 
 from __future__ import annotations
 

@@ -1,13 +1,12 @@
 """Reading ROS 2 samples off DDS: ``tactiled watch --ros2`` on the DDS middleware.
 
-It discovers the DDS writers of the domain (Cyclone DDS's built-in ``DCPSPublication`` topic),
-opens a reader for each one whose topic is a ROS topic (``rt/...``) of one of tactiled's types
-(:data:`.messages.TYPES`, named as on DDS), and prints one JSON object per sample, the same
-as on Zenoh (:mod:`.reader`): ``{"topic", "type", "sequence_number", "source_timestamp_ns",
-"message"}``; ``sequence_number`` is null (DDS keeps it in the protocol, not in the sample),
-``source_timestamp_ns`` the writer's.  The message is decoded by the same code as on Zenoh:
-the sample's CDR bytes through :func:`.messages.deserialize`.
+Discovers the domain's DDS writers (Cyclone's built-in ``DCPSPublication`` topic), reads each
+ROS topic (``rt/...``) of one of tactiled's types (:data:`.messages.TYPES`), and prints one JSON
+object per sample as on Zenoh (:mod:`.reader`), decoded by :func:`.messages.deserialize`;
+``sequence_number`` is null (DDS keeps it in the protocol, not the sample).
 """
+# Each line: {"topic", "type", "sequence_number", "source_timestamp_ns", "message"};
+# source_timestamp_ns is the writer's.
 
 from __future__ import annotations
 

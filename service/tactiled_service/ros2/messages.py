@@ -1,20 +1,20 @@
 """Estimates, frames and health as ROS 2 messages: pure conversion, no I/O (docs/howto/ros2.md).
 
-Every function takes the daemon's own JSON objects (an estimate's ``to_json_dict()``, a zeroed
-frame, the health document) and returns a message object of the ``rosbags`` type store, which
-:func:`serialize` turns into CDR bytes with their 4-byte encapsulation header (little-endian,
-the way rmw_zenoh and rosbag2 write them).  Conventions (REP 103, SI units):
-
-* the sensor frame (``header.frame_id``): x along the finger (tactel row ``m`` at
-  ``x = m * dx``), y around it (column ``n`` at ``y = n * dy``, arc length), z out of the skin;
-  the cylinder's curvature is not unrolled (a flat-patch approximation, good to ~1 % over a
-  tactel window on a 12.7 mm finger);
-* ``header.stamp``: wall-clock time (Unix epoch) of the frame's arrival on the host;
-* the wrench is the force the object exerts on the sensor, ``-force_n`` along z applied at the
-  contact centre, with its moment about the frame's origin, in N and N*m;
-* markers are in metres; the Contact message keeps the JSON's names and units (mm, N, degrees)
-  so that one name means one thing on every interface, NaN where the JSON has null.
+Every function takes the daemon's own JSON objects and returns a ``rosbags`` message;
+:func:`serialize` turns it into CDR bytes with their 4-byte encapsulation header (little-endian,
+as rmw_zenoh and rosbag2 write them).  REP 103, SI units, except the Contact message, which
+keeps the JSON's names and units (mm, N, degrees; NaN for null).
 """
+# Conventions:
+# * the sensor frame (header.frame_id): x along the finger (tactel row m at x = m * dx), y around
+#   it (column n at y = n * dy, arc length), z out of the skin; the cylinder's curvature is not
+#   unrolled (a flat-patch approximation, good to ~1 % over a tactel window on a 12.7 mm finger);
+# * header.stamp: wall-clock time (Unix epoch) of the frame's arrival on the host;
+# * the wrench is the force the object exerts on the sensor, -force_n along z applied at the
+#   contact centre, with its moment about the frame's origin, in N and N*m;
+# * markers are in metres; the Contact message keeps the JSON's names and units so that one name
+#   means one thing on every interface.
+# Inputs: an estimate's to_json_dict(), a zeroed frame, the health document.
 
 from __future__ import annotations
 

@@ -1,32 +1,28 @@
 """The ROS 2 front end: every sensor's topics over DDS and/or rmw_zenoh (docs/howto/ros2.md).
 
-With ``[ros2] enabled`` the daemon is a ROS 2 node (``<namespace>/<node_name>``, default
-``/tactiled/tactiled``) with no ROS installation and no bridge, on the middlewares
-``[ros2] middleware`` names:
-
-* **DDS** (:mod:`.dds`, Cyclone DDS): the topics as ROS 2's DDS middlewares lay them out
-  (``rt/<topic>``, ``pkg::msg::dds_::Type_``), for ROS 2 systems on their default middleware;
-* **Zenoh** (:mod:`.rmw`): on the daemon's Zenoh session with the key expressions, liveliness
-  tokens and attachments of ``[ros2] distro``'s rmw_zenoh (so ``ros2 node list`` and ``ros2
-  topic list`` show the node there too).
-
-The topics, per sensor (the messages: :mod:`.messages`):
-
-* ``<namespace>/<sensor>/wrench`` (``geometry_msgs/msg/WrenchStamped``), ``.../contact``
-  (``tactiled_msgs/msg/Contact``, the strongest contact), ``.../contacts``
-  (``tactiled_msgs/msg/ContactArray``, every contact), ``.../markers``
-  (``visualization_msgs/msg/MarkerArray``, every contact drawn): one each per estimate;
-* ``.../strain`` (``sensor_msgs/msg/Image``, ``32FC1``): zeroed frames, at most
-  ``[zenoh] frame_rate_hz`` per second per sensor (0: none);
-* ``/diagnostics`` (``diagnostic_msgs/msg/DiagnosticArray``): the health, once a second.
-
-``header.stamp`` is the frame's time (:mod:`tactiled.clock`).  Read-only: nothing is
-subscribed to.  On Zenoh it is a guest of :class:`~tactiled_service.bus.Bus` (``bus.fronts``):
-declared once the session is open, undeclared (tokens first) when it closes; on DDS the
-service starts it (:meth:`Ros2Node.start_dds`).  It converts nothing for a topic no
-subscriber matches on any middleware; a message is built and serialised once, on a sender
-thread of its own (never on the event loop), and the same bytes go to every middleware.
+With ``[ros2] enabled`` the daemon is a ROS 2 node (default ``/tactiled/tactiled``) with no ROS
+installation and no bridge, on DDS (:mod:`.dds`, Cyclone DDS) and/or Zenoh (:mod:`.rmw`), as
+``[ros2] middleware`` says.  Read-only: per sensor wrench, contact, contacts, markers and
+strain topics, and ``/diagnostics``.  Each message is built once, on a sender thread of its own,
+and the same bytes go to every middleware.
 """
+# Middlewares: DDS lays topics out as ROS 2's DDS middlewares do (rt/<topic>,
+# pkg::msg::dds_::Type_); Zenoh uses the daemon's session with the key expressions, liveliness
+# tokens and attachments of [ros2] distro's rmw_zenoh (so ros2 node list and ros2 topic list
+# show the node there too).
+# Topics per sensor (messages: .messages):
+# * <namespace>/<sensor>/wrench (geometry_msgs/msg/WrenchStamped), .../contact
+#   (tactiled_msgs/msg/Contact, the strongest contact), .../contacts
+#   (tactiled_msgs/msg/ContactArray, every contact), .../markers
+#   (visualization_msgs/msg/MarkerArray, every contact drawn): one each per estimate;
+# * .../strain (sensor_msgs/msg/Image, 32FC1): zeroed frames, at most [zenoh] frame_rate_hz
+#   per second per sensor (0: none);
+# * /diagnostics (diagnostic_msgs/msg/DiagnosticArray): the health, once a second.
+# header.stamp is the frame's time (tactiled.clock).  Nothing is subscribed to.  On Zenoh the
+# node is a guest of tactiled_service.bus.Bus (bus.fronts): declared once the session is open,
+# undeclared (tokens first) when it closes; on DDS the service starts it (Ros2Node.start_dds).
+# Nothing is converted for a topic no subscriber matches on any middleware; the sender thread
+# keeps serialisation off the event loop.
 from __future__ import annotations
 
 import asyncio

@@ -1,35 +1,30 @@
 """rmw_zenoh's layout on Zenoh: key expressions, liveliness tokens, attachments (no I/O).
 
-ROS 2's Zenoh middleware (https://github.com/ros2/rmw_zenoh, ``rmw_zenoh_cpp``; Humble, Jazzy
-and later) maps each ROS entity onto Zenoh as follows, and this module builds exactly those
-strings and bytes (sources: its design document,
-https://github.com/ros2/rmw_zenoh/blob/rolling/docs/design.md, and in
-``rmw_zenoh_cpp/src/detail/``: ``liveliness_utils.{hpp,cpp}``, ``attachment_helpers.cpp``,
-``rmw_publisher_data.cpp``, ``qos.cpp``):
-
-* data of a topic goes on ``<domain_id>/<topic name without its leading '/'>/<type>/<hash>``,
-  ``<type>`` the DDS-style name (``geometry_msgs::msg::dds_::WrenchStamped_``) and ``<hash>``
-  the RIHS01 type hash (``RIHS01_<64 hex>``); the payload is the CDR message with its
-  encapsulation header;
-* each sample carries an attachment, Zenoh-serialised: the publisher's sequence number
-  (int64, from 1), the source timestamp (int64, ns since the Unix epoch) and the publisher's
-  16-byte GID (a sequence: its length 16 as a LEB128 varint, then the bytes);
-* discovery is by liveliness tokens ``@ros2_lv/<domain_id>/<zid>/<node id>/<entity id>/<kind>/
-  <enclave>/<namespace>/<node name>`` for a node (kind ``NN``, entity id = node id), with
-  ``/<topic>/<type>/<hash>/<qos>`` appended for a publisher (kind ``MP``); every ``/`` inside a
-  name becomes ``%`` (so the root enclave ``/`` is ``%``, the namespace ``/tactiled`` is
-  ``%tactiled``);
-* an entity's GID is the XXH3-128 hash of its liveliness key expression, its low 64 bits then
-  its high 64 bits, little-endian.
-
-**Distributions.**  Jazzy, Kilted and Rolling lay these out alike.  Humble has no type hashes:
-its rmw_zenoh (the ``humble`` branch, from https://github.com/ros2/rmw_zenoh/pull/388
-"Updates to compile against Humble": "Humble does not support type hashes ... we just remove
-the code that computes it, and instead set it to a constant string") puts the string
-``TypeHashNotSupported`` wherever the hash goes, in the data key expression and in the
-liveliness token alike; the rest (GID of 16 bytes, attachment, QoS string) is the same.
-:func:`distro_hash` gives the hash field of a distro.
+Builds exactly the strings and bytes ROS 2's Zenoh middleware (https://github.com/ros2/rmw_zenoh,
+``rmw_zenoh_cpp``) uses for topics, discovery and GIDs, so ``ros2 topic list`` sees the daemon.
+:func:`distro_hash` gives the type-hash field of a distribution (Humble has none).
 """
+# Sources: the design document https://github.com/ros2/rmw_zenoh/blob/rolling/docs/design.md,
+# and in rmw_zenoh_cpp/src/detail/: liveliness_utils.{hpp,cpp}, attachment_helpers.cpp,
+# rmw_publisher_data.cpp, qos.cpp.
+# * data of a topic goes on <domain_id>/<topic name without its leading '/'>/<type>/<hash>,
+#   <type> the DDS-style name (geometry_msgs::msg::dds_::WrenchStamped_) and <hash> the RIHS01
+#   type hash (RIHS01_<64 hex>); the payload is the CDR message with its encapsulation header;
+# * each sample carries an attachment, Zenoh-serialised: the publisher's sequence number (int64,
+#   from 1), the source timestamp (int64, ns since the Unix epoch) and the publisher's 16-byte
+#   GID (a sequence: its length 16 as a LEB128 varint, then the bytes);
+# * discovery is by liveliness tokens @ros2_lv/<domain_id>/<zid>/<node id>/<entity id>/<kind>/
+#   <enclave>/<namespace>/<node name> for a node (kind NN, entity id = node id), with
+#   /<topic>/<type>/<hash>/<qos> appended for a publisher (kind MP); every / inside a name
+#   becomes % (the root enclave / is %, the namespace /tactiled is %tactiled);
+# * an entity's GID is the XXH3-128 hash of its liveliness key expression, its low 64 bits then
+#   its high 64 bits, little-endian.
+# Distributions: Jazzy, Kilted and Rolling lay these out alike.  Humble has no type hashes: its
+# rmw_zenoh (the humble branch, from https://github.com/ros2/rmw_zenoh/pull/388 "Updates to
+# compile against Humble": "Humble does not support type hashes ... we just remove the code that
+# computes it, and instead set it to a constant string") puts TypeHashNotSupported wherever the
+# hash goes, in the data key expression and the liveliness token alike; the rest (16-byte GID,
+# attachment, QoS string) is the same.
 
 from __future__ import annotations
 
