@@ -1,34 +1,50 @@
 """Benchmark run time against error over a seeded suite of simulated scenes with ground truth.
 
-Suites (default: all): configs, models, skip, acquisition, foundation, sensors, temporal,
-contacts, unexplained (docs/performance/).  Markdown on stdout, progress on stderr.
+Suites (default: all):
+  configs     each way of estimating (window size, cold/warm start, exact vs finite-difference
+              Jacobian, forward-model accuracy, the cheap estimators) on cylinders and edges:
+              median/p99 time per frame, median/90th-percentile errors, RMS error over the
+              Cramer-Rao bound, and whether the row is on the Pareto front
+  models      model order: cylinder-only against auto on cylinders, spheres, ellipsoids, edges
+  skip        the daemon's per-frame skips: no contact (false/missed rates, cost of an empty
+              frame), unchanged frames, too light for curvature, and a scripted scene at 1 kHz
+              with all skipping on and off (frames/s, errors)
+  acquisition three simulated fingers at 1 kHz over real ptys through the whole daemon:
+              frames lost, every frame accounted for, fit rate, latency p50/p99; the share of
+              contact frames answered by their own fit or a justified gate reuse (not
+              superseded), and the streamed estimates' accuracy against the scene's truth;
+              --scene picks the scene (moving: contacts that never rest), --workers sweeps
+              the fit worker count (one run each, side by side)
+  foundation  the fitter against its bars: noise-free recovery from the reference integration,
+              noisy efficiency (RMS/CRB, 2-sigma coverage), the paper's Table 1, speed
+  sensors     accuracy on every built-in sensor description (or --sensor's): cylinders (line
+              contacts on flat arrays), spheres and edges; RMS error over the Cramer-Rao
+              bound, 2-sigma coverage and the share beyond 4 sigma per parameter, values
+              withheld, fit time; and the daemon's own estimates of the demo scene (the
+              description's simulated finger through the whole daemon) against the truth
+  temporal    the tracker through the whole daemon: a held contact sharpening (radius error
+              against the single-frame bound at 100 ms and 1 s, coverage; --plot draws the
+              error against time), rolls and rotations (lag, rates), steps, and the CPU per
+              frame with tracking on and off
+  contacts    several contacts on one array (the paper's finger and a flat 16x16, or
+              --sensor's): contacts found, missed and phantom; RMS error over the joint
+              model's Cramer-Rao bound and 2-sigma coverage per parameter; close pairs the
+              cover merges; single contacts unchanged
+  unexplained the fit's cost on frames the model cannot explain (several contacts at once, a
+              hand print on a 32x32 array, random and saturated patterns) and on the simulated
+              contacts, with the fit budget and without: CPU ms median/p99/max, iterations,
+              the share converged, stopped by the budget, withheld
+
+Output is Markdown on stdout; progress goes to stderr.  --quick runs in about a minute.
 
 examples:
   tactiled bench --quick
+  tactiled bench --suite configs --plot pareto.png
   tactiled bench --suite acquisition --scene moving --workers 1,2,4
+  tactiled bench --suite acquisition --scene moving --baseline REV   # this tree against REV
+  tactiled bench --suite acquisition --scene moving --sim-nice 10   # devices off the host's CPU
+  tactiled bench --suite acquisition --scene hand --json hand.json   # six devices: a hand
 """
-# What each suite measures:
-#   configs      each way of estimating (window, cold/warm start, exact vs finite-difference
-#                Jacobian, forward-model accuracy, the cheap estimators) on cylinders and edges:
-#                median/p99 time per frame, median/90th-percentile errors, RMS error over the
-#                Cramer-Rao bound, and whether the row is on the Pareto front (--plot)
-#   models       model order: cylinder-only against auto on cylinders, spheres, ellipsoids, edges
-#   skip         the per-frame skips: no contact (false/missed rates, cost of an empty frame),
-#                unchanged frames, too light for curvature, a scripted 1 kHz scene on and off
-#   acquisition  three simulated fingers at 1 kHz over real ptys through the whole daemon:
-#                frames lost and accounted for, fit rate, latency p50/p99, the share of contact
-#                frames answered by their own fit or a justified gate reuse, accuracy against
-#                the truth; --scene, --workers (a sweep), --baseline REV, --sim-nice, --json
-#   foundation   noise-free recovery, noisy efficiency (RMS/CRB, 2-sigma coverage), the
-#                paper's Table 1, speed
-#   sensors      accuracy on every built-in sensor description (or --sensor's), and the
-#                daemon's estimates of the demo scene against the truth
-#   temporal     the tracker: a held contact sharpening against the single-frame bound at
-#                100 ms and 1 s, rolls, rotations, steps, CPU per frame with tracking on and off
-#   contacts     several contacts on one array: found, missed, phantom; RMS over the joint
-#                model's CRB and coverage; close pairs the cover merges
-#   unexplained  the fit's cost on frames the model cannot explain, with and without the budget
-# --quick runs in about a minute.
 
 from __future__ import annotations
 

@@ -1,30 +1,39 @@
 """Build per-tactel lookup tables (raw counts -> strain) from recorded presses with known loads.
 
-PRESSES.npz (docs/howto/calibration.md): counts, strain_ref and sensor_id per press; with
---identify, each press's known contact instead, and the rubber's constants are estimated too.
-Writes the calibration file (docs/reference/file-formats.md) to -o; prints per-tactel residuals
-and flags.  Exit status: 0 success, 1 flagged tactels with --strict, 2 unusable input.
+PRESSES.npz holds the lab's presses (docs/howto/calibration.md; `tactiled presses` makes one
+from a recorded session):
+  counts      (N, rows, cols) integer raw counts, 0..65535
+  strain_ref  (N, rows, cols) float, the strain each tactel should read for that press
+  sensor_id   integer scalar (optional here if --sensor-id is given)
 
-example:  tactiled calibrate presses.npz -o pad.json --knots 8
+Per tactel, a least-squares piecewise-linear response counts(strain) is fitted on up to --knots
+knots, made monotone by pool-adjacent-violators and inverted into the table.  Printed: the RMS
+residual per tactel as a rows x cols grid (units of 1e-4 strain) with flags D (dead: gain below
+--dead-fraction of the median), N (non-monotone: more than --nonmonotone-fraction of the response
+runs backwards) and U (unexercised: reference strain spans < --min-strain-span), then a summary.
+The calibration file (JSON, format in docs/reference/file-formats.md) is written to -o even when tactels are
+flagged; the flags are stored in it.  --strict makes flagged tactels exit 1.
+
+Exit status: 0 success, 1 flagged tactels with --strict, 2 unusable input (one error line).
+
+With --identify, the press file carries each press's known contact instead of strain_ref:
+  contacts    (N, 6) float: r1_mm, r2_mm (inf = cylinder), angle_deg, force_n, x_mm, y_mm
+              (force_n 0 = unloaded; its other columns are ignored)
+and the rubber's constants (depth_x, nu_x, depth_y, nu_y, modulus), every tactel's response
+and position, and the model-error floor are estimated together by maximum likelihood.  Each
+constant is printed with its 1-sigma bound; one the presses cannot determine is held at the
+nominal value (the --sensor description's cover; the paper's finger's without --sensor), and
+the report says why.  The file written is a version 2 calibration file.
+
+The file belongs to the sensor id in the presses (or --sensor-id): the id the sensor's frames
+carry (a lines or FlexiTac device sends 0, a Robotiq finger its number, a XELA sensor its
+number; docs/howto/calibration.md).  The daemon refuses at start a calibration of another id.
+
+Example:
+  tactiled calibrate presses.npz -o pad.json --knots 8
+  tactiled calibrate contacts.npz -o pad.json --identify --sensor flat16
+  tactiled calibrate --bench          # per-frame cost of linearisation, zeroing, detection
 """
-# PRESSES.npz: counts (N, rows, cols) integer 0..65535; strain_ref (N, rows, cols) the strain
-# each tactel should read; sensor_id (optional if --sensor-id is given).
-# Per tactel a least-squares piecewise-linear counts(strain) is fitted on up to --knots knots,
-# made monotone by pool-adjacent-violators and inverted into the table.  Printed: the RMS
-# residual per tactel (units of 1e-4 strain) with flags D (dead: gain below --dead-fraction of
-# the median), N (non-monotone beyond --nonmonotone-fraction), U (unexercised: strain span
-# below --min-strain-span).  The file is written even when tactels are flagged; flags are
-# stored in it.
-# --identify: contacts (N, 6) r1_mm, r2_mm (inf = cylinder), angle_deg, force_n (0 = unloaded),
-# x_mm, y_mm; the constants (depth_x, nu_x, depth_y, nu_y, modulus), every tactel's response and
-# position and the model-error floor are estimated together by maximum likelihood, each with
-# its 1-sigma bound; one the presses cannot determine is held at the nominal value (the
-# --sensor's cover, else the paper's finger) and the report says why.  Writes version 2.
-# The file belongs to the sensor id in the presses (or --sensor-id), the id the sensor's frames
-# carry; the daemon refuses a calibration of another id at start.
-# Examples:
-#   tactiled calibrate contacts.npz -o pad.json --identify --sensor flat16
-#   tactiled calibrate --bench          # per-frame cost of linearisation, zeroing, detection
 
 from __future__ import annotations
 

@@ -1,20 +1,30 @@
 """Export a recording: its ROS 2 messages to MCAP, or its raw frames to npz.
 
--o OUT.mcap replays the file losslessly through the pipeline and writes what the daemon
-publishes on ROS 2 (docs/howto/ros2.md; needs the ros2 extra), for `ros2 bag play` and Foxglove.
--o OUT.npz writes the raw frames (counts, host_time_s, seq, sensor_id), no pipeline.
-An existing output is never overwritten.
+-o OUT.mcap replays the recording through the pipeline exactly as `tactiled replay` does
+(lossless: every frame the gate passes is fitted, so the output depends on the file only)
+and writes what the daemon publishes on ROS 2 (docs/howto/ros2.md), as an MCAP file with the
+ros2 profile that `ros2 bag play` replays and Foxglove opens:
+  <namespace>/<sensor>/wrench    geometry_msgs/msg/WrenchStamped  every estimate (N, N*m)
+  <namespace>/<sensor>/contact   tactiled_msgs/msg/Contact         every estimate
+  <namespace>/<sensor>/markers   visualization_msgs/msg/MarkerArray every estimate
+  <namespace>/<sensor>/strain    sensor_msgs/msg/Image (32FC1)     every zeroed frame
+  /diagnostics                   diagnostic_msgs/msg/DiagnosticArray once a recorded second
+Times are the recording's own: header stamps and log times are the file's creation time plus
+each frame's recorded host time since the first frame.  latency_ms, worker_ms and fit_ms are
+NaN (they would measure this machine, not the recording), so two exports of one file are
+identical byte for byte.  Needs the ros2 extra (pip install 'tactiled[ros2]').
 
-examples:  tactiled export session.tact -o session.mcap
+-o OUT.npz writes the raw frames as arrays, no pipeline: counts (N, rows, cols) uint16,
+host_time_s (N,) float64 (the recorded monotonic host times), seq (N,) int64, sensor_id (N,)
+int64 -- an input `tactiled fit --calibration CAL.json OUT.npz` reads.
+
+The output is never overwritten (an existing file is an error).  A progress bar goes to
+stderr on a terminal.
+
+examples:
+  tactiled export session.tact -o session.mcap
+  tactiled export session.tact -o session.npz
 """
-# MCAP topics: <namespace>/<sensor>/wrench (geometry_msgs/WrenchStamped, N, N*m), /contact
-# (tactiled_msgs/Contact), /markers (visualization_msgs/MarkerArray) per estimate; /strain
-# (sensor_msgs/Image 32FC1) per zeroed frame; /diagnostics once a recorded second.
-# Times are the recording's own: the file's creation time plus each frame's recorded host time
-# since the first.  latency_ms, worker_ms and fit_ms are NaN (they would measure this machine),
-# so two exports of one file are identical byte for byte.
-# OUT.npz: counts (N, rows, cols) uint16, host_time_s (N,) float64 (recorded monotonic times),
-# seq (N,) int64, sensor_id (N,) int64 -- input for `tactiled fit --calibration CAL.json`.
 
 from __future__ import annotations
 

@@ -1,27 +1,43 @@
 """Fit contact parameters to the frames of an .npz file; print one JSON object per frame.
 
-FRAMES.npz holds 'strain' (N, rows, cols), zeroed strain positive under compression, and
-optionally 'dx', 'dy' (tactel pitch, mm); with --calibration CAL.json, raw 'counts' instead.
-Each line: frame, contact, model, x_mm, y_mm, force_n, r1_mm, r2_mm (null = infinite),
-angle_deg (psi in [0, 180)), rms, std (1-sigma Cramer-Rao bounds), fit_ms, reasons.
-A bad file gets one error line, exit 2.  Recordings (.tact): use 'tactiled replay'.
+FRAMES.npz holds 'strain', a float array (N, rows, cols) of linearised, zeroed strain, positive
+under compression, and optionally the scalars 'dx', 'dy' (tactel pitch, mm).  Each output line:
+
+  {"frame": i, "contact": bool, "model": "cylinder"|"sphere"|"general"|null,
+   "x_mm", "y_mm", "force_n", "r1_mm", "r2_mm" (null = infinite), "angle_deg" (psi in [0, 180),
+   null for a sphere), "rms", "std": {same keys: 1-sigma Cramer-Rao bounds}, "fit_ms", ...}
+
+Extra keys: label (edge/plane/model), converged, iterations, condition, peak, reasons (why any
+value is null or suspect), message.  Contact is decided by a matched filter against a threshold
+set for 1e-4 false contacts per noise-only frame.  Sensor noise sigma: --sigma, else the noise
+stored in the file by 'tactiled simulate', else 0.0005.  A bad file gets one error line, exit 2.
+
+--calibration CAL.json fits with the sensor's calibration: a version 2 file's identified rubber
+constants, tactel positions and model-error floor (docs/howto/calibration.md).  With it, FRAMES.npz
+may hold 'counts' (N, rows, cols) raw readings (and optionally 'sensor_id', checked against the
+file) in place of 'strain'; they go through the file's tables (strain 0 at the zero-load
+point), then the fit.  Uncertainties also widen when a frame's residuals say the finger departs
+from its model (docs/concepts/uncertainty.md).
+
+The finger is learned first (--learn, the default): a first pass fits up to 2000 of the
+file's contact frames, spread over it, in order, learning how far the finger departs from its
+model (the model-error floor) and each tactel's gain and position (the flat field).  If they
+show a departure beyond the noise, every frame is then fitted with what was learned, its
+uncertainties widened to match and its tactels corrected, and stderr says so; if not, the
+output is what each frame gives alone.  --no-learn skips the pass.
+
+Every frame is fitted on its own (cold start, the same learned state), so frames can be fitted
+in parallel: --jobs N worker processes (default: every core this process may use, for inputs
+of 2000 frames or more) take chunks of frames, and the lines are written strictly in frame
+order, the same as with --jobs 1 but for the timing key fit_ms.  Progress goes to stderr for
+inputs of 1000 frames or more (a bar on a terminal, else a line every 10 s and the totals at
+the end); stdout carries only the JSON lines.  For raw
+recordings (.tact), which need calibration and zeroing frame by frame, use 'tactiled replay'.
+
+A 3-axis file ('taxels' (N, rows, cols, 3), written by 'tactiled simulate --sensor' on a 3-axis
+description) is fitted by the shear model instead: each line then carries the 'shear' and
+'slip' tables (tangential force, torsion, friction; docs/concepts/shear.md).
 """
-# Extra keys: label (edge/plane/model), converged, iterations, condition, peak, reasons (why a
-# value is null or suspect), message.  Contact is decided by a matched filter with a threshold
-# set for 1e-4 false contacts per noise-only frame.  Noise sigma: --sigma, else the noise the
-# file stores ('tactiled simulate'), else 0.0005.
-# --calibration: a version 2 file's rubber constants, tactel positions and model-error floor
-# (docs/howto/calibration.md); 'counts' go through its tables (strain 0 at the zero-load point)
-# and 'sensor_id', when present, is checked against it.  Uncertainties widen when a frame's
-# residuals say the finger departs from its model (docs/concepts/uncertainty.md).
-# --learn (default): a first pass over up to 2000 contact frames, spread over the file, learns
-# the model-error floor and each tactel's gain and position (the flat field); only when these
-# depart beyond the noise are frames fitted with them (stderr says so).  --no-learn skips it.
-# Every frame is fitted on its own (cold start, same learned state), so --jobs N workers take
-# chunks in parallel and lines are still written in frame order (identical but for fit_ms).
-# Default jobs: every usable core for 2000+ frames.  Progress on stderr for 1000+ frames.
-# A 3-axis file ('taxels' (N, rows, cols, 3)) is fitted by the shear model: each line then
-# carries 'shear' and 'slip' tables (docs/concepts/shear.md; see tactiled/commands/shear.py).
 
 from __future__ import annotations
 

@@ -1,20 +1,29 @@
 """Make a press file from a recorded calibration session and the known contacts pressed.
 
-RECORDING.tact: the array unloaded for its first --quiet frames, then each press.
-CONTACTS.csv: one line per press, in order, under the header r1_mm,r2_mm,angle_deg,force_n,x_mm,y_mm.
-Writes what `tactiled calibrate --identify` reads (docs/reference/file-formats.md).
+RECORDING.tact is the session as `tactiled record` wrote it: the array unloaded for its first
+--quiet frames (at least 50 at the default), then each press (load, hold still, lift off fully).
+CONTACTS.csv lists the known contact of every press in the order pressed, one line each, under
+the header line
+
+  r1_mm,r2_mm,angle_deg,force_n,x_mm,y_mm
+
+(radii of the indenter, r2_mm inf for a cylinder; the direction of a cylinder's axis from +x
+toward +y; the force; the centre in the array's frame, tactel [0, 0] at the origin).  A line
+with force_n 0 is an unloaded sample, taken from the rest before the next press.  `#` starts a
+comment line.
+
+A frame is loaded when a tactel departs from its rest by more than --threshold noise sigmas; a
+press is a run of loaded frames, and its counts are the mean of its last --average frames
+before the lift-off.  The presses found must be as many as the loaded lines.  The file written
+is what `tactiled calibrate --identify` reads (docs/reference/file-formats.md).
+
 Exit status: 0 written; 2 unusable input, with one error line.
 
-example:  tactiled presses session.tact --contacts pressed.csv -o presses.npz
+Example:
+  tactiled record lines:///dev/ttyACM0?rows=16&cols=16 -o session.tact
+  tactiled presses session.tact --contacts pressed.csv -o presses.npz
+  tactiled calibrate presses.npz -o pad.json --identify --sensor pad16.toml
 """
-# Session: unloaded for at least --quiet frames (50 at the default), then each press: load,
-# hold still, lift off fully.  CSV: indenter radii (r2_mm inf for a cylinder), a cylinder's
-# axis direction from +x toward +y, the force, the centre in the array's frame (tactel [0, 0]
-# at the origin); force_n 0 is an unloaded sample taken from the rest before the next press;
-# '#' starts a comment line.
-# A frame is loaded when a tactel departs from its rest by more than --threshold noise sigmas;
-# a press is a run of loaded frames, its counts the mean of its last --average frames before
-# lift-off.  The presses found must be as many as the loaded lines.
 
 from __future__ import annotations
 

@@ -1,10 +1,13 @@
 """Record the frames of a frame source to a recording file (docs/reference/file-formats.md).
 
-Every intact frame is written with its host receive time; corrupt wire data is dropped and
-counted.  Stops after --seconds or --frames, at the end of the stream, or on Ctrl-C / SIGTERM;
-the file is flushed and fsync'ed either way.
+Every frame the source delivers intact is written with its host receive time; corrupt wire
+data is dropped by the decoder and counted in the summary.  Stops after --seconds or --frames,
+at the end of the stream, or on Ctrl-C / SIGTERM; the file is flushed and fsync'ed either way.
 
-example:  tactiled record serial:///dev/ttyACM0 -o session.tact --seconds 60
+examples:
+  tactiled record serial:///dev/ttyACM0 -o session.tact --seconds 60
+  tactiled record 'sim://?scene=demo&seed=1' -o demo.tact --seconds 5
+  tactiled replay demo.tact
 """
 
 from __future__ import annotations

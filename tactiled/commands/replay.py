@@ -1,15 +1,21 @@
 """Run a recording through the acquisition pipeline; print one JSON estimate per line.
 
-Each line is an estimate as the daemon publishes it.  --mode lossless (default) fits every
-frame the gate passes, so replays of one file agree (byte for byte with --no-timing);
---mode live lets newer frames replace the waiting one, as with a live sensor.
+Each line is an estimate as the daemon publishes it: "type": "estimate", sensor, sensor_id,
+seq, device_time_us, host_time, time, latency_ms, worker_ms, gate ("fit", "no_contact",
+"unchanged"), fitted_seq, then the keys of a `tactiled fit` line (contact, model, x_mm, y_mm,
+force_n, r1_mm, r2_mm, angle_deg, rms, std, fit_ms, ...).
 
-examples:  tactiled replay session.tact --speed 0 --no-timing > estimates.jsonl
+--mode lossless (the default) fits every frame the gate passes, waiting for each fit before
+reading on, so two replays of one file print the same estimates; --no-timing drops the keys
+that vary from run to run (host_time, time, latency_ms, worker_ms, fit_ms) so the output is
+identical byte for byte.  --mode live behaves as the daemon does with a live sensor: while a
+fit runs, newer frames replace the waiting one (latest frame wins), so what is fitted depends
+on timing.
+
+examples:
+  tactiled replay session.tact --speed 0 --no-timing > estimates.jsonl
+  tactiled replay session.tact --speed 1 --mode live --model cylinder
 """
-# Line keys: "type": "estimate", sensor, sensor_id, seq, device_time_us, host_time, time,
-# latency_ms, worker_ms, gate ("fit", "no_contact", "unchanged"), fitted_seq, then the keys of
-# a `tactiled fit` line.  --no-timing drops host_time, time, latency_ms, worker_ms, fit_ms.
-# In live mode what is fitted depends on timing (latest frame wins).
 
 from __future__ import annotations
 

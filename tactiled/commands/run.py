@@ -1,20 +1,26 @@
 """Run the daemon: acquisition, fitting, the REST/WebSocket API and the dashboard, one process.
 
-With no configuration it plays the simulated finger's demo scene and serves
-http://127.0.0.1:8765/.  Precedence: flags > TACTILED_* environment > --config file > defaults.
-Listening beyond loopback requires a token.  --zenoh and --ros2 also publish on Zenoh and as a
-ROS 2 node (docs/howto/zenoh.md, docs/howto/ros2.md).
+With no configuration it plays the simulated finger's looping demo scene (one sensor,
+finger0) and serves http://127.0.0.1:8765/ (the default port), which it prints on stdout once
+the server answers.  Precedence: flags > TACTILED_* environment (TACTILED_TOKEN for the token)
+> the --config file > defaults.  Listening on anything but loopback requires a token.
 
-examples:  tactiled run --config /etc/tactiled/tactiled.toml
+SIGTERM or Ctrl-C: graceful stop within 5 s (stream clients get close code 1001, devices are
+released, recordings flushed); a second Ctrl-C exits at once.  Under systemd (Type=notify) it
+reports READY=1 once serving, WATCHDOG=1 while frames flow, STOPPING=1 on the way out.
+
+With --zenoh (or [zenoh] enabled) it also publishes the estimates, frames and health on Zenoh
+(needs the zenoh extra: pip install 'tactiled[zenoh]'; docs/howto/zenoh.md).  With --ros2 (or [ros2]
+enabled) it is also a ROS 2 node on that session, the way rmw_zenoh lays topics out (needs the
+ros2 extra; docs/howto/ros2.md).
+
+examples:
+  tactiled run
+  tactiled run --config /etc/tactiled/tactiled.toml
+  TACTILED_TOKEN=s3cret tactiled run --host 0.0.0.0 --port 9000
+  tactiled run --zenoh --zenoh-connect tcp/192.168.1.10:7447
+  tactiled run --ros2 --zenoh-mode client --zenoh-connect tcp/localhost:7447
 """
-# The URL is printed on stdout once the server answers.  SIGTERM or Ctrl-C: graceful stop
-# within 5 s (stream clients get close code 1001, devices released, recordings flushed); a
-# second Ctrl-C exits at once.  Under systemd (Type=notify): READY=1 once serving, WATCHDOG=1
-# while frames flow, STOPPING=1 on the way out.  --ros2 lays topics out as rmw_zenoh does.
-# Examples:
-#   TACTILED_TOKEN=s3cret tactiled run --host 0.0.0.0 --port 9000
-#   tactiled run --zenoh --zenoh-connect tcp/192.168.1.10:7447
-#   tactiled run --ros2 --zenoh-mode client --zenoh-connect tcp/localhost:7447
 
 from __future__ import annotations
 

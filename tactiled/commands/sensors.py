@@ -1,11 +1,16 @@
 """List the built-in sensor descriptions, print one as TOML, or check a description file.
 
-A description says what a taxel array is: grid, surface, cover, noise, wiring
-(docs/howto/sensors.md).  The daemon takes one per sensor; fit, simulate and bench take --sensor.
+A sensor description says what a taxel array is: its grid (rows, cols, pitch), its surface
+(a finger's radius, or flat), its cover (the impulse response's depths and ratios, the modulus),
+its noise and its wiring (docs/howto/sensors.md).  The daemon takes one per sensor
+(`[[sensor]] description = "NAME or FILE.toml"`); `fit`, `simulate` and `bench` take
+`--sensor NAME|FILE.toml`.
 
 examples:
+  tactiled sensors                          list the built-ins
+  tactiled sensors show flat16              print one as TOML (a start for your own)
   tactiled sensors show flat16 > mypad.toml
-  tactiled sensors check mypad.toml         one line per problem, exit 2
+  tactiled sensors check mypad.toml         read and check a file: one line per problem, exit 2
 """
 
 from __future__ import annotations

@@ -1,16 +1,19 @@
 """``tactiled simulate`` and ``tactiled fit`` on 3-axis arrays (docs/concepts/shear.md).
 
-A 3-axis frame file is an .npz of ``taxels`` ``(N, rows, cols, 3)``, zeroed readings (x, y, z;
-z positive into the cover), and ``sensor`` (a description's name or path), with the truth
-(``true_*``) when simulated.  Frames of one ``sequence`` are consecutive at ``rate_hz``; the
-slip detector (tactiled/fit/slip.py) runs along each.
+A 3-axis frame file is an .npz holding ``taxels``, a float array ``(N, rows, cols, 3)`` of
+zeroed readings (x, y, z; z positive into the cover), and ``sensor``, the description's name
+or path; ``tactiled simulate --sensor NAME`` on a 3-axis description writes one, with the truth
+(``true_*``, tactiled/sim/shear.py), and ``tactiled fit`` reads it.  Frames of a ``sequence``
+index (written with ``--load push|twist|pull``) are consecutive frames at ``rate_hz``, and the
+slip detector (tactiled/fit/slip.py) runs along each sequence.
+
+Each output line of ``tactiled fit``: ``{"frame", "contact", "model": "sphere", "x_mm",
+"y_mm", "force_n", "r1_mm", "std": {...}, "shear": {"fx_n", "fy_n", "torque_nmm",
+"q_over_p", "mu", "slip_margin", "std": {...}}, "slip": {"state", "lam", "lam_std",
+"event"}, "rms_over_noise", "converged", "reasons"}`` (``rms_over_noise``: the RMS residual
+in units of the noise); ``mu`` and ``slip_margin`` are null where the bound does not resolve
+them, and ``reasons`` says why.
 """
-# Truth: tactiled/sim/shear.py.  Each output line of ``tactiled fit``: {"frame", "contact",
-# "model": "sphere", "x_mm", "y_mm", "force_n", "r1_mm", "std": {...}, "shear": {"fx_n",
-# "fy_n", "torque_nmm", "q_over_p", "mu", "slip_margin", "std": {...}}, "slip": {"state",
-# "lam", "lam_std", "event"}, "rms_over_noise", "converged", "reasons"}; rms_over_noise is the
-# RMS residual in units of the noise; mu and slip_margin are null where the bound does not
-# resolve them, and reasons says why.
 
 from __future__ import annotations
 

@@ -1,30 +1,40 @@
 """Write simulated strain frames with known contact parameters to an .npz file, or act as a
-simulated fingertip on a serial device (docs/concepts/simulator.md).
+simulated fingertip on a serial device.
+
+File mode (OUTPUT.npz): each parameter takes a value or a range LO:HI drawn uniformly per frame
+(radius ranges are drawn log-uniformly).  The frames come from the same forward model the fitter
+inverts, plus Gaussian noise and quantisation; the true parameters are stored beside 'strain'
+(true_r1, true_r2, true_angle, true_force, true_x, true_y), so a fit can be checked against them.
+
+On a 3-axis --sensor (axes = 3, e.g. xela_uskin_4x4) the file holds 'taxels' (N, rows, cols,
+3) under tangential loads: --load random (independent frames; --mu, --lam, --torque) or scenes
+at 1 kHz, --load push|twist|pull --sequences N (docs/concepts/shear.md).
+
+Presses mode (OUTPUT.npz --presses N): N presses of known contacts on the simulated finger (the
+finger flags below), as docs/howto/calibration.md's identification procedure records them (its
+indentors, forces 0.25-2 N, centres over the whole array, ~10 % unloaded, each press the mean
+of 32 frames of --sigma noise, as raw counts): the press file 'tactiled calibrate --identify'
+reads.  The contact flags (--r1, --force...) do not apply.
+
+Device mode (--pty or --serial): a simulated finger plays a scripted scene (--scene) and streams
+wire-format frames in real time at --rate Hz until SIGINT/SIGTERM, exactly as the hardware would
+(see docs/concepts/simulator.md).  --pty makes a pseudo-terminal and prints its path as the first line
+on stdout ("pty: /dev/pts/N"); --link PATH also points a symlink at it, a stable path for a
+daemon config.  Frames the reader does not take are dropped (and counted), never queued
+without bound.
 
 examples:
   tactiled simulate cyl.npz --r1 10 --angle 45 --force 1 --x 11 --y 13 --frames 20
+  tactiled simulate mix.npz --r1 2:40 --angle 30:150 --force 0.5:2 --frames 200 --seed 7
+  tactiled fit cyl.npz
   tactiled simulate presses.npz --presses 400 --depth-x 5 --nu-x 0.4 --modulus 0.32
-  tactiled simulate --pty --link /tmp/ttyTACT --scene demo --rate 1000
+  tactiled calibrate presses.npz -o cal.json --identify
+  tactiled simulate --pty --link /tmp/ttyTACT --scene demo --rate 1000   (read serial:///tmp/ttyTACT)
+  tactiled simulate --as flexitac --device /tmp/ttyFLEX --rate 100   (read flexitac:///tmp/ttyFLEX)
+  tactiled simulate --pty --link /tmp/ttyPALM --scene hand-palm --sensor flat16   (a hand's palm:
+      several contacts at once; its fingertips: --scene hand-finger1 .. hand-finger5, each a
+      device of its own, on the default finger; docs/performance/hand.md)
 """
-# File mode (OUTPUT.npz): each parameter takes a value or a range LO:HI drawn uniformly per
-# frame (radii log-uniformly).  Frames come from the forward model the fitter inverts, plus
-# Gaussian noise and quantisation; the truth is stored beside 'strain' (true_r1, true_r2,
-# true_angle, true_force, true_x, true_y) so a fit can be checked against it.
-# A 3-axis --sensor (e.g. xela_uskin_4x4) writes 'taxels' (N, rows, cols, 3) under tangential
-# loads: --load random (--mu, --lam, --torque) or 1 kHz scenes --load push|twist|pull
-# --sequences N (docs/concepts/shear.md).
-# Presses mode (--presses N): N presses of known contacts as docs/howto/calibration.md's
-# identification records them (forces 0.25-2 N, centres over the whole array, ~10 % unloaded,
-# each the mean of 32 frames of --sigma noise, as raw counts), the file
-# 'tactiled calibrate --identify' reads; the contact flags do not apply.
-# Device mode (--pty or --serial): a scripted scene (--scene) streamed in the wire format at
-# --rate Hz until SIGINT/SIGTERM; --pty prints "pty: /dev/pts/N", --link PATH symlinks it.
-# Frames the reader does not take are dropped and counted, never queued without bound.
-# More examples:
-#   tactiled simulate mix.npz --r1 2:40 --angle 30:150 --force 0.5:2 --frames 200 --seed 7
-#   tactiled simulate --as flexitac --device /tmp/ttyFLEX --rate 100
-#   tactiled simulate --pty --link /tmp/ttyPALM --scene hand-palm --sensor flat16  (a palm;
-#     fingertips: --scene hand-finger1 .. hand-finger5; docs/performance/hand.md)
 
 from __future__ import annotations
 

@@ -1,23 +1,28 @@
 """``tactiled simulate --as KIND --device PATH_OR_PORT``: a simulated vendor device.
 
-The scene simulator renders frames on the device's array
-(:func:`tactiled.sensors.devices.device_array`) and streams them in the vendor's own format, so
-``tactiled run`` and ``tactiled record`` can be tried on each driver without hardware.
+The scene simulator renders frames on the device's array (:func:`tactiled.sensors.devices.device_array`:
+its shape, pitch and nominal counts scaling) and streams them in the vendor's own format, so
+``tactiled run`` and ``tactiled record`` can be tried on each driver without hardware:
+
+``--sensor NAME|FILE.toml`` plays another array on the device: any shape for ``lines`` and
+``flexitac`` (the daemon's URL then gives ``rows`` and ``cols``), 4x6 for ``xela``.
+
+- ``lines``, ``flexitac``, ``robotiq``: a pseudo-terminal in raw mode; ``--device PATH`` is made a
+  symlink to it.  Prints ``pty: /dev/pts/N`` and ``link: PATH``.  The Robotiq device streams both
+  fingers, and only between the auto-send command that starts it and the one that stops it, as
+  the sensor does.
+- ``paxini``: a pseudo-terminal as for the serial devices, answering each distributed-force
+  request (:func:`tactiled_drivers.paxini.request`) with the newest rendered frame, as the PX-6AX
+  module answers its host (it sends nothing unasked).
+- ``xela``: a WebSocket server on 127.0.0.1 (``--device PORT``, 0 for any free port) speaking as
+  ``xela_server`` does (a welcome message, then one message per tick with sensors 1 and 2).
+  Prints ``xela: ws://127.0.0.1:PORT``.  With ``--scene push``, ``twist`` or ``pull`` (the
+  tangential scenes of :mod:`tactiled.sim.shear`) every taxel's x, y and z follow the 3-axis model
+  on ``xela_uskin_4x4`` (sensor 1; sensor 2 rests): 300 frames at rest, then the scene, looped
+  with a new sphere each time.
+
 Runs until SIGINT/SIGTERM.
 """
-# ``--sensor NAME|FILE.toml`` plays another array: any shape for ``lines`` and ``flexitac``
-# (the daemon's URL gives rows and cols), 4x6 for ``xela``.
-# - lines, flexitac, robotiq: a raw-mode pty, ``--device PATH`` symlinked to it; prints
-#   ``pty: /dev/pts/N`` and ``link: PATH``.  Robotiq streams both fingers, only between the
-#   auto-send commands that start and stop it, as the sensor does.
-# - paxini: a pty answering each distributed-force request
-#   (:func:`tactiled_drivers.paxini.request`) with the newest frame, as the PX-6AX module does
-#   (it sends nothing unasked).
-# - xela: a WebSocket server on 127.0.0.1 (``--device PORT``, 0 = any free port) speaking as
-#   ``xela_server`` (a welcome message, then one message per tick with sensors 1 and 2); prints
-#   ``xela: ws://127.0.0.1:PORT``.  With ``--scene push|twist|pull`` (:mod:`tactiled.sim.shear`)
-#   every taxel's x, y, z follow the 3-axis model on ``xela_uskin_4x4`` (sensor 1; sensor 2
-#   rests): 300 frames at rest, then the scene, looped with a new sphere each time.
 
 from __future__ import annotations
 

@@ -1,28 +1,41 @@
 """Subscribe to a running daemon and print what it streams, one JSON object per line.
 
-Every estimate (--frames: zeroed frames; --slip: slip events) as it arrives, flushed per line
-(`tactiled watch | jq .r1_mm`).  --zenoh reads Zenoh (every daemon under --key; --list the
-daemons alive); --ros2 prints the decoded ROS 2 topics (docs/howto/zenoh.md, docs/howto/ros2.md).
-Exit status: 0 stream closed normally or Ctrl-C, 1 connection failed or closed with an error,
-2 bad arguments or a refused token.
+Like gpspipe: every estimate (and, with --frames, every zeroed frame; with --slip, every slip
+event of a 3-axis array) the daemon's stream sends, as it arrives, flushed line by line so it
+can be piped (`tactiled watch | jq .r1_mm`).  Each line is the stream's message: "type"
+("estimate", "frame" or "slip"), "v", "sensor", "seq", the keys of a `tactiled fit` line, and
+"ellipse" (a slip event: "event", "contact_id", "state", docs/concepts/shear.md).  Control messages (version, subscribed) are not
+printed; an error message from the server goes to stderr.
+
+Exit status: 0 when the daemon closes the stream normally (or on Ctrl-C), 1 when the
+connection fails or is closed with an error code, 2 for bad arguments or a refused token.
+
+With --zenoh it reads Zenoh instead (docs/howto/zenoh.md; needs the zenoh extra): the estimates of
+every daemon it can reach under the key expression --key (default tactiled/**), each line
+tagged with its daemon's "prefix" first; --list prints one line per daemon alive (its
+liveliness token) with its status and sensors, then exits.  The session is configured like a
+daemon's [zenoh] (--config FILE, TACTILED_ZENOH_* variables: mode, multicast_scouting,
+connect), --connect replacing connect; it never listens.
+
+With --ros2 it prints what a ROS 2 subscriber of the daemons' ROS 2 topics receives
+(docs/howto/ros2.md; needs the ros2 extra, and the zenoh extra for Zenoh): every wrench, contact
+and markers message (with --frames the strain images too, and /diagnostics), decoded, one JSON
+object per line: "topic", "type", "sequence_number" and "source_timestamp_ns" (the rmw_zenoh
+attachment; on DDS the writer's timestamp and no sequence number), "message" (the message's
+fields).  --ros2-middleware reads DDS or Zenoh (default: Zenoh with --connect, else as [ros2]
+middleware says, "auto" being Zenoh when [zenoh] is enabled, else DDS).  --domain-id picks the
+ROS domain (default [ros2] domain_id, 0).
+
+examples:
+  tactiled watch
+  tactiled watch ws://robot.local:8765/v1/stream --token "$TACTILED_TOKEN" --sensor thumb
+  tactiled watch --frames --rate 10
+  tactiled watch --zenoh
+  tactiled watch --zenoh --connect tcp/192.168.1.10:7447 --key 'tactiled/hand1/**'
+  tactiled watch --zenoh --list
+  tactiled watch --ros2 --connect tcp/localhost:7447 --count 3
+  tactiled watch --ros2 --ros2-middleware dds --domain-id 7
 """
-# Like gpspipe.  Each line is the stream's message: "type" ("estimate", "frame" or "slip"),
-# "v", "sensor", "seq", the keys of a `tactiled fit` line, and "ellipse" (a slip event:
-# "event", "contact_id", "state", docs/concepts/shear.md).  Control messages (version,
-# subscribed) are not printed; a server error message goes to stderr.
-# --zenoh: lines tagged with their daemon's "prefix" first; --list prints one line per
-# liveliness token with its status and sensors.  The session is configured like a daemon's
-# [zenoh] (--config FILE, TACTILED_ZENOH_* variables), --connect replacing connect; it never
-# listens.
-# --ros2: every wrench, contact and markers message (--frames: strain images and
-# /diagnostics) as "topic", "type", "sequence_number", "source_timestamp_ns" (the rmw_zenoh
-# attachment; on DDS the writer's timestamp and no sequence number), "message".
-# --ros2-middleware dds|zenoh (default: Zenoh with --connect, else [ros2] middleware, "auto"
-# being Zenoh when [zenoh] is enabled, else DDS); --domain-id (default [ros2] domain_id, 0).
-# Examples:
-#   tactiled watch ws://robot.local:8765/v1/stream --token "$TACTILED_TOKEN" --sensor thumb
-#   tactiled watch --zenoh --connect tcp/192.168.1.10:7447 --key 'tactiled/hand1/**'
-#   tactiled watch --ros2 --ros2-middleware dds --domain-id 7
 
 from __future__ import annotations
 
