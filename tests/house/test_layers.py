@@ -13,9 +13,8 @@ of a literal name.  Its bars (docs/contributing.md, "Layers"):
 * no module of the runtime or the benchmarks is over :data:`MAX_LINES` lines, unless its first
   lines say it is a compiled-kernel file and why.
 
-What breaks a bar today and is being mended is listed (:data:`UPWARD_KNOWN`,
-:data:`CYCLES_KNOWN`, :data:`LONG_KNOWN`), each as a strict xfail named after it: it fails the
-day it is mended, and its entry is then deleted.
+Every bar holds with no exception listed: a change that breaks one mends it (a split, a module
+of its own for what two modules share) rather than adding an exception here.
 """
 
 from __future__ import annotations
@@ -66,14 +65,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
 #: one way the runtime reaches it (``tactiled bench``, ``tactiled calibrate --bench``).
 BENCH_ENTRY = ("tactiled.commands.bench", "tactiled.commands.calibrate")
 
-#: Imports running up the layers today: (importer, imported) -> why, and the mend.
-UPWARD_KNOWN: dict[tuple[str, str], str] = {}
-#: Import cycles between modules today (their sorted members) -> the mend.
-CYCLES_KNOWN: dict[tuple[str, ...], str] = {
-}
 MAX_LINES = 700
-#: Modules over MAX_LINES today -> the split that mends it.
-LONG_KNOWN: dict[str, str] = {}
 #: Words a long module's first lines use to say it holds compiled kernels (and why it is long).
 KERNEL_FILE = "compiled-kernel file"
 
@@ -296,43 +288,22 @@ def test_the_core_loads_drivers_and_service_only_from_a_command() -> None:
 
 def test_no_import_runs_up_the_layers() -> None:
     bad = [f"{i}: layer {LAYERS[layer(i.importer)][0]} -> {LAYERS[layer(i.imported)][0]}"
-           for i in upward() if (i.importer, i.imported) not in UPWARD_KNOWN]
+           for i in upward()]
     assert not bad, "\n".join(bad)
 
 
-def test_known_upward_imports_are_still_there() -> None:
-    """An entry of UPWARD_KNOWN whose import is gone is deleted (none today)."""
-    now = {(i.importer, i.imported) for i in upward()}
-    gone = [e for e in UPWARD_KNOWN if e not in now]
-    assert not gone, f"mended: delete from UPWARD_KNOWN: {gone}"
-
-
-def _known_cycle(cycle: tuple[str, ...]) -> bool:
-    """Whether ``cycle`` lies within a known one (a knot that shrinks is still that knot)."""
-    return any(set(cycle) <= set(known) for known in CYCLES_KNOWN)
 
 
 def test_no_import_cycle_between_modules() -> None:
-    bad = [" <-> ".join(c) for c in cycles() if not _known_cycle(c)]
+    bad = [" <-> ".join(c) for c in cycles()]
     assert not bad, "\n".join(bad)
 
-
-@pytest.mark.parametrize("cycle", [pytest.param(c, id="+".join(m.rpartition(".")[2] for m in c),
-                                                marks=pytest.mark.xfail(strict=True, reason=why))
-                                   for c, why in CYCLES_KNOWN.items()])
-def test_known_cycle_is_gone(cycle: tuple[str, ...]) -> None:
-    assert not any(set(cycle) & set(c) for c in cycles())
 
 
 def test_no_module_over_the_limit() -> None:
-    bad = [f"{m}: {length(modules()[m])} lines" for m in long_modules() if m not in LONG_KNOWN]  # type: ignore[arg-type]
+    bad = [f"{m}: {length(modules()[m])} lines" for m in long_modules()]  # type: ignore[arg-type]
     assert not bad, "\n".join(bad)
 
-
-@pytest.mark.parametrize("name", [pytest.param(m, marks=pytest.mark.xfail(strict=True, reason=why))
-                                  for m, why in LONG_KNOWN.items()])
-def test_known_long_module_is_split(name: str) -> None:
-    assert name not in long_modules()
 
 
 def test_a_long_kernel_file_says_so_in_its_first_lines(tmp_path: Path) -> None:
