@@ -24,7 +24,7 @@ from typing import ClassVar
 from tactiled.errors import DriverError
 from tactiled.io.recording import RecordingReader
 from tactiled.sources import FrameSource, Framer, SourceURL
-from tactiled_drivers.plumbing.futures import resolve
+from tactiled_drivers.plumbing.futures import Pause
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +51,7 @@ class ReplaySource(FrameSource):
         self._t0: float | None = None  # recorded host time of this pass's first frame, s
         self._start = 0.0  # monotonic time that frame was (re)played, s
         self._record_time = 0.0  # recorded host time of the record just returned, s
-        self._waker: asyncio.Future[None] | None = None
+        self._pause = Pause()
 
     async def _open_internal(self) -> None:
         try:
@@ -62,8 +62,7 @@ class ReplaySource(FrameSource):
         self._rewind()
 
     async def _close_internal(self) -> None:
-        if self._waker is not None:  # a paced read may be waiting for a frame due much later
-            resolve(self._waker)
+        self._pause.wake()  # a paced read may be waiting for a frame due much later
         if self._reader is not None:
             self._reader.close()
             self._reader = None
@@ -92,7 +91,7 @@ class ReplaySource(FrameSource):
                 due = self._start + (host_time - self._t0) / self.speed
                 delay = due - time.monotonic()
                 if delay > 0:
-                    await self._sleep(delay)
+                    await self._pause(delay)
             else:
                 # As fast as possible, yet let other tasks run between frames.
                 await asyncio.sleep(0)
@@ -104,17 +103,6 @@ class ReplaySource(FrameSource):
             return data
         return b""
 
-    async def _sleep(self, delay: float) -> None:
-        """Sleep ``delay`` seconds, or less if :meth:`close` wakes us."""
-        loop = asyncio.get_running_loop()
-        waker: asyncio.Future[None] = loop.create_future()
-        handle = loop.call_later(delay, resolve, waker)
-        self._waker = waker
-        try:
-            await waker
-        finally:
-            handle.cancel()
-            self._waker = None
 
     def _end_of_pass(self) -> bool:
         """Account for one pass; True to go round again."""

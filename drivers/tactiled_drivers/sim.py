@@ -48,7 +48,7 @@ from tactiled.sim import (
     scene_from_spec,
 )
 from tactiled.sources import FrameSource, Framer, SourceURL
-from tactiled_drivers.plumbing.futures import resolve
+from tactiled_drivers.plumbing.futures import Pause
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +97,7 @@ class SimSource(FrameSource):
         self.frames_sent = 0
         self.frames_skipped = 0
         self._schedule: FrameSchedule | None = None
-        self._waker: asyncio.Future[None] | None = None
+        self._pause = Pause()
 
     def sent_id(self) -> int:
         return self.sensor_id
@@ -106,8 +106,7 @@ class SimSource(FrameSource):
         self._schedule = None  # the device starts on the first read
 
     async def _close_internal(self) -> None:
-        if self._waker is not None and not self._waker.done():  # wake a paced read
-            self._waker.set_result(None)
+        self._pause.wake()  # a paced read may be waiting for its next frame
 
     async def _read_internal(self) -> bytes:
         loop = asyncio.get_running_loop()
@@ -128,7 +127,7 @@ class SimSource(FrameSource):
                 self._schedule = FrameSchedule(self.rate * self.speed, loop.time(), MAX_LAG_S)
             now = loop.time()
             if self._schedule.due(now) == 0:
-                await self._sleep(self._schedule.next_due() - now)
+                await self._pause(self._schedule.next_due() - now)
                 yielded = True
                 continue
             if not yielded:
@@ -164,14 +163,3 @@ class SimSource(FrameSource):
         self.last_error = f"simulator fell behind schedule: skipped {self.frames_skipped} frame(s)"
         log.warning("%s: %d frame(s) behind schedule, skipped (seq gap)", self.url.url, n)
 
-    async def _sleep(self, delay: float) -> None:
-        """Sleep ``delay`` seconds, or less if :meth:`close` wakes us."""
-        loop = asyncio.get_running_loop()
-        waker: asyncio.Future[None] = loop.create_future()
-        handle = loop.call_later(max(delay, 0.0), resolve, waker)
-        self._waker = waker
-        try:
-            await waker
-        finally:
-            handle.cancel()
-            self._waker = None
