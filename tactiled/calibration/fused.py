@@ -9,7 +9,8 @@ take the same arguments and give the same bits (tests/native/test_calibrate_core
 # * :func:`follow_baseline`: the baseline's step towards an untouched frame;
 # * :func:`average_maps`: the detector's running mean of its filter maps;
 # * :func:`drift_error`, :func:`pull_baseline`: drift followed around a held contact;
-# * :func:`learn_hysteresis`: a step of the hysteresis learner.
+# * :func:`learn_hysteresis`: a step of the hysteresis learner;
+# * :func:`zero_run`: a read's frames through the whole stage in one call, until one in contact.
 #
 # Nothing is compiled at first use: the core is built by ``pip install``.
 
@@ -27,6 +28,7 @@ if native.core is None:
         learn_hysteresis,
         pull_baseline,
         zero_frame,
+        zero_run,
     )
 else:
     zero_frame = native.core.zero_frame
@@ -35,6 +37,7 @@ else:
     drift_error = native.core.drift_error
     pull_baseline = native.core.pull_baseline
     learn_hysteresis = native.core.learn_hysteresis
+    zero_run = native.core.zero_run
 
 
 def filter_bands(ax: np.ndarray, ay_t: np.ndarray) -> np.ndarray:
