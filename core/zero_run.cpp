@@ -1,8 +1,9 @@
-// A run of frames through the calibration stage in one call (zero_run): for each frame, what
-// CalibrationStage.process does on its compiled path (zero_frame, the detector's decision with
-// its hysteresis and averaging, the zeroer's settling and the baseline's step), so a read's
-// frames cost one call into the core, not a dozen Python calls each.  Python reference:
-// tactiled/calibration/fused_reference.py's zero_run (same arguments, same bits:
+// A run of frames through the calibration stage in one call (ZeroRun.run): for each frame,
+// what CalibrationStage.process does on its compiled path (zero_frame, the detector's decision
+// with its hysteresis and averaging, the zeroer's settling and the baseline's step), so a
+// read's frames cost one call into the core, not a dozen Python calls each; the stage's arrays
+// are checked once, when it is built.  Python reference: tactiled/calibration/
+// fused_reference.py's ZeroRun and zero_run (same arguments, same bits:
 // tests/native/test_zero_run.py); RUN_STATE and RUN_CONSTANTS there name the two vectors.
 #include <pybind11/numpy.h>
 
@@ -24,40 +25,69 @@ namespace {
 constexpr py::ssize_t STATE_SIZE = 14;
 constexpr py::ssize_t CONSTANT_SIZE = 12;
 
-std::int64_t zero_run_py(py::list raws, In<double> times, In<double> offset, In<double> breaks,
-                         In<std::int64_t> first, In<double> params, py::array baseline,
-                         py::array peak, In<double> ax, In<double> ay_t, In<std::int64_t> bands,
-                         py::array ring, py::array total, py::array z, py::array residual,
-                         py::array stats, py::array peaks, py::array state,
-                         In<double> constants) {
+// One stage's run: its arrays and constants checked once (the table's segments, the
+// baseline and peak-hold, the filter, the detector's ring), then a read's frames a call.
+class ZeroRun {
+public:
+    ZeroRun(In<double> offset, In<double> breaks, In<std::int64_t> first, In<double> params,
+            py::array baseline, py::array peak, In<double> ax, In<double> ay_t,
+            In<std::int64_t> bands, py::array ring, py::array total, py::array residual,
+            In<double> constants)
+        : keep_{offset, breaks, first, params, baseline, peak, ax, ay_t, bands, ring, total,
+                residual, constants} {
+        n_ = baseline.size();
+        seg_ = calib::segments_of(offset, breaks, first, params, n_);
+        f_ = calib::filter_of(ax, ay_t, bands, n_);
+        base_ = data_of<double>(baseline, "baseline", true, n_);
+        pk_ = data_of<double>(peak, "peak", true, n_);
+        res_ = data_of<double>(residual, "residual", true, n_);
+        const double* c = data_of<double>(constants, "constants", false, CONSTANT_SIZE);
+        for (py::ssize_t i = 0; i < CONSTANT_SIZE; ++i) c_[i] = c[i];
+        average_ = static_cast<std::int64_t>(c_[11]);
+        p_ = f_.nu * f_.nv;
+        if (average_ < 1) throw py::value_error("average: at least 1");
+        if (ring.ndim() != 2 || ring.shape(0) != average_ || ring.shape(1) != p_)
+            throw py::value_error("ring: shape (average, P)");
+        rg_ = data_of<double>(ring, "ring", true);
+        tot_ = data_of<double>(total, "total", true, p_);
+        tmap_.resize(static_cast<std::size_t>(p_));
+        scratch_.resize(static_cast<std::size_t>(n_));
+        m_.resize(static_cast<std::size_t>(f_.nu * f_.cols));
+    }
+
+    std::int64_t run(py::list raws, py::array times, py::array z, py::array stats,
+                     py::array peaks, py::array state);
+
+private:
+    std::vector<py::object> keep_;  // the arrays the pointers below point into
+    py::ssize_t n_ = 0;
+    calib::Segments seg_{};
+    calib::Filter f_{};
+    double *base_ = nullptr, *pk_ = nullptr, *res_ = nullptr, *rg_ = nullptr, *tot_ = nullptr;
+    double c_[CONSTANT_SIZE] = {};
+    std::int64_t average_ = 1, p_ = 0;
+    std::vector<double> tmap_, scratch_, m_, as_double_;
+};
+
+std::int64_t ZeroRun::run(py::list raws, py::array times, py::array z, py::array stats,
+                          py::array peaks, py::array state) {
     const py::ssize_t count_frames = static_cast<py::ssize_t>(raws.size());
-    if (z.ndim() < 2 || z.shape(0) < count_frames)
-        throw py::value_error("z: expected one row per frame");
-    const py::ssize_t n = z.size() / (z.shape(0) > 0 ? z.shape(0) : 1);
-    if (times.size() < count_frames) throw py::value_error("times: one per frame");
-    const calib::Segments seg = calib::segments_of(offset, breaks, first, params, n);
-    const calib::Filter f = calib::filter_of(ax, ay_t, bands, n);
-    double* base = data_of<double>(baseline, "baseline", true, n);
-    double* pk = data_of<double>(peak, "peak", true, n);
+    const py::ssize_t n = n_;
     double* zz = data_of<double>(z, "z", true);
-    double* res = data_of<double>(residual, "residual", true, n);
+    const double* tm_times = data_of<double>(times, "times", false);
     double* st = data_of<double>(stats, "stats", true);
     double* pks = data_of<double>(peaks, "peaks", true);
-    if (stats.size() < count_frames || peaks.size() < count_frames)
-        throw py::value_error("stats, peaks: one per frame");
+    if (z.size() < count_frames * n || times.size() < count_frames ||
+        stats.size() < count_frames || peaks.size() < count_frames)
+        throw py::value_error("z, times, stats, peaks: one per frame");
     double* s = data_of<double>(state, "state", true, STATE_SIZE);
-    const double* c = data_of<double>(constants, "constants", false, CONSTANT_SIZE);
-    const double fraction = c[0], tau_s = c[1], floor = c[2], margin = c[3], sigma = c[4];
-    const double enter = c[5], exit_ = c[6], tau_drift = c[7], tau_release = c[8];
-    const double holdoff = c[9], max_step = c[10];
-    const std::int64_t average = static_cast<std::int64_t>(c[11]);
-    const std::int64_t p = f.nu * f.nv;
-    if (average < 1) throw py::value_error("average: at least 1");
-    if (ring.ndim() != 2 || ring.shape(0) != average || ring.shape(1) != p)
-        throw py::value_error("ring: shape (average, P)");
-    double* rg = data_of<double>(ring, "ring", true);
-    double* tot = data_of<double>(total, "total", true, p);
-    const double* tm_times = times.data();
+    const double fraction = c_[0], tau_s = c_[1], floor = c_[2], margin = c_[3], sigma = c_[4];
+    const double enter = c_[5], exit_ = c_[6], tau_drift = c_[7], tau_release = c_[8];
+    const double holdoff = c_[9], max_step = c_[10];
+    const std::int64_t average = average_, p = p_;
+    const calib::Segments& seg = seg_;
+    const calib::Filter& f = f_;
+    double *base = base_, *pk = pk_, *res = res_, *rg = rg_, *tot = tot_;
 
     double last_t = s[0];
     std::int64_t frames = static_cast<std::int64_t>(s[1]);
@@ -72,10 +102,10 @@ std::int64_t zero_run_py(py::list raws, In<double> times, In<double> offset, In<
     double top = s[12];
     bool released = s[13] != 0.0;
 
-    std::vector<double> tmap(static_cast<std::size_t>(p));
-    std::vector<double> scratch(static_cast<std::size_t>(n));
-    std::vector<double> m(static_cast<std::size_t>(f.nu * f.cols));
-    std::vector<double> as_double;
+    std::vector<double>& tmap = tmap_;
+    std::vector<double>& scratch = scratch_;
+    std::vector<double>& m = m_;
+    std::vector<double>& as_double = as_double_;
     std::int64_t taken = 0;
     for (py::ssize_t i = 0; i < count_frames; ++i) {
         if (!py::isinstance<py::array>(raws[i])) throw py::type_error("raws: numpy arrays");
@@ -163,8 +193,17 @@ std::int64_t zero_run_py(py::list raws, In<double> times, In<double> offset, In<
 }  // namespace
 
 void bind_zero_run(py::module_& m) {
-    m.def("zero_run", &zero_run_py,
-          "A run of frames through the calibration stage, until the first in contact "
-          "(tactiled.calibration.fused_reference.zero_run).");
+    py::class_<ZeroRun>(m, "ZeroRun",
+                        "A stage's runs of frames through the calibration stage, until the first "
+                        "in contact (tactiled.calibration.fused_reference.ZeroRun).")
+        .def(py::init<In<double>, In<double>, In<std::int64_t>, In<double>, py::array,
+                      py::array, In<double>, In<double>, In<std::int64_t>, py::array,
+                      py::array, py::array, In<double>>(),
+             py::arg("offset"), py::arg("breaks"), py::arg("first"), py::arg("params"),
+             py::arg("baseline"), py::arg("peak"), py::arg("ax"), py::arg("ay_t"),
+             py::arg("bands"), py::arg("ring"), py::arg("total"), py::arg("residual"),
+             py::arg("constants"))
+        .def("run", &ZeroRun::run, py::arg("raws"), py::arg("times"), py::arg("z"),
+             py::arg("stats"), py::arg("peaks"), py::arg("state"));
 }
 }  // namespace tactiled

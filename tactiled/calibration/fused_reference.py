@@ -311,3 +311,24 @@ def zero_run(raws: list[np.ndarray], times: np.ndarray, offset: np.ndarray, brea
     state[:] = (last_t, frames, settle_until, release_until, baseline_var, in_contact, active,
                 count, head, last_statistic, det_in, residual_valid, top, released)
     return taken
+
+
+class ZeroRun:
+    """One stage's :func:`zero_run`: its arrays (the table's segments, ``baseline``, ``peak``,
+    the filter, the detector's ``ring`` and ``total``, ``residual``) and ``constants`` given
+    once, as the core checks them once; :meth:`run` takes a read's frames."""
+
+    def __init__(self, offset: np.ndarray, breaks: np.ndarray, first: np.ndarray,
+                 params: np.ndarray, baseline: np.ndarray, peak: np.ndarray, ax: np.ndarray,
+                 ay_t: np.ndarray, bands: np.ndarray, ring: np.ndarray, total: np.ndarray,
+                 residual: np.ndarray, constants: np.ndarray) -> None:
+        self._arrays = (offset, breaks, first, params, baseline, peak, ax, ay_t, bands, ring,
+                        total)
+        self._residual, self._constants = residual, np.array(constants, dtype=np.float64)
+
+    def run(self, raws: list[np.ndarray], times: np.ndarray, z: np.ndarray, stats: np.ndarray,
+            peaks: np.ndarray, state: np.ndarray) -> int:
+        """:func:`zero_run` of these frames with this stage's arrays; returns the frames
+        taken."""
+        return zero_run(raws, times, *self._arrays, z, self._residual, stats, peaks, state,
+                        self._constants)

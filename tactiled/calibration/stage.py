@@ -19,7 +19,8 @@ import os
 import numpy as np
 
 from tactiled.calibration.detection import ContactDetector
-from tactiled.calibration.fused import zero_frame, zero_run
+from tactiled.calibration.fused import ZeroRun, zero_frame
+from tactiled.calibration.fused_reference import RUN_STATE
 from tactiled.calibration.hysteresis import MIN_PEAK_SIGMAS, NOISE_MARGIN
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.segments import Segments
@@ -45,6 +46,9 @@ class CalibrationStage:
         #: took the reference path); a frame whose contact ends may be changed after it
         #: (the baseline's pull clips an implausible frame), a contact frame never is
         self.peak = math.nan
+        self._runner: ZeroRun | None = None  # process_run's, kept between runs ...
+        self._run_key: tuple | None = None  # ... while its constants ...
+        self._run_on: tuple = ()  # ... and the arrays it writes are the stage's
         if self.zeroer.shape != table.shape:
             raise ValueError(f"zeroer shape {self.zeroer.shape} != table shape {table.shape}")
 
@@ -130,7 +134,7 @@ class CalibrationStage:
     def process_run(self, raws: list[np.ndarray], times: np.ndarray,
                     z: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
         """:meth:`process` for a read's frames in one call into the core
-        (:func:`~tactiled.calibration.fused.zero_run`): ``raws`` (integer counts of this
+        (:class:`~tactiled.calibration.fused.ZeroRun`): ``raws`` (integer counts of this
         table's shape) at device times ``times`` (s); their zeroed strain into ``z``
         (``(N, rows, cols)`` float64).  Stops after the first frame in contact (that frame
         taken: :attr:`in_contact` is then True) and before a frame the compiled path does not
@@ -140,22 +144,19 @@ class CalibrationStage:
         zr = self.zeroer
         det = zr.detector
         comp = zr.hysteresis
-        seg = self.table._forward
-        sigma = det.sigma
-        state = np.array((zr._last_t, zr._frames, zr._settle_until, zr._release_until,
-                          zr.baseline_var, zr.in_contact, comp._active, det._count, det._head,
-                          det.last_statistic, det.in_contact, False, self.peak, False))
-        constants = np.array((comp.fraction, comp.tau_s, MIN_PEAK_SIGMAS * sigma,
-                              NOISE_MARGIN * sigma, sigma, det.enter_threshold,
-                              det.exit_threshold, zr.tau_drift, zr.tau_release, zr.holdoff,
-                              MAX_STEP_SIGMAS * sigma, det.average))
+        key = (comp.fraction, comp.tau_s, det.sigma, det.enter_threshold, det.exit_threshold,
+               det.average)
+        if (self._runner is None or self._run_key != key or self._run_on[0] is not zr.baseline
+                or self._run_on[1] is not comp._peak or self._run_on[2] is not det._ring):
+            self._runner = self._new_runner()
+            self._run_key, self._run_on = key, (zr.baseline, comp._peak, det._ring)
+        state = self._run_state
+        state[:] = (zr._last_t, zr._frames, zr._settle_until, zr._release_until,
+                    zr.baseline_var, zr.in_contact, comp._active, det._count, det._head,
+                    det.last_statistic, det.in_contact, False, self.peak, False)
         n = len(raws)
         stats, peaks = np.empty(n), np.empty(n)
-        residual = np.empty(zr.shape)
-        taken = zero_run(raws, times, seg._offset, seg._breaks, seg._first, seg._params,
-                         zr.baseline.reshape(-1), comp._peak.reshape(-1), det._ax, det._ay_t,
-                         det._bands, det._ring, det._total, z, residual.reshape(-1), stats,
-                         peaks, state, constants)
+        taken = self._runner.run(raws, times, z, stats, peaks, state)
         if taken:
             (zr._last_t, frames, _, zr._release_until, zr.baseline_var, in_contact, active,
              count, head, det.last_statistic, det_in, residual_valid, self.peak,
@@ -164,11 +165,30 @@ class CalibrationStage:
             zr.in_contact, det.in_contact = bool(in_contact), bool(det_in)
             if comp.fraction > 0.0:
                 comp._active = bool(active)
-            zr._residual = residual if residual_valid else None
+            zr._residual = self._run_residual.copy() if residual_valid else None
             if released:
                 zr._drift_t = None
             self.finite = True
         return taken, stats, peaks
+
+    def _new_runner(self) -> ZeroRun:
+        """The stage's :class:`~tactiled.calibration.fused.ZeroRun`: its arrays (flat views,
+        written in place) and its constants (``RUN_CONSTANTS``), checked once."""
+        zr = self.zeroer
+        det = zr.detector
+        comp = zr.hysteresis
+        seg = self.table._forward
+        sigma = det.sigma
+        constants = np.array((comp.fraction, comp.tau_s, MIN_PEAK_SIGMAS * sigma,
+                              NOISE_MARGIN * sigma, sigma, det.enter_threshold,
+                              det.exit_threshold, zr.tau_drift, zr.tau_release, zr.holdoff,
+                              MAX_STEP_SIGMAS * sigma, det.average))
+        self._run_state = np.zeros(len(RUN_STATE))
+        self._run_residual = np.empty(zr.shape)
+        return ZeroRun(seg._offset, seg._breaks, seg._first, seg._params,
+                       zr.baseline.reshape(-1), comp._peak.reshape(-1), det._ax, det._ay_t,
+                       det._bands, det._ring, det._total, self._run_residual.reshape(-1),
+                       constants)
 
     @property
     def in_contact(self) -> bool:
