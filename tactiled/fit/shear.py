@@ -59,6 +59,9 @@ class ShearEstimate:
     #: what :class:`ShearStep` follows the frames from.
     window: np.ndarray | None = None
     jac: np.ndarray | None = None
+    #: A step's ``lam`` before its clip to [0, 1] (the linear estimate, Gaussian about the
+    #: truth near slip, what a filter of ``lam`` takes); None for a fit's.
+    lam_free: float | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -292,9 +295,10 @@ class ShearStep:
         data = (np.asarray(frame, dtype=float).reshape(-1, 3)[self.window] / self._noise).ravel()
         r = data - self._pred
         delta = self._gain @ r
-        p = self.base.params.copy()
-        p[self._keep] += delta
-        p = np.clip(p, _LO, _HI)
+        free = self.base.params.copy()
+        free[self._keep] += delta
+        p = np.clip(free, _LO, _HI)
         rest = r - self._jac @ delta
         rms = float(math.sqrt(float(rest @ rest) / self._dof))
-        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons))
+        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons),
+                             lam_free=float(free[7]))

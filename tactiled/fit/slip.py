@@ -48,6 +48,11 @@ MIN_Q_SIGMAS = 3.0
 RECENT = 3
 #: While sliding the filter's centre follows the frames (its random walk, single-frame sigmas).
 SLIDING_WALK = 3.0
+#: The friction is mobilised when the filtered ``lam`` is above this by 2 sigma: then a
+#: tangential force levelling off by :data:`PLATEAU_Z` sigma while the centre moves by
+#: :data:`CONFIRM_Z` sigma (the same start) is the onset.
+MOBILISED = 0.9
+PLATEAU_Z, CONFIRM_Z = 3.0, 3.0
 
 
 @dataclass
@@ -77,7 +82,7 @@ class SlipDetector:
 
     def __init__(self) -> None:
         self.filter = ShearFilter()
-        self.test = SlideTest()
+        self.test = SlideTest(PLATEAU_Z)
         self.sliding = False
         self._calm = 0
         self._slide: deque[tuple[float, float, float, float]] = deque(maxlen=REST_FRAMES + 1)
@@ -95,10 +100,12 @@ class SlipDetector:
         zy = (y1 - y0) / math.hypot(sy0, sy1) if sy0 or sy1 else 0.0
         return math.hypot(zx, zy) < REST_Z
 
-    def update(self, frame: int, params: np.ndarray, cov: np.ndarray) -> tuple[str | None, SlipEvent | None]:
+    def update(self, frame: int, params: np.ndarray, cov: np.ndarray, lam_free: float | None = None
+               ) -> tuple[str | None, SlipEvent | None]:
         """The state after this frame (``slip`` while sliding, else ``None``: the frame's own
         state stands) and the event declared on it, if any.  ``params`` and ``cov`` are the
-        frame's estimate in the shear fit's order (:data:`tactiled.fit.shear.NAMES`; mm, N)."""
+        frame's estimate in the shear fit's order (:data:`tactiled.fit.shear.NAMES`; mm, N);
+        ``lam_free`` its ``lam`` before the clip to [0, 1], for the filter."""
         params = np.asarray(params, dtype=float)
         cov = np.asarray(cov, dtype=float)
         event = None
@@ -107,15 +114,19 @@ class SlipDetector:
         s_q = _q_sigma(params, cov)
         q = math.hypot(params[4], params[5])
         self.filter.centre_walk = SLIDING_WALK if self.sliding else None
-        z = 0.0
-        if self.filter.update(params, cov) and not self.sliding:
+        z = joint = 0.0
+        mobilised = False
+        if self.filter.update(params, cov, lam_free) and not self.sliding:
             fx, fy, qf, s_qf = self.filter.tangential()
             if qf > MIN_Q_SIGMAS * s_qf:  # slip runs along a resolved Q
                 z = self.test.update(self.filter, fx / qf, fy / qf)
             else:
                 self.test.update(self.filter, 1.0, 0.0)
+            lam_f, s_lam_f = self.filter.value(7)
+            mobilised = lam_f - 2.0 * s_lam_f > MOBILISED
+            joint = self.test.joint
             if self.filter.frames <= SETTLE:
-                z = 0.0
+                z = joint = 0.0
         gone = math.isfinite(s_lam) and lam + 2.0 * s_lam >= 1.0
         drop = 0.0
         if len(self._q) == RECENT and math.isfinite(s_q):
@@ -125,7 +136,7 @@ class SlipDetector:
         self._q.append((q, s_q))
         self.z, self.drop = z, drop
         if not self.sliding:
-            if gone and (z > ONSET_Z or drop > DROP_Z):
+            if gone and (z > ONSET_Z or drop > DROP_Z or (mobilised and joint > CONFIRM_Z)):
                 self.sliding = True
                 self._calm = 0
                 event = SlipEvent("onset", frame)
@@ -141,4 +152,4 @@ class SlipDetector:
 
     def feed(self, frame: int, est) -> tuple[str | None, SlipEvent | None]:
         """:meth:`update` from a :class:`~tactiled.fit.shear.ShearEstimate`."""
-        return self.update(frame, est.params, est.cov)
+        return self.update(frame, est.params, est.cov, est.lam_free)
