@@ -290,6 +290,8 @@ class ShearFitter:
         prof = None
         if len(keep) == 8 and "shear" not in reasons:
             prof = lam_interval(residual, p, jac, _LO, _HI)
+            if prof is not None:
+                prof = prof.widened(float(p[7]), float(math.sqrt(max(cov[7, 7], 0.0))))
         return ShearEstimate(p, cov, rms, bool(res.success), reasons, idx, jac, prof)
 
     def step(self, est: ShearEstimate) -> ShearStep:
