@@ -64,6 +64,9 @@ class ShearEstimate:
     #: The 2-sigma profile-likelihood interval of ``lam`` (tactiled/fit/shear_profile.py), from
     #: which ``mu`` and ``slip_margin`` follow; None where ``lam`` is unobservable.
     lam_profile: LamInterval | None = None
+    #: A step's ``lam`` before its clip to [0, 1] (the linear estimate, Gaussian about the
+    #: truth near slip, what a filter of ``lam`` takes); None for a fit's.
+    lam_free: float | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -330,12 +333,13 @@ class ShearStep:
         data = (np.asarray(frame, dtype=float).reshape(-1, 3)[self.window] / self._noise).ravel()
         r = data - self._pred
         delta = self._gain @ r
-        p = self.base.params.copy()
-        p[self._keep] += delta
-        p = np.clip(p, _LO, _HI)
+        free = self.base.params.copy()
+        free[self._keep] += delta
+        p = np.clip(free, _LO, _HI)
         rest = r - self._jac @ delta
         rms = float(math.sqrt(float(rest @ rest) / self._dof))
         prof = self.base.lam_profile
         if prof is not None:
             prof = prof.shifted(float(p[7] - self.base.params[7]))
-        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons), lam_profile=prof)
+        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons),
+                             lam_profile=prof, lam_free=float(free[7]))
