@@ -214,8 +214,8 @@ class RecordingWriter:
 
     A new file gets a header (``device``: the vendor driver's kind the frames came from, e.g.
     ``"paxini"``, so that a replay reads its counts as the live run did); with ``append=True``
-    an existing recording is continued (its sensor id and device must match, and a truncated
-    last record is cut off first so the file stays readable).  Without ``append`` an existing file is an error (``FileExistsError``):
+    an existing recording is continued (its sensor id must match, and its device when it names
+    one; a truncated last record is cut off first so the file stays readable).  Without ``append`` an existing file is an error (``FileExistsError``):
     recordings are evidence and are not overwritten silently.  Writes are buffered;
     :meth:`flush` hands them to the OS, :meth:`close` also ``fsync``\\ s them to the disk.
     """
@@ -234,10 +234,11 @@ class RecordingWriter:
             if header.sensor_id != sensor_id:
                 raise FrameError(f"{self.path}: recording is of sensor {header.sensor_id}, "
                                  f"cannot append frames of sensor {sensor_id}")
-            if header.device != device:
-                raise FrameError(f"{self.path}: recording is of device "
-                                 f"{header.device or 'wire format'}, cannot append frames of "
-                                 f"device {device or 'wire format'}")
+            # (a file that names no device, as every file written before the field, takes
+            # any frames: its replay reads them as it always did)
+            if header.device is not None and header.device != device:
+                raise FrameError(f"{self.path}: recording is of device {header.device}, cannot "
+                                 f"append frames of {device or 'the wire format'}")
             self.header = header
             self._stream: BinaryIO = open(self.path, "r+b")  # noqa: SIM115
             if end < self.path.stat().st_size:

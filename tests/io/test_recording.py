@@ -194,11 +194,16 @@ def test_the_header_names_the_device_the_frames_came_from(tmp_path, frame_factor
     with RecordingWriter(path, append=True, device="paxini") as writer:
         writer.write(2.0, encode_frame(frames[1]))
     assert len(read_recording(path)) == 2
-    # an older file: the reserved bytes are zero
+    with pytest.raises(FrameError, match="device paxini"):
+        RecordingWriter(path, append=True)
+    # an older file: the reserved bytes are zero; it takes a device's frames, header kept
     old = write_file(tmp_path / "old.tact", frames)
     assert old.read_bytes()[24:32] == bytes(8)
     with RecordingReader(old) as reader:
         assert reader.header.device is None
+    with RecordingWriter(old, append=True, device="paxini") as writer:
+        writer.write(9.0, encode_frame(frames[2]))
+    assert old.read_bytes()[24:32] == bytes(8) and len(read_recording(old)) == 4
     # bytes that name nothing are not a device
     data = bytearray(old.read_bytes())
     data[24:32] = b"\xff\x01junk\0\0"
