@@ -20,5 +20,6 @@ void bind_all(pybind11::module_& m) {
     bind_tracker(m);
     bind_linewindow(m);
     bind_halfspace(m);
+    bind_regions(m);
 }
 }  // namespace tactiled

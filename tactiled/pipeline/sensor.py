@@ -361,7 +361,7 @@ class SensorPipeline:
         try:
             if self._recorder is None:
                 self._recorder = Recorder(self.record_path, sensor_id=frame.sensor_id,
-                                          append=True)
+                                          append=True, device=self.device and self.device.kind)
             self._recorder.record(frame)
         except ValueError as err:  # this frame cannot be encoded (not wire counts): skip it
             self.record_errors += 1
