@@ -92,6 +92,13 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     ``merged`` when its region holds a second maximum that the fit does not explain (two
     contacts closer than the cover spreads them).
     """
+    with fitter.line.frames.kept():  # a line's band is made once per strain and mask
+        return _fit_contacts(fitter, strain, model, mask, warm, budget_s)
+
+
+def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray | None,
+                  warm: tuple[str, tuple[float, ...]] | None, budget_s: float | None) -> list[FitResult]:
+    """:func:`fit_contacts`' body."""
     t0 = time.perf_counter()
     flat = fitter.flattened(strain)
     regions = find_regions(flat, fitter.sigma, mask)

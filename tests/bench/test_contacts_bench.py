@@ -86,3 +86,27 @@ def test_tracked_contacts_through_the_daemon_are_filtered_within_their_sigmas() 
         assert float(np.mean(np.abs(z) <= 2)) >= 0.9, key
     lines = tracked_contacts.report(desc, s)
     assert lines[0].startswith("tracked through time") and "| force_n |" in "\n".join(lines)
+
+
+def test_curved_grasps_draw_cylinders_the_planar_model_holds_for() -> None:
+    """On the paper's finger every drawn cylinder lies 30-150 deg from the finger's axis (a
+    crossing one nearer its axis is a line longer than the finger, which the fit rightly
+    reports without a centre along it: no measurement to score), and each is drawn again and
+    again from one seed alike."""
+    from tactiled_bench import grasps
+    from tactiled.physics.strain import StrainModel
+
+    desc = load_description("fearing1988")
+    model = StrainModel(desc.sensor_model())
+    depth = max(model.sensor.impulse.depth_x, model.sensor.impulse.depth_y)
+    rng = np.random.default_rng(7)
+    angles = []
+    for _ in range(30):
+        truths = grasps.draw(("cylinder", "cylinder"), rng, model, depth)
+        assert truths is not None
+        angles += [c.psi_deg for c in truths]
+        assert 60.0 <= abs(truths[1].psi_deg - truths[0].psi_deg) <= 90.0
+    assert all(grasps.CURVED_ANGLES[0] <= a <= grasps.CURVED_ANGLES[1] for a in angles)
+    again = grasps.draw(("cylinder", "cylinder"), np.random.default_rng(7), model, depth)
+    first = grasps.draw(("cylinder", "cylinder"), np.random.default_rng(7), model, depth)
+    assert again == first
