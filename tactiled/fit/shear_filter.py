@@ -45,8 +45,8 @@ _POS = (2, 3)  # x0, y0 in the measurement
 _FORCE = (4, 5)  # fx, fy
 LAM = 7
 #: A rate's random walk per frame, in units of its parameter's single-frame sigma: a pull's
-#: ramp may steepen or level off by this much a frame.
-RATE_WALK = 0.1
+#: ramp may steepen or level off by this much a frame (its memory some 25 frames).
+RATE_WALK = 0.04
 #: The centre's random walk per frame under stick, in units of its single-frame sigma.
 CENTRE_WALK = 0.02
 #: A new contact's rates: this many single-frame sigmas a frame (1 sigma).

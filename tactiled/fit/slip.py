@@ -10,21 +10,24 @@
 # for each start under stick).
 #
 # A slip onset is declared on the first frame where the stick zone has shrunk to nothing within
-# the bound, ``lam + 2 sigma >= 1``, and either
+# the bound (``lam + 2 sigma >= 1``, the frame's or the filter's), and either
 #
 # * the slide test exceeds :data:`ONSET_Z` (with the filtered ``Q`` resolved: over
 #   :data:`MIN_Q_SIGMAS` sigma, so that its direction is known), or
+# * the friction is mobilised (the filtered ``lam`` above :data:`MOBILISED` by 2 sigma) and, for
+#   one start, the tangential force has levelled off by :data:`PLATEAU_Z` sigma while the centre
+#   moved by :data:`CONFIRM_Z` sigma, or
 # * the tangential force has fallen by more than :data:`DROP_Z` sigma below its mean over the
 #   :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction).
 #
-# :data:`ONSET_Z` is set from the test's null distribution (tests/fit/test_slip.py measures it
-# on the filter fed by Gaussian estimates): beyond it, about 1e-5 of the frames of a held
-# contact; no threshold on raw readings enters.  The slip ends when the object sticks again: the
-# stick zone resolved (``lam + 2 sigma < 1``) and the centre at rest (moved by less than
-# :data:`REST_Z` sigma over the last :data:`REST_FRAMES` frames) on :data:`END_FRAMES` frames in
-# a row; the filter's centre then anchors afresh.  A sliding contact's estimate may show a stick
-# zone on a frame or two (the fit of a contact that moves fast); the centre's motion does not
-# stop there.
+# :data:`ONSET_Z` is set from the slide test's null distribution (``tactiled bench --suite
+# shear`` measures it on the filter fed by Gaussian estimates: a few 1e-6 of the frames of a
+# held contact beyond it); no threshold on raw readings enters.  The slip ends when the object
+# sticks again: the frame's stick zone resolved (``lam + 2 sigma < 1``) and the centre at rest
+# (moved by less than :data:`REST_Z` sigma over the last :data:`REST_FRAMES` frames) on
+# :data:`END_FRAMES` frames in a row; the slide test then starts afresh.  A sliding contact's
+# estimate may show a stick zone on a frame or two (the fit of a contact that moves fast); the
+# centre's motion does not stop there.
 
 from __future__ import annotations
 
@@ -127,7 +130,13 @@ class SlipDetector:
             joint = self.test.joint
             if self.filter.frames <= SETTLE:
                 z = joint = 0.0
-        gone = math.isfinite(s_lam) and lam + 2.0 * s_lam >= 1.0
+        # the stick zone gone within the frame's bound, or within the filter's (one frame's
+        # lam scatters; the filter's follows the friction mobilised through the frames)
+        gone_here = math.isfinite(s_lam) and lam + 2.0 * s_lam >= 1.0
+        gone = gone_here
+        if not gone and self.filter.x is not None and self.filter.frames > SETTLE:
+            lam_f, s_lam_f = self.filter.value(7)
+            gone = lam_f + 2.0 * s_lam_f >= 1.0
         drop = 0.0
         if len(self._q) == RECENT and math.isfinite(s_q):
             ref = sum(v for v, _ in self._q) / RECENT
@@ -142,7 +151,7 @@ class SlipDetector:
                 event = SlipEvent("onset", frame)
         else:
             self._slide.append((float(params[2]), float(params[3]), float(sig[2]), float(sig[3])))
-            self._calm = 0 if gone or not self._at_rest() else self._calm + 1
+            self._calm = 0 if gone_here or not self._at_rest() else self._calm + 1
             if self._calm >= END_FRAMES:
                 self.sliding = False
                 self._slide.clear()
