@@ -49,6 +49,11 @@ DROP_Z = 5.0
 #: The slide test needs a filtered tangential force this many of its sigma (its direction).
 MIN_Q_SIGMAS = 3.0
 RECENT = 3
+#: The detector's filter lets a force's rate walk this much a frame (single-frame sigmas):
+#: a longer memory than the reported filter's, which extrapolates a pull's ramp far enough to
+#: see the force level off, at the price of bounds some 20-35 % short after a ramp's slope
+#: changes (``tactiled bench --suite shear``); the reported values use RATE_WALK.
+DETECT_WALK = 0.04
 #: While sliding the filter's centre follows the frames (its random walk, single-frame sigmas).
 SLIDING_WALK = 3.0
 #: The friction is mobilised when the filtered ``lam`` is above this by 2 sigma: then a
@@ -81,10 +86,10 @@ def _q_sigma(params: np.ndarray, cov: np.ndarray) -> float:
 
 class SlipDetector:
     """Feed one estimate per frame (:meth:`update`); it returns the slip state and any event.
-    :attr:`filter` is the contact's shear filter (the tracked shear state)."""
+    :attr:`filter` is the detector's own shear filter (:data:`DETECT_WALK`)."""
 
     def __init__(self) -> None:
-        self.filter = ShearFilter()
+        self.filter = ShearFilter(DETECT_WALK)
         self.test = SlideTest(PLATEAU_Z)
         self.sliding = False
         self._calm = 0
