@@ -64,7 +64,8 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
     the detector's events.  With ``truth``, ``errors`` gains each frame's errors of the
     filtered ``fx``, ``fy`` and torsion over their sigma (the reported filter's, as the
     daemon's tables, once it has settled)."""
-    det, flt, prev, step, events = SlipDetector(), ShearFilter(), None, None, []
+    det, prev, step, events = SlipDetector(), None, None, []
+    flt = det.tracking
     for i in range(first, len(frames) if last is None else min(last, len(frames))):
         if step is None or (i - first) % every == 0:
             fit = fitter.fit(frames[i], start=prev)
@@ -73,7 +74,6 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
         _, ev = det.feed(i, est)
         if ev is not None:
             events.append((ev.kind, ev.frame))
-        flt.update(est.params, est.cov, est.lam_free)
         if truth is not None and errors is not None and flt.frames > SETTLE:
             errors.append(tuple((flt.value(k)[0] - truth[key][i]) / flt.value(k)[1]
                                 for k, key in ((4, "true_fx"), (5, "true_fy"), (6, "true_torque"))))

@@ -86,10 +86,13 @@ def _q_sigma(params: np.ndarray, cov: np.ndarray) -> float:
 
 class SlipDetector:
     """Feed one estimate per frame (:meth:`update`); it returns the slip state and any event.
-    :attr:`filter` is the detector's own shear filter (:data:`DETECT_WALK`)."""
+    :attr:`filter` is the detector's own shear filter (:data:`DETECT_WALK`), :attr:`tracking`
+    the contact's reported one (:data:`tactiled.fit.shear_filter.RATE_WALK`); both let the
+    centre follow the frames while the contact slides."""
 
     def __init__(self) -> None:
         self.filter = ShearFilter(DETECT_WALK)
+        self.tracking = ShearFilter()
         self.test = SlideTest(PLATEAU_Z)
         self.sliding = False
         self._calm = 0
@@ -121,7 +124,8 @@ class SlipDetector:
         lam, s_lam = float(params[7]), float(sig[7])
         s_q = _q_sigma(params, cov)
         q = math.hypot(params[4], params[5])
-        self.filter.centre_walk = SLIDING_WALK if self.sliding else None
+        self.filter.centre_walk = self.tracking.centre_walk = SLIDING_WALK if self.sliding else None
+        self.tracking.update(params, cov, lam_free)
         z = joint = 0.0
         mobilised = False
         if self.filter.update(params, cov, lam_free) and not self.sliding:

@@ -11,9 +11,9 @@
 #   a fit runs is counted, never queued);
 # * every frame of the contact after its first fit is estimated at frame rate by the step from
 #   the newest fit (:class:`tactiled.fit.shear.ShearStep`: one matrix-vector product, no fit)
-#   and feeds the contact's shear filter (:class:`tactiled.fit.shear_filter.ShearFilter`, the
-#   tracked shear state) and its slip detector (:class:`tactiled.fit.slip.SlipDetector`); an
-#   onset or end is published on the hub as a ``slip`` item with the frame it was declared on;
+#   and feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`, which keeps
+#   the contact's shear filter, the tracked shear state); an onset or end is published on the
+#   hub as a ``slip`` item with the frame it was declared on;
 # * :meth:`ShearTrack.annotate` gives every estimate the contact's newest ``shear`` and ``slip``
 #   tables (the strongest contact's: the fit's window is centred on the array's peak; the tables
 #   are the newest frame's: ``fx_n``, ``fy_n``, ``torque_nmm`` and ``q_over_p`` the filter's,
@@ -88,7 +88,6 @@ class ShearTrack:
     def __init__(self, desc: SensorDescription, sensor: str,
                  publish: Callable[[SlipItem], None]) -> None:
         from tactiled.fit.shear import ShearFitter
-        from tactiled.fit.shear_filter import ShearFilter
         from tactiled.fit.slip import SlipDetector
 
         self.sensor = sensor
@@ -105,8 +104,6 @@ class ShearTrack:
         self._busy = False
         self._start: np.ndarray | None = None
         self._detector = SlipDetector()
-        self._filter_type = ShearFilter
-        self._filter = ShearFilter()  # the contact's shear state, reported in its tables
         self._tracked = 0
         self._step: Any = None  # the newest fit's ShearStep for this contact
         # (seq, step estimate, slip state, the filter's shear values)
@@ -175,7 +172,6 @@ class ShearTrack:
         self._newest = None
         self._onset = self._end = None
         self._detector = self._detector_type()
-        self._filter = self._filter_type()
         self._tracked = 0
 
     def _submit(self, job: _Job) -> None:
@@ -223,8 +219,8 @@ class ShearTrack:
         if event is not None:
             self._event(event.kind, frame.seq, frame.sensor_id, frame.device_time_us,
                         frame.host_time, time.time(), state)
-        self._filter.update(est.params, est.cov, est.lam_free)
-        filtered = self._filter.shear() if self._filter.x is not None else None
+        tracking = self._detector.tracking  # the contact's filter, fed by the detector
+        filtered = tracking.shear() if tracking.x is not None else None
         self._newest = (frame.seq, est, state, filtered)
 
     def _tables(self) -> tuple[dict[str, Any], dict[str, Any]] | None:
