@@ -128,6 +128,7 @@ def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
         out[f"{name}_crb"] = float(np.sqrt(np.mean(s[:, k] ** 2)))
     out["mu_resolved"] = len(mu_z) / n
     out["mu_cover"] = float(np.mean(np.abs(mu_z) <= 2)) if mu_z else math.nan
+    out["mu_beyond4"] = float(np.mean(np.abs(mu_z) > 4)) if mu_z else math.nan
     return out
 
 
@@ -197,7 +198,8 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
                       + " | ".join(f"{a[f'{q}_ratio']:.2f} / {a[f'{q}_cover']:.0%}" for q in ("fx", "fy", "torque"))
                       + f" | {a['fx_crb'] * 1000:.1f} mN, {a['torque_crb']:.3f} N mm"
                       + f" | {a['mu_resolved']:.0%} | "
-                      + (f"{a['mu_cover']:.0%}" if math.isfinite(a["mu_cover"]) else "-") + " |")
+                      + (f"{a['mu_cover']:.0%} / {a['mu_beyond4']:.0%}" if math.isfinite(a["mu_cover"]) else "-")
+                      + " |")
         rows_s.append(f"| {d.name} | " + " | ".join(
             f"{r['within']:.0%} ({r['pulls']}), {r['median_delay']:g} / {r['max_delay']:g}, {r['missed']}"
             for r in (s, c, v)) + f" | {s['early'] + c['early'] + v['early']} | {s['false']} ({s['sticks']}) |")
@@ -206,7 +208,7 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
             f"{np.sqrt(np.mean(e[:, j] ** 2)):.2f} / {np.mean(np.abs(e[:, j]) <= 2):.0%}" for j in range(3))
             + f" | {len(e)} | {tail['over3']:.1e} / {tail['over4']:.1e} / {tail['over_onset']:.1e} ({tail['frames']:.0f}) |")
     head_a = ["| array | taxels | fx RMS/CRB / 2-sigma cover | fy | torque | RMS CRB (fx, torque) "
-              "| mu resolved | mu cover |", "|---|---|---|---|---|---|---|---|"]
+              "| mu resolved | mu 2-sigma cover / beyond 4 sigma |", "|---|---|---|---|---|---|---|---|"]
     head_s = [f"| array | friction turning kinetic: within {ONSET_FRAMES} frames (pulls), delay median / max, missed "
               "| constant friction: the same | constant friction, varied pulls: the same | early "
               "| slip events on stick-only scenes (scenes) |", "|---|---|---|---|---|---|"]
