@@ -132,11 +132,11 @@ class SlipDetector:
             fx, fy, qf, s_qf = self.filter.tangential()
             if qf > MIN_Q_SIGMAS * s_qf:  # slip runs along a resolved Q
                 z = self.test.update(self.filter, fx / qf, fy / qf)
-            else:
+                joint = self.test.joint
+            else:  # the tracks advance; no direction to test along
                 self.test.update(self.filter, 1.0, 0.0)
             lam_f, s_lam_f = self.filter.value(7)
             mobilised = lam_f - 2.0 * s_lam_f > MOBILISED
-            joint = self.test.joint
             if self.filter.frames <= SETTLE:
                 z = joint = 0.0
         # the stick zone gone within the frame's bound, or within the filter's (one frame's
