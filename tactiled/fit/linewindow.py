@@ -215,11 +215,10 @@ def chi2_on_band(fitter: Any, strain: np.ndarray, mask: np.ndarray | None, model
     fr = line_frame(fitter, strain, mask)
     if isinstance(fr, FitResult) or params is None:
         return None, 0
-    pred = point_strain(fitter, model, params)
+    pred = point_strain(fitter, model, params, fr.win)
     if pred is None:
         return None, 0
-    r0, c0, nr, nc = fr.win
-    left = (fr.target - pred[r0:r0 + nr, c0:c0 + nc].ravel())[fr.valid]
+    left = (fr.target - pred.ravel())[fr.valid]
     sd = fitter._tactel_sd(fr.target[fr.valid])
     return float(np.sum((left / sd) ** 2)), fr.n_points
 

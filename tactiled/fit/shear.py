@@ -34,8 +34,8 @@ from tactiled.physics.traction import Traction
 from tactiled.sensors.description import SensorDescription
 
 NAMES = ("ln_r", "ln_force", "x0", "y0", "fx", "fy", "torque", "lam")
-#: ``mu`` is reported when its relative 1-sigma bound (half the longer arm of its 2-sigma
-#: profile interval, over its most likely value) is below this.
+#: ``mu`` is reported when its relative 1-sigma bound (a quarter of its 2-sigma profile
+#: interval's width in ``ln mu``) is below this.
 MU_RESOLVED = 0.2
 #: Side of the fit window (taxels) at least: the displacement field reaches further than
 #: the strain's, so large arrays are fitted on this window around the peak.
@@ -64,6 +64,9 @@ class ShearEstimate:
     #: The 2-sigma profile-likelihood interval of ``lam`` (tactiled/fit/shear_profile.py), from
     #: which ``mu`` and ``slip_margin`` follow; None where ``lam`` is unobservable.
     lam_profile: LamInterval | None = None
+    #: A step's ``lam`` before its clip to [0, 1] (the linear estimate, Gaussian about the
+    #: truth near slip, what a filter of ``lam`` takes); None for a fit's.
+    lam_free: float | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -118,10 +121,10 @@ class ShearEstimate:
         if not math.isfinite(hi) or prof.lo <= 0.0:
             return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f}, within 2 sigma of 0 "
                     f"(2-sigma interval {prof.lo:.2f}..{prof.hi:.2f}): mu is unbounded above")
-        _, sigma = symmetric(lo, best, hi)
-        if not sigma < MU_RESOLVED * best:
+        rel = math.log(hi / lo) / 4.0  # the relative 1-sigma the interval's width says
+        if not rel < MU_RESOLVED:
             return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f} (2-sigma interval "
-                    f"{prof.lo:.2f}..{prof.hi:.2f}; mu's bound {sigma / best:.0%} of it, over {MU_RESOLVED:.0%})")
+                    f"{prof.lo:.2f}..{prof.hi:.2f}; mu's bound {rel:.0%} of it, over {MU_RESOLVED:.0%})")
         return lo, best, hi
 
     def slip_margin(self) -> tuple[float | None, float | None]:
@@ -290,6 +293,8 @@ class ShearFitter:
         prof = None
         if len(keep) == 8 and "shear" not in reasons:
             prof = lam_interval(residual, p, jac, _LO, _HI)
+            if prof is not None:
+                prof = prof.widened(float(p[7]), float(math.sqrt(max(cov[7, 7], 0.0))))
         return ShearEstimate(p, cov, rms, bool(res.success), reasons, idx, jac, prof)
 
     def step(self, est: ShearEstimate) -> ShearStep:
@@ -328,12 +333,13 @@ class ShearStep:
         data = (np.asarray(frame, dtype=float).reshape(-1, 3)[self.window] / self._noise).ravel()
         r = data - self._pred
         delta = self._gain @ r
-        p = self.base.params.copy()
-        p[self._keep] += delta
-        p = np.clip(p, _LO, _HI)
+        free = self.base.params.copy()
+        free[self._keep] += delta
+        p = np.clip(free, _LO, _HI)
         rest = r - self._jac @ delta
         rms = float(math.sqrt(float(rest @ rest) / self._dof))
         prof = self.base.lam_profile
         if prof is not None:
             prof = prof.shifted(float(p[7] - self.base.params[7]))
-        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons), lam_profile=prof)
+        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons),
+                             lam_profile=prof, lam_free=float(free[7]))

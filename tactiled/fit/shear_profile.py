@@ -11,6 +11,10 @@
 # Jacobian at the estimate): the readings are linear in the forces and torsion and nearly so in
 # the rest over the interval.  The 2-sigma interval is where ``chi2`` lies within 4 of its least.
 #
+# The interval used is the union of that and the linearised one (``lam +/- 2 sigma``): at the
+# bound ``lam = 1`` the profile's interval is cut short by the bound, the shorter the further
+# the data stray past it, and publishing by its width would pick out those frames.
+#
 # ``mu`` then lies in ``[Q/P / lam_hi, Q/P / lam_lo]``, widened by the conditional bound of
 # ``ln(Q/P)`` given ``lam`` (added in quadrature in ``ln mu``); it is resolved when ``lam_lo >
 # 0`` (full stick is excluded) and the interval is narrow.  What is published is ``mu`` where
@@ -40,6 +44,16 @@ class LamInterval:
     lo: float
     hi: float
     best: float
+
+    def widened(self, lam: float, sigma: float) -> LamInterval:
+        """The union with the linearised 2-sigma interval ``lam +/- 2 sigma`` (clipped to [0,
+        1]): where the estimate sits at the bound 1 with the likelihood still falling beyond
+        it, the profile interval shrinks as the data stray further past the bound, and a
+        decision on its width alone would favour exactly those frames."""
+        if not math.isfinite(sigma):
+            return LamInterval(0.0, 1.0, self.best)
+        return LamInterval(max(0.0, min(self.lo, lam - 2.0 * sigma)), min(1.0, max(self.hi, lam + 2.0 * sigma)),
+                           self.best)
 
     def shifted(self, delta: float) -> LamInterval:
         """The interval moved by ``delta`` in ``lam`` (clipped to [0, 1]): a step's estimate."""

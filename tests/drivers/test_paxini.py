@@ -175,3 +175,32 @@ def test_the_simulated_module_pushes_sideways(tmp_path: Path) -> None:
     assert np.abs(xyz[..., :2]).max() >= 8, np.abs(xyz[..., :2]).max()
     assert xyz[..., 2].max() > 20 and xyz[..., 2].min() >= 0
     assert stats.rejected == 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(points, noise), min_size=1, max_size=5), st.integers(1, 40))
+def test_answers_without_a_checksum_byte(answers, chunk) -> None:
+    """A module whose answers end with their payload (`checksum=0`, as the public drivers read
+    them): each answer is one frame, whatever the reads; garbage between costs nothing."""
+    stream = b"".join(junk + paxini.response(0, pts, checksum=False) for pts, junk in answers)
+    framer = paxini.PaxiniFramer(0, ROWS, COLS, checksum=False)
+    got = [f for k in range(0, len(stream), chunk) for f in framer.feed(stream[k:k + chunk])]
+    assert len(got) == len(answers)
+    for f, (pts, _junk) in zip(got, answers):
+        np.testing.assert_array_equal(f.taxels.reshape(-1, 3).astype(int) - paxini.ZERO_COUNTS, pts)
+    assert framer.stats.rejected == 0
+
+
+def test_the_checksum_parameter() -> None:
+    from tactiled.sources import open_source
+
+    assert open_source("paxini:///dev/null").decoder.checksum is True
+    assert open_source("paxini:///dev/null?checksum=0").decoder.checksum is False
+    with pytest.raises(ValueError, match="checksum"):
+        open_source("paxini:///dev/null?checksum=2")
+    # with the checksum expected, a good answer's payload with a byte changed is refused
+    pts = np.zeros((N, 3), np.int64)
+    bad = bytearray(paxini.response(0, pts))
+    bad[20] ^= 1
+    framer = paxini.PaxiniFramer(0, ROWS, COLS)
+    assert framer.feed(bytes(bad)) == [] and framer.stats.crc_errors == 1

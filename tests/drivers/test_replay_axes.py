@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from tactiled.frames import encode_frame
+from tactiled.frames import Frame, encode_frame
 from tactiled.io.recording import Recorder, RecordingReader
 from tactiled.sensors import load_description
 from tactiled.sim.taxel_stream import REST_FRAMES, TaxelScenes
@@ -161,3 +161,30 @@ def test_a_3_axis_recording_exports_its_readings_to_mcap_as_a_3_channel_image(tm
     # zeroed readings: near 0 at rest, the pull's press moves z by far more than the noise
     z = np.stack([np.frombuffer(bytes(im.data), "<f4").reshape(4, 4, 3)[..., 2] for im in images])
     assert np.abs(z[:50]).max() < 20 and z.max() > 50
+
+
+def test_a_vendor_recording_replays_through_its_device_table(tmp_path) -> None:
+    """A PaXini recording (z counts offset by 0x8000, 5000 counts per strain) replays through
+    the PaXini table, as its live run did; a recording naming no device through the wire
+    format's (LookupTable.linear)."""
+    from tactiled.sensors.devices import device_array
+    from tactiled_drivers.paxini import ZERO_COUNTS
+
+    xyz = np.full((10, 12, 3), ZERO_COUNTS, np.uint16)
+    xyz[4, 5, 2] += 100
+    frame = Frame(seq=0, device_time_us=0, raw=xyz[..., 2].copy(), taxels=xyz)
+    for device in ("paxini", None):
+        path = tmp_path / f"{device}.tact"
+        with Recorder(path, device=device) as rec:
+            rec.record(frame, host_time=1.0)
+        src = open_source(f"replay://{path}?speed=0")
+        array = src.device_array()
+        if device is None:
+            assert array is None
+            continue
+        assert array.kind == "paxini" and array.shape == (10, 12)
+        live = device_array("paxini", 10, 12).nominal_table()
+        replayed = array.nominal_table()
+        counts = xyz[..., 2].astype(float)
+        np.testing.assert_array_equal(replayed.to_strain(counts), live.to_strain(counts))
+        assert replayed.to_strain(counts)[4, 5] == pytest.approx(100 / 5000)

@@ -62,8 +62,9 @@ def test_fit_on_independent_frames_through_the_cli(tmp_path):
     for line in lines:
         if line["shear"]["mu"] is None:
             assert "Q/(mu P)" in line["reasons"]["mu"]
-        else:
-            assert line["shear"]["std"]["mu"] < MU_RESOLVED * line["shear"]["mu"]
+        else:  # published with its bound, and the margin to slip with it
+            assert 0 < line["shear"]["std"]["mu"] < line["shear"]["mu"]
+            assert line["shear"]["slip_margin"] is not None
 
 
 def _brute_profile(fitter, frame, est, lam):
