@@ -103,7 +103,9 @@ def angle_profile(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndar
     ``FLAT_CHI2`` the reason to withhold it, below ``PROFILE_SIGMAS^2`` its honest sigma (that
     point lies ``sqrt(rise)`` sigmas away), else None.  A weak line in a small window (4-5
     noise sigmas over 4x4 tactels of a 12x32 mat) has a likelihood far from quadratic in its
-    angle: its linearised sigma said 3 deg where it was 15-20 deg off."""
+    angle: its linearised sigma said 3 deg where it was 15-20 deg off.  ``scan``: the offsets
+    (deg) round the half-turn also evaluated; none for an ellipse, which turned 90 deg with its
+    radii swapped is the same one (:meth:`tactiled.fit.point.PointFit.fit`)."""
     if sd_deg is None or not sd_deg > ANGLE_TEST_SIGMA:
         return None
     # (distance in deg, rise of chi^2 there): the two near points, then the scan round the turn
