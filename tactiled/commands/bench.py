@@ -18,10 +18,12 @@ Suites (default: all):
   foundation  the fitter against its bars: noise-free recovery from the reference integration,
               noisy efficiency (RMS/CRB, 2-sigma coverage), the paper's Table 1, speed
   sensors     accuracy on every built-in sensor description (or --sensor's): cylinders (line
-              contacts on flat arrays), spheres and edges; RMS error over the Cramer-Rao
-              bound, 2-sigma coverage and the share beyond 4 sigma per parameter, values
-              withheld, fit time; and the daemon's own estimates of the demo scene (the
-              description's simulated finger through the whole daemon) against the truth
+              contacts on flat arrays), spheres, ellipsoids and edges fitted by `tactiled fit
+              --sensor`; RMS error over the Cramer-Rao bound (the fit's window's and a 6x6
+              window's), 2-sigma coverage and the share beyond 4 sigma per parameter, values
+              withheld (also those the bound resolves), fit time; and the daemon's own
+              estimates of the demo scene (the description's simulated finger through the
+              whole daemon) against the truth
   temporal    the tracker through the whole daemon: a held contact sharpening (radius error
               against the single-frame bound at 100 ms and 1 s, coverage; --plot draws the
               error against time), rolls and rotations (lag, rates), steps, and the CPU per

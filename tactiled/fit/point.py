@@ -16,7 +16,7 @@ import numpy as np
 
 from tactiled.fit import compiled, search, uncertainty
 from tactiled.fit.models import Model
-from tactiled.fit.profile import flat_below, withhold_flat
+from tactiled.fit.profile import PROFILE_SIGMAS, angle_profile, flat_below, withhold_flat
 from tactiled.fit.result import FitResult
 from tactiled.fit.search import SCOUT_ITERATIONS, STOP_CHI2, bounds_of, steps_of
 from tactiled.fit.solver import SolveResult
@@ -72,6 +72,16 @@ class PointFit:
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, res.values.get("r1_mm"),
                 res.std.get("r1_mm")))
+        sd_angle = res.std.get("angle_deg")
+        if (best.converged and model.name == "general" and sd_angle is not None
+                and PROFILE_SIGMAS * sd_angle < 45.0):
+            # an ellipse's orientation on its profile likelihood, as a line's (its third
+            # parameter), at the two near points only: turned 90 deg an ellipse with its
+            # radii swapped is the same one, so the scan round the half-turn means nothing here
+            withhold_flat(res.values, res.std, res.reasons, angle_profile(
+                f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
+                lambda: f._residual(fr, model), res.chi2, 2, sd_angle, scan=()),
+                key="angle_deg")
         return res
 
     def cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:

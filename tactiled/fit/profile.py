@@ -94,7 +94,8 @@ def flat_below(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray
 
 def angle_profile(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
                   bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
-                  index: int, sd_deg: float | None) -> str | float | None:
+                  index: int, sd_deg: float | None,
+                  scan: tuple[float, ...] = ANGLE_SCAN_DEG) -> str | float | None:
     """A line's orientation (the parameter ``index`` of ``p``, rad; its linearised 1-sigma
     ``sd_deg``, deg) on its profile likelihood, as :func:`flat_below` tests a radius but on
     both sides (a line turned either way leaves the window alike): chi^2 minimised again with
@@ -102,12 +103,14 @@ def angle_profile(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndar
     ``FLAT_CHI2`` the reason to withhold it, below ``PROFILE_SIGMAS^2`` its honest sigma (that
     point lies ``sqrt(rise)`` sigmas away), else None.  A weak line in a small window (4-5
     noise sigmas over 4x4 tactels of a 12x32 mat) has a likelihood far from quadratic in its
-    angle: its linearised sigma said 3 deg where it was 15-20 deg off."""
+    angle: its linearised sigma said 3 deg where it was 15-20 deg off.  ``scan``: the offsets
+    (deg) round the half-turn also evaluated; none for an ellipse, which turned 90 deg with its
+    radii swapped is the same one (:meth:`tactiled.fit.point.PointFit.fit`)."""
     if sd_deg is None or not sd_deg > ANGLE_TEST_SIGMA:
         return None
     # (distance in deg, rise of chi^2 there): the two near points, then the scan round the turn
-    away = [PROFILE_SIGMAS * sd_deg] * 2 + [min(d, 180.0 - d) for d in ANGLE_SCAN_DEG]
-    offsets = [-PROFILE_SIGMAS * sd_deg, PROFILE_SIGMAS * sd_deg, *ANGLE_SCAN_DEG]
+    away = [PROFILE_SIGMAS * sd_deg] * 2 + [min(d, 180.0 - d) for d in scan]
+    offsets = [-PROFILE_SIGMAS * sd_deg, PROFILE_SIGMAS * sd_deg, *scan]
     points = []
     for dist, off in zip(away, offsets):
         rise = _rise(fitter, fr, kind, p, steps, bounds, python_residual, chi2,
