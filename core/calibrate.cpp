@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "arrays.hpp"
+#include "calibrate_binding.hpp"
 #include "stages.hpp"
 
 namespace py = pybind11;
@@ -112,17 +113,41 @@ void follow_baseline(double* baseline, double* z, std::int64_t n, double weight,
     for (std::int64_t t = 0; t < n; ++t) baseline[t] += weight * z[t];
 }
 
-}  // namespace calib
+// zero_frame's counts types: the wire's, any integer as int64, anything else as double.
+template ZeroResult zero_frame<std::uint16_t>(const std::uint16_t*, std::int64_t, const Segments&,
+                                              const double*, double*, double, double, double,
+                                              double, bool, const Filter&, double*, double*,
+                                              double*, double*);
+template ZeroResult zero_frame<std::int64_t>(const std::int64_t*, std::int64_t, const Segments&,
+                                             const double*, double*, double, double, double,
+                                             double, bool, const Filter&, double*, double*,
+                                             double*, double*);
+template ZeroResult zero_frame<double>(const double*, std::int64_t, const Segments&,
+                                       const double*, double*, double, double, double, double,
+                                       bool, const Filter&, double*, double*, double*, double*);
 
-namespace {
-std::tuple<std::int64_t, double, double> zero_frame_py(
-    py::array raw, In<double> offset, In<double> breaks, In<std::int64_t> first,
-    In<double> params, In<double> baseline, py::array peak, double fraction, double decay,
-    double floor, double margin, bool active, In<double> ax, In<double> ay_t,
-    In<std::int64_t> bands, py::array z, py::array residual, py::array tmap) {
-    const py::ssize_t n = raw.size();
-    if (raw.ndim() != 1) throw py::value_error("raw: expected a flat array");
-    calib::Segments seg{};
+double average_maps(double* rg, double* tot, const double* tm, std::int64_t average,
+                    std::int64_t p, std::int64_t& count, std::int64_t& head) {
+    if (count == 0) {
+        for (std::int64_t i = 0; i < p; ++i) tot[i] = tm[i];
+    } else {
+        for (std::int64_t i = 0; i < p; ++i) tot[i] += tm[i];
+        if (count == average)
+            for (std::int64_t i = 0; i < p; ++i) tot[i] -= rg[head * p + i];
+    }
+    for (std::int64_t i = 0; i < p; ++i) rg[head * p + i] = tm[i];
+    head = (head + 1) % average;
+    count = count + 1 < average ? count + 1 : average;
+    const double factor = count == average ? 1.0 / static_cast<double>(count)
+                                           : 1.0 / std::sqrt(static_cast<double>(count * average));
+    double stat = -std::numeric_limits<double>::infinity();
+    for (std::int64_t i = 0; i < p; ++i) stat = py_max(stat, tot[i] * factor);
+    return stat;
+}
+
+Segments segments_of(const In<double>& offset, const In<double>& breaks,
+                     const In<std::int64_t>& first, const In<double>& params, std::int64_t n) {
+    Segments seg{};
     seg.offset = data_of<double>(offset, "offset", false, n);
     seg.breaks = data_of<double>(breaks, "breaks", false);
     seg.nb = breaks.size();
@@ -132,9 +157,19 @@ std::tuple<std::int64_t, double, double> zero_frame_py(
     seg.params = data_of<double>(params, "params", false);
     seg.np = params.shape(1);
     if (seg.nb == 0) throw py::value_error("breaks: empty");
+    // (first indexes the breaks and params: checked once here, not per tactel)
+    for (std::int64_t t = 0; t <= n; ++t)
+        if (seg.first[t] < 0 || seg.first[t] >= seg.nb + (t == n ? 1 : 0))
+            throw py::value_error("first out of range");
+    if (seg.np < seg.nb + 1) throw py::value_error("params: need one column per segment");
+    return seg;
+}
+
+Filter filter_of(const In<double>& ax, const In<double>& ay_t, const In<std::int64_t>& bands,
+                 std::int64_t n) {
     if (ax.ndim() != 2 || ay_t.ndim() != 2 || bands.ndim() != 2 || bands.shape(0) != 4)
         throw py::value_error("ax, ay_t: 2-d; bands: (4, N)");
-    calib::Filter f{};
+    Filter f{};
     f.ax = data_of<double>(ax, "ax", false);
     f.ay_t = data_of<double>(ay_t, "ay_t", false);
     f.bands = data_of<std::int64_t>(bands, "bands", false);
@@ -145,22 +180,32 @@ std::tuple<std::int64_t, double, double> zero_frame_py(
     f.nbands = bands.shape(1);
     if (f.rows * f.cols != n || f.nbands < f.nu || f.nbands < f.nv)
         throw py::value_error("filter matrices do not match the frame");
-    const double* base = data_of<double>(baseline, "baseline", false, n);
-    double* pk = data_of<double>(peak, "peak", true, n);
-    double* zz = data_of<double>(z, "z", true, n);
-    double* res = data_of<double>(residual, "residual", true, n);
-    double* tm = data_of<double>(tmap, "tmap", true, f.nu * f.nv);
-    // (bands and first index the arrays above: checked once here, not per tactel)
+    // (bands index the matrices and the frame: checked once here, not per tactel)
     const std::int64_t* b = f.bands;
     for (std::int64_t u = 0; u < f.nu; ++u)
         if (b[u] < 0 || b[f.nbands + u] > f.rows) throw py::value_error("bands out of range");
     for (std::int64_t v = 0; v < f.nv; ++v)
         if (b[2 * f.nbands + v] < 0 || b[3 * f.nbands + v] > f.cols)
             throw py::value_error("bands out of range");
-    for (py::ssize_t t = 0; t <= n; ++t)
-        if (seg.first[t] < 0 || seg.first[t] >= seg.nb + (t == n ? 1 : 0))
-            throw py::value_error("first out of range");
-    if (seg.np < seg.nb + 1) throw py::value_error("params: need one column per segment");
+    return f;
+}
+}  // namespace calib
+
+namespace {
+std::tuple<std::int64_t, double, double> zero_frame_py(
+    py::array raw, In<double> offset, In<double> breaks, In<std::int64_t> first,
+    In<double> params, In<double> baseline, py::array peak, double fraction, double decay,
+    double floor, double margin, bool active, In<double> ax, In<double> ay_t,
+    In<std::int64_t> bands, py::array z, py::array residual, py::array tmap) {
+    const py::ssize_t n = raw.size();
+    if (raw.ndim() != 1) throw py::value_error("raw: expected a flat array");
+    const calib::Segments seg = calib::segments_of(offset, breaks, first, params, n);
+    const calib::Filter f = calib::filter_of(ax, ay_t, bands, n);
+    const double* base = data_of<double>(baseline, "baseline", false, n);
+    double* pk = data_of<double>(peak, "peak", true, n);
+    double* zz = data_of<double>(z, "z", true, n);
+    double* res = data_of<double>(residual, "residual", true, n);
+    double* tm = data_of<double>(tmap, "tmap", true, f.nu * f.nv);
     std::vector<double> m(static_cast<std::size_t>(f.nu * f.cols));
     calib::ZeroResult r{};
     const auto run = [&](auto* rp) {
@@ -191,20 +236,7 @@ std::tuple<std::int64_t, std::int64_t, double> average_maps_py(py::array ring, p
     double* rg = data_of<double>(ring, "ring", true);
     double* tot = data_of<double>(total, "total", true, p);
     const double* tm = data_of<double>(tmap, "tmap", false);
-    if (count == 0) {
-        for (std::int64_t i = 0; i < p; ++i) tot[i] = tm[i];
-    } else {
-        for (std::int64_t i = 0; i < p; ++i) tot[i] += tm[i];
-        if (count == average)
-            for (std::int64_t i = 0; i < p; ++i) tot[i] -= rg[head * p + i];
-    }
-    for (std::int64_t i = 0; i < p; ++i) rg[head * p + i] = tm[i];
-    head = (head + 1) % average;
-    count = count + 1 < average ? count + 1 : average;
-    const double factor = count == average ? 1.0 / static_cast<double>(count)
-                                           : 1.0 / std::sqrt(static_cast<double>(count * average));
-    double stat = -std::numeric_limits<double>::infinity();
-    for (std::int64_t i = 0; i < p; ++i) stat = calib::py_max(stat, tot[i] * factor);
+    const double stat = calib::average_maps(rg, tot, tm, average, p, count, head);
     return {count, head, stat};
 }
 

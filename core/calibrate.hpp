@@ -46,5 +46,11 @@ ZeroResult zero_frame(const Raw* raw, std::int64_t n, const Segments& seg, const
 void follow_baseline(double* baseline, double* z, std::int64_t n, double weight, double limit,
                      bool clip);
 
+// The detector's running mean of its last `average` filter maps of p values (ring: average x p,
+// the oldest at `head` once full; total: their sum); tmap the newest.  Returns the statistic of
+// the mean; see fused_reference.average_maps.
+double average_maps(double* ring, double* total, const double* tmap, std::int64_t average,
+                    std::int64_t p, std::int64_t& count, std::int64_t& head);
+
 }  // namespace calib
 }  // namespace tactiled

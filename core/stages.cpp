@@ -20,5 +20,7 @@ void bind_all(pybind11::module_& m) {
     bind_tracker(m);
     bind_linewindow(m);
     bind_halfspace(m);
+    bind_regions(m);
+    bind_zero_run(m);
 }
 }  // namespace tactiled

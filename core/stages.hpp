@@ -22,5 +22,7 @@ void bind_flatfield(pybind11::module_& m);
 void bind_tracker(pybind11::module_& m);
 void bind_linewindow(pybind11::module_& m);
 void bind_halfspace(pybind11::module_& m);
+void bind_regions(pybind11::module_& m);
+void bind_zero_run(pybind11::module_& m);
 void bind_all(pybind11::module_& m);
 }  // namespace tactiled

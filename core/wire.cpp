@@ -62,6 +62,13 @@ std::uint32_t crc32(const std::uint8_t* data, std::size_t n) {
     return c ^ 0xFFFFFFFFu;
 }
 
+// frames.py's _values: the counts a header declares, 0 for a header this format does not carry
+static std::size_t header_values(int version, std::size_t axes, std::size_t rows, std::size_t cols) {
+    if (version == VERSION) return rows * cols;
+    if (version == VERSION_AXES && (axes == 1 || axes == 3)) return rows * cols * axes;
+    return 0;
+}
+
 Verdict parse(const std::uint8_t* chunk, std::size_t n, std::vector<std::uint8_t>& data,
               Decoded& frame, std::vector<std::uint16_t>& counts) {
     const bool cobs_ok = cobs_decode(chunk, n, data);
@@ -69,26 +76,27 @@ Verdict parse(const std::uint8_t* chunk, std::size_t n, std::vector<std::uint8_t
     if (m < HEADER_LEN + CRC_LEN) return Verdict::truncated;
     const std::uint8_t* d = data.data();
     const int version = d[0];
-    const std::size_t rows = d[16], cols = d[17];
-    const std::size_t tactels = rows * cols;
-    const std::size_t expected = HEADER_LEN + 2 * tactels + CRC_LEN;
+    const std::size_t axes = d[1], rows = d[16], cols = d[17];
+    const std::size_t values = header_values(version, axes, rows, cols);
+    const std::size_t expected = HEADER_LEN + 2 * values + CRC_LEN;
     const std::uint32_t crc = le<std::uint32_t>(d + m - CRC_LEN);
-    const bool plausible = 0 < tactels && tactels <= MAX_TACTELS;
+    const bool plausible = 0 < values && values <= MAX_TACTELS;
     if (cobs_ok && crc32(d, m - CRC_LEN) == crc) {
-        if (version != VERSION) return Verdict::version_errors;
+        if (version != VERSION && version != VERSION_AXES) return Verdict::version_errors;
         if (!plausible || m != expected) return Verdict::length_errors;
         frame.sensor_id = le<std::uint16_t>(d + 2);
         frame.seq = le<std::uint32_t>(d + 4);
         frame.device_time_us = le<std::uint64_t>(d + 8);
         frame.rows = static_cast<std::uint8_t>(rows);
         frame.cols = static_cast<std::uint8_t>(cols);
+        frame.axes = static_cast<std::uint8_t>(version == VERSION ? 1 : axes);
         frame.offset = counts.size();
         const std::uint8_t* p = d + HEADER_LEN;
-        for (std::size_t k = 0; k < tactels; ++k)
+        for (std::size_t k = 0; k < values; ++k)
             counts.push_back(static_cast<std::uint16_t>(p[2 * k] | (p[2 * k + 1] << 8)));
         return Verdict::frame;
     }
-    if (version == VERSION && plausible && m < expected) return Verdict::truncated;
+    if (plausible && m < expected) return Verdict::truncated;
     return cobs_ok ? Verdict::crc_errors : Verdict::cobs_errors;
 }
 
@@ -200,13 +208,25 @@ void Decoder::feed(const std::uint8_t* data, std::size_t n, std::vector<Decoded>
 namespace {
 using Batch = std::vector<std::tuple<std::uint32_t, std::uint64_t, std::uint16_t, py::array>>;
 
-// Frames of one feed as (seq, device_time_us, sensor_id, raw uint16 (rows, cols)) tuples.
+// A 3-axis frame's counts, uint16 (rows, cols, axes).
+py::array taxel_array(const std::uint16_t* values, std::size_t rows, std::size_t cols,
+                      std::size_t axes) {
+    py::array_t<std::uint16_t> out({static_cast<py::ssize_t>(rows), static_cast<py::ssize_t>(cols),
+                                    static_cast<py::ssize_t>(axes)});
+    std::memcpy(out.mutable_data(), values, sizeof(std::uint16_t) * rows * cols * axes);
+    return std::move(out);
+}
+
+// Frames of one feed as (seq, device_time_us, sensor_id, counts) tuples: counts uint16
+// (rows, cols) for a 1-axis frame, (rows, cols, 3) for a 3-axis one.
 Batch to_batch(const std::vector<wire::Decoded>& frames, const std::vector<std::uint16_t>& counts) {
     Batch batch;
     batch.reserve(frames.size());
     for (const auto& f : frames) {
+        const std::uint16_t* values = counts.data() + f.offset;
         batch.emplace_back(f.seq, f.device_time_us, f.sensor_id,
-                           binding::counts_array(counts.data() + f.offset, f.rows, f.cols));
+                           f.axes == 1 ? binding::counts_array(values, f.rows, f.cols)
+                                       : taxel_array(values, f.rows, f.cols, f.axes));
     }
     return batch;
 }
@@ -246,7 +266,8 @@ void bind_wire(py::module_& m) {
                           "The wire format's stream decoder (tactiled.frames.FrameDecoder's core).")
         .def(py::init<>())
         .def("feed", &PyDecoder::feed, py::arg("data"),
-             "The frames `data` completes: (seq, device_time_us, sensor_id, raw) tuples.")
+             "The frames `data` completes: (seq, device_time_us, sensor_id, counts) tuples "
+             "(counts (rows, cols), or (rows, cols, 3) for a 3-axis frame).")
         .def("reset", &PyDecoder::reset)
         .def_property_readonly("buffered", &PyDecoder::buffered)
         .def("counters", &PyDecoder::counters, "DecoderStats' counters, in its field order.");

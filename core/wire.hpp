@@ -14,10 +14,12 @@
 namespace tactiled {
 namespace wire {
 
-constexpr int VERSION = 1;
-constexpr std::size_t HEADER_LEN = 18;  // <BBHIQBB: version, flags, sensor_id, seq, t_us, rows, cols
+constexpr int VERSION = 1;       // a 1-axis frame: one count per tactel
+constexpr int VERSION_AXES = 2;  // byte 1 is `axes`, the readings per taxel (1 or 3)
+// <BBHIQBB: version, flags (version 2: axes), sensor_id, seq, t_us, rows, cols
+constexpr std::size_t HEADER_LEN = 18;
 constexpr std::size_t CRC_LEN = 4;
-constexpr std::size_t MAX_TACTELS = 4096;
+constexpr std::size_t MAX_TACTELS = 4096;  // counts per frame: rows * cols * axes
 constexpr std::size_t MAX_DECODED_LEN = HEADER_LEN + 2 * MAX_TACTELS + CRC_LEN;
 constexpr std::size_t MAX_ENCODED_LEN = MAX_DECODED_LEN + (MAX_DECODED_LEN + 253) / 254;
 
@@ -31,12 +33,13 @@ struct Stats {
                   restarts = 0, resyncs = 0;
 };
 
-// One decoded frame: counts row-major (rows * cols values) in `counts`, at `offset`.
+// One decoded frame: counts row-major (rows * cols * axes values, x y z per taxel) in
+// `counts`, at `offset`.
 struct Decoded {
     std::uint32_t seq;
     std::uint64_t device_time_us;
     std::uint16_t sensor_id;
-    std::uint8_t rows, cols;
+    std::uint8_t rows, cols, axes;
     std::size_t offset;  // into the batch's counts
 };
 

@@ -35,7 +35,7 @@ class Frame:
     seconds, set by :class:`tactiled.clock.FrameClock` (None until then; host-side only).
     ``taxels``: a 3-axis array's readings, shape ``(rows, cols, 3)`` (x, y, z per taxel, as the
     device counts them; docs/concepts/shear.md), ``raw`` then holds the z counts, which the
-    1-axis path reads; ``None`` for a 1-axis array (not sent on the wire).
+    1-axis path reads (the wire's version-2 frames carry them); ``None`` for a 1-axis array.
     """
 
     seq: int
@@ -63,11 +63,15 @@ class Frame:
 # Wire format (docs/reference/protocol.md): COBS( header | uint16 LE counts, row-major | CRC-32 LE ) 0x00
 # --------------------------------------------------------------------------------------------
 
-VERSION = 1
-HEADER = struct.Struct("<BBHIQBB")  # version, flags, sensor_id, seq, device_time_us, rows, cols
-HEADER_LEN = HEADER.size  # 18 bytes
+VERSION = 1  # a 1-axis frame: one count per tactel
+VERSION_AXES = 2  # a frame whose header's byte 1 says the readings per taxel (``axes``)
+#: The readings per taxel a version-2 frame may carry: 3 (x, y, z), or 1.
+WIRE_AXES = (1, 3)
+# version, flags (version 2: axes), sensor_id, seq, device_time_us, rows, cols
+HEADER = struct.Struct("<BBHIQBB")
+HEADER_LEN = HEADER.size  # 18 bytes, both versions
 CRC_LEN = 4
-MAX_TACTELS = 4096  # rows * cols; a 64x64 array, far above the 8x8 default
+MAX_TACTELS = 4096  # counts per frame (rows * cols * axes); a 64x64 array, far above 8x8
 MAX_DECODED_LEN = HEADER_LEN + 2 * MAX_TACTELS + CRC_LEN  # 8214 bytes
 # COBS adds one code byte per started run of 254 bytes: the longest legal encoded frame,
 # not counting its 0x00 delimiter.  Anything longer is garbage and is dropped unread.
@@ -148,28 +152,39 @@ def _check_uint(name: str, value: int, bits: int) -> int:
 def encode_frame(frame: Frame) -> bytes:
     """Encode ``frame`` for the wire: COBS bytes including the trailing 0x00 delimiter.
 
-    Only ``seq``, ``device_time_us``, ``sensor_id`` and ``raw`` travel; ``host_time`` and
-    ``strain`` are host-side.  ``seq`` must already be wrapped to uint32 by the sender.
-    Raises ``ValueError`` naming the value if the frame cannot be represented.
+    Only ``seq``, ``device_time_us``, ``sensor_id`` and the counts travel; ``host_time`` and
+    ``strain`` are host-side.  A frame with ``taxels`` (a 3-axis array's ``(rows, cols, 3)``
+    counts) is sent as a version-2 frame carrying them (its ``raw`` is not sent: the receiver's
+    is the z counts); any other frame as version 1, its bytes those of a 1-axis array.
+    ``seq`` must already be wrapped to uint32 by the sender.  Raises ``ValueError`` naming the
+    value if the frame cannot be represented.
     """
     seq = _check_uint("seq", frame.seq, 32)
     device_time_us = _check_uint("device_time_us", frame.device_time_us, 64)
     sensor_id = _check_uint("sensor_id", frame.sensor_id, 16)
-    raw = np.asarray(frame.raw)
-    if raw.ndim != 2 or not (1 <= raw.shape[0] <= 255 and 1 <= raw.shape[1] <= 255):
-        raise ValueError(f"raw must be 2-D with 1..255 rows and cols, got shape {raw.shape}")
-    rows, cols = raw.shape
-    if rows * cols > MAX_TACTELS:
-        raise ValueError(f"raw shape {raw.shape} has {rows * cols} tactels > {MAX_TACTELS}")
-    if raw.dtype != np.uint16:
-        if raw.dtype.kind not in "iuf":
-            raise ValueError(f"raw must hold integer counts, got dtype {raw.dtype}")
-        bad = ~np.isfinite(raw) | (raw < 0) | (raw > 0xFFFF) | (raw != np.round(raw))
+    if frame.taxels is None:
+        counts, name, version, axes = np.asarray(frame.raw), "raw", VERSION, 0
+        if counts.ndim != 2:
+            raise ValueError(f"raw must be 2-D with 1..255 rows and cols, got shape {counts.shape}")
+    else:
+        counts, name, version = np.asarray(frame.taxels), "taxels", VERSION_AXES
+        if counts.ndim != 3 or counts.shape[2] not in WIRE_AXES:
+            raise ValueError(f"taxels must have shape (rows, cols, 3), got {counts.shape}")
+        axes = counts.shape[2]
+    rows, cols = counts.shape[:2]
+    if not (1 <= rows <= 255 and 1 <= cols <= 255):
+        raise ValueError(f"{name} must have 1..255 rows and cols, got shape {counts.shape}")
+    if counts.size > MAX_TACTELS:
+        raise ValueError(f"{name} shape {counts.shape} has {counts.size} counts > {MAX_TACTELS}")
+    if counts.dtype != np.uint16:
+        if counts.dtype.kind not in "iuf":
+            raise ValueError(f"{name} must hold integer counts, got dtype {counts.dtype}")
+        bad = ~np.isfinite(counts) | (counts < 0) | (counts > 0xFFFF) | (counts != np.round(counts))
         if bad.any():
             idx = tuple(int(k) for k in np.argwhere(bad)[0])
-            raise ValueError(f"raw{list(idx)} = {raw[idx]!r} is not a uint16 count")
-    header = HEADER.pack(VERSION, 0, sensor_id, seq, device_time_us, rows, cols)
-    body = header + raw.astype("<u2").tobytes()  # C order = row-major
+            raise ValueError(f"{name}{list(idx)} = {counts[idx]!r} is not a uint16 count")
+    header = HEADER.pack(version, axes, sensor_id, seq, device_time_us, rows, cols)
+    body = header + counts.astype("<u2").tobytes()  # C order: row-major, x y z per taxel
     body += zlib.crc32(body).to_bytes(CRC_LEN, "little")
     return cobs_encode(body) + b"\x00"
 
@@ -302,31 +317,46 @@ class FrameDecoder:
         return True
 
 
+def _values(version: int, axes: int, rows: int, cols: int) -> int:
+    """The counts a header declares, or 0 where the header is not one this format carries
+    (an unknown version, or a version-2 ``axes`` not in :data:`WIRE_AXES`)."""
+    if version == VERSION:
+        return rows * cols
+    if version == VERSION_AXES and axes in WIRE_AXES:
+        return rows * cols * axes
+    return 0
+
+
 def _parse(chunk: bytes) -> Frame | str:
     """Decode one delimiter-free chunk to a Frame, or name the DecoderStats counter to bump."""
     data, cobs_ok = _cobs_decode(chunk)
     n = len(data)
     if n < HEADER_LEN + CRC_LEN:
         return "truncated"
-    version, _flags, sensor_id, seq, t_us, rows, cols = HEADER.unpack_from(data)
-    tactels = rows * cols
-    expected = HEADER_LEN + 2 * tactels + CRC_LEN
+    version, axes, sensor_id, seq, t_us, rows, cols = HEADER.unpack_from(data)
+    values = _values(version, axes, rows, cols)
+    expected = HEADER_LEN + 2 * values + CRC_LEN
+    plausible = 0 < values <= MAX_TACTELS
     crc = int.from_bytes(data[-CRC_LEN:], "little")
     if cobs_ok and zlib.crc32(memoryview(data)[:-CRC_LEN]) == crc:
         # The bytes are what the sender sent, so a bad header is the sender's own error.
-        if version != VERSION:
+        if version not in (VERSION, VERSION_AXES):
             return "version_errors"
-        if not 0 < tactels <= MAX_TACTELS or n != expected:
+        if not plausible or n != expected:
             return "length_errors"
         # a view of ``data``, which nothing else holds (a copy on a big-endian host only)
-        raw = np.frombuffer(data, dtype=_COUNTS, count=tactels, offset=HEADER_LEN)
-        raw = raw.reshape(rows, cols)
+        counts = np.frombuffer(data, dtype=_COUNTS, count=values, offset=HEADER_LEN)
         if _COUNTS != np.uint16:
-            raw = raw.astype(np.uint16)
-        return Frame(seq=seq, device_time_us=t_us, raw=raw, sensor_id=sensor_id)
+            counts = counts.astype(np.uint16)
+        if version == VERSION or axes == 1:
+            return Frame(seq=seq, device_time_us=t_us, raw=counts.reshape(rows, cols),
+                         sensor_id=sensor_id)
+        taxels = counts.reshape(rows, cols, axes)
+        return Frame(seq=seq, device_time_us=t_us, raw=taxels[..., 2].copy(),
+                     sensor_id=sensor_id, taxels=taxels)
     # Damaged in transit.  A plausible header promising more bytes than arrived means the
     # frame was cut off (e.g. the device reset mid-frame and sent its start-up 0x00).
-    if version == VERSION and 0 < tactels <= MAX_TACTELS and n < expected:
+    if plausible and n < expected:
         return "truncated"
     return "crc_errors" if cobs_ok else "cobs_errors"
 
@@ -394,7 +424,8 @@ class NativeFrameDecoder(NativeFraming):
             return []
         if host_time is None:
             host_time = time.monotonic()
-        return [Frame(seq, t_us, raw, sensor_id, host_time)
+        return [Frame(seq, t_us, raw, sensor_id, host_time) if raw.ndim == 2
+                else Frame(seq, t_us, raw[..., 2].copy(), sensor_id, host_time, taxels=raw)
                 for seq, t_us, sensor_id, raw in decoded]
 
 

@@ -77,7 +77,7 @@ BUILTIN_DRIVERS: Mapping[str, DriverSpec] = MappingProxyType({
                                                                                "period_ms"}),
     "xela": DriverSpec("tactiled_drivers.xela:XelaSource", frozenset({"sensor", "rows", "cols"})),
     "paxini": DriverSpec("tactiled_drivers.paxini:PaxiniSource", _SERIAL | {"module", "rows",
-                                                                            "cols"}),
+                                                                            "cols", "checksum"}),
 })
 
 # Drivers added at run time with register_driver(); they win over built-ins and entry points.

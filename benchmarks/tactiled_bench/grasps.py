@@ -11,9 +11,10 @@ own model are scored against their single-contact Cramer-Rao bound and by 2-sigm
 # * flat: two parallel lines (a handle, two bars: within 5 deg), a line and a ball, an edge and
 #   a ball, a line and two balls; every two contacts at least FLAT_APART_DEPTHS cover depths
 #   apart (12 mm on the 16x16 pad's 2 mm cover);
-# * curved: two crossing cylinders (60-90 deg apart), a cylinder and a ball, an edge and a ball,
-#   a cylinder and two balls; every two centres at least RESOLVED_DEPTHS depths apart and their
-#   noise-free strain dipping between them (tactiled.fit.regions.find_regions finds each);
+# * curved: two crossing cylinders (60-90 deg apart, each 30-150 deg from the finger's axis), a
+#   cylinder and a ball, an edge and a ball, a cylinder and two balls; every two centres at
+#   least RESOLVED_DEPTHS depths apart and their noise-free strain dipping between them
+#   (tactiled.fit.regions.find_regions finds each);
 # * single: one line (cylinder), edge or ball, which must give exactly one contact.
 # A fit is a truth's when its place is within MATCH_PITCHES pitches of it (a line's: measured
 # across the line).  The bound is that contact's alone on the window its fit would choose at
@@ -43,6 +44,9 @@ EDGE_RADIUS = 0.5
 #: On a flat array every two contacts at least this many cover depths apart.
 FLAT_APART_DEPTHS = 6.0
 RESOLVED_DEPTHS = 2.5
+#: On a curved finger every cylinder lies this many degrees from the finger's axis (nearer, it
+#: is a line longer than the finger, outside the planar model: docs/concepts/fitting.md).
+CURVED_ANGLES = (30.0, 150.0)
 MATCH_PITCHES = 1.5
 #: A line's errors are also compared with the bound of a square window of this side on its ridge.
 SQUARE_WINDOW = 6
@@ -72,7 +76,7 @@ def _one(kind: str, rng: np.random.Generator, model: StrainModel, xy: tuple[floa
     if kind == "ball":
         return _scaled(model, lambda s: Contact(r, r, 0.0, s, *xy), snr)
     if psi is None:
-        psi = float(rng.uniform(0.0, 180.0) if g.flat else rng.uniform(30.0, 150.0))
+        psi = float(rng.uniform(0.0, 180.0) if g.flat else rng.uniform(*CURVED_ANGLES))
     psi %= 180.0  # the reported angle's range, which the offset's sign follows
     if g.flat:
         return _scaled(model, lambda s: LineContact(r, psi, 0.1 * s, *xy), snr)
@@ -106,14 +110,17 @@ def draw(kinds: tuple[str, ...], rng: np.random.Generator, model: StrainModel,
                 angles.append(base + (float(rng.uniform(60.0, 90.0)) if i else 0.0))
             else:
                 angles.append(None)
+        if not g.flat and any(a is not None and not CURVED_ANGLES[0] <= a <= CURVED_ANGLES[1] for a in angles):
+            continue  # nearer its axis a cylinder is a line longer than the finger: not drawn
         places = [(g.span_x * rng.uniform(0.15, 0.85), g.span_y * rng.uniform(0.15, 0.85)) for _ in kinds]
         try:
             truths = [_one(k, rng, model, xy, psi) for k, xy, psi in zip(kinds, places, angles)]
+            if any(_apart(a, b) < lo for i, a in enumerate(truths) for b in truths[i + 1:]):
+                continue
+            clean = sum(model.predict(c) for c in truths)
         except ValueError:  # a contact too long for the planar model at that load
             continue
-        if any(_apart(a, b) < lo for i, a in enumerate(truths) for b in truths[i + 1:]):
-            continue
-        if not g.flat and len(find_regions(sum(model.predict(c) for c in truths), sigma)) != len(truths):
+        if not g.flat and len(find_regions(clean, sigma)) != len(truths):
             continue
         return truths
     return None

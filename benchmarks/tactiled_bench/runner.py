@@ -31,7 +31,8 @@ def truth_of(frame: BenchFrame, fitter: Fitter) -> Truth:
     p = get_model(model).from_values(c.r1, c.r2, c.psi_deg, c.force, c.x0, c.y0)
     crb = fitter.cramer_rao(frame.strain, model, p)
     values = {"r1_mm": c.r1, "angle_deg": c.psi_deg if frame.kind in ("cylinder", "edge", "general") else None,
-              "force_n": c.force, "x_mm": c.x0, "y_mm": c.y0}
+              "force_n": c.force, "x_mm": c.x0, "y_mm": c.y0,
+              "r2_mm": c.r2 if frame.kind == "general" else None}
     return Truth(values, crb)
 
 
@@ -39,7 +40,7 @@ def error(key: str, est: float | None, true: float | None) -> float | None:
     """Signed error in reporting units: % for radius and force, degrees, micrometres."""
     if est is None or true is None:
         return None
-    if key in ("r1_mm", "force_n"):
+    if key in ("r1_mm", "r2_mm", "force_n"):
         return 100.0 * (est / true - 1.0)
     if key == "angle_deg":
         return (est - true + 90.0) % 180.0 - 90.0
@@ -49,7 +50,7 @@ def error(key: str, est: float | None, true: float | None) -> float | None:
 def crb_in_units(key: str, crb: float | None, true: float | None) -> float | None:
     if crb is None or true is None:
         return None
-    if key in ("r1_mm", "force_n"):
+    if key in ("r1_mm", "r2_mm", "force_n"):
         return 100.0 * crb / true
     if key == "angle_deg":
         return crb
@@ -99,7 +100,7 @@ def observable(key: str, truth: Truth) -> bool:
     t, b = truth.values.get(key), truth.crb.get(key)
     if t is None or b is None:
         return False
-    if key == "r1_mm":
+    if key in ("r1_mm", "r2_mm"):
         return b / t < OBSERVABLE_RELATIVE
     if key == "angle_deg":
         return b < OBSERVABLE_ANGLE

@@ -14,8 +14,12 @@ pull-until-slip scenes (onset delay), and stick-only scenes (no slip events shou
 #   declared one; estimates and detector run as the daemon's, a fit every FIT_EVERY frames and
 #   the step on every frame, from 50 frames before the onset, cold, to 30 after), the share
 #   declared within ONSET_FRAMES frames; with the friction turning kinetic at the onset (0.8 of
-#   the static: the force drops) and with a constant friction (the motion alone shows it);
-# * stick-only scenes (push and twist in turn, every frame of their tangential loading).
+#   the static: the force drops), with a constant friction (the motion alone shows it), and
+#   with a constant friction on varied pulls (ramps of 0.15-0.6 s, the normal force constant or
+#   falling by 30 %);
+# * stick-only scenes (STICKS in turn, every frame of their tangential loading);
+# * along all those scenes, the shear filter's fx, fy and torsion against the truth (error over
+#   the filter's sigma); the slide test's null distribution on Gaussian estimates (null_tail).
 
 from __future__ import annotations
 
@@ -26,7 +30,8 @@ from collections.abc import Callable
 import numpy as np
 
 from tactiled.fit.shear import ShearFitter, ShearStep
-from tactiled.fit.slip import SlipDetector
+from tactiled.fit.shear_filter import ShearFilter, SlideTest
+from tactiled.fit.slip import ONSET_Z, SETTLE, SlipDetector
 from tactiled.physics.threeaxis import three_axis
 from tactiled.sensors import load_description
 from tactiled.sensors.description import SensorDescription
@@ -52,10 +57,12 @@ def resolve(spec: str) -> SensorDescription:
 
 
 def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None = None,
-           every: int = FIT_EVERY) -> list[tuple[str, int]]:
+           every: int = FIT_EVERY, truth: dict[str, np.ndarray] | None = None,
+           errors: list[tuple[float, float, float]] | None = None) -> list[tuple[str, int]]:
     """Estimate ``frames[first:last]`` in order through a slip detector, as the daemon does: a
     fit (warm-started) on every ``every``-th frame, the step from the last fit on each frame;
-    the detector's events."""
+    the detector's events.  With ``truth``, ``errors`` gains each frame's errors of the
+    filtered ``fx``, ``fy`` and torsion over their sigma (once the filter has settled)."""
     det, prev, step, events = SlipDetector(), None, None, []
     for i in range(first, len(frames) if last is None else min(last, len(frames))):
         if step is None or (i - first) % every == 0:
@@ -65,7 +72,37 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
         _, ev = det.feed(i, est)
         if ev is not None:
             events.append((ev.kind, ev.frame))
+        if truth is not None and errors is not None and det.filter.frames > SETTLE:
+            errors.append(tuple((det.filter.value(k)[0] - truth[key][i]) / det.filter.value(k)[1]
+                                for k, key in ((4, "true_fx"), (5, "true_fy"), (6, "true_torque"))))
     return events
+
+
+def null_tail(desc: SensorDescription, frames: int, seed: int) -> dict[str, float]:
+    """The slide test under the stick hypothesis: a held contact's estimates drawn from the
+    fit's covariance (its tangential force ramping, then held), through the filter and the
+    test; the share of frames whose statistic exceeds 3, 4 and :data:`ONSET_Z` sigma."""
+    rng = np.random.default_rng(seed)
+    fitter = ShearFitter(desc)
+    scene, _ = sequence(desc, "push", rng)
+    est = fitter.fit(scene[-1])
+    keep = np.nonzero(np.isfinite(np.diag(est.cov)))[0]
+    chol = np.linalg.cholesky(est.cov[np.ix_(keep, keep)])
+    zs: list[float] = []
+    while len(zs) < frames:
+        flt, test = ShearFilter(), SlideTest()
+        for i in range(400):
+            p = est.params.copy()
+            p[4:6] *= min(1.0, (i + 1) / 200)
+            p[keep] += chol @ rng.normal(size=keep.size)
+            flt.update(p, est.cov)
+            fx, fy, _, _ = flt.tangential()
+            z = test.update(flt, *((fx, fy) / np.hypot(fx, fy)))
+            if flt.frames > SETTLE:
+                zs.append(z)
+    a = np.array(zs[:frames])
+    return {"frames": float(a.size), "over3": float(np.mean(a > 3.0)), "over4": float(np.mean(a > 4.0)),
+            "over_onset": float(np.mean(a > ONSET_Z))}
 
 
 def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
@@ -89,29 +126,41 @@ def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
         out[f"{name}_crb"] = float(np.sqrt(np.mean(s[:, k] ** 2)))
     out["mu_resolved"] = len(mu_z) / n
     out["mu_cover"] = float(np.mean(np.abs(mu_z) <= 2)) if mu_z else math.nan
+    out["mu_beyond4"] = float(np.mean(np.abs(mu_z) > 4)) if mu_z else math.nan
     return out
 
 
-def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: float = 0.8
+#: The stick-only scenes, in turn: a push to 0.8 mu P, a twist, a push held near slip (0.95
+#: mu P), a push while the normal force falls by 30 % (Q following it at 0.8 mu P).
+STICKS = (("push", {}), ("twist", {}), ("push", {"hold": 0.95}), ("push", {"force_change": -0.3}))
+
+
+def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: float = 0.8,
+         varied: bool = False, errors: list[tuple[float, float, float]] | None = None
          ) -> dict[str, float]:
-    """Onset delays on pull scenes (friction turning kinetic at ``kinetic`` times the static),
-    slip events on stick-only scenes."""
+    """Onset delays on pull scenes (friction turning kinetic at ``kinetic`` times the static;
+    ``varied``: each pull's ramp drawn in 0.15-0.6 s and its normal force constant or falling
+    by 30 % over it), slip events on stick-only scenes (:data:`STICKS` in turn); ``errors``
+    gains the filtered forces' errors over their sigma along every scene."""
     rng = np.random.default_rng(seed)
     fitter = ShearFitter(desc)
     delays, early = [], 0
     for _ in range(pulls):
-        frames, truth = sequence(desc, "pull", rng, kinetic=kinetic)
+        extra = {"ramp_s": rng.uniform(0.15, 0.6), "force_change": rng.choice((0.0, -0.3))} if varied else {}
+        frames, truth = sequence(desc, "pull", rng, kinetic=kinetic, **extra)
         onset = int(truth["true_onset"])
-        events = _track(fitter, frames, onset - LEAD, onset + AFTER)
+        events = _track(fitter, frames, onset - LEAD, onset + AFTER, truth=truth, errors=errors)
         onsets = [f for kind, f in events if kind == "onset"]
         declared = next((f for f in onsets if f >= onset), None)
         early += sum(1 for f in onsets if f < onset)
         delays.append(math.inf if declared is None else declared - onset)
     false = 0
     for k in range(sticks):
-        frames, truth = sequence(desc, ("push", "twist")[k % 2], rng)
+        kind, extra = STICKS[k % len(STICKS)]
+        frames, truth = sequence(desc, kind, rng, **extra)
         loaded = int(np.argmax(np.abs(truth["true_fx"]) + np.abs(truth["true_fy"]) + np.abs(truth["true_torque"]) > 0))
-        false += sum(1 for kind, _ in _track(fitter, frames, max(0, loaded - 30)) if kind == "onset")
+        false += sum(1 for kind, _ in _track(fitter, frames, max(0, loaded - 30), truth=truth, errors=errors)
+                     if kind == "onset")
     d = np.array(delays)
     ok = d[np.isfinite(d)]
     return {"pulls": pulls, "within": float(np.mean(d <= ONSET_FRAMES)) if pulls else math.nan,
@@ -129,13 +178,16 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
             from tactiled.errors import ConfigError
 
             raise ConfigError(f"sensor {d.name!r} is a 1-axis array: the shear suite needs axes = 3")
-    n, pulls, flat, sticks = (40, 3, 3, 2) if quick else (150, 20, 20, 6)
-    rows_a, rows_s = [], []
+    n, pulls, flat, sticks, null = (40, 3, 3, 4, 2000) if quick else (150, 20, 20, 8, 20000)
+    rows_a, rows_s, rows_f = [], [], []
     for k, d in enumerate(descs):
         t0 = time.perf_counter()
         a = accuracy(d, n, seed + 10 * k)
-        s = slip(d, pulls, sticks, seed + 10 * k + 1)
-        c = slip(d, flat, 0, seed + 10 * k + 2, kinetic=1.0)
+        errors: list[tuple[float, float, float]] = []
+        s = slip(d, pulls, sticks, seed + 10 * k + 1, errors=errors)
+        c = slip(d, flat, 0, seed + 10 * k + 2, kinetic=1.0, errors=errors)
+        v = slip(d, flat, 0, seed + 10 * k + 3, kinetic=1.0, varied=True, errors=errors)
+        tail = null_tail(d, null, seed + 10 * k + 4)
         if progress is not False:
             import sys
 
@@ -144,15 +196,26 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
                       + " | ".join(f"{a[f'{q}_ratio']:.2f} / {a[f'{q}_cover']:.0%}" for q in ("fx", "fy", "torque"))
                       + f" | {a['fx_crb'] * 1000:.1f} mN, {a['torque_crb']:.3f} N mm"
                       + f" | {a['mu_resolved']:.0%} | "
-                      + (f"{a['mu_cover']:.0%}" if math.isfinite(a["mu_cover"]) else "-") + " |")
-        rows_s.append(f"| {d.name} | {s['within']:.0%} ({s['pulls']}) | {s['median_delay']:g} / {s['max_delay']:g} | "
-                      f"{s['missed']} | {s['early']} | {c['within']:.0%} ({c['pulls']}), "
-                      f"{c['median_delay']:g} / {c['max_delay']:g}, {c['missed']} missed | {s['false']} ({s['sticks']}) |")
+                      + (f"{a['mu_cover']:.0%} / {a['mu_beyond4']:.0%}" if math.isfinite(a["mu_cover"]) else "-")
+                      + " |")
+        rows_s.append(f"| {d.name} | " + " | ".join(
+            f"{r['within']:.0%} ({r['pulls']}), {r['median_delay']:g} / {r['max_delay']:g}, {r['missed']}"
+            for r in (s, c, v)) + f" | {s['early'] + c['early'] + v['early']} | {s['false']} ({s['sticks']}) |")
+        e = np.array(errors).reshape(-1, 3)
+        rows_f.append(f"| {d.name} | " + " | ".join(
+            f"{np.sqrt(np.mean(e[:, j] ** 2)):.2f} / {np.mean(np.abs(e[:, j]) <= 2):.0%}" for j in range(3))
+            + f" | {len(e)} | {tail['over3']:.1e} / {tail['over4']:.1e} / {tail['over_onset']:.1e} ({tail['frames']:.0f}) |")
     head_a = ["| array | taxels | fx RMS/CRB / 2-sigma cover | fy | torque | RMS CRB (fx, torque) "
-              "| mu resolved | mu cover |", "|---|---|---|---|---|---|---|---|"]
-    head_s = [f"| array | onset within {ONSET_FRAMES} frames (pulls) | delay median / max, frames (ms at 1 kHz) "
-              "| missed | early | constant friction: within, delay, missed | slip events on stick-only scenes (scenes) |",
-              "|---|---|---|---|---|---|---|"]
+              "| mu resolved | mu 2-sigma cover / beyond 4 sigma |", "|---|---|---|---|---|---|---|---|"]
+    head_s = [f"| array | friction turning kinetic: within {ONSET_FRAMES} frames (pulls), delay median / max, missed "
+              "| constant friction: the same | constant friction, varied pulls: the same | early "
+              "| slip events on stick-only scenes (scenes) |", "|---|---|---|---|---|---|"]
+    head_f = ["| array | filtered fx error/sigma RMS / 2-sigma cover | fy | torque | frames "
+              f"| slide test under stick: share of frames over 3 / 4 / {ONSET_Z:g} sigma (frames) |",
+              "|---|---|---|---|---|---|"]
     return "\n".join([f"Independent frames ({n} per array):", "", *head_a, *rows_a, "",
                       f"Slip: pull-until-slip and stick-only scenes at 1 kHz (a fit every {FIT_EVERY} frames, "
-                      "the step on every frame, as the daemon runs):", "", *head_s, *rows_s])
+                      "the step on every frame, as the daemon runs); delays in frames (ms at 1 kHz):", "",
+                      *head_s, *rows_s, "",
+                      "The shear filter along those scenes, and the slide test's null distribution:", "",
+                      *head_f, *rows_f])

@@ -1,5 +1,5 @@
 """PaXini PX-6AX 3-axis tactile modules on a serial port:
-``paxini:///dev/ttyACM0?module=0&points=120&rows=10&cols=12`` (921600 baud by default).
+``paxini:///dev/ttyACM0?module=0&rows=10&cols=12&checksum=1`` (921600 baud by default).
 
 The module answers requests and sends nothing unasked.  A frame is one answer to the
 distributed-force request: ``Frame.taxels`` ``(rows, cols, 3)`` (x, y, z per point, 0.1 N
@@ -19,10 +19,12 @@ the host.
 #
 #     AA 55 | N_lo N_hi | ADDR | 00 | FB | 0E 04 00 00 | LEN_lo LEN_hi | STATUS | payload | LRC
 #
-# The public drivers take the payload at offset 14 behind AA 55; this driver also checks what
-# the request implies of the prefix (N counts the bytes from ADDR to the payload's end, 10 + LEN;
-# address, function, register and length echo the request's; status 0) and the trailing LRC, so
-# a torn or corrupt answer is counted and dropped, never read as a frame.  The payload is x, y, z
+# The public drivers take the payload at offset 14 behind AA 55 and read no further
+# (tactile_sensor.cpp, read_response: 14 + LEN bytes); this driver also checks what the request
+# implies of the prefix (N counts the bytes from ADDR to the payload's end, 10 + LEN; address,
+# function, register and length echo the request's; status 0) and, unless ``checksum=0``, the
+# LRC byte after the payload, so a torn or corrupt answer is counted and dropped, never read as
+# a frame.  The payload is x, y, z
 # per point: x and y signed 8-bit, z unsigned 8-bit, in 0.1 N (UI_sensor.py,
 # parse_distributed_force).  Points are in order, row-major (rows x cols = points), as signed
 # counts offset by ZERO_COUNTS to fit the wire's unsigned 16 bits (raw, the z counts the 1-axis
@@ -74,8 +76,9 @@ def request(module: int, points: int) -> bytes:
     return body + bytes((lrc(body),))
 
 
-def response(module: int, xyz: np.ndarray, status: int = 0) -> bytes:
-    """A module's answer carrying ``xyz`` ``(points, 3)``: x, y in [-128, 127], z in [0, 255]."""
+def response(module: int, xyz: np.ndarray, status: int = 0, checksum: bool = True) -> bytes:
+    """A module's answer carrying ``xyz`` ``(points, 3)``: x, y in [-128, 127], z in [0, 255];
+    ``checksum=False``: without the LRC byte after the payload."""
     a = np.asarray(xyz, dtype=np.int64).reshape(-1, 3)
     payload = np.empty(a.shape, dtype=np.uint8)
     payload[:, :2] = (a[:, :2] & 0xFF).astype(np.uint8)
@@ -84,13 +87,15 @@ def response(module: int, xyz: np.ndarray, status: int = 0) -> bytes:
     body = (RESPONSE_HEAD + (10 + len(data)).to_bytes(2, "little")
             + bytes((module + 1, 0x00, READ)) + REGISTER.to_bytes(4, "little")
             + len(data).to_bytes(2, "little") + bytes((status,)) + data)
-    return body + bytes((lrc(body),))
+    return body + bytes((lrc(body),)) if checksum else body
 
 
 class PaxiniFramer(FramerBase):
-    """Answers of one module -> frames ``(rows, cols, 3)``; never raises."""
+    """Answers of one module -> frames ``(rows, cols, 3)``; never raises.  ``checksum``: the
+    answers end with an LRC byte (False: with their payload)."""
 
-    def __init__(self, module: int = 0, rows: int = 10, cols: int = 12) -> None:
+    def __init__(self, module: int = 0, rows: int = 10, cols: int = 12,
+                 checksum: bool = True) -> None:
         super().__init__()
         if not 0 <= module < 255:
             raise ValueError(f"module must be 0..254, got {module}")
@@ -99,7 +104,8 @@ class PaxiniFramer(FramerBase):
         self.module = module
         self.shape = (rows, cols)
         self.length = 3 * rows * cols
-        self.size = PREFIX + self.length + 1
+        self.checksum = checksum
+        self.size = PREFIX + self.length + (1 if checksum else 0)
         self._expect = response(module, np.zeros((rows * cols, 3)))[2:PREFIX - 1]
         self.answers = 0  # whole answers seen, good or bad: the source asks again after each
 
@@ -160,7 +166,7 @@ class PaxiniFramer(FramerBase):
             return "length_errors" if n != 10 + self.length else "parse_errors"
         if unit[PREFIX - 1] != 0:
             return "parse_errors"
-        if lrc(unit[:-1]) != unit[-1]:
+        if self.checksum and lrc(unit[:-1]) != unit[-1]:
             return "crc_errors"
         return None
 
@@ -178,7 +184,8 @@ class PaxiniFramer(FramerBase):
 class PaxiniSource(SerialSource):
     """A PX-6AX module on a serial port: asks for the points, reads the answer, asks again."""
 
-    PARAMS: ClassVar[frozenset[str]] = SerialSource.PARAMS | {"module", "rows", "cols"}
+    PARAMS: ClassVar[frozenset[str]] = SerialSource.PARAMS | {"module", "rows", "cols",
+                                                               "checksum"}
     DEFAULT_BAUD: ClassVar[int] = DEFAULT_BAUD
 
     def __init__(self, url: str | SourceURL, *, decoder: PaxiniFramer | None = None) -> None:
@@ -193,7 +200,8 @@ class PaxiniSource(SerialSource):
         self.rows = u.get_int("rows", 10, minimum=1, maximum=255)
         self.cols = u.get_int("cols", 12, minimum=1, maximum=255)
         try:
-            return PaxiniFramer(self.module, self.rows, self.cols)
+            return PaxiniFramer(self.module, self.rows, self.cols,
+                                checksum=u.get_bool("checksum", True))
         except ValueError as err:
             raise ValueError(f"{u.url!r}: {err}") from None
 

@@ -1,8 +1,10 @@
 """Replay a recording: ``replay://session.tact?speed=1.0&loop=0&clock=live``.
 
 The original wire bytes of each frame go to the shared decoder, so a replayed frame is decoded
-exactly as it was live (seq, device time and counts bit-identical).  ``replay://rel/path.tact``
-or ``replay:///abs/path.tact``.
+exactly as it was live (seq, device time and counts bit-identical; a 3-axis array's x, y, z
+too).  A recording of a vendor device (its header names it) is read through that device's
+nominal counts -> strain table, as it was live.  ``replay://rel/path.tact`` or
+``replay:///abs/path.tact``.
 """
 # URL parameters:
 # - speed: pace multiplier (default 1: the recorded pace, from the recorded host times;
@@ -21,8 +23,10 @@ import time
 from collections.abc import Iterator
 from typing import ClassVar
 
-from tactiled.errors import DriverError
+from tactiled.errors import DriverError, FrameError
+from tactiled.frames import FrameDecoder
 from tactiled.io.recording import RecordingReader
+from tactiled.sensors.devices import KINDS, DeviceArray, device_array
 from tactiled.sources import FrameSource, Framer, SourceURL
 from tactiled_drivers.plumbing.futures import Pause
 
@@ -52,6 +56,29 @@ class ReplaySource(FrameSource):
         self._start = 0.0  # monotonic time that frame was (re)played, s
         self._record_time = 0.0  # recorded host time of the record just returned, s
         self._pause = Pause()
+
+    def device_array(self) -> DeviceArray | None:
+        """The recorded vendor device's array (its nominal counts -> strain table), when the
+        recording's header names one, in the shape of its first frame; None otherwise, or when
+        the file cannot be read yet (opening it says why)."""
+        try:
+            with RecordingReader(self.path) as reader:
+                kind = reader.header.device
+                if kind not in KINDS:
+                    return None
+                frames = next((got for _t, data in reader
+                               if (got := FrameDecoder().feed(data))), None)
+        except (OSError, FrameError):
+            return None
+        if not frames:
+            return None
+        rows, cols = frames[0].shape
+        try:
+            return device_array(kind, rows, cols)
+        except ValueError:  # a shape the device cannot have: the wire format's own counts
+            log.warning("%s: recorded %s frames are %dx%d, not the device's array; their "
+                        "counts are read as the wire format's", self.path, kind, rows, cols)
+            return None
 
     async def _open_internal(self) -> None:
         try:

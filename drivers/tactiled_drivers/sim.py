@@ -8,7 +8,9 @@ clock; a starved loop skips stale frames as a real device would lose them.
 # URL parameters (all optional):
 # - sensor: the simulated array, a description's built-in name or .toml path (default
 #   fearing1988, the paper's finger; docs/howto/sensors.md); its cover unless changed below;
-# - scene: a built-in scene name (default demo; see tactiled.sim.SCENES);
+# - scene: a built-in scene name (default demo; see tactiled.sim.SCENES); on a 3-axis sensor
+#   also push, twist or pull (tactiled.sim.taxel_stream: x, y, z per taxel, version-2 frames;
+#   noise, drift, hysteresis and the finger's parameters do not apply);
 # - seed: integer seed of the noise and drift (default 0): the same seed gives the same bytes;
 # - rate: frames per second of device time, Hz (default 1000);
 # - sensor_id: the id the frames carry, 0..65535 (default 0);
@@ -47,6 +49,8 @@ from tactiled.sim import (
     HysteresisModel,
     scene_from_spec,
 )
+from tactiled.sim.shear import SEQUENCES
+from tactiled.sim.taxel_stream import TaxelScenes
 from tactiled.sources import FrameSource, Framer, SourceURL
 from tactiled_drivers.plumbing.futures import Pause
 
@@ -77,14 +81,26 @@ class SimSource(FrameSource):
         try:
             #: the simulated array (a sensor description: built-in name or .toml path)
             self.description = load_description(u.get_str("sensor", DEFAULT_NAME))
-            base = self.description.sensor_model()
-            scene = scene_from_spec(u.get_str("scene", "demo"), base.geometry)
-            finger = FingerSpec.from_params(u.params, base)
+            self.simulator = self._simulator(noise, drift, fraction)
         except ValueError as err:
             raise ValueError(f"{u.url!r}: {err}") from None
-        self.simulator = FingerSimulator(
+        self.frames_sent = 0
+        self.frames_skipped = 0
+        self._schedule: FrameSchedule | None = None
+        self._pause = Pause()
+
+    def _simulator(self, noise: float | None, drift: float,
+                   fraction: float) -> FingerSimulator | TaxelScenes:
+        """The scene's player: a 3-axis array's tangential scene, or the finger simulator."""
+        u = self.url
+        name = u.get_str("scene", "demo")
+        if name in SEQUENCES:
+            return TaxelScenes(self.description, name, self.seed, self.rate,
+                               sensor_id=self.sensor_id)
+        base = self.description.sensor_model()
+        return FingerSimulator(
             sensor=base,
-            scene=scene,
+            scene=scene_from_spec(name, base.geometry),
             seed=self.seed,
             rate_hz=self.rate,
             noise=noise,
@@ -92,12 +108,8 @@ class SimSource(FrameSource):
             hysteresis=HysteresisModel(fraction=fraction) if fraction > 0 else None,
             sensor_id=self.sensor_id,
             loop=self.loop,
-            finger=finger,
+            finger=FingerSpec.from_params(u.params, base),
         )
-        self.frames_sent = 0
-        self.frames_skipped = 0
-        self._schedule: FrameSchedule | None = None
-        self._pause = Pause()
 
     def sent_id(self) -> int:
         return self.sensor_id

@@ -9,7 +9,8 @@ take the same arguments and give the same bits (tests/native/test_calibrate_core
 # * :func:`follow_baseline`: the baseline's step towards an untouched frame;
 # * :func:`average_maps`: the detector's running mean of its filter maps;
 # * :func:`drift_error`, :func:`pull_baseline`: drift followed around a held contact;
-# * :func:`learn_hysteresis`: a step of the hysteresis learner.
+# * :func:`learn_hysteresis`: a step of the hysteresis learner;
+# * :class:`ZeroRun`: a read's frames through the whole stage in one call, until one in contact.
 #
 # Nothing is compiled at first use: the core is built by ``pip install``.
 
@@ -26,6 +27,7 @@ if native.core is None:
         follow_baseline,
         learn_hysteresis,
         pull_baseline,
+        ZeroRun,
         zero_frame,
     )
 else:
@@ -35,6 +37,7 @@ else:
     drift_error = native.core.drift_error
     pull_baseline = native.core.pull_baseline
     learn_hysteresis = native.core.learn_hysteresis
+    ZeroRun = native.core.ZeroRun
 
 
 def filter_bands(ax: np.ndarray, ay_t: np.ndarray) -> np.ndarray:

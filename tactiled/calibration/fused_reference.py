@@ -216,3 +216,119 @@ def learn_hysteresis(peaks: np.ndarray, taus: np.ndarray, dt: float, predicted: 
     moment[:, 1] += le
     moment[:, 2] += e1
     return True
+
+
+# The run's state and constants (:func:`zero_run`), one float64 vector each, in this order; the
+# stage (:meth:`~tactiled.calibration.stage.CalibrationStage.process_run`) packs its objects'
+# state into ``state`` and unpacks it after the call.
+#: zeroer: last frame's time (s), frames since the baseline's start, settle and release-hold
+#: ends (s), baseline variance, in contact; compensator active; detector: ring count and head,
+#: last statistic, in contact; the last frame: its residual valid, its largest strain; a
+#: contact released in the run (drift following restarts)
+RUN_STATE = ("last_t", "frames", "settle_until", "release_until", "baseline_var",
+             "in_contact", "active", "count", "head", "last_statistic", "detector_in_contact",
+             "residual_valid", "peak", "released")
+#: compensator fraction and time constant (s), its floor and margin (strain), noise sigma,
+#: the detector's enter and exit thresholds, tau_drift, tau_release, holdoff (s), the
+#: baseline's step limit (strain), frames averaged by the detector
+RUN_CONSTANTS = ("fraction", "tau_s", "floor", "margin", "sigma", "enter", "exit",
+                 "tau_drift", "tau_release", "holdoff", "max_step", "average")
+
+
+def zero_run(raws: list[np.ndarray], times: np.ndarray, offset: np.ndarray, breaks: np.ndarray,
+             first: np.ndarray, params: np.ndarray, baseline: np.ndarray, peak: np.ndarray,
+             ax: np.ndarray, ay_t: np.ndarray, bands: np.ndarray, ring: np.ndarray,
+             total: np.ndarray, z: np.ndarray, residual: np.ndarray, stats: np.ndarray,
+             peaks: np.ndarray, state: np.ndarray, constants: np.ndarray) -> int:
+    """A run of frames through the calibration stage in one call: for each of ``raws`` (counts,
+    flat or ``(rows, cols)``) at device time ``times[i]`` (s), what
+    :meth:`CalibrationStage.process` does on its compiled path (:func:`zero_frame`, the
+    detector's decision with its hysteresis and averaging, the zeroer's settling and the
+    baseline's step), its zeroed strain into ``z[i]``, its statistic and largest strain into
+    ``stats[i]`` and ``peaks[i]``.  Stops after the first frame in contact (the pipeline's
+    tracking may move the baseline before the next frame) and before a frame
+    :func:`zero_frame` does not take (a non-finite value: the reference path's).  ``state``
+    (``RUN_STATE``) is read and written back; ``baseline``, ``peak``, ``ring``, ``total`` are
+    updated in place; ``residual``: the last frame's compensation.  Returns the frames
+    taken."""
+    (fraction, tau_s, floor, margin, sigma, enter, exit_, tau_drift, tau_release, holdoff,
+     max_step, average) = (float(c) for c in constants)
+    average = int(average)
+    last_t, frames, settle_until, release_until = state[0], int(state[1]), state[2], state[3]
+    baseline_var, in_contact, active = state[4], bool(state[5]), bool(state[6])
+    count, head, last_statistic = int(state[7]), int(state[8]), state[9]
+    det_in, residual_valid, top, released = bool(state[10]), bool(state[11]), state[12], bool(state[13])
+    tmap = np.empty(total.size)
+    scratch = np.empty(residual.size)
+    taken = 0
+    for i, raw in enumerate(raws):
+        t = float(times[i])
+        dt = t - last_t
+        zi = z[i].reshape(-1)
+        res = scratch if fraction > 0.0 else zi
+        code, stat, pk = zero_frame(raw.reshape(-1), offset, breaks, first, params, baseline,
+                                    peak, fraction, math.exp(-dt / tau_s) if dt > 0.0 else 1.0,
+                                    floor, margin, active, ax, ay_t, bands, zi, res, tmap)
+        if code < 0:
+            break
+        taken += 1
+        top = pk
+        frames += 1
+        settling = t < settle_until
+        last_t = t
+        residual_valid = bool(code & 1)
+        if residual_valid:
+            residual[:] = scratch
+        if fraction > 0.0:
+            active = bool(code & 2)
+        if settling:
+            contact = False
+        else:
+            if average > 1:
+                count, head, stat = average_maps(ring, total, tmap, count, head)
+            last_statistic = stat
+            det_in = stat >= exit_ if det_in else stat > enter
+            contact = det_in
+        stats[i], peaks[i] = last_statistic, pk  # (the detector's: unchanged while settling)
+        if contact:
+            in_contact = True
+            break
+        if in_contact:
+            in_contact = False
+            release_until = t + holdoff
+            released = True
+        if dt > 0.0:
+            tau = tau_release if t < release_until else tau_drift
+            ema = -math.expm1(-dt / tau)
+            mean = 1.0 / frames
+            sigma2 = sigma ** 2
+            if mean >= ema:
+                follow_baseline(baseline, zi, mean, 0.0, False)
+                baseline_var = sigma2 * mean
+            else:
+                baseline_var = (1.0 - ema) ** 2 * baseline_var + ema * ema * sigma2
+                follow_baseline(baseline, zi, ema, max_step, True)
+    state[:] = (last_t, frames, settle_until, release_until, baseline_var, in_contact, active,
+                count, head, last_statistic, det_in, residual_valid, top, released)
+    return taken
+
+
+class ZeroRun:
+    """One stage's :func:`zero_run`: its arrays (the table's segments, ``baseline``, ``peak``,
+    the filter, the detector's ``ring`` and ``total``, ``residual``) and ``constants`` given
+    once, as the core checks them once; :meth:`run` takes a read's frames."""
+
+    def __init__(self, offset: np.ndarray, breaks: np.ndarray, first: np.ndarray,
+                 params: np.ndarray, baseline: np.ndarray, peak: np.ndarray, ax: np.ndarray,
+                 ay_t: np.ndarray, bands: np.ndarray, ring: np.ndarray, total: np.ndarray,
+                 residual: np.ndarray, constants: np.ndarray) -> None:
+        self._arrays = (offset, breaks, first, params, baseline, peak, ax, ay_t, bands, ring,
+                        total)
+        self._residual, self._constants = residual, np.array(constants, dtype=np.float64)
+
+    def run(self, raws: list[np.ndarray], times: np.ndarray, z: np.ndarray, stats: np.ndarray,
+            peaks: np.ndarray, state: np.ndarray) -> int:
+        """:func:`zero_run` of these frames with this stage's arrays; returns the frames
+        taken."""
+        return zero_run(raws, times, *self._arrays, z, self._residual, stats, peaks, state,
+                        self._constants)

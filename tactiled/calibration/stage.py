@@ -18,13 +18,16 @@ import os
 
 import numpy as np
 
-from tactiled.calibration.fused import zero_frame
+from tactiled.calibration.detection import ContactDetector
+from tactiled.calibration.fused import ZeroRun, zero_frame
+from tactiled.calibration.fused_reference import RUN_STATE
 from tactiled.calibration.hysteresis import MIN_PEAK_SIGMAS, NOISE_MARGIN
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.segments import Segments
-from tactiled.calibration.zeroing import Zeroer
+from tactiled.calibration.zeroing import MAX_STEP_SIGMAS, Zeroer
 from tactiled.errors import CalibrationError
 from tactiled.frames import Frame
+from tactiled.sensors.model import SensorModel
 
 
 class CalibrationStage:
@@ -43,8 +46,20 @@ class CalibrationStage:
         #: took the reference path); a frame whose contact ends may be changed after it
         #: (the baseline's pull clips an implausible frame), a contact frame never is
         self.peak = math.nan
+        self._runner: ZeroRun | None = None  # process_run's, kept between runs ...
+        self._run_key: tuple | None = None  # ... while its constants ...
+        self._run_on: tuple = ()  # ... and the arrays it writes are the stage's
         if self.zeroer.shape != table.shape:
             raise ValueError(f"zeroer shape {self.zeroer.shape} != table shape {table.shape}")
+
+    @classmethod
+    def for_sensor(cls, table: LookupTable, sensor: SensorModel, sigma: float,
+                   false_rate: float, average: int, hysteresis: bool) -> CalibrationStage:
+        """The stage of a sensor's settings: ``table``, and a zeroer whose detector holds
+        ``sensor``'s matched filter at noise ``sigma`` (strain) and ``false_rate``, averaging
+        ``average`` frames; ``hysteresis``: learn the rubber's and take it out."""
+        detector = ContactDetector(sigma, sensor=sensor, false_rate=false_rate, average=average)
+        return cls(table, Zeroer(table.shape, detector=detector, hysteresis=hysteresis))
 
     def process(self, frame: Frame) -> bool:
         """Fill ``frame.strain`` (zeroed, float64) and return whether a contact is present."""
@@ -107,6 +122,73 @@ class CalibrationStage:
             contact = det.decide(det.average_map(tmap) if det.average > 1 else stat)
         zr._settle_frame(z, t, dt, contact)
         return z
+
+    def can_run(self) -> bool:
+        """Whether :meth:`process_run` can take the next frames (the compiled path applies:
+        the baseline is formed, no tare pending, the table is piecewise)."""
+        zr = self.zeroer
+        return (self.compiled and zr.baseline is not None and not zr._pending_tare
+                and zr._last_t is not None and zr.baseline.flags.c_contiguous
+                and isinstance(self.table._forward, Segments))
+
+    def process_run(self, raws: list[np.ndarray], times: np.ndarray,
+                    z: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+        """:meth:`process` for a read's frames in one call into the core
+        (:class:`~tactiled.calibration.fused.ZeroRun`): ``raws`` (integer counts of this
+        table's shape) at device times ``times`` (s); their zeroed strain into ``z``
+        (``(N, rows, cols)`` float64).  Stops after the first frame in contact (that frame
+        taken: :attr:`in_contact` is then True) and before a frame the compiled path does not
+        take.  Returns ``(frames taken, statistics, largest strains)``: the detector's
+        ``last_statistic`` after each frame and each frame's largest strain.  Call only when
+        :meth:`can_run`; the objects' state is the same as after :meth:`process` of each."""
+        zr = self.zeroer
+        det = zr.detector
+        comp = zr.hysteresis
+        key = (comp.fraction, comp.tau_s, det.sigma, det.enter_threshold, det.exit_threshold,
+               det.average)
+        if (self._runner is None or self._run_key != key or self._run_on[0] is not zr.baseline
+                or self._run_on[1] is not comp._peak or self._run_on[2] is not det._ring):
+            self._runner = self._new_runner()
+            self._run_key, self._run_on = key, (zr.baseline, comp._peak, det._ring)
+        state = self._run_state
+        state[:] = (zr._last_t, zr._frames, zr._settle_until, zr._release_until,
+                    zr.baseline_var, zr.in_contact, comp._active, det._count, det._head,
+                    det.last_statistic, det.in_contact, False, self.peak, False)
+        n = len(raws)
+        stats, peaks = np.empty(n), np.empty(n)
+        taken = self._runner.run(raws, times, z, stats, peaks, state)
+        if taken:
+            (zr._last_t, frames, _, zr._release_until, zr.baseline_var, in_contact, active,
+             count, head, det.last_statistic, det_in, residual_valid, self.peak,
+             released) = state.tolist()
+            zr._frames, det._count, det._head = int(frames), int(count), int(head)
+            zr.in_contact, det.in_contact = bool(in_contact), bool(det_in)
+            if comp.fraction > 0.0:
+                comp._active = bool(active)
+            zr._residual = self._run_residual.copy() if residual_valid else None
+            if released:
+                zr._drift_t = None
+            self.finite = True
+        return taken, stats, peaks
+
+    def _new_runner(self) -> ZeroRun:
+        """The stage's :class:`~tactiled.calibration.fused.ZeroRun`: its arrays (flat views,
+        written in place) and its constants (``RUN_CONSTANTS``), checked once."""
+        zr = self.zeroer
+        det = zr.detector
+        comp = zr.hysteresis
+        seg = self.table._forward
+        sigma = det.sigma
+        constants = np.array((comp.fraction, comp.tau_s, MIN_PEAK_SIGMAS * sigma,
+                              NOISE_MARGIN * sigma, sigma, det.enter_threshold,
+                              det.exit_threshold, zr.tau_drift, zr.tau_release, zr.holdoff,
+                              MAX_STEP_SIGMAS * sigma, det.average))
+        self._run_state = np.zeros(len(RUN_STATE))
+        self._run_residual = np.empty(zr.shape)
+        return ZeroRun(seg._offset, seg._breaks, seg._first, seg._params,
+                       zr.baseline.reshape(-1), comp._peak.reshape(-1), det._ax, det._ay_t,
+                       det._bands, det._ring, det._total, self._run_residual.reshape(-1),
+                       constants)
 
     @property
     def in_contact(self) -> bool:

@@ -178,7 +178,8 @@ def run(args: argparse.Namespace) -> int:
         reference = Fitter(sensor)
         truths = [runner.truth_of(f, reference) for f in frames]
         out += ["", f"## Model order ({scenes} scenes x 2 frames over cylinders, edges, spheres, ellipsoids)", "",
-                "| estimator | kind | frames | CPU ms median | radius % med | model picked (share) |", "|---|---|---|---|---|---|"]
+                "| estimator | kind | frames | CPU ms median | radius % med | second radius % med | model picked (share) |",
+                "|---|---|---|---|---|---|---|"]
         for name, model in (("fit cylinder", "cylinder"), ("fit auto (BIC)", "auto")):
             fitter = Fitter(sensor, FitOptions())
             by_kind: dict[str, list] = {}
@@ -188,19 +189,24 @@ def run(args: argparse.Namespace) -> int:
                 res = fitter.fit(bf.strain, model)
                 dt = (time.thread_time() - t0) * 1e3
                 e = runner.error("r1_mm", res.values["r1_mm"], bf.contact.r1) if runner.observable("r1_mm", truth) else None
-                by_kind.setdefault(bf.kind, []).append((dt, e, res.model))
+                # an ellipsoid's second radius, where its bound resolves it and the model picked has one
+                e2 = (runner.error("r2_mm", res.values.get("r2_mm"), truth.values["r2_mm"])
+                      if runner.observable("r2_mm", truth) else None)
+                by_kind.setdefault(bf.kind, []).append((dt, e, res.model, e2))
                 bar.step()
             for kind, items in by_kind.items():
                 import numpy as np
 
                 times = [i[0] for i in items]
                 errs = [abs(i[1]) for i in items if i[1] is not None]
+                errs2 = [abs(i[3]) for i in items if i[3] is not None]
                 picks: dict[str, int] = {}
                 for i in items:
                     picks[str(i[2])] = picks.get(str(i[2]), 0) + 1
                 share = ", ".join(f"{m} {100 * c / len(items):.0f} %" for m, c in sorted(picks.items(), key=lambda t: -t[1]))
                 out.append(f"| {name} | {kind} | {len(items)} | {np.median(times):.3f} | "
-                           f"{np.median(errs) if errs else float('nan'):.1f} | {share} |")
+                           f"{np.median(errs) if errs else float('nan'):.1f} | "
+                           f"{f'{np.median(errs2):.1f}' if errs2 else '-'} | {share} |")
     if "skip" in suites:
         from tactiled_bench import skipping
 

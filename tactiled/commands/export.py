@@ -8,6 +8,8 @@ ros2 profile that `ros2 bag play` replays and Foxglove opens:
   <namespace>/<sensor>/contact   tactiled_msgs/msg/Contact         every estimate
   <namespace>/<sensor>/markers   visualization_msgs/msg/MarkerArray every estimate
   <namespace>/<sensor>/strain    sensor_msgs/msg/Image (32FC1)     every zeroed frame
+  <namespace>/<sensor>/taxels    sensor_msgs/msg/Image (32FC3)     a 3-axis array's zeroed
+                                 readings (x, y, z channels), every zeroed frame
   /diagnostics                   diagnostic_msgs/msg/DiagnosticArray once a recorded second
 Times are the recording's own: header stamps and log times are the file's creation time plus
 each frame's recorded host time since the first frame.  latency_ms, worker_ms and fit_ms are
@@ -16,7 +18,9 @@ identical byte for byte.  Needs the ros2 extra (pip install 'tactiled[ros2]').
 
 -o OUT.npz writes the raw frames as arrays, no pipeline: counts (N, rows, cols) uint16,
 host_time_s (N,) float64 (the recorded monotonic host times), seq (N,) int64, sensor_id (N,)
-int64 -- an input `tactiled fit --calibration CAL.json OUT.npz` reads.
+int64 -- an input `tactiled fit --calibration CAL.json OUT.npz` reads.  A recording of a
+3-axis array also gives taxel_counts (N, rows, cols, 3) uint16, the x, y, z counts as
+received (counts holds z).
 
 The output is never overwritten (an existing file is an error).  A progress bar goes to
 stderr on a terminal.
@@ -141,7 +145,7 @@ async def _export_mcap(settings: Any, writer: Any, created: float, t0: float,
             est = without_timing(item.to_json_dict(), blank=True)
             writer.write_estimate(est, stamp)
             return
-        writer.write_frame(item.sensor, item.strain, stamp)
+        writer.write_zeroed(item, stamp)
         progress.step()
         if stamp >= state["due"]:
             state["due"] = stamp + 1.0
@@ -179,19 +183,22 @@ def _health(stats: SensorStats, state: dict[str, Any]) -> dict[str, Any]:
 def export_npz(path: str, out: Path, progress: Progress) -> int:
     """The raw frames of a recording into ``out`` (see the module docstring); the count."""
     decoder = new_decoder()
-    counts, host_time, seq, sensor_id = [], [], [], []
+    counts, taxels, host_time, seq, sensor_id = [], [], [], [], []
     with RecordingReader(path) as reader:
         for t, data in reader:
             for frame in decoder.feed(data, t):
                 counts.append(np.asarray(frame.raw))
+                taxels.append(frame.taxels)
                 host_time.append(t)
                 seq.append(frame.seq)
                 sensor_id.append(frame.sensor_id)
             progress.step()
     shape = counts[0].shape if counts else (0, 0)
+    arrays = {"counts": np.stack(counts) if counts else np.zeros((0, *shape), np.uint16),
+              "host_time_s": np.asarray(host_time, np.float64), "seq": np.asarray(seq, np.int64),
+              "sensor_id": np.asarray(sensor_id, np.int64)}
+    if counts and all(x is not None and x.shape == taxels[0].shape for x in taxels):
+        arrays["taxel_counts"] = np.stack(taxels)  # a 3-axis array's x, y, z counts
     with open(out, "xb") as fh:
-        np.savez_compressed(
-            fh, counts=np.stack(counts) if counts else np.zeros((0, *shape), np.uint16),
-            host_time_s=np.asarray(host_time, np.float64), seq=np.asarray(seq, np.int64),
-            sensor_id=np.asarray(sensor_id, np.int64))
+        np.savez_compressed(fh, **arrays)
     return len(counts)

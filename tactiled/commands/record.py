@@ -53,7 +53,9 @@ async def _record(source: FrameSource, path: Path, args: argparse.Namespace) -> 
         async with contextlib.aclosing(source.frames()) as frames:
             async for frame in frames:
                 if recorder is None:  # the file header needs the sensor id of the frames
-                    recorder = Recorder(path, sensor_id=frame.sensor_id, append=args.append)
+                    device = source.device_array()  # a vendor device: replayed as it reads
+                    recorder = Recorder(path, sensor_id=frame.sensor_id, append=args.append,
+                                        device=None if device is None else device.kind)
                 recorder.record(frame)
                 count += 1
                 if args.frames is not None and count >= args.frames:

@@ -18,7 +18,9 @@ reads.  The contact flags (--r1, --force...) do not apply.
 
 Device mode (--pty or --serial): a simulated finger plays a scripted scene (--scene) and streams
 wire-format frames in real time at --rate Hz until SIGINT/SIGTERM, exactly as the hardware would
-(see docs/concepts/simulator.md).  --pty makes a pseudo-terminal and prints its path as the first line
+(see docs/concepts/simulator.md).  On a 3-axis --sensor, --scene push|twist|pull streams 3-axis
+frames (x, y, z per taxel: version 2 of the wire format), each pass 300 frames at rest, then the
+scene.  --pty makes a pseudo-terminal and prints its path as the first line
 on stdout ("pty: /dev/pts/N"); --link PATH also points a symlink at it, a stable path for a
 daemon config.  Frames the reader does not take are dropped (and counted), never queued
 without bound.
@@ -55,6 +57,7 @@ from tactiled.sensors import SensorDescription, load_description
 from tactiled.io.framefile import save_frame_file
 from tactiled.frames import encode_frame
 from tactiled.physics.contact import Contact
+from tactiled.sim.taxel_stream import TaxelScenes
 from tactiled.sim import (
     DEFAULT_DRIFT,
     DEFAULT_HYSTERESIS,
@@ -132,7 +135,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        help="create a pseudo-terminal, print 'pty: PATH' and stream to it")
     where.add_argument("--serial", metavar="PORT", help="stream to an existing serial device or pty")
     dev.add_argument("--link", metavar="PATH", help="with --pty: make PATH a symlink to the pty")
-    dev.add_argument("--scene", default="demo", help=f"scene to play, looped: {', '.join(SCENES)} (default demo)")
+    dev.add_argument("--scene", default="demo", help=f"scene to play, looped: {', '.join(SCENES)} (default demo); on a "
+                     "3-axis --sensor also push, twist, pull (x, y, z per taxel)")
     dev.add_argument("--rate", type=float, default=1000.0, help="frames per second (default 1000)")
     dev.add_argument("--sensor-id", type=int, default=0, help="sensor id in the frames, 0..65535 (default 0)")
     dev.add_argument("--drift", type=float, default=DEFAULT_DRIFT.amplitude,
@@ -305,6 +309,15 @@ def _run_device(args: argparse.Namespace) -> int:
         return _error(f"--rate must be a frame rate in Hz in (0, 100000], got {args.rate!r}")
     if args.seed < 0:
         return _error(f"--seed must be >= 0, got {args.seed}")
+    from tactiled.sim.shear import SEQUENCES
+
+    if args.scene in SEQUENCES:  # 3-axis frames (version 2 on the wire) of a tangential scene
+        try:
+            scenes = TaxelScenes(description(args), args.scene, args.seed, args.rate,
+                                 sensor_id=args.sensor_id)
+        except (ValueError, TactiledError) as err:
+            return _error(str(err))
+        return until_signal(lambda stop: _serve(args, scenes, stop))
     try:
         finger = finger_spec(args)
         sim = FingerSimulator(
@@ -325,7 +338,8 @@ def _run_device(args: argparse.Namespace) -> int:
     return until_signal(lambda stop: _serve(args, sim, stop))
 
 
-def _serve(args: argparse.Namespace, sim: FingerSimulator, stop: list[int]) -> int:
+def _serve(args: argparse.Namespace, sim: FingerSimulator | TaxelScenes,
+           stop: list[int]) -> int:
     """Open the device, stream until ``stop`` is non-empty, close the device."""
     port = None
     if args.pty:
@@ -350,7 +364,7 @@ def _serve(args: argparse.Namespace, sim: FingerSimulator, stop: list[int]) -> i
 
     writer = FrameWriter(fd, name)
     schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
-    print(f"tactiled simulate: streaming scene {sim.scene.name!r} at {args.rate:g} Hz to {name}; "
+    print(f"tactiled simulate: streaming scene {args.scene!r} at {args.rate:g} Hz to {name}; "
           "stop with Ctrl-C or SIGTERM", file=sys.stderr)
     try:
         while not stop:

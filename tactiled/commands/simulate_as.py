@@ -13,12 +13,14 @@ its shape, pitch and nominal counts scaling) and streams them in the vendor's ow
   the sensor does.
 - ``paxini``: a pseudo-terminal as for the serial devices, answering each distributed-force
   request (:func:`tactiled_drivers.paxini.request`) with the newest rendered frame, as the PX-6AX
-  module answers its host (it sends nothing unasked).
+  module answers its host (it sends nothing unasked).  With ``--scene push``, ``twist`` or
+  ``pull`` every point's x, y and z follow the 3-axis model on ``paxini_px6ax`` (or
+  ``--sensor``), as for ``xela``.
 - ``xela``: a WebSocket server on 127.0.0.1 (``--device PORT``, 0 for any free port) speaking as
   ``xela_server`` does (a welcome message, then one message per tick with sensors 1 and 2).
   Prints ``xela: ws://127.0.0.1:PORT``.  With ``--scene push``, ``twist`` or ``pull`` (the
   tangential scenes of :mod:`tactiled.sim.shear`) every taxel's x, y and z follow the 3-axis model
-  on ``xela_uskin_4x4`` (sensor 1; sensor 2 rests): 300 frames at rest, then the scene, looped
+  on ``xela_uskin_4x4`` or ``--sensor`` (sensor 1; sensor 2 rests): 300 frames at rest, then the scene, looped
   with a new sphere each time.
 
 Runs until SIGINT/SIGTERM.
@@ -51,6 +53,8 @@ XELA_SHEAR_SD = 40.0
 #: kind -> the array shapes its device can have, None: any (the URL's rows and cols say)
 SHAPES: dict[str, tuple[tuple[int, int], ...] | None] = {
     "lines": None, "flexitac": None, "robotiq": ((7, 4),), "xela": ((4, 4), (4, 6))}
+#: kind -> the 3-axis array its tangential scenes (--scene push|twist|pull) play by default
+TANGENTIAL_ARRAYS = {"xela": "xela_uskin_4x4", "paxini": "paxini_px6ax"}
 #: XELA's model names, as xela_server sends them, by array shape
 XELA_MODELS = {(4, 4): "XR1944", (4, 6): "XR1946"}
 
@@ -102,11 +106,13 @@ def run(args: argparse.Namespace) -> int:
         return _error(f"--seed must be >= 0, got {args.seed}")
     from tactiled.sim.shear import SEQUENCES
 
-    if args.scene in SEQUENCES and args.as_kind != "xela":
-        return _error(f"--scene {args.scene} (a tangential scene) needs --as xela")
+    if args.scene in SEQUENCES and args.as_kind not in TANGENTIAL_ARRAYS:
+        return _error(f"--scene {args.scene} (a tangential scene) needs --as xela or paxini")
     try:
         sims = ([] if args.scene in SEQUENCES
                 else simulators(args, 2 if args.as_kind in ("robotiq", "xela") else 1))
+        if args.scene in SEQUENCES:
+            args.taxel_scenes = _taxel_scenes(args, TANGENTIAL_ARRAYS[args.as_kind])
     except (ValueError, TactiledError) as err:
         return _error(str(err))
 
@@ -213,6 +219,31 @@ def _stream(args: argparse.Namespace, sims: list[FingerSimulator], stop: list[in
             time.sleep(min(delay, 0.05))
 
 
+def _taxel_scenes(args: argparse.Namespace, default: str) -> Any:
+    """The tangential scene of ``--scene`` on ``--sensor`` (default: ``default``), a
+    :class:`~tactiled.sim.taxel_stream.TaxelScenes` (ValueError: a 1-axis array, or a shape
+    the device does not have)."""
+    from tactiled.sensors import load_description
+    from tactiled.sim.taxel_stream import TaxelScenes
+
+    desc = load_description(getattr(args, "sensor", None) or default)
+    shapes = SHAPES.get(args.as_kind)
+    if shapes is not None and (desc.rows, desc.cols) not in shapes:
+        have = " or ".join(f"{r}x{c}" for r, c in shapes)
+        raise ValueError(f"--sensor {desc.name} is {desc.rows}x{desc.cols}, but a "
+                         f"{args.as_kind} device's array is {have}")
+    return TaxelScenes(desc, args.scene, args.seed)
+
+
+def paxini_readings(readings: np.ndarray) -> np.ndarray:
+    """A PX-6AX answer's points ``(n, 3)`` from 3-axis readings ``(rows, cols, 3)`` (0.1 N
+    steps): x and y signed bytes, z an unsigned byte, rounded and clipped as the module sends
+    them."""
+    pts = np.round(np.asarray(readings, dtype=float).reshape(-1, 3))
+    return np.column_stack([np.clip(pts[:, :2], -128, 127), np.clip(pts[:, 2], 0, 255)]
+                           ).astype(np.int64)
+
+
 def paxini_points(raw: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """A PX-6AX answer's points ``(n, 3)`` from a rendered frame of counts: z the counts less
     the 0x8000 offset (0..255), x and y a small signed wobble."""
@@ -232,19 +263,28 @@ def _answer_paxini(args: argparse.Namespace, sims: list[FingerSimulator], stop: 
     from tactiled_drivers.paxini import request, response
 
     rng = np.random.default_rng(args.seed)
-    g = sims[0].sensor.geometry
-    asked = request(0, g.rows * g.cols)
+    scenes = getattr(args, "taxel_scenes", None)  # a tangential scene: x, y, z of the 3-axis model
+    if scenes is not None:
+        def tick() -> np.ndarray:
+            return paxini_readings(scenes.next_readings())
+        skip_frames, points = scenes.skip, scenes.desc.rows * scenes.desc.cols
+    else:
+        def tick() -> np.ndarray:
+            return paxini_points(sims[0].next_frame().raw, rng)
+        g = sims[0].sensor.geometry
+        skip_frames, points = sims[0].skip, g.rows * g.cols
+    asked = request(0, points)
     schedule = FrameSchedule(args.rate, time.monotonic(), MAX_LAG_S)
     heard = bytearray()
-    latest = sims[0].next_frame().raw
+    latest = tick()
     print(f"tactiled simulate: a paxini module playing {args.scene!r} at {args.rate:g} Hz on "
           f"{args.device}; stop with Ctrl-C or SIGTERM", file=sys.stderr)
     while not stop:
         skip, send = schedule.take(time.monotonic(), MAX_BATCH)
         if skip:
-            sims[0].skip(skip)
+            skip_frames(skip)
         for _ in range(send):
-            latest = sims[0].next_frame().raw
+            latest = tick()
         if select.select([fd], [], [], 0.01)[0]:
             try:
                 heard += os.read(fd, 4096)
@@ -252,7 +292,7 @@ def _answer_paxini(args: argparse.Namespace, sims: list[FingerSimulator], stop: 
                 pass
         while (k := heard.find(asked)) >= 0:
             del heard[:k + len(asked)]
-            writer.send(response(0, paxini_points(latest, rng)))
+            writer.send(response(0, latest))
         del heard[:max(0, len(heard) - len(asked))]
         writer.flush()
 
@@ -271,42 +311,6 @@ def _serve_xela(args: argparse.Namespace, sims: list[FingerSimulator], stop: lis
     return asyncio.run(_xela_main(args, sims, int(port_text), stop))
 
 
-class _ShearScenes:
-    """XELA counts of a tangential scene on ``xela_uskin_4x4``, looped: each loop 300 frames at
-    rest, then :func:`tactiled.sim.shear.sequence` of a new sphere; x, y about
-    :data:`XELA_REST`, z about the nominal table's zero (10000 counts)."""
-
-    REST_FRAMES = 300
-
-    def __init__(self, kind: str, seed: int) -> None:
-        from tactiled.sensors import load_description
-        from tactiled.physics.threeaxis import ThreeAxisModel
-
-        self.kind = kind
-        self.desc = load_description("xela_uskin_4x4")
-        self.noise = ThreeAxisModel(self.desc).noise
-        self.rng = np.random.default_rng(seed)
-        self.queue: list[np.ndarray] = []
-
-    def _refill(self) -> None:
-        from tactiled.sim.shear import sequence
-
-        shape = (self.desc.rows, self.desc.cols, 3)
-        rest = [self.rng.normal(size=shape) * self.noise for _ in range(self.REST_FRAMES)]
-        frames, _ = sequence(self.desc, self.kind, self.rng)
-        self.queue = [*rest, *frames]
-        self.queue.reverse()
-
-    def next_sensors(self, model: str) -> dict[int, tuple[str, np.ndarray]]:
-        if not self.queue:
-            self._refill()
-        readings = self.queue.pop()
-        zero = np.array([XELA_REST, XELA_REST, 10000.0])
-        counts = np.clip(np.round(readings + zero), 0, 0xFFFF)
-        still = np.clip(np.round(self.rng.normal(size=readings.shape) * self.noise + zero), 0, 0xFFFF)
-        return {1: (model, counts), 2: (model, still)}
-
-
 async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port: int,
                      stop: list[int]) -> int:
     from websockets.asyncio.server import broadcast, serve
@@ -315,10 +319,10 @@ async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port
 
     clients: set = set()
     rng = np.random.default_rng(args.seed)
-    # the tangential scenes play xela_uskin_4x4; the normal ones the simulated array's shape
-    model = (XELA_MODELS[(sims[0].sensor.geometry.rows, sims[0].sensor.geometry.cols)]
-             if sims else XELA_MODELS[(4, 4)])
-    scenes = _ShearScenes(args.scene, args.seed) if not sims else None
+    scenes = getattr(args, "taxel_scenes", None)  # a tangential scene, or the scene simulator's
+    shape = ((scenes.desc.rows, scenes.desc.cols) if scenes is not None
+             else (sims[0].sensor.geometry.rows, sims[0].sensor.geometry.cols))
+    model = XELA_MODELS[shape]
 
     async def handler(ws) -> None:  # noqa: ANN001 (a websockets connection)
         await ws.send(WELCOME)
@@ -338,7 +342,8 @@ async def _xela_main(args: argparse.Namespace, sims: list[FingerSimulator], port
         while not stop:
             skip, send = schedule.take(time.monotonic(), MAX_BATCH)
             for _ in range(send):
-                sensors = {} if scenes is None else scenes.next_sensors(model)
+                sensors = ({} if scenes is None else
+                           {1: (model, scenes.next_counts()), 2: (model, scenes.resting())})
                 for k, sim in enumerate(sims):
                     if skip:
                         sim.skip(skip)

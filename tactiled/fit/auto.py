@@ -25,12 +25,21 @@ class ModelSelector:
         self.fitter = fitter
 
     def fit(self, strain: np.ndarray, mask: np.ndarray | None,
-                  warm: tuple[str, tuple[float, ...]] | None = None) -> FitResult:
+            warm: tuple[str, tuple[float, ...]] | None = None) -> FitResult:
         """Fit all three models and keep the lowest BIC with known noise,
         ``chi^2 + k ln n`` (Schwarz): a parameter must buy more than ``ln n`` of chi^2.
 
         With ``warm`` (the previous frame's model and parameters) only that model is fitted,
-        from there, and kept if its chi^2 is consistent with the noise."""
+        from there, and kept if its chi^2 is consistent with the noise.  A line the scout
+        ruled out has its profile tests run only if it is the answer
+        (:meth:`tactiled.fit.linefit.LineFit.tested`)."""
+        line = self.fitter.line
+        with line.frames.kept():  # the line's band, read again by criteria
+            return line.tested(self.choose(strain, mask, warm))
+
+    def choose(self, strain: np.ndarray, mask: np.ndarray | None,
+               warm: tuple[str, tuple[float, ...]] | None = None) -> FitResult:
+        """:meth:`fit`'s choice, before a scouted line's profile tests."""
         f = self.fitter
         if warm is not None and warm[0] in ("cylinder", "sphere", "general") and warm[1]:
             p_warm = np.asarray(warm[1], dtype=float)

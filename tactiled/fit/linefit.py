@@ -18,7 +18,7 @@ from tactiled.fit.line import FORCE_REASON as LINE_FORCE_REASON
 from tactiled.fit.line import PARAMS as LINE_PARAMS
 from tactiled.fit.line import STEPS as LINE_STEPS
 from tactiled.fit.line import LineProblem
-from tactiled.fit.linewindow import line_frame
+from tactiled.fit.linewindow import KeptFrames, line_frame
 from tactiled.fit.models import VALUE_KEYS
 from tactiled.fit.profile import angle_profile, flat_below, withhold_flat
 from tactiled.fit.result import FitResult
@@ -40,6 +40,11 @@ class LineFit:
         #: set by :meth:`fit`: where the line passes and its load ``(x, y, load)``, even where
         #: its values are withheld (auto's other models start there)
         self.point: tuple[float, float, float] | None = None
+        #: the line windows one frame's fit makes, kept while ``frames.kept()`` is open
+        self.frames = KeptFrames()
+        #: set by :meth:`fit`: a converged scout's result whose profile tests wait for
+        #: :meth:`tested` ``(result, frame, problem, solution)``
+        self.untested: tuple | None = None
 
     def fit(self, strain: np.ndarray, start: np.ndarray | None,
                   mask: np.ndarray | None, scout_first: bool = False,
@@ -53,6 +58,7 @@ class LineFit:
         f = self.fitter
         self.scouted = False
         self.point = None
+        self.untested = None
         fr = self.frame(strain, mask)
         if isinstance(fr, FitResult):
             fr.model = "cylinder"
@@ -108,22 +114,12 @@ class LineFit:
             if all(values.get(k) is None for k in VALUE_KEYS):
                 line = None  # the load and offset of a search stopped short are no measurement
         uncertainty.unobservable(f, values, std, reasons)
-        if best.converged:
-            withhold_flat(values, std, reasons, flat_below(
-                f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
-                lambda: prob.residual_and_jacobian, best.cost * peak * peak / f.sigma**2,
-                values.get("r1_mm"), std.get("r1_mm")))
-            withhold_flat(values, std, reasons, angle_profile(
-                f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
-                lambda: prob.residual_and_jacobian, best.cost * peak * peak / f.sigma**2,
-                LINE_PARAMS.index("psi"), std.get("angle_deg")), "angle_deg")
-        else:
+        if not best.converged:
             reasons.setdefault("fit", best.message)
-        label = uncertainty.label(f, values, "line")
-        if line is None:  # withheld: a search its budget stopped far from any line
-            label = None
-        return FitResult(
-            contact=True, model="cylinder", label="line" if label == "plane" else label,
+        elif not self.scouted:
+            self._profiles(fr, prob, best, values, std, reasons)
+        res = FitResult(
+            contact=True, model="cylinder", label=self._label(values, line),
             values=values, std=std,
             rms=math.sqrt(best.cost / max(fr.n_points, 1)),
             chi2=best.cost * peak * peak / f.sigma**2,
@@ -131,6 +127,43 @@ class LineFit:
             condition=condition, peak=peak, n_points=fr.n_points, window=fr.win, starts=tried,
             message=best.message, reasons=reasons, params=tuple(best.p.tolist()), line=line,
         )
+        if self.scouted and best.converged:
+            self.untested = (res, fr, prob, best)
+        return res
+
+    def _profiles(self, fr: _Frame, prob: LineProblem, best: SolveResult, values: dict,
+                  std: dict, reasons: dict[str, str]) -> None:
+        """The radius's and the angle's profile tests (:mod:`tactiled.fit.profile`) at the
+        converged solution ``best``: up to nine more searches, so a scout the line was ruled
+        out by (a ball's window) is tested only if it is the answer (:meth:`tested`)."""
+        f = self.fitter
+        chi2 = best.cost * fr.peak * fr.peak / f.sigma**2
+        withhold_flat(values, std, reasons, flat_below(
+            f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
+            lambda: prob.residual_and_jacobian, chi2, values.get("r1_mm"), std.get("r1_mm")))
+        withhold_flat(values, std, reasons, angle_profile(
+            f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
+            lambda: prob.residual_and_jacobian, chi2,
+            LINE_PARAMS.index("psi"), std.get("angle_deg")), "angle_deg")
+
+    def _label(self, values: dict, line: dict | None) -> str | None:
+        """The line's label: 'edge' for a radius under 1 mm, else 'line'; None for a line
+        whose load and offset are withheld (a search its budget stopped far from any line)."""
+        if line is None:
+            return None
+        label = uncertainty.label(self.fitter, values, "line")
+        return "line" if label == "plane" else label
+
+    def tested(self, res: FitResult) -> FitResult:
+        """``res`` with its profile tests run, when it is the scout :meth:`fit` left untested
+        (auto's answer is the line it ruled out: a budget cut the choice short); else as it is."""
+        pending, self.untested = self.untested, None
+        if pending is None or pending[0] is not res:
+            return res
+        _, fr, prob, best = pending
+        self._profiles(fr, prob, best, res.values, res.std, res.reasons)
+        res.label = self._label(res.values, res.line)
+        return res
 
     def as_point(self, cyl: FitResult) -> tuple[float, float, float, float, float]:
         """A cylinder fit as ``(ln R, psi, ln F, x0, y0)``, a start for the other models: on a

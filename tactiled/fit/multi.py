@@ -34,7 +34,7 @@ from tactiled.fit.regions import (
     Region,
     find_regions,
 )
-from tactiled.fit.linewindow import runs_across
+from tactiled.fit.linewindow import bounding_window, runs_across
 from tactiled.fit.result import FitResult
 from tactiled.fit.selection import CORE_SHARE, Predictions, prune, region_of, select, unexplained
 from tactiled.fit.warm import SEVERAL, nearest_start
@@ -92,6 +92,13 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     ``merged`` when its region holds a second maximum that the fit does not explain (two
     contacts closer than the cover spreads them).
     """
+    with fitter.line.frames.kept():  # a line's band is made once per strain and mask
+        return _fit_contacts(fitter, strain, model, mask, warm, budget_s)
+
+
+def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray | None,
+                  warm: tuple[str, tuple[float, ...]] | None, budget_s: float | None) -> list[FitResult]:
+    """:func:`fit_contacts`' body."""
     t0 = time.perf_counter()
     flat = fitter.flattened(strain)
     regions = find_regions(flat, fitter.sigma, mask)
@@ -361,14 +368,19 @@ def _refine_jointly(fitter: Any, strain: np.ndarray, usable: np.ndarray, results
     for i in group:
         tact |= _window_mask(shape, results[i].window)
     tact &= usable
-    rows = tact.ravel()
+    if not tact.any():
+        return
+    r0, c0, nr, nc = bounding_window(tact)  # the model evaluated on the windows' box alone
+    box = (slice(r0, r0 + nr), slice(c0, c0 + nc))
+    xs, ys = fitter.model.xs_full[box[0]], fitter.model.ys_full[box[1]]
+    rows = tact[box].ravel()
     flat = fitter.flattened(strain)
-    target = flat.ravel()[rows].copy()
+    target = flat[box].ravel()[rows].copy()
     for j, r in enumerate(results):
         if j not in group:
             pred = predicted_strain(fitter, r)
             if pred is not None:
-                target -= pred.ravel()[rows]
+                target -= pred[box].ravel()[rows]
     sd = fitter._tactel_sd(target)
     models = [get_model(results[i].model) for i in group]
     sizes = [m.size for m in models]
@@ -383,7 +395,7 @@ def _refine_jointly(fitter: Any, strain: np.ndarray, usable: np.ndarray, results
         at = 0
         for m, n in zip(models, sizes):
             phys, dphys = m.physical(p[at:at + n])
-            val, j6, _ = fitter.model.strain_and_jacobian(*phys, fitter.model.xs_full, fitter.model.ys_full)
+            val, j6, _ = fitter.model.strain_and_jacobian(*phys, xs, ys)
             pred += np.asarray(val).ravel()[rows]
             jac[:, at:at + n] = np.asarray(j6).reshape(-1, 6)[rows] @ dphys
             at += n
@@ -413,15 +425,20 @@ def _refine_jointly(fitter: Any, strain: np.ndarray, usable: np.ndarray, results
 
 # -- the joint bound -------------------------------------------------------------------------
 
-def _point_jacobian(fitter: Any, model: str, params: tuple[float, ...]) -> np.ndarray | None:
-    """d(strain on the whole array)/d(internal parameters), ``(rows*cols, size)``; None for a
-    contact that is not a point contact of a known model."""
+def _point_jacobian(fitter: Any, model: str, params: tuple[float, ...],
+                    window: tuple[int, int, int, int] | None = None) -> np.ndarray | None:
+    """d(strain on the whole array, or on ``window``)/d(internal parameters), ``(tactels,
+    size)``; None for a contact that is not a point contact of a known model."""
     phys = point_contact(model, params)
     if phys is None:
         return None
     m = fitter.model
+    xs, ys = m.xs_full, m.ys_full
+    if window is not None:
+        r0, c0, nr, nc = window
+        xs, ys = xs[r0:r0 + nr], ys[c0:c0 + nc]
     _, dphys = get_model(model).physical(np.asarray(params, dtype=float))
-    _, jac, _ = m.strain_and_jacobian(*phys, m.xs_full, m.ys_full)
+    _, jac, _ = m.strain_and_jacobian(*phys, xs, ys)
     return np.asarray(jac).reshape(-1, 6) @ dphys
 
 
@@ -439,10 +456,14 @@ def joint_bounds(fitter: Any, contacts: list[tuple[str, tuple[float, ...]]],
     ``(model, internal params)`` on the usable ``tactels`` (a boolean frame): ``(joint,
     alone)``, joint with every contact's parameters unknown, alone with the others' known.
     None when a contact is not a point contact or the information is singular."""
-    jacs = [_point_jacobian(fitter, m, p) for m, p in contacts]
-    if any(j is None for j in jacs) or not tactels.any():
+    if not tactels.any():
         return None
-    rows = tactels.ravel()
+    win = bounding_window(tactels)  # the tactels' box: the Jacobians there alone
+    jacs = [_point_jacobian(fitter, m, p, win) for m, p in contacts]
+    if any(j is None for j in jacs):
+        return None
+    r0, c0, nr, nc = win
+    rows = tactels[r0:r0 + nr, c0:c0 + nc].ravel()
     sd = fitter._tactel_sd(np.zeros(int(rows.sum()))) if hasattr(fitter, "_tactel_sd") else None
     scale = 1.0 / (sd if sd is not None else fitter.sigma)
     blocks = [np.asarray(j)[rows] * np.reshape(scale, (-1, 1)) for j in jacs]

@@ -118,8 +118,10 @@ class PointFit:
                                            f.model._k))
         line = ell.a >= 0.0 and uncertainty.line_contact(f, ell, values, std, reasons)
         if tied is not None and values.get("force_n") is not None:  # else withheld for another reason
-            values["force_n"] = std["force_n"] = None
-            reasons["force_n"] = tied
+            # kept, flagged: its sigma at this solution covers the trade (the bound at the
+            # truth resolves such a force; least squares lands down the valley, several
+            # bounds off, within that sigma: docs/concepts/uncertainty.md)
+            reasons["force_n"] = f"poorly determined ({tied})"
         if not sol.converged:
             reasons.setdefault("fit", sol.message)
         rms = math.sqrt(sol.cost / max(n_points, 1))

@@ -21,9 +21,11 @@ def point_contact(model: str, params: tuple[float, ...]) -> tuple[float, ...] | 
     return tuple(float(v) for v in phys)
 
 
-def point_strain(fitter: Any, model: str, params: tuple[float, ...]) -> np.ndarray | None:
+def point_strain(fitter: Any, model: str, params: tuple[float, ...],
+                 window: tuple[int, int, int, int] | None = None) -> np.ndarray | None:
     """The strain on the whole array of a point contact's internal parameters (None: not a
-    point contact, or no valid contact)."""
+    point contact, or no valid contact); with ``window`` ``(row0, col0, rows, cols)``, on
+    that window alone (the same numbers, each tactel's strain computed alike)."""
     phys = point_contact(model, params)
     if phys is None:
         return None
@@ -33,4 +35,8 @@ def point_strain(fitter: Any, model: str, params: tuple[float, ...]) -> np.ndarr
         ell, _ = m.ellipse(ka, kb, psi, force)
     except ValueError:
         return None
-    return m.strain_from_ellipse(ell, force, x0, y0, m.xs_full, m.ys_full)
+    xs, ys = m.xs_full, m.ys_full
+    if window is not None:
+        r0, c0, nr, nc = window
+        xs, ys = xs[r0:r0 + nr], ys[c0:c0 + nc]
+    return m.strain_from_ellipse(ell, force, x0, y0, xs, ys)

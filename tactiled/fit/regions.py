@@ -17,9 +17,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from tactiled import native
 
 #: A region's peak must stand this many noise sigmas above zero to be a contact of its own
 #: (the largest of 1024 tactels' pure noise is ~3.5 sigma; below ~8 sigma no curvature is
@@ -103,13 +106,41 @@ def _notable(peak: float, saddle: float, sigma: float) -> bool:
 
 def _watershed(s: np.ndarray, sigma: float) -> list[Region]:
     rows, cols = s.shape
-    flat = s.ravel()
-    support = SUPPORT_Z * sigma
+    peaks, heights, saddles, labels, absorbed = watershed(
+        np.ascontiguousarray(s, dtype=float).ravel(), int(rows), int(cols), float(sigma),
+        SUPPORT_Z, SIGNIFICANT_Z, SEPARATION_Z, SEPARATION_SHARE, ABSORBED_SHARE)
+    out = []
+    for k, (i, peak, saddle) in enumerate(zip(peaks.tolist(), heights.tolist(), saddles.tolist())):
+        tactels = (labels == k).reshape(rows, cols)
+        at = [(divmod(int(j), cols), float(h)) for r, j, h in absorbed.tolist() if int(r) == k]
+        out.append(Region(divmod(int(i), cols), float(peak), tactels, absorbed=len(at),
+                          absorbed_at=at, saddle=None if math.isnan(saddle) else float(saddle),
+                          members=np.flatnonzero(labels == k).tolist()))
+    return out
+
+
+def watershed(flat: np.ndarray, rows: int, cols: int, sigma: float, support_z: float,
+              significant_z: float, separation_z: float, separation_share: float,
+              absorbed_share: float) -> tuple[np.ndarray, ...]:
+    """The regions of a frame ``flat`` (row-major, ``rows`` x ``cols``, unusable tactels
+    -inf) by topographic prominence (see the module's comment), highest peak first, as
+    arrays: ``(peak tactels, peaks, saddles (NaN for none), each tactel's region or -1,
+    absorbed maxima (region, tactel, strain) rows)``.  Equal heights are visited, and equal
+    regions ranked, by tactel index.  The core's (core/regions.cpp) is held to this body."""
+    support = support_z * sigma
+    significant = significant_z * sigma
+
+    def separable(peak: float, saddle: float, share: float) -> bool:
+        rise = peak - saddle
+        return peak > significant and rise > separation_z * sigma and rise > share * peak
+
     order = [int(i) for i in np.argsort(-flat, kind="stable") if flat[i] > support]
     parent: dict[int, int] = {}
-    # per root: its peak's flat index, its tactels, lower maxima it absorbed
-    regions: dict[int, Region] = {}
-    done: list[Region] = []
+    # per root: its peak's tactel and strain, lower maxima it absorbed, its tactels; in
+    # the order the roots were made (``done``: regions of their own, in the order they met
+    # a higher one)
+    regions: dict[int, dict] = {}
+    done: list[dict] = []
 
     def root(i: int) -> int:
         while parent[i] != i:
@@ -129,30 +160,37 @@ def _watershed(s: np.ndarray, sigma: float) -> list[Region]:
                         roots.add(root(j))
         if not roots:
             parent[i] = i
-            regions[i] = Region(divmod(i, cols), float(flat[i]), np.zeros(0), members=[i])
+            regions[i] = {"peak_idx": i, "peak": float(flat[i]), "saddle": math.nan,
+                          "absorbed": [], "members": [i]}
             continue
-        ranked = sorted(roots, key=lambda k: regions[k].peak, reverse=True)
+        ranked = sorted(roots, key=lambda k: (-regions[k]["peak"], k))
         main = ranked[0]
         level = float(flat[i])
         for other in ranked[1:]:
             low = regions.pop(other)
             parent[other] = main
-            if _separable(low.peak, level, sigma):
-                low.saddle = level
+            if separable(low["peak"], level, separation_share):
+                low["saddle"] = level
                 done.append(low)  # a contact of its own: its tactels stay its own
             else:
                 high = regions[main]
-                high.members.extend(low.members)
-                high.absorbed_at += low.absorbed_at
-                if _notable(low.peak, level, sigma):
-                    high.absorbed_at.append((low.peak_idx, low.peak))
-                high.absorbed = len(high.absorbed_at)
+                high["members"].extend(low["members"])
+                high["absorbed"] += low["absorbed"]
+                if separable(low["peak"], level, absorbed_share):
+                    high["absorbed"].append((low["peak_idx"], low["peak"]))
         parent[i] = main
-        regions[main].members.append(i)
-    out = [reg for reg in (*regions.values(), *done) if reg.peak > SIGNIFICANT_Z * sigma]
-    for reg in out:
-        t = np.zeros(rows * cols, dtype=bool)
-        t[reg.members] = True
-        reg.tactels = t.reshape(rows, cols)
-    out.sort(key=lambda reg: reg.peak, reverse=True)
-    return out
+        regions[main]["members"].append(i)
+    out = [reg for reg in (*regions.values(), *done) if reg["peak"] > significant]
+    out.sort(key=lambda reg: reg["peak"], reverse=True)
+    labels = np.full(flat.size, -1, dtype=np.int64)
+    for k, reg in enumerate(out):
+        labels[reg["members"]] = k
+    absorbed = [(k, j, h) for k, reg in enumerate(out) for j, h in reg["absorbed"]]
+    return (np.array([reg["peak_idx"] for reg in out], dtype=np.int64),
+            np.array([reg["peak"] for reg in out], dtype=float),
+            np.array([reg["saddle"] for reg in out], dtype=float), labels,
+            np.array(absorbed, dtype=float).reshape(-1, 3))
+
+
+#: The Python body the core is held to (tests/native), whichever runs.
+REFERENCE = native.bind(globals(), ("watershed",))

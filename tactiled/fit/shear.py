@@ -12,8 +12,10 @@ with Cramer-Rao bounds (docs/concepts/shear.md).
 # ``(J^T J)^-1`` at the estimate (central differences).
 #
 # From ``lam`` follow the friction coefficient ``mu = |Q| / (lam P)`` and the margin to slip
-# ``1 - lam``, reported only where the bound resolves them (a relative sigma of ``mu`` under
-# :data:`MU_RESOLVED`): a stick zone of radius ``c = a (1 - lam)^(1/3)`` changes the readings
+# ``1 - lam``, their intervals from the profile likelihood of ``lam`` (tactiled/fit/
+# shear_profile.py: the likelihood is often one-sided there, and a linearised sigma misleads),
+# reported only where that interval resolves them (full stick excluded at 2 sigma and a
+# relative sigma of ``mu`` under :data:`MU_RESOLVED`): a stick zone of radius ``c = a (1 - lam)^(1/3)`` changes the readings
 # by little when ``Q`` is small or the taxels lie deep under a small contact, and then ``mu`` is
 # ``None`` with the reason.
 
@@ -26,15 +28,15 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
+from tactiled.fit.shear_profile import LamInterval, lam_interval, mu_interval, symmetric
 from tactiled.physics.threeaxis import ShearContact, ThreeAxisModel
 from tactiled.physics.traction import Traction
 from tactiled.sensors.description import SensorDescription
 
 NAMES = ("ln_r", "ln_force", "x0", "y0", "fx", "fy", "torque", "lam")
-#: ``mu`` is reported when its relative 1-sigma bound is below this.
+#: ``mu`` is reported when its relative 1-sigma bound (a quarter of its 2-sigma profile
+#: interval's width in ``ln mu``) is below this.
 MU_RESOLVED = 0.2
-#: ``lam`` this close to a bound (0 or 1) is clipped by it: no Gaussian bound holds there.
-LAM_EDGE = 1e-3
 #: Side of the fit window (taxels) at least: the displacement field reaches further than
 #: the strain's, so large arrays are fitted on this window around the peak.
 MIN_WINDOW = 8
@@ -59,6 +61,12 @@ class ShearEstimate:
     #: what :class:`ShearStep` follows the frames from.
     window: np.ndarray | None = None
     jac: np.ndarray | None = None
+    #: The 2-sigma profile-likelihood interval of ``lam`` (tactiled/fit/shear_profile.py), from
+    #: which ``mu`` and ``slip_margin`` follow; None where ``lam`` is unobservable.
+    lam_profile: LamInterval | None = None
+    #: A step's ``lam`` before its clip to [0, 1] (the linear estimate, Gaussian about the
+    #: truth near slip, what a filter of ``lam`` takes); None for a fit's.
+    lam_free: float | None = None
 
     @property
     def sigma(self) -> np.ndarray:
@@ -93,27 +101,54 @@ class ShearEstimate:
         return q / force, self._grad_sigma(g)
 
     def mu(self) -> tuple[float | None, float | None, str | None]:
-        """``mu = |Q| / (lam P)`` and its sigma, or ``(None, None, reason)``."""
-        _, lnp, _, _, fx, fy, _, lam = self.params
-        q, force = math.hypot(fx, fy), math.exp(lnp)
-        s_lam = self.sigma[7]
-        if not math.isfinite(s_lam) or lam <= LAM_EDGE:
-            return None, None, "the stick zone is not resolved (lam = Q/(mu P) at 0 or unobservable)"
-        if lam >= 1.0 - LAM_EDGE:
-            return None, None, (f"the estimate of Q/(mu P) is at its bound 1 (+/- {s_lam:.2f}): "
-                                "mu's bound does not hold there")
-        mu = q / (lam * force)
+        """``mu = |Q| / (lam P)`` and its sigma, or ``(None, None, reason)``: from the profile
+        interval of ``lam`` (:func:`~tactiled.fit.shear_profile.mu_interval`), the value where
+        the profile is least and half the 2-sigma interval's longer arm."""
+        band = self.mu_band()
+        if isinstance(band, str):
+            return None, None, band
+        best, sigma = symmetric(*band)
+        return best, sigma, None
+
+    def mu_band(self) -> tuple[float, float, float] | str:
+        """``(lo, best, hi)``, the 2-sigma interval of ``mu`` and its most likely value, or the
+        reason it is withheld."""
+        prof = self.lam_profile
+        if prof is None or not math.isfinite(self.sigma[7]):
+            return "the stick zone is not resolved (lam = Q/(mu P) unobservable: no tangential force)"
+        qp, _ = self.q_over_p()
+        lo, best, hi = mu_interval(prof, qp, self._ln_qp_given_lam())
+        if not math.isfinite(hi) or prof.lo <= 0.0:
+            return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f}, within 2 sigma of 0 "
+                    f"(2-sigma interval {prof.lo:.2f}..{prof.hi:.2f}): mu is unbounded above")
+        rel = math.log(hi / lo) / 4.0  # the relative 1-sigma the interval's width says
+        if not rel < MU_RESOLVED:
+            return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f} (2-sigma interval "
+                    f"{prof.lo:.2f}..{prof.hi:.2f}; mu's bound {rel:.0%} of it, over {MU_RESOLVED:.0%})")
+        return lo, best, hi
+
+    def slip_margin(self) -> tuple[float | None, float | None]:
+        """``1 - lam`` where the profile is least and half the longer arm of its 2-sigma
+        interval, where ``mu`` is resolved; else ``(None, None)``."""
+        if isinstance(self.mu_band(), str):
+            return None, None
+        prof = self.lam_profile
+        return symmetric(1.0 - prof.hi, 1.0 - prof.best, 1.0 - prof.lo)
+
+    def _ln_qp_given_lam(self) -> float:
+        """1-sigma of ``ln(|Q|/P)`` with ``lam`` held (the conditional Gaussian bound)."""
+        _, lnp, _, _, fx, fy, _, _ = self.params
+        q = math.hypot(fx, fy)
+        if q <= 0:
+            return math.inf
         g = np.zeros(8)
-        if q > 0:
-            g[4], g[5] = fx / (q * lam * force), fy / (q * lam * force)
-        g[1] = -mu
-        g[7] = -mu / lam
-        s_mu = self._grad_sigma(g)
-        if not (mu > 0 and s_mu < MU_RESOLVED * mu):
-            return None, None, (f"the stick zone is not resolved: Q/(mu P) = {lam:.2f} +/- {s_lam:.2f} "
-                                f"(mu's bound {s_mu / mu if mu > 0 else math.inf:.0%} of it, over "
-                                f"{MU_RESOLVED:.0%})")
-        return mu, s_mu, None
+        g[4], g[5], g[1] = fx / (q * q), fy / (q * q), -1.0
+        c = self.cov
+        var = g @ c @ g
+        cross = g @ c[:, 7]
+        if c[7, 7] > 0 and math.isfinite(c[7, 7]):
+            var -= cross * cross / c[7, 7]
+        return math.sqrt(max(var, 0.0))
 
     def state(self) -> str:
         """``stick`` (no slip annulus resolved: ``lam`` within 2 sigma of 0), ``slip`` (the
@@ -132,6 +167,7 @@ class ShearEstimate:
         r, force = math.exp(p[0]), math.exp(p[1])
         qp, s_qp = self.q_over_p()
         mu, s_mu, why = self.mu()
+        margin, s_margin = self.slip_margin()
         reasons = dict(self.reasons)
         if why:
             reasons["mu"] = reasons["slip_margin"] = why
@@ -139,9 +175,9 @@ class ShearEstimate:
             "contact": {"x_mm": p[2], "y_mm": p[3], "force_n": force, "r1_mm": r,
                         "std": {"x_mm": s[2], "y_mm": s[3], "force_n": force * s[1], "r1_mm": r * s[0]}},
             "shear": {"fx_n": p[4], "fy_n": p[5], "torque_nmm": p[6], "q_over_p": qp,
-                      "mu": mu, "slip_margin": None if mu is None else 1.0 - p[7],
+                      "mu": mu, "slip_margin": margin,
                       "std": {"fx_n": s[4], "fy_n": s[5], "torque_nmm": s[6], "q_over_p": s_qp,
-                              "mu": s_mu, "slip_margin": None if mu is None else s[7]}},
+                              "mu": s_mu, "slip_margin": s_margin}},
             "slip": {"state": self.state(), "lam": p[7], "lam_std": s[7]},
             "rms_over_noise": self.rms, "converged": self.converged, "reasons": reasons,
         }
@@ -254,7 +290,12 @@ class ShearFitter:
             reasons["shear"] = "the information matrix is singular"
         dof = max(1, data.size - 8)
         rms = float(math.sqrt(2.0 * res.cost / dof))
-        return ShearEstimate(p, cov, rms, bool(res.success), reasons, idx, jac)
+        prof = None
+        if len(keep) == 8 and "shear" not in reasons:
+            prof = lam_interval(residual, p, jac, _LO, _HI)
+            if prof is not None:
+                prof = prof.widened(float(p[7]), float(math.sqrt(max(cov[7, 7], 0.0))))
+        return ShearEstimate(p, cov, rms, bool(res.success), reasons, idx, jac, prof)
 
     def step(self, est: ShearEstimate) -> ShearStep:
         """Frame-rate estimates from the fit ``est``: :class:`ShearStep`."""
@@ -292,9 +333,13 @@ class ShearStep:
         data = (np.asarray(frame, dtype=float).reshape(-1, 3)[self.window] / self._noise).ravel()
         r = data - self._pred
         delta = self._gain @ r
-        p = self.base.params.copy()
-        p[self._keep] += delta
-        p = np.clip(p, _LO, _HI)
+        free = self.base.params.copy()
+        free[self._keep] += delta
+        p = np.clip(free, _LO, _HI)
         rest = r - self._jac @ delta
         rms = float(math.sqrt(float(rest @ rest) / self._dof))
-        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons))
+        prof = self.base.lam_profile
+        if prof is not None:
+            prof = prof.shifted(float(p[7] - self.base.params[7]))
+        return ShearEstimate(p, self.base.cov, rms, self.base.converged, dict(self.base.reasons),
+                             lam_profile=prof, lam_free=float(free[7]))

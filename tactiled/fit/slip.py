@@ -1,31 +1,30 @@
 """Slip events from a sequence of 3-axis estimates (docs/concepts/shear.md, "Slip")."""
 
 # A contact slides when the stick zone is gone and the object moves over the skin.  Frame by
-# frame an estimate gives ``lam = Q / (mu P)`` (the stick zone's radius is ``a (1 - lam)^(1/3)``),
-# the tangential force ``Q`` and the contact's centre, with their bounds.  The detector keeps the
-# centre's *stick anchor*, the mean of the centre over :data:`WINDOW` frames ending :data:`LAG`
-# frames ago, and tests the residuals of the stick hypothesis (the centre stays at its anchor)
-# against a slide starting from rest on one of the last :data:`LAG` + 1 frames, ``t0``: the
-# centre's displacement from the anchor along ``Q`` growing as ``(t - t0 + 1)^2`` (a constant
-# net force on the object).  The test is the generalised likelihood ratio of that template, in
-# units of its own sigma (the frames' bounds and the anchor's, which every frame shares),
-# maximised over ``t0``: the evidence of several frames adds up, so a slide is seen a few frames
-# after it starts even where one frame's motion is within the noise.
+# frame an estimate gives ``lam = Q / (mu P)`` (the stick zone's radius is ``a (1 - lam)^(1/3)``)
+# and the other parameters with their covariance.  The detector runs them through the contact's
+# Kalman filter (:class:`tactiled.fit.shear_filter.ShearFilter`: the forces and the size follow a
+# constant-velocity model, the centre the stick hypothesis) and tests its innovations for a slide
+# along the filtered tangential force starting on one of the last frames
+# (:class:`tactiled.fit.shear_filter.SlideTest`: the generalised likelihood ratio, a unit normal
+# for each start under stick).
 #
 # A slip onset is declared on the first frame where the stick zone has shrunk to nothing within
 # the bound, ``lam + 2 sigma >= 1``, and either
 #
-# * the motion test exceeds :data:`ONSET_Z` (with ``Q`` resolved: over :data:`MIN_Q_SIGMAS`
-#   sigma, so that its direction is known), or
+# * the slide test exceeds :data:`ONSET_Z` (with the filtered ``Q`` resolved: over
+#   :data:`MIN_Q_SIGMAS` sigma, so that its direction is known), or
 # * the tangential force has fallen by more than :data:`DROP_Z` sigma below its mean over the
 #   :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction).
 #
-# No threshold on raw readings enters: both tests are in units of the estimates' own bounds.
-# The slip ends when the object sticks again: the stick zone resolved (``lam + 2 sigma < 1``)
-# and the centre at rest (moved by less than :data:`REST_Z` sigma over the last
-# :data:`REST_FRAMES` frames) on :data:`END_FRAMES` frames in a row.  A sliding contact's
-# estimate may show a stick zone on a frame or two (the fit of a contact that moves fast);
-# the centre's motion does not stop there.
+# :data:`ONSET_Z` is set from the test's null distribution (tests/fit/test_slip.py measures it
+# on the filter fed by Gaussian estimates): beyond it, about 1e-5 of the frames of a held
+# contact; no threshold on raw readings enters.  The slip ends when the object sticks again: the
+# stick zone resolved (``lam + 2 sigma < 1``) and the centre at rest (moved by less than
+# :data:`REST_Z` sigma over the last :data:`REST_FRAMES` frames) on :data:`END_FRAMES` frames in
+# a row; the filter's centre then anchors afresh.  A sliding contact's estimate may show a stick
+# zone on a frame or two (the fit of a contact that moves fast); the centre's motion does not
+# stop there.
 
 from __future__ import annotations
 
@@ -33,37 +32,27 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+import numpy as np
+
+from tactiled.fit.shear_filter import ShearFilter, SlideTest
+
 ONSET_Z = 4.5
-#: The anchor averages the centre over frames ``[i - LAG - WINDOW, i - LAG)``; a slide may
-#: start on any of the frames ``i - LAG .. i``.
-WINDOW, LAG = 30, 8
+#: Frames of a contact before the slide test counts: the filter's rates settle from their start.
+SETTLE = 10
 END_FRAMES = 3
 #: At rest: moved by less than this many sigma over this many frames.
 REST_Z, REST_FRAMES = 3.0, 10
 DROP_Z = 5.0
-#: The motion test needs a tangential force this many of its sigma (its direction).
+#: The slide test needs a filtered tangential force this many of its sigma (its direction).
 MIN_Q_SIGMAS = 3.0
 RECENT = 3
-
-
-def motion_z(recent: list[tuple[float, float]], anchor_sigma: float) -> float:
-    """The largest likelihood-ratio statistic (in sigma) of a slide from rest along ``Q``:
-    ``recent`` is the last frames' ``(d, sigma_d)``, oldest first (``d`` the centre's
-    displacement from the anchor along ``Q``, mm); ``anchor_sigma`` the anchor's sigma along
-    ``Q``, shared by every ``d``.  Only slides along ``Q`` count (a fit of positive size)."""
-    best = 0.0
-    n = len(recent)
-    for start in range(n):
-        num = var_w = sum_w = 0.0
-        for k, (d, s) in enumerate(recent[start:]):
-            w = (k + 1) ** 2 / (s * s)
-            num += w * d
-            var_w += w * w * s * s
-            sum_w += w
-        var = var_w + (anchor_sigma * sum_w) ** 2
-        if var > 0 and num > 0:
-            best = max(best, num / math.sqrt(var))
-    return best
+#: While sliding the filter's centre follows the frames (its random walk, single-frame sigmas).
+SLIDING_WALK = 3.0
+#: The friction is mobilised when the filtered ``lam`` is above this by 2 sigma: then a
+#: tangential force levelling off by :data:`PLATEAU_Z` sigma while the centre moves by
+#: :data:`CONFIRM_Z` sigma (the same start) is the onset.
+MOBILISED = 0.9
+PLATEAU_Z, CONFIRM_Z = 3.0, 3.0
 
 
 @dataclass
@@ -74,29 +63,33 @@ class SlipEvent:
     frame: int
 
 
+def _q_sigma(params: np.ndarray, cov: np.ndarray) -> float:
+    """The 1-sigma of ``|Q|`` from the estimate's covariance (``fx``, ``fy`` at 4 and 5)."""
+    fx, fy = params[4], params[5]
+    q = math.hypot(fx, fy)
+    c = cov[4:6, 4:6]
+    if not np.all(np.isfinite(c)):
+        return math.inf
+    if q <= 0:
+        return float(math.sqrt(max(0.0, c[0, 0])))
+    g = np.array((fx / q, fy / q))
+    return float(math.sqrt(max(0.0, g @ c @ g)))
+
+
 class SlipDetector:
-    """Feed one estimate per frame (:meth:`update`); it returns the slip state and any event."""
+    """Feed one estimate per frame (:meth:`update`); it returns the slip state and any event.
+    :attr:`filter` is the contact's shear filter (the tracked shear state)."""
 
     def __init__(self) -> None:
-        self._past: deque[tuple[float, float, float, float]] = deque(maxlen=WINDOW + LAG)
+        self.filter = ShearFilter()
+        self.test = SlideTest(PLATEAU_Z)
         self.sliding = False
         self._calm = 0
         self._slide: deque[tuple[float, float, float, float]] = deque(maxlen=REST_FRAMES + 1)
         self._q: deque[tuple[float, float]] = deque(maxlen=RECENT)
-        #: the last frame's motion statistic and force drop (sigma), for the record
+        #: the last frame's slide statistic and force drop (sigma), for the record
         self.z = 0.0
         self.drop = 0.0
-
-    def _anchor(self) -> tuple[float, float, float, float] | None:
-        old = list(self._past)[:WINDOW]
-        if len(old) < WINDOW:
-            return None
-        n = len(old)
-        x = sum(p[0] for p in old) / n
-        y = sum(p[1] for p in old) / n
-        sx = math.sqrt(sum(p[2] ** 2 for p in old)) / n
-        sy = math.sqrt(sum(p[3] ** 2 for p in old)) / n
-        return x, y, sx, sy
 
     def _at_rest(self) -> bool:
         """The centre moved by less than :data:`REST_Z` sigma over the last frames."""
@@ -107,22 +100,33 @@ class SlipDetector:
         zy = (y1 - y0) / math.hypot(sy0, sy1) if sy0 or sy1 else 0.0
         return math.hypot(zx, zy) < REST_Z
 
-    def update(self, frame: int, x: float, y: float, sx: float, sy: float, fx: float, fy: float,
-               lam: float, s_lam: float, s_q: float = math.inf) -> tuple[str | None, SlipEvent | None]:
+    def update(self, frame: int, params: np.ndarray, cov: np.ndarray, lam_free: float | None = None
+               ) -> tuple[str | None, SlipEvent | None]:
         """The state after this frame (``slip`` while sliding, else ``None``: the frame's own
-        state stands) and the event declared on it, if any.  Units: mm, N; ``s_q`` is the
-        bound of ``|Q|`` (inf: no force-drop test)."""
+        state stands) and the event declared on it, if any.  ``params`` and ``cov`` are the
+        frame's estimate in the shear fit's order (:data:`tactiled.fit.shear.NAMES`; mm, N);
+        ``lam_free`` its ``lam`` before the clip to [0, 1], for the filter."""
+        params = np.asarray(params, dtype=float)
+        cov = np.asarray(cov, dtype=float)
         event = None
-        anchor = self._anchor()
-        q = math.hypot(fx, fy)
-        z = 0.0
-        if anchor is not None and q > MIN_Q_SIGMAS * s_q:  # slip runs along a resolved Q
-            ax, ay, asx, asy = anchor
-            ux, uy = fx / q, fy / q
-            recent = list(self._past)[WINDOW:] + [(x, y, sx, sy)]
-            along = [((px - ax) * ux + (py - ay) * uy, math.hypot(psx * ux, psy * uy))
-                     for px, py, psx, psy in recent]
-            z = motion_z(along, math.hypot(asx * ux, asy * uy))
+        sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        lam, s_lam = float(params[7]), float(sig[7])
+        s_q = _q_sigma(params, cov)
+        q = math.hypot(params[4], params[5])
+        self.filter.centre_walk = SLIDING_WALK if self.sliding else None
+        z = joint = 0.0
+        mobilised = False
+        if self.filter.update(params, cov, lam_free) and not self.sliding:
+            fx, fy, qf, s_qf = self.filter.tangential()
+            if qf > MIN_Q_SIGMAS * s_qf:  # slip runs along a resolved Q
+                z = self.test.update(self.filter, fx / qf, fy / qf)
+            else:
+                self.test.update(self.filter, 1.0, 0.0)
+            lam_f, s_lam_f = self.filter.value(7)
+            mobilised = lam_f - 2.0 * s_lam_f > MOBILISED
+            joint = self.test.joint
+            if self.filter.frames <= SETTLE:
+                z = joint = 0.0
         gone = math.isfinite(s_lam) and lam + 2.0 * s_lam >= 1.0
         drop = 0.0
         if len(self._q) == RECENT and math.isfinite(s_q):
@@ -132,24 +136,20 @@ class SlipDetector:
         self._q.append((q, s_q))
         self.z, self.drop = z, drop
         if not self.sliding:
-            if gone and (z > ONSET_Z or drop > DROP_Z):
+            if gone and (z > ONSET_Z or drop > DROP_Z or (mobilised and joint > CONFIRM_Z)):
                 self.sliding = True
                 self._calm = 0
                 event = SlipEvent("onset", frame)
-            else:
-                self._past.append((x, y, sx, sy))
         else:
-            self._slide.append((x, y, sx, sy))
+            self._slide.append((float(params[2]), float(params[3]), float(sig[2]), float(sig[3])))
             self._calm = 0 if gone or not self._at_rest() else self._calm + 1
             if self._calm >= END_FRAMES:
                 self.sliding = False
-                self._past.clear()
                 self._slide.clear()
+                self.test.reset()
                 event = SlipEvent("end", frame)
         return ("slip" if self.sliding else None), event
 
     def feed(self, frame: int, est) -> tuple[str | None, SlipEvent | None]:
         """:meth:`update` from a :class:`~tactiled.fit.shear.ShearEstimate`."""
-        p, s = est.params, est.sigma
-        _, s_q = est.tangential()
-        return self.update(frame, p[2], p[3], s[2], s[3], p[4], p[5], p[7], s[7], s_q)
+        return self.update(frame, est.params, est.cov, est.lam_free)

@@ -11,14 +11,17 @@
 #       10     2     uint16   header_size: bytes from file start to the first record (32)
 #       12     4     uint32   sensor_id
 #       16     8     float64  created: wall-clock time.time() seconds (Unix epoch) at creation
-#       24     8     bytes    reserved, zero
+#       24     8     bytes    device: the vendor driver's kind the frames came from, ASCII,
+#                             NUL-padded ("paxini"); all zero: the wire format's own counts
 #     then records until end of file, each
 #       0      8     float64  host_time: time.monotonic() seconds when the frame was received
 #       8      4     uint32   length: number of wire bytes that follow (1 .. 1 MiB)
 #       12     length bytes   one encoded frame, trailing 0x00 delimiter included
 #
 # ``host_time`` is monotonic, so only differences within one file mean anything (replay paces
-# frames by them); ``created`` anchors the file in wall-clock time.  A reader skips
+# frames by them); ``created`` anchors the file in wall-clock time; ``device`` lets a replay
+# read a vendor device's counts through that device's nominal table, as the live run did
+# (files written before it have zeros there, read as the wire format's own counts).  A reader skips
 # ``header_size`` bytes, so a later version may grow the header.  A trailing record cut short
 # (a crash, a full disk) is reported through :attr:`RecordingReader.truncated`, never raised.
 
@@ -42,21 +45,42 @@ log = logging.getLogger(__name__)
 
 MAGIC = b"TACTREC\x00"
 VERSION = 1
-_HEADER = struct.Struct("<8sHHId8x")  # magic, version, header_size, sensor_id, created
+_HEADER = struct.Struct("<8sHHId8s")  # magic, version, header_size, sensor_id, created, device
 _RECORD = struct.Struct("<dI")  # host_time, length
 HEADER_SIZE = _HEADER.size  # 32 bytes
 RECORD_HEADER_SIZE = _RECORD.size  # 12 bytes
 MAX_RECORD_BYTES = 1 << 20  # far above any frame; a larger length means a corrupt file
+DEVICE_LEN = 8  # bytes of the header's device name
 
 
 @dataclass(frozen=True)
 class RecordingHeader:
-    """What the file header says: format version, sensor id, creation time (Unix seconds)."""
+    """What the file header says: format version, sensor id, creation time (Unix seconds) and
+    the vendor device the frames came from (``None``: the wire format's own counts)."""
 
     version: int
     sensor_id: int
     created: float
     header_size: int = HEADER_SIZE
+    device: str | None = None
+
+
+def _device_field(device: str | None) -> bytes:
+    """The header's device bytes (ValueError for a name that does not fit)."""
+    if device is None:
+        return bytes(DEVICE_LEN)
+    if not (0 < len(device) <= DEVICE_LEN and all(0x20 < ord(c) < 0x7F for c in device)):
+        raise ValueError(f"device must be 1..{DEVICE_LEN} printable ASCII characters, no "
+                         f"blank, got {device!r}")
+    return device.encode("ascii").ljust(DEVICE_LEN, b"\0")
+
+
+def _device_name(raw: bytes) -> str | None:
+    """The device named by the header's bytes (None: zeros, or bytes that name nothing)."""
+    name = raw.rstrip(b"\0")
+    if not name or b"\0" in name or not all(0x20 < b < 0x7F for b in name):
+        return None
+    return name.decode("ascii")
 
 
 def _read_header(stream: BinaryIO, path: Path) -> RecordingHeader:
@@ -66,7 +90,7 @@ def _read_header(stream: BinaryIO, path: Path) -> RecordingHeader:
             raise FrameError(f"{path}: not a tactiled recording (bad magic)")
         raise FrameError(f"{path}: recording header truncated ({len(data)} of "
                          f"{HEADER_SIZE} bytes)")
-    magic, version, header_size, sensor_id, created = _HEADER.unpack(data)
+    magic, version, header_size, sensor_id, created, device = _HEADER.unpack(data)
     if magic.startswith(b"PK\x03\x04"):
         raise FrameError(f"{path}: not a tactiled recording but an .npz file (tactiled fit "
                          "reads frame files)")
@@ -78,7 +102,7 @@ def _read_header(stream: BinaryIO, path: Path) -> RecordingHeader:
     if header_size < HEADER_SIZE:
         raise FrameError(f"{path}: recording header size {header_size} < {HEADER_SIZE}")
     stream.seek(header_size)
-    return RecordingHeader(version, sensor_id, created, header_size)
+    return RecordingHeader(version, sensor_id, created, header_size, _device_name(device))
 
 
 class RecordingReader:
@@ -188,17 +212,20 @@ def _complete_length(path: Path) -> tuple[RecordingHeader, int]:
 class RecordingWriter:
     """Append ``(host_time, wire_bytes)`` records to a recording file.
 
-    A new file gets a header; with ``append=True`` an existing recording is continued (its
-    sensor id must match, and a truncated last record is cut off first so the file stays
-    readable).  Without ``append`` an existing file is an error (``FileExistsError``):
+    A new file gets a header (``device``: the vendor driver's kind the frames came from, e.g.
+    ``"paxini"``, so that a replay reads its counts as the live run did); with ``append=True``
+    an existing recording is continued (its sensor id must match, and its device when it names
+    one; a truncated last record is cut off first so the file stays readable).  Without ``append`` an existing file is an error (``FileExistsError``):
     recordings are evidence and are not overwritten silently.  Writes are buffered;
     :meth:`flush` hands them to the OS, :meth:`close` also ``fsync``\\ s them to the disk.
     """
 
     def __init__(self, path: str | os.PathLike[str], *, sensor_id: int = 0,
-                 append: bool = False, created: float | None = None) -> None:
+                 append: bool = False, created: float | None = None,
+                 device: str | None = None) -> None:
         if not 0 <= sensor_id <= 0xFFFFFFFF:
             raise ValueError(f"sensor_id must fit in uint32, got {sensor_id!r}")
+        device_bytes = _device_field(device)
         self.path = Path(path)
         self.records = 0
         self.bytes_written = 0
@@ -207,6 +234,11 @@ class RecordingWriter:
             if header.sensor_id != sensor_id:
                 raise FrameError(f"{self.path}: recording is of sensor {header.sensor_id}, "
                                  f"cannot append frames of sensor {sensor_id}")
+            # (a file that names no device, as every file written before the field, takes
+            # any frames: its replay reads them as it always did)
+            if header.device is not None and header.device != device:
+                raise FrameError(f"{self.path}: recording is of device {header.device}, cannot "
+                                 f"append frames of {device or 'the wire format'}")
             self.header = header
             self._stream: BinaryIO = open(self.path, "r+b")  # noqa: SIM115
             if end < self.path.stat().st_size:
@@ -216,11 +248,11 @@ class RecordingWriter:
             self._stream.seek(end)
         else:
             self.header = RecordingHeader(
-                VERSION, sensor_id, time.time() if created is None else created
+                VERSION, sensor_id, time.time() if created is None else created, device=device
             )
             self._stream = open(self.path, "ab" if append else "xb")  # noqa: SIM115
             self._stream.write(_HEADER.pack(MAGIC, VERSION, HEADER_SIZE, sensor_id,
-                                            self.header.created))
+                                            self.header.created, device_bytes))
 
     @property
     def closed(self) -> bool:
@@ -268,10 +300,11 @@ class Recorder:
     """
 
     def __init__(self, path: str | os.PathLike[str], *, sensor_id: int = 0,
-                 append: bool = False, flush_interval: float = 0.5) -> None:
+                 append: bool = False, flush_interval: float = 0.5,
+                 device: str | None = None) -> None:
         if not (math.isfinite(flush_interval) and flush_interval >= 0):
             raise ValueError(f"flush_interval must be >= 0 seconds, got {flush_interval!r}")
-        self.writer = RecordingWriter(path, sensor_id=sensor_id, append=append)
+        self.writer = RecordingWriter(path, sensor_id=sensor_id, append=append, device=device)
         self.flush_interval = flush_interval
         self._last_flush = time.monotonic()
 

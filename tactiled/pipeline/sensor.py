@@ -21,16 +21,14 @@ import math
 import time
 from dataclasses import replace
 from pathlib import Path
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from tactiled.calibration.detection import ContactDetector
 from tactiled.io.calibration import Calibration, load_calibration_file
 from tactiled.calibration.lut import LookupTable
 from tactiled.calibration.stage import CalibrationStage
-from tactiled.calibration.zeroing import Zeroer
 from tactiled.clock import FrameClock
 from tactiled.sensors.model import NoiseModel
 from tactiled.sensors import load_description
@@ -49,7 +47,8 @@ from tactiled.pipeline.estimate import (
     plain,
 )
 from tactiled.pipeline.gate import Gate
-from tactiled.pipeline import learned
+from tactiled import native
+from tactiled.pipeline import frame_run, learned
 from tactiled.fit.regions import SIGNIFICANT_Z
 from tactiled.pipeline.association import ContactIds, identified
 from tactiled.pipeline.hub import Hub
@@ -92,6 +91,9 @@ class SensorPipeline:
     Construction loads the calibration file (``CalibrationError``) and builds the source from
     its URL (``ValueError``), without any I/O on the device.
     """
+
+    #: a read's frames in runs, one call into the core each (:mod:`.frame_run`); False: per frame
+    batched = native.core is not None
 
     def __init__(self, settings: SensorSettings, *, pool: WorkerPool, hub: Hub,
                  record_path: Path | None = None, lossless: bool = False,
@@ -179,7 +181,7 @@ class SensorPipeline:
         #: every frame's time (tactiled/clock.py): the estimates' ``time``, ROS 2's stamps
         self.clock = FrameClock(settings.rate_hz)
         # -- state
-        self._ordinal = 0
+        self._ordinal, self.quiet_at = 0, -1  # frames in; the last one quiet after (frame_run)
         self._last_published = 0  # ordinal of the last estimate published
         self._waiting: _Waiting | None = None
         self._in_flight: _Waiting | None = None  # the frame being fitted
@@ -264,8 +266,9 @@ class SensorPipeline:
                     async for batch in batches:  # the frames of one read
                         self.clock.stamp(batch)  # together: they arrived together
                         if self.lossless:
-                            for frame in batch:
-                                self.on_frame(frame)
+                            done = 0
+                            while done < len(batch):
+                                done = self.on_frames(batch, done, False, until_busy=True)
                                 await self.wait_settled()
                             continue
                         done = self.on_frames(batch)
@@ -323,37 +326,44 @@ class SensorPipeline:
             self.clock.stamp([frame])
         self.on_frames((frame,), dispatch=False)
 
-    def on_frames(self, frames: Sequence[Frame], start: int = 0, dispatch: bool = True) -> int:
+    def on_frames(self, frames: Sequence[Frame], start: int = 0, dispatch: bool = True,
+                  until_busy: bool = False) -> int:
         """Handle the frames of one read (stamped by ``self.clock``), from index ``start``, in
-        one call: the time they arrived and the frame-rate meter are taken once per call, not
-        once per frame.  Stops after the frame that takes the call past
-        ``SLICE_S``, so the loop's other tasks get their turn; returns the index of the next
-        frame to handle (``len(frames)``: all done).  ``dispatch``: a fit due goes to the pool
-        at once (``WorkerPool.dispatch_now``).  Never raises (problems are counted)."""
+        one call: the time of arrival and the rate meter taken once, the frames through the
+        stage in runs, one core call each (:mod:`.frame_run`).  Stops after the frame that
+        takes the call past ``SLICE_S`` (``until_busy``: that leaves a fit to wait for), so the
+        loop's other tasks get their turn; returns the index of the next frame (``len(frames)``:
+        all done).  ``dispatch``: a fit due goes to the pool at once.  Never raises."""
         now = time.monotonic()
         end = len(frames)
         k = start
         while k < end:
-            frame = frames[k]
-            k += 1
-            self.frames += 1
-            before = self._waiting
-            try:
-                self._record(frame)
-                self._process(frame, now)
-            except Exception as err:  # a bug must cost one frame, not the sensor's loop
-                self.errors += 1
-                self.last_error = f"{type(err).__name__}: {err}"
-                log.exception("%s: frame seq %d failed", self.name, frame.seq)
-            if dispatch and self._fit_due(before):
-                # the pool sends it now, not after the rest of this read's frames and the
-                # other sensors' reads the loop holds
-                self.pool.dispatch_now()
-            if k < end and time.monotonic() - now > SLICE_S:
+            taken = (frame_run.take_run(self, frames, k, end, now, dispatch)
+                     if self.batched and frame_run.runnable(self, until_busy) else 0)
+            if not taken:
+                frame = frames[k]
+                self.frames += 1
+                self._guarded(frame, dispatch, self._process, frame, now)
+                taken = 1
+            k += taken
+            if k < end and ((until_busy and not self._idle()) or time.monotonic() - now > SLICE_S):
                 break
         self.frame_rate.tick_many(now, k - start)
         self.last_frame_at = now
         return k
+
+    def _guarded(self, frame: Frame, dispatch: bool, step: Callable[..., None], *args: Any) -> None:
+        """``step(*args)``: a bug costs the frame (counted), not the loop; ``dispatch``: a fit
+        made due goes to the pool now, not after the other frames and reads the loop holds."""
+        before = self._waiting
+        try:
+            step(*args)
+        except Exception as err:
+            self.errors += 1
+            self.last_error = f"{type(err).__name__}: {err}"
+            log.exception("%s: frame seq %d failed", self.name, frame.seq)
+        if dispatch and self._fit_due(before):
+            self.pool.dispatch_now()
 
     def _record(self, frame: Frame) -> None:
         if self.record_path is None or self._record_failed:
@@ -361,7 +371,7 @@ class SensorPipeline:
         try:
             if self._recorder is None:
                 self._recorder = Recorder(self.record_path, sensor_id=frame.sensor_id,
-                                          append=True)
+                                          append=True, device=self.device and self.device.kind)
             self._recorder.record(frame)
         except ValueError as err:  # this frame cannot be encoded (not wire counts): skip it
             self.record_errors += 1
@@ -373,6 +383,7 @@ class SensorPipeline:
             log.error("%s: %s", self.name, self.last_error)
 
     def _process(self, frame: Frame, now: float) -> None:
+        self._record(frame)
         if self.expected_id is not None and frame.sensor_id != self.expected_id:
             self.wrong_sensor += 1
             if self.wrong_sensor == 1:
@@ -397,17 +408,23 @@ class SensorPipeline:
         if not self.stage.finite and not math.isfinite(strain.sum()):
             strain = np.nan_to_num(strain, nan=0.0, posinf=0.0, neginf=0.0)
         strain.setflags(write=False)
+        self._after_stage(frame, strain, contact, nonfinite, now,
+                          self.stage.zeroer.detector.last_statistic, self.stage.peak)
+
+    def _after_stage(self, frame: Frame, strain: np.ndarray, contact: bool, nonfinite: bool,
+                     now: float, statistic: float, peak: float) -> None:
+        """A frame the stage took (``strain`` read-only; ``statistic``: the detector's after it,
+        ``peak``: its largest strain or NaN): published, then gated, tracked or sent to a fit."""
         self._ordinal += 1
         ordinal = self._ordinal
-        detector = self.stage.zeroer.detector
         taxels = None if self.shear is None else self.shear.on_frame(frame, contact)
         self.hub.publish(make_zeroed_frame(
             sensor=self.name, sensor_id=frame.sensor_id, seq=frame.seq,
             device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
-            statistic=detector.last_statistic, strain=strain, stamp=frame.time, taxels=taxels))
+            statistic=statistic, strain=strain, stamp=frame.time, taxels=taxels))
         waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
                            frame.host_time, strain, now, frame.device_time_us * 1e-6,
-                           peak=self.stage.peak if contact else math.nan, stamp=frame.time)
+                           peak=peak if contact else math.nan, stamp=frame.time)
         if self.settings.track:
             self.tracking.track(waiting, contact, nonfinite)
             return
@@ -482,10 +499,8 @@ class SensorPipeline:
         table = self.table or (LookupTable.linear(g.rows, g.cols, sensor_id=sensor_id)
                                if self.device is None else self.device.nominal_table(sensor_id))
         s = self.settings
-        detector = ContactDetector(s.noise_sigma, sensor=self.sensor_model,
-                                   false_rate=s.false_rate, average=s.detector_average)
-        self.stage = CalibrationStage(table, Zeroer(table.shape, detector=detector,
-                                                    hysteresis=s.hysteresis))
+        self.stage = CalibrationStage.for_sensor(table, self.sensor_model, s.noise_sigma,
+                                                 s.false_rate, s.detector_average, s.hysteresis)
         self.sensor_id = sensor_id
 
     def _supersede_waiting(self) -> None:
@@ -516,14 +531,18 @@ class SensorPipeline:
         est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
                             device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
                             fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit, stamp=w.stamp)
-        self._last_published = w.ordinal
+        self._send(est, w.ordinal)
+        return est
+
+    def _send(self, est: Estimate, ordinal: int) -> None:
+        """Count and publish the estimate of the frame of arrival number ``ordinal``."""
+        self._last_published = ordinal
         self.published += 1
         latency_ms = est.latency_ms
         if math.isfinite(latency_ms):
             self.latency_ms.add(est.published_time, latency_ms)
-            self.latency_hist[gate].observe(latency_ms / 1e3)
+            self.latency_hist[est.gate].observe(latency_ms / 1e3)
         self.hub.publish(est)
-        return est
 
     def _frame_peak(self, w: _Waiting, fallback: float) -> float:
         """The largest strain of a frame's usable tactels (``fallback`` if none is): the

@@ -11,11 +11,13 @@
 #   a fit runs is counted, never queued);
 # * every frame of the contact after its first fit is estimated at frame rate by the step from
 #   the newest fit (:class:`tactiled.fit.shear.ShearStep`: one matrix-vector product, no fit)
-#   and feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`); an onset or
-#   end is published on the hub as a ``slip`` item with the frame it was declared on;
+#   and feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`, whose Kalman
+#   filter tracks the contact's shear state); an onset or end is published on the hub as a
+#   ``slip`` item with the frame it was declared on;
 # * :meth:`ShearTrack.annotate` gives every estimate the contact's newest ``shear`` and ``slip``
 #   tables (the strongest contact's: the fit's window is centred on the array's peak; the tables
-#   are the newest frame's step estimate), or null with the reason in ``reasons``.
+#   are the newest frame's: ``fx_n``, ``fy_n``, ``torque_nmm`` and ``q_over_p`` the filter's,
+#   the rest the step estimate's), or null with the reason in ``reasons``.
 
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ import asyncio
 import concurrent.futures
 import contextlib
 import logging
+import math
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -103,7 +106,8 @@ class ShearTrack:
         self._detector = SlipDetector()
         self._tracked = 0
         self._step: Any = None  # the newest fit's ShearStep for this contact
-        self._newest: tuple[int, Any, str | None] | None = None  # (seq, estimate, slip state)
+        # (seq, step estimate, slip state, the filter's shear values)
+        self._newest: tuple[int, Any, str | None, dict[str, tuple[float, float]] | None] | None = None
         self._onset: dict[str, Any] | None = None
         self._end: dict[str, Any] | None = None
         self._closed = False
@@ -215,16 +219,22 @@ class ShearTrack:
         if event is not None:
             self._event(event.kind, frame.seq, frame.sensor_id, frame.device_time_us,
                         frame.host_time, time.time(), state)
-        self._newest = (frame.seq, est, state)
+        filtered = self._detector.filter.shear() if self._detector.filter.x is not None else None
+        self._newest = (frame.seq, est, state, filtered)
 
     def _tables(self) -> tuple[dict[str, Any], dict[str, Any]] | None:
         """The ``shear`` and ``slip`` tables of the newest step estimate."""
         if self._newest is None:
             return None
-        seq, est, state = self._newest
+        seq, est, state, filtered = self._newest
         doc = est.to_json()
         shear = {**doc["shear"], "seq": seq, "rms_over_noise": doc["rms_over_noise"],
                  "reasons": doc["reasons"]}
+        if filtered is not None:  # the contact's filter: the forces tracked through time
+            shear["std"] = dict(shear["std"])
+            for key, (value, sigma) in filtered.items():
+                if math.isfinite(value) and math.isfinite(sigma):
+                    shear[key], shear["std"][key] = value, sigma
         slip = {"state": state, "lam": doc["slip"]["lam"], "lam_std": doc["slip"]["lam_std"],
                 "onset": self._onset, "end": self._end}
         return shear, slip

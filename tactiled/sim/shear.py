@@ -79,8 +79,12 @@ def random_frames(desc: SensorDescription, n: int, rng: np.random.Generator,
 
 
 def sequence(desc: SensorDescription, kind: str, rng: np.random.Generator, rate_hz: float = 1000.0,
-             accel: float = 5000.0, kinetic: float = 0.8) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """One scene (:data:`SEQUENCES`) of noisy frames at ``rate_hz`` and its truth."""
+             accel: float = 5000.0, kinetic: float = 0.8, ramp_s: float | None = None,
+             hold: float = 0.8, force_change: float = 0.0) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """One scene (:data:`SEQUENCES`) of noisy frames at ``rate_hz`` and its truth.  ``ramp_s``
+    replaces the loading ramp's duration (s; 0.3 for a pull, 0.2 else), ``hold`` a push's
+    level (a fraction of ``mu P``), ``force_change`` the normal force's relative change over
+    the ramp (-0.3: it falls to 70 %; the pull then slides sooner)."""
     if kind not in SEQUENCES:
         raise ValueError(f"no shear scene {kind!r} (scenes: {', '.join(SEQUENCES)})")
     model = ThreeAxisModel(desc)
@@ -91,20 +95,20 @@ def sequence(desc: SensorDescription, kind: str, rng: np.random.Generator, rate_
     x0 = cx + rng.uniform(-0.5, 0.5) * desc.pitch_x_mm
     y0 = cy + rng.uniform(-0.5, 0.5) * desc.pitch_y_mm
     dt = 1.0 / rate_hz
-    press, hold = round(0.05 * rate_hz), round(0.02 * rate_hz)
-    ramp = round((0.3 if kind == "pull" else 0.2) * rate_hz)
+    press, rest = round(0.05 * rate_hz), round(0.02 * rate_hz)
+    ramp = round((ramp_s if ramp_s is not None else 0.3 if kind == "pull" else 0.2) * rate_hz)
     tail = round(0.1 * rate_hz)
-    n = press + hold + ramp + (0 if kind == "pull" else tail)
+    n = press + rest + ramp + (0 if kind == "pull" else tail)
     frames = np.empty((n, *model.shape))
     truth = {k: np.empty(n) for k in TRUTH}
     onset, slid = -1, 0.0
     a = model.ellipse(radius, force).a
     for i in range(n):
-        p = force * min(1.0, (i + 1) / press)
-        s = min(1.0, max(0.0, (i - press - hold + 1) / ramp))
+        s = min(1.0, max(0.0, (i - press - rest + 1) / ramp))
+        p = force * min(1.0, (i + 1) / press) * (1.0 + force_change * s)
         q = t = 0.0
         if kind == "push":
-            q = 0.8 * mu * force * s
+            q = hold * mu * p * s
         elif kind == "twist":
             t = 0.5 * 3 * math.pi * mu * force * a / 16 * s
         else:

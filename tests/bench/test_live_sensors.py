@@ -7,8 +7,8 @@ Bars: no value bit-identical for more than ``MAX_CARRIED`` + 1 estimates while i
 moves; no estimate listing a second contact on a pad touched once; at least 85 % of the
 published values within 2 of their sigmas; the share of estimates with a value beyond 4
 sigma under 5 % on the XELA 4x4 pad and, the live bar, under 1 % on the paper's finger and
-the XELA 4x6 pad (every built-in description: ``-m slow``, about 2 minutes), with nothing
-stale.
+the XELA 4x6 pad and, on its second noise draw, the XELA 4x4 pad (every built-in
+description on seeds 1-3: ``-m slow``, about 4 minutes), with nothing stale.
 """
 
 from __future__ import annotations
@@ -73,9 +73,9 @@ def test_the_daemons_tracked_radii_on_a_coarse_pad_stay_within_their_sigmas() ->
 LIVE_BAR = 0.01
 #: Descriptions whose simulated finger the daemon does not yet keep within the bar (what is
 #: left there: weak lines' fits, docs/performance/fit-time.md)
-_NOT_YET = {"robotiq_tsf85": "a weak line's fitted orientation and place, 1.2 % of estimates",
-            "flexitac_12x32": "a weak line's fitted orientation and place on the 12x32 mat, "
-                              "5 % of estimates"}
+_NOT_YET = {"flexitac_12x32": "a weak line's fitted orientation and place on the 12x32 mat "
+                              "(1 N at about 4 noise sigmas, fits of single frames), 1.5-2 % of "
+                              "estimates"}
 
 
 def _live_bar(s: dict) -> None:
@@ -84,9 +84,11 @@ def _live_bar(s: dict) -> None:
     assert c["phantom"] == 0, c
     assert max(s["stale"].values()) <= MAX_CARRIED + 1, s["stale"]
     assert c["with_far"] <= LIVE_BAR * c["contact_estimates"], (c, s["far"])
-    # withholding is not how the bar is met: at most 40 % of the values (the demo's line is
-    # 10 mm at 1 N, whose radius no flat description here resolves: those radii are most of it)
-    assert sum(s["withheld"].values()) <= 0.4 * sum(s["n"].values()), s["withheld"]
+    # withholding is not how the bar is met: at most 25 % of the values other than the
+    # radius (the demo's line is 10 mm at 1 N and its ball 8 mm at up to 1.5 N, radii the
+    # coarse and flat descriptions do not resolve: docs/concepts/uncertainty.md)
+    held = sum(v for k, v in s["withheld"].items() if k != "r1_mm")
+    assert held <= 0.25 * sum(v for k, v in s["n"].items() if k != "r1_mm"), s["withheld"]
 
 
 def _nothing_stale(desc, estimates: list) -> tuple[int, int]:
@@ -139,9 +141,57 @@ def test_the_live_bar_on_the_papers_finger() -> None:
     assert checked >= 500, checked
 
 
+def _tracked_far(desc, estimates: list, key: str) -> tuple[list[tuple], int]:
+    """The estimates of a ball resting on two or more frames whose ``key`` lies beyond
+    ``FAR_SIGMAS`` of its sigma from the simulator's truth (``(tick, value, sigma, truth)``),
+    and how many such estimates published ``key``."""
+    true = live_sensors.truth(desc, 100.0, max(t for t, _ in estimates) + 1)
+    far, n = [], 0
+    for tick, fit in estimates:
+        if not (fit.get("contact") and true[tick]) or (fit.get("frames_used") or 0) < 2:
+            continue
+        c, v, sd = true[tick][0], fit.get(key), (fit.get("std") or {}).get(key)
+        if math.isinf(c.r2) or v is None:
+            continue
+        t = c.force if key == "force_n" else c.r1
+        n += 1
+        if abs(v - t) > live_sensors.FAR_SIGMAS * sd:
+            far.append((tick, v, sd, t))
+    return far, n
+
+
+def test_a_light_balls_tracked_force_on_a_coarse_pad_rests_on_no_unresolved_radius() -> None:
+    """XELA 4x4 (4.7 mm pitch), second noise draw: an 8 mm ball pressed from 0.2 to 1.5 N is
+    fitted at 30-300 mm, a radius the frames do not resolve, and the force measured through
+    that point ran 20-30 % low with the sigma of a point (10 estimates 4.6-8.7 sigmas off,
+    1.3 % of the description's estimates), the linearised share of its variance that is the
+    radius's swinging 0.0-0.9 from one frame to the next.  A tracked force resting on a
+    radius the tracker withholds with a sigma over 30 % of it is withheld with it: no
+    tracked force beyond 4 sigma, and the live bar."""
+    desc = load_description("xela_uskin_4x4")
+    estimates = live_sensors.play(desc, 100.0, seed=2)
+    far, n = _tracked_far(desc, estimates, "force_n")
+    assert n >= 50 and not far, (n, far)
+    _live_bar(live_sensors.score(desc, 100.0, 2, estimates))
+
+
+def test_a_release_is_followed_without_a_confident_lag() -> None:
+    """The 12x32 mat (flexitac): the ball's release (1.5 N to nothing in 0.25 s, the log
+    force falling ever faster) left the constant-velocity filter 0.1-0.3 behind in log
+    force with a sigma of 0.02-0.03 (9 forces 4.5-5.8 sigmas high).  The innovations' run to
+    one side now goes into the state's variance, so the filter catches up and says so: at
+    most 2 % of the ball's tracked forces beyond 4 sigma of the truth (5 % before; 1 % here
+    now, a press's and a release's single frame)."""
+    desc = load_description("flexitac_12x32")
+    estimates = live_sensors.play(desc, 100.0, seed=1)
+    far, n = _tracked_far(desc, estimates, "force_n")
+    assert n >= 100 and len(far) <= 0.02 * n, (n, far)
+
+
 @pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
 @pytest.mark.parametrize("name", [
     pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=_NOT_YET[n])) if n in _NOT_YET
     else n for n in builtin_names()])
-def test_the_live_bar_on_every_builtin_description(name: str) -> None:
-    _live_bar(live_sensors.score(load_description(name), 100.0, 1))
+def test_the_live_bar_on_every_builtin_description(name: str, seed: int) -> None:
+    _live_bar(live_sensors.score(load_description(name), 100.0, seed))

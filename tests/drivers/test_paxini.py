@@ -135,3 +135,72 @@ def test_source_reads_the_simulated_module(tmp_path: Path) -> None:
     assert all(f.taxels.shape == (10, 12, 3) and f.raw.shape == (10, 12) for f in got)
     assert stats.rejected == 0
     assert [f.seq for f in got] == list(range(len(got)))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
+def test_the_simulated_module_pushes_sideways(tmp_path: Path) -> None:
+    """`--scene push`: the answers carry the 3-axis model's x and y, far above the rest's
+    noise (1 count), and z of the press; none is rejected."""
+    link = tmp_path / "px"
+    proc = subprocess.Popen([sys.executable, "-m", "tactiled.cli", "simulate", "--as", "paxini",
+                             "--device", str(link), "--rate", "1000", "--seed", "2",
+                             "--scene", "push"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().startswith("pty: "), proc.stderr.read()
+        proc.stdout.readline()
+
+        async def read() -> tuple[list, object]:
+            from tactiled.sources import open_source
+
+            src = open_source(f"paxini://{link}")
+            got: list = []
+            await src.open()
+            deadline = time.monotonic() + 30.0
+            async for batch in src.frame_batches():
+                got += batch
+                tangential = max((np.abs(f.taxels[..., :2].astype(int) - paxini.ZERO_COUNTS).max()
+                                  for f in got), default=0)
+                if tangential >= 8 or time.monotonic() > deadline:
+                    break
+            stats = src.decoder.stats
+            await src.close()
+            return got, stats
+
+        got, stats = asyncio.run(read())
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    xyz = np.stack([f.taxels for f in got]).astype(int) - paxini.ZERO_COUNTS
+    assert np.abs(xyz[..., :2]).max() >= 8, np.abs(xyz[..., :2]).max()
+    assert xyz[..., 2].max() > 20 and xyz[..., 2].min() >= 0
+    assert stats.rejected == 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(points, noise), min_size=1, max_size=5), st.integers(1, 40))
+def test_answers_without_a_checksum_byte(answers, chunk) -> None:
+    """A module whose answers end with their payload (`checksum=0`, as the public drivers read
+    them): each answer is one frame, whatever the reads; garbage between costs nothing."""
+    stream = b"".join(junk + paxini.response(0, pts, checksum=False) for pts, junk in answers)
+    framer = paxini.PaxiniFramer(0, ROWS, COLS, checksum=False)
+    got = [f for k in range(0, len(stream), chunk) for f in framer.feed(stream[k:k + chunk])]
+    assert len(got) == len(answers)
+    for f, (pts, _junk) in zip(got, answers):
+        np.testing.assert_array_equal(f.taxels.reshape(-1, 3).astype(int) - paxini.ZERO_COUNTS, pts)
+    assert framer.stats.rejected == 0
+
+
+def test_the_checksum_parameter() -> None:
+    from tactiled.sources import open_source
+
+    assert open_source("paxini:///dev/null").decoder.checksum is True
+    assert open_source("paxini:///dev/null?checksum=0").decoder.checksum is False
+    with pytest.raises(ValueError, match="checksum"):
+        open_source("paxini:///dev/null?checksum=2")
+    # with the checksum expected, a good answer's payload with a byte changed is refused
+    pts = np.zeros((N, 3), np.int64)
+    bad = bytearray(paxini.response(0, pts))
+    bad[20] ^= 1
+    framer = paxini.PaxiniFramer(0, ROWS, COLS)
+    assert framer.feed(bytes(bad)) == [] and framer.stats.crc_errors == 1

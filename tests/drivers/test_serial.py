@@ -128,6 +128,38 @@ def test_garbage_between_frames(pty_device, frame_factory, same_frame, wait_unti
     asyncio.run(main())
 
 
+def test_3_axis_frames_and_hostile_3_axis_headers(pty_device, wait_until) -> None:
+    """Version-2 (3-axis) frames arrive whole through the pty; a header claiming 3 axes over
+    a 1-axis payload (good CRC) and one cut short are counted and skipped, the frames after
+    them delivered."""
+    import zlib
+
+    from tactiled.frames import HEADER, cobs_encode
+
+    rng = np.random.default_rng(5)
+    sent = []
+    for k in range(6):
+        xyz = rng.integers(0, 0x10000, (4, 6, 3)).astype(np.uint16)
+        sent.append(Frame(seq=k, device_time_us=1000 * k, raw=xyz[..., 2].copy(), taxels=xyz))
+    body = HEADER.pack(2, 3, 0, 100, 0, 4, 6) + b"\x01\x02" * 24  # 3 axes claimed, 1 sent
+    liar = cobs_encode(body + zlib.crc32(body).to_bytes(4, "little")) + b"\x00"
+    cut = encode_frame(sent[3])[:60] + b"\x00"
+    stream = (encode_frame(sent[0]) + encode_frame(sent[1]) + liar + encode_frame(sent[2])
+              + cut + b"".join(encode_frame(f) for f in sent[4:]))
+
+    async def main() -> None:
+        async with Consumer(serial_url(pty_device.path)) as c:
+            await pty_device.send(stream)
+            await wait_until(lambda: len(c.frames) == 5, 2.0)
+            assert [f.seq for f in c.frames] == [0, 1, 2, 4, 5]
+            for got in c.frames:
+                np.testing.assert_array_equal(got.taxels, sent[got.seq].taxels)
+            stats = c.src.decoder.stats
+            assert (stats.length_errors, stats.truncated, stats.rejected) == (1, 1, 2)
+
+    asyncio.run(main())
+
+
 def test_read_never_blocks_the_event_loop(pty_device) -> None:
     async def main() -> None:
         ticks = 0

@@ -119,3 +119,43 @@ def test_xela_refused_connection_is_a_driver_error() -> None:
         assert not src.is_open
 
     asyncio.run(main())
+
+
+def test_the_simulated_server_pulls_sideways() -> None:
+    """`tactiled simulate --as xela --scene pull` (a real WebSocket server): sensor 1's x, y, z
+    follow the 3-axis model (here of `--sensor xela_uskin_4x6`), at rest first then moved far
+    beyond the noise (2 counts); sensor 2 rests."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tactiled.cli", "simulate", "--as", "xela", "--device", "0",
+         "--rate", "1000", "--seed", "3", "--scene", "pull", "--sensor", "xela_uskin_4x6"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("xela: ws://"), proc.stderr.read()
+        addr = line.strip().removeprefix("xela: ws://")
+
+        async def read(number: int, enough: int) -> list:
+            """Sensor ``number``'s frames until one has moved by 100 counts, or ``enough``."""
+            got: list = []
+            async with open_source(f"xela://{addr}?sensor={number}&rows=4&cols=6") as src:
+                async for batch in src.frame_batches():
+                    got += batch
+                    moved = max(np.abs(f.taxels.astype(float) - got[0].taxels).max()
+                                for f in batch)
+                    if moved > 100 or len(got) >= enough:
+                        return got
+            return got
+
+        pulled = asyncio.run(asyncio.wait_for(read(1, 5000), 90.0))
+        resting = asyncio.run(asyncio.wait_for(read(2, 50), 60.0))
+    finally:
+        proc.terminate()
+        proc.wait(30)
+    xyz = np.stack([f.taxels for f in pulled]).astype(float)
+    assert xyz.shape[1:] == (4, 6, 3)
+    assert np.abs(xyz - xyz[0]).max() > 100  # the pull moves the magnets
+    rest = np.stack([f.taxels for f in resting]).astype(float)
+    assert np.abs(rest - rest.mean(axis=0)).max() < 10 * 2.0

@@ -1,5 +1,5 @@
 """The 3-axis fit: truth recovered from noiseless frames, honest bounds on noisy ones, mu
-withheld with a reason where unresolved, and the slip detector on known motion."""
+withheld with a reason where unresolved, and the frame-rate step between fits."""
 
 import math
 
@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from tactiled.fit.shear import MU_RESOLVED, NAMES, ShearFitter
-from tactiled.fit.slip import SlipDetector, motion_z
 from tactiled.physics.threeaxis import ShearContact, ThreeAxisModel, three_axis
 from tactiled.sensors import load_description
 from tactiled.sim.shear import random_frames
@@ -64,48 +63,6 @@ def test_mu_withheld_with_a_reason_or_given_with_its_bound():
     assert why is None and mu == pytest.approx(0.5, rel=0.02) and 0 < s_mu < MU_RESOLVED * mu
 
 
-def _feed(det, frames):
-    events = []
-    for i, (x, lam) in enumerate(frames):
-        _, ev = det.update(i, x, 0.0, 0.01, 0.01, 0.5, 0.0, lam, 0.05, 0.003)
-        if ev:
-            events.append((ev.kind, ev.frame))
-    return events
-
-
-def test_slip_detector_on_known_motion():
-    rng = np.random.default_rng(0)
-    # stick: the centre jitters with its own sigma, the stick zone nearly gone: no event
-    still = [(5.0 + 0.01 * rng.normal(), 0.97) for _ in range(400)]
-    assert _feed(SlipDetector(), still) == []
-    # the centre starts moving along Q at frame 100 (0.5 g): onset within a few frames
-    moving = [(5.0 + 0.01 * rng.normal() + (0.0025 * (i - 99) ** 2 if i >= 100 else 0.0), 0.97 if i < 100 else 1.0)
-              for i in range(130)]
-    events = _feed(SlipDetector(), moving)
-    assert events and events[0][0] == "onset" and 100 <= events[0][1] <= 105
-    # moving against Q is not slip along it; a moving centre with a resolved stick zone neither
-    backwards = [(5.0 - (0.0025 * (i - 99) ** 2 if i >= 100 else 0.0), 1.0) for i in range(130)]
-    assert _feed(SlipDetector(), backwards) == []
-    stuck = [(5.0 + (0.0025 * (i - 99) ** 2 if i >= 100 else 0.0), 0.5) for i in range(130)]
-    assert _feed(SlipDetector(), stuck) == []
-
-
-def test_slip_detector_on_a_force_drop():
-    """Static friction giving way: |Q| falls by many sigma while the stick zone is gone."""
-    det = SlipDetector()
-    events = []
-    for i in range(60):
-        q = 0.5 if i < 40 else 0.4
-        _, ev = det.update(i, 5.0, 0.0, 0.01, 0.01, q, 0.0, 0.99, 0.05, 0.003)
-        if ev:
-            events.append((ev.kind, ev.frame))
-    assert events == [("onset", 40)]
-    # the same drop with a resolved stick zone (an unloading, not a slip) is no event
-    det = SlipDetector()
-    assert not any(det.update(i, 5.0, 0.0, 0.01, 0.01, 0.5 if i < 40 else 0.4, 0.0, 0.5, 0.05, 0.003)[1]
-                   for i in range(60))
-
-
 def test_the_step_follows_frames_between_fits():
     """The frame-rate step from a fit: on the fit's own frame it gives the fit back (the
     fit's residual is orthogonal to its Jacobian at the optimum), and on a later frame (the
@@ -129,47 +86,3 @@ def test_the_step_follows_frames_between_fits():
         assert abs(est.params[k] - true) <= 3 * est.sigma[k], NAMES[k]
         assert abs(est.params[k] - full.params[k]) <= 0.3 * full.sigma[k], NAMES[k]
     assert 0.5 < est.rms < 1.5  # the readings explained to the noise, in units of it
-
-
-def test_motion_statistic_is_the_matched_filter():
-    """motion_z against a direct computation: one frame moved by 3 sigma from an exact anchor
-    is 3; a slide of (k+1)^2 * 0.01 mm over four frames of sigma 0.01 is the template's norm."""
-    assert motion_z([(0.03, 0.01)], 0.0) == pytest.approx(3.0)
-    slide = [((k + 1) ** 2 * 0.01, 0.01) for k in range(4)]
-    assert motion_z(slide, 0.0) == pytest.approx(math.sqrt(sum((k + 1) ** 4 for k in range(4))))
-    assert motion_z([(-d, s) for d, s in slide], 0.0) == 0.0  # against Q: no slide along it
-    # the anchor's error is shared by every frame: the variance of the weighted sum is
-    # w^T C w with C = diag(s^2) + s_a^2 (all ones); the largest over the slide's start
-    d = np.array([x for x, _ in slide])
-    best = 0.0
-    for start in range(4):
-        g = np.arange(1, 5 - start) ** 2.0
-        w = g / 0.01 ** 2
-        cov = np.diag(np.full(g.size, 0.01 ** 2)) + 0.01 ** 2
-        best = max(best, float(w @ d[start:] / math.sqrt(w @ cov @ w)))
-    assert motion_z(slide, 0.01) == pytest.approx(best)
-    # under the stick hypothesis the statistic of one start is a unit normal: its spread
-    rng = np.random.default_rng(4)
-    z = [motion_z([(0.01 * rng.normal() + a, 0.01) for _ in range(1)], 0.02) for a in 0.02 * rng.normal(size=4000)]
-    assert np.mean(np.array(z) > 2.0) == pytest.approx(0.0228, abs=0.008)
-
-
-def test_slip_ends_when_the_object_sticks_again():
-    """After an onset: a stick zone seen while the centre still moves is no end; the centre at
-    rest with the stick zone resolved ends the slip within REST_FRAMES + END_FRAMES frames."""
-    from tactiled.fit.slip import END_FRAMES, REST_FRAMES
-
-    rng = np.random.default_rng(1)
-    det = SlipDetector()
-    events = []
-    x = 5.0
-    for i in range(200):
-        if 100 <= i < 150:
-            x += 0.002 * (i - 99)  # sliding from frame 100, ever faster
-        lam = 0.97 if i < 100 else (0.5 if 120 <= i < 130 or i >= 150 else 1.0)
-        _, ev = det.update(i, x + 0.01 * rng.normal(), 0.0, 0.01, 0.01, 0.5, 0.0, lam, 0.05, 0.003)
-        if ev:
-            events.append((ev.kind, ev.frame))
-    assert [k for k, _ in events] == ["onset", "end"]
-    assert 100 <= events[0][1] <= 105
-    assert 150 <= events[1][1] <= 150 + REST_FRAMES + END_FRAMES

@@ -177,14 +177,18 @@ def test_c_sketch_in_doc_matches_encoder(tmp_path: Path) -> None:
         Frame(seq=0x01010101, device_time_us=0x0101010101010101, sensor_id=0x0101,
               raw=rng.integers(0x0101, 0xFFFF, (16, 16)).astype(np.uint16)),
         Frame(seq=3, device_time_us=4, raw=rng.integers(0, 0x10000, (64, 64)).astype(np.uint16)),
+        # a 3-axis array (version 2)
+        Frame(seq=9, device_time_us=10, raw=np.zeros((4, 6), np.uint16),
+              taxels=rng.integers(0, 0x10000, (4, 6, 3)).astype(np.uint16)),
     ]
     calls = []
     for k, f in enumerate(frames):
         rows, cols = f.shape
+        counts = f.raw if f.taxels is None else f.taxels
         calls.append(
-            f"static const uint16_t c{k}[] = {c_array(f.raw)};\n"
+            f"static const uint16_t c{k}[] = {c_array(counts)};\n"
             f"n = tactile_encode_frame({f.sensor_id}u, {f.seq}u, {f.device_time_us}ull, "
-            f"{rows}, {cols}, c{k}, wire);\n"
+            f"{rows}, {cols}, {f.axes}, c{k}, wire);\n"
             "for (size_t i = 0; i < n; i++)\n    printf(\"%02x\", wire[i]);\nprintf(\"\\n\");\n"
         )
     main = ("#include <stdio.h>\nint main(void) {\nstatic uint8_t wire[TACTILE_MAX_WIRE];\n"

@@ -220,7 +220,8 @@ def test_truncated_frames_at_every_length() -> None:
         ({"cols": 9}, "length_errors"),  # 8x9 declared
         ({"rows": 0}, "length_errors"),
         ({"rows": 65, "cols": 65}, "length_errors"),  # over MAX_TACTELS
-        ({"version": 2}, "version_errors"),
+        ({"version": 3}, "version_errors"),
+        ({"version": 2}, "length_errors"),  # version 2 with axes 0 (the flags byte)
     ],
 )
 def test_sender_header_errors_with_good_crc(header: dict, counter: str) -> None:

@@ -176,3 +176,40 @@ def test_recorder_encodes_frames(tmp_path, frame_factory, same_frame) -> None:
         assert reader.header.sensor_id == 9
     with pytest.raises(ValueError, match="flush_interval"):
         Recorder(tmp_path / "x.tact", flush_interval=-1)
+
+
+def test_the_header_names_the_device_the_frames_came_from(tmp_path, frame_factory) -> None:
+    """Bytes 24..31: the vendor driver's kind, ASCII, NUL-padded; zeros (files written before
+    the field, or the wire format's own counts) read as no device."""
+    frames = frame_factory(3)
+    path = tmp_path / "px.tact"
+    with RecordingWriter(path, device="paxini", created=1.0) as writer:
+        writer.write(1.0, encode_frame(frames[0]))
+    assert path.read_bytes()[24:32] == b"paxini\0\0"
+    with RecordingReader(path) as reader:
+        assert reader.header.device == "paxini" and reader.header.version == 1
+    # appending: the same device only
+    with pytest.raises(FrameError, match="device paxini"):
+        RecordingWriter(path, append=True, device="xela")
+    with RecordingWriter(path, append=True, device="paxini") as writer:
+        writer.write(2.0, encode_frame(frames[1]))
+    assert len(read_recording(path)) == 2
+    with pytest.raises(FrameError, match="device paxini"):
+        RecordingWriter(path, append=True)
+    # an older file: the reserved bytes are zero; it takes a device's frames, header kept
+    old = write_file(tmp_path / "old.tact", frames)
+    assert old.read_bytes()[24:32] == bytes(8)
+    with RecordingReader(old) as reader:
+        assert reader.header.device is None
+    with RecordingWriter(old, append=True, device="paxini") as writer:
+        writer.write(9.0, encode_frame(frames[2]))
+    assert old.read_bytes()[24:32] == bytes(8) and len(read_recording(old)) == 4
+    # bytes that name nothing are not a device
+    data = bytearray(old.read_bytes())
+    data[24:32] = b"\xff\x01junk\0\0"
+    (tmp_path / "odd.tact").write_bytes(bytes(data))
+    with RecordingReader(tmp_path / "odd.tact") as reader:
+        assert reader.header.device is None
+    for bad in ("", "flexitac9", "p\u00e9", "a b"):
+        with pytest.raises(ValueError, match="device"):
+            RecordingWriter(tmp_path / f"bad{len(bad)}.tact", device=bad)

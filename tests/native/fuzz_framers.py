@@ -24,7 +24,8 @@ from dataclasses import asdict
 import atheris
 
 with atheris.instrument_imports():
-    from tactiled.frames import MAX_ENCODED_LEN, FrameDecoder, NativeFrameDecoder, cobs_encode
+    from tactiled.frames import (MAX_ENCODED_LEN, Frame, FrameDecoder, NativeFrameDecoder,
+                                  cobs_encode)
     from tactiled_drivers.flexitac import FlexiTacFramer, NativeFlexiTacFramer
     from tactiled_drivers.lines import MAX_LINE, LinesFramer, NativeLinesFramer
     from tactiled_drivers.robotiq import (
@@ -43,13 +44,17 @@ HEADER = (1).to_bytes(1, "little")
 
 @atheris.instrument_func
 def _wire_frame(fdp: atheris.FuzzedDataProvider) -> bytes:
-    """A frame as a device sends it (its header fields drawn, some of them out of range)."""
+    """A frame as a device sends it (its header fields drawn, some of them out of range):
+    version 1 (1 axis), version 2 (3 axes, or 1; or a hostile count of axes), or any version."""
     rows, cols = fdp.ConsumeIntInRange(0, 70), fdp.ConsumeIntInRange(0, 70)
-    version = 1 if fdp.ConsumeBool() else fdp.ConsumeIntInRange(0, 255)
-    head = (bytes([version, 0]) + fdp.ConsumeIntInRange(0, 65535).to_bytes(2, "little")
+    kind = fdp.ConsumeIntInRange(0, 3)
+    version = (1, 2, 2, fdp.ConsumeIntInRange(0, 255))[kind]
+    axes = (0, 3, fdp.ConsumeIntInRange(0, 255), fdp.ConsumeIntInRange(0, 255))[kind]
+    head = (bytes([version, axes]) + fdp.ConsumeIntInRange(0, 65535).to_bytes(2, "little")
             + fdp.ConsumeIntInRange(0, 2**32 - 1).to_bytes(4, "little")
             + fdp.ConsumeIntInRange(0, 2**64 - 1).to_bytes(8, "little") + bytes([rows, cols]))
-    n = rows * cols if fdp.ConsumeBool() else fdp.ConsumeIntInRange(0, 5000)
+    values = rows * cols * (max(axes, 1) if version == 2 else 1)
+    n = values if fdp.ConsumeBool() else fdp.ConsumeIntInRange(0, 5000)
     body = head + fdp.ConsumeBytes(2 * n).ljust(2 * n, b"\x01")
     return cobs_encode(body + zlib.crc32(body).to_bytes(4, "little")) + b"\x00"
 
@@ -79,6 +84,11 @@ def _stream(fdp: atheris.FuzzedDataProvider) -> bytes:
     return bytes(out)
 
 
+def _wire_key(f: Frame) -> tuple:
+    taxels = None if f.taxels is None else (f.taxels.shape, f.taxels.tobytes())
+    return (f.seq, f.device_time_us, f.sensor_id, f.raw.shape, f.raw.tobytes(), taxels)
+
+
 @atheris.instrument_func
 def wire_decoders(data: bytes) -> None:
     """The wire format: FrameDecoder against NativeFrameDecoder."""
@@ -88,8 +98,7 @@ def wire_decoders(data: bytes) -> None:
     ref, got = FrameDecoder(), NativeFrameDecoder()
     for a, b in zip(cuts, cuts[1:]):
         want, have = ref.feed(stream[a:b], 1.0), got.feed(stream[a:b], 1.0)
-        assert [(f.seq, f.device_time_us, f.sensor_id, f.raw.shape, f.raw.tobytes()) for f in have] \
-            == [(f.seq, f.device_time_us, f.sensor_id, f.raw.shape, f.raw.tobytes()) for f in want]
+        assert [_wire_key(f) for f in have] == [_wire_key(f) for f in want]
         assert got.buffered == ref.buffered <= MAX_ENCODED_LEN
     assert asdict(got.stats) == asdict(ref.stats)
 

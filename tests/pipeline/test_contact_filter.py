@@ -247,7 +247,10 @@ def test_a_contact_at_the_noise_is_measured_its_values_held_within_reason(kit) -
         assert fits <= 30, (seed, fits)
         assert LN_R_BOUNDS[0] <= tr.x[0] <= LN_R_BOUNDS[1]
         e = out[-1][2]
-        assert abs(e["force_n"] - faint.force) < 4 * e["std"]["force_n"], e
+        if e["force_n"] is None:  # tied to the radius it does not resolve
+            assert "radius the frames do not resolve" in e["reasons"]["force_n"], e
+        else:
+            assert abs(e["force_n"] - faint.force) < 4 * e["std"]["force_n"], e
         assert abs(e["x_mm"] - faint.x0) < 4 * e["std"]["x_mm"], e
 
 

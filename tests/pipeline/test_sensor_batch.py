@@ -65,9 +65,11 @@ def test_a_read_in_one_call_publishes_what_its_frames_one_by_one_do() -> None:
 
 def test_a_long_read_is_handled_in_slices(monkeypatch) -> None:
     """Past ``SLICE_S`` the call returns where it stopped (the loop then lets the other
-    sensors run): with no time allowed, one frame a call, every frame handled once."""
+    sensors run): with no time allowed, one frame a call on the per-frame path, every frame
+    handled once (the core's runs: tests/pipeline/test_frame_run.py)."""
     monkeypatch.setattr(sensor_module, "SLICE_S", -1.0)
     p, seen, _ = _pipeline()
+    p.batched = False
     frames = make_frames([], sensor_id=0, settle=20)
     p.clock.stamp(frames)
     done, calls = 0, 0

@@ -95,6 +95,11 @@ def compare(expected: Any, actual: Any, where: str = "", rel_tol: float = REL_TO
             else:
                 sd = std.get(key)
                 tol = rel_tol * sd if isinstance(sd, float) and math.isfinite(sd) else None
+                if key == "condition" and isinstance(expected[key], float):
+                    # a condition number kappa moves kappa times its matrix's last digits:
+                    # relatively, kappa * rel_tol (1669.58291760 against ...91495 between the
+                    # core and the Python reference, 1.6e-9 of itself)
+                    tol = rel_tol * expected[key] * expected[key]
                 out += compare(expected[key], actual[key], f"{where}.{key}", rel_tol, tol)
         return out
     if isinstance(expected, list) and isinstance(actual, list):

@@ -45,11 +45,14 @@ FUZZ = settings(max_examples=300, deadline=None,
 def frames_bytes(draw: st.DrawFn) -> bytes:
     rows = draw(st.integers(1, 10))
     cols = draw(st.integers(1, 10))
-    raw = np.asarray(draw(st.lists(st.integers(0, 65535), min_size=rows * cols,
-                                   max_size=rows * cols)), dtype=np.uint16).reshape(rows, cols)
+    axes = draw(st.sampled_from([1, 3]))  # a 1-axis (version 1) or 3-axis (version 2) frame
+    counts = np.asarray(draw(st.lists(st.integers(0, 65535), min_size=rows * cols * axes,
+                                      max_size=rows * cols * axes)), dtype=np.uint16)
+    taxels = None if axes == 1 else counts.reshape(rows, cols, 3)
+    raw = counts.reshape(rows, cols) if axes == 1 else taxels[..., 2].copy()
     frame = Frame(seq=draw(st.integers(0, 2**32 - 1)),
                   device_time_us=draw(st.integers(0, 2**64 - 1)), raw=raw,
-                  sensor_id=draw(st.sampled_from([0, 1, 7, 65535])))
+                  sensor_id=draw(st.sampled_from([0, 1, 7, 65535])), taxels=taxels)
     return encode_frame(frame)
 
 
@@ -97,8 +100,9 @@ def feed_in_pieces(data: bytes, cuts: list[int], make: type = FrameDecoder,
     return dec, out, held
 
 
-def wire(frame: Frame) -> tuple[int, int, int, bytes]:
-    return (frame.sensor_id, frame.seq, frame.device_time_us, frame.raw.tobytes())
+def wire(frame: Frame) -> tuple[int, int, int, bytes, bytes | None]:
+    taxels = None if frame.taxels is None else frame.taxels.tobytes()
+    return (frame.sensor_id, frame.seq, frame.device_time_us, frame.raw.tobytes(), taxels)
 
 
 def expected_outcomes(data: bytes) -> int:

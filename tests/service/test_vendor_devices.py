@@ -160,6 +160,12 @@ def test_record_from_each_simulated_device(tmp_path, capsys) -> None:
             shapes = {decode_frame(data).shape for _, data in reader}
             reader.close()
             assert reader.records == 30 and shapes == {SHAPES[kind]}, kind
+            # the file names its device: a replay reads the counts through the device's table
+            assert reader.header.device == kind
+            from tactiled.sources import open_source
+
+            replayed = open_source(f"replay://{out}").device_array()
+            assert (replayed.kind, replayed.shape) == (kind, SHAPES[kind])
     finally:
         for proc in procs.values():
             proc.terminate()

@@ -99,6 +99,13 @@ class McapWriter:
                    messages.taxel_image(taxels, stamp_s,
                                         messages.frame_name(self.frame_id, sensor)), stamp_s)
 
+    def write_zeroed(self, frame: ZeroedFrame, stamp_s: float) -> None:
+        """A zeroed frame: its strain image and, for a 3-axis array, its readings' 3-channel
+        image."""
+        self.write_frame(frame.sensor, frame.strain, stamp_s)
+        if frame.taxels is not None:
+            self.write_taxels(frame.sensor, frame.taxels, stamp_s)
+
     def write_diagnostics(self, report: dict[str, Any], stamp_s: float,
                           hardware_ids: dict[str, str]) -> None:
         """A health document as ``/diagnostics``."""
@@ -198,7 +205,4 @@ class _Sink:
         elif item.kind == "estimate":
             self.writer.write_estimate(item.to_json_dict(), messages.item_stamp(item, offset))
         else:
-            stamp = messages.item_stamp(item, offset)
-            self.writer.write_frame(item.sensor, item.strain, stamp)
-            if getattr(item, "taxels", None) is not None:
-                self.writer.write_taxels(item.sensor, item.taxels, stamp)
+            self.writer.write_zeroed(item, messages.item_stamp(item, offset))

@@ -1,0 +1,131 @@
+"""The profile likelihood of ``lam = Q/(mu P)`` and the friction coefficient's interval from it
+(docs/concepts/shear.md).
+"""
+
+# The readings depend on ``lam`` through the stick zone's size, ``c/a = (1 - lam)^(1/3)``:
+# nonlinearly, and with a likelihood that is often one-sided (flat toward full stick, steep
+# toward slip, or the reverse), where a sigma from the curvature at the estimate misleads and
+# ``mu = |Q| / (lam P)`` (a reciprocal) skews it further.  So the interval of ``lam`` comes from
+# its profile: ``chi2(lam)`` minimised over the other parameters, evaluated exactly in ``lam``
+# (the model at each ``lam``) and by two Gauss-Newton steps in the others from the fit (their
+# Jacobian at the estimate): the readings are linear in the forces and torsion and nearly so in
+# the rest over the interval.  The 2-sigma interval is where ``chi2`` lies within 4 of its least.
+#
+# The interval used is the union of that and the linearised one (``lam +/- 2 sigma``): at the
+# bound ``lam = 1`` the profile's interval is cut short by the bound, the shorter the further
+# the data stray past it, and publishing by its width would pick out those frames.
+#
+# ``mu`` then lies in ``[Q/P / lam_hi, Q/P / lam_lo]``, widened by the conditional bound of
+# ``ln(Q/P)`` given ``lam`` (added in quadrature in ``ln mu``); it is resolved when ``lam_lo >
+# 0`` (full stick is excluded) and the interval is narrow.  What is published is ``mu`` where
+# the profile is least, with half the interval's longer arm as sigma: ``mu +/- 2 sigma`` holds
+# the whole profile interval (one JSON sigma cannot say a skewed interval's two arms).
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Grid of ``lam`` on which the profile is first evaluated; its crossings are then bisected.
+GRID = np.linspace(0.0, 1.0, 21)
+#: Bisection steps per crossing (the interval's ends to 0.05 / 2^5 in ``lam``).
+BISECT = 5
+#: ``chi2`` above its least at the ends of the 2-sigma interval (one parameter).
+TWO_SIGMA_CHI2 = 4.0
+
+
+@dataclass(frozen=True)
+class LamInterval:
+    """The 2-sigma profile interval ``[lo, hi]`` of ``lam`` and where the profile is least."""
+
+    lo: float
+    hi: float
+    best: float
+
+    def widened(self, lam: float, sigma: float) -> LamInterval:
+        """The union with the linearised 2-sigma interval ``lam +/- 2 sigma`` (clipped to [0,
+        1]): where the estimate sits at the bound 1 with the likelihood still falling beyond
+        it, the profile interval shrinks as the data stray further past the bound, and a
+        decision on its width alone would favour exactly those frames."""
+        if not math.isfinite(sigma):
+            return LamInterval(0.0, 1.0, self.best)
+        return LamInterval(max(0.0, min(self.lo, lam - 2.0 * sigma)), min(1.0, max(self.hi, lam + 2.0 * sigma)),
+                           self.best)
+
+    def shifted(self, delta: float) -> LamInterval:
+        """The interval moved by ``delta`` in ``lam`` (clipped to [0, 1]): a step's estimate."""
+        def clip(v: float) -> float:
+            return min(1.0, max(0.0, v))
+        return LamInterval(clip(self.lo + delta), clip(self.hi + delta), clip(self.best + delta))
+
+
+def lam_interval(residual: Callable[[np.ndarray], np.ndarray], params: np.ndarray, jac: np.ndarray,
+                 lo_bounds: np.ndarray, hi_bounds: np.ndarray) -> LamInterval | None:
+    """The profile interval of ``lam`` (``params[7]``) for the noise-scaled ``residual(p)``,
+    from the fit ``params`` and its Jacobian ``jac`` (columns per parameter); None when the
+    other parameters' Jacobian is singular."""
+    others = jac[:, :7]
+    q, r = np.linalg.qr(others)
+    if not np.all(np.abs(np.diag(r)) > 1e-12 * np.abs(r).max()):
+        return None
+
+    def chi2(lam: float) -> float:
+        p = params.copy()
+        p[7] = lam
+        res = residual(p)
+        for last in (False, True):
+            step = -np.linalg.solve(r, q.T @ res)
+            if last:  # the second step's chi2 from the linear model: no third evaluation
+                rest = res + others @ step
+                return float(rest @ rest)
+            p[:7] = np.clip(p[:7] + step, lo_bounds[:7], hi_bounds[:7])
+            res = residual(p)
+        raise AssertionError("unreachable")
+
+    values = np.array([chi2(float(x)) for x in GRID])
+    fit_res = residual(params)
+    least = min(float(values.min()), float(fit_res @ fit_res))
+    k = int(np.argmin(values))
+    best = float(GRID[k]) if values[k] <= fit_res @ fit_res else float(params[7])
+    inside = values <= least + TWO_SIGMA_CHI2
+    idx = np.nonzero(inside)[0]
+    if idx.size == 0:  # the grid misses a narrow minimum: the fit's lam and one cell each side
+        j = int(np.clip(np.searchsorted(GRID, params[7]), 1, GRID.size - 1))
+        return LamInterval(float(GRID[j - 1]), float(GRID[j]), float(params[7]))
+
+    def cross(a: float, b: float) -> float:
+        """Bisect between ``a`` (inside) and ``b`` (outside) for the interval's end."""
+        for _ in range(BISECT):
+            m = 0.5 * (a + b)
+            if chi2(m) <= least + TWO_SIGMA_CHI2:
+                a = m
+            else:
+                b = m
+        return 0.5 * (a + b)
+
+    i, j = int(idx[0]), int(idx[-1])
+    lo = 0.0 if i == 0 else cross(float(GRID[i]), float(GRID[i - 1]))
+    hi = 1.0 if j == GRID.size - 1 else cross(float(GRID[j]), float(GRID[j + 1]))
+    return LamInterval(lo, hi, min(max(best, lo), hi))
+
+
+def mu_interval(lam: LamInterval, qp: float, s_ln_qp: float) -> tuple[float, float, float]:
+    """``(lo, best, hi)``: the 2-sigma interval of ``mu = qp / lam`` (``hi`` inf when ``lam.lo``
+    is 0) and ``mu`` where the profile is least; ``qp = |Q|/P``, ``s_ln_qp`` the 1-sigma of
+    ``ln(Q/P)`` given ``lam``."""
+    if not (qp > 0 and lam.hi > 0 and lam.best > 0):
+        return 0.0, math.inf, math.inf
+    best = qp / lam.best
+    up = math.inf if lam.lo <= 0 else math.hypot(math.log(lam.best / lam.lo), 2.0 * s_ln_qp)
+    down = math.hypot(math.log(lam.hi / lam.best), 2.0 * s_ln_qp)
+    return best * math.exp(-down), best, (math.inf if not math.isfinite(up) else best * math.exp(up))
+
+
+def symmetric(lo: float, best: float, hi: float) -> tuple[float, float]:
+    """``(best, sigma)`` with ``best +/- 2 sigma`` holding the whole 2-sigma interval ``[lo,
+    hi]``: sigma is half its longer arm (a skewed interval's short side is then over-bounded,
+    never under-bounded)."""
+    return best, 0.5 * max(hi - best, best - lo)

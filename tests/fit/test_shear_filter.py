@@ -1,0 +1,71 @@
+"""The shear filter and the slide test (tactiled.fit.shear_filter) on Gaussian estimates of a
+known truth: the filter's errors within its bounds along a ramp, the centre sharpened by the
+frames under stick, and the slide's scale estimated without bias (its statistic a unit normal
+where nothing slides)."""
+
+import math
+
+import numpy as np
+
+from tactiled.fit.shear_filter import ShearFilter, SlideTest
+
+SIG = np.array((0.02, 0.01, 0.015, 0.015, 0.003, 0.003, 0.04, 0.1))
+CORR = np.eye(8)
+CORR[2, 6] = CORR[6, 2] = -0.4  # a centre correlated with the torsion, as on a coarse patch
+CORR[0, 1] = CORR[1, 0] = 0.4
+COV = CORR * np.outer(SIG, SIG)
+CHOL = np.linalg.cholesky(COV)
+
+
+def truth(i: int, slide: float = 0.0, start: int = 10 ** 9) -> np.ndarray:
+    """A 10 mm, 1 N contact at (5, 5) mm pulled along x at 2 mN a frame; from ``start`` the
+    centre moves along x by ``slide (k + 1)^2`` mm on the k-th frame."""
+    k = i - start
+    return np.array((math.log(10.0), 0.0, 5.0 + (slide * (k + 1) ** 2 if k >= 0 else 0.0), 5.0,
+                     0.1 + 0.002 * i, 0.0, 0.0, 0.5))
+
+
+def test_the_filter_follows_a_ramp_within_its_bounds():
+    rng = np.random.default_rng(2)
+    z = {2: [], 4: [], 6: []}
+    sig_x = []
+    for _ in range(5):
+        flt = ShearFilter()
+        for i in range(300):
+            t = truth(i)
+            flt.update(t + CHOL @ rng.normal(size=8), COV)
+            if i >= 50:
+                for k in z:
+                    v, s = flt.value(k)
+                    z[k].append((v - t[k]) / s)
+                sig_x.append(flt.value(2)[1])
+    for k, zs in z.items():
+        zs = np.array(zs)
+        ratio = np.sqrt(np.mean(zs ** 2))
+        # the forces' bound is their error's spread; the centre's allows for a slow drift (the
+        # walk of the stick hypothesis) that this contact does not make
+        assert (0.4 if k == 2 else 0.7) < ratio < 1.3, (k, ratio)
+        assert np.mean(np.abs(zs) <= 2) > 0.9, k
+    # under stick the frames' centres average: far sharper than one frame's
+    assert np.median(sig_x) < 0.35 * SIG[2]
+
+
+def test_the_slide_scale_is_unbiased_and_its_statistic_a_unit_normal():
+    """A slide of known scale from a known frame: the test's estimate of the scale, over many
+    runs, scatters about the truth by its own sigma; with no slide, the statistic (the scale
+    over its sigma) has mean 0 and spread 1."""
+    rng = np.random.default_rng(3)
+    for slide in (0.0, 0.002):
+        errs = []
+        for _ in range(100):
+            flt, test = ShearFilter(), SlideTest()
+            for i in range(66):
+                flt.update(truth(i, slide, start=60) + CHOL @ rng.normal(size=8), COV)
+                if i >= 58:  # the tracks from here on (those of earlier starts never tested)
+                    test.update(flt, 1.0, 0.0)
+            scale, sigma = test.estimate(5, "accelerating", 1.0, 0.0)  # started on frame 60
+            errs.append((scale - slide) / sigma)
+        errs = np.array(errs)
+        assert abs(np.mean(errs)) < 0.25 and 0.8 < np.std(errs) < 1.2, (slide, np.mean(errs), np.std(errs))
+    # the slide is seen: the statistic far beyond the noise six frames after its start
+    assert test.z > 5.0 and test.template in ("accelerating", "steady")
