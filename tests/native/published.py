@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "pipeline"))
 
-from pipeline_helpers import InProcessPool, answer  # noqa: E402
+from pipeline_helpers import InProcessPool, play_read  # noqa: E402
 
 from tactiled.fit.fitter import FitOptions, Fitter  # noqa: E402
 from tactiled.frames import Frame  # noqa: E402
@@ -37,11 +37,6 @@ HOST_KEYS = frozenset({"read_backlog_bytes", "read_backlog_peak_bytes", "worker_
 READ = 7  # frames handed over in one call, as a read of several frames is
 
 
-class _Pool(InProcessPool):
-    """The in-process pool; a fit due is answered after the read, as the loop sends it."""
-
-    def dispatch_now(self) -> None:
-        pass
 
 
 def save_frames(path: Path, frames: list[Frame]) -> Path:
@@ -65,17 +60,11 @@ def publish(frames: list[Frame], settings: dict[str, Any]) -> dict[str, Any]:
     hub = Hub()
     seen: list = []
     hub.add_listener(seen.append)
-    pool = _Pool()
+    pool = InProcessPool()
     p = SensorPipeline(SensorSettings(**settings), pool=pool, hub=hub)
     fitter = Fitter(pool.sensor, FitOptions(**dict(pool.options)))
     for i in range(0, len(frames), READ):
-        read = frames[i:i + READ]
-        p.clock.stamp(read)
-        done = 0
-        while done < len(read):
-            done = p.on_frames(read, done)
-        while p._waiting is not None and p._in_flight is None:
-            answer(p, fitter, p.take_job())
+        play_read(p, fitter, frames[i:i + READ])
     stats = p.stats().to_json_dict()
     counters = {k: v for k, v in stats.items()
                 if k not in HOST_KEYS and (isinstance(v, (bool, int)) or k == "skipped")}

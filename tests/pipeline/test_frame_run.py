@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pipeline_helpers import InProcessPool, answer, contact_path, make_frames
+from pipeline_helpers import InProcessPool, contact_path, make_frames, play_read
 
 from tactiled import native
 from tactiled.fit.fitter import FitOptions, Fitter
@@ -22,16 +22,11 @@ from tactiled.settings import SensorSettings
 pytestmark = pytest.mark.skipif(native.core is None, reason="the runs are the core's")
 
 
-class _Pool(InProcessPool):
-    def dispatch_now(self) -> None:
-        pass
-
-
 def _pipeline(batched: bool, track: bool) -> tuple[SensorPipeline, list, Fitter]:
     hub = Hub()
     seen: list = []
     hub.add_listener(seen.append)
-    pool = _Pool()
+    pool = InProcessPool()
     p = SensorPipeline(SensorSettings(name="f", url="sim://", noise_sigma=0.0005, track=track,
                                       wire_id=0),
                        pool=pool, hub=hub)
@@ -59,12 +54,7 @@ def _play(p: SensorPipeline, fitter: Fitter, frames: list[Frame], sizes: list[in
     i = r = 0
     while i < len(frames):
         read = frames[i:i + sizes[r % len(sizes)]]
-        p.clock.stamp(read)
-        done = 0
-        while done < len(read):
-            done = p.on_frames(read, done)
-        while p._waiting is not None and p._in_flight is None:
-            answer(p, fitter, p.take_job())
+        play_read(p, fitter, read)
         i, r = i + len(read), r + 1
         if i >= tare_at > i - len(read):
             p.tare()
