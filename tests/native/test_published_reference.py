@@ -7,8 +7,8 @@ Both run in child processes (tests/native/published.py; the core cannot be unloa
 one), one with ``TACTILED_CORE=native`` and one with ``TACTILED_CORE=python``, with their
 numerics pinned to baseline x86-64 as the golden replays are (``regen_golden.PINNED_ENV``):
 every frame and fit of one stream runs in each, and the answers are compared as the golden
-replays compare theirs (``regen_golden.compare``: strings, integers, booleans and nulls exactly,
-floats within a relative 1e-9 or 1e-9 of their sigma).  The core's fit stages agree with their
+replays compare theirs (``regen_golden.compare``: strings, integers, booleans and nulls exactly),
+floats within a relative 1e-6 or 1e-6 of their sigma (``REL_TOL``).  The core's fit stages agree with their
 references to rtol 1e-9 (tests/native/test_core_stages.py), its tracker's to 1e-9 or bit for
 bit (test_tracker_core.py), so a difference past that is a core that computes something else.
 """
@@ -43,6 +43,11 @@ pytestmark = pytest.mark.skipif(native.core is None,
                                 reason="TACTILED_CORE=python: no core to compare")
 
 SERVER = Path(__file__).with_name("published.py")
+#: floats agree within this, relative (or this much of their sigma): the fits agree to 1e-9
+#: (test_core_stages.py), and the tracker's filters carry such differences from frame to frame
+#: through a stream (2e-9 seen after 80 frames); a fit that took another path differs in its
+#: iterations, verdicts and values far beyond it
+REL_TOL = 1e-6
 ROOT = TESTS.parent
 #: the sensor's settings in both (the defaults: tracking and hysteresis on; wire id 0, so a
 #: frame of another sensor is counted and dropped)
@@ -156,5 +161,5 @@ def test_the_core_publishes_what_the_reference_does(servers, tmp_path_factory, c
     core, reference = (s.ask(path) for s in servers)
     assert reference["counters"]["frames"] == len(frames)
     assert len(reference["estimates"]) == reference["counters"]["published"]
-    diffs = g.compare(reference, core)
+    diffs = g.compare(reference, core, rel_tol=REL_TOL)
     assert not diffs, f"{len(diffs)} difference(s), first: {diffs[:8]}"
