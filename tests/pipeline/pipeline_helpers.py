@@ -14,7 +14,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from tactiled import native
+from procs import PACE  # noqa: F401 - the pipeline tests import it from here
+
 from tactiled.calibration.lut import LookupTable
 from tactiled.frames import Frame
 from tactiled.physics.contact import Contact
@@ -27,13 +28,6 @@ from tactiled.sources import FrameSource
 #: the first 0.25 s, so every stream starts with SETTLE_FRAMES frames of no contact.
 PERIOD_US = 5000
 SETTLE_FRAMES = 60
-#: How much slower a test's real-time stream plays on the Python reference
-#: (``TACTILED_CORE=python``) than on the core: the reference's fits cost 15-30 times the
-#: core's CPU (``Fitter.fit`` of noisy cylinder frames: 3.6 against 0.2 ms with model
-#: ``cylinder``, 13 against 0.4 ms with ``auto``), so a stream paced for the core would end
-#: before the reference had made the fits a test counts; at a tenth of the pace it makes
-#: about as many per frame.
-PACE = 1.0 if native.core is not None else 10.0
 
 
 def contact_path(n: int, *, force: float = 1.0, r1: float = 10.0, moving: bool = True,
