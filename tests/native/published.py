@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "pipeline"))
+for _where in ("", "pipeline"):  # tests/ (procs) and tests/pipeline (pipeline_helpers)
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / _where))
 
 from pipeline_helpers import InProcessPool, play_read  # noqa: E402
 
@@ -27,6 +28,7 @@ from tactiled.fit.fitter import FitOptions, Fitter  # noqa: E402
 from tactiled.frames import Frame  # noqa: E402
 from tactiled.pipeline.estimate import without_timing  # noqa: E402
 from tactiled.pipeline.hub import Hub  # noqa: E402
+from tactiled.pipeline import sensor as sensor_module  # noqa: E402
 from tactiled.pipeline.sensor import SensorPipeline  # noqa: E402
 from tactiled.settings import SensorSettings  # noqa: E402
 
@@ -73,7 +75,9 @@ def publish(frames: list[Frame], settings: dict[str, Any]) -> dict[str, Any]:
 
 
 def main() -> int:
-    """Serve requests on stdin until it closes (see the module text)."""
+    """Serve requests on stdin until it closes (see the module text).  A read is handed over
+    whole (no ``SLICE_S``: where a loaded machine's wall time cuts it is not the frames')."""
+    sensor_module.SLICE_S = float("inf")
     for line in sys.stdin:
         try:
             request = json.loads(line)

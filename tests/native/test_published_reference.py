@@ -162,4 +162,5 @@ def test_the_core_publishes_what_the_reference_does(servers, tmp_path_factory, c
     assert reference["counters"]["frames"] == len(frames)
     assert len(reference["estimates"]) == reference["counters"]["published"]
     diffs = g.compare(reference, core, rel_tol=REL_TOL)
-    assert not diffs, f"{len(diffs)} difference(s), first: {diffs[:8]}"
+    assert not diffs, (f"{len(diffs)} difference(s), first: {diffs[:8]} (seed {seed}, sigma "
+                       f"{sigma}, edits {edits}, scene {contacts})")
