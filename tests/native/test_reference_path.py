@@ -40,7 +40,6 @@ REFERENCE_SET = [
 REFERENCE_SKIPS = (
     "slow: opt in with -m slow",
     "TACTILED_CORE=python: no core to compare",
-    "the runs are the core's",
     "this process already runs the reference",
 )
 
