@@ -16,7 +16,16 @@ from typing import Any
 
 import pytest
 
+from tactiled import native
 from tactiled.pipeline import supervision
+
+#: How much slower a test's real-time stream plays on the Python reference
+#: (``TACTILED_CORE=python``) than on the core: the reference's fits cost 15-30 times the
+#: core's CPU (``Fitter.fit`` of noisy cylinder frames: 3.6 against 0.2 ms with model
+#: ``cylinder``, 13 against 0.4 ms with ``auto``), so a stream paced for the core would end
+#: before the reference had made the fits a test counts (at a tenth of the pace it makes
+#: about as many per frame), and a test's wait for a daemon's fits is ten times as long.
+PACE = 1.0 if native.core is not None else 10.0
 
 
 def alive(pid: int) -> bool:

@@ -110,7 +110,9 @@ def plain_frame(strain: np.ndarray, size: int, max_strain: float, min_peak: floa
                 target[q] = t
                 inv_scale[q] = inv
                 zdata[q] = t / sigma
-    return usable, m, n, r0, c0, nr, nc, peak, target, valid, inv_scale, zdata
+    # the peak as a Python float, as the core's binding returns it (a numpy float64 would
+    # make the fit's chi^2 unit divide by zero to inf where the core's raises)
+    return usable, m, n, r0, c0, nr, nc, float(peak), target, valid, inv_scale, zdata
 
 
 #: the Python bodies (the reference); the module's names run the compiled core's when it is loaded

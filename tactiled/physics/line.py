@@ -76,6 +76,12 @@ def _pair(a1: float, b1: float, d1: float, s1: float, p1: float, q1: float,
 def along_line(px: float, py: float, c: float, s: float, imp: np.ndarray) -> float:
     """integral over the whole line of ``h_x(px - t c) h_y(py - t s)`` dt (1/mm): the response
     at offset ``(px, py)`` from a point of a line of unit direction ``(c, s)``."""
+    return _along(px, py, c, s, imp)
+
+
+def _along(px, py, c: float, s: float, imp: np.ndarray):
+    """:func:`along_line`'s arithmetic, elementwise where ``px``, ``py`` are arrays (the
+    reference's, whichever of it and the core ``along_line`` names)."""
     dx, nux, dy, nuy = imp[0], imp[1], imp[2], imp[3]
     ax, bx = (1.0 + nux) * dx, 1.0 - nux
     ay, by = (1.0 + nuy) * dy, 1.0 - nuy
@@ -91,15 +97,18 @@ def line_strain_points(load: float, half_width: float, psi: float, cx: float, cy
     ``load`` (N/mm) and half-width ``half_width`` (mm) along ``psi`` (radians) through
     ``(cx, cy)``; ``nodes``/``weights`` a Gauss-Chebyshev (second kind) rule on [-1, 1]."""
     c, s = math.cos(psi), math.sin(psi)
-    out = np.zeros(px.size)
     scale = 2.0 * load / (math.pi * modulus)
-    for k in range(px.size):
-        acc = 0.0
-        for i in range(nodes.size):
-            off = half_width * nodes[i]  # across the line, along n = (-s, c)
-            acc += weights[i] * along_line(px[k] - cx + off * s, py[k] - cy - off * c, c, s, imp)
-        out[k] = scale * acc
-    return out
+    # every point and node at once: along_line's branches depend on the line's direction
+    # alone, so its arithmetic runs elementwise on the (points, nodes) offsets, each element
+    # as the core computes it; the nodes are summed in their order, as the core sums them
+    off = half_width * np.asarray(nodes, dtype=float)  # across the line, along n = (-s, c)
+    qx = (np.asarray(px, dtype=float)[:, None] - cx) + off[None, :] * s
+    qy = (np.asarray(py, dtype=float)[:, None] - cy) - off[None, :] * c
+    vals = np.broadcast_to(_along(qx, qy, c, s, imp), qx.shape)
+    acc = np.zeros(qx.shape[0])
+    for i in range(off.size):
+        acc += weights[i] * vals[:, i]
+    return scale * acc
 
 
 def _pair_setup(a1: float, b1: float, d1: float, s1: float, q1: float,

@@ -1,7 +1,9 @@
-"""An atheris fuzz target for the compiled core's framers (the wire format, text lines,
-FlexiTac): each input is a stream and the reads it is cut into, fed to the core's framer and to
-its Python reference; they must agree frame for frame and counter for counter, never raise,
-and hold no more than the format's bound.
+"""An atheris fuzz target for the framers: the compiled core's (the wire format, text lines,
+FlexiTac), each input a stream and the reads it is cut into, fed to the core's framer and to
+its Python reference: they must agree frame for frame and counter for counter, never raise,
+and hold no more than the format's bound.  Robotiq's packets are framed in Python only (a
+115200-baud device of 28 tactels): its framer must never raise, deliver only whole 7x4 frames
+of its finger, and hold no more than two packets' bytes.
 
 Run it by hand for as long as you like (libFuzzer's options after the script)::
 
@@ -26,6 +28,16 @@ with atheris.instrument_imports():
                                   cobs_encode)
     from tactiled_drivers.flexitac import FlexiTacFramer, NativeFlexiTacFramer
     from tactiled_drivers.lines import MAX_LINE, LinesFramer, NativeLinesFramer
+    from tactiled_drivers.robotiq import (
+        FIELD_BYTES,
+        HEADER as ROBOTIQ_HEADER,
+        MAX_DATA,
+        START,
+        RobotiqFramer,
+        encode_finger,
+    )
+
+import numpy as np
 
 HEADER = (1).to_bytes(1, "little")
 
@@ -151,7 +163,49 @@ def flexitac_framers(data: bytes) -> None:
     assert asdict(got.stats) == asdict(ref.stats)
 
 
-TARGETS = {"wire": wire_decoders, "lines": lines_framers, "flexitac": flexitac_framers}
+@atheris.instrument_func
+def robotiq_framer(data: bytes) -> None:
+    """Robotiq: whole readings of drawn fingers, torn packets, packets with drawn (often
+    unknown) fields and lengths, and noise rich in the start byte, cut into drawn reads."""
+    fdp = atheris.FuzzedDataProvider(data)
+    finger = fdp.ConsumeIntInRange(0, 3)
+    kinds = [*FIELD_BYTES, 0x00, 0x80, 0xF0]
+    out = bytearray()
+    for _ in range(fdp.ConsumeIntInRange(0, 12)):
+        kind = fdp.ConsumeIntInRange(0, 4)
+        if kind <= 1:  # a reading (kind 1: torn at a drawn byte)
+            raw = np.frombuffer(fdp.ConsumeBytes(56).ljust(56, b"\x00"), dtype=np.uint16)
+            piece = encode_finger(fdp.ConsumeIntInRange(0, 3), raw.reshape(7, 4).copy(),
+                                  timestamp_ms=fdp.ConsumeIntInRange(0, 2**20))
+            out += piece if kind == 0 else piece[:fdp.ConsumeIntInRange(0, len(piece))]
+        elif kind == 2:  # a packet of drawn fields, its length drawn near the truth
+            body = bytearray()
+            for _ in range(fdp.ConsumeIntInRange(0, 4)):
+                field = fdp.PickValueInList(kinds) | (fdp.ConsumeIntInRange(0, 15))
+                body += bytes([field]) + fdp.ConsumeBytes(FIELD_BYTES.get(field & 0xF0, 2))
+            length = max(0, min(255, len(body) + fdp.ConsumeIntInRange(-2, 2)))
+            out += bytes([START, fdp.ConsumeIntInRange(0, 255), 0x58, length]) + body
+        elif kind == 3:  # noise with start bytes in it
+            out += bytes(START if b < 40 else b for b in fdp.ConsumeBytes(
+                fdp.ConsumeIntInRange(0, 200)))
+        else:
+            out += fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 40))
+    stream = bytes(out)
+    cuts = sorted({0, len(stream), *(fdp.ConsumeIntInRange(0, len(stream)) for _ in range(6))})
+    framer, seqs = RobotiqFramer(finger), []
+    for k, (a, b) in enumerate(zip(cuts, cuts[1:])):
+        for f in framer.feed(stream[a:b], 0.5 * k):
+            assert f.raw.shape == (7, 4) and f.raw.dtype == np.uint16, f.raw
+            assert f.sensor_id == finger and f.device_time_us >= 0
+            seqs.append(f.seq)
+        assert framer.buffered <= 2 * (ROBOTIQ_HEADER + MAX_DATA)
+    st = framer.stats
+    assert seqs == list(range(len(seqs))) and st.frames == len(seqs)
+    assert st.bytes == len(stream) and st.discarded + framer.buffered <= st.bytes
+
+
+TARGETS = {"wire": wire_decoders, "lines": lines_framers, "flexitac": flexitac_framers,
+           "robotiq": robotiq_framer}
 
 
 def one_input(data: bytes) -> None:

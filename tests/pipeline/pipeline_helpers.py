@@ -14,6 +14,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from procs import PACE  # noqa: F401 - the pipeline tests import it from here
+
 from tactiled.calibration.lut import LookupTable
 from tactiled.frames import Frame
 from tactiled.physics.contact import Contact
@@ -158,7 +160,8 @@ def check_estimates(estimates: list, sensor: str, sensor_id: int) -> None:
 
 class InProcessPool:
     """What SensorPipeline needs of a pool, no processes: jobs stay with the test, which
-    answers them with :func:`answer`."""
+    answers them with :func:`answer` (:func:`play_read`: after each read, as the loop sends
+    them)."""
 
     restarts = 0
 
@@ -168,6 +171,20 @@ class InProcessPool:
 
     def wake(self) -> None:
         pass
+
+    def dispatch_now(self) -> None:
+        pass
+
+
+def play_read(p: Any, fitter: Any, read: list[Frame]) -> None:
+    """One read's frames through the SensorPipeline ``p`` (in slices, as the loop hands them
+    over), then the fits they left waiting answered with ``fitter`` (:func:`answer`)."""
+    p.clock.stamp(read)
+    done = 0
+    while done < len(read):
+        done = p.on_frames(read, done)
+    while p._waiting is not None and p._in_flight is None:
+        answer(p, fitter, p.take_job())
 
 
 def answer(p: Any, fitter: Any, job: Any) -> None:

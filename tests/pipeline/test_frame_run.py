@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pipeline_helpers import InProcessPool, answer, contact_path, make_frames
+from pipeline_helpers import InProcessPool, contact_path, make_frames, play_read
 
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.frames import Frame
@@ -20,16 +20,11 @@ from tactiled.pipeline.sensor import SensorPipeline
 from tactiled.settings import SensorSettings
 
 
-class _Pool(InProcessPool):
-    def dispatch_now(self) -> None:
-        pass
-
-
 def _pipeline(batched: bool, track: bool) -> tuple[SensorPipeline, list, Fitter]:
     hub = Hub()
     seen: list = []
     hub.add_listener(seen.append)
-    pool = _Pool()
+    pool = InProcessPool()
     p = SensorPipeline(SensorSettings(name="f", url="sim://", noise_sigma=0.0005, track=track,
                                       wire_id=0),
                        pool=pool, hub=hub)
@@ -57,12 +52,7 @@ def _play(p: SensorPipeline, fitter: Fitter, frames: list[Frame], sizes: list[in
     i = r = 0
     while i < len(frames):
         read = frames[i:i + sizes[r % len(sizes)]]
-        p.clock.stamp(read)
-        done = 0
-        while done < len(read):
-            done = p.on_frames(read, done)
-        while p._waiting is not None and p._in_flight is None:
-            answer(p, fitter, p.take_job())
+        play_read(p, fitter, read)
         i, r = i + len(read), r + 1
         if i >= tare_at > i - len(read):
             p.tare()

@@ -9,6 +9,7 @@ import asyncio
 from pathlib import Path
 
 from pipeline_helpers import (
+    PACE,
     accounted,
     check_estimates,
     collect,
@@ -91,8 +92,8 @@ def test_recycling_while_live_keeps_fitting(tmp_path: Path, arun) -> None:
     and two recycles after 40 fits each must still fit in the run."""
     path = moving_recording(tmp_path, 4000)
     overrides = {"fit.workers": 1, "fit.max_fits_per_worker": 40,
-                 "sensor[0].url": f"replay://{path}?speed=5",
-                 "sensor[1].url": f"replay://{path}?speed=5", "sensor[1].name": "finger1",
+                 "sensor[0].url": f"replay://{path}?speed={5 / PACE:g}",
+                 "sensor[1].url": f"replay://{path}?speed={5 / PACE:g}", "sensor[1].name": "finger1",
                  "sensor[0].reuse_unchanged": False, "sensor[1].reuse_unchanged": False,
                  "sensor[0].track": False, "sensor[1].track": False}
 

@@ -14,6 +14,7 @@ import numpy as np
 from procs import leftover
 from worker_hooks import garble, hang
 from pipeline_helpers import (
+    PACE,
     SETTLE_FRAMES,
     accounted,
     check_estimates,
@@ -37,7 +38,7 @@ def live_stream(tmp_path: Path, frames: int, period_s: float = 0.002) -> str:
     """A replay URL paced in real time: a contact moving all the time (always refitted)."""
     recording = write_recording(tmp_path / "live.tact",
                                 make_frames(contact_path(frames), seed=11), period_s)
-    return f"replay://{recording}?speed=1"
+    return f"replay://{recording}?speed={1.0 / PACE:g}"
 
 
 def test_sigkilled_worker_is_replaced_within_a_second(tmp_path: Path, arun) -> None:
@@ -49,9 +50,12 @@ def test_sigkilled_worker_is_replaced_within_a_second(tmp_path: Path, arun) -> N
         estimates = collect(daemon)
         await daemon.start()
         pool = daemon.pool
+        t0 = time.monotonic()
         while sum(e.gate == "fit" for e in estimates) < 10:
+            assert time.monotonic() - t0 < 60.0, "fewer than 10 fits"
             await asyncio.sleep(0.002)
         while not pool.busy_pids():  # kill it mid-fit
+            assert time.monotonic() - t0 < 60.0, "no worker busy"
             await asyncio.sleep(0)
         victim = pool.busy_pids()[0]
         killed_at = time.monotonic()
@@ -94,7 +98,9 @@ def test_hung_worker_is_killed_and_replaced(tmp_path: Path, arun, hookable_worke
         await daemon.start()
         pool = daemon.pool
         sensor = daemon.sensors["finger0"]
+        t0 = time.monotonic()
         while sum(e.gate == "fit" for e in estimates) < 5:
+            assert time.monotonic() - t0 < 60.0, "fewer than 5 fits"
             await asyncio.sleep(0.002)
         superseded_before = sensor.superseded
         hung_at = time.monotonic()

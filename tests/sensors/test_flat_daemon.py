@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from procs import PACE
 
 from tactiled.calibration.identify import identify
 from tactiled.calibration.presses import synthesize_contact_presses
@@ -29,7 +30,7 @@ def test_a_flat_pad_runs_through_the_daemon(arun, no_leftover_workers) -> None:
         seen: list[dict] = []
         daemon.hub.add_listener(lambda item: seen.append(item.fit) if item.kind == "estimate" else None)
         await daemon.start()
-        assert await daemon.wait_finished(120)
+        assert await daemon.wait_finished(120 * PACE)
         st = daemon.stats("finger0")
         await daemon.stop()
         return seen, st
@@ -89,14 +90,14 @@ def test_fit_takes_a_description(tmp_path) -> None:
     frames = tmp_path / "f.npz"
     np.savez(frames, strain=np.stack([strain] * 3))
     res = subprocess.run([sys.executable, "-m", "tactiled.cli", "fit", str(frames), "--sensor",
-                          "robotiq_tsf85"], capture_output=True, text=True, timeout=120)
+                          "robotiq_tsf85"], capture_output=True, text=True, timeout=120 * PACE)
     assert res.returncode == 0, res.stderr
     import json
 
     line = json.loads(res.stdout.splitlines()[0])
     assert line["label"] == "line" and line["r1_mm"] == pytest.approx(6.0, rel=1e-3)
     wrong = subprocess.run([sys.executable, "-m", "tactiled.cli", "fit", str(frames), "--sensor", "flat16"],
-                           capture_output=True, text=True, timeout=120)
+                           capture_output=True, text=True, timeout=120 * PACE)
     assert wrong.returncode == 2 and "16x16" in wrong.stderr and "Traceback" not in wrong.stderr
 
 
@@ -106,12 +107,12 @@ def test_simulate_writes_a_flat_arrays_frames_and_fit_reads_its_description(tmp_
     out = tmp_path / "pad.npz"
     res = subprocess.run([sys.executable, "-m", "tactiled.cli", "simulate", str(out), "--sensor", "flat16",
                           "--r1", "8", "--angle", "30", "--force", "2", "--x", "18", "--y", "18",
-                          "--frames", "6", "--seed", "3"], capture_output=True, text=True, timeout=120)
+                          "--frames", "6", "--seed", "3"], capture_output=True, text=True, timeout=120 * PACE)
     assert res.returncode == 0, res.stderr
     data = np.load(out)
     assert data["strain"].shape == (6, 16, 16) and str(data["sensor"]) == "flat16"
     fit = subprocess.run([sys.executable, "-m", "tactiled.cli", "fit", str(out)],
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=120 * PACE)
     assert fit.returncode == 0, fit.stderr
     lines = [json.loads(x) for x in fit.stdout.splitlines()]
     for line, load in zip(lines, data["true_load_n_per_mm"]):
@@ -121,7 +122,7 @@ def test_simulate_writes_a_flat_arrays_frames_and_fit_reads_its_description(tmp_
         assert abs(line["angle_deg"] - 30.0) < 4 * line["std"]["angle_deg"]
     presses = tmp_path / "p.npz"
     res = subprocess.run([sys.executable, "-m", "tactiled.cli", "simulate", str(presses), "--sensor",
-                          "xela_uskin_4x4", "--presses", "40"], capture_output=True, text=True, timeout=120)
+                          "xela_uskin_4x4", "--presses", "40"], capture_output=True, text=True, timeout=120 * PACE)
     assert res.returncode == 0 and np.load(presses)["counts"].shape == (40, 4, 4)
     # spheres and ellipsoids only: a cylinder's force on a flat array is not defined
     assert np.all(np.isfinite(np.load(presses)["contacts"][:, 1]))
@@ -145,7 +146,7 @@ def test_a_flat_pads_recording_replays_and_exports_with_its_description(tmp_path
     rec = tmp_path / "pad.tact"
     res = subprocess.run([sys.executable, "-m", "tactiled.cli", "record",
                           "sim://?sensor=flat16&scene=press&rate=200&speed=0&loop=0", "-o", str(rec),
-                          "--frames", "400"], capture_output=True, text=True, timeout=120)
+                          "--frames", "400"], capture_output=True, text=True, timeout=120 * PACE)
     assert res.returncode == 0, res.stderr
     out = subprocess.run([sys.executable, "-m", "tactiled.cli", "replay", str(rec), "--sensor", "flat16",
                           "--model", "cylinder"], capture_output=True, text=True, timeout=300)
