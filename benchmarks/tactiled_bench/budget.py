@@ -169,7 +169,8 @@ HAND_PARTS = (("palm", "hand-palm", "flat16"),
 
 
 def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: int = 4000,
-                workers: int = 2, passes: int = 2) -> list[dict[str, Any]]:
+                workers: int = 2, passes: int = 2,
+                batched: bool | None = None) -> list[dict[str, Any]]:
     """The main process's CPU per frame with nothing else competing: each part's ``frames``
     frames (its scene from the start, seed 1, at 1 kHz) recorded, then replayed as fast as
     the daemon takes them, every part at once, lossless (each frame waits for what it
@@ -178,13 +179,15 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
     the frames: unlike the live bench, no device competes for the CPU and no frame is
     answered late, so two versions of the code compare to a few percent.  One dict per
     pass (the first loads what the kernels cache): ``us_per_frame``, ``frames``,
-    ``relinearized`` and ``fits`` per part."""
+    ``relinearized`` and ``fits`` per part.  ``batched``: False runs every frame through the
+    pipeline's per-frame path instead of the core's runs (``SensorPipeline.batched``)."""
     import asyncio
     import tempfile
     import time
     from pathlib import Path
 
     from tactiled.pipeline import Daemon
+    from tactiled.pipeline.sensor import SensorPipeline
     from tactiled.io.recording import Recorder
     from tactiled.sensors import load_description
     from tactiled.settings import load_settings
@@ -219,7 +222,13 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
             for k in range(frames):
                 rec.record(sim.next_frame(), host_time=1.0 + k / sim.rate_hz)
             rec.close()
-        return [asyncio.run(play(paths)) for _ in range(passes)]
+        was = SensorPipeline.batched
+        if batched is not None:
+            SensorPipeline.batched = batched and was
+        try:
+            return [asyncio.run(play(paths)) for _ in range(passes)]
+        finally:
+            SensorPipeline.batched = was
 
 
 #: The arrays whose fits :func:`fit_cost` times: (description, scene), the palm's several
@@ -346,7 +355,12 @@ def _cli() -> None:
     p.add_argument("--baseline", metavar="REV", default=None,
                    help="with --replay or --fits: also the code of git revision REV, in turn "
                         "with this tree's (two rounds)")
+    p.add_argument("--per-frame", action="store_true",
+                   help="with --replay: this tree's runs through the core and its per-frame "
+                        "path, in turn (two rounds)")
     a = p.parse_args()
+    if a.per_frame and (not a.replay or a.baseline is not None):
+        p.error("--per-frame goes with --replay, without --baseline")
     if a.baseline is not None and not (a.replay or a.fits):
         p.error("--baseline goes with --replay or --fits")
     if a.fits:
@@ -368,7 +382,11 @@ def _cli() -> None:
         print("|---|---|---|---|---|---|")
         rows: list[tuple[str, list[dict[str, Any]]]] = []
         with _baseline_tree(a.baseline) as tree:
-            if tree is None:
+            if a.per_frame:
+                for _ in range(2):
+                    rows.append(("this tree, runs", replay_cost(batched=True)))
+                    rows.append(("this tree, per frame", replay_cost(batched=False)))
+            elif tree is None:
                 rows.append(("this tree", replay_cost()))
             else:
                 for _ in range(2):

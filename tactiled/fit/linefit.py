@@ -42,8 +42,8 @@ class LineFit:
         self.point: tuple[float, float, float] | None = None
         #: the line windows one frame's fit makes, kept while ``frames.kept()`` is open
         self.frames = KeptFrames()
-        #: set by :meth:`fit`: a converged scout's result whose profile tests wait for
-        #: :meth:`tested` ``(result, frame, problem, solution)``
+        #: set by :meth:`fit`: a ruled-out scout's result, unreported until :meth:`tested`
+        #: ``(result, frame, problem, solution, starts tried)``
         self.untested: tuple | None = None
 
     def fit(self, strain: np.ndarray, start: np.ndarray | None,
@@ -93,6 +93,26 @@ class LineFit:
                                        False, best.message)
                 best.iterations += scout.iterations
                 best.evaluations += scout.evaluations
+        if self.scouted:  # ranked by chi^2, its report made only if it is the answer (tested)
+            values, std, line = prob.report(best.p, None)
+            self.point = (values["x_mm"], values["y_mm"], line["load_n_per_mm"])
+            res = FitResult(
+                contact=True, model="cylinder", values=values, std=std,
+                rms=math.sqrt(best.cost / max(fr.n_points, 1)),
+                chi2=best.cost * peak * peak / f.sigma**2,
+                iterations=best.iterations, evaluations=best.evaluations, converged=best.converged,
+                peak=peak, n_points=fr.n_points, window=fr.win, starts=tried,
+                message=best.message, params=tuple(best.p.tolist()), line=line)
+            self.untested = (res, fr, prob, best, tried)
+            return res
+        return self._finish(fr, prob, best, tried)
+
+    def _finish(self, fr: _Frame, prob: LineProblem, best: SolveResult, tried: int) -> FitResult:
+        """The FitResult of the line's search ``best`` on ``fr``: its values, their sigmas
+        (widened where the frame says so, tested on their profile likelihood where it
+        converged) and what is withheld."""
+        f = self.fitter
+        peak = fr.peak
         reasons: dict[str, str] = {}
         jraw = best.jacobian * peak
         cov, condition = uncertainty.covariance(jraw, f.sigma)
@@ -116,9 +136,9 @@ class LineFit:
         uncertainty.unobservable(f, values, std, reasons)
         if not best.converged:
             reasons.setdefault("fit", best.message)
-        elif not self.scouted:
+        else:
             self._profiles(fr, prob, best, values, std, reasons)
-        res = FitResult(
+        return FitResult(
             contact=True, model="cylinder", label=self._label(values, line),
             values=values, std=std,
             rms=math.sqrt(best.cost / max(fr.n_points, 1)),
@@ -127,9 +147,6 @@ class LineFit:
             condition=condition, peak=peak, n_points=fr.n_points, window=fr.win, starts=tried,
             message=best.message, reasons=reasons, params=tuple(best.p.tolist()), line=line,
         )
-        if self.scouted and best.converged:
-            self.untested = (res, fr, prob, best)
-        return res
 
     def _profiles(self, fr: _Frame, prob: LineProblem, best: SolveResult, values: dict,
                   std: dict, reasons: dict[str, str]) -> None:
@@ -155,14 +172,18 @@ class LineFit:
         return "line" if label == "plane" else label
 
     def tested(self, res: FitResult) -> FitResult:
-        """``res`` with its profile tests run, when it is the scout :meth:`fit` left untested
-        (auto's answer is the line it ruled out: a budget cut the choice short); else as it is."""
+        """``res`` made whole (its sigmas, what is withheld, its profile tests), when it is
+        the scout :meth:`fit` left unreported (auto's answer is the line it ruled out: a
+        budget cut the choice short); else as it is.  What auto wrote on it (the iterations
+        and evaluations of every model, its message, the criterion) stays."""
         pending, self.untested = self.untested, None
         if pending is None or pending[0] is not res:
             return res
-        _, fr, prob, best = pending
-        self._profiles(fr, prob, best, res.values, res.std, res.reasons)
-        res.label = self._label(res.values, res.line)
+        _, fr, prob, best, tried = pending
+        whole = self._finish(fr, prob, best, tried)
+        for name in ("label", "values", "std", "rms", "chi2", "converged", "condition", "peak",
+                     "n_points", "window", "starts", "reasons", "params", "line", "ellipse"):
+            setattr(res, name, getattr(whole, name))
         return res
 
     def as_point(self, cyl: FitResult) -> tuple[float, float, float, float, float]:

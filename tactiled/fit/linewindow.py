@@ -236,7 +236,7 @@ def runs_across(fitter: Any, flat: np.ndarray, mask: np.ndarray | None) -> tuple
     seen = np.zeros(flat.shape, bool)
     r0, c0, nr, nc = fr.win
     seen[r0:r0 + nr, c0:c0 + nc] = fr.valid.reshape(nr, nc)
-    m, n = np.nonzero(seen & (np.nan_to_num(flat) >= 0.5 * fr.peak))
+    m, n = np.nonzero(seen & (fr.clean >= 0.5 * fr.peak))
     if m.size < 3:
         return False, seen
     x, y = m * g.dx, n * g.dy

@@ -145,6 +145,24 @@ def test_auto_keeps_a_line_that_explains_the_window_without_scouting(flat16) -> 
     assert not fitter._line_scouted  # a line is solved fully
 
 
+def test_a_scouted_line_auto_answers_is_reported_in_full(flat16) -> None:
+    """A ball's line scout is ranked by its chi^2 alone; where auto's budget runs out before
+    the other models and the scout is the answer, it is reported as any line fit is: its
+    condition, its sigmas (here the place's found unknowable and withheld with the reason),
+    the force withheld with the line's reason, its label."""
+    sensor, model, fitter = flat16
+    rng = np.random.default_rng(1)
+    ball = model.predict(Contact(6.0, 6.0, 0.0, 1.0, 20.0, 18.0))
+    ball = ball + rng.normal(0.0, sensor.noise.sigma, ball.shape)
+    res = fitter.fit(ball, "auto", budget_s=1e-9)  # out of time once the line is scouted
+    assert fitter._line_scouted and res.model == "cylinder" and res.label == "line"
+    assert res.condition is not None and res.condition > 1.0
+    assert "load per length" in res.reasons["force_n"] and "r2_mm" in res.reasons
+    for key in ("x_mm", "y_mm", "r1_mm", "angle_deg"):  # a sigma, or a reason for none
+        assert res.std.get(key) is not None or key in res.reasons, key
+    assert any(res.std.get(k) is not None for k in ("r1_mm", "angle_deg"))
+
+
 def test_a_warm_ellipse_running_off_a_flat_array_is_not_kept(flat16) -> None:
     """auto's warm path: the previous frame's general ellipse, where it runs off the array at
     both ends, is the line; the choice is made afresh (as a cold fit's is)."""

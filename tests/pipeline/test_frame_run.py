@@ -1,7 +1,8 @@
 """A read's frames in runs through the core (``tactiled.pipeline.frame_run``) publish what the
 per-frame path (``SensorPipeline.batched = False``, the reference ``TACTILED_CORE=python``
 runs) does: the same estimates and zeroed frames, bit for bit but the timing keys, and the
-same counters, on a press that comes and goes, with hostile frames among the good."""
+same counters, on a press that comes and goes, with hostile frames among the good.  Under
+``TACTILED_CORE=python`` the runs are the reference's (``fused_reference.ZeroRun``)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,6 @@ import numpy as np
 import pytest
 from pipeline_helpers import InProcessPool, answer, contact_path, make_frames
 
-from tactiled import native
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.frames import Frame
 from tactiled.pipeline import frame_run
@@ -18,8 +18,6 @@ from tactiled.pipeline.estimate import without_timing
 from tactiled.pipeline.hub import Hub
 from tactiled.pipeline.sensor import SensorPipeline
 from tactiled.settings import SensorSettings
-
-pytestmark = pytest.mark.skipif(native.core is None, reason="the runs are the core's")
 
 
 class _Pool(InProcessPool):
