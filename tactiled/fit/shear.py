@@ -38,6 +38,10 @@ NAMES = ("ln_r", "ln_force", "x0", "y0", "fx", "fy", "torque", "lam")
 #: ``mu`` is reported when its relative 1-sigma bound at the estimate (a quarter of the width
 #: in ``ln mu`` of the 2-sigma interval that lam's Cramer-Rao bound there says) is below this.
 MU_RESOLVED = 0.2
+#: ... and the observed 2-sigma interval's width, in the same units, is below this: where
+#: ``lam``'s likelihood is far from its bound's Gaussian (a frame at the bound 1 whose profile
+#: runs down to full stick), the bound at the estimate does not say the interval.
+MU_SEEN = 0.4
 #: Side of the fit window (taxels) at least: the displacement field reaches further than
 #: the strain's, so large arrays are fitted on this window around the peak.
 MIN_WINDOW = 8
@@ -126,6 +130,12 @@ class ShearEstimate:
         if not rel < MU_RESOLVED:
             return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f} (2-sigma interval "
                     f"{prof.lo:.2f}..{prof.hi:.2f}; mu's bound there {rel:.0%} of it, over {MU_RESOLVED:.0%})")
+        seen_lo, _, seen_hi = mu_interval(prof, qp, s_ln)
+        seen = math.log(seen_hi / seen_lo) / 4.0 if seen_lo > 0 else math.inf
+        if not seen < MU_SEEN:
+            return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f} (2-sigma interval "
+                    f"{prof.lo:.2f}..{prof.hi:.2f}, far wider than its bound there says: mu's bound "
+                    f"from it {seen:.0%}, over {MU_SEEN:.0%})")
         chosen = LamInterval(prof.selective_lo(s_ln, MU_RESOLVED), prof.hi, prof.best)
         lo, best, hi = mu_interval(chosen, qp, s_ln)
         if not math.isfinite(hi):

@@ -8,7 +8,7 @@ import pytest
 from scipy.optimize import brentq
 from scipy.stats import norm
 
-from tactiled.fit.shear import MU_RESOLVED, ShearFitter
+from tactiled.fit.shear import MU_RESOLVED, ShearEstimate, ShearFitter
 from tactiled.fit.shear_profile import GRID, SELECT_CAP, TAIL, LamInterval
 from tactiled.physics.threeaxis import ShearContact, ThreeAxisModel, three_axis
 from tactiled.sensors import load_description
@@ -72,3 +72,19 @@ def test_bound_of_lam_equals_the_fits_covariance():
     k = int(np.argmin(np.abs(GRID - est.params[7])))
     assert abs(GRID[k] - est.params[7]) < 0.01
     assert est.lam_profile.bound[k] == pytest.approx(est.sigma[7], rel=0.05)
+
+
+def test_a_profile_far_wider_than_its_bound_is_withheld():
+    """At the bound 1 the bound of lam says mu is resolved; a profile that runs down to full
+    stick says otherwise, and mu is withheld with the reason; a profile as narrow as the bound
+    publishes mu = (Q/P) / lam."""
+    params = np.array((math.log(10.0), 0.0, 0.0, 0.0, 0.3, 0.4, 0.0, 1.0))
+    cov = np.diag([1e-6] * 7 + [0.05 ** 2])
+    bound = tuple(0.05 for _ in GRID)
+    wide = ShearEstimate(params, cov, 1.0, True, lam_profile=LamInterval(0.02, 1.0, 1.0, bound=bound))
+    mu, _, why = wide.mu()
+    assert mu is None and "far wider than its bound" in why
+    narrow = ShearEstimate(params, cov, 1.0, True, lam_profile=LamInterval(0.88, 1.0, 1.0, bound=bound))
+    mu, s_mu, why = narrow.mu()
+    assert why is None and mu == pytest.approx(0.5, rel=1e-6)
+    assert mu + 2 * s_mu >= 0.5 / 0.88  # the interval's long arm, up to full stick's side
