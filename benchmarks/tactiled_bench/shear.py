@@ -46,7 +46,7 @@ LEAD, AFTER = 50, 30
 
 
 #: The suite's arrays: a description's name or path, or a 1-axis one's name + ``_3axis``.
-ARRAYS = ("xela_uskin_4x4", "xela_uskin_4x6", "flat16_3axis", "fearing1988_3axis")
+ARRAYS = ("xela_uskin_4x4", "xela_uskin_4x6", "flat16_3axis", "fearing1988_3axis", "paxini_px6ax")
 
 
 def resolve(spec: str) -> SensorDescription:

@@ -14,29 +14,34 @@ with Cramer-Rao bounds (docs/concepts/shear.md).
 # From ``lam`` follow the friction coefficient ``mu = |Q| / (lam P)`` and the margin to slip
 # ``1 - lam``, their intervals from the profile likelihood of ``lam`` (tactiled/fit/
 # shear_profile.py: the likelihood is often one-sided there, and a linearised sigma misleads),
-# reported only where that interval resolves them (full stick excluded at 2 sigma and a
-# relative sigma of ``mu`` under :data:`MU_RESOLVED`): a stick zone of radius ``c = a (1 - lam)^(1/3)`` changes the readings
+# reported only where full stick is excluded at 2 sigma and the Cramer-Rao bound at the
+# estimate says a relative sigma of ``mu`` under :data:`MU_RESOLVED` (the interval then widened
+# for that selection): a stick zone of radius ``c = a (1 - lam)^(1/3)`` changes the readings
 # by little when ``Q`` is small or the taxels lie deep under a small contact, and then ``mu`` is
 # ``None`` with the reason.
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from tactiled.fit.shear_profile import LamInterval, lam_interval, mu_interval, symmetric
+from tactiled.fit.shear_profile import LamInterval, lam_bounds, lam_interval, mu_interval, symmetric
 from tactiled.physics.threeaxis import ShearContact, ThreeAxisModel
 from tactiled.physics.traction import Traction
 from tactiled.sensors.description import SensorDescription
 
 NAMES = ("ln_r", "ln_force", "x0", "y0", "fx", "fy", "torque", "lam")
-#: ``mu`` is reported when its relative 1-sigma bound (a quarter of its 2-sigma profile
-#: interval's width in ``ln mu``) is below this.
+#: ``mu`` is reported when its relative 1-sigma bound at the estimate (a quarter of the width
+#: in ``ln mu`` of the 2-sigma interval that lam's Cramer-Rao bound there says) is below this.
 MU_RESOLVED = 0.2
+#: ... and the observed 2-sigma interval's width, in the same units, is below this: where
+#: ``lam``'s likelihood is far from its bound's Gaussian (a frame at the bound 1 whose profile
+#: runs down to full stick), the bound at the estimate does not say the interval.
+MU_SEEN = 0.4
 #: Side of the fit window (taxels) at least: the displacement field reaches further than
 #: the strain's, so large arrays are fitted on this window around the peak.
 MIN_WINDOW = 8
@@ -117,14 +122,25 @@ class ShearEstimate:
         if prof is None or not math.isfinite(self.sigma[7]):
             return "the stick zone is not resolved (lam = Q/(mu P) unobservable: no tangential force)"
         qp, _ = self.q_over_p()
-        lo, best, hi = mu_interval(prof, qp, self._ln_qp_given_lam())
-        if not math.isfinite(hi) or prof.lo <= 0.0:
+        s_ln = self._ln_qp_given_lam()
+        if prof.lo <= 0.0:
             return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f}, within 2 sigma of 0 "
                     f"(2-sigma interval {prof.lo:.2f}..{prof.hi:.2f}): mu is unbounded above")
-        rel = math.log(hi / lo) / 4.0  # the relative 1-sigma the interval's width says
+        rel = prof.relative(prof.best, s_ln)  # the bound at the estimate, not the interval's width
         if not rel < MU_RESOLVED:
             return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f} (2-sigma interval "
-                    f"{prof.lo:.2f}..{prof.hi:.2f}; mu's bound {rel:.0%} of it, over {MU_RESOLVED:.0%})")
+                    f"{prof.lo:.2f}..{prof.hi:.2f}; mu's bound there {rel:.0%} of it, over {MU_RESOLVED:.0%})")
+        seen_lo, _, seen_hi = mu_interval(prof, qp, s_ln)
+        seen = math.log(seen_hi / seen_lo) / 4.0 if seen_lo > 0 else math.inf
+        if not seen < MU_SEEN:
+            return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f} (2-sigma interval "
+                    f"{prof.lo:.2f}..{prof.hi:.2f}, far wider than its bound there says: mu's bound "
+                    f"from it {seen:.0%}, over {MU_SEEN:.0%})")
+        chosen = LamInterval(prof.selective_lo(s_ln, MU_RESOLVED), prof.hi, prof.best)
+        lo, best, hi = mu_interval(chosen, qp, s_ln)
+        if not math.isfinite(hi):
+            return (f"the stick zone is not resolved: Q/(mu P) = {prof.best:.2f}, at the edge of "
+                    f"resolution (2-sigma interval {chosen.lo:.2f}..{prof.hi:.2f}): mu is unbounded above")
         return lo, best, hi
 
     def slip_margin(self) -> tuple[float | None, float | None]:
@@ -133,7 +149,8 @@ class ShearEstimate:
         if isinstance(self.mu_band(), str):
             return None, None
         prof = self.lam_profile
-        return symmetric(1.0 - prof.hi, 1.0 - prof.best, 1.0 - prof.lo)
+        lo = prof.selective_lo(self._ln_qp_given_lam(), MU_RESOLVED)
+        return symmetric(1.0 - prof.hi, 1.0 - prof.best, 1.0 - lo)
 
     def _ln_qp_given_lam(self) -> float:
         """1-sigma of ``ln(|Q|/P)`` with ``lam`` held (the conditional Gaussian bound)."""
@@ -294,7 +311,8 @@ class ShearFitter:
         if len(keep) == 8 and "shear" not in reasons:
             prof = lam_interval(residual, p, jac, _LO, _HI)
             if prof is not None:
-                prof = prof.widened(float(p[7]), float(math.sqrt(max(cov[7, 7], 0.0))))
+                prof = replace(prof.widened(float(p[7]), float(math.sqrt(max(cov[7, 7], 0.0)))),
+                               bound=lam_bounds(residual, p, jac))
         return ShearEstimate(p, cov, rms, bool(res.success), reasons, idx, jac, prof)
 
     def step(self, est: ShearEstimate) -> ShearStep:

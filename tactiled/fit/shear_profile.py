@@ -16,10 +16,21 @@
 # the data stray past it, and publishing by its width would pick out those frames.
 #
 # ``mu`` then lies in ``[Q/P / lam_hi, Q/P / lam_lo]``, widened by the conditional bound of
-# ``ln(Q/P)`` given ``lam`` (added in quadrature in ``ln mu``); it is resolved when ``lam_lo >
-# 0`` (full stick is excluded) and the interval is narrow.  What is published is ``mu`` where
-# the profile is least, with half the interval's longer arm as sigma: ``mu +/- 2 sigma`` holds
-# the whole profile interval (one JSON sigma cannot say a skewed interval's two arms).
+# ``ln(Q/P)`` given ``lam`` (added in quadrature in ``ln mu``).  What is published is ``mu``
+# where the profile is least, with half the interval's longer arm as sigma: ``mu +/- 2 sigma``
+# holds the whole interval (one JSON sigma cannot say a skewed interval's two arms).
+#
+# Whether ``mu`` is resolved is decided by its Cramer-Rao bound at the estimate (the bound of
+# ``lam`` at each ``lam`` of the grid, the other parameters profiled out; :func:`lam_bounds`),
+# not by the width of the observed interval: the bound of ``lam`` shrinks fast toward slip,
+# and a frame whose noise pushed ``lam`` up looks better resolved than its truth.  Deciding at
+# the estimate means publishing where ``lam`` lies above a threshold ``L`` (the bound resolves
+# ``mu`` from ``L`` up), and a value published because it cleared ``L`` is biased upward: so
+# the interval's lower end is the *selective* one, the least ``lam`` whose truncated law
+# (``lam`` Gaussian with its bound there, given that it cleared ``L``) still puts the
+# estimate within its upper 2.5 % (Fithian, Sun and Taylor, "Optimal inference after model
+# selection", 2014), at most :data:`SELECT_CAP` bounds below the estimate.  Far above ``L``
+# this is the ordinary interval.
 
 from __future__ import annotations
 
@@ -28,6 +39,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import norm
 
 #: Grid of ``lam`` on which the profile is first evaluated; its crossings are then bisected.
 GRID = np.linspace(0.0, 1.0, 21)
@@ -35,6 +47,10 @@ GRID = np.linspace(0.0, 1.0, 21)
 BISECT = 5
 #: ``chi2`` above its least at the ends of the 2-sigma interval (one parameter).
 TWO_SIGMA_CHI2 = 4.0
+#: One-sided tail of the selective interval's lower end (that of a 2-sigma interval).
+TAIL = 0.025
+#: The selective lower end lies at most this many bounds of ``lam`` below the estimate.
+SELECT_CAP = 3.0
 
 
 @dataclass(frozen=True)
@@ -44,6 +60,9 @@ class LamInterval:
     lo: float
     hi: float
     best: float
+    #: The Cramer-Rao bound (1 sigma) of ``lam`` at each ``lam`` of :data:`GRID` (the other
+    #: parameters profiled out), or None: what decides whether ``mu`` is resolved.
+    bound: tuple[float, ...] | None = None
 
     def widened(self, lam: float, sigma: float) -> LamInterval:
         """The union with the linearised 2-sigma interval ``lam +/- 2 sigma`` (clipped to [0,
@@ -51,15 +70,58 @@ class LamInterval:
         it, the profile interval shrinks as the data stray further past the bound, and a
         decision on its width alone would favour exactly those frames."""
         if not math.isfinite(sigma):
-            return LamInterval(0.0, 1.0, self.best)
+            return LamInterval(0.0, 1.0, self.best, self.bound)
         return LamInterval(max(0.0, min(self.lo, lam - 2.0 * sigma)), min(1.0, max(self.hi, lam + 2.0 * sigma)),
-                           self.best)
+                           self.best, self.bound)
 
     def shifted(self, delta: float) -> LamInterval:
         """The interval moved by ``delta`` in ``lam`` (clipped to [0, 1]): a step's estimate."""
         def clip(v: float) -> float:
             return min(1.0, max(0.0, v))
-        return LamInterval(clip(self.lo + delta), clip(self.hi + delta), clip(self.best + delta))
+        return LamInterval(clip(self.lo + delta), clip(self.hi + delta), clip(self.best + delta), self.bound)
+
+    def sigma_at(self, lam: float) -> float:
+        """The bound of ``lam`` at ``lam`` (interpolated on the grid; inf without bounds)."""
+        if self.bound is None:
+            return math.inf
+        return float(np.interp(lam, GRID, np.asarray(self.bound)))
+
+    def relative(self, lam: float, s_ln_qp: float) -> float:
+        """The relative 1-sigma of ``mu`` that the bound says were ``lam`` the truth: a quarter
+        of the width in ``ln mu`` of its 2-sigma interval (:func:`mu_interval`'s)."""
+        s = self.sigma_at(lam)
+        if not (lam - 2.0 * s > 0.0 and math.isfinite(s)):
+            return math.inf
+        up = math.hypot(math.log(lam / (lam - 2.0 * s)), 2.0 * s_ln_qp)
+        down = math.hypot(math.log(min(1.0, lam + 2.0 * s) / lam), 2.0 * s_ln_qp)
+        return (up + down) / 4.0
+
+    def threshold(self, s_ln_qp: float, limit: float) -> float:
+        """The least ``lam`` from which, up to the estimate, the bound resolves ``mu``
+        (relative 1-sigma under ``limit``); inf where it does not at the estimate."""
+        lams = np.linspace(0.0, self.best, 101)[::-1]
+        prev = None
+        for lam in lams:
+            if not self.relative(float(lam), s_ln_qp) < limit:
+                return math.inf if prev is None else prev
+            prev = float(lam)
+        return 0.0
+
+    def selective_lo(self, s_ln_qp: float, limit: float) -> float:
+        """The published lower end of ``lam``: the profile's, widened to the selective end
+        (the estimate published because it cleared :meth:`threshold`), capped at
+        :data:`SELECT_CAP` bounds below the estimate."""
+        x, cut = self.best, self.threshold(s_ln_qp, limit)
+        if not math.isfinite(cut):
+            return self.lo
+        floor = max(0.0, x - SELECT_CAP * self.sigma_at(x))
+        end = x
+        for theta in np.linspace(x, floor, 61)[1:]:
+            s = self.sigma_at(float(theta))
+            if norm.logsf((x - theta) / s) - norm.logsf((cut - theta) / s) < math.log(TAIL):
+                break
+            end = float(theta)
+        return min(self.lo, end)
 
 
 def lam_interval(residual: Callable[[np.ndarray], np.ndarray], params: np.ndarray, jac: np.ndarray,
@@ -110,6 +172,22 @@ def lam_interval(residual: Callable[[np.ndarray], np.ndarray], params: np.ndarra
     lo = 0.0 if i == 0 else cross(float(GRID[i]), float(GRID[i - 1]))
     hi = 1.0 if j == GRID.size - 1 else cross(float(GRID[j]), float(GRID[j + 1]))
     return LamInterval(lo, hi, min(max(best, lo), hi))
+
+
+def lam_bounds(residual: Callable[[np.ndarray], np.ndarray], params: np.ndarray, jac: np.ndarray,
+               step: float = 1e-3) -> tuple[float, ...]:
+    """The Cramer-Rao bound of ``lam`` at each ``lam`` of :data:`GRID`: ``lam``'s column of the
+    Jacobian there (central differences) against the other parameters' at the fit."""
+    q, _ = np.linalg.qr(jac[:, :7])
+    out = []
+    for lam in GRID:
+        lo, hi = params.copy(), params.copy()
+        lo[7], hi[7] = max(0.0, lam - step), min(1.0, lam + step)
+        col = (residual(hi) - residual(lo)) / (hi[7] - lo[7])
+        col = col - q @ (q.T @ col)
+        norm2 = float(col @ col)
+        out.append(1.0 / math.sqrt(norm2) if norm2 > 0 else math.inf)
+    return tuple(out)
 
 
 def mu_interval(lam: LamInterval, qp: float, s_ln_qp: float) -> tuple[float, float, float]:
