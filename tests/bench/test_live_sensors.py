@@ -74,7 +74,7 @@ LIVE_BAR = 0.01
 #: Descriptions whose simulated finger the daemon does not yet keep within the bar (what is
 #: left there: weak lines' fits, docs/performance/fit-time.md)
 _NOT_YET = {"flexitac_12x32": "a weak line's fitted orientation and place on the 12x32 mat "
-                              "(1 N at about 4 noise sigmas, fits of single frames), 1.5-2 % of "
+                              "(1 N at about 4 noise sigmas, fits of single frames), 1.3-2 % of "
                               "estimates"}
 
 
