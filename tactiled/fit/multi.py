@@ -143,8 +143,8 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
                          [region_of(fitter, p) for _, p in kept], left,
                          [None] * len(kept), first=[r for r, _ in kept], predict=predict)
     paying = prune(fitter, flat, usable, found, predict)
-    # a contact whose place the one rule withholds (its position's sigma beyond the array) is
-    # strain the others leave unexplained, not a contact found: at most one is reported
+    # a contact whose place the one rule withholds, wholly or along one axis (a position's
+    # sigma beyond the array), is strain the others leave unexplained, not a contact found
     out = [r for r in paying if _located(r)]
     if len(out) <= 1:  # the joint fit left one contact paying its way: it alone, fitted alone
         alone = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left)
@@ -162,8 +162,9 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
 
 def _located(r: FitResult) -> bool:
     """The contact has a place: a line (its position across is its offset), or a point
-    contact whose centre the one rule publishes."""
-    return r.line is not None or not (r.values.get("x_mm") is None and r.values.get("y_mm") is None)
+    contact whose centre the one rule publishes, both coordinates (one withheld leaves the
+    contact anywhere along a line across the array: no place, as none)."""
+    return r.line is not None or (r.values.get("x_mm") is not None and r.values.get("y_mm") is not None)
 
 
 def _all_held(warm: Any, starts: list[tuple[str, tuple[float, ...]] | None]) -> bool:
