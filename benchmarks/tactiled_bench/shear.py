@@ -31,7 +31,7 @@ import numpy as np
 
 from tactiled.fit.shear import ShearFitter, ShearStep
 from tactiled.fit.shear_filter import ShearFilter, SlideTest
-from tactiled.fit.slip import ONSET_Z, SETTLE, SlipDetector
+from tactiled.fit.slip import DETECT_WALK, ONSET_Z, SETTLE, SlipDetector
 from tactiled.physics.threeaxis import three_axis
 from tactiled.sensors import load_description
 from tactiled.sensors.description import SensorDescription
@@ -62,8 +62,10 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
     """Estimate ``frames[first:last]`` in order through a slip detector, as the daemon does: a
     fit (warm-started) on every ``every``-th frame, the step from the last fit on each frame;
     the detector's events.  With ``truth``, ``errors`` gains each frame's errors of the
-    filtered ``fx``, ``fy`` and torsion over their sigma (once the filter has settled)."""
+    filtered ``fx``, ``fy`` and torsion over their sigma (the reported filter's, as the
+    daemon's tables, once it has settled)."""
     det, prev, step, events = SlipDetector(), None, None, []
+    flt = det.tracking
     for i in range(first, len(frames) if last is None else min(last, len(frames))):
         if step is None or (i - first) % every == 0:
             fit = fitter.fit(frames[i], start=prev)
@@ -72,8 +74,8 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
         _, ev = det.feed(i, est)
         if ev is not None:
             events.append((ev.kind, ev.frame))
-        if truth is not None and errors is not None and det.filter.frames > SETTLE:
-            errors.append(tuple((det.filter.value(k)[0] - truth[key][i]) / det.filter.value(k)[1]
+        if truth is not None and errors is not None and flt.frames > SETTLE:
+            errors.append(tuple((flt.value(k)[0] - truth[key][i]) / flt.value(k)[1]
                                 for k, key in ((4, "true_fx"), (5, "true_fy"), (6, "true_torque"))))
     return events
 
@@ -90,7 +92,7 @@ def null_tail(desc: SensorDescription, frames: int, seed: int) -> dict[str, floa
     chol = np.linalg.cholesky(est.cov[np.ix_(keep, keep)])
     zs: list[float] = []
     while len(zs) < frames:
-        flt, test = ShearFilter(), SlideTest()
+        flt, test = ShearFilter(DETECT_WALK), SlideTest()
         for i in range(400):
             p = est.params.copy()
             p[4:6] *= min(1.0, (i + 1) / 200)

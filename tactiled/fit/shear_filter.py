@@ -45,7 +45,8 @@ _POS = (2, 3)  # x0, y0 in the measurement
 _FORCE = (4, 5)  # fx, fy
 LAM = 7
 #: A rate's random walk per frame, in units of its parameter's single-frame sigma: a pull's
-#: ramp may steepen or level off by this much a frame.
+#: ramp may steepen or level off by this much a frame (the filter whose values are reported;
+#: the slip detector's own filter has a longer memory, tactiled.fit.slip.DETECT_WALK).
 RATE_WALK = 0.1
 #: The centre's random walk per frame under stick, in units of its single-frame sigma.
 CENTRE_WALK = 0.02
@@ -73,14 +74,16 @@ _F, _H = _matrices()
 
 
 class ShearFilter:
-    """The Kalman filter of one contact's shear state (see the module's comment).
+    """The Kalman filter of one contact's shear state (see the module's comment); ``rate_walk``
+    replaces :data:`RATE_WALK`.
 
     :meth:`update` takes a frame's estimate (``params`` and covariance, the shear fit's order);
     :attr:`x`, :attr:`P` are the filtered state and covariance, :attr:`nu`, :attr:`s_inv` the
     last innovation and its inverse covariance (zero rows for what the frame did not measure),
     :attr:`gain` the last Kalman gain."""
 
-    def __init__(self) -> None:
+    def __init__(self, rate_walk: float = RATE_WALK) -> None:
+        self.rate_walk = rate_walk
         self.x: np.ndarray | None = None
         self.P = np.zeros((_N, _N))
         self.frames = 0
@@ -101,7 +104,7 @@ class ShearFilter:
         q = np.zeros((_N, _N))
         for j, k in enumerate(RATED):
             i, r = TRACKED.index(k), _M + j
-            v = (RATE_WALK * sig[k]) ** 2  # white acceleration over one frame
+            v = (self.rate_walk * sig[k]) ** 2  # white acceleration over one frame
             q[i, i] += v / 4
             q[i, r] = q[r, i] = v / 2
             q[r, r] += v

@@ -11,9 +11,9 @@
 #   a fit runs is counted, never queued);
 # * every frame of the contact after its first fit is estimated at frame rate by the step from
 #   the newest fit (:class:`tactiled.fit.shear.ShearStep`: one matrix-vector product, no fit)
-#   and feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`, whose Kalman
-#   filter tracks the contact's shear state); an onset or end is published on the hub as a
-#   ``slip`` item with the frame it was declared on;
+#   and feeds the contact's slip detector (:class:`tactiled.fit.slip.SlipDetector`, which keeps
+#   the contact's shear filter, the tracked shear state); an onset or end is published on the
+#   hub as a ``slip`` item with the frame it was declared on;
 # * :meth:`ShearTrack.annotate` gives every estimate the contact's newest ``shear`` and ``slip``
 #   tables (the strongest contact's: the fit's window is centred on the array's peak; the tables
 #   are the newest frame's: ``fx_n``, ``fy_n``, ``torque_nmm`` and ``q_over_p`` the filter's,
@@ -219,7 +219,8 @@ class ShearTrack:
         if event is not None:
             self._event(event.kind, frame.seq, frame.sensor_id, frame.device_time_us,
                         frame.host_time, time.time(), state)
-        filtered = self._detector.filter.shear() if self._detector.filter.x is not None else None
+        tracking = self._detector.tracking  # the contact's filter, fed by the detector
+        filtered = tracking.shear() if tracking.x is not None else None
         self._newest = (frame.seq, est, state, filtered)
 
     def _tables(self) -> tuple[dict[str, Any], dict[str, Any]] | None:

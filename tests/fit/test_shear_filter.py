@@ -69,3 +69,22 @@ def test_the_slide_scale_is_unbiased_and_its_statistic_a_unit_normal():
         assert abs(np.mean(errs)) < 0.25 and 0.8 < np.std(errs) < 1.2, (slide, np.mean(errs), np.std(errs))
     # the slide is seen: the statistic far beyond the noise six frames after its start
     assert test.z > 5.0 and test.template in ("accelerating", "steady")
+
+
+def test_a_force_that_gives_way_restarts_its_filter():
+    """The tangential force falls by 0.1 N (33 of its sigma) in one frame, as static friction
+    giving way: the filter sees the jump and follows the new force within its bound at once,
+    instead of pulling its old ramp along."""
+    rng = np.random.default_rng(5)
+    flt = ShearFilter()
+    late = []
+    for i in range(200):
+        t = truth(i)
+        if i >= 150:
+            t[4] -= 0.1
+        flt.update(t + CHOL @ rng.normal(size=8), COV)
+        if i >= 151:
+            v, s = flt.value(4)
+            late.append(abs(v - t[4]) / s)
+    assert flt.jumps >= 1
+    assert max(late) < 3.5 and np.mean(np.array(late) <= 2) > 0.9

@@ -80,3 +80,38 @@ def test_slip_ends_when_the_object_sticks_again():
     assert 100 <= events[0][1] <= 105
     assert 150 <= events[1][1] <= 150 + REST_FRAMES + END_FRAMES
     assert 220 <= events[2][1] <= 226
+
+
+def _onset(frames, det=None):
+    det = det or SlipDetector()
+    for i, (x, q, lam) in enumerate(frames):
+        _, ev = det.update(i, *estimate(x, lam, q=q, sx=0.02, s_lam=0.02))
+        if ev and ev.kind == "onset":
+            return i
+    return None
+
+
+def test_the_force_levelling_off_at_the_friction_limit_declares_sooner(monkeypatch):
+    """A pull whose force stops rising at frame 100 while the centre starts to move (slowly:
+    2.5 um (k + 1)^2 against 20 um a frame): with the friction mobilised, the onset comes no
+    later, and on average sooner, than from the motion alone; the force levelling off at the
+    friction's limit with the centre still is no slip."""
+    import tactiled.fit.slip as slip
+
+    def scene(seed, moves=True):
+        rng = np.random.default_rng(seed)
+        out = []
+        for i in range(112):
+            q = 0.3 + 0.002 * min(i, 100)
+            lam = 0.5 + 0.47 * min(i, 100) / 100
+            x = 5.0 + (0.0025 * (i - 99) ** 2 if moves and i >= 100 else 0.0)
+            out.append((x + 0.02 * rng.normal(), q + 0.003 * rng.normal(), min(1.0, lam + 0.02 * rng.normal())))
+        return out
+
+    both = [_onset(scene(s)) for s in range(8)]
+    monkeypatch.setattr(slip, "CONFIRM_Z", math.inf)
+    motion = [_onset(scene(s)) for s in range(8)]
+    monkeypatch.undo()
+    assert all(b is not None and 100 <= b <= m for b, m in zip(both, motion)), (both, motion)
+    assert np.mean(both) < np.mean(motion)
+    assert all(_onset(scene(s, moves=False)) is None for s in range(8))
