@@ -322,11 +322,12 @@ class Tracker:
         self._model_code = MODEL_CODES[lin.model]
         self._beta_floor = None
         if "beta" in names:
-            # a measurement keeps the linearisation's axes (see _swapped)
+            # a measurement keeps an elongated contact's axes (see _swapped); near a circle
+            # the two sides are the same ellipse, and a box there would bias it
             i = names.index("beta")
-            if abs(float(lin.p[i])) <= 1.0:
+            if abs(float(lin.p[i])) <= 0.5:
                 self._c[C_LOW, i], self._c[C_HIGH, i] = -1.0, 1.0
-            else:
+            elif abs(float(lin.p[i])) >= 2.0:
                 self._beta_floor = (i, math.copysign(1.0, float(lin.p[i])))
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:
