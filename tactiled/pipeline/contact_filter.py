@@ -258,6 +258,7 @@ class Tracker:
         self._edt = 0.0
         self._judged_memo: tuple[dict[str, Any], Any] | None = None
         self._constants: tuple[tuple[str, ...], Any] = ((), None)
+        self._beta_floor: tuple[int, float] | None = None
 
     @property
     def x(self) -> np.ndarray | None:
@@ -282,6 +283,9 @@ class Tracker:
         if self.model is not None and lin.model != self.model:
             self._s, self.t, self.n = None, None, 0
         names = PARAMS[lin.model]
+        if self._s is not None and "beta" in names and _swapped(self._s[X], lin.p, names):
+            # the state's psi names the other principal axis than the linearisation's
+            self._s, self.t, self.n = None, None, 0
         if self._s is not None and "psi" in names:
             # psi is periodic by pi: take the linearisation's psi next to the state's
             i = names.index("psi")
@@ -316,6 +320,15 @@ class Tracker:
             np.asarray(lin.systematic, dtype=np.float64), zero_var / (lin.sigma * lin.sigma))
         self._r = self._c[C_R].tolist()
         self._model_code = MODEL_CODES[lin.model]
+        self._beta_floor = None
+        if "beta" in names:
+            # a measurement keeps an elongated contact's axes (see _swapped); near a circle
+            # the two sides are the same ellipse, and a box there would bias it
+            i = names.index("beta")
+            if abs(float(lin.p[i])) <= 0.5:
+                self._c[C_LOW, i], self._c[C_HIGH, i] = -1.0, 1.0
+            elif abs(float(lin.p[i])) >= 2.0:
+                self._beta_floor = (i, math.copysign(1.0, float(lin.p[i])))
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:
         """``(model, p)``: where to linearise again, when the state has moved from the
@@ -387,6 +400,9 @@ class Tracker:
         ok, z, e = measure_point(frame, index, at, self._gain, self._jacobian, self._weight,
                                  self._c, self._limit, self._ln_f, RESET_SIGMA,
                                  MAX_LOG_FORCE_STEP)
+        if ok and self._beta_floor is not None:  # (the strain has beta^2 only)
+            i, sign = self._beta_floor
+            z[i] = sign * max(abs(float(z[i])), 1.0)
         return (z, e) if ok else None
 
     def _filter(self, z: np.ndarray, t: float, fitted: bool) -> str:
@@ -654,6 +670,15 @@ def _on_unresolved_radius(r: float, sd_r: float, frames: int) -> str | None:
         return None
     return (f"{TOO_LIGHT}: the force rests on a radius the frames do not resolve (its sigma "
             f"over {frames} frame(s) is {100 * sd_r / r:.0f} % of it)")
+
+
+def _swapped(x: np.ndarray, p: np.ndarray, names: tuple[str, ...]) -> bool:
+    """True when the general model's vectors ``x`` and ``p`` lie on different sides of
+    ``|beta| = 1`` (or beyond it with opposite signs): their psi name different principal
+    axes, 90 degrees apart, and cannot be averaged (docs/concepts/tracking.md)."""
+    i = names.index("beta")
+    a, b = float(x[i]), float(p[i])
+    return (abs(a) > 1.0) != (abs(b) > 1.0) or (abs(a) > 1.0 and a * b < 0.0)
 
 
 def _beyond_tested(v: float | None, sd: float | None) -> bool:
