@@ -79,13 +79,15 @@ from tactiled.pipeline.kernels import (
 )
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
+#: the value (its index in VALUE_KEYS) each moving parameter's lag widens (_lag_variance)
+_LAG_KEY = dict(x0=VALUE_KEYS.index("x_mm"), y0=VALUE_KEYS.index("y_mm"), psi=VALUE_KEYS.index(
+    "angle_deg"), ln_f=_I_FORCE)
 #: the running mean's weight of the newest frame's innovation excess: about the last two
 #: frames, as quick as a lag appears (a release at 30 frames/s lasts 15)
 LAG_WEIGHT = 0.5
 #: ... counted where it is beyond this many of its noise's sigmas (5 % of a held contact's
-#: frames, each then weighing the next few measurements more: a held contact still averages
-#: down; at 3 sigmas a release on the 12x32 mat was caught only when the estimate lagged by
-#: twice the mean innovation, its force published 4-6 sigmas high)
+#: frames: it still averages down; at 3 a release on the 12x32 mat was caught only when the
+#: estimate lagged by twice the mean innovation, its force published 4-6 sigmas high)
 LAG_SIGNIFICANT = 2.0
 #: the state a linearisation is adopted with before the filter has started (no column)
 _NO_STATE = np.empty((DRIFT + 1, 0))
@@ -435,13 +437,11 @@ class Tracker:
         self.t = t
         self.n += 1
         self._lag += LAG_WEIGHT * (np.stack(lagged) - self._lag)
-        # a lag is an error of the state itself: its variance goes into the state (and the
-        # rate's, spread over the filter's memory), so the next frames weigh the measurements
-        # more and the filter catches up (innovation-based adaptive process noise), and every
-        # value and rate the estimate derives from the state carries it
+        # a lag goes into the rate's variance (over the filter's memory: it catches up), not
+        # the value's, which the reset test reads (a press ends in a fit that restarts a
+        # radius averaged over its ramp's biased frames); estimate() publishes it
         lag = self._lag_variance()
         if lag.any():
-            self._s[PXX] += lag
             self._s[PVV] += lag / (self.memory_s * self.memory_s)
         return "tracked"
 
@@ -463,7 +463,7 @@ class Tracker:
         filter's model says, so a held contact still averages down; where it accelerates (a
         release: the log force falls ever faster as the force goes to zero) the innovations
         run to one side and the estimate lags by about their mean.  :meth:`_filter` adds it
-        to the state's variance, the rate's too."""
+        to the rate's variance, :meth:`estimate` to the published value's."""
         m, spread = self._lag
         noise = spread * LAG_WEIGHT / (2.0 - LAG_WEIGHT)
         return np.where(m * m > LAG_SIGNIFICANT * LAG_SIGNIFICANT * noise, m * m, 0.0)
@@ -531,15 +531,17 @@ class Tracker:
         assert self._s is not None and self.model is not None
         dt = 0.0 if at is None or self.t is None else at - self.t
         dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
-        # The delta method term by term (a value rests on one or two parameters): the
-        # state's covariance is sd_a sd_b corr_ab (the filters' variances, each moving
-        # parameter's lag behind the truth added where its innovations run consistently to
-        # one side, the single frame's correlation) plus the systematic part.  A runaway
-        # value overflows to inf (withheld).
+        # The delta method term by term: sd_a sd_b corr_ab (the filters' variances with the
+        # drift detector's lag, the single frame's correlation) plus the systematic part, then
+        # each moving value's lag (_lag_variance).  A runaway value overflows to inf (withheld).
         numbers, var, cov_rf, absent = estimate_numbers(
             self._model_code, self._s, self._c, dt, self.excess, self._corr, self._sys,
             self._has_sys, LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
         numbers, var = numbers.tolist(), var.tolist()
+        for n, extra in zip(self.names, self._lag_variance().tolist()):
+            if extra > 0.0 and n in _LAG_KEY:
+                unit = {"ln_f": numbers[_I_FORCE] or 0.0, "psi": 180.0 / math.pi}.get(n, 1.0)
+                var[_LAG_KEY[n]] += extra * unit * unit
         values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
         if absent:
             for i, key in enumerate(VALUE_KEYS):

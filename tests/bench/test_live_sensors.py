@@ -179,9 +179,9 @@ def test_a_release_is_followed_without_a_confident_lag() -> None:
     """The 12x32 mat (flexitac): the ball's release (1.5 N to nothing in 0.25 s, the log
     force falling ever faster) left the constant-velocity filter 0.1-0.3 behind in log
     force with a sigma of 0.02-0.03 (9 forces 4.5-5.8 sigmas high).  The innovations' run to
-    one side now goes into the state's variance, so the filter catches up and says so: at
-    most 2 % of the ball's tracked forces beyond 4 sigma of the truth (5 % before; 1 % here
-    now, a press's and a release's single frame)."""
+    one side now goes into the rate's variance, so the filter catches up, and into the
+    published force's, so it says so: at most 2 % of the ball's tracked forces beyond 4 sigma
+    of the truth (5 % before; 1 of 177 here now, a press's single frame)."""
     desc = load_description("flexitac_12x32")
     estimates = live_sensors.play(desc, 100.0, seed=1)
     far, n = _tracked_far(desc, estimates, "force_n")
