@@ -105,3 +105,27 @@ def arun() -> Callable[[Coroutine[Any, Any, Any]], Any]:
         return result
 
     return run
+
+
+def read_source(url: str, enough: Callable[[list], bool], seconds: float) -> tuple[list, Any]:
+    """Open the source at ``url`` (a real pty), gather its frames until ``enough(frames)`` or
+    ``seconds`` have passed, close it; the frames and its decoder's counters.  A source that
+    delivers nothing fails the wait after ``seconds`` + 10 s rather than hanging the test."""
+    from tactiled.sources import open_source
+
+    async def read() -> tuple[list, Any]:
+        src = open_source(url)
+        got: list = []
+        await src.open()
+        deadline = time.monotonic() + seconds
+        try:
+            async for batch in src.frame_batches():
+                got += batch
+                if enough(got) or time.monotonic() > deadline:
+                    break
+        finally:
+            stats = src.decoder.stats
+            await src.close()
+        return got, stats
+
+    return asyncio.run(asyncio.wait_for(read(), seconds + 10.0))

@@ -4,12 +4,10 @@ streams (torn answers, garbage, corrupt checksums), and the source against the s
 
 from __future__ import annotations
 
-import asyncio
 import re
 import struct
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from procs import read_source
 from tactiled_drivers import paxini
 
 ROWS, COLS = 2, 3
@@ -112,22 +111,7 @@ def test_source_reads_the_simulated_module(tmp_path: Path) -> None:
         assert proc.stdout.readline().startswith("pty: "), proc.stderr.read()
         assert proc.stdout.readline().strip() == f"link: {link}"
 
-        async def read() -> tuple[list, object]:
-            from tactiled.sources import open_source
-
-            src = open_source(f"paxini://{link}")
-            got = []
-            await src.open()
-            deadline = time.monotonic() + 20.0
-            async for batch in src.frame_batches():
-                got += batch
-                if len(got) >= 50 or time.monotonic() > deadline:
-                    break
-            stats = src.decoder.stats
-            await src.close()
-            return got, stats
-
-        got, stats = asyncio.run(read())
+        got, stats = read_source(f"paxini://{link}", lambda got: len(got) >= 50, 20.0)
     finally:
         proc.terminate()
         proc.wait(10)
@@ -150,24 +134,11 @@ def test_the_simulated_module_pushes_sideways(tmp_path: Path) -> None:
         assert proc.stdout.readline().startswith("pty: "), proc.stderr.read()
         proc.stdout.readline()
 
-        async def read() -> tuple[list, object]:
-            from tactiled.sources import open_source
+        def pushed(got: list) -> bool:
+            return max((np.abs(f.taxels[..., :2].astype(int) - paxini.ZERO_COUNTS).max()
+                        for f in got), default=0) >= 8
 
-            src = open_source(f"paxini://{link}")
-            got: list = []
-            await src.open()
-            deadline = time.monotonic() + 30.0
-            async for batch in src.frame_batches():
-                got += batch
-                tangential = max((np.abs(f.taxels[..., :2].astype(int) - paxini.ZERO_COUNTS).max()
-                                  for f in got), default=0)
-                if tangential >= 8 or time.monotonic() > deadline:
-                    break
-            stats = src.decoder.stats
-            await src.close()
-            return got, stats
-
-        got, stats = asyncio.run(read())
+        got, stats = read_source(f"paxini://{link}", pushed, 30.0)
     finally:
         proc.terminate()
         proc.wait(10)

@@ -14,6 +14,7 @@ import sys
 import numpy as np
 import pytest
 
+from procs import read_source
 from tactiled.frames import Frame, encode_frame
 from tactiled.io.recording import Recorder, RecordingReader
 from tactiled.sensors import load_description
@@ -64,19 +65,7 @@ def test_simulate_pty_streams_3_axis_wire_frames(tmp_path) -> None:
         assert proc.stdout.readline().startswith("pty: "), proc.stderr.read()
         assert proc.stdout.readline().strip() == f"link: {link}"
 
-        async def read() -> tuple[list, object]:
-            src = open_source(f"serial://{link}")
-            got: list = []
-            await src.open()
-            async for batch in src.frame_batches():
-                got += batch
-                if len(got) >= 100:
-                    break
-            stats = src.decoder.stats
-            await src.close()
-            return got, stats
-
-        got, stats = asyncio.run(asyncio.wait_for(read(), 30.0))
+        got, stats = read_source(f"serial://{link}", lambda got: len(got) >= 100, 30.0)
     finally:
         proc.terminate()
         proc.wait(10)
