@@ -198,5 +198,7 @@ def answer(p: Any, fitter: Any, job: Any) -> None:
         p.on_fit_result(job, {}, 1.0, None, None, lin)
         return
     r = fitter.fit(job.strain, job.model, mask=job.mask, warm=job.warm)
-    lin = linearize(fitter, job.strain, r.model, np.asarray(r.params), job.mask)
+    lin = None  # as the worker: a fit with no model (no contact found) has nothing to linearise
+    if r.params is not None and r.model:
+        lin = linearize(fitter, job.strain, r.model, np.asarray(r.params), job.mask)
     p.on_fit_result(job, plain(r.to_json_dict()), 1.0, None, (r.model, r.params), lin)
