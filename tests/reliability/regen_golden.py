@@ -25,6 +25,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from tactiled import native
+
 GOLDEN = Path(__file__).resolve().parent.parent / "data" / "golden"
 
 #: session name -> the simulator URL it was recorded from.
@@ -33,7 +35,11 @@ SESSIONS = {
     for name in ("press", "sphere", "edge")
 }
 
-REL_TOL = 1e-9  # floats: relative tolerance of the comparison (see compare())
+#: floats: relative tolerance of the comparison (see compare()).  On the Python reference
+#: (``TACTILED_CORE=python``) 1e-8: its sums run in another order (NumPy, BLAS), and the tracker
+#: carries those last-digit differences from frame to frame (a held ellipse's axis 1.6e-9 of
+#: itself apart from the core's after 80 frames).
+REL_TOL = 1e-8 if native.core is None else 1e-9
 ABS_TOL = 1e-12
 
 
