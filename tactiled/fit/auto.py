@@ -41,9 +41,8 @@ class ModelSelector:
         """While open (``on``), a cold auto fit is one contact's among several: on a curved
         array its cylinder is a scout, as a flat array's line is, ranked by its chi^2 and
         solved fully only if it is the answer (its sigmas, profile tests and model-error check
-        made once, not for every contact a frame of several seeks: 0.4 ms a cylinder on the
-        paper's finger); with ``round_blob`` (:func:`round_blob`) the sphere is tried alone
-        first (:meth:`sphere_alone`)."""
+        made once, not for every contact a frame of several seeks); with ``round_blob``
+        (:func:`round_blob`) the sphere is tried alone first (:meth:`sphere_alone`)."""
         before = self.several, self.round
         self.several, self.round = on, on and round_blob
         try:
@@ -157,7 +156,7 @@ class ModelSelector:
         the full choice follows.  The mirror of :meth:`tactiled.fit.linefit.LineFit.explains`:
         where the sphere explains a round blob, a line (four parameters too) has no ridge to
         follow and the general ellipse's two more could only fit the noise, so neither is
-        scouted (a 16x16 pad's ball: 0.2-0.3 ms instead of auto's 0.8-1.0 ms)."""
+        scouted (two searches of the sphere instead of auto's five or six)."""
         f = self.fitter
         saved = dataclasses.replace(f._budget) if f._budget is not None else None
         sphere = get_model("sphere")
