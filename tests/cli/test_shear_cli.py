@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 TACTILED = [sys.executable, "-m", "tactiled.cli"]
 
@@ -35,6 +36,8 @@ def test_random_frames_round_trip(tmp_path: Path):
             assert obj["reasons"]["mu"]
 
 
+@pytest.mark.slow  # every frame of a whole pull fitted (~40 s); the default suite runs the short
+# version below (the frames around the onset, against the daemon's path)
 def test_pull_until_slip_declares_the_onset(tmp_path: Path):
     out = tmp_path / "pull.npz"
     run("simulate", str(out), "--sensor", "xela_uskin_4x4", "--load", "pull", "--seed", "7")
