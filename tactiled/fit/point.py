@@ -92,18 +92,18 @@ class PointFit:
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, 2, sd_angle, scan=()),
                 key="angle_deg")
-        if best.converged and model.name == "general" and res.values.get("angle_deg") is not None:
-            # an ellipse not told from a circle has no orientation
-            withhold_flat(res.values, res.std, res.reasons, round_test(
-                f, fr, best.p, steps_of(model), bounds_of(model), lambda: f._residual(fr, model),
-                lambda: f._residual(fr, get_model("sphere")), res.chi2, res.values, res.std),
-                key="angle_deg")
         if best.converged and model.name == "general":
-            # the larger radius on its profile, both sides (a light ellipsoid's valley where
-            # both radii shrink together: tactiled.fit.profile.r2_profile); a test the budget
-            # cuts short is not used, and does not make the fit a stopped one
+            # a test the budget cuts short is not used, and does not make the fit a stopped one
             budget = f._budget
             spent = budget is None or budget.exhausted
+            if res.values.get("angle_deg") is not None:
+                # an ellipse not told from a circle has no orientation
+                withhold_flat(res.values, res.std, res.reasons, round_test(
+                    f, fr, best.p, steps_of(model), bounds_of(model),
+                    lambda: f._residual(fr, model), lambda: f._residual(fr, get_model("sphere")),
+                    res.chi2, res.values, res.std), key="angle_deg")
+            # the larger radius on its profile, both sides (a light ellipsoid's valley where
+            # both radii shrink together: tactiled.fit.profile.r2_profile)
             withhold_flat(res.values, res.std, res.reasons, r2_profile(
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, res.values.get("r2_mm"),
