@@ -320,7 +320,10 @@ def measure(seconds: float, warmup: float, rate: float, scene: str, workers: int
 COMPILE_KERNELS = """
 import math
 import numpy as np
-from tactiled.sensors.model import SensorModel
+try:
+    from tactiled.sensors.model import SensorModel
+except ImportError:  # a revision from before tactiled.sensors held it
+    from tactiled.config import SensorModel
 from tactiled.fit.fitter import Fitter
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
