@@ -188,7 +188,10 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
 
     from tactiled.pipeline import Daemon
     from tactiled.pipeline.sensor import SensorPipeline
-    from tactiled.io.recording import Recorder
+    try:
+        from tactiled.io.recording import Recorder
+    except ImportError:  # a revision from before tactiled.io held it
+        from tactiled.recording import Recorder  # type: ignore[no-redef]
     from tactiled.sensors import load_description
     from tactiled.settings import load_settings
     from tactiled.sim import FingerSimulator
