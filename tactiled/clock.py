@@ -80,13 +80,15 @@ class OffsetDriftFilter:
     def update(self, d: float, h: float) -> None:
         """A frame of device time ``d`` arrived at host time ``h`` (both seconds)."""
         x = h - d
-        if not self.started or d < self._last_d or abs(x - self.offset(d)) > JUMP_S:
-            if self.started:
+        started = self.started
+        o = self.offset(d) if started else math.nan  # the envelope here (once: it is the same)
+        if not started or d < self._last_d or abs(x - o) > JUMP_S:
+            if started:
                 self.restarts += 1
             self._restart(d, x)
             return
         self._last_d = d
-        if x < self.offset(d):  # a faster frame than the envelope allows: it is lower
+        if x < o:  # a faster frame than the envelope allows: it is lower
             self.anchor_d, self.anchor_x = d, x
         if self._window_min is None or x < self._window_min[1]:
             self._window_min = (d, x)
@@ -135,7 +137,12 @@ class FrameClock:
     def stamp(self, frames: Sequence[Frame]) -> None:
         """Set ``frame.time`` (Unix s) on the frames of one read, in order."""
         spread = [f for f in frames if not f.clocked]
-        times = self._spread(spread) if spread else {}
+        if not spread:  # every frame carries the device's clock (the common case): mapped
+            for frame in frames:
+                t, floor = self._mapped(frame)
+                frame.time = self._monotone(t, floor) + self.wall_offset
+            return
+        times = self._spread(spread)
         for frame in frames:
             if frame.clocked:
                 t, floor = self._mapped(frame)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import re
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -169,8 +170,8 @@ HAND_PARTS = (("palm", "hand-palm", "flat16"),
 
 
 def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: int = 4000,
-                workers: int = 2, passes: int = 2,
-                batched: bool | None = None) -> list[dict[str, Any]]:
+                workers: int = 2, passes: int = 2, batched: bool | None = None,
+                profile: str | None = None) -> list[dict[str, Any]]:
     """The main process's CPU per frame with nothing else competing: each part's ``frames``
     frames (its scene from the start, seed 1, at 1 kHz) recorded, then replayed as fast as
     the daemon takes them, every part at once, lossless (each frame waits for what it
@@ -180,8 +181,12 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
     answered late, so two versions of the code compare to a few percent.  One dict per
     pass (the first loads what the kernels cache): ``us_per_frame``, ``frames``,
     ``relinearized`` and ``fits`` per part.  ``batched``: False runs every frame through the
-    pipeline's per-frame path instead of the core's runs (``SensorPipeline.batched``)."""
+    pipeline's per-frame path instead of the core's runs (``SensorPipeline.batched``).
+    ``profile``: a file that gets the last pass's cProfile statistics (this process's CPU
+    clock, the replay alone: ``python -m pstats FILE``); a profiled pass costs more, so its
+    ``us_per_frame`` is no measure of the code."""
     import asyncio
+    import cProfile
     import tempfile
     import time
     from pathlib import Path
@@ -196,7 +201,7 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
     from tactiled.settings import load_settings
     from tactiled.sim import FingerSimulator
 
-    async def play(paths: dict[str, Path]) -> dict[str, Any]:
+    async def play(paths: dict[str, Path], prof: Any = None) -> dict[str, Any]:
         over: dict[str, Any] = {"fit.workers": workers}
         for i, (name, _scene, description) in enumerate(parts):
             over[f"sensor[{i}].url"] = f"replay://{paths[name]}?speed=0"
@@ -206,7 +211,11 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
         await daemon.start()
         try:
             cpu = time.process_time()
+            if prof is not None:
+                prof.enable()
             await daemon.wait_finished(600)
+            if prof is not None:
+                prof.disable()
             cpu = time.process_time() - cpu
         finally:
             await daemon.stop()
@@ -230,7 +239,12 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
         if batched is not None and hasattr(SensorPipeline, "batched"):
             SensorPipeline.batched = batched and was
         try:
-            return [asyncio.run(play(paths)) for _ in range(passes)]
+            runs = [asyncio.run(play(paths)) for _ in range(passes - (profile is not None))]
+            if profile is not None:
+                prof = cProfile.Profile(time.process_time)
+                runs.append(asyncio.run(play(paths, prof)))
+                prof.dump_stats(profile)
+            return runs
         finally:
             if hasattr(SensorPipeline, "batched"):
                 SensorPipeline.batched = was
@@ -286,6 +300,23 @@ def fit_cost(description: str, scene: str, every: int = 20, frames: int = 1200,
             "lin_ms": {"p50": q(lin_ms, 0.5), "p90": q(lin_ms, 0.9)}}
 
 
+def functions_per_frame(path: str, frames: int) -> dict[str, tuple[float, float, float]]:
+    """A cProfile statistics file (:func:`replay_cost`'s ``profile``) per frame: by function
+    (``package/module.py:name``, the path from the package's folder on), its calls, own
+    time and cumulative time (us, the profiled process's CPU clock) over ``frames``."""
+    import pstats
+
+    out: dict[str, tuple[float, float, float]] = {}
+    for (file, _line, name), (_cc, calls, own, cum, _callers) in pstats.Stats(path).stats.items():
+        parts = file.replace("\\", "/").split("/")
+        where = next((i for i in range(len(parts) - 1, -1, -1)
+                      if parts[i].startswith("tactiled")), len(parts) - 1)
+        key = f"{'/'.join(parts[where:])}:{name}"
+        c, o, u = out.get(key, (0.0, 0.0, 0.0))
+        out[key] = (c + calls / frames, o + 1e6 * own / frames, u + 1e6 * cum / frames)
+    return out
+
+
 def _run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> Any:
     """``call`` (an expression calling ``func``, a self-contained function of this module)
     evaluated on the code of checkout ``tree``, in a subprocess: this module's own ``func``
@@ -310,15 +341,38 @@ def _run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> 
 
 
 def replay_at(tree: str, passes: int = 2, frames: int = 4000,
-              parts: tuple[tuple[str, str, str], ...] = HAND_PARTS) -> list[dict[str, Any]]:
+              parts: tuple[tuple[str, str, str], ...] = HAND_PARTS,
+              profile: str | None = None) -> list[dict[str, Any]]:
     """:func:`replay_cost` on the code of checkout ``tree`` (its daemon and its workers)."""
-    return _run_at(tree, replay_cost, f"replay_cost({parts!r}, {frames!r}, passes={passes!r})",
-                   (f"HAND_PARTS = {HAND_PARTS!r}",))
+    return _run_at(tree, replay_cost, f"replay_cost({parts!r}, {frames!r}, passes={passes!r}, "
+                   f"profile={profile!r})", (f"HAND_PARTS = {HAND_PARTS!r}",))
 
 
 def fits_at(tree: str, description: str, scene: str) -> dict[str, Any]:
     """:func:`fit_cost` on the code of checkout ``tree``."""
     return _run_at(tree, fit_cost, f"fit_cost({description!r}, {scene!r})")
+
+
+def _pstats(a: argparse.Namespace, code: str, round_: int) -> str | None:
+    """Where ``--cprofile``'s statistics of ``code``'s run in round ``round_`` go (None:
+    no --cprofile)."""
+    return None if a.cprofile is None else os.path.join(a.cprofile, f"{code}-{round_}.pstats")
+
+
+def _profile_table(per: dict[str, dict[str, tuple[float, float, float]]], top: int = 25) -> None:
+    """The functions that cost the most own time per frame in any of ``per``'s codes, side
+    by side: calls, own and cumulative us per frame (profiled CPU clock)."""
+    names = sorted({n for d in per.values() for n in d},
+                   key=lambda n: -max(d.get(n, (0.0, 0.0, 0.0))[1] for d in per.values()))[:top]
+    codes = list(per)
+    print()
+    print("| function | " + " | ".join(f"{c}: calls / own / cumulative us per frame"
+                                        for c in codes) + " |")
+    print("|---|" + "---|" * len(codes))
+    for n in names:
+        cells = [per[c].get(n) for c in codes]
+        print(f"| {n} | " + " | ".join("-" if v is None else f"{v[0]:.2f} / {v[1]:.2f} / {v[2]:.1f}"
+                                       for v in cells) + " |")
 
 
 def _here() -> str:
@@ -363,7 +417,13 @@ def _cli() -> None:
     p.add_argument("--per-frame", action="store_true",
                    help="with --replay: this tree's runs through the core and its per-frame "
                         "path, in turn (two rounds)")
+    p.add_argument("--cprofile", metavar="DIR", default=None,
+                   help="with --replay: a third pass of each run under cProfile, its statistics "
+                        "into DIR (<code>-<round>.pstats), and the functions that cost the most "
+                        "per frame (own time, profiled CPU) in the last round")
     a = p.parse_args()
+    if a.cprofile is not None and (not a.replay or a.per_frame):
+        p.error("--cprofile goes with --replay, without --per-frame")
     if a.per_frame and (not a.replay or a.baseline is not None):
         p.error("--per-frame goes with --replay, without --baseline")
     if a.baseline is not None and not (a.replay or a.fits):
@@ -392,15 +452,24 @@ def _cli() -> None:
                     rows.append(("this tree, runs", replay_cost(batched=True)))
                     rows.append(("this tree, per frame", replay_cost(batched=False)))
             elif tree is None:
-                rows.append(("this tree", replay_cost()))
+                rows.append(("this tree", replay_cost(passes=3, profile=_pstats(a, "this", 1))
+                             if a.cprofile else replay_cost()))
             else:
-                for _ in range(2):
-                    rows.append(("this tree", replay_at(_here())))
-                    rows.append((f"baseline {a.baseline}", replay_at(tree)))
+                for k in (1, 2):
+                    rows.append(("this tree", replay_at(_here(), passes=2 + bool(a.cprofile),
+                                                        profile=_pstats(a, "this", k))))
+                    rows.append((f"baseline {a.baseline}",
+                                 replay_at(tree, passes=2 + bool(a.cprofile),
+                                           profile=_pstats(a, "baseline", k))))
         for code, runs in rows:
             for i, r in enumerate(runs, 1):
                 print(f"| {code} | {i} | {r['frames']} | {r['us_per_frame']:.1f} | "
                       f"{sum(r['relinearized'].values())} | {sum(r['fits'].values())} |")
+        if a.cprofile:
+            last = 1 if a.baseline is None else 2
+            frames = rows[-1][1][-1]["frames"]
+            codes = [c for c in ("this", "baseline") if os.path.exists(_pstats(a, c, last))]
+            _profile_table({c: functions_per_frame(_pstats(a, c, last), frames) for c in codes})
         return
     if a.stage:
         print("| array | scene | compiled path, us per frame | reference path, us per frame |")

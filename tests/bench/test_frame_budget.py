@@ -42,15 +42,23 @@ def test_the_replayed_hand_counts_every_frame_and_its_relinearisations() -> None
     assert r["relinearized"]["finger1"] > 0 and r["fits"]["finger1"] > 0
 
 
-def test_a_checkout_is_replayed_in_its_own_process_with_this_measure() -> None:
+def test_a_checkout_is_replayed_in_its_own_process_with_this_measure(tmp_path) -> None:
     """``--replay --baseline REV`` runs this module's replay_cost on another checkout's code
-    (here this tree's own, in a subprocess that imports it from the given path)."""
+    (here this tree's own, in a subprocess that imports it from the given path); with
+    ``profile``, that process's cProfile of the replay, read per frame."""
     from pathlib import Path
 
     tree = str(Path(budget.__file__).resolve().parents[2])
-    (r,) = budget.replay_at(tree, passes=1, frames=300, parts=budget.HAND_PARTS[3:4])
+    out = tmp_path / "replay.pstats"
+    (r,) = budget.replay_at(tree, passes=1, frames=300, parts=budget.HAND_PARTS[3:4],
+                            profile=str(out))
     assert r["frames"] == 300 and r["us_per_frame"] > 0.0
     assert set(r["relinearized"]) == {"finger3"}
+    per = budget.functions_per_frame(str(out), 300)
+    # every frame goes through the pipeline's code of the tree, each at least once
+    assert max(calls for name, (calls, _own, _cum) in per.items()
+               if name.startswith("tactiled/pipeline/")) >= 1.0
+    assert all(0.0 <= own <= cum for _calls, own, cum in per.values())
 
 
 def test_fit_jobs_are_timed_as_a_worker_does_them_here_and_on_a_checkout() -> None:
