@@ -222,7 +222,9 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
         pipes = daemon.sensors
         total = sum(p.frames for p in pipes.values())
         return {"us_per_frame": 1e6 * cpu / max(total, 1), "frames": total,
-                "relinearized": {n: p.tracking.relinearized for n, p in pipes.items()},
+                # (a revision from before SensorPipeline.tracking counts on the pipeline)
+                "relinearized": {n: getattr(p, "tracking", p).relinearized
+                                 for n, p in pipes.items()},
                 "fits": {n: p.fitted for n, p in pipes.items()}}
 
     with tempfile.TemporaryDirectory(prefix="tactiled-budget-") as d:
