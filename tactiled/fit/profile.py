@@ -233,15 +233,13 @@ def round_test(fitter: Any, fr: Any, p: np.ndarray, steps: np.ndarray,
     farthest): its sigma is widened to the widest the points imply (each ``sqrt(rise)``
     sigmas away: far points too, where the well is narrow and the profile beyond it flat),
     and withheld where that is over ``MAX_ANGLE_SIGMA`` (the one rule's bound).
-    A contact neither of whose radii is resolved (withheld, or a sigma reaching zero) is not
-    told from a point, which has no orientation: withheld without a search."""
+    A circle's orientation is ``undefined`` (as a sphere's is), which the daemon's tracker
+    does not lift while it tracks from that fit: a pooled linearised sigma has the same bias.
+    (Not told from a point, with neither radius resolved, is no reason: a rod fitted as an
+    ellipse has its radius unresolved and r2 unbounded, and its orientation sharp.)"""
     b2 = float(p[1]) ** 2
     if not b2 > 0.0:
         return None  # a cylinder: no circle near
-    if all(values.get(k) is None or not (std.get(k) or math.inf) < values[k]
-           for k in ("r1_mm", "r2_mm")):
-        return ("orientation not observable: neither radius is resolved (the contact is not "
-                "told from a point)")
     from tactiled.fit.models import get_model
     from tactiled.fit.search import bounds_of, steps_of
     sphere = get_model("sphere")
@@ -253,8 +251,8 @@ def round_test(fitter: Any, fr: Any, p: np.ndarray, steps: np.ndarray,
         return None
     rise = sol.cost * (fr.peak / fitter.sigma) ** 2 - chi2
     if rise < ROUND_CHI2:
-        return (f"orientation not observable: the two radii are not told apart (a sphere "
-                f"explains the frame within a chi^2 of {max(rise, 0.0):.2g}, under {ROUND_CHI2:g})")
+        return (f"undefined: the two radii are not told apart (a sphere explains the frame "
+                f"within a chi^2 of {max(rise, 0.0):.2g}, under {ROUND_CHI2:g})")
     if rise >= ROUND_SCAN_CHI2 and all(
             values.get(k) is not None and (std.get(k) or math.inf) <= TEST_RELATIVE_SIGMA * values[k]
             for k in ("r1_mm", "r2_mm")):

@@ -37,6 +37,13 @@ def test_the_daemon_on_a_coarse_pad_against_the_truth() -> None:
     assert c["with_far"] <= 0.05 * c["contact_estimates"], c
     lines = live_sensors.report(desc, s, 100.0)
     assert any(line.startswith("| offset |") for line in lines)
+    # the ball's force is resolved by the whole pad's bound at the truth in most frames (its
+    # radius in none): what is withheld of it is scored against that
+    assert s["resolved"]["force_n"] >= 0.5 * s["n"]["force_n"] > 0, s["resolved"]
+    assert s["resolved"]["r1_mm"] == 0
+    assert s["resolved_withheld"]["force_n"] <= s["withheld"]["force_n"]
+    force = next(line for line in lines if line.startswith("| force_n |")).split(" | ")
+    assert force[5].endswith(f"({s['resolved']['force_n']})")
 
 
 def test_the_daemons_tracked_radii_on_a_coarse_pad_stay_within_their_sigmas() -> None:
