@@ -145,7 +145,7 @@ def test_a_weak_lines_angle_is_tested_on_its_profile() -> None:
     understates the error.  The profile test (tactiled/fit/profile.py ``angle_profile``)
     widens or withholds it; without it more published angles lie beyond 4 of their sigmas
     on the same frames."""
-    from tactiled.fit import profile
+    from tactiled.fit import linefit
 
     fitter, frames = _lines_at_1n("flexitac_12x32", 160, 5)
 
@@ -169,11 +169,11 @@ def test_a_weak_lines_angle_is_tested_on_its_profile() -> None:
     assert published >= 0.8 * len(frames)  # mostly by widening, not withholding
     assert far <= 0.035 * published, (far, published)
     assert within2 >= 0.85 * published, (within2, published)
-    old = profile.ANGLE_TEST_SIGMA
+    old = linefit.LINE_TEST_SIGMA
     try:
-        profile.ANGLE_TEST_SIGMA = math.inf  # the linearised sigma alone
+        linefit.LINE_TEST_SIGMA = math.inf  # the linearised sigma alone
         published0, far0, tested0, _ = score()
     finally:
-        profile.ANGLE_TEST_SIGMA = old
+        linefit.LINE_TEST_SIGMA = old
     assert tested0 == 0
     assert far0 / published0 > far / published, (far0, published0, far, published)
