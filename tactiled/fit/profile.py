@@ -14,8 +14,13 @@
 # the value is not a measurement and is withheld, with the reason and the profile's figure;
 # between that and 4 its sigma is widened so the tested point lies ``sqrt(rise)`` sigmas away,
 # as the profile says.
-# The test costs one search, started at the solution, within the fit's budget; a search the
-# budget cuts short is not used (its chi^2 only overstates the rise: never a withholding).
+# The test costs one search, started at the solution, within the fit's budget; a search its
+# iterations or the budget cut short still bounds the profile from above (its chi^2 only
+# overstates the rise: never a withholding or a widening the profile would not make).
+# A line's orientation is tested the same way at several points (``angle_scan``): every
+# point is one more constrained search, and every point within ``REACH_CHI2`` widens the
+# angle's sigma, and those of the values that trade with it, to put it ``sqrt(rise)``
+# sigmas away.
 
 from __future__ import annotations
 

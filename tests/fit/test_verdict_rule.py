@@ -167,8 +167,8 @@ def test_a_weak_lines_angle_is_tested_on_its_profile() -> None:
     published, far, tested, within2 = score()
     assert tested >= 0.2 * len(frames)  # the test acts on a weak line's angle
     assert published >= 0.8 * len(frames)  # mostly by widening, not withholding
-    assert far <= 0.035 * published, (far, published)
-    assert within2 >= 0.85 * published, (within2, published)
+    assert far <= 0.015 * published, (far, published)  # measured 1 of 157
+    assert within2 >= 0.9 * published, (within2, published)  # 96 %
     old = linefit.LINE_TEST_SIGMA
     try:
         linefit.LINE_TEST_SIGMA = math.inf  # the linearised sigma alone
