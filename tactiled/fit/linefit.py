@@ -21,6 +21,7 @@ from tactiled.fit.line import LineProblem
 from tactiled.fit.linewindow import KeptFrames, line_frame
 from tactiled.fit.models import VALUE_KEYS
 from tactiled.fit.profile import (ANGLE_SCAN_DEG, LINE_NEAR_STEPS, LINE_TEST_SIGMA,
+                                  PROFILE_ITERATIONS,
                                   AngleProfile, angle_scan, flat_below, widen_by_points,
                                   withhold_flat)
 from tactiled.fit.result import FitResult
@@ -180,12 +181,14 @@ class LineFit:
         chi2 = best.cost * fr.peak * fr.peak / f.sigma**2
         withhold_flat(values, std, reasons, flat_below(
             f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
-            lambda: prob.residual_and_jacobian, chi2, values.get("r1_mm"), std.get("r1_mm")))
+            lambda: prob.residual_and_jacobian, chi2, values.get("r1_mm"), std.get("r1_mm"),
+            reach=True))
         scan = angle_scan(f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
                           lambda: prob.residual_and_jacobian, chi2, LINE_PARAMS.index("psi"),
                           std.get("angle_deg"), scan=ANGLE_SCAN_DEG if known is None else (),
                           starts_at=self._across(fr, prob), known=known or [],
-                          test_sigma=LINE_TEST_SIGMA, near_steps=LINE_NEAR_STEPS)
+                          test_sigma=LINE_TEST_SIGMA, near_steps=LINE_NEAR_STEPS,
+                          cap=PROFILE_ITERATIONS)
         withhold_flat(values, std, reasons, scan.why, "angle_deg")
         if scan.points:
             at = []
