@@ -2,7 +2,6 @@
 // (drivers/tactiled_drivers/robotiq.py) of the same name.
 #include "robotiq.hpp"
 
-#include <cmath>
 #include <cstring>
 #include <limits>
 #include <tuple>
@@ -111,26 +110,14 @@ bool Framer::holds_packets(std::size_t end) const {
 }
 
 void Framer::drop(std::size_t n) {
-    if (n > 0) {
-        head_ += n;
-        stats_.discarded += n;
-        in_error_ = true;
-    }
-}
-
-void Framer::reject(std::uint64_t& counter) {
-    ++counter;
-    in_error_ = true;
+    head_ += n;
+    discard(n);
 }
 
 void Framer::reset() {
-    if (size() > 0) {
-        ++stats_.truncated;
-        stats_.discarded += size();
-    }
+    cut(size());
     buf_.clear();
     head_ = 0;
-    in_error_ = false;
     have_stamp_ = false;
 }
 
@@ -172,24 +159,11 @@ void Framer::deliver(const std::vector<Field>& fields, std::size_t data_at, doub
     }
     if (array == nullptr) return;
     Frame frame{seq_++, have_stamp_, 0, stamp_ms_, extras_, counts.size()};
-    if (have_stamp_) {
-        frame.time_us = stamp_ms_ * 1000;
-    } else {
-        if (!have_t0_) {
-            have_t0_ = true;
-            t0_ = host_time;
-        }
-        const double us = std::nearbyint((host_time - t0_) * 1e6);
-        frame.time_us = us > 0.0 ? static_cast<Wide>(static_cast<std::int64_t>(us)) : 0;
-    }
+    frame.time_us = have_stamp_ ? stamp_ms_ * 1000 : static_cast<Wide>(host_clock_us(host_time));
     for (std::size_t c = 0; c < ROWS * COLS; ++c)
         counts.push_back(static_cast<std::uint16_t>((array[2 * c] << 8) | array[2 * c + 1]));
     out.push_back(frame);
-    ++stats_.frames;
-    if (in_error_) {
-        ++stats_.resyncs;
-        in_error_ = false;
-    }
+    accepted();
 }
 
 void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,

@@ -11,7 +11,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "lines.hpp"  // (the vendor framers' counters: lines::Stats, FramerStats' order)
+#include "lines.hpp"  // (the vendor framers' bookkeeping: lines::FramerBase)
 
 namespace tactiled {
 namespace robotiq {
@@ -47,14 +47,13 @@ struct Frame {
     std::size_t offset;  // into the batch's counts
 };
 
-class Framer {
+class Framer : public lines::FramerBase {
 public:
     explicit Framer(unsigned finger) : finger_(finger) {}
     void feed(const std::uint8_t* data, std::size_t n, double host_time, std::vector<Frame>& out,
               std::vector<std::uint16_t>& counts);
     void reset();
     std::size_t buffered() const { return buf_.size() - head_; }
-    const lines::Stats& stats() const { return stats_; }
     std::uint64_t packets() const { return packets_; }
     unsigned finger() const { return finger_; }
 
@@ -68,19 +67,14 @@ private:
     bool holds_packets(std::size_t end) const;
     bool parses(std::size_t from, std::size_t to) const;
     void drop(std::size_t n);
-    void reject(std::uint64_t& counter);
     void deliver(const std::vector<Field>& fields, std::size_t data, double host_time,
                  std::vector<Frame>& out, std::vector<std::uint16_t>& counts);
     void stamp(Wide value, std::size_t width);
 
     unsigned finger_;
-    lines::Stats stats_;
     std::vector<std::uint8_t> buf_;
     std::size_t head_ = 0;  // bytes of buf_ already consumed
-    bool in_error_ = false;
     std::uint32_t seq_ = 0;
-    bool have_t0_ = false;
-    double t0_ = 0.0;
     bool have_stamp_ = false;
     Wide stamp_ms_ = 0;
     Extras extras_;
