@@ -145,3 +145,54 @@ def test_a_scouted_cylinder_whose_budget_ran_out_is_reported_not_left_a_scout() 
     assert res.values  # a report, not a scout's bare chi^2
     for key in ("x_mm", "y_mm", "force_n"):
         assert res.values.get(key) is not None or key in res.reasons
+
+
+def test_a_ridge_tests_second_moments_are_the_covariances_eigen_decomposition() -> None:
+    """linewindow.spread's closed form against numpy's sample covariance and eigh, on seeded
+    point sets (scattered, nearly collinear, a few tactels)."""
+    from tactiled.fit.linewindow import spread
+
+    rng = np.random.default_rng(5)
+    for trial in range(300):
+        k = int(rng.integers(3, 30))
+        x = rng.integers(0, 16, k).astype(float)
+        y = x * float(rng.integers(-2, 3)) + rng.integers(0, 2, k) if trial % 3 == 0 \
+            else rng.integers(0, 16, k).astype(float)
+        w, v = np.linalg.eigh(np.cov(np.vstack((x, y))))
+        small, big, (ux, uy) = spread(x, y)
+        assert small == pytest.approx(w[0], abs=1e-9) and big == pytest.approx(w[1], abs=1e-9)
+        if w[1] - w[0] > 1e-9:  # a unique principal axis: the same one, up to its sign
+            assert abs(ux * v[0, 1] + uy * v[1, 1]) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_a_round_blob_the_sphere_alone_misses_is_chosen_without_a_line_scout(flat16) -> None:
+    """An ellipsoid's blob (r2 1.5 times r1) beside a bar: its band is round, the sphere alone
+    leaves it above the noise, and the choice between the sphere and the general ellipse is
+    made without scouting a line for it (ModelSelector.round_choice): the general ellipse,
+    where auto on the blob alone also puts it, its centre within four of its sigmas."""
+    sensor, model, fitter = flat16
+    rng = np.random.default_rng(6)
+    answers = []
+    round_choice = fitter.selector.round_choice
+
+    def spy(*args, **kwargs):  # the real method, its answers recorded
+        res = round_choice(*args, **kwargs)
+        answers.append(res)
+        return res
+
+    fitter.selector.round_choice = spy
+    try:
+        line = LineContact(10.0, 20.0, 0.06, 20.0, 8.0)
+        ellipse = Contact(6.0, 9.0, 70.0, 1.0, 18.0, 28.0)
+        for _ in range(3):
+            noise = rng.normal(0.0, sensor.noise.sigma, (16, 16))
+            alone = fitter.fit(model.predict(ellipse) + noise, "auto")
+            out = fit_contacts(fitter, model.predict(line) + model.predict(ellipse) + noise, "auto")
+            assert len(out) == 2
+            (r,) = [r for r in out if r.line is None]
+            assert r.model == alone.model == "general"
+            for key, true in (("x_mm", ellipse.x0), ("y_mm", ellipse.y0)):
+                assert abs(r.values[key] - true) < 4.0 * r.std[key], key
+    finally:
+        del fitter.selector.round_choice
+    assert answers and all(a is not None and a.model == "general" for a in answers)
