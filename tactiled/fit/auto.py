@@ -183,7 +183,8 @@ class ModelSelector:
         """A round blob among several that the sphere alone does not explain (its scout,
         :meth:`sphere_alone`'s, above the noise: a neighbour's strain in its window, or a
         ball pressed off round): the sphere or the general ellipse, by BIC with known noise
-        on their window, the winner solved fully.  No line is scouted: a round blob has no
+        on the line's band as the full choice ranks them (:meth:`on_band`), the winner solved
+        fully.  No line is scouted: a round blob has no
         ridge for it to follow (and a flat array's line explains no ball).  None, the budget
         as it was, when the sphere's scout found no contact or either runs off the array:
         then the full choice follows."""
@@ -199,7 +200,7 @@ class ModelSelector:
                            scouting=True, start_chi2=sph.chi2)
         fits = [sph] + ([gen] if gen.contact and gen.params is not None and gen.chi2 is not None
                         and gen.window == sph.window else [])
-        crit = {r.model: r.chi2 + len(r.params) * math.log(max(r.n_points, 2)) for r in fits}
+        crit = {r.model: self.on_band(r, strain, mask) for r in fits}
         best = min(fits, key=lambda r: crit[r.model])
         if best is gen and not f._out_of_time():
             # the general's two extra parameters against the sphere at its best (as choose)
@@ -209,7 +210,7 @@ class ModelSelector:
             if again.contact and again.chi2 is not None and again.chi2 < sph.chi2 \
                     and again.window == sph.window:
                 fits[0] = sph = again
-                crit["sphere"] = again.chi2 + len(again.params) * math.log(max(again.n_points, 2))
+                crit["sphere"] = self.on_band(again, strain, mask)
                 best = min(fits, key=lambda r: crit[r.model])
         if self.runs_off(best) or f._out_of_time():
             if saved is not None:
@@ -225,6 +226,15 @@ class ModelSelector:
         out.iterations += sum(r.iterations for r in fits)
         out.evaluations += sum(r.evaluations for r in fits)
         return out
+
+    def on_band(self, r: FitResult, strain: np.ndarray, mask: np.ndarray | None) -> float:
+        """A point fit's BIC with known noise on the line's band, as :meth:`criteria` ranks it
+        beside the line (the same tactels, so the same choice), or on its own window where
+        there is no band."""
+        chi2, n = chi2_on_band(self.fitter, strain, mask, r.model, r.params)
+        if chi2 is None:
+            chi2, n = r.chi2, r.n_points
+        return chi2 + len(r.params) * math.log(max(n, 2))
 
     def solved(self, strain: np.ndarray, mask: np.ndarray | None, scout: FitResult) -> FitResult:
         """A point model's scout solved fully from where it stopped (or, the budget spent,
