@@ -44,6 +44,21 @@ def _band(fitter: Fitter, frame: np.ndarray) -> np.ndarray:
     return band
 
 
+def _spy(selector, name: str) -> list:
+    """The selector's method ``name`` replaced on the instance by the real one that records
+    its answers (the list returned; ``del selector.<name>`` restores the class's)."""
+    real = getattr(selector, name)
+    answers: list = []
+
+    def spy(*args, **kwargs):
+        res = real(*args, **kwargs)
+        answers.append(res)
+        return res
+
+    setattr(selector, name, spy)
+    return answers
+
+
 def test_a_balls_band_is_round_and_a_lines_is_not(flat16) -> None:
     sensor, model, fitter = flat16
     rng = np.random.default_rng(1)
@@ -64,15 +79,7 @@ def test_balls_beside_a_line_are_spheres_fitted_alone_and_within_their_sigmas(fl
     sensor, model, fitter = flat16
     sigma = sensor.noise.sigma
     rng = np.random.default_rng(8)
-    answers = []
-    sphere_alone = fitter.selector.sphere_alone
-
-    def spy(*args, **kwargs):  # the real method, its answers recorded
-        res = sphere_alone(*args, **kwargs)
-        answers.append(res)
-        return res
-
-    fitter.selector.sphere_alone = spy
+    answers = _spy(fitter.selector, "sphere_alone")
     try:
         for trial in range(6):
             psi = 15.0 + 25.0 * trial
@@ -172,15 +179,7 @@ def test_a_round_blob_the_sphere_alone_misses_is_chosen_without_a_line_scout(fla
     where auto on the blob alone also puts it, its centre within four of its sigmas."""
     sensor, model, fitter = flat16
     rng = np.random.default_rng(6)
-    answers = []
-    round_choice = fitter.selector.round_choice
-
-    def spy(*args, **kwargs):  # the real method, its answers recorded
-        res = round_choice(*args, **kwargs)
-        answers.append(res)
-        return res
-
-    fitter.selector.round_choice = spy
+    answers = _spy(fitter.selector, "round_choice")
     try:
         line = LineContact(10.0, 20.0, 0.06, 20.0, 8.0)
         ellipse = Contact(6.0, 9.0, 70.0, 1.0, 18.0, 28.0)
