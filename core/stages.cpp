@@ -22,5 +22,6 @@ void bind_all(pybind11::module_& m) {
     bind_halfspace(m);
     bind_regions(m);
     bind_zero_run(m);
+    bind_track_step(m);
 }
 }  // namespace tactiled

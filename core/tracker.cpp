@@ -55,6 +55,25 @@ double measure_window(const double* frame, const std::int64_t* index, std::int64
     return chi2;
 }
 
+bool measure_point(const double* frame, const std::int64_t* index, std::int64_t n,
+                   const double* at, const double* gain, std::int64_t k, const double* jacobian,
+                   const double* weight, const double* c, double limit, std::int64_t ln_f,
+                   double reset_sigma, double max_log_force_step, double* dz, double* d) {
+    const double chi2 = measure_window(frame, index, n, at, gain, k, jacobian, weight, dz, d);
+    if (chi2 > limit) return false;
+    for (std::int64_t i = 0; i < k; ++i)
+        if (!std::isfinite(dz[i])) return false;
+    for (std::int64_t i = 0; i < k; ++i) {
+        const double step = std::fabs(dz[i]);
+        if (c[C_LOG * k + i] != 0.0 && step >= 1.0 &&
+            (step > reset_sigma * c[C_SD1 * k + i] || (i == ln_f && step > max_log_force_step)))
+            return false;
+    }
+    for (std::int64_t i = 0; i < k; ++i)
+        dz[i] = py_min(py_max(c[C_POINT * k + i] + dz[i], c[C_LOW * k + i]), c[C_HIGH * k + i]);
+    return true;
+}
+
 std::int64_t filter_frame(const double* z, std::int64_t k, double* s, const double* c, double dt,
                           double acc_scale, double walk, bool fitted, double reset_sigma,
                           double drift_alpha, double drift_limit) {
@@ -360,22 +379,11 @@ py::tuple measure_point_py(In<double> frame, In<std::int64_t> index, In<double> 
     const py::ssize_t k = w.k;
     need_shape(cst, "const", 8, k);
     py::array_t<double> dzarr(k), e(w.n);
-    double* dz = dzarr.mutable_data();
-    const double chi2 = measure_window(frame.data(), index.data(), w.n, at.data(), gain.data(), k,
-                                       jacobian.data(), weight.data(), dz, e.mutable_data());
-    if (chi2 > limit) return py::make_tuple(false, dzarr, e);
-    for (py::ssize_t i = 0; i < k; ++i)
-        if (!std::isfinite(dz[i])) return py::make_tuple(false, dzarr, e);
-    const double* c = cst.data();
-    for (py::ssize_t i = 0; i < k; ++i) {
-        const double step = std::fabs(dz[i]);
-        if (c[C_LOG * k + i] != 0.0 && step >= 1.0 &&
-            (step > reset_sigma * c[C_SD1 * k + i] || (i == ln_f && step > max_log_force_step)))
-            return py::make_tuple(false, dzarr, e);
-    }
-    for (py::ssize_t i = 0; i < k; ++i)
-        dz[i] = py_min(py_max(c[C_POINT * k + i] + dz[i], c[C_LOW * k + i]), c[C_HIGH * k + i]);
-    return py::make_tuple(true, dzarr, e);
+    const bool ok = measure_point(frame.data(), index.data(), w.n, at.data(), gain.data(), k,
+                                  jacobian.data(), weight.data(), cst.data(), limit, ln_f,
+                                  reset_sigma, max_log_force_step, dzarr.mutable_data(),
+                                  e.mutable_data());
+    return py::make_tuple(ok, dzarr, e);
 }
 
 std::int64_t filter_frame_py(In<double> z, py::array s, In<double> cst, double dt,

@@ -17,6 +17,14 @@ double measure_window(const double* frame, const std::int64_t* index, std::int64
                       const double* at, const double* gain, std::int64_t k,
                       const double* jacobian, const double* weight, double* dp, double* d);
 
+// measure_window, then the tracker's tests of the step (kernels.measure_point): true with dz
+// turned into the measurement (the point plus the step, clipped to the box), false when the
+// frame needs a fit.  d (n) receives the residual.
+bool measure_point(const double* frame, const std::int64_t* index, std::int64_t n,
+                   const double* at, const double* gain, std::int64_t k, const double* jacobian,
+                   const double* weight, const double* c, double limit, std::int64_t ln_f,
+                   double reset_sigma, double max_log_force_step, double* dz, double* d);
+
 // The filters' step (kernels.filter_frame): s (6, k) in place, const (8, k).
 std::int64_t filter_frame(const double* z, std::int64_t k, double* s, const double* c, double dt,
                           double acc_scale, double walk, bool fitted, double reset_sigma,

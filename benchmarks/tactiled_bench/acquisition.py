@@ -41,6 +41,7 @@ from tactiled.sensors import DEFAULT_NAME
 from tactiled_bench.acquisition_runs import (FINGERS, HAND, Device, RunResult, Seen, contacts_of,
                                              devices, scene_truth, slim, tare_window, timeline)
 from tactiled_bench.acquisition_report import conditions, figures, report
+from tactiled_bench.checkout import build, checkout, checkout_env
 
 
 #: The simulators' command line, as /proc shows it (NUL-separated): how
@@ -385,8 +386,7 @@ def measure_at(tree: str, seconds: float, warmup: float, rate: float, scene: str
     baseline's harness need not know the option.  ``compile_kernels``: first fill the
     checkout's numba cache, a baseline revision's that has one (:data:`COMPILE_KERNELS`; False when an earlier run of this
     invocation did: the cache stays in the checkout)."""
-    path = os.pathsep.join([tree, *(os.path.join(tree, d) for d in ("benchmarks", "drivers", "service"))])
-    env = {**os.environ, "PYTHONPATH": path}
+    env = checkout_env(tree, build(tree))
     with tempfile.TemporaryDirectory(prefix="tactiled-acq-base-") as d:
         out = os.path.join(d, "result.pickle")
         code = ("import pickle, sys\n"
@@ -447,11 +447,9 @@ def run(quick: bool, rate: float = 1000.0, scene: str = "demo", workers: Sequenc
     if baseline is None:
         results = [measure_in(here, w) for w in workers]
     else:
-        from tactiled_bench.speed import _checkout
-
         results = []
         with tempfile.TemporaryDirectory(prefix="tactiled-acq-") as tmp:
-            tree = _checkout(baseline, tmp)
+            tree = checkout(baseline, tmp)
             for w in workers:
                 for mine in (True, False, False, True):
                     r = measure_in(here if mine else tree, w)

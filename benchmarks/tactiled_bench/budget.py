@@ -288,17 +288,17 @@ def _run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> 
     must be JSON."""
     import inspect
     import json
-    import os
     import subprocess
     import sys
 
-    path = os.pathsep.join([tree, *(os.path.join(tree, d) for d in ("benchmarks", "drivers", "service"))])
+    from tactiled_bench.checkout import build, checkout_env
+
     source = "\n".join(["from typing import Any", *preamble, inspect.getsource(func),
                         "if __name__ == '__main__':",
                         "    import json",
                         f"    print(json.dumps({call}))"])
     out = subprocess.run([sys.executable, "-c", source], cwd=tree, capture_output=True,
-                         text=True, env={**os.environ, "PYTHONPATH": path})
+                         text=True, env=checkout_env(tree, build(tree)))
     if out.returncode != 0:
         raise RuntimeError(f"{func.__name__} on {tree} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -331,10 +331,10 @@ def _baseline_tree(rev: str | None) -> Iterator[str | None]:
         return
     import tempfile
 
-    from tactiled_bench.speed import _checkout
+    from tactiled_bench.checkout import checkout
 
     with tempfile.TemporaryDirectory(prefix="tactiled-budget-base-") as tmp:
-        yield _checkout(rev, tmp)
+        yield checkout(rev, tmp)
 
 
 def _cli() -> None:

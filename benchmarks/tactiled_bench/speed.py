@@ -14,15 +14,14 @@ are what count.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import tarfile
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from tactiled_bench.checkout import build, checkout, checkout_env
 from tactiled_bench.runner import Progress
 from tactiled_bench.speed_worker import KINDS
 from tactiled_bench.suite import BENCH_NOISE, issue_cylinder
@@ -36,12 +35,12 @@ ROOT = HERE.parents[2]
 
 
 class _Server:
-    def __init__(self, pythonpath: str, frames: str, label: str) -> None:
-        env = {**os.environ, "PYTHONPATH": pythonpath}
+    def __init__(self, tree: str, frames: str, label: str) -> None:
+        env = checkout_env(tree, build(tree))
         self.label = label
         self.proc = subprocess.Popen([sys.executable, str(HERE.with_name("speed_worker.py")), frames],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env,
-                                     cwd=pythonpath)
+                                     cwd=tree)
         ready = self.proc.stdout.readline()
         if not ready:
             raise RuntimeError(f"the {label} fit server did not start")
@@ -54,18 +53,6 @@ class _Server:
     def close(self) -> None:
         self.proc.stdin.close()
         self.proc.wait(timeout=30)
-
-
-def _checkout(rev: str, into: str) -> str:
-    """``git archive REV`` extracted under ``into``; returns its path."""
-    out = Path(into) / f"tactiled-{rev}"
-    out.mkdir()
-    blob = subprocess.run(["git", "-C", str(ROOT), "archive", rev], check=True, capture_output=True).stdout
-    tar_path = Path(into) / "rev.tar"
-    tar_path.write_bytes(blob)
-    with tarfile.open(tar_path) as tar:
-        tar.extractall(out, filter="data")
-    return str(out)
 
 
 def run(quick: bool, progress: bool | None, baseline: str | None) -> str:
@@ -83,7 +70,7 @@ def run(quick: bool, progress: bool | None, baseline: str | None) -> str:
         np.savez(path, frames=np.array(frames), again=np.array(again))
         servers = [_Server(str(ROOT), path, "this tree")]
         if baseline:
-            servers.append(_Server(_checkout(baseline, tmp), path, f"baseline {baseline}"))
+            servers.append(_Server(checkout(baseline, tmp), path, f"baseline {baseline}"))
         out: dict[tuple[str, str], dict[str, list[float]]] = {}
         bar = Progress(len(KINDS) * n * len(servers), "speed", progress)
         try:

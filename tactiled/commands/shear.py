@@ -5,7 +5,8 @@ zeroed readings (x, y, z; z positive into the cover), and ``sensor``, the descri
 or path; ``tactiled simulate --sensor NAME`` on a 3-axis description writes one, with the truth
 (``true_*``, tactiled/sim/shear.py), and ``tactiled fit`` reads it.  Frames of a ``sequence``
 index (written with ``--load push|twist|pull``) are consecutive frames at ``rate_hz``, and the
-slip detector (tactiled/fit/slip.py) runs along each sequence.
+slip detector (tactiled/fit/slip.py) runs along each sequence as in the daemon: each frame is
+fitted, estimated by the step from that fit (``SlipDetector.track``), and fed to the detector.
 
 Each output line of ``tactiled fit``: ``{"frame", "contact", "model": "sphere", "x_mm",
 "y_mm", "force_n", "r1_mm", "std": {...}, "shear": {"fx_n", "fy_n", "torque_nmm",
@@ -145,7 +146,8 @@ def fit_lines(desc: SensorDescription, taxels: np.ndarray, sequence: np.ndarray 
         chi2 = float(np.sum((frame / noise) ** 2))
         n = frame.size
         if chi2 - n < CONTACT_SIGMAS * math.sqrt(2.0 * n):
-            prev = None
+            if prev is not None:  # the contact ended: the next one starts afresh, as in the daemon
+                detector, prev = SlipDetector(), None
             yield {"frame": i, "contact": False, "message": "no contact: below the noise threshold"}
             continue
         est = fitter.fit(frame, start=prev if sequence is not None else None)
@@ -153,9 +155,9 @@ def fit_lines(desc: SensorDescription, taxels: np.ndarray, sequence: np.ndarray 
         out = est.to_json()
         event = None
         if sequence is not None:
-            state, ev = detector.feed(i, est)
-            if state is not None:
-                out["slip"]["state"] = state
+            # the daemon's path (tactiled.pipeline.shear_track): the frame estimated by the step
+            # from the newest fit (here its own: lam before the clip), then the detector
+            _, out["slip"]["state"], ev = detector.track(i, fitter.step(est), frame)
             event = None if ev is None else ev.kind
         out["slip"]["event"] = event
         contact = out.pop("contact")

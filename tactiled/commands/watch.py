@@ -19,8 +19,8 @@ connect), --connect replacing connect; it never listens.
 
 With --ros2 it prints what a ROS 2 subscriber of the daemons' ROS 2 topics receives
 (docs/howto/ros2.md; needs the ros2 extra, and the zenoh extra for Zenoh): every wrench, contact
-and markers message (with --frames the strain images too, and /diagnostics), decoded, one JSON
-object per line: "topic", "type", "sequence_number" and "source_timestamp_ns" (the rmw_zenoh
+and markers message (with --frames the strain and 3-axis taxels images too, and /diagnostics),
+decoded, one JSON object per line: "topic", "type", "sequence_number" and "source_timestamp_ns" (the rmw_zenoh
 attachment; on DDS the writer's timestamp and no sequence number), "message" (the message's
 fields).  --ros2-middleware reads DDS or Zenoh (default: Zenoh with --connect, else as [ros2]
 middleware says, "auto" being Zenoh when [zenoh] is enabled, else DDS).  --domain-id picks the

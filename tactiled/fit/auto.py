@@ -4,18 +4,25 @@ ellipse, ranked by BIC with known noise, ``chi^2 + k ln n`` (Schwarz; docs/conce
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from tactiled.fit import compiled, search
-from tactiled.fit.linewindow import chi2_on_band
+from tactiled.fit.linewindow import RIDGE_ELONGATION, chi2_on_band
 from tactiled.fit.models import get_model
 from tactiled.fit.result import FitResult
 
 if TYPE_CHECKING:
     from tactiled.fit.fitter import Fitter
+
+#: What a round blob's sphere says (:meth:`ModelSelector.sphere_alone`), as auto says of a line
+#: that explains its band
+ROUND_MESSAGE = "a round blob the sphere explains to the noise: no other model tried"
 
 
 class ModelSelector:
@@ -23,6 +30,25 @@ class ModelSelector:
 
     def __init__(self, fitter: Fitter) -> None:
         self.fitter = fitter
+        #: a contact sought among several: on a curved array the cylinder is scouted
+        #: (:meth:`among_several`) ...
+        self.several = False
+        #: ... and where its strain is a round blob, the sphere is tried alone first
+        self.round = False
+
+    @contextmanager
+    def among_several(self, on: bool = True, round_blob: bool = False) -> Iterator[None]:
+        """While open (``on``), a cold auto fit is one contact's among several: on a curved
+        array its cylinder is a scout, as a flat array's line is, ranked by its chi^2 and
+        solved fully only if it is the answer (its sigmas, profile tests and model-error check
+        made once, not for every contact a frame of several seeks); with ``round_blob``
+        (:func:`round_blob`) the sphere is tried alone first (:meth:`sphere_alone`)."""
+        before = self.several, self.round
+        self.several, self.round = on, on and round_blob
+        try:
+            yield
+        finally:
+            self.several, self.round = before
 
     def fit(self, strain: np.ndarray, mask: np.ndarray | None,
             warm: tuple[str, tuple[float, ...]] | None = None) -> FitResult:
@@ -50,15 +76,20 @@ class ModelSelector:
                     and not self.runs_off(kept):
                 kept.message = f"model {warm[0]} kept from the previous frame; {kept.message}"
                 return kept
+        if self.round and warm is None:
+            alone = self.sphere_alone(strain, mask)
+            if alone is not None:
+                return alone
         held = f._budget.hold(0.5) if f._budget is not None else None
         flat = f.sensor.geometry.flat
+        point_scout = self.several and not flat  # the cylinder scouted (among_several)
         cyl = f.line.fit(strain, None, mask, scout_first=True) if flat \
-            else f._fit_cylinder(strain, None, mask)
+            else f._fit_model(strain, get_model("cylinder"), None, mask, scouting=point_scout)
         scouted = flat and f.line.scouted and cyl.params is not None
         if held is not None:
             f._budget.release(held)
         if not cyl.contact or cyl.chi2 is None or cyl.params is None or f._out_of_time():
-            return cyl
+            return self.solved(strain, mask, cyl) if point_scout else cyl
         if f.line.explains(cyl):
             cyl.message = f"the line explains the window to the noise: no other model tried; {cyl.message}"
             return cyl
@@ -68,7 +99,7 @@ class ModelSelector:
                               scouting=True)
         fits.append(sph)
         if f._out_of_time():
-            return self.cut_short(cyl, fits)
+            return self.cut_short(cyl, fits, self.solved(strain, mask, cyl) if point_scout else None)
         gen_model = get_model("general")
         gen_starts: list[tuple[np.ndarray, float | None]] = [
             (np.array([ln_r, 0.2, psi, ln_f, x0, y0]), None)]
@@ -80,7 +111,8 @@ class ModelSelector:
                 for p0, c0 in gen_starts]
         fits.append(min(gens, key=lambda r: r.chi2 if r.chi2 is not None else math.inf))
         if f._out_of_time():
-            return self.cut_short(cyl, [cyl, sph, *gens])
+            return self.cut_short(cyl, [cyl, sph, *gens],
+                                  self.solved(strain, mask, cyl) if point_scout else None)
         crit = self.criteria(fits, cyl, strain, mask)
         best = min(fits, key=lambda r: crit[r.model])
         if best.model == "general" and best.params is not None and not f._out_of_time():
@@ -101,7 +133,7 @@ class ModelSelector:
             best = cyl  # an ellipse longer than the array is the line the cylinder model fits
         iterations = sum(r.iterations for r in fits)
         evaluations = sum(r.evaluations for r in fits)
-        resolved = best is not cyl and best.params is not None
+        resolved = (best is not cyl or point_scout) and best.params is not None
         if best is cyl and scouted and not f._out_of_time():  # the line, scouted: solve it
             best = f.line.solve(strain, cyl, mask)
             iterations += best.iterations - cyl.iterations
@@ -116,6 +148,38 @@ class ModelSelector:
         best.iterations = iterations
         best.evaluations = evaluations + (best.evaluations if resolved else 0)
         return best
+
+    def sphere_alone(self, strain: np.ndarray, mask: np.ndarray | None) -> FitResult | None:
+        """The sphere, when its scout converges with chi^2 consistent with the noise
+        (:func:`tactiled.fit.search.consistent`) and no end beyond the array
+        (:meth:`runs_off`), solved fully from there; else None, the budget as it was, and
+        the full choice follows.  The mirror of :meth:`tactiled.fit.linefit.LineFit.explains`:
+        where the sphere explains a round blob, a line (four parameters too) has no ridge to
+        follow and the general ellipse's two more could only fit the noise, so neither is
+        scouted (two searches of the sphere instead of auto's five or six)."""
+        f = self.fitter
+        saved = dataclasses.replace(f._budget) if f._budget is not None else None
+        sphere = get_model("sphere")
+        scout = f._fit_model(strain, sphere, None, mask, scouting=True)
+        if (scout.contact and scout.converged and scout.chi2 is not None and scout.params is not None
+                and search.consistent(f, scout) and not self.runs_off(scout) and not f._out_of_time()):
+            best = f._fit_model(strain, sphere, np.asarray(scout.params), mask, start_chi2=scout.chi2)
+            if best.contact and best.params is not None and not self.runs_off(best):
+                best.iterations += scout.iterations
+                best.evaluations += scout.evaluations
+                best.message = f"{ROUND_MESSAGE}; {best.message}"
+                return best
+        if saved is not None:
+            f._budget = saved  # the full choice spends what it would have had
+        return None
+
+    def solved(self, strain: np.ndarray, mask: np.ndarray | None, scout: FitResult) -> FitResult:
+        """A point model's scout solved fully from where it stopped (or, the budget spent,
+        reported there, not converged)."""
+        if not scout.contact or scout.params is None or scout.model is None:
+            return scout
+        return self.fitter._fit_model(strain, get_model(scout.model), np.asarray(scout.params), mask,
+                                      start_chi2=scout.chi2)
 
     def criteria(self, fits: list[FitResult], cyl: FitResult, strain: np.ndarray,
                   mask: np.ndarray | None) -> dict[str, float]:
@@ -133,13 +197,17 @@ class ModelSelector:
             crit[r.model] = (chi2 if chi2 is not None else math.inf) + k * math.log(max(n, 2))
         return crit
 
-    def cut_short(self, cyl: FitResult, fits: list[FitResult]) -> FitResult:
+    def cut_short(self, cyl: FitResult, fits: list[FitResult],
+                  solved: FitResult | None = None) -> FitResult:
         """Auto's answer when its budget ran out while it scouted the other models: the
-        cylinder, fully solved, with every search's iterations and evaluations; the scouts,
-        unfinished, cannot be ranked.  ``fit`` says the choice stopped short."""
-        cyl.iterations = sum(r.iterations for r in fits)
-        cyl.evaluations = sum(r.evaluations for r in fits)
-        return cyl
+        cylinder, fully solved (``solved``: the scouted cylinder's solve, among several),
+        with every search's iterations and evaluations; the scouts, unfinished, cannot be
+        ranked.  ``fit`` says the choice stopped short."""
+        out = cyl if solved is None else solved
+        done = fits if solved is None else [*fits, solved]
+        out.iterations = sum(r.iterations for r in done)
+        out.evaluations = sum(r.evaluations for r in done)
+        return out
 
     def runs_off(self, res: FitResult) -> bool:
         """On a flat array: ``res`` (a general or sphere fit) is an ellipse whose both ends lie
@@ -158,3 +226,18 @@ class ModelSelector:
         ends = ((x0 + s * a * math.cos(theta), y0 + s * a * math.sin(theta)) for s in (-1.0, 1.0))
         return all(not (-g.dx <= x <= g.span_x + g.dx and -g.dy <= y <= g.span_y + g.dy)
                    for x, y in ends)
+
+
+# -- a ball among several contacts ----------------------------------------------------------
+
+def round_blob(band: np.ndarray) -> bool:
+    """On a flat array: the line's ``band`` (a boolean frame: the tactels that see the strain
+    through the peak, :func:`tactiled.fit.linewindow.band`) is no ridge, at most
+    ``RIDGE_ELONGATION`` times as long as wide (second moments of at least three tactels).
+    A line's band runs from border to border, three to six tactels wide; a ball's is a disc
+    (its half-peak tactels, one to four on a 16x16 pad, are too few to have a shape)."""
+    m, n = np.nonzero(band)
+    if m.size < 3:
+        return False
+    w = np.linalg.eigvalsh(np.cov(np.vstack((m, n)).astype(float)))
+    return bool(w[1] <= w[0] * RIDGE_ELONGATION ** 2)

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from tactiled.fit.auto import round_blob
 from tactiled.fit.linearize import SeveralLinearizations
 from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
@@ -109,14 +110,21 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
     first_warm = warm
     if warm is not None and warm[0] == SEVERAL:  # the last frame's contact at the highest peak
         first_warm = starts[0] if starts else None
-    first_model = model
-    if model == "auto" and first_warm is None and len(regions) > 1 and fitter.sensor.geometry.flat:
+    first_model, round_first = model, False
+    # the first of several separate regions is fitted as one of several contacts (below);
+    # if one contact is found after all, it is fitted again as Fitter.fit does
+    several = model == "auto" and first_warm is None and len(regions) > 1
+    flat_array = fitter.sensor.geometry.flat
+    if several and flat_array:
         # a ridge across the array beside other contacts is a line: fitted as one, without
-        # auto's search of the ellipses that its neighbours' strain in its band would start
+        # auto's search of the ellipses that its neighbours' strain in its band would start;
+        # a round blob beside them that the sphere explains is a ball, without auto's scouts
         across, seen = runs_across(fitter, flat, mask)
         if across and any(not seen[reg.peak_idx] for reg in regions):
             first_model = "cylinder"
-    res = fitter.fit(strain, first_model, mask=mask, warm=first_warm, budget_s=budget_s)
+        round_first = not across and seen is not None and round_blob(seen)
+    with fitter.selector.among_several(several, round_first):
+        res = fitter.fit(strain, first_model, mask=mask, warm=first_warm, budget_s=budget_s)
     usable = np.isfinite(flat) if mask is None else np.asarray(mask, dtype=bool) & np.isfinite(flat)
     predict = Predictions(lambda r: predicted_strain(fitter, r))
     kept: list = []
@@ -129,9 +137,12 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
            and unexplained(fitter, flat, usable, res, predict))
     if res.contact and (len(regions) > 1 or one):
         deadline = None if budget_s is None else t0 + budget_s
-        kept = select(fitter, np.asarray(strain, dtype=float), flat, model, usable, res,
-                      max(len(regions), 2), deadline, predict, lambda s: _raw(fitter, s))
+        with fitter.selector.among_several():
+            kept = select(fitter, np.asarray(strain, dtype=float), flat, model, usable, res,
+                          max(len(regions), 2), deadline, predict, lambda s: _raw(fitter, s))
     if len(kept) < 2:
+        if round_first or (several and not flat_array):  # one contact: Fitter.fit's answer
+            res = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=budget_s)
         if res.contact and regions and (
                 (regions[0].absorbed and _merged(fitter, flat, res, regions[0]))
                 or one):

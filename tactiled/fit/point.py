@@ -15,8 +15,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactiled.fit import compiled, search, uncertainty
-from tactiled.fit.models import Model
-from tactiled.fit.profile import PROFILE_SIGMAS, angle_profile, flat_below, withhold_flat
+from tactiled.fit.models import Model, get_model
+from tactiled.fit.profile import (PROFILE_SIGMAS, angle_profile, flat_below, r2_profile,
+                                  round_test, withhold_flat)
 from tactiled.fit.result import FitResult
 from tactiled.fit.search import SCOUT_ITERATIONS, STOP_CHI2, bounds_of, steps_of
 from tactiled.fit.solver import SolveResult
@@ -82,6 +83,24 @@ class PointFit:
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, 2, sd_angle, scan=()),
                 key="angle_deg")
+        if best.converged and model.name == "general" and res.values.get("angle_deg") is not None:
+            # an ellipse not told from a circle has no orientation
+            withhold_flat(res.values, res.std, res.reasons, round_test(
+                f, fr, best.p, steps_of(model), bounds_of(model), lambda: f._residual(fr, model),
+                lambda: f._residual(fr, get_model("sphere")), res.chi2, res.values, res.std),
+                key="angle_deg")
+        if best.converged and model.name == "general":
+            # the larger radius on its profile, both sides (a light ellipsoid's valley where
+            # both radii shrink together: tactiled.fit.profile.r2_profile); a test the budget
+            # cuts short is not used, and does not make the fit a stopped one
+            budget = f._budget
+            spent = budget is None or budget.exhausted
+            withhold_flat(res.values, res.std, res.reasons, r2_profile(
+                f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
+                lambda: f._residual(fr, model), res.chi2, res.values.get("r2_mm"),
+                res.std.get("r2_mm")), key="r2_mm")
+            if not spent:
+                budget.exhausted = False
         return res
 
     def cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.fit.params import TOO_LIGHT
+from tactiled.fit.params import MAX_ANGLE_SIGMA, TOO_LIGHT
 
 #: The radius's relative 1-sigma (of its log) above which its lower side is tested.
 TEST_RELATIVE_SIGMA = 0.1
@@ -35,6 +35,20 @@ FLAT_CHI2 = 1.0
 #: A contact of this radius (mm) is an edge (the paper's Table 2 label: r1 < 1 mm): a radius
 #: that an edge explains as well, within two sigmas, is not resolved.
 EDGE_MM = 1.0
+#: An ellipse's larger radius whose likelihood rises slowly above it (under ``PROFILE_SIGMAS^2``
+#: at ``PROFILE_SIGMAS`` sigmas) and whose sigma, so widened, is at least this many times it
+#: is withheld: its curvature lies within half a sigma of zero (a cylinder's).  Measured on
+#: the paper's finger's light ellipsoids (``tactiled bench --suite sensors``): such values
+#: lay 5-16 Cramer-Rao bounds from the truth; at 1 instead of 2, 13-19 % of the values the
+#: bound at the truth resolves were withheld, at 2, 4-9 %.
+CYLINDER_RELATIVE_SIGMA = 2.0
+#: An ellipse whose sphere (its radii held equal) raises chi^2 by less than this is not told
+#: from a circle: its orientation is withheld (:func:`round_test`); by less than
+#: ``ROUND_SCAN_CHI2`` (radii told apart by under five sigmas) its orientation's profile is
+#: evaluated at ``ROUND_SCAN_DEG`` from the solution.
+ROUND_CHI2 = FLAT_CHI2
+ROUND_SCAN_CHI2 = 25.0
+ROUND_SCAN_DEG = (-30.0, -15.0, 15.0, 30.0, 45.0)
 #: The words of the reason (the tracker keeps such a radius withheld until the frames it
 #: pools give it a relative sigma of at most ``TEST_RELATIVE_SIGMA``, where it is not tested).
 FLAT = "the likelihood is flat below it"
@@ -129,16 +143,147 @@ def angle_profile(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndar
     return max(dist / math.sqrt(rise) for dist, rise in points)
 
 
+def swapped(p: np.ndarray) -> np.ndarray | None:
+    """The general model's vector ``p`` (``[ln R_a, beta, psi, ...]``) written with its first
+    entry the log of r2, the larger radius (the same contact: ``kappa_b = beta^2 kappa_a``, so
+    ``R_a' = R_a / beta^2``, ``beta' = 1 / beta``, ``psi' = psi + 90 deg``); None for a
+    cylinder (``beta = 0``: r2 infinite)."""
+    q = np.array(p, dtype=float)
+    b2 = q[1] * q[1]
+    if b2 <= 0.0:
+        return None
+    if b2 < 1.0:
+        q[0] -= math.log(b2)
+        q[1] = 1.0 / q[1]
+        q[2] += 0.5 * math.pi
+    return q
+
+
+def r2_profile(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
+               bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
+               r2: float | None, sd_r2: float | None) -> str | float | None:
+    """An ellipse's larger radius ``r2`` (mm; 1-sigma ``sd_r2``) on its profile likelihood,
+    tested on both sides: chi^2 minimised again with ``ln r2`` held ``PROFILE_SIGMAS`` of its
+    sigmas above and below (the general model's vector :func:`swapped` so that its first
+    entry is ``ln r2``, then held as :func:`flat_below` holds a radius).  A light ellipsoid
+    on the paper's finger lies in a curved valley where both radii shrink together: its fit
+    lands at radii 3-4 times too small with a linearised sigma of 20-25 % (up to 15 sigmas
+    off) though a radius twice as large explains the frame within a chi^2 of 1.  The smaller
+    rise decides, as for a line's orientation (:func:`angle_profile`): below ``FLAT_CHI2``
+    the reason to withhold it, below ``PROFILE_SIGMAS^2`` its widened sigma, else None."""
+    if r2 is None or sd_r2 is None or not (r2 > 0.0 and sd_r2 > 0.0):
+        return None
+    s = sd_r2 / r2
+    q = swapped(p)
+    if s <= TEST_RELATIVE_SIGMA or q is None:
+        return None
+    lo, hi = np.array(bounds[0], dtype=float), np.array(bounds[1], dtype=float)
+    # beta' >= 1: the radius held is the larger one (held below r1 otherwise, the other
+    # radius would take r2's place and the profile be r1's)
+    lo[1] = max(lo[1], 1.0)
+    q[1] = abs(q[1])
+    points = []
+    above = False  # the likelihood rises by under PROFILE_SIGMAS^2 at the upper point
+    for side in (-1.0, 1.0):
+        at = float(q[0]) + side * PROFILE_SIGMAS * s
+        if not lo[0] < at < hi[0]:
+            above |= side > 0.0  # two sigmas reach beyond the box (200 m): a cylinder's test
+            continue
+        # started with r1 where the solution has it (r1 = R_a' / beta'^2), or a sphere
+        start = q.copy()
+        start[1] = max(1.0, math.sqrt(math.exp(at - float(q[0]))) * q[1])
+        rise = _rise(fitter, fr, kind, start, steps, (lo, hi), python_residual, chi2, at)
+        if rise is not None and rise < PROFILE_SIGMAS ** 2:
+            points.append((r2 * abs(math.exp(at - float(q[0])) - 1.0), rise, side))
+            above |= side > 0.0
+    flat = [pt for pt in points if pt[1] < FLAT_CHI2]
+    if flat:
+        dist, rise, side = max(flat)
+        return (f"{TOO_LIGHT}: the likelihood is flat {'above' if side > 0 else 'below'} it "
+                f"(chi^2 rises by {max(rise, 0.0):.2g}, not {PROFILE_SIGMAS ** 2:g}, at "
+                f"{r2 + side * dist:.3g} mm, {PROFILE_SIGMAS:g} sigmas "
+                f"{'larger' if side > 0 else 'smaller'}): its sigma does not hold")
+    wide = max((dist / math.sqrt(rise) for dist, rise, _ in points), default=None)
+    if above and (wide is None or wide >= CYLINDER_RELATIVE_SIGMA * r2):
+        # slow to rise above, and so wide that its curvature 1/r2 (in which the likelihood
+        # is nearer quadratic) lies within half a sigma of zero, a cylinder's
+        return (f"{TOO_LIGHT}: not told from a cylinder: the likelihood is flat above it "
+                f"(its sigma {'reaches past 200 m' if wide is None else f'is {100 * wide / r2:.0f} % of it'}"
+                ": its curvature within half a sigma of zero)")
+    return wide
+
+
+def round_test(fitter: Any, fr: Any, p: np.ndarray, steps: np.ndarray,
+               bounds: tuple[np.ndarray, np.ndarray], residual: Any, sphere_residual: Any,
+               chi2: float, values: dict, std: dict) -> str | float | None:
+    """An ellipse's orientation (the general model at ``p``, chi^2 ``chi2``; ``values`` and
+    ``std`` its report) where its two radii may not be told apart: the reason to withhold it,
+    its honest sigma (deg) where its profile is wider than its linearised sigma, or None.
+
+    Near a circle the orientation lives in the difference of the curvatures, whose fitted size
+    the noise biases up (a Rice distribution), so the linearised sigma, taken at that size,
+    is too small, and the profile likelihood is no parabola: a narrow well at the fit, flat at
+    a few units of chi^2 beyond.  On the XELA 4x6 pad, near-spheres (radii 1.0-1.4 times
+    apart) at 1-2 N published 13 of 64 angles beyond 4 sigmas (60 deg off with a sigma of 2).
+    So chi^2 is minimised again as a sphere (one search, ``sphere_residual``): under
+    ``ROUND_CHI2`` above, the radii are not told apart and the orientation is withheld; under
+    ``ROUND_SCAN_CHI2`` the profile of the orientation is evaluated at ``ROUND_SCAN_DEG``
+    (turned 90 deg with its radii swapped an ellipse is the same one, so 45 deg is the
+    farthest): its sigma is widened to the widest the points imply (each ``sqrt(rise)``
+    sigmas away: far points too, where the well is narrow and the profile beyond it flat),
+    and withheld where that is over ``MAX_ANGLE_SIGMA`` (the one rule's bound).
+    A contact neither of whose radii is resolved (withheld, or a sigma reaching zero) is not
+    told from a point, which has no orientation: withheld without a search."""
+    b2 = float(p[1]) ** 2
+    if not b2 > 0.0:
+        return None  # a cylinder: no circle near
+    if all(values.get(k) is None or not (std.get(k) or math.inf) < values[k]
+           for k in ("r1_mm", "r2_mm")):
+        return ("orientation not observable: neither radius is resolved (the contact is not "
+                "told from a point)")
+    from tactiled.fit.models import get_model
+    from tactiled.fit.search import bounds_of, steps_of
+    sphere = get_model("sphere")
+    # the geometric mean of the two radii, the force and the place
+    start = np.array([float(p[0]) - 0.5 * math.log(b2), float(p[3]), float(p[4]), float(p[5])])
+    sol, _ = fitter._search(fr, 1, [start], steps_of(sphere), bounds_of(sphere),
+                            fitter.options.max_iter, 1e-2, sphere_residual)
+    if not sol.converged or not math.isfinite(sol.cost):
+        return None
+    rise = sol.cost * (fr.peak / fitter.sigma) ** 2 - chi2
+    if rise < ROUND_CHI2:
+        return (f"orientation not observable: the two radii are not told apart (a sphere "
+                f"explains the frame within a chi^2 of {max(rise, 0.0):.2g}, under {ROUND_CHI2:g})")
+    if rise >= ROUND_SCAN_CHI2 and all(
+            values.get(k) is not None and (std.get(k) or math.inf) <= TEST_RELATIVE_SIGMA * values[k]
+            for k in ("r1_mm", "r2_mm")):
+        return None
+    points = []
+    for off in ROUND_SCAN_DEG:
+        r = _rise(fitter, fr, 2, p, steps, bounds, residual, chi2,
+                  float(p[2]) + math.radians(off), 2)
+        if r is not None:
+            points.append((abs(off), max(r, 1e-12)))
+    # every point, however far, lies sqrt(rise) sigmas away: the widest sigma that says so
+    wide = max(points, key=lambda pt: pt[0] / math.sqrt(pt[1]), default=None)
+    if wide is not None and wide[0] / math.sqrt(wide[1]) > MAX_ANGLE_SIGMA:
+        return (f"orientation not observable: {FLAT_ACROSS} (the ellipse turned {wide[0]:g} "
+                f"deg explains the frame within a chi^2 of {wide[1]:.2g}: a sigma over "
+                f"{MAX_ANGLE_SIGMA:g} deg): its sigma does not hold")
+    return None if wide is None else wide[0] / math.sqrt(wide[1])
+
+
 def _rise(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
           bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
-          at: float, index: int = 0) -> float | None:
+          at: float, index: int = 0, cap: int | None = None) -> float | None:
     """chi^2 minimised with the parameter ``index`` (default the log radius) held at ``at``,
-    less ``chi2``; None where the search did not converge."""
+    less ``chi2``; None where the search did not converge (within ``cap`` iterations: by
+    default the fit's own cap)."""
     lo, hi = bounds[0].copy(), bounds[1].copy()
     lo[index] = hi[index] = at
     start = np.array(p, dtype=float)
     start[index] = at
-    sol, _ = fitter._search(fr, kind, [start], steps, (lo, hi), fitter.options.max_iter,
+    sol, _ = fitter._search(fr, kind, [start], steps, (lo, hi), cap or fitter.options.max_iter,
                             1e-2, python_residual)
     if not sol.converged or not math.isfinite(sol.cost):
         return None

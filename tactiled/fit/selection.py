@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from tactiled.fit.auto import round_blob
 from tactiled.fit.linewindow import runs_across
 from tactiled.fit.models import get_model
 from tactiled.fit.regions import SIGNIFICANT_Z, SUPPORT_Z, Region
@@ -100,10 +101,15 @@ def select(fitter: Any, strain: np.ndarray, flat: np.ndarray, model: str, usable
             break
         budget = None if deadline is None else max(deadline - time.perf_counter(), 0.0)
         rest = strain - raw(total)
-        cand_model = model
-        if model == "auto" and fitter.sensor.geometry.flat and runs_across(fitter, fitter.flattened(rest), free)[0]:
-            cand_model = "cylinder"  # a ridge across the array: a line, no ellipse search
-        cand = fitter.fit(rest, cand_model, mask=free, budget_s=budget)
+        cand_model, round_first = model, False
+        if model == "auto" and fitter.sensor.geometry.flat:
+            across, band = runs_across(fitter, fitter.flattened(rest), free)
+            if across:
+                cand_model = "cylinder"  # a ridge across the array: a line, no ellipse search
+            else:  # a ball's round blob: the sphere alone, if it explains it
+                round_first = band is not None and round_blob(band)
+        with fitter.selector.among_several(round_blob=round_first):
+            cand = fitter.fit(rest, cand_model, mask=free, budget_s=budget)
         cand_pred = predict(cand) if cand.contact else None
         if cand_pred is None:
             break

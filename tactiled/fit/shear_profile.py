@@ -29,8 +29,12 @@
 # the interval's lower end is the *selective* one, the least ``lam`` whose truncated law
 # (``lam`` Gaussian with its bound there, given that it cleared ``L``) still puts the
 # estimate within its upper 2.5 % (Fithian, Sun and Taylor, "Optimal inference after model
-# selection", 2014), at most :data:`SELECT_CAP` bounds below the estimate.  Far above ``L``
-# this is the ordinary interval.
+# selection", 2014), at most :data:`SELECT_CAP` sigma below the estimate: the farther of
+# SELECT_CAP bounds at the estimate and the profile's own SELECT_CAP-sigma end (``chi2`` within
+# SELECT_CAP^2 of its least).  The bound shrinks fast toward slip: at an estimate near the bound
+# 1 three bounds there reach a short way down, while the profile, flat toward full stick, says
+# how far the likelihood reaches (a truth 2.5 sigma down a correct profile lay beyond the
+# three bounds).  Far above ``L`` this is the ordinary interval.
 
 from __future__ import annotations
 
@@ -63,6 +67,9 @@ class LamInterval:
     #: The Cramer-Rao bound (1 sigma) of ``lam`` at each ``lam`` of :data:`GRID` (the other
     #: parameters profiled out), or None: what decides whether ``mu`` is resolved.
     bound: tuple[float, ...] | None = None
+    #: The lower end of the profile's :data:`SELECT_CAP`-sigma interval (``chi2`` within
+    #: ``SELECT_CAP^2`` of its least), or None: how far down the selective end may reach.
+    far_lo: float | None = None
 
     def widened(self, lam: float, sigma: float) -> LamInterval:
         """The union with the linearised 2-sigma interval ``lam +/- 2 sigma`` (clipped to [0,
@@ -70,15 +77,17 @@ class LamInterval:
         it, the profile interval shrinks as the data stray further past the bound, and a
         decision on its width alone would favour exactly those frames."""
         if not math.isfinite(sigma):
-            return LamInterval(0.0, 1.0, self.best, self.bound)
+            return LamInterval(0.0, 1.0, self.best, self.bound, self.far_lo)
         return LamInterval(max(0.0, min(self.lo, lam - 2.0 * sigma)), min(1.0, max(self.hi, lam + 2.0 * sigma)),
-                           self.best, self.bound)
+                           self.best, self.bound, self.far_lo)
 
     def shifted(self, delta: float) -> LamInterval:
         """The interval moved by ``delta`` in ``lam`` (clipped to [0, 1]): a step's estimate."""
         def clip(v: float) -> float:
             return min(1.0, max(0.0, v))
-        return LamInterval(clip(self.lo + delta), clip(self.hi + delta), clip(self.best + delta), self.bound)
+        far = None if self.far_lo is None else clip(self.far_lo + delta)
+        return LamInterval(clip(self.lo + delta), clip(self.hi + delta), clip(self.best + delta), self.bound,
+                           far)
 
     def sigma_at(self, lam: float) -> float:
         """The bound of ``lam`` at ``lam`` (interpolated on the grid; inf without bounds)."""
@@ -110,11 +119,14 @@ class LamInterval:
     def selective_lo(self, s_ln_qp: float, limit: float) -> float:
         """The published lower end of ``lam``: the profile's, widened to the selective end
         (the estimate published because it cleared :meth:`threshold`), capped at
-        :data:`SELECT_CAP` bounds below the estimate."""
+        :data:`SELECT_CAP` sigma below the estimate (the farther of that many bounds at the
+        estimate and the profile's own end, :attr:`far_lo`)."""
         x, cut = self.best, self.threshold(s_ln_qp, limit)
         if not math.isfinite(cut):
             return self.lo
         floor = max(0.0, x - SELECT_CAP * self.sigma_at(x))
+        if self.far_lo is not None:
+            floor = min(floor, self.far_lo)
         end = x
         for theta in np.linspace(x, floor, 61)[1:]:
             s = self.sigma_at(float(theta))
@@ -158,11 +170,11 @@ def lam_interval(residual: Callable[[np.ndarray], np.ndarray], params: np.ndarra
         j = int(np.clip(np.searchsorted(GRID, params[7]), 1, GRID.size - 1))
         return LamInterval(float(GRID[j - 1]), float(GRID[j]), float(params[7]))
 
-    def cross(a: float, b: float) -> float:
-        """Bisect between ``a`` (inside) and ``b`` (outside) for the interval's end."""
+    def cross(a: float, b: float, level: float = least + TWO_SIGMA_CHI2) -> float:
+        """Bisect between ``a`` (inside: ``chi2 <= level``) and ``b`` (outside) for the end."""
         for _ in range(BISECT):
             m = 0.5 * (a + b)
-            if chi2(m) <= least + TWO_SIGMA_CHI2:
+            if chi2(m) <= level:
                 a = m
             else:
                 b = m
@@ -171,7 +183,14 @@ def lam_interval(residual: Callable[[np.ndarray], np.ndarray], params: np.ndarra
     i, j = int(idx[0]), int(idx[-1])
     lo = 0.0 if i == 0 else cross(float(GRID[i]), float(GRID[i - 1]))
     hi = 1.0 if j == GRID.size - 1 else cross(float(GRID[j]), float(GRID[j + 1]))
-    return LamInterval(lo, hi, min(max(best, lo), hi))
+    # the profile's SELECT_CAP-sigma lower end: the first grid point down from the 2-sigma
+    # interval's whose chi2 exceeds least + SELECT_CAP^2, its crossing bisected
+    far_chi2 = least + SELECT_CAP * SELECT_CAP
+    k = i
+    while k > 0 and values[k - 1] <= far_chi2:
+        k -= 1
+    far_lo = 0.0 if k == 0 else cross(float(GRID[k]), float(GRID[k - 1]), far_chi2)
+    return LamInterval(lo, hi, min(max(best, lo), hi), far_lo=min(far_lo, lo))
 
 
 def lam_bounds(residual: Callable[[np.ndarray], np.ndarray], params: np.ndarray, jac: np.ndarray,

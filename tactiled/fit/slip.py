@@ -33,7 +33,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -171,3 +173,15 @@ class SlipDetector:
     def feed(self, frame: int, est) -> tuple[str | None, SlipEvent | None]:
         """:meth:`update` from a :class:`~tactiled.fit.shear.ShearEstimate`."""
         return self.update(frame, est.params, est.cov, est.lam_free)
+
+    def track(self, frame: int, step: Callable[[np.ndarray], Any], readings: np.ndarray
+              ) -> tuple[Any, str, SlipEvent | None]:
+        """One frame of a contact as the daemon estimates it: ``readings`` ``(rows, cols, 3)``
+        through ``step``, the newest fit's :class:`~tactiled.fit.shear.ShearStep` (its
+        estimate carries ``lam`` before the clip, which the filter needs), then the detector.
+        Returns ``(estimate, state, event)``: ``state`` is ``slip`` while sliding, else the
+        estimate's own.  The daemon (:mod:`tactiled.pipeline.shear_track`) and ``tactiled fit``
+        on a 3-axis sequence both run this."""
+        est = step(readings)
+        sliding, event = self.feed(frame, est)
+        return est, sliding or est.state(), event

@@ -61,25 +61,26 @@ from tactiled.pipeline.kernels import (
     C_LOG,
     C_LOW,
     C_MOVING,
-    PXV,
     C_POINT,
     C_R,
     DRIFT,
     MODEL_CODES,
     PVV,
     PXX,
+    STEP_REFIT,
+    STEP_RESTART,
     V,
     X,
+    TrackStep,
     estimate_numbers,
-    filter_frame,
     fold_residuals,
+    lag_variance,
     linearization_constants,
-    measure_point,
     moved_from_point,
 )
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
-#: the value (its index in VALUE_KEYS) each moving parameter's lag widens (_lag_variance)
+#: the value (its index in VALUE_KEYS) each moving parameter's lag widens (kernels.lag_variance)
 _LAG_KEY = dict(x0=VALUE_KEYS.index("x_mm"), y0=VALUE_KEYS.index("y_mm"), psi=VALUE_KEYS.index(
     "angle_deg"), ln_f=_I_FORCE)
 #: the running mean's weight of the newest frame's innovation excess: about the last two
@@ -261,6 +262,8 @@ class Tracker:
         self._judged_memo: tuple[dict[str, Any], Any] | None = None
         self._constants: tuple[tuple[str, ...], Any] = ((), None)
         self._beta_floor: tuple[int, float] | None = None
+        #: the frame's kernel on the arrays above (kernels.TrackStep; None: built at next use)
+        self._k: Any = None
 
     @property
     def x(self) -> np.ndarray | None:
@@ -306,8 +309,8 @@ class Tracker:
         # the linearisation as the measuring kernel takes it (contiguous, its dtypes)
         self._at = np.ascontiguousarray(lin.strain, dtype=np.float64)
         self._index = np.ascontiguousarray(lin.index, dtype=np.intp)
-        self._gain = np.asarray(lin.gain, dtype=np.float64)
-        self._jacobian = np.asarray(lin.jacobian, dtype=np.float64)
+        self._gain = np.ascontiguousarray(lin.gain, dtype=np.float64)
+        self._jacobian = np.ascontiguousarray(lin.jacobian, dtype=np.float64)
         self._weight = np.ascontiguousarray(lin.weight, dtype=np.float64)
         if self._constants[0] is not names:  # (a relinearisation keeps the model)
             self._constants = (names, _model_constants(names, self.geometry))
@@ -331,6 +334,7 @@ class Tracker:
                 self._c[C_LOW, i], self._c[C_HIGH, i] = -1.0, 1.0
             elif abs(float(lin.p[i])) >= 2.0:
                 self._beta_floor = (i, math.copysign(1.0, float(lin.p[i])))
+        self._k = None
 
     def wants_linearization(self) -> tuple[str, np.ndarray] | None:
         """``(model, p)``: where to linearise again, when the state has moved from the
@@ -353,39 +357,59 @@ class Tracker:
     # -- a frame --------------------------------------------------------------------------------
 
     def step(self, strain: np.ndarray, t: float, fitted: bool = False,
-             measured: tuple[np.ndarray, np.ndarray] | None = None) -> str:
+             measured: bool = False) -> str:
         """Measure one zeroed frame (flattened row-major, strain) taken at device time ``t``
         (s) and update the estimate: ``"tracked"``, ``"reset"`` (a change: the filter restarted
         from this frame) or ``"refit"`` (it needs a fit of its own: outside the linear range,
         or a jump the linearisation would measure poorly; the estimate is unchanged).
         ``fitted``: the frame is the one the current linearisation was fitted on (it is
-        measured exactly there, and a jump restarts the filter).  ``measured``: the frame's
-        :meth:`measure`, when the caller has it already."""
+        measured exactly there, and a jump restarts the filter).  ``measured``: the caller
+        has measured the frame already (:meth:`measure_at`).  One call into the kernels
+        (:class:`~tactiled.pipeline.kernels.TrackStep`): the measurement, the residual, the
+        filters and the lag; the filter's (re)start and the residuals' test stay here."""
+        k = self._kernel()
         if fitted:
-            z = self._c[C_POINT].copy()  # the fit itself: the frame's own measurement
-        else:
-            m = self.measure(strain) if measured is None else measured
-            if m is None:
-                return "refit"
-            z, e = m
-            self._ebuf += e
+            k.z[:] = self._c[C_POINT]  # the fit itself: the frame's own measurement
+        elif not (measured or k.measure(np.ascontiguousarray(strain, dtype=np.float64),
+                                        self._at)):
+            return "refit"
+        started = self._s is not None and self.t is not None
+        last = self.t
+        code = k.advance(t - last if started else math.nan, fitted)
+        if not fitted:
             self._eframes += 1
-            self._edt += 0.0 if self.t is None else max(t - self.t, 0.0)
+            self._edt += 0.0 if last is None else max(t - last, 0.0)
             if self._eframes >= MEAN_RESIDUAL_FOLD:
                 self._fold()
-        return self._filter(z, t, fitted)
+        if code == 0:
+            self.t = t
+            self.n += 1
+            return "tracked"
+        if code == STEP_REFIT:  # the estimate is unchanged (its fit will be measured from there)
+            return "refit"
+        z = k.z.tolist()
+        if code == STEP_RESTART:  # not started, or a gap in the clock: the motion model says nothing
+            self._start(z, t)
+            if not started:
+                return "tracked"
+        else:
+            # a change: the moving parameters start again from this frame; a curvature only
+            # if it changed itself (a force step does not change the object)
+            self._start(z, t, keep=[not (m or code >> i & 1) for i, m in enumerate(self._moving)])
+        self.resets += 1
+        return "reset"
 
-    def measure(self, strain: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """One frame's measurement through the linearisation, ``(z, e)`` (the parameters and
-        the residual ``J dz`` leaves), or None when the frame needs a fit of its own (outside
-        the linear range, or a step no linearisation reaches).  Changes nothing."""
+    def measure(self, strain: np.ndarray) -> bool:
+        """One frame measured through the linearisation (:meth:`measure_at`)."""
         frame = np.ascontiguousarray(strain, dtype=np.float64)
-        return self.measure_at(frame, self._index, self._at)
+        return self.measure_at(frame, self._at)
 
-    def measure_at(self, frame: np.ndarray, index: np.ndarray,
-                   at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """:meth:`measure` of ``frame[index]`` (``frame`` flat, float64) less ``at`` (the
-        linearisation's strains on its window, and whatever else the caller takes out)."""
+    def measure_at(self, frame: np.ndarray, at: np.ndarray) -> bool:
+        """``frame`` (flat, float64) measured on the window less ``at`` (the linearisation's
+        strains there, and whatever else the caller takes out): True with the measurement
+        held for :meth:`step` (``measured=True``), False when the frame needs a fit of its
+        own (outside the linear range, or a step no linearisation reaches).  Changes nothing
+        the estimate reads."""
         # The kernel's tests of the step (kernels.measure_point): a log radius or force moved
         # by more than a factor e from the point: no linear range reaches that far (a
         # release: force to zero), whatever the residual says.  Unless the step is within
@@ -399,74 +423,24 @@ class Tracker:
         # within what a finger carries (within_reason's box): a radius, force or centre no
         # frame determines (a contact at the noise, letting go) would otherwise random-walk,
         # to exp() overflow and centres a kilometre off the array (seen on release residuals).
-        ok, z, e = measure_point(frame, index, at, self._gain, self._jacobian, self._weight,
-                                 self._c, self._limit, self._ln_f, RESET_SIGMA,
-                                 MAX_LOG_FORCE_STEP)
-        if ok and self._beta_floor is not None:  # (the strain has beta^2 only)
-            i, sign = self._beta_floor
-            z[i] = sign * max(abs(float(z[i])), 1.0)
-        return (z, e) if ok else None
+        return self._kernel().measure(frame, at)
 
-    def _filter(self, z: np.ndarray, t: float, fitted: bool) -> str:
-        """The filter's update with measurement ``z`` at ``t`` (see :meth:`step`): predicted,
-        innovations tested, updated (:func:`~tactiled.pipeline.kernels.filter_frame`)."""
-        if self._s is None or self.t is None:
-            self._start(z, t)
-            return "tracked"
-        dt = t - self.t
-        if not 0.0 < dt < MAX_GAP_S:
-            self._start(z, t)
-            self.resets += 1
-            return "reset"
-        # white acceleration of density 36 R dt / tau^4 for a moving parameter: an alpha-beta
-        # filter with a window of about tau s (R: one frame's noise variance, dt: the frame
-        # period); a random walk with a memory of hold_s for a curvature
-        lagged = self._innovation_excess(z, dt)
-        jumped = filter_frame(z, self._s, self._c, dt, 36.0 * dt / self.memory_s ** 4,
-                              dt * dt / (self.hold_s * self.hold_s), fitted, RESET_SIGMA,
-                              DRIFT_ALPHA, _DRIFT_ALARM)
-        if jumped < 0:
-            # the estimate is unchanged (its fit will be measured from there)
-            return "refit"
-        if jumped:
-            # a change: the moving parameters start again from this frame; a curvature only
-            # if it changed itself (a force step does not change the object)
-            self._start(z, t, keep=[not (m or jumped >> i & 1) for i, m in enumerate(self._moving)])
-            self.resets += 1
-            return "reset"
-        self.t = t
-        self.n += 1
-        self._lag += LAG_WEIGHT * (np.stack(lagged) - self._lag)
-        # a lag goes into the rate's variance (over the filter's memory: it catches up), not
-        # the value's, which the reset test reads (a press ends in a fit that restarts a
-        # radius averaged over its ramp's biased frames); estimate() publishes it
-        lag = self._lag_variance()
-        if lag.any():
-            self._s[PVV] += lag / (self.memory_s * self.memory_s)
-        return "tracked"
-
-    def _innovation_excess(self, z: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Per parameter, this frame's innovation (the measurement less the constant-velocity
-        prediction) ``nu`` and its predicted variance ``S`` (the prediction's plus one
-        frame's); zero for a held parameter.  See :meth:`_lag_variance`."""
-        s, r = self._s, self._c[C_R]
-        moving = self._c[C_MOVING] != 0.0
-        nu = z - (s[X] + s[V] * dt)
-        spread = s[PXX] + 2.0 * dt * s[PXV] + dt * dt * s[PVV] + r
-        return np.where(moving, nu, 0.0), np.where(moving, spread, 0.0)
-
-    def _lag_variance(self) -> np.ndarray:
-        """What the filter lags a contact that accelerates by, per parameter (its variance):
-        the running mean of the innovations (weight ``LAG_WEIGHT``: about the last two
-        frames) squared, where it is significant (beyond ``LAG_SIGNIFICANT`` of the spread the noise
-        gives that mean, ``S w / (2 - w)``).  Zero on average where the contact moves as the
-        filter's model says, so a held contact still averages down; where it accelerates (a
-        release: the log force falls ever faster as the force goes to zero) the innovations
-        run to one side and the estimate lags by about their mean.  :meth:`_filter` adds it
-        to the rate's variance, :meth:`estimate` to the published value's."""
-        m, spread = self._lag
-        noise = spread * LAG_WEIGHT / (2.0 - LAG_WEIGHT)
-        return np.where(m * m > LAG_SIGNIFICANT * LAG_SIGNIFICANT * noise, m * m, 0.0)
+    def _kernel(self) -> Any:
+        """The frame's kernel on the tracker's current arrays (built when a linearisation is
+        adopted or the filter (re)starts, the next frame)."""
+        k = self._k
+        if k is None:
+            size = self._c.shape[1]
+            started = self._s is not None
+            beta_i, beta_sign = self._beta_floor if self._beta_floor is not None else (-1, 1.0)
+            self._k = k = TrackStep(
+                self._s if started else np.zeros((DRIFT + 1, size)),
+                self._lag if started else np.zeros((2, size)), self._c, np.zeros(size),
+                self._ebuf, self._index, self._at, self._gain, self._jacobian, self._weight,
+                (self._limit, self._ln_f, RESET_SIGMA, MAX_LOG_FORCE_STEP, beta_i, beta_sign,
+                 self.memory_s, self.hold_s, DRIFT_ALPHA, _DRIFT_ALARM, LAG_WEIGHT,
+                 LAG_SIGNIFICANT, MAX_GAP_S))
+        return k
 
     def skip(self) -> None:
         """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""
@@ -518,6 +492,7 @@ class Tracker:
         s[PVV] = [1e6 * ri if m else 0.0 for ri, m in zip(r, self._moving)]
         self._s = s
         self._lag = np.zeros((2, len(z)))  # running means of the innovations, their variances
+        self._k = None
         self.t, self.n = t, 1
         self._c[C_LIN_SD] = np.sqrt(s[PXX])
 
@@ -533,12 +508,12 @@ class Tracker:
         dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
         # The delta method term by term: sd_a sd_b corr_ab (the filters' variances with the
         # drift detector's lag, the single frame's correlation) plus the systematic part, then
-        # each moving value's lag (_lag_variance).  A runaway value overflows to inf (withheld).
+        # each moving value's lag (kernels.lag_variance).  A runaway value overflows to inf (withheld).
         numbers, var, cov_rf, absent = estimate_numbers(
             self._model_code, self._s, self._c, dt, self.excess, self._corr, self._sys,
             self._has_sys, LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
         numbers, var = numbers.tolist(), var.tolist()
-        for n, extra in zip(self.names, self._lag_variance().tolist()):
+        for n, extra in zip(self.names, lag_variance(self._lag, LAG_WEIGHT, LAG_SIGNIFICANT).tolist()):
             if extra > 0.0 and n in _LAG_KEY:
                 unit = {"ln_f": numbers[_I_FORCE] or 0.0, "psi": 180.0 / math.pi}.get(n, 1.0)
                 var[_LAG_KEY[n]] += extra * unit * unit

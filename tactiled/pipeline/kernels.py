@@ -314,7 +314,113 @@ def estimate_numbers(model: int, s: np.ndarray, const: np.ndarray, dt: float, ex
     return np.array(values), np.array(var), cov_rf, absent
 
 
+# -- a tracked frame in one call ------------------------------------------------------------------
+
+#: :meth:`TrackStep.advance`'s answers besides 0 (tracked: the filters updated) and a jump's
+#: bit mask (> 0, bit i: parameter i jumped; the filters only predicted, for the caller to
+#: restart what jumped)
+STEP_UNMEASURED = -1  # (step only) the frame cannot be measured: it needs a fit; nothing changed
+STEP_REFIT = -2  # measured, but a parameter jumped on a frame that is no fit's: it needs a fit
+STEP_RESTART = -3  # measured after a gap in the clock (or before the filter started): restart at z
+#: :class:`TrackStep`'s scalar constants, in the order it takes them
+TRACK_CONSTANTS = ("limit", "ln_f", "reset_sigma", "max_log_force_step", "beta_i", "beta_sign",
+                   "memory_s", "hold_s", "drift_alpha", "drift_limit", "lag_weight",
+                   "lag_significant", "max_gap_s")
+
+
+def lag_variance(lag: np.ndarray, weight: float, significant: float) -> np.ndarray:
+    """Per parameter, the variance a filter lags a contact that accelerates by: ``lag``'s
+    running mean of the innovations (row 0, weight ``weight``) squared, where it is beyond
+    ``significant`` of the spread the noise gives that mean (row 1's predicted variance
+    times ``w / (2 - w)``); else 0 (:meth:`~tactiled.pipeline.contact_filter.Tracker.estimate`)."""
+    m, spread = lag[0], lag[1]
+    noise = spread * weight / (2.0 - weight)
+    return np.where(m * m > significant * significant * noise, m * m, 0.0)
+
+
+class TrackStep:
+    """One tracked contact's frame in one call (:meth:`step`): measured through its
+    linearisation (:func:`measure_point`, with the general model's floor on ``|beta|``),
+    the residual buffered, the filters stepped (:func:`filter_frame`) and the lag's running
+    means updated, the rate's variance widened by the lag.  Held arrays, written in place:
+    ``s`` (6, k, the filters), ``lag`` (2, k: the innovations' running mean, their predicted
+    variance), ``z`` (k: the last measurement), ``ebuf`` (n: the residuals not yet folded);
+    read: ``c`` (8, k) and the linearisation (``index``, ``at``, ``gain``, ``jacobian``,
+    ``weight``).  ``constants``: :data:`TRACK_CONSTANTS`' values (``beta_i`` -1: no floor).
+    The core's ``TrackStep`` (core/track_step.cpp) is this, bit for bit but for
+    :func:`measure_window`'s sums (tests/native/test_track_step.py)."""
+
+    def __init__(self, s: np.ndarray, lag: np.ndarray, c: np.ndarray, z: np.ndarray,
+                 ebuf: np.ndarray, index: np.ndarray, at: np.ndarray, gain: np.ndarray,
+                 jacobian: np.ndarray, weight: np.ndarray, constants: tuple[float, ...]) -> None:
+        self.s, self.lag, self.c, self.z, self.ebuf = s, lag, c, z, ebuf
+        self.index, self.at, self.gain, self.jacobian, self.weight = (
+            index, at, gain, jacobian, weight)
+        (self.limit, ln_f, self.reset_sigma, self.max_log_force_step, beta_i, self.beta_sign,
+         self.memory_s, self.hold_s, self.drift_alpha, self.drift_limit, self.lag_weight,
+         self.lag_significant, self.max_gap_s) = (float(v) for v in constants)
+        self.ln_f, self.beta_i = int(ln_f), int(beta_i)
+        self.e = np.zeros(index.size)
+
+    def measure(self, frame: np.ndarray, at: np.ndarray) -> bool:
+        """``frame`` (flat strain) measured through the linearisation less ``at`` (its
+        strains on the window, and what else the caller takes out): True with the
+        measurement in ``z`` and its residual kept for :meth:`advance`; False when the frame
+        needs a fit (:func:`measure_point`).  Changes nothing else."""
+        ok, z, e = measure_point(frame, self.index, at, self.gain, self.jacobian, self.weight,
+                                 self.c, self.limit, self.ln_f, self.reset_sigma,
+                                 self.max_log_force_step)
+        if not ok:
+            return False
+        if self.beta_i >= 0:  # (the strain has beta^2 only: an elongated contact keeps its axes)
+            z[self.beta_i] = self.beta_sign * max(abs(float(z[self.beta_i])), 1.0)
+        self.z[:] = z
+        self.e[:] = e
+        return True
+
+    def advance(self, dt: float, fitted: bool = False) -> int:
+        """The filters stepped with ``z``, ``dt`` s after their last frame (NaN: not started):
+        unless ``fitted`` (``z`` is then the fit's own point, set by the caller), the measured
+        residual is buffered first.  Returns 0 (updated), :data:`STEP_RESTART`,
+        :data:`STEP_REFIT` or a jump's bit mask (see :func:`filter_frame`)."""
+        if not fitted:
+            self.ebuf += self.e
+        if not 0.0 < dt < self.max_gap_s:
+            return STEP_RESTART
+        s, c, z = self.s, self.c, self.z
+        moving = c[C_MOVING] != 0.0
+        # this frame's innovation against the constant-velocity prediction and its predicted
+        # variance (the prediction's plus one frame's), for the moving parameters
+        nu = np.where(moving, z - (s[X] + s[V] * dt), 0.0)
+        spread = np.where(moving, s[PXX] + 2.0 * dt * s[PXV] + dt * dt * s[PVV] + c[C_R], 0.0)
+        # white acceleration of density 36 R dt / tau^4 for a moving parameter: an alpha-beta
+        # filter with a window of about tau s (R: one frame's variance, dt: the frame period);
+        # a random walk with a memory of hold_s for a curvature
+        jumped = filter_frame(z, s, c, dt, 36.0 * dt / self.memory_s ** 4,
+                              dt * dt / (self.hold_s * self.hold_s), fitted, self.reset_sigma,
+                              self.drift_alpha, self.drift_limit)
+        if jumped < 0:
+            return STEP_REFIT
+        if jumped:
+            return jumped
+        lag = self.lag
+        lag += self.lag_weight * (np.stack((nu, spread)) - lag)
+        # a lag goes into the rate's variance (over the filter's memory: it catches up), not
+        # the value's, which the reset test reads; the estimate publishes it
+        extra = lag_variance(lag, self.lag_weight, self.lag_significant)
+        if extra.any():
+            s[PVV] += extra / (self.memory_s * self.memory_s)
+        return 0
+
+    def step(self, frame: np.ndarray, dt: float) -> int:
+        """:meth:`measure` (through the linearisation's own ``at``) and :meth:`advance`;
+        :data:`STEP_UNMEASURED` when the frame cannot be measured."""
+        if not self.measure(frame, self.at):
+            return STEP_UNMEASURED
+        return self.advance(dt)
+
+
 #: The Python bodies the core is held to (tests/native/test_tracker_core.py), whichever runs.
 REFERENCE = native.bind(globals(), ("measure_window", "largest_excess", "fold_residuals",
                                     "linearization_constants", "measure_point", "filter_frame",
-                                    "moved_from_point", "estimate_numbers"))
+                                    "moved_from_point", "estimate_numbers", "TrackStep"))

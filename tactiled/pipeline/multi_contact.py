@@ -199,34 +199,32 @@ class ContactTrackers:
         if fitted:
             out = [tr.step(strain, t, fitted=True) for tr in self.trackers]
         else:
-            measured = []
-            for tr, (index, at) in zip(self.trackers, self._windows(strain)):
-                m = tr.measure_at(strain, index, at)
-                if m is None:
+            frame = np.ascontiguousarray(strain, dtype=np.float64)
+            for tr, at in zip(self.trackers, self._windows(frame)):
+                if not tr.measure_at(frame, at):
                     return "refit"
-                measured.append(m)
             # (a jump one filter sees after another has moved is rare: that frame's fit then
             # restarts the filters that moved)
-            out = [tr.step(strain, t, measured=m) for tr, m in zip(self.trackers, measured)]
+            out = [tr.step(frame, t, measured=True) for tr in self.trackers]
         return "refit" if "refit" in out else "reset" if "reset" in out else "tracked"
 
-    def _windows(self, strain: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _windows(self, strain: np.ndarray) -> list[np.ndarray]:
         """What each contact's filter measures, as :meth:`Tracker.measure_at` takes it
-        (``strain[index] - at``): its window of the frame less its linearisation's strains
+        (``strain[index] - at``, ``at`` returned): its window of the frame less its linearisation's strains
         and the others' strain there now: at their points, and where their own windows
         overlap it, moved to their filters' states through their Jacobians (outside its own
         window a contact's strain is taken at its point: it is relinearised as it moves)."""
         out = []
         for tr, (at, overlaps) in zip(self.trackers, self._cross):
             if not overlaps:
-                out.append((tr._index, at))
+                out.append(at)
                 continue
             own = at.copy()
             for j, mine, theirs in overlaps:
                 o = self.trackers[j]
                 if o.x is not None:
                     own[mine] += o.lin.jacobian[theirs] @ (np.asarray(o.x) - o.lin.p)
-            out.append((tr._index, own))
+            out.append(own)
         return out
 
     def _cross_terms(self) -> None:

@@ -211,11 +211,9 @@ class ShearTrack:
 
     def _track(self, frame: Frame, readings: np.ndarray) -> None:
         """One frame of the contact: its step estimate through the slip detector."""
-        est = self._step(readings)
         self.steps += 1
         self._tracked += 1
-        sliding, event = self._detector.feed(self._tracked, est)
-        state = sliding or est.state()
+        est, state, event = self._detector.track(self._tracked, self._step, readings)
         if event is not None:
             self._event(event.kind, frame.seq, frame.sensor_id, frame.device_time_us,
                         frame.host_time, time.time(), state)

@@ -2,6 +2,7 @@
 interval (tactiled/fit/shear_profile.py), against independent computations."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -88,3 +89,40 @@ def test_a_profile_far_wider_than_its_bound_is_withheld():
     mu, s_mu, why = narrow.mu()
     assert why is None and mu == pytest.approx(0.5, rel=1e-6)
     assert mu + 2 * s_mu >= 0.5 / 0.88  # the interval's long arm, up to full stick's side
+
+
+@pytest.mark.parametrize("far", [2.5, 4.0, 6.0])
+def test_the_selective_end_reaches_the_profiles_own_far_end(far):
+    """Where the profile's SELECT_CAP-sigma end lies further down than SELECT_CAP bounds at the
+    estimate (a profile flat toward full stick, a bound that shrinks toward slip), the
+    selective end may reach it: the truncated normal's inversion, floored at the farther of
+    the two."""
+    cut = brentq(lambda lam: _rel(lam) - MU_RESOLVED, 2 * S + 1e-9, 0.99)
+    x = cut + 0.02
+    def inside(t: float) -> float:
+        return norm.sf((x - t) / S) / norm.sf((cut - t) / S) - TAIL
+
+    floor = max(0.0, min(x - SELECT_CAP * S, x - far * S))
+    want = floor if inside(floor) >= 0 else brentq(inside, floor, x)
+    prof = replace(_interval(x, x - 2 * S), far_lo=max(0.0, x - far * S))
+    assert prof.selective_lo(0.0, MU_RESOLVED) == pytest.approx(min(want, x - 2 * S), abs=0.01)
+    if far > SELECT_CAP:  # further than the bound's cap: strictly lower than before
+        assert prof.selective_lo(0.0, MU_RESOLVED) < _interval(x, x - 2 * S).selective_lo(0.0, MU_RESOLVED) - 0.05
+
+
+def test_the_paxini_frame_whose_truth_lay_down_its_profile_is_covered():
+    """The PaXini frame (bench seed 1, frame 5) whose lam sits at its bound 1 with the truth
+    0.31 some 2.5 sigma down the profile: three bounds at the estimate stop short of the
+    truth; the profile's own 3-sigma end does not, and the published mu covers its truth."""
+    from tactiled.sim.shear import random_frames
+
+    desc = load_description("paxini_px6ax")
+    frames, truth = random_frames(desc, 6, np.random.default_rng(1))
+    est = ShearFitter(desc).fit(frames[5])
+    prof, lam_true, mu_true = est.lam_profile, truth["true_lam"][5], truth["true_mu"][5]
+    assert prof.best > 0.95 and lam_true < 0.35
+    assert prof.best - SELECT_CAP * prof.sigma_at(prof.best) > lam_true  # the bound's cap misses it
+    assert prof.far_lo < lam_true
+    mu, s_mu, why = est.mu()
+    assert why is None and mu is not None  # published (its estimate clears the threshold) ...
+    assert abs(mu - mu_true) <= 2 * s_mu, (mu, s_mu, mu_true)  # ... with the truth inside

@@ -93,7 +93,8 @@ def test_several_contacts_with_overlapping_windows_measure_as_the_plain_arithmet
         tr._start(lins[i].p + rng.normal(0.0, 1e-2, k), 0.0)
     frame = rng.normal(0.0, 1e-3, size)
     frame.flags.writeable = False
-    for i, (tr, (index, at)) in enumerate(zip(trackers.trackers, trackers._windows(frame))):
+    for i, (tr, at) in enumerate(zip(trackers.trackers, trackers._windows(frame))):
+        index = tr._index
         j = 1 - i
         other = lins[j]
         own = frame[lins[i].index] - other.predicted.ravel()[lins[i].index]

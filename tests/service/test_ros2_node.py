@@ -266,7 +266,8 @@ def test_health_counts_the_ros2_messages(node: Node, heard: dict[str, Any]) -> N
 
     ros2 = httpx.get(node.url + "v1/health", timeout=10).json()["zenoh"]["ros2"]
     assert set(ros2["published"]) == {"wrench", "contact", "contacts", "markers", "strain",
-                                      "diagnostics"}
+                                      "taxels", "diagnostics"}
+    assert ros2["published"]["taxels"] == 0  # a 1-axis array: no taxels topic
     assert ros2["published"]["contact"] >= len(heard["contacts"])
     assert ros2["put_errors"] == 0 and ros2["last_error"] == ""
 

@@ -93,13 +93,13 @@ def prebuilt(typename: str, payload: bytes) -> Any:
 
 
 def qos(kind: str, type_hash: str | None = None) -> Qos:
-    """The writer QoS of a topic kind: the sensor-data profile for strain images, rclcpp's
+    """The writer QoS of a topic kind: the sensor-data profile for images (strain, taxels), rclcpp's
     default for the rest; with ``type_hash`` (``RIHS01_...``, Iron and later) the USER_DATA
     ``typehash=<hash>;`` that rmw_cyclonedds_cpp writes and reads (``rmw_dds_common``'s
     ``encode_type_hash_for_user_data_qos``; without it a Jazzy reader logs that it cannot
     parse the type hash, and still receives)."""
     policies = [Policy.Durability.Volatile]
-    if kind == "strain":
+    if kind in ("strain", "taxels"):
         policies += [Policy.Reliability.BestEffort, Policy.History.KeepLast(SENSOR_DATA_DEPTH)]
     else:
         policies += [Policy.Reliability.Reliable(max_blocking_time=0),

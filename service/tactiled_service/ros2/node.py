@@ -3,7 +3,7 @@
 With ``[ros2] enabled`` the daemon is a ROS 2 node (default ``/tactiled/tactiled``) with no ROS
 installation and no bridge, on DDS (:mod:`.dds`, Cyclone DDS) and/or Zenoh (:mod:`.rmw`), as
 ``[ros2] middleware`` says.  Read-only: per sensor wrench, contact, contacts, markers and
-strain topics, and ``/diagnostics``.  Each message is built once, on a sender thread of its own,
+strain (and a 3-axis array's taxels) topics, and ``/diagnostics``.  Each message is built once, on a sender thread of its own,
 and the same bytes go to every middleware.
 """
 # Middlewares: DDS lays topics out as ROS 2's DDS middlewares do (rt/<topic>,
@@ -16,7 +16,8 @@ and the same bytes go to every middleware.
 #   (tactiled_msgs/msg/ContactArray, every contact), .../markers
 #   (visualization_msgs/msg/MarkerArray, every contact drawn): one each per estimate;
 # * .../strain (sensor_msgs/msg/Image, 32FC1): zeroed frames, at most [zenoh] frame_rate_hz
-#   per second per sensor (0: none);
+#   per second per sensor (0: none); a 3-axis array's .../taxels (sensor_msgs/msg/Image, 32FC3:
+#   its zeroed readings x, y, z, as the MCAP recording's) goes with the same frames;
 # * /diagnostics (diagnostic_msgs/msg/DiagnosticArray): the health, once a second.
 # header.stamp is the frame's time (tactiled.clock).  Nothing is subscribed to.  On Zenoh the
 # node is a guest of tactiled_service.bus.Bus (bus.fronts): declared once the session is open,
@@ -39,7 +40,9 @@ from tactiled_service.sender import QUEUE_SIZE, Sender
 log = logging.getLogger(__name__)
 
 DIAGNOSTICS_PERIOD_S = 1.0
-KINDS = ("wrench", "contact", "contacts", "markers", "strain", "diagnostics")
+KINDS = ("wrench", "contact", "contacts", "markers", "strain", "taxels", "diagnostics")
+#: The kinds published for (paced) zeroed frames: ``taxels`` on 3-axis arrays only.
+FRAME_KINDS = ("strain", "taxels")
 
 
 class ZenohSink:
@@ -109,8 +112,9 @@ class Ros2Node:
         self.node: Any = None  # rmw.NodeInfo once declared on Zenoh
         self.topics: dict[tuple[str, str], Topic] = {}  # (sensor, kind) -> topic
         plan = [(name, kind) for name in daemon.sensors
-                for kind in (*messages.ESTIMATE_KINDS, "strain")
-                if kind != "strain" or self._frame_period is not None]
+                for kind in (*messages.ESTIMATE_KINDS, *FRAME_KINDS)
+                if kind not in FRAME_KINDS or (self._frame_period is not None and (
+                    kind != "taxels" or getattr(daemon.sensors[name], "shear", None) is not None))]
         plan.append(("", "diagnostics"))
         for sensor, kind in plan:
             self.topics[(sensor, kind)] = Topic(
@@ -205,6 +209,9 @@ class Ros2Node:
         if kind == "strain":
             return lambda frame: messages.strain_image(frame.strain, stamp(frame, offset),
                                                        frame_id)
+        if kind == "taxels":
+            return lambda frame: messages.taxel_image(frame.taxels, stamp(frame, offset),
+                                                      frame_id)
         return lambda est: messages.estimate_message(kind, est.to_json_dict(),
                                                      stamp(est, offset), frame_id)
 
@@ -216,8 +223,12 @@ class Ros2Node:
                 if topic is not None and topic.matched:
                     self.sender.offer(topic, kind, item)
             return
-        topic = self.topics.get((item.sensor, "strain"))
-        if topic is None or not topic.matched or self._frame_period is None:
+        if self._frame_period is None:
+            return
+        wanted = [(topic, kind) for kind in FRAME_KINDS
+                  if (topic := self.topics.get((item.sensor, kind))) is not None and topic.matched
+                  and (kind != "taxels" or getattr(item, "taxels", None) is not None)]
+        if not wanted:
             return
         now = time.monotonic()
         due = self._frame_due.get(item.sensor, 0.0)
@@ -225,7 +236,8 @@ class Ros2Node:
             return
         period = self._frame_period  # average rate frame_rate_hz; no burst after a pause
         self._frame_due[item.sensor] = due + period if now - due < period else now + period
-        self.sender.offer(topic, "strain", item)
+        for topic, kind in wanted:  # strain and taxels of the same frames
+            self.sender.offer(topic, kind, item)
 
     async def _diagnostics_loop(self) -> None:
         topic = self.topics[("", "diagnostics")]

@@ -27,6 +27,8 @@ const TILE_CHROME_W = 26;    // px: a tile's padding and border
 const TILE_CHROME_H = 146;   // px: a tile's title, readouts, padding (until measured)
 const GAP = 12;              // px between tiles (style.css: main's gap)
 const GRID = "#20262d";      // the lines between tactels
+const TAXEL_MIN = 20;        // in-plane reading at a tick's full length, at least: ten noise
+                             // sigmas of the XELA descriptions, so an untouched array stays still
 
 const state = {
   sensors: new Map(),        // name -> {name, info, est, frame, dirty, el, canvas, overlay, scale, drawn}
@@ -279,10 +281,43 @@ function drawMap(s) {
       ctx.fillRect(x0, y0, Math.max(1, x1 - x0), Math.max(1, y1 - y0));
     }
   }
+  drawTaxels(s, ctx, g, X, Y);
   ctx.fillStyle = "#8b949e";
   ctx.font = "10px sans-serif";
   ctx.fillText("x →", c.width - MAP_PAD - 18, c.height - 2);
   ctx.fillText("y ↑", 1, MAP_PAD - 2);
+}
+
+// A 3-axis array's frame (taxels[m][n] = zeroed [x, y, z] readings): over the heat map of z,
+// each taxel's in-plane reading (x, y) as a white tick from its centre, x to the right and y
+// up, the longest (over a scale that rises at once and decays slowly) 0.45 of a pitch.  What
+// was drawn goes to data-taxels on the map (canvas px): the frame's seq, the scale, and each
+// taxel's [m, n, dx, dy].
+function drawTaxels(s, ctx, g, X, Y) {
+  const f = s.frame, t = f && Array.isArray(f.taxels) && f.taxels.length === g.rows ? f.taxels : null;
+  if (!t) { delete s.canvas.dataset.taxels; return; }
+  let peak = 0;
+  for (const row of t) for (const v of row) peak = Math.max(peak, Math.hypot(v[0], v[1]));
+  s.tscale = Math.max(TAXEL_MIN, peak, 0.97 * (s.tscale || 0));
+  const reach = 0.45 * Math.min(g.dx, g.dy) * state.k;  // px at the scale
+  const ticks = [];
+  ctx.save();
+  ctx.strokeStyle = "#fff";
+  ctx.lineWidth = 1.5;
+  ctx.beginPath();
+  for (let m = 0; m < g.rows; m++) {
+    for (let n = 0; n < g.cols; n++) {
+      const v = t[m][n];
+      const dx = v[0] / s.tscale * reach, dy = -v[1] / s.tscale * reach;  // y up on screen
+      const cx = X(m * g.dx), cy = Y(n * g.dy);
+      ctx.moveTo(cx, cy);
+      ctx.lineTo(cx + dx, cy + dy);
+      ticks.push([m, n, +dx.toFixed(2), +dy.toFixed(2)]);
+    }
+  }
+  ctx.stroke();
+  ctx.restore();
+  s.canvas.dataset.taxels = JSON.stringify({seq: f.seq, scale: s.tscale, ticks});
 }
 
 const SLIP_COLOURS = {stick: "#39c5cf", partial: "#e3b341", slip: "#f85149"};

@@ -1,0 +1,188 @@
+// A tracked contact's frame in one call (TrackStep.step): what Tracker.step does for a frame it
+// measures, on the tracker's own arrays (checked once, when the tracker adopts a linearisation
+// or restarts its filters), so a frame costs one call into the core, not a dozen numpy calls.
+// Python reference: tactiled/pipeline/kernels.py's TrackStep.
+#include "track_step.hpp"
+
+#include <pybind11/numpy.h>
+
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "arrays.hpp"
+#include "pymath.hpp"
+#include "stages.hpp"
+#include "tracker.hpp"
+
+namespace py = pybind11;
+
+namespace tactiled {
+namespace track {
+
+void lag_variance(const double* lag, std::int64_t k, double weight, double significant,
+                  double* out) {
+    const double sig2 = significant * significant;
+    for (std::int64_t i = 0; i < k; ++i) {
+        const double m = lag[i], noise = lag[k + i] * weight / (2.0 - weight);
+        out[i] = m * m > sig2 * noise ? m * m : 0.0;
+    }
+}
+
+namespace {
+using namespace tracker;
+
+void need_shape(const py::array& a, const char* name, py::ssize_t rows, py::ssize_t cols) {
+    if (a.ndim() != 2 || a.shape(0) != rows || a.shape(1) != cols)
+        throw py::value_error(std::string(name) + ": expected shape (" + std::to_string(rows) +
+                              ", " + std::to_string(cols) + ")");
+}
+
+class TrackStep {
+public:
+    TrackStep(py::array s, py::array lag, py::array c, py::array z, py::array ebuf,
+              py::array index, py::array at, py::array gain, py::array jacobian, py::array weight,
+              py::tuple constants)
+        : keep_{s, lag, c, z, ebuf, index, at, gain, jacobian, weight} {
+        k_ = z.size();
+        n_ = index.size();
+        if (k_ < 1 || k_ > 62) throw py::value_error("z: 1 to 62 parameters");
+        need_shape(s, "s", 6, k_);
+        need_shape(lag, "lag", 2, k_);
+        need_shape(c, "c", 8, k_);
+        need_shape(gain, "gain", k_, n_);
+        need_shape(jacobian, "jacobian", n_, k_);
+        s_ = data_of<double>(s, "s", true);
+        lag_ = data_of<double>(lag, "lag", true);
+        c_ = data_of<double>(c, "c", false);
+        z_ = data_of<double>(z, "z", true);
+        ebuf_ = data_of<double>(ebuf, "ebuf", true, n_);
+        ix_ = data_of<std::int64_t>(index, "index", false);
+        at_ = data_of<double>(at, "at", false, n_);
+        gain_ = data_of<double>(gain, "gain", false);
+        jac_ = data_of<double>(jacobian, "jacobian", false);
+        w_ = data_of<double>(weight, "weight", false, n_);
+        if (constants.size() != CONSTANT_COUNT)
+            throw py::value_error("constants: expected " + std::to_string(CONSTANT_COUNT));
+        double v[CONSTANT_COUNT];
+        for (int i = 0; i < CONSTANT_COUNT; ++i) v[i] = constants[i].cast<double>();
+        k.limit = v[0];
+        k.ln_f = static_cast<std::int64_t>(v[1]);
+        k.reset_sigma = v[2];
+        k.max_log_force_step = v[3];
+        k.beta_i = static_cast<std::int64_t>(v[4]);
+        k.beta_sign = v[5];
+        k.memory_s = v[6];
+        k.hold_s = v[7];
+        k.drift_alpha = v[8];
+        k.drift_limit = v[9];
+        k.lag_weight = v[10];
+        k.lag_significant = v[11];
+        k.max_gap_s = v[12];
+        if (k.beta_i >= k_) throw py::value_error("beta_i: outside the parameters");
+        max_ix_ = -1;
+        for (py::ssize_t j = 0; j < n_; ++j) {
+            if (ix_[j] < 0) throw py::index_error("index outside the frame");
+            if (ix_[j] > max_ix_) max_ix_ = ix_[j];
+        }
+        e_.assign(static_cast<std::size_t>(n_), 0.0);
+        dz_.assign(static_cast<std::size_t>(k_), 0.0);
+        nu_.assign(static_cast<std::size_t>(2 * k_), 0.0);
+        extra_.assign(static_cast<std::size_t>(k_), 0.0);
+    }
+
+    // TrackStep.measure: frame (flat) less at, through the linearisation.
+    bool measure(const py::array& frame, const py::array& at) {
+        const double* f = data_of<double>(frame, "frame", false);
+        if (max_ix_ >= frame.size()) throw py::index_error("index outside the frame");
+        const double* a = at.is(keep_[6]) ? at_ : data_of<double>(at, "at", false, n_);
+        return measure_raw(f, a);
+    }
+
+    // TrackStep.advance: the filters stepped with z, dt s after their last frame.
+    std::int64_t advance(double dt, bool fitted) {
+        if (!fitted)
+            for (py::ssize_t j = 0; j < n_; ++j) ebuf_[j] += e_[j];
+        if (!(0.0 < dt && dt < k.max_gap_s)) return STEP_RESTART;
+        const double a = 2.0 * dt, b = dt * dt;
+        double* nu = nu_.data();  // (2, k): the innovation, its predicted variance
+        for (py::ssize_t i = 0; i < k_; ++i) {
+            const bool moving = c_[C_MOVING * k_ + i] != 0.0;
+            nu[i] = moving ? z_[i] - (s_[X * k_ + i] + s_[V * k_ + i] * dt) : 0.0;
+            nu[k_ + i] = moving ? ((s_[PXX * k_ + i] + a * s_[PXV * k_ + i]) +
+                                   b * s_[PVV * k_ + i]) + c_[C_R * k_ + i]
+                                : 0.0;
+        }
+        const double m4 = std::pow(k.memory_s, 4.0);
+        const std::int64_t jumped =
+            filter_frame(z_, k_, s_, c_, dt, 36.0 * dt / m4, dt * dt / (k.hold_s * k.hold_s),
+                         fitted, k.reset_sigma, k.drift_alpha, k.drift_limit);
+        if (jumped < 0) return STEP_REFIT;
+        if (jumped) return jumped;
+        for (py::ssize_t j = 0; j < 2 * k_; ++j) lag_[j] += k.lag_weight * (nu[j] - lag_[j]);
+        lag_variance(lag_, k_, k.lag_weight, k.lag_significant, extra_.data());
+        bool any = false;
+        for (py::ssize_t i = 0; i < k_; ++i) any = any || extra_[i] != 0.0;
+        if (any) {
+            const double m2 = k.memory_s * k.memory_s;
+            for (py::ssize_t i = 0; i < k_; ++i) s_[PVV * k_ + i] += extra_[i] / m2;
+        }
+        return 0;
+    }
+
+    std::int64_t step(const py::array& frame, double dt) {
+        const double* f = data_of<double>(frame, "frame", false);
+        if (max_ix_ >= frame.size()) throw py::index_error("index outside the frame");
+        if (!measure_raw(f, at_)) return STEP_UNMEASURED;
+        return advance(dt, false);
+    }
+
+    py::array s() const { return keep_[0]; }
+    py::array lag() const { return keep_[1]; }
+    py::array z() const { return keep_[3]; }
+    py::array ebuf() const { return keep_[4]; }
+
+private:
+    bool measure_raw(const double* f, const double* at) {
+        double* d = e_.data();
+        double* dz = dz_.data();
+        if (!measure_point(f, ix_, n_, at, gain_, k_, jac_, w_, c_, k.limit, k.ln_f,
+                           k.reset_sigma, k.max_log_force_step, dz, d))
+            return false;
+        if (k.beta_i >= 0)  // (the strain has beta^2 only: an elongated contact keeps its axes)
+            dz[k.beta_i] = k.beta_sign * py_max(std::fabs(dz[k.beta_i]), 1.0);
+        for (py::ssize_t i = 0; i < k_; ++i) z_[i] = dz[i];
+        return true;
+    }
+
+    py::array keep_[10];
+    py::ssize_t k_ = 0, n_ = 0;
+    std::int64_t max_ix_ = -1;
+    Constants k{};
+    double *s_, *lag_, *z_, *ebuf_;
+    const double *c_, *at_, *gain_, *jac_, *w_;
+    const std::int64_t* ix_;
+    std::vector<double> e_, dz_, nu_, extra_;
+};
+}  // namespace
+}  // namespace track
+
+void bind_track_step(py::module_& m) {
+    using track::TrackStep;
+    py::class_<TrackStep>(m, "TrackStep",
+                          "One tracked contact's frame in one call (kernels.TrackStep).")
+        .def(py::init<py::array, py::array, py::array, py::array, py::array, py::array,
+                      py::array, py::array, py::array, py::array, py::tuple>(),
+             py::arg("s"), py::arg("lag"), py::arg("c"), py::arg("z"), py::arg("ebuf"),
+             py::arg("index"), py::arg("at"), py::arg("gain"), py::arg("jacobian"),
+             py::arg("weight"), py::arg("constants"))
+        .def("measure", &TrackStep::measure, py::arg("frame"), py::arg("at"))
+        .def("advance", &TrackStep::advance, py::arg("dt"), py::arg("fitted") = false)
+        .def("step", &TrackStep::step, py::arg("frame"), py::arg("dt"))
+        .def_property_readonly("s", &TrackStep::s)
+        .def_property_readonly("lag", &TrackStep::lag)
+        .def_property_readonly("z", &TrackStep::z)
+        .def_property_readonly("ebuf", &TrackStep::ebuf);
+}
+}  // namespace tactiled
