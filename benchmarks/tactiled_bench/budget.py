@@ -188,7 +188,10 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
 
     from tactiled.pipeline import Daemon
     from tactiled.pipeline.sensor import SensorPipeline
-    from tactiled.io.recording import Recorder
+    try:
+        from tactiled.io.recording import Recorder
+    except ImportError:  # a revision from before tactiled.io held it
+        from tactiled.recording import Recorder  # type: ignore[no-redef]
     from tactiled.sensors import load_description
     from tactiled.settings import load_settings
     from tactiled.sim import FingerSimulator
@@ -222,13 +225,15 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
             for k in range(frames):
                 rec.record(sim.next_frame(), host_time=1.0 + k / sim.rate_hz)
             rec.close()
-        was = SensorPipeline.batched
-        if batched is not None:
+        # (a revision from before the core's runs has no SensorPipeline.batched)
+        was = getattr(SensorPipeline, "batched", False)
+        if batched is not None and hasattr(SensorPipeline, "batched"):
             SensorPipeline.batched = batched and was
         try:
             return [asyncio.run(play(paths)) for _ in range(passes)]
         finally:
-            SensorPipeline.batched = was
+            if hasattr(SensorPipeline, "batched"):
+                SensorPipeline.batched = was
 
 
 #: The arrays whose fits :func:`fit_cost` times: (description, scene), the palm's several

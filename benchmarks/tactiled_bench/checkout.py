@@ -53,8 +53,8 @@ def build(tree: str) -> str:
     """Where checkout ``tree``'s packages are imported from: the tree itself (pure Python), or,
     for a revision with a compiled core, the folder pip installs its wheel into (built once,
     kept in the checkout; ``subprocess.CalledProcessError`` if the build fails)."""
-    if not (Path(tree) / "CMakeLists.txt").exists():
-        return tree
+    if Path(tree).resolve() == ROOT or not (Path(tree) / "CMakeLists.txt").exists():
+        return tree  # this tree (its own install), or nothing to compile
     target = Path(tree) / BUILT
     if not target.exists():
         subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps",

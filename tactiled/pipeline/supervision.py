@@ -180,6 +180,9 @@ class WorkerSupervision:
     def wake(self) -> None:
         """Hand waiting jobs to free workers soon (a worker became free or ready)."""
 
+    def dispatch_now(self) -> None:
+        """Hand waiting jobs to free workers at once (a worker has just answered)."""
+
     def _on_result(self, job: FitJob, msg: tuple[Any, ...], now: float) -> None:
         """A worker answered ``job`` with ``msg``, a ``result``."""
 
@@ -477,7 +480,10 @@ class WorkerSupervision:
                 self._retire(w)
             else:
                 self._maybe_recycle(w, now)
-            self.wake()
+            # the next waiting job goes to the worker now, not after the callbacks the loop
+            # already holds (the other sensors' reads: a frame's fit queued behind another's
+            # waited that much longer)
+            self.dispatch_now()
         elif kind == "memory":
             w.memory, w.memory_at = msg[2], now
         elif kind == "setup_done" and msg[3] is not None:

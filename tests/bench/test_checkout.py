@@ -40,6 +40,7 @@ def test_a_checkout_is_imported_from_the_checkout(tmp_path: Path) -> None:
 
 
 def test_this_tree_is_run_in_this_environment(tmp_path: Path) -> None:
+    assert build(str(ROOT)) == str(ROOT)  # its own install: nothing built
     env = checkout_env(str(ROOT))
     got = _imported(env, tmp_path)
     import tactiled

@@ -277,6 +277,41 @@ def test_a_frame_dispatched_now_leaves_before_the_callbacks_the_loop_holds(arun)
     assert at_once == ["woken", "now"]
 
 
+def test_a_waiting_job_goes_to_the_worker_that_answers_before_the_loop_moves_on(arun) -> None:
+    """When a worker answers, the job waiting for it (another sensor's frame) is in its hands
+    before the loop runs any other callback: it does not wait behind the reads the loop holds."""
+    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+
+    async def main() -> tuple[list[str], list[str]]:
+        pool, owners, order = pool_of_owners(1, (("first", False), ("second", False)))
+        await pool.start()
+        loop = asyncio.get_running_loop()
+        seen: list[str] = []
+        answered = owners["first"].on_fit_result
+
+        def on_result(*args: Any, **kwargs: Any) -> None:
+            answered(*args, **kwargs)
+            # what the loop runs next after this answer: another sensor's read, say
+            loop.call_soon(lambda: seen.append(f"taken: {order}"))
+
+        owners["first"].on_fit_result = on_result  # type: ignore[method-assign]
+        owners["first"].todo.append(clean)
+        pool.dispatch_now()
+        owners["second"].todo.append(clean)
+        pool.dispatch_now()  # the one worker is busy: the second job waits
+        waiting = list(order)
+        t0 = time.monotonic()
+        while len(owners["second"].results) < 1:
+            assert time.monotonic() - t0 < 10, "fits not answered"
+            await asyncio.sleep(0.005)
+        await pool.stop()
+        return waiting, seen
+
+    waiting, seen = arun(main())
+    assert waiting == ["first"]
+    assert seen == ["taken: ['first', 'second']"]
+
+
 def test_the_last_free_worker_is_kept_for_a_frame(arun) -> None:
     """With more than one worker, relinearisations (jobs that answer no frame) never take the
     last free one: two wait and two workers are free, one goes out; a frame's fit that comes
