@@ -181,8 +181,7 @@ class LineFit:
         chi2 = best.cost * fr.peak * fr.peak / f.sigma**2
         withhold_flat(values, std, reasons, flat_below(
             f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
-            lambda: prob.residual_and_jacobian, chi2, values.get("r1_mm"), std.get("r1_mm"),
-            reach=True))
+            lambda: prob.residual_and_jacobian, chi2, values.get("r1_mm"), std.get("r1_mm")))
         scan = angle_scan(f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
                           lambda: prob.residual_and_jacobian, chi2, LINE_PARAMS.index("psi"),
                           std.get("angle_deg"), scan=ANGLE_SCAN_DEG if known is None else (),

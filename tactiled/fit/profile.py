@@ -114,19 +114,14 @@ class AngleProfile:
 
 def flat_below(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
                bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
-               r: float | None, sd_r: float | None,
-               reach: bool = False) -> str | float | None:
+               r: float | None, sd_r: float | None) -> str | float | None:
     """The radius ``r`` (mm; 1-sigma ``sd_r``) at the solution ``p`` (its first entry the log
     radius, chi^2 ``chi2``) on its profile likelihood: the reason to withhold it (flat
     below it), or its honest sigma where the profile rises more slowly than the linearised
     sigma says but by at least ``FLAT_CHI2`` (the distance to the tested point over the
     square root of the rise: that point lies ``sqrt(rise)`` sigmas away), or None to keep it
     as it is.  ``fitter`` searches (``Fitter._search``) the window ``fr`` of the model
-    ``kind`` with the log radius pinned by ``bounds``.  ``reach`` (a line's radius): where
-    the profile is quadratic two sigmas below, it is also evaluated four below, where a
-    quadratic rises by 16: a lower rise there widens the sigma to put that point
-    ``sqrt(rise)`` sigmas away (a line's radius on the Robotiq pad, 10 mm true, fitted at
-    85-520 mm with sigmas of 20 %, lay 5-10 of them above the truth)."""
+    ``kind`` with the log radius pinned by ``bounds``."""
     if r is None or sd_r is None or not (r > 0.0 and sd_r > 0.0):
         return None
     s = sd_r / r  # the log radius's sigma
@@ -150,11 +145,6 @@ def flat_below(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray
                 return (f"{TOO_LIGHT}: {FLAT} (an edge, {EDGE_MM:g} mm, explains the frame "
                         f"within two sigmas: chi^2 {max(rise_edge, 0.0):.2g} above): its sigma "
                         "does not hold")
-        far = float(p[0]) - 2.0 * PROFILE_SIGMAS * s
-        if reach and far > lo[0]:
-            rise_far = _bounded(fitter, fr, kind, p, steps, (lo, hi), python_residual, chi2, far)
-            if rise_far is not None and rise_far < REACH_CHI2:
-                return r * (1.0 - math.exp(far - float(p[0]))) / math.sqrt(max(rise_far, FLAT_CHI2))
         return None
     if rise >= FLAT_CHI2:
         return r * (1.0 - math.exp(at - float(p[0]))) / math.sqrt(rise)
@@ -398,16 +388,6 @@ def _rise(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
     less ``chi2``; None where the search did not converge (within ``cap`` iterations: by
     default the fit's own cap)."""
     got = _held(fitter, fr, kind, p, steps, bounds, python_residual, chi2, at, index, cap=cap)
-    return None if got is None else got[0]
-
-
-def _bounded(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
-             bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
-             at: float, index: int = 0) -> float | None:
-    """:func:`_rise` within ``PROFILE_ITERATIONS``, a search stopped short kept as an upper
-    bound of the profile there (:func:`_held`'s ``bounded``)."""
-    got = _held(fitter, fr, kind, p, steps, bounds, python_residual, chi2, at, index,
-                cap=PROFILE_ITERATIONS, bounded=True)
     return None if got is None else got[0]
 
 
