@@ -17,9 +17,14 @@ pull-until-slip scenes (onset delay), and stick-only scenes (no slip events shou
 #   the static: the force drops), with a constant friction (the motion alone shows it), and
 #   with a constant friction on varied pulls (ramps of 0.15-0.6 s, the normal force constant or
 #   falling by 30 %);
+#   and, on the constant-friction pulls, what a test that knew the onset would see
+#   ONSET_FRAMES frames after it (the slide and the levelling-off together on the track from
+#   the true onset: the information in the readings, which no search over starts can exceed);
 # * stick-only scenes (STICKS in turn, every frame of their tangential loading);
 # * along all those scenes, the shear filter's fx, fy and torsion against the truth (error over
-#   the filter's sigma); the slide test's null distribution on Gaussian estimates (null_tail).
+#   the filter's sigma); the slide test's null distribution on Gaussian estimates (null_tail),
+#   and the whole detector's onsets on contacts held near slip, Gaussian estimates of a fit's
+#   covariance (null_events).
 
 from __future__ import annotations
 
@@ -58,19 +63,27 @@ def resolve(spec: str) -> SensorDescription:
 
 def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None = None,
            every: int = FIT_EVERY, truth: dict[str, np.ndarray] | None = None,
-           errors: list[tuple[float, float, float]] | None = None) -> list[tuple[str, int]]:
+           errors: list[tuple[float, float, float]] | None = None,
+           known: list[float] | None = None) -> list[tuple[str, int]]:
     """Estimate ``frames[first:last]`` in order through a slip detector, as the daemon does: a
     fit (warm-started) on every ``every``-th frame, the step from the last fit on each frame;
     the detector's events.  With ``truth``, ``errors`` gains each frame's errors of the
     filtered ``fx``, ``fy`` and torsion over their sigma (the reported filter's, as the
-    daemon's tables, once it has settled)."""
+    daemon's tables, once it has settled), and ``known`` the statistic of the best test that
+    knows the true onset (:func:`_known_onset`) at :data:`ONSET_FRAMES` after it."""
     det, prev, step, events = SlipDetector(), None, None, []
     flt = det.tracking
+    onset = int(truth["true_onset"]) if truth is not None and "true_onset" in truth else -1
+    oracle = (ShearFilter(DETECT_WALK), SlideTest()) if known is not None and onset >= 0 else None
     for i in range(first, len(frames) if last is None else min(last, len(frames))):
         if step is None or (i - first) % every == 0:
             fit = fitter.fit(frames[i], start=prev)
             prev, step = fit.params, fitter.step(fit)
         est = step(frames[i])
+        if oracle is not None and i <= onset + ONSET_FRAMES:
+            z = _known_onset(*oracle, est, i - onset)
+            if z is not None and known is not None:
+                known.append(z)
         _, ev = det.feed(i, est)
         if ev is not None:
             events.append((ev.kind, ev.frame))
@@ -78,6 +91,20 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
             errors.append(tuple((flt.value(k)[0] - truth[key][i]) / flt.value(k)[1]
                                 for k, key in ((4, "true_fx"), (5, "true_fy"), (6, "true_torque"))))
     return events
+
+
+def _known_onset(flt: ShearFilter, test: SlideTest, est, k: int) -> float | None:
+    """Feed ``est`` to a stick filter and its slide test; ``k`` frames after the true onset
+    (:data:`ONSET_FRAMES`), the statistic of the slide and the levelling-off together on the
+    track that starts at the true onset, accelerating from rest: what a test that knew the
+    onset, and so searched no starts, would see there (the information in the readings)."""
+    flt.update(est.params, est.cov, est.lam_free)
+    fx, fy, q, _ = flt.tangential()
+    u = (fx / q, fy / q) if q > 0 else (1.0, 0.0)
+    test.update(flt, *u)
+    if k != ONSET_FRAMES:
+        return None
+    return float(test.tracks[test.track(k + 1, "accelerating")])
 
 
 def null_tail(desc: SensorDescription, frames: int, seed: int) -> dict[str, float]:
@@ -105,6 +132,37 @@ def null_tail(desc: SensorDescription, frames: int, seed: int) -> dict[str, floa
     a = np.array(zs[:frames])
     return {"frames": float(a.size), "over3": float(np.mean(a > 3.0)), "over4": float(np.mean(a > 4.0)),
             "over_onset": float(np.mean(a > ONSET_Z))}
+
+
+def null_events(desc: SensorDescription, scenes: int, seed: int, hold: float = 0.95,
+                hold_frames: int = 300) -> dict[str, float]:
+    """Slip onsets declared on held contacts near slip: a push to ``hold`` of ``mu P`` fitted
+    once; its estimate, the tangential force and ``lam`` ramping to it (over 150-600 frames) and
+    held, drawn ``scenes`` times with Gaussian noise of the fit's covariance through the slip
+    detector (the whole detector: every rule, on the stick hypothesis's null)."""
+    rng = np.random.default_rng(seed)
+    fitter = ShearFitter(desc)
+    scene, _ = sequence(desc, "push", rng, hold=hold)
+    est = fitter.fit(scene[-1])
+    keep = np.nonzero(np.isfinite(np.diag(est.cov)))[0]
+    chol = np.linalg.cholesky(est.cov[np.ix_(keep, keep)])
+    onsets, frames = 0, 0
+    for _ in range(scenes):
+        det = SlipDetector()
+        ramp = int(rng.integers(150, 601))
+        for i in range(ramp + hold_frames):
+            p = est.params.copy()
+            s = min(1.0, (i + 1) / ramp)
+            p[4:6] *= s
+            p[7] *= s
+            p[keep] += chol @ rng.normal(size=keep.size)
+            lam_free = float(p[7])
+            p[7] = min(1.0, max(0.0, lam_free))
+            _, ev = det.update(i, p, est.cov, lam_free)
+            onsets += ev is not None and ev.kind == "onset"
+            frames += 1
+    return {"scenes": float(scenes), "frames": float(frames), "onsets": float(onsets),
+            "lam": float(est.params[7]), "lam_sigma": float(np.sqrt(est.cov[7, 7]))}
 
 
 def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
@@ -146,12 +204,12 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: f
     gains the filtered forces' errors over their sigma along every scene."""
     rng = np.random.default_rng(seed)
     fitter = ShearFitter(desc)
-    delays, early = [], 0
+    delays, early, known = [], 0, []
     for _ in range(pulls):
         extra = {"ramp_s": rng.uniform(0.15, 0.6), "force_change": rng.choice((0.0, -0.3))} if varied else {}
         frames, truth = sequence(desc, "pull", rng, kinetic=kinetic, **extra)
         onset = int(truth["true_onset"])
-        events = _track(fitter, frames, onset - LEAD, onset + AFTER, truth=truth, errors=errors)
+        events = _track(fitter, frames, onset - LEAD, onset + AFTER, truth=truth, errors=errors, known=known)
         onsets = [f for kind, f in events if kind == "onset"]
         declared = next((f for f in onsets if f >= onset), None)
         early += sum(1 for f in onsets if f < onset)
@@ -168,7 +226,10 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: f
     return {"pulls": pulls, "within": float(np.mean(d <= ONSET_FRAMES)) if pulls else math.nan,
             "median_delay": float(np.median(ok)) if ok.size else math.nan,
             "max_delay": float(ok.max()) if ok.size else math.nan, "missed": int(np.sum(~np.isfinite(d))),
-            "early": early, "sticks": sticks, "false": false}
+            "early": early, "sticks": sticks, "false": false,
+            "p95_delay": float(np.percentile(d, 95)) if pulls else math.nan,
+            "known_median": float(np.median(known)) if known else math.nan,
+            "known_over": float(np.mean(np.array(known) > ONSET_Z)) if known else math.nan}
 
 
 def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, seed: int = 1,
@@ -190,6 +251,7 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
         c = slip(d, flat, 0, seed + 10 * k + 2, kinetic=1.0, errors=errors)
         v = slip(d, flat, 0, seed + 10 * k + 3, kinetic=1.0, varied=True, errors=errors)
         tail = null_tail(d, null, seed + 10 * k + 4)
+        held = null_events(d, 4 if quick else 20, seed + 10 * k + 5)
         if progress is not False:
             import sys
 
@@ -201,20 +263,25 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
                       + (f"{a['mu_cover']:.0%} / {a['mu_beyond4']:.0%}" if math.isfinite(a["mu_cover"]) else "-")
                       + " |")
         rows_s.append(f"| {d.name} | " + " | ".join(
-            f"{r['within']:.0%} ({r['pulls']}), {r['median_delay']:g} / {r['max_delay']:g}, {r['missed']}"
-            for r in (s, c, v)) + f" | {s['early'] + c['early'] + v['early']} | {s['false']} ({s['sticks']}) |")
+            f"{r['within']:.0%} ({r['pulls']}), {r['median_delay']:g} / {r['p95_delay']:g} / {r['max_delay']:g}, {r['missed']}"
+            for r in (s, c, v)) + " | " + " / ".join(
+            f"{r['known_over']:.0%} ({r['known_median']:.1f})" for r in (c, v))
+            + f" | {s['early'] + c['early'] + v['early']} | {s['false']} ({s['sticks']}) |")
         e = np.array(errors).reshape(-1, 3)
         rows_f.append(f"| {d.name} | " + " | ".join(
             f"{np.sqrt(np.mean(e[:, j] ** 2)):.2f} / {np.mean(np.abs(e[:, j]) <= 2):.0%}" for j in range(3))
-            + f" | {len(e)} | {tail['over3']:.1e} / {tail['over4']:.1e} / {tail['over_onset']:.1e} ({tail['frames']:.0f}) |")
+            + f" | {len(e)} | {tail['over3']:.1e} / {tail['over4']:.1e} / {tail['over_onset']:.1e} ({tail['frames']:.0f})"
+            + f" | {held['onsets']:.0f} ({held['scenes']:.0f}, {held['frames']:.0f} frames) |")
     head_a = ["| array | taxels | fx RMS/CRB / 2-sigma cover | fy | torque | RMS CRB (fx, torque) "
               "| mu resolved | mu 2-sigma cover / beyond 4 sigma |", "|---|---|---|---|---|---|---|---|"]
-    head_s = [f"| array | friction turning kinetic: within {ONSET_FRAMES} frames (pulls), delay median / max, missed "
-              "| constant friction: the same | constant friction, varied pulls: the same | early "
-              "| slip events on stick-only scenes (scenes) |", "|---|---|---|---|---|---|"]
+    head_s = [f"| array | friction turning kinetic: within {ONSET_FRAMES} frames (pulls), delay median / p95 / max, missed "
+              "| constant friction: the same | constant friction, varied pulls: the same "
+              f"| the onset known: over {ONSET_Z:g} sigma at {ONSET_FRAMES} frames (median sigma), constant / varied "
+              "| early | slip events on stick-only scenes (scenes) |", "|---|---|---|---|---|---|---|"]
     head_f = ["| array | filtered fx error/sigma RMS / 2-sigma cover | fy | torque | frames "
-              f"| slide test under stick: share of frames over 3 / 4 / {ONSET_Z:g} sigma (frames) |",
-              "|---|---|---|---|---|---|"]
+              f"| slide test under stick: share of frames over 3 / 4 / {ONSET_Z:g} sigma (frames) "
+              "| slip onsets on contacts held at 0.95 mu P (scenes) |",
+              "|---|---|---|---|---|---|---|"]
     return "\n".join([f"Independent frames ({n} per array):", "", *head_a, *rows_a, "",
                       f"Slip: pull-until-slip and stick-only scenes at 1 kHz (a fit every {FIT_EVERY} frames, "
                       "the step on every frame, as the daemon runs); delays in frames (ms at 1 kHz):", "",

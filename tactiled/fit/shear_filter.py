@@ -232,6 +232,9 @@ class SlideTest:
         self._b = np.zeros((cap, 4, 4))
         self.z = 0.0
         self.joint = 0.0
+        self.slides = np.zeros(len(self._age))
+        self.tracks = np.zeros(len(self._age))
+        self.ages = np.zeros(len(self._age), dtype=int)
         #: the best track's slide scale ``A`` (mm per template unit) and template name
         self.scale = 0.0
         self.template = ""
@@ -239,6 +242,8 @@ class SlideTest:
     def reset(self) -> None:
         self._age[:] = -1
         self.z, self.joint, self.scale, self.template = 0.0, 0.0, 0.0, ""
+        self.slides[:] = self.tracks[:] = 0.0
+        self.ages[:] = 0
 
     def update(self, flt: ShearFilter, ux: float, uy: float) -> float:
         """Advance every track by the filter's last frame; the slide statistic along ``(ux, uy)``."""
@@ -275,7 +280,39 @@ class SlideTest:
             self.z, self.scale, self.template = 0.0, 0.0, ""
         both = za[zb > self.plateau_z]
         self.joint = float(both.max()) if both.size else 0.0
+        #: per track: the slide's statistic, the slide's and the levelling-off's together
+        #: (sigma) and the frames since its start (0: no track)
+        self.slides = za
+        self.tracks = self._combined(ux, uy, live, za)
+        self.ages = np.maximum(self._age, 0)
         return self.z
+
+    def track(self, age: int, template: str) -> int:
+        """The index (into :attr:`slides`, :attr:`tracks`) of the track started ``age - 1``
+        frames before the last with ``template``."""
+        sel = np.nonzero((self.ages == age) & (self._kind == self._names.index(template)))[0]
+        if not sel.size:
+            raise KeyError(f"no slide track of age {age} for {template!r}")
+        return int(sel[0])
+
+    def _combined(self, ux: float, uy: float, live: np.ndarray, za: np.ndarray) -> np.ndarray:
+        """Per track, the likelihood ratio of the slide and the levelling-off together (both
+        scales >= 0), in sigma: ``sqrt`` of the chi-bar-square statistic."""
+        u = np.array((ux, uy))
+        a_s, a_l = self._a[:, :2] @ u, self._a[:, 2:] @ u
+        m_ss = np.einsum("i,tij,j->t", u, self._b[:, :2, :2], u)
+        m_ll = np.einsum("i,tij,j->t", u, self._b[:, 2:, 2:], u)
+        m_sl = np.einsum("i,tij,j->t", u, self._b[:, :2, 2:], u)
+        det = m_ss * m_ll - m_sl * m_sl
+        ok = live & (m_ss > 0) & (m_ll > 0) & (det > 0)
+        det = np.where(ok, det, 1.0)
+        xs, xl = (m_ll * a_s - m_sl * a_l) / det, (m_ss * a_l - m_sl * a_s) / det
+        both = ok & (xs > 0) & (xl > 0)
+        z2 = np.where(both, a_s * xs + a_l * xl, 0.0)
+        zl = np.where(ok & (a_l > 0), a_l / np.sqrt(np.where(ok, m_ll, 1.0)), 0.0)
+        z2 = np.maximum(z2, np.maximum(za, 0.0) ** 2)
+        z2 = np.maximum(z2, np.where(both, 0.0, zl ** 2))
+        return np.where(ok, np.sqrt(z2), 0.0)
 
     @staticmethod
     def _along(a: np.ndarray, b: np.ndarray, ux: float, uy: float, live: np.ndarray

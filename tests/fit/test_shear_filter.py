@@ -88,3 +88,62 @@ def test_a_force_that_gives_way_restarts_its_filter():
             late.append(abs(v - t[4]) / s)
     assert flt.jumps >= 1
     assert max(late) < 3.5 and np.mean(np.array(late) <= 2) > 0.9
+
+
+def _innovation_chi2(frames: list[np.ndarray]) -> float:
+    """The filter run afresh on ``frames``: the sum of its innovations' chi-square."""
+    flt, total = ShearFilter(), 0.0
+    for p in frames:
+        flt.update(p, COV)
+        total += flt.chi2
+    return total
+
+
+def test_the_slide_and_levelling_off_together_equal_a_refit_of_their_scales():
+    """The joint statistic of a track (the slide and the force levelling off, both scales >= 0)
+    against a brute force that shares nothing with the test's recursion: the filter re-run on
+    the frames with a slide ``A (k + 1)^2`` and a levelling-off ``B (k + 1)`` taken out from
+    the track's start, the least chi-square of the innovations over a grid of ``A, B >= 0``;
+    the statistic is the square root of the fall from ``A = B = 0``."""
+    rng = np.random.default_rng(7)
+    start, n = 40, 47
+    seen = {}
+    for slide, level in ((0.002, 0.0015), (0.0, 0.0), (0.001, 0.0)):
+        frames = []
+        for i in range(n):
+            t = truth(i, slide, start)
+            if i >= start:
+                t[4] -= level * (i - start + 1)
+            frames.append(t + CHOL @ rng.normal(size=8))
+        flt, test = ShearFilter(), SlideTest()
+        for p in frames:
+            flt.update(p, COV)
+            test.update(flt, 1.0, 0.0)
+        got = test.tracks[test.track(n - start, "accelerating")]
+
+        def chi2(a: float, b: float) -> float:
+            out = []
+            for i, p in enumerate(frames):
+                q = p.copy()
+                if i >= start:
+                    q[2] -= a * (i - start + 1) ** 2
+                    q[4] += b * (i - start + 1)
+                out.append(q)
+            return _innovation_chi2(out)
+
+        base = chi2(0.0, 0.0)
+        # the chi-square is quadratic in (A, B): fit it from 6 points, minimise on A, B >= 0
+        pts = [(0, 0), (1e-3, 0), (0, 1e-3), (1e-3, 1e-3), (2e-3, 0), (0, 2e-3)]
+        rows = [(1, a, b, a * a, a * b, b * b) for a, b in pts]
+        c = np.linalg.solve(np.array(rows, float), [chi2(a, b) for a, b in pts])
+        h = np.array(((2 * c[3], c[4]), (c[4], 2 * c[5])))
+        cands = [(0.0, 0.0), (max(0.0, -c[1] / h[0, 0]), 0.0), (0.0, max(0.0, -c[2] / h[1, 1]))]
+        ab = np.linalg.solve(h, -c[1:3])
+        if (ab >= 0).all():
+            cands.append(tuple(ab))
+        least = min(c[0] + c[1] * a + c[2] * b + c[3] * a * a + c[4] * a * b + c[5] * b * b for a, b in cands)
+        want = math.sqrt(max(0.0, base - least))
+        assert abs(got - want) < 1e-6 * max(1.0, want), (slide, level, got, want)
+        seen[slide, level] = got
+    # the slide with the levelling-off is seen beyond the slide alone, far beyond the noise
+    assert seen[0.002, 0.0015] > seen[0.001, 0.0] > 3.0 > seen[0.0, 0.0]
