@@ -33,6 +33,8 @@ void lag_variance(const double* lag, std::int64_t k, double weight, double signi
 namespace {
 using namespace tracker;
 
+constexpr double RAD_TO_DEG = 180.0 / 3.141592653589793;
+
 void need_shape(const py::array& a, const char* name, py::ssize_t rows, py::ssize_t cols) {
     if (a.ndim() != 2 || a.shape(0) != rows || a.shape(1) != cols)
         throw py::value_error(std::string(name) + ": expected shape (" + std::to_string(rows) +
@@ -43,8 +45,8 @@ class TrackStep {
 public:
     TrackStep(py::array s, py::array lag, py::array c, py::array z, py::array ebuf,
               py::array index, py::array at, py::array gain, py::array jacobian, py::array weight,
-              py::tuple constants)
-        : keep_{s, lag, c, z, ebuf, index, at, gain, jacobian, weight} {
+              py::array corr, py::array sys, py::array lag_key, py::tuple constants)
+        : keep_{s, lag, c, z, ebuf, index, at, gain, jacobian, weight, corr, sys, lag_key} {
         k_ = z.size();
         n_ = index.size();
         if (k_ < 1 || k_ > 62) throw py::value_error("z: 1 to 62 parameters");
@@ -53,6 +55,8 @@ public:
         need_shape(c, "c", 8, k_);
         need_shape(gain, "gain", k_, n_);
         need_shape(jacobian, "jacobian", n_, k_);
+        need_shape(corr, "corr", k_, k_);
+        need_shape(sys, "sys", k_, k_);
         s_ = data_of<double>(s, "s", true);
         lag_ = data_of<double>(lag, "lag", true);
         c_ = data_of<double>(c, "c", false);
@@ -63,6 +67,11 @@ public:
         gain_ = data_of<double>(gain, "gain", false);
         jac_ = data_of<double>(jacobian, "jacobian", false);
         w_ = data_of<double>(weight, "weight", false, n_);
+        corr_ = data_of<double>(corr, "corr", false);
+        sys_ = data_of<double>(sys, "sys", false);
+        lag_key_ = data_of<std::int64_t>(lag_key, "lag_key", false, k_);
+        for (py::ssize_t i = 0; i < k_; ++i)
+            if (lag_key_[i] < -1 || lag_key_[i] > 5) throw py::value_error("lag_key: -1 to 5");
         if (constants.size() != CONSTANT_COUNT)
             throw py::value_error("constants: expected " + std::to_string(CONSTANT_COUNT));
         double v[CONSTANT_COUNT];
@@ -80,6 +89,12 @@ public:
         k.lag_weight = v[10];
         k.lag_significant = v[11];
         k.max_gap_s = v[12];
+        k.model = static_cast<std::int64_t>(v[13]);
+        k.has_sys = v[14] != 0.0;
+        k.lag_noise = v[15];
+        const py::ssize_t least = k.model == 2 ? 6 : k.model == 0 ? 5 : 4;
+        if (k.model < 0 || k.model > 2 || k_ < least)
+            throw py::value_error("model: a code of kernels.MODEL_CODES with its parameters");
         if (k.beta_i >= k_) throw py::value_error("beta_i: outside the parameters");
         max_ix_ = -1;
         for (py::ssize_t j = 0; j < n_; ++j) {
@@ -138,6 +153,29 @@ public:
         return advance(dt, false);
     }
 
+    // TrackStep.estimate: the estimate's numbers dt s ahead, the lag in each moving value's
+    // variance; (values, variances, cov_r1_force, absent), lists of 6.
+    py::tuple estimate(double dt, double excess) {
+        double values[6], var[6], cov_rf = 0.0;
+        const std::int64_t absent =
+            estimate_numbers(k.model, s_, k_, c_, dt, excess, corr_, sys_, k.has_sys,
+                             k.lag_noise, values, var, cov_rf);
+        lag_variance(lag_, k_, k.lag_weight, k.lag_significant, extra_.data());
+        for (py::ssize_t i = 0; i < k_; ++i) {
+            const std::int64_t key = lag_key_[i];
+            if (extra_[i] > 0.0 && key >= 0) {
+                const double unit = key == 2 ? values[2] : key == 5 ? RAD_TO_DEG : 1.0;
+                var[key] += extra_[i] * unit * unit;
+            }
+        }
+        py::list vl(6), vr(6);
+        for (int i = 0; i < 6; ++i) {
+            vl[i] = py::float_(values[i]);
+            vr[i] = py::float_(var[i]);
+        }
+        return py::make_tuple(vl, vr, cov_rf, absent);
+    }
+
     py::array s() const { return keep_[0]; }
     py::array lag() const { return keep_[1]; }
     py::array z() const { return keep_[3]; }
@@ -156,13 +194,13 @@ private:
         return true;
     }
 
-    py::array keep_[10];
+    py::array keep_[13];
     py::ssize_t k_ = 0, n_ = 0;
     std::int64_t max_ix_ = -1;
     Constants k{};
     double *s_, *lag_, *z_, *ebuf_;
-    const double *c_, *at_, *gain_, *jac_, *w_;
-    const std::int64_t* ix_;
+    const double *c_, *at_, *gain_, *jac_, *w_, *corr_, *sys_;
+    const std::int64_t *ix_, *lag_key_;
     std::vector<double> e_, dz_, nu_, extra_;
 };
 }  // namespace
@@ -173,10 +211,13 @@ void bind_track_step(py::module_& m) {
     py::class_<TrackStep>(m, "TrackStep",
                           "One tracked contact's frame in one call (kernels.TrackStep).")
         .def(py::init<py::array, py::array, py::array, py::array, py::array, py::array,
-                      py::array, py::array, py::array, py::array, py::tuple>(),
+                      py::array, py::array, py::array, py::array, py::array, py::array,
+                      py::array, py::tuple>(),
              py::arg("s"), py::arg("lag"), py::arg("c"), py::arg("z"), py::arg("ebuf"),
              py::arg("index"), py::arg("at"), py::arg("gain"), py::arg("jacobian"),
-             py::arg("weight"), py::arg("constants"))
+             py::arg("weight"), py::arg("corr"), py::arg("sys"), py::arg("lag_key"),
+             py::arg("constants"))
+        .def("estimate", &TrackStep::estimate, py::arg("dt"), py::arg("excess"))
         .def("measure", &TrackStep::measure, py::arg("frame"), py::arg("at"))
         .def("advance", &TrackStep::advance, py::arg("dt"), py::arg("fitted") = false)
         .def("step", &TrackStep::step, py::arg("frame"), py::arg("dt"))

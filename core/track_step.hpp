@@ -21,8 +21,11 @@ struct Constants {
     std::int64_t beta_i;
     double beta_sign, memory_s, hold_s, drift_alpha, drift_limit, lag_weight, lag_significant,
         max_gap_s;
+    std::int64_t model;
+    bool has_sys;
+    double lag_noise;
 };
-constexpr int CONSTANT_COUNT = 13;
+constexpr int CONSTANT_COUNT = 16;
 
 // Per parameter, the lag's variance (kernels.lag_variance): lag (2, k) -> out (k).
 void lag_variance(const double* lag, std::int64_t k, double weight, double significant,

@@ -2,13 +2,17 @@
 
 Their conftests import :func:`no_leftover_workers`, :func:`arun` and
 :func:`hookable_workers` (pytest takes fixtures from a conftest's namespace); any test may import :func:`block_until`; the service suite has its own variants, which tolerate the
-workers of module-scoped servers and cap ``arun`` at 60 s.
+workers of module-scoped servers and cap ``arun`` at 60 s.  :class:`SimulatedDevice` is
+``tactiled simulate`` as a device of its own, for every suite that needs one.
 """
 
 from __future__ import annotations
 
 import asyncio
 import multiprocessing
+import queue
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Coroutine, Iterator
@@ -59,6 +63,84 @@ def block_until(condition: Callable[[], bool], timeout: float, what: str = "cond
             raise AssertionError(f"{what}: not within {timeout} s")
         time.sleep(poll)
     return time.monotonic() - start
+
+
+class SimulatedDevice:
+    """``tactiled simulate ARGS`` in a process of its own: a simulated device on a pty or a
+    WebSocket, as a user starts one.  Use it as a context manager (it is stopped at the end).
+
+    Its output is read by two threads as it comes: :meth:`line` takes the lines it prints on
+    stdout (its address first: ``pty: PATH``, ``link: PATH``, ``xela: ws://HOST:PORT``), with
+    a deadline; :meth:`stderr` is what it wrote there (its log and its final counts), so
+    neither pipe can fill and stall it."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-m", "tactiled.cli", "simulate", *args],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        self._lines: queue.Queue[str | None] = queue.Queue()
+        self._err: list[str] = []
+        self._readers = [
+            threading.Thread(target=self._read, args=(self.proc.stdout, self._lines.put),
+                             name="simulate-stdout", daemon=True),
+            threading.Thread(target=self._read, args=(self.proc.stderr, self._err.append),
+                             name="simulate-stderr", daemon=True)]
+        for reader in self._readers:
+            reader.start()
+
+    @staticmethod
+    def _read(pipe: Any, put: Callable[[Any], None]) -> None:
+        for text in pipe:
+            put(text)
+        put(None)  # end of output
+        pipe.close()
+
+    def line(self, timeout: float = 60.0) -> str:
+        """The next line it prints on stdout, stripped; AssertionError with its stderr if none
+        comes within ``timeout`` s (its start imports numpy and the core: seconds on a loaded
+        machine) or it ends first."""
+        try:
+            text = self._lines.get(timeout=timeout)
+        except queue.Empty:
+            text = None
+        if text is None:
+            self.stop()
+            raise AssertionError(f"`tactiled simulate` printed no line within {timeout} s "
+                                 f"(exit {self.proc.returncode}): {self.stderr()[-2000:]}")
+        return text.strip()
+
+    def signal(self, signum: int, timeout: float = 30.0) -> int:
+        """Send ``signum`` and wait for the exit; its exit status (killed after ``timeout``
+        s: the interpreter takes seconds to exit on a loaded machine)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signum)
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise AssertionError(f"`tactiled simulate` still running {timeout} s after "
+                                 f"signal {signum}") from None
+
+    def stop(self, timeout: float = 30.0) -> int:
+        """SIGTERM, then its exit status (SIGKILL after ``timeout`` s)."""
+        import signal
+
+        try:
+            return self.signal(signal.SIGTERM, timeout)
+        except AssertionError:
+            return self.proc.returncode
+
+    def stderr(self) -> str:
+        """What it wrote on stderr; all of it once it has exited."""
+        if self.proc.poll() is not None:
+            self._readers[1].join(10.0)
+        return "".join(t for t in self._err if t is not None)
+
+    def __enter__(self) -> SimulatedDevice:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
 
 
 @pytest.fixture

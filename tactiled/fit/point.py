@@ -28,6 +28,15 @@ if TYPE_CHECKING:
     from tactiled.fit.fitter import Fitter
 
 
+#: The general model's cold starts: the start table's radius as r1 and this many times less
+#: curvature across it (r2 twice r1: the middle of the ellipsoids 1.5-4 times apart that
+#: ``tactiled bench --suite sensors`` presses).  A near-cylinder start (r2 25 times r1) made
+#: the Hertz ellipse of a hard press (10-25 N on the 12x32 mat under its 1.5 mm cover) many
+#: rubber depths long, and its first evaluations spent the fit's base work before the search
+#: came near: 25 % of those ellipsoids' fits were stopped by the budget, 10 % from these.
+GENERAL_START_BETA2 = 0.5
+
+
 class PointFit:
     """The fit of one point-contact model (``spec``: cylinder, sphere or general)."""
 
@@ -83,18 +92,18 @@ class PointFit:
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, 2, sd_angle, scan=()),
                 key="angle_deg")
-        if best.converged and model.name == "general" and res.values.get("angle_deg") is not None:
-            # an ellipse not told from a circle has no orientation
-            withhold_flat(res.values, res.std, res.reasons, round_test(
-                f, fr, best.p, steps_of(model), bounds_of(model), lambda: f._residual(fr, model),
-                lambda: f._residual(fr, get_model("sphere")), res.chi2, res.values, res.std),
-                key="angle_deg")
         if best.converged and model.name == "general":
-            # the larger radius on its profile, both sides (a light ellipsoid's valley where
-            # both radii shrink together: tactiled.fit.profile.r2_profile); a test the budget
-            # cuts short is not used, and does not make the fit a stopped one
+            # a test the budget cuts short is not used, and does not make the fit a stopped one
             budget = f._budget
             spent = budget is None or budget.exhausted
+            if res.values.get("angle_deg") is not None:
+                # an ellipse not told from a circle has no orientation
+                withhold_flat(res.values, res.std, res.reasons, round_test(
+                    f, fr, best.p, steps_of(model), bounds_of(model),
+                    lambda: f._residual(fr, model), lambda: f._residual(fr, get_model("sphere")),
+                    res.chi2, res.values, res.std), key="angle_deg")
+            # the larger radius on its profile, both sides (a light ellipsoid's valley where
+            # both radii shrink together: tactiled.fit.profile.r2_profile)
             withhold_flat(res.values, res.std, res.reasons, r2_profile(
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, res.values.get("r2_mm"),
@@ -115,7 +124,8 @@ class PointFit:
         out = []
         for c in cands:
             if model.name == "general":
-                out.append(model.from_values(c.radius, c.radius / 0.04, c.psi_deg, f0, x0, y0))
+                out.append(model.from_values(c.radius, c.radius / GENERAL_START_BETA2, c.psi_deg,
+                                             f0, x0, y0))
             else:
                 out.append(model.from_values(c.radius, math.inf, c.psi_deg, f0, x0, y0))
             if model.name == "sphere":

@@ -38,9 +38,10 @@ EDGE_MM = 1.0
 #: An ellipse's larger radius whose likelihood rises slowly above it (under ``PROFILE_SIGMAS^2``
 #: at ``PROFILE_SIGMAS`` sigmas) and whose sigma, so widened, is at least this many times it
 #: is withheld: its curvature lies within half a sigma of zero (a cylinder's).  Measured on
-#: the paper's finger's light ellipsoids (``tactiled bench --suite sensors``): such values
-#: lay 5-16 Cramer-Rao bounds from the truth; at 1 instead of 2, 13-19 % of the values the
-#: bound at the truth resolves were withheld, at 2, 4-9 %.
+#: the paper's finger's light ellipsoids (the frames of ``tactiled bench --suite sensors
+#: --sensor fearing1988 --seed N``, seeds 1-3, fitted one by one): such values lay 5-16
+#: Cramer-Rao bounds from the truth; at 1 instead of 2, 13-19 % of the values the bound at
+#: the truth resolves were withheld, at 2, 4-9 %.
 CYLINDER_RELATIVE_SIGMA = 2.0
 #: An ellipse whose sphere (its radii held equal) raises chi^2 by less than this is not told
 #: from a circle: its orientation is withheld (:func:`round_test`); by less than

@@ -72,9 +72,7 @@ from tactiled.pipeline.kernels import (
     V,
     X,
     TrackStep,
-    estimate_numbers,
     fold_residuals,
-    lag_variance,
     linearization_constants,
     moved_from_point,
 )
@@ -219,9 +217,9 @@ class Tracker:
 
     ``memory_s``: how far back the moving parameters' filter looks (s); ``hold_s``: the same
     for the curvatures.  Times are the device's clock in seconds.  The per-parameter state is
-    one small array (``_s``, rows ``kernels.X .. DRIFT``) that the compiled kernels of
-    :mod:`tactiled.pipeline.kernels` measure, filter, test and report in one call each per
-    frame; the rules that withhold a value stay here, in Python.
+    one small array (``_s``, rows ``kernels.X .. DRIFT``) that the compiled
+    :class:`~tactiled.pipeline.kernels.TrackStep` measures, filters and tests in one call
+    per frame, and reports in one more; the rules that withhold a value stay here, in Python.
     """
 
     def __init__(self, memory_s: float = 0.1, hold_s: float = 30.0,
@@ -437,9 +435,12 @@ class Tracker:
                 self._s if started else np.zeros((DRIFT + 1, size)),
                 self._lag if started else np.zeros((2, size)), self._c, np.zeros(size),
                 self._ebuf, self._index, self._at, self._gain, self._jacobian, self._weight,
+                self._corr, self._sys,
+                np.array([_LAG_KEY.get(n, -1) for n in self.names], dtype=np.intp),
                 (self._limit, self._ln_f, RESET_SIGMA, MAX_LOG_FORCE_STEP, beta_i, beta_sign,
                  self.memory_s, self.hold_s, DRIFT_ALPHA, _DRIFT_ALARM, LAG_WEIGHT,
-                 LAG_SIGNIFICANT, MAX_GAP_S))
+                 LAG_SIGNIFICANT, MAX_GAP_S, self._model_code, float(self._has_sys),
+                 LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA)))
         return k
 
     def skip(self) -> None:
@@ -508,15 +509,9 @@ class Tracker:
         dt = dt if 0.0 < dt < MAX_GAP_S else 0.0
         # The delta method term by term: sd_a sd_b corr_ab (the filters' variances with the
         # drift detector's lag, the single frame's correlation) plus the systematic part, then
-        # each moving value's lag (kernels.lag_variance).  A runaway value overflows to inf (withheld).
-        numbers, var, cov_rf, absent = estimate_numbers(
-            self._model_code, self._s, self._c, dt, self.excess, self._corr, self._sys,
-            self._has_sys, LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA))
-        numbers, var = numbers.tolist(), var.tolist()
-        for n, extra in zip(self.names, lag_variance(self._lag, LAG_WEIGHT, LAG_SIGNIFICANT).tolist()):
-            if extra > 0.0 and n in _LAG_KEY:
-                unit = {"ln_f": numbers[_I_FORCE] or 0.0, "psi": 180.0 / math.pi}.get(n, 1.0)
-                var[_LAG_KEY[n]] += extra * unit * unit
+        # each moving value's lag (kernels.TrackStep.estimate).  A runaway value overflows to
+        # inf (withheld).
+        numbers, var, cov_rf, absent = self._kernel().estimate(dt, self.excess)
         values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
         if absent:
             for i, key in enumerate(VALUE_KEYS):

@@ -8,7 +8,8 @@
 # measurement then goes through the per-parameter Kalman filters
 # (:meth:`~tactiled.pipeline.contact_filter.Tracker.step`), a few dozen float operations per parameter
 # that cost as Python far more than as machine code.  Here each is one call, on the tracker's
-# state and constants as two small tables (the ``X .. DRIFT`` and ``C_R .. C_LIN_SD`` rows).
+# state and constants as two small tables (the ``X .. DRIFT`` and ``C_R .. C_LIN_SD`` rows),
+# and :class:`TrackStep` puts a tracked frame's together: one call a frame, one an estimate.
 #
 # The functions below are the Python reference; the compiled core (core/tracker.cpp) replaces
 # them unless ``TACTILED_CORE=python`` (:func:`tactiled.native.bind`).  The core sums in plain
@@ -325,7 +326,7 @@ STEP_RESTART = -3  # measured after a gap in the clock (or before the filter sta
 #: :class:`TrackStep`'s scalar constants, in the order it takes them
 TRACK_CONSTANTS = ("limit", "ln_f", "reset_sigma", "max_log_force_step", "beta_i", "beta_sign",
                    "memory_s", "hold_s", "drift_alpha", "drift_limit", "lag_weight",
-                   "lag_significant", "max_gap_s")
+                   "lag_significant", "max_gap_s", "model", "has_sys", "lag_noise")
 
 
 def lag_variance(lag: np.ndarray, weight: float, significant: float) -> np.ndarray:
@@ -346,20 +347,27 @@ class TrackStep:
     ``s`` (6, k, the filters), ``lag`` (2, k: the innovations' running mean, their predicted
     variance), ``z`` (k: the last measurement), ``ebuf`` (n: the residuals not yet folded);
     read: ``c`` (8, k) and the linearisation (``index``, ``at``, ``gain``, ``jacobian``,
-    ``weight``).  ``constants``: :data:`TRACK_CONSTANTS`' values (``beta_i`` -1: no floor).
-    The core's ``TrackStep`` (core/track_step.cpp) is this, bit for bit but for
-    :func:`measure_window`'s sums (tests/native/test_track_step.py)."""
+    ``weight``); for the estimate (:meth:`estimate`), the single frame's correlations
+    ``corr`` and the systematic covariance ``sys`` (k, k), and ``lag_key`` (k: the value of
+    ``VALUE_KEYS`` each parameter's lag widens, -1 none).  ``constants``:
+    :data:`TRACK_CONSTANTS`' values (``beta_i`` -1: no floor; ``model`` a
+    :data:`MODEL_CODES` code).  The core's ``TrackStep`` (core/track_step.cpp) is this, bit
+    for bit but for :func:`measure_window`'s sums (tests/native/test_track_step.py)."""
 
     def __init__(self, s: np.ndarray, lag: np.ndarray, c: np.ndarray, z: np.ndarray,
                  ebuf: np.ndarray, index: np.ndarray, at: np.ndarray, gain: np.ndarray,
-                 jacobian: np.ndarray, weight: np.ndarray, constants: tuple[float, ...]) -> None:
+                 jacobian: np.ndarray, weight: np.ndarray, corr: np.ndarray, sys: np.ndarray,
+                 lag_key: np.ndarray, constants: tuple[float, ...]) -> None:
         self.s, self.lag, self.c, self.z, self.ebuf = s, lag, c, z, ebuf
         self.index, self.at, self.gain, self.jacobian, self.weight = (
             index, at, gain, jacobian, weight)
+        self.corr, self.sys, self.lag_key = corr, sys, [int(v) for v in lag_key]
         (self.limit, ln_f, self.reset_sigma, self.max_log_force_step, beta_i, self.beta_sign,
          self.memory_s, self.hold_s, self.drift_alpha, self.drift_limit, self.lag_weight,
-         self.lag_significant, self.max_gap_s) = (float(v) for v in constants)
-        self.ln_f, self.beta_i = int(ln_f), int(beta_i)
+         self.lag_significant, self.max_gap_s, model, has_sys,
+         self.lag_noise) = (float(v) for v in constants)
+        self.ln_f, self.beta_i, self.model, self.has_sys = (
+            int(ln_f), int(beta_i), int(model), has_sys != 0.0)
         self.e = np.zeros(index.size)
 
     def measure(self, frame: np.ndarray, at: np.ndarray) -> bool:
@@ -418,6 +426,22 @@ class TrackStep:
         if not self.measure(frame, self.at):
             return STEP_UNMEASURED
         return self.advance(dt)
+
+    def estimate(self, dt: float, excess: float) -> tuple[list[float], list[float], float, int]:
+        """The estimate's numbers (:func:`estimate_numbers` of the held state, ``dt`` s ahead,
+        its variances times ``excess``) with each moving value's lag (:func:`lag_variance`)
+        added to its variance, in its unit (the force's: times the force squared; the
+        angle's: degrees).  ``(values, variances, cov_r1_force, absent)``, lists of 6."""
+        values, var, cov_rf, absent = estimate_numbers(
+            self.model, self.s, self.c, dt, excess, self.corr, self.sys, self.has_sys,
+            self.lag_noise)
+        values, var = values.tolist(), var.tolist()
+        extra = lag_variance(self.lag, self.lag_weight, self.lag_significant).tolist()
+        for i, key in enumerate(self.lag_key):
+            if extra[i] > 0.0 and key >= 0:
+                unit = values[2] if key == 2 else _RAD_TO_DEG if key == 5 else 1.0
+                var[key] += extra[i] * unit * unit
+        return values, var, cov_rf, absent
 
 
 #: The Python bodies the core is held to (tests/native/test_tracker_core.py), whichever runs.

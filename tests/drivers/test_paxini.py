@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import re
 import struct
-import subprocess
 import sys
 from pathlib import Path
 
@@ -15,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from procs import read_source
+from procs import SimulatedDevice, read_source
 from tactiled_drivers import paxini
 
 ROWS, COLS = 2, 3
@@ -104,17 +103,12 @@ def test_other_module_and_wrong_length_rejected() -> None:
 def test_source_reads_the_simulated_module(tmp_path: Path) -> None:
     """The source asks, the simulated module (a real pty) answers; frames arrive, none bad."""
     link = tmp_path / "px"
-    proc = subprocess.Popen([sys.executable, "-m", "tactiled.cli", "simulate", "--as", "paxini",
-                             "--device", str(link), "--rate", "500", "--seed", "2"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().startswith("pty: "), proc.stderr.read()
-        assert proc.stdout.readline().strip() == f"link: {link}"
+    with SimulatedDevice("--as", "paxini", "--device", str(link), "--rate", "500",
+                         "--seed", "2") as device:
+        assert device.line().startswith("pty: ")
+        assert device.line() == f"link: {link}"
 
         got, stats = read_source(f"paxini://{link}", lambda got: len(got) >= 50, 20.0)
-    finally:
-        proc.terminate()
-        proc.wait(10)
     assert len(got) >= 50
     assert all(f.taxels.shape == (10, 12, 3) and f.raw.shape == (10, 12) for f in got)
     assert stats.rejected == 0
@@ -126,22 +120,17 @@ def test_the_simulated_module_pushes_sideways(tmp_path: Path) -> None:
     """`--scene push`: the answers carry the 3-axis model's x and y, far above the rest's
     noise (1 count), and z of the press; none is rejected."""
     link = tmp_path / "px"
-    proc = subprocess.Popen([sys.executable, "-m", "tactiled.cli", "simulate", "--as", "paxini",
-                             "--device", str(link), "--rate", "1000", "--seed", "2",
-                             "--scene", "push"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().startswith("pty: "), proc.stderr.read()
-        proc.stdout.readline()
 
-        def pushed(got: list) -> bool:
-            return max((np.abs(f.taxels[..., :2].astype(int) - paxini.ZERO_COUNTS).max()
-                        for f in got), default=0) >= 8
+    def pushed(got: list) -> bool:
+        return max((np.abs(f.taxels[..., :2].astype(int) - paxini.ZERO_COUNTS).max()
+                    for f in got), default=0) >= 8
+
+    with SimulatedDevice("--as", "paxini", "--device", str(link), "--rate", "1000",
+                         "--seed", "2", "--scene", "push") as device:
+        assert device.line().startswith("pty: ")
+        assert device.line() == f"link: {link}"
 
         got, stats = read_source(f"paxini://{link}", pushed, 30.0)
-    finally:
-        proc.terminate()
-        proc.wait(10)
     xyz = np.stack([f.taxels for f in got]).astype(int) - paxini.ZERO_COUNTS
     assert np.abs(xyz[..., :2]).max() >= 8, np.abs(xyz[..., :2]).max()
     assert xyz[..., 2].max() > 20 and xyz[..., 2].min() >= 0

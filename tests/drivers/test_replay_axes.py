@@ -14,7 +14,7 @@ import sys
 import numpy as np
 import pytest
 
-from procs import read_source
+from procs import SimulatedDevice, read_source
 from tactiled.frames import Frame, encode_frame
 from tactiled.io.recording import Recorder, RecordingReader
 from tactiled.sensors import load_description
@@ -57,18 +57,12 @@ def test_simulate_pty_streams_3_axis_wire_frames(tmp_path) -> None:
     """`tactiled simulate --pty` on a 3-axis sensor and a tangential scene: a real pty carrying
     version-2 frames, read by the serial driver as 3-axis frames, none rejected."""
     link = tmp_path / "tact"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tactiled.cli", "simulate", "--pty", "--link", str(link),
-         "--sensor", "xela_uskin_4x4", "--scene", "pull", "--rate", "1000", "--seed", "3"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().startswith("pty: "), proc.stderr.read()
-        assert proc.stdout.readline().strip() == f"link: {link}"
+    with SimulatedDevice("--pty", "--link", str(link), "--sensor", "xela_uskin_4x4",
+                         "--scene", "pull", "--rate", "1000", "--seed", "3") as device:
+        assert device.line().startswith("pty: ")
+        assert device.line() == f"link: {link}"
 
         got, stats = read_source(f"serial://{link}", lambda got: len(got) >= 100, 30.0)
-    finally:
-        proc.terminate()
-        proc.wait(10)
     assert all(f.taxels is not None and f.taxels.shape == (4, 4, 3) for f in got)
     assert stats.rejected == 0 and stats.version_errors == 0
 

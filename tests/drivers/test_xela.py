@@ -125,17 +125,13 @@ def test_the_simulated_server_pulls_sideways() -> None:
     """`tactiled simulate --as xela --scene pull` (a real WebSocket server): sensor 1's x, y, z
     follow the 3-axis model (here of `--sensor xela_uskin_4x6`), at rest first then moved far
     beyond the noise (2 counts); sensor 2 rests."""
-    import subprocess
-    import sys
+    from procs import SimulatedDevice
 
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tactiled.cli", "simulate", "--as", "xela", "--device", "0",
-         "--rate", "1000", "--seed", "3", "--scene", "pull", "--sensor", "xela_uskin_4x6"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = proc.stdout.readline()
-        assert line.startswith("xela: ws://"), proc.stderr.read()
-        addr = line.strip().removeprefix("xela: ws://")
+    with SimulatedDevice("--as", "xela", "--device", "0", "--rate", "1000", "--seed", "3",
+                         "--scene", "pull", "--sensor", "xela_uskin_4x6") as device:
+        line = device.line()
+        assert line.startswith("xela: ws://"), line
+        addr = line.removeprefix("xela: ws://")
 
         async def read(number: int, enough: int) -> list:
             """Sensor ``number``'s frames until one has moved by 100 counts, or ``enough``."""
@@ -151,9 +147,6 @@ def test_the_simulated_server_pulls_sideways() -> None:
 
         pulled = asyncio.run(asyncio.wait_for(read(1, 5000), 90.0))
         resting = asyncio.run(asyncio.wait_for(read(2, 50), 60.0))
-    finally:
-        proc.terminate()
-        proc.wait(30)
     xyz = np.stack([f.taxels for f in pulled]).astype(float)
     assert xyz.shape[1:] == (4, 6, 3)
     assert np.abs(xyz - xyz[0]).max() > 100  # the pull moves the magnets

@@ -57,9 +57,11 @@ def test_without_the_profile_the_same_frames_are_covered_less(monkeypatch, on_de
     assert math.isfinite(float(zt.max()))
 
 
-def _near_spheres(monkeypatch, on_description, tested: bool) -> tuple[list[float], int]:
+def _near_spheres(monkeypatch, on_description, tested: bool,
+                  force: float = 2.0) -> tuple[list[float], int]:
     """``|error| / sigma`` of every published orientation of light near-spheres (radii
-    1.0-1.4 times apart, 4-15 mm, at 2 N) on the coarse XELA 4x6 pad, and the fits made."""
+    1.0-1.4 times apart, 4-15 mm, at ``force`` N) on the coarse XELA 4x6 pad, and the fits
+    made."""
     if not tested:
         monkeypatch.setattr(point, "round_test", lambda *a, **k: None)
     sensor, model, fitter = on_description("xela_uskin_4x6")
@@ -69,7 +71,7 @@ def _near_spheres(monkeypatch, on_description, tested: bool) -> tuple[list[float
     for _ in range(12):
         r1 = math.exp(rng.uniform(math.log(4.0), math.log(15.0)))
         psi = rng.uniform(0.0, 180.0)
-        c = Contact(r1, r1 * rng.uniform(1.0, 1.4), psi, 2.0,
+        c = Contact(r1, r1 * rng.uniform(1.0, 1.4), psi, force,
                     g.span_x * rng.uniform(0.3, 0.7), g.span_y * rng.uniform(0.3, 0.7))
         clean = model.predict(c)
         for _ in range(10):

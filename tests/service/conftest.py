@@ -43,9 +43,11 @@ PYTHON = sys.executable
 
 
 @pytest.fixture(scope="module")
-def shared_server() -> Iterator[LiveServer]:
-    """Two simulated fingers served for the whole module (read-only tests share it)."""
-    server = LiveServer(sim_settings(2), shared=True).start()
+def shared_server(request: pytest.FixtureRequest) -> Iterator[LiveServer]:
+    """Two simulated fingers served for the whole module (read-only tests share it), at the
+    module's ``SHARED_RATE_HZ`` if it sets one (the simulator's 1 kHz if not)."""
+    rate_hz = getattr(request.module, "SHARED_RATE_HZ", None)
+    server = LiveServer(sim_settings(2, rate_hz=rate_hz), shared=True).start()
     try:
         yield server
     finally:

@@ -21,13 +21,17 @@ SIM = "sim://?scene=demo&seed={seed}&sensor_id={sid}"
 FIT_LINE_KEYS = frozenset(FitResult(contact=False).to_json_dict())
 
 
-def sim_settings(sensors: int = 2, **extra: Any) -> Settings:
+def sim_settings(sensors: int = 2, *, rate_hz: float | None = None, **extra: Any) -> Settings:
     """Settings with ``sensors`` simulated fingers (finger0, finger1...), one fit worker,
-    port 0 on 127.0.0.1, plus ``extra`` dotted overrides."""
+    port 0 on 127.0.0.1, plus ``extra`` dotted overrides.  ``rate_hz``: the fingers' frame
+    rate (the simulator's default, 1 kHz, if None); a test about what a server answers, not
+    about the frame path, can ask for fewer frames: the in-process server's frame path shares
+    the test's interpreter (and its lock), 1 kHz per finger costs about half a core."""
     overrides: dict[str, Any] = {"server.host": "127.0.0.1", "server.port": 0,
                                  "fit.workers": 1}
     for i in range(sensors):
-        overrides[f"sensor[{i}].url"] = SIM.format(seed=i + 1, sid=i)
+        overrides[f"sensor[{i}].url"] = SIM.format(seed=i + 1, sid=i) + (
+            "" if rate_hz is None else f"&rate={rate_hz:g}")
         overrides[f"sensor[{i}].name"] = f"finger{i}"
     overrides.update(extra)
     return load_settings(None, {}, overrides)

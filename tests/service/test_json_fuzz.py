@@ -27,6 +27,9 @@ from tactiled_service.inbound import MAX_DEPTH, MAX_INT_DIGITS, BadJson, decode_
 
 FUZZ = settings(deadline=None, derandomize=True, database=None,
                 suppress_health_check=[HealthCheck.too_slow])
+#: The shared server's frame rate (Hz; tests/service/conftest.py): what is fuzzed is the
+#: parsing of messages and bodies, not the frame path, which shares the test's interpreter.
+SHARED_RATE_HZ = 100.0
 
 # -- JSON texts ---------------------------------------------------------------------------------
 

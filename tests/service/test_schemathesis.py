@@ -60,6 +60,10 @@ MAX_EXAMPLES_ANONYMOUS = 25
 MAX_EXAMPLES_AUTHORISED = 50
 MAX_EXAMPLES_SLOW = 1000
 REQUEST_TIMEOUT_S = 10.0
+#: The fingers' frame rate (Hz): what is fuzzed is HTTP, not the frame path, which shares the
+#: test's interpreter and at the simulator's 1 kHz took half of each pass's CPU.
+RATE_HZ = 100.0
+SHARED_RATE_HZ = RATE_HZ  # the module's shared_server (tests/service/conftest.py)
 
 FUZZ_SETTINGS = settings(
     deadline=None,  # a request to a busy server may take a while; that is not a failure
@@ -244,7 +248,7 @@ def wait_until_published(base: str, headers: dict[str, str] | None = None) -> No
 
 def test_fuzz_open_loopback_server(live_server):
     """Loopback without a token: every operation open, every body exercised."""
-    server = live_server(sim_settings(len(SENSORS)))
+    server = live_server(sim_settings(len(SENSORS), rate_hz=RATE_HZ))
     wait_until_published(server.url)
     done = Pass(server.url).run()
     done.report("loopback, no token")
@@ -258,7 +262,7 @@ def test_fuzz_open_loopback_server_long(live_server, request):
     """The first pass with 10 times more generated cases (~5 minutes): ``-m slow``."""
     if "slow" not in (request.config.getoption("markexpr") or ""):
         pytest.skip("slow: opt in with -m slow")
-    server = live_server(sim_settings(len(SENSORS)))
+    server = live_server(sim_settings(len(SENSORS), rate_hz=RATE_HZ))
     wait_until_published(server.url)
     Pass(server.url, max_examples=MAX_EXAMPLES_SLOW).run().report("loopback, no token, long")
 
@@ -266,7 +270,8 @@ def test_fuzz_open_loopback_server_long(live_server, request):
 def test_fuzz_token_server_without_and_with_the_token(live_server):
     """With a token: unauthenticated, every protected operation answers 401 whatever the
     input (401 before any validation, never a 5xx); authenticated, every body is exercised."""
-    server = live_server(sim_settings(len(SENSORS), **{"server.token": TOKEN}))
+    server = live_server(sim_settings(len(SENSORS), rate_hz=RATE_HZ,
+                                       **{"server.token": TOKEN}))
     auth = {"Authorization": f"Bearer {TOKEN}"}
     wait_until_published(server.url, auth)
 

@@ -6,19 +6,15 @@ real simulated xela_server (`tactiled simulate --as xela`), stopped with a real 
 from __future__ import annotations
 
 import signal
-import subprocess
-import sys
 
 from svc_helpers import http, wait_for
+from test_vendor_devices import start_device
 
 
 def test_a_xela_sensor_starts_quietly_and_ctrl_c_is_no_warning(daemon_process, tmp_path) -> None:
-    device = subprocess.Popen(
-        [sys.executable, "-m", "tactiled.cli", "simulate", "--as", "xela", "--device", "0",
-         "--rate", "100", "--seed", "3"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        line = device.stdout.readline().strip()
-        assert line.startswith("xela: ws://"), device.stderr.read()
+    device, line = start_device("xela", "0")
+    with device:
+        assert line.startswith("xela: ws://"), line
         (tmp_path / "xela.toml").write_text(
             '[server]\nport = 0\n[[sensor]]\nname = "xela"\ndescription = "xela_uskin_4x4"\n'
             f'url = "xela://{line.removeprefix("xela: ws://")}?sensor=1"\n')
@@ -29,9 +25,6 @@ def test_a_xela_sensor_starts_quietly_and_ctrl_c_is_no_warning(daemon_process, t
         proc.proc.send_signal(signal.SIGINT)
         assert proc.proc.wait(30) == 0
         log = proc.proc.stderr.read().splitlines()
-    finally:
-        device.terminate()
-        device.wait(30)
     assert not [l for l in log if "-> ERROR" in l or "None ->" in l], log
     stops = [l for l in log if "SIGINT: shutting down" in l]
     assert len(stops) == 1 and " INFO " in stops[0], log

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from procs import SimulatedDevice
 from svc_helpers import http, wait_for
 
 from tactiled.cli import main as cli_main
@@ -23,12 +24,10 @@ PLUGIN = Path(__file__).resolve().parent.parent / "plugin_pkg"
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux ptys")
 
 
-def launch_device(kind: str, device: str, *extra: str) -> subprocess.Popen:
+def launch_device(kind: str, device: str, *extra: str) -> SimulatedDevice:
     """``tactiled simulate --as KIND --device DEVICE [EXTRA...]`` at 100 Hz."""
-    return subprocess.Popen(
-        [sys.executable, "-m", "tactiled.cli", "simulate", "--as", kind, "--device", device,
-         "--rate", "100", "--seed", "3", *extra],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return SimulatedDevice("--as", kind, "--device", device, "--rate", "100", "--seed", "3",
+                           *extra)
 
 
 def first_line(proc: subprocess.Popen) -> str:
@@ -38,9 +37,10 @@ def first_line(proc: subprocess.Popen) -> str:
     return line
 
 
-def start_device(kind: str, device: str, *extra: str) -> tuple[subprocess.Popen, str]:
+def start_device(kind: str, device: str, *extra: str) -> tuple[SimulatedDevice, str]:
+    """:func:`launch_device`, and the address line it prints first."""
     proc = launch_device(kind, device, *extra)
-    return proc, first_line(proc)
+    return proc, proc.line()
 
 
 def write_config(path: Path, sensors: dict[str, str],
@@ -102,10 +102,8 @@ def test_daemon_estimates_contacts_on_every_simulated_device(daemon_process, tmp
         proc.proc.terminate()
         assert proc.proc.wait(15) == 0
     finally:
-        for dev, _ in devices:
-            dev.terminate()
-            dev.wait(30)
-    assert all(dev.returncode == 0 for dev, _ in devices)
+        codes = [dev.stop() for dev, _ in devices]
+    assert codes == [0] * len(devices), codes
 
 
 def test_a_16x16_pad_rehearsed_on_the_simulated_lines_device(daemon_process, tmp_path) -> None:
@@ -136,9 +134,8 @@ def test_a_16x16_pad_rehearsed_on_the_simulated_lines_device(daemon_process, tmp
         proc.proc.terminate()
         assert proc.proc.wait(15) == 0
     finally:
-        device.terminate()
-        device.wait(30)
-    assert device.returncode == 0
+        code = device.stop()
+    assert code == 0, device.stderr()[-2000:]
 
 
 def test_record_from_each_simulated_device(tmp_path, capsys) -> None:
@@ -149,7 +146,7 @@ def test_record_from_each_simulated_device(tmp_path, capsys) -> None:
              for kind in queries}
     try:
         for kind, query in queries.items():
-            line = first_line(procs[kind])
+            line = procs[kind].line()
             where = line.removeprefix("xela: ws://") if kind == "xela" else f"{tmp_path}/tty_{kind}"
             out = tmp_path / f"{kind}.tact"
             rc = cli_main(["record", f"{kind}://{where}{query}", "-o", str(out),
@@ -168,8 +165,7 @@ def test_record_from_each_simulated_device(tmp_path, capsys) -> None:
             assert (replayed.kind, replayed.shape) == (kind, SHAPES[kind])
     finally:
         for proc in procs.values():
-            proc.terminate()
-            proc.wait(30)  # the interpreter takes seconds to exit on a loaded machine
+            proc.stop()
 
 
 def test_third_party_driver_installed_with_pip(daemon_process, tmp_path) -> None:

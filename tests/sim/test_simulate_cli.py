@@ -5,14 +5,13 @@ from __future__ import annotations
 import os
 import select
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import serial
+from procs import SimulatedDevice
 
 from tactiled.cli import main
 from tactiled.io.framefile import load_frame_file
@@ -49,24 +48,11 @@ def test_pty_and_serial_are_exclusive(capsys: pytest.CaptureFixture[str]) -> Non
     assert "not allowed with" in capsys.readouterr().err
 
 
-def _first_line(proc: subprocess.Popen, timeout: float) -> str:
-    """The subprocess's first stdout line, or fail after ``timeout`` s (start-up imports numpy and the core)."""
-    ready, _, _ = select.select([proc.stdout], [], [], timeout)
-    if not ready:
-        proc.kill()
-        pytest.fail(f"no output within {timeout} s; stderr: {proc.communicate()[1]}")
-    return proc.stdout.readline().decode().strip()
-
-
 def test_pty_device_streams_decodable_frames_and_stops_on_sigterm(tmp_path: Path) -> None:
     link = tmp_path / "tty"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tactiled.cli", "simulate", "--pty", "--link", str(link),
-         "--scene", "press", "--rate", "1000", "--sensor-id", "4"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-    )
-    try:
-        line = _first_line(proc, 60.0)
+    with SimulatedDevice("--pty", "--link", str(link), "--scene", "press", "--rate", "1000",
+                         "--sensor-id", "4") as device:
+        line = device.line(60.0)
         assert line.startswith("pty: /dev/pts/"), line
         slave = line.split(": ", 1)[1]
         assert os.path.realpath(link) == slave
@@ -84,29 +70,18 @@ def test_pty_device_streams_decodable_frames_and_stops_on_sigterm(tmp_path: Path
         # Once reading, no frame is lost (the pty holds ~120 frames, far more than a read gap).
         assert seqs[-1] - seqs[10] == len(frames) - 11
         assert decoder.stats.crc_errors == 0
-        proc.send_signal(signal.SIGTERM)
-        rc = proc.wait(timeout=5.0)
-        err = proc.stderr.read().decode()
+        rc = device.signal(signal.SIGTERM, 5.0)
+        err = device.stderr()
         assert rc == 0, err
         assert "sent" in err and "dropped" in err
         assert not link.exists() and not link.is_symlink()  # removed on exit
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
 
 
 def test_pty_device_survives_no_reader_and_reader_churn(tmp_path: Path) -> None:
     link = tmp_path / "tty"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tactiled.cli", "simulate", "--pty", "--link", str(link),
-         "--scene", "empty", "--rate", "2000"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-    )
-    try:
-        assert _first_line(proc, 60.0).startswith("pty: ")
+    with SimulatedDevice("--pty", "--link", str(link), "--scene", "empty",
+                         "--rate", "2000") as device:
+        assert device.line(60.0).startswith("pty: ")
         time.sleep(0.5)  # nobody reading: the pty fills up, frames are dropped, no blocking
         for _ in range(2):  # a reader comes and goes
             decoder = FrameDecoder()
@@ -116,33 +91,21 @@ def test_pty_device_survives_no_reader_and_reader_churn(tmp_path: Path) -> None:
                 while len(got) < 50 and time.monotonic() < deadline:
                     got += decoder.feed(port.read(4096))
             assert len(got) >= 50
-        assert proc.poll() is None
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=5.0) == 0
-        err = proc.stderr.read().decode()
+        assert device.proc.poll() is None
+        assert device.signal(signal.SIGINT, 5.0) == 0
+        err = device.stderr()
         dropped = int(err.rsplit("dropped ", 1)[1].split()[0])
         assert dropped > 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
 
 
 def test_serial_mode_writes_to_an_existing_pty(pty_device) -> None:
     # pty_device (tests/conftest.py): we read its master; the simulator writes to its slave.
     slave = os.path.realpath(pty_device.path)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tactiled.cli", "simulate", "--serial", slave, "--scene", "press",
-         "--rate", "500"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-    )
-    try:
+    with SimulatedDevice("--serial", slave, "--scene", "press", "--rate", "500") as device:
         decoder = FrameDecoder()
         frames = []
         deadline = time.monotonic() + 60.0
-        while len(frames) < 50 and time.monotonic() < deadline and proc.poll() is None:
+        while len(frames) < 50 and time.monotonic() < deadline and device.proc.poll() is None:
             ready, _, _ = select.select([pty_device.master], [], [], 0.1)
             if not ready:
                 continue
@@ -150,13 +113,6 @@ def test_serial_mode_writes_to_an_existing_pty(pty_device) -> None:
                 frames += decoder.feed(os.read(pty_device.master, 4096))
             except OSError:  # EIO: the simulator has not opened the slave yet
                 time.sleep(0.05)
-        assert len(frames) >= 50, proc.stderr.read().decode() if proc.poll() is not None else ""
+        assert len(frames) >= 50, device.stderr()
         assert decoder.stats.crc_errors == 0
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=5.0) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
+        assert device.signal(signal.SIGTERM, 5.0) == 0
