@@ -21,21 +21,14 @@ long Framer::find(std::size_t from, std::size_t to) const {
 }
 
 void Framer::drop(std::size_t n) {
-    if (n > 0) {
-        head_ += n;
-        stats_.discarded += n;
-        in_error_ = true;
-    }
+    head_ += n;
+    discard(n);
 }
 
 void Framer::reset() {
-    if (size() > 0) {
-        ++stats_.truncated;
-        stats_.discarded += size();
-    }
+    cut(size());
     buf_.clear();
     head_ = 0;
-    in_error_ = false;
     synced_ = false;
 }
 
@@ -77,19 +70,10 @@ bool Framer::torn_marker(std::size_t i) const {
 }
 
 void Framer::emit(double host_time, std::vector<Frame>& out, std::vector<std::uint16_t>& counts) {
-    if (!have_t0_) {
-        have_t0_ = true;
-        t0_ = host_time;
-    }
-    const double us = std::nearbyint((host_time - t0_) * 1e6);
-    Frame f{seq_++, us > 0.0 ? static_cast<std::int64_t>(us) : 0, counts.size()};
+    Frame f{seq_++, host_clock_us(host_time), counts.size()};
     for (std::size_t c = 0; c < cells_; ++c) counts.push_back(at(2 + c));
     out.push_back(f);
-    ++stats_.frames;
-    if (in_error_) {
-        ++stats_.resyncs;
-        in_error_ = false;
-    }
+    accepted();
     head_ += period_;
 }
 

@@ -8,7 +8,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "lines.hpp"  // (the vendor framers' counters: lines::Stats, FramerStats' order)
+#include "lines.hpp"  // (the vendor framers' bookkeeping: lines::FramerBase)
 
 namespace tactiled {
 namespace flexitac {
@@ -19,14 +19,13 @@ struct Frame {
     std::size_t offset;  // into the batch's counts
 };
 
-class Framer {
+class Framer : public lines::FramerBase {
 public:
     Framer(std::size_t rows, std::size_t cols) : cells_(rows * cols), period_(2 + rows * cols) {}
     void feed(const std::uint8_t* data, std::size_t n, double host_time, std::vector<Frame>& out,
               std::vector<std::uint16_t>& counts);
     void reset();
     std::size_t buffered() const { return buf_.size(); }
-    const lines::Stats& stats() const { return stats_; }
 
 private:
     // where the marker starts in [from, to) of the held bytes (whole marker inside), or -1
@@ -42,14 +41,10 @@ private:
     bool marker_at(std::size_t k) const { return k + 2 <= size() && at(k) == 0xAA && at(k + 1) == 0x55; }
 
     std::size_t cells_, period_;
-    lines::Stats stats_;
     std::vector<std::uint8_t> buf_;
     std::size_t head_ = 0;  // bytes of buf_ already consumed
     bool synced_ = false;
-    bool in_error_ = false;
     std::uint32_t seq_ = 0;
-    bool have_t0_ = false;
-    double t0_ = 0.0;
 };
 
 }  // namespace flexitac

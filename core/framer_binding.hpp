@@ -1,6 +1,6 @@
 // What the framers' bindings share: a `feed` argument's bytes, a frame's counts as a new array,
-// and the vendor framers' class (feed(bytes, host_time) -> (seq, device_time_us, raw) tuples,
-// FramerStats' counters), each in one place.
+// the counters in FramerStats' order, and the vendor framers' class (feed(bytes, host_time) ->
+// (seq, device_time_us, raw) tuples), each in one place.
 #pragma once
 
 #include <pybind11/numpy.h>
@@ -35,7 +35,15 @@ py::array counts_array(const T* values, std::size_t rows, std::size_t cols) {
     return std::move(raw);
 }
 
-// A vendor framer (lines::Framer, flexitac::Framer) as Python sees it.
+// FramerStats' counters, in its field order.
+inline std::vector<std::uint64_t> counters_of(const lines::Stats& s) {
+    return {s.frames, s.bytes, s.resyncs, s.discarded, s.truncated, s.length_errors,
+            s.oversize, s.crc_errors, s.parse_errors, s.ambiguous, s.lost, s.duplicated,
+            s.restarts};
+}
+
+// A vendor framer (lines::Framer, flexitac::Framer) as Python sees it (robotiq.cpp's adds
+// each frame's clock flag and extras).
 template <class Framer, class Unit, class Count>
 class Vendor {
 public:
@@ -57,12 +65,7 @@ public:
     }
     void reset() { framer_.reset(); }
     std::size_t buffered() const { return framer_.buffered(); }
-    std::vector<std::uint64_t> counters() const {
-        const lines::Stats& s = framer_.stats();
-        return {s.frames, s.bytes, s.resyncs, s.discarded, s.truncated, s.length_errors,
-                s.oversize, s.crc_errors, s.parse_errors, s.ambiguous, s.lost, s.duplicated,
-                s.restarts};
-    }
+    std::vector<std::uint64_t> counters() const { return counters_of(framer_.stats()); }
 
     // The class's methods but its constructor (each binding adds its own).
     static py::class_<Vendor> bind(py::module_& m, const char* name, const char* doc) {

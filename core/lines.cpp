@@ -65,12 +65,8 @@ Framer::Framer(std::size_t rows, std::size_t cols, Sep sep, bool time_col, std::
     : cells_(rows * cols), sep_(sep), time_col_(time_col), time_scale_(time_scale) {}
 
 void Framer::reset() {
-    if (!buf_.empty()) {
-        ++stats_.truncated;
-        stats_.discarded += buf_.size();
-        buf_.clear();
-    }
-    in_error_ = false;
+    cut(buf_.size());
+    buf_.clear();
     skipping_ = false;
 }
 
@@ -80,15 +76,6 @@ void Framer::check_bound() {
         skipping_ = true;
         reject(stats_.oversize);
     }
-}
-
-std::int64_t Framer::host_clock_us(double host_time) {
-    if (!have_t0_) {
-        have_t0_ = true;
-        t0_ = host_time;
-    }
-    const double us = std::nearbyint((host_time - t0_) * 1e6);  // round half to even, as round()
-    return us > 0.0 ? static_cast<std::int64_t>(us) : 0;
 }
 
 void Framer::line(const std::uint8_t* p, std::size_t n, double host_time, std::vector<Line>& out,
@@ -170,11 +157,7 @@ void Framer::line(const std::uint8_t* p, std::size_t n, double host_time, std::v
     }
     const std::uint32_t seq = seq_++;
     out.push_back({seq, stamp, mark});
-    ++stats_.frames;
-    if (in_error_) {
-        ++stats_.resyncs;
-        in_error_ = false;
-    }
+    accepted();
 }
 
 void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,

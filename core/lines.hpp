@@ -3,6 +3,7 @@
 // two equal.  Pure: no I/O, never throws on any input bytes, holds at most MAX_LINE bytes.
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <string>
@@ -25,39 +26,81 @@ struct Stats {
                   ambiguous = 0, lost = 0, duplicated = 0, restarts = 0;
 };
 
+// What the vendor framers share (tactiled_drivers.plumbing.framing.FramerBase): the counters,
+// the flag that makes the next good unit a resync, and the host clock of formats that send none.
+class FramerBase {
+public:
+    const Stats& stats() const { return stats_; }
+
+protected:
+    void reject(std::uint64_t& counter) { ++counter; in_error_ = true; }
+    // bytes skipped looking for a unit's start
+    void discard(std::size_t n) {
+        if (n > 0) {
+            stats_.discarded += n;
+            in_error_ = true;
+        }
+    }
+    // reset: the `held` bytes of a unit the unplug cut are one truncated unit
+    void cut(std::size_t held) {
+        if (held > 0) {
+            ++stats_.truncated;
+            stats_.discarded += held;
+        }
+        in_error_ = false;
+    }
+    // a unit about to be delivered
+    void accepted() {
+        ++stats_.frames;
+        if (in_error_) {
+            ++stats_.resyncs;
+            in_error_ = false;
+        }
+    }
+    // us of host receive time since the first frame, rounded half to even as Python's round()
+    std::int64_t host_clock_us(double host_time) {
+        if (!have_t0_) {
+            have_t0_ = true;
+            t0_ = host_time;
+        }
+        const double us = std::nearbyint((host_time - t0_) * 1e6);
+        return us > 0.0 ? static_cast<std::int64_t>(us) : 0;
+    }
+
+    Stats stats_;
+    bool in_error_ = false;
+
+private:
+    bool have_t0_ = false;
+    double t0_ = 0.0;
+};
+
 struct Line {
     std::uint32_t seq;
     std::int64_t device_time_us;
     std::size_t offset;  // into the batch's values (rows * cols of them)
 };
 
-class Framer {
+class Framer : public FramerBase {
 public:
     Framer(std::size_t rows, std::size_t cols, Sep sep, bool time_col, std::int64_t time_scale);
     void feed(const std::uint8_t* data, std::size_t n, double host_time, std::vector<Line>& out,
               std::vector<std::int64_t>& values);
     void reset();
     std::size_t buffered() const { return buf_.size(); }
-    const Stats& stats() const { return stats_; }
 
 private:
     void line(const std::uint8_t* p, std::size_t n, double host_time, std::vector<Line>& out,
               std::vector<std::int64_t>& values);
     void check_bound();
-    void reject(std::uint64_t& counter) { ++counter; in_error_ = true; }
-    std::int64_t host_clock_us(double host_time);
 
     std::size_t cells_;
     Sep sep_;
     bool time_col_;
     std::int64_t time_scale_;
-    Stats stats_;
     std::vector<std::uint8_t> buf_;
     bool skipping_ = false;
-    bool in_error_ = false;
     std::uint32_t seq_ = 0;
-    bool have_t0_ = false;
-    double t0_ = 0.0;
 };
 
 }  // namespace lines

@@ -7,6 +7,7 @@ void bind_all(pybind11::module_& m) {
     bind_calibrate(m);
     bind_lines(m);
     bind_flexitac(m);
+    bind_robotiq(m);
     bind_eccentricity(m);
     bind_hertz(m);
     bind_models(m);

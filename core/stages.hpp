@@ -9,6 +9,7 @@ void bind_wire(pybind11::module_& m);
 void bind_calibrate(pybind11::module_& m);
 void bind_lines(pybind11::module_& m);
 void bind_flexitac(pybind11::module_& m);
+void bind_robotiq(pybind11::module_& m);
 void bind_eccentricity(pybind11::module_& m);
 void bind_hertz(pybind11::module_& m);
 void bind_models(pybind11::module_& m);

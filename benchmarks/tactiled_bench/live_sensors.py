@@ -14,7 +14,9 @@ lossless): the same figures on every machine.
 #   sigmas);
 # * beyond 4 sigma: the share further than four sigmas from the truth (6e-5 for honest Gaussian
 #   sigmas), and the share of contact estimates with any;
-# * withheld: the share of values published as null with a reason;
+# * withheld: the share of values published as null with a reason; and of a point contact's
+#   force and radius that the Cramer-Rao bound at the truth on a 6x6 window (the whole pad of
+#   a smaller array) resolves (at least two bounds from zero), the share withheld;
 # * stale: the longest run of estimates in which a value stayed bit-identical while its contact
 #   moved (its true centre or orientation changed);
 # * phantoms: contact estimates listing more than one contact (the scene touches once).
@@ -27,12 +29,16 @@ import math
 from typing import Any
 
 from tactiled_bench.lossless import play_lossless
+from tactiled_bench.runner import OBSERVABLE_RELATIVE
 from tactiled.sensors import SensorDescription
 
 SCENE = "demo"
 KEYS = ("offset", "x_mm", "y_mm", "force_n", "r1_mm", "angle_deg")
 #: a value this many reported sigmas from the truth is a confident wrong value
 FAR_SIGMAS = 4.0
+#: Side of the square window of the reference bound a withheld value is scored against
+#: (clipped to the array; ``tactiled bench --suite sensors``'s fits are scored against it too).
+REFERENCE_WINDOW = 6
 
 
 def play(desc: SensorDescription, rate: float, seed: int) -> list[tuple[int, dict[str, Any]]]:
@@ -89,6 +95,9 @@ def score(desc: SensorDescription, rate: float = 200.0, seed: int = 1,
     flat = math.isinf(desc.sensor_model().geometry.finger_radius)
     n = {k: 0 for k in KEYS}
     withheld = dict(n)
+    resolved = dict(n)  # the whole pad's (a 6x6 window's) bound at the truth resolves it
+    resolved_withheld = dict(n)
+    bound = _reference_bound(desc)
     covered = dict(n)
     far = dict(n)
     stale = dict(n)
@@ -105,8 +114,14 @@ def score(desc: SensorDescription, rate: float = 200.0, seed: int = 1,
         counts["contact_estimates"] += 1
         counts["phantom"] += len(fit.get("contacts") or ()) > 1
         any_far = False
+        bounds = None
         for key, (err, sd) in _errors(fit, c, flat).items():
             n[key] += 1
+            if key in RESOLVED_KEYS:
+                bounds = bound(c) if bounds is None else bounds
+                ok = _resolves(bounds.get(key), getattr(c, "force" if key == "force_n" else "r1"))
+                resolved[key] += ok
+                resolved_withheld[key] += ok and err is None
             if err is None:
                 withheld[key] += 1
                 continue
@@ -128,7 +143,39 @@ def score(desc: SensorDescription, rate: float = 200.0, seed: int = 1,
             if moved:
                 stale[key] = max(stale[key], last[1] + 1)
     return {"n": n, "withheld": withheld, "covered": covered, "far": far, "stale": stale,
-            "counts": counts}
+            "counts": counts, "resolved": resolved, "resolved_withheld": resolved_withheld}
+
+
+#: The values whose withholding is scored against the bound at the truth (a ball's or an
+#: ellipse's force and radius; a line's are not: its total force is no value it reports).
+RESOLVED_KEYS = ("force_n", "r1_mm")
+
+
+def _reference_bound(desc: SensorDescription):
+    """``bound(contact)``: the Cramer-Rao bounds at the true point contact ``contact`` on a
+    ``REFERENCE_WINDOW``-square window (the whole pad of a smaller array), as
+    ``tactiled bench --suite sensors`` scores its fits; ``{}`` for a line on a flat array."""
+    from tactiled.fit.fitter import FitOptions, Fitter
+    from tactiled.fit.models import get_model
+    from tactiled.physics.strain import StrainModel
+
+    sensor = desc.sensor_model()
+    model = StrainModel(sensor)
+    ref = Fitter(sensor, FitOptions(window=max(REFERENCE_WINDOW, desc.window)), warm=False)
+    flat = math.isinf(sensor.geometry.finger_radius)
+
+    def bound(c: Any) -> dict[str, float]:
+        if math.isinf(c.r2) and flat:
+            return {}
+        name = "cylinder" if math.isinf(c.r2) else "sphere" if c.r1 == c.r2 else "general"
+        p = get_model(name).from_values(c.r1, c.r2, c.psi_deg, c.force, c.x0, c.y0)
+        return ref.cramer_rao(model.predict(c), name, p)
+    return bound
+
+
+def _resolves(b: float | None, truth: float) -> bool:
+    """The bound ``b`` leaves the true ``truth`` at least two bounds from zero."""
+    return b is not None and math.isfinite(b) and b < OBSERVABLE_RELATIVE * abs(truth)
 
 
 def report(desc: SensorDescription, s: dict[str, Any], rate: float) -> list[str]:
@@ -138,8 +185,9 @@ def report(desc: SensorDescription, s: dict[str, Any], rate: float) -> list[str]
     out = [f"live (`{SCENE}` at {rate:g} Hz through the daemon, lossless): "
            f"{c['contact_estimates']} contact estimates, {100 * c['with_far'] / ce:.2f} % with a "
            f"value beyond {FAR_SIGMAS:g} sigma, {c['phantom']} listing more than one contact", "",
-           "| value | n | 2-sigma | beyond 4 sigma | withheld | longest stale run |",
-           "|---|---|---|---|---|---|"]
+           "| value | n | 2-sigma | beyond 4 sigma | withheld | withheld where resolved "
+           "| longest stale run |",
+           "|---|---|---|---|---|---|---|"]
     for key in KEYS:
         n = s["n"][key]
         if not n:
@@ -148,7 +196,10 @@ def report(desc: SensorDescription, s: dict[str, Any], rate: float) -> list[str]
         cov = f"{100 * s['covered'][key] / pub:.0f} %" if pub else "-"
         far = f"{100 * s['far'][key] / pub:.1f} %" if pub else "-"
         st = s["stale"].get(key, 0) if key != "offset" else "-"
-        out.append(f"| {key} | {n} | {cov} | {far} | {100 * s['withheld'][key] / n:.0f} % | {st} |")
+        res = s.get("resolved", {}).get(key, 0)
+        rw = (f"{100 * s['resolved_withheld'][key] / res:.0f} % ({res})" if res else "-")
+        out.append(f"| {key} | {n} | {cov} | {far} | {100 * s['withheld'][key] / n:.0f} % | {rw} "
+                   f"| {st} |")
     return out + [""]
 
 

@@ -34,7 +34,7 @@ import numpy as np
 
 from tactiled_bench import live_sensors
 from tactiled_bench.fit_command import contacts_of, fit_lines
-from tactiled_bench.live_sensors import FAR_SIGMAS
+from tactiled_bench.live_sensors import FAR_SIGMAS, REFERENCE_WINDOW  # (clipped to the array)
 from tactiled_bench.runner import OBSERVABLE_ANGLE, OBSERVABLE_RELATIVE
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
@@ -54,8 +54,6 @@ EDGE_RADIUS = 0.5
 KINDS = ("cylinder", "sphere", "ellipsoid", "edge")
 #: The model each kind is fitted with (``tactiled fit --model``).
 FIT_MODEL = {"cylinder": "cylinder", "sphere": "sphere", "ellipsoid": "general", "edge": "cylinder"}
-#: Side of the square window of the reference bound (clipped to the array).
-REFERENCE_WINDOW = 6
 #: Parameters scored per kind: a line contact (a cylinder on a flat array), an ellipse
 #: contact's cylinder, a sphere, an ellipsoid.
 LINE_KEYS = ("r1_mm", "angle_deg", "load_n_per_mm", "offset_mm")

@@ -40,6 +40,9 @@ the finger number.  Both fingers share one port through :class:`_SharedPort`.
 # tears of ``tests/drivers/test_torn_units.py``'s hostile stream, one delivered as a frame.
 # Garbage holding 0x9A costs no good packet behind it.
 #
+# :class:`RobotiqFramer` is the reference; :class:`NativeRobotiqFramer` does the same in the
+# compiled core (core/robotiq.cpp), the source's framer unless ``TACTILED_CORE=python``.
+#
 # Two fingers, one port: every ``robotiq://`` source on one device path shares one
 # :class:`_SharedPort` (one serial connection, reader thread and reconnection loop); the source
 # that reads copies the bytes to the others, each framing its own finger.  The first source to
@@ -54,10 +57,11 @@ from typing import Any, ClassVar
 import numpy as np
 import serial
 
+from tactiled import native
 from tactiled.sensors.devices import DeviceArray, device_array
 from tactiled.frames import Frame
 from tactiled.sources import FrameSource, SourceURL, parse_source_url
-from tactiled_drivers.plumbing.framing import FramerBase, FramerStats, now_if_none
+from tactiled_drivers.plumbing.framing import FramerBase, FramerStats, NativeFramer, now_if_none
 from tactiled_drivers.serial import SerialSource
 
 log = logging.getLogger(__name__)
@@ -298,6 +302,30 @@ class RobotiqFramer(FramerBase):
         self._stamp_ms = stamp
 
 
+class NativeRobotiqFramer(NativeFramer):
+    """:class:`RobotiqFramer` with its work in the compiled core (core/robotiq.cpp); the Python
+    class is the reference (tests/drivers/test_vendor_framers.py holds the two equal)."""
+
+    def __init__(self, finger: int = 0) -> None:
+        from tactiled import _core  # (built by the install, whichever path is selected)
+
+        self.finger = RobotiqFramer(finger).finger  # (checks the argument)
+        super().__init__(_core.RobotiqFramer(finger), (ROWS, COLS))
+
+    @property
+    def packets(self) -> int:
+        """Packets accepted (any finger)."""
+        return self._core.packets
+
+    def feed(self, data: bytes, host_time: float | None = None) -> list[Frame]:
+        """Consume ``data``; return this finger's frames from the packets it completed."""
+        if not data:
+            return []
+        t = now_if_none(host_time)
+        return [Frame(seq, t_us, raw, self.finger, t, extras=extras, clocked=clocked)
+                for seq, t_us, raw, clocked, extras in self._core.feed(data, t)]
+
+
 def encode_finger(finger: int, raw: np.ndarray, *, dynamic: int = 0,
                   accelerometer: tuple[int, int, int] = (0, 0, 0),
                   gyroscope: tuple[int, int, int] = (0, 0, 0), timestamp_ms: int = 0) -> bytes:
@@ -419,7 +447,8 @@ class RobotiqSource(FrameSource):
 
     PARAMS: ClassVar[frozenset[str]] = frozenset({"finger", "period_ms", "baud", "exclusive"})
 
-    def __init__(self, url: str | SourceURL, *, decoder: RobotiqFramer | None = None) -> None:
+    def __init__(self, url: str | SourceURL, *,
+                 decoder: RobotiqFramer | NativeRobotiqFramer | None = None) -> None:
         super().__init__(url, decoder=decoder)  # type: ignore[arg-type]
         if not self.url.location:
             raise ValueError(f"{self.url.url!r}: no device path; write e.g. "
@@ -438,9 +467,9 @@ class RobotiqSource(FrameSource):
         self.wake = asyncio.Event()
         self._shared: _SharedPort | None = None
 
-    def _new_decoder(self) -> RobotiqFramer:
+    def _new_decoder(self) -> RobotiqFramer | NativeRobotiqFramer:
         self.finger = self.url.get_int("finger", 0, minimum=0, maximum=3)
-        return RobotiqFramer(self.finger)
+        return (RobotiqFramer if native.core is None else NativeRobotiqFramer)(self.finger)
 
     def device_array(self) -> DeviceArray:
         return device_array("robotiq")

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactiled.fit import compiled, search
-from tactiled.fit.linewindow import RIDGE_ELONGATION, chi2_on_band
+from tactiled.fit.linewindow import RIDGE_ELONGATION, chi2_on_band, spread
 from tactiled.fit.models import get_model
 from tactiled.fit.result import FitResult
 
@@ -35,6 +35,8 @@ class ModelSelector:
         self.several = False
         #: ... and where its strain is a round blob, the sphere is tried alone first
         self.round = False
+        #: the sphere's scout :meth:`sphere_alone` made last (:meth:`round_choice` goes on from it)
+        self.round_scout: FitResult | None = None
 
     @contextmanager
     def among_several(self, on: bool = True, round_blob: bool = False) -> Iterator[None]:
@@ -80,6 +82,9 @@ class ModelSelector:
             alone = self.sphere_alone(strain, mask)
             if alone is not None:
                 return alone
+            rounded = self.round_choice(strain, mask)
+            if rounded is not None:
+                return rounded
         held = f._budget.hold(0.5) if f._budget is not None else None
         flat = f.sensor.geometry.flat
         point_scout = self.several and not flat  # the cylinder scouted (among_several)
@@ -161,6 +166,7 @@ class ModelSelector:
         saved = dataclasses.replace(f._budget) if f._budget is not None else None
         sphere = get_model("sphere")
         scout = f._fit_model(strain, sphere, None, mask, scouting=True)
+        self.round_scout = scout
         if (scout.contact and scout.converged and scout.chi2 is not None and scout.params is not None
                 and search.consistent(f, scout) and not self.runs_off(scout) and not f._out_of_time()):
             best = f._fit_model(strain, sphere, np.asarray(scout.params), mask, start_chi2=scout.chi2)
@@ -172,6 +178,63 @@ class ModelSelector:
         if saved is not None:
             f._budget = saved  # the full choice spends what it would have had
         return None
+
+    def round_choice(self, strain: np.ndarray, mask: np.ndarray | None) -> FitResult | None:
+        """A round blob among several that the sphere alone does not explain (its scout,
+        :meth:`sphere_alone`'s, above the noise: a neighbour's strain in its window, or a
+        ball pressed off round): the sphere or the general ellipse, by BIC with known noise
+        on the line's band as the full choice ranks them (:meth:`on_band`), the winner solved
+        fully.  No line is scouted: a round blob has no
+        ridge for it to follow (and a flat array's line explains no ball).  None, the budget
+        as it was, when the sphere's scout found no contact or either runs off the array:
+        then the full choice follows."""
+        f = self.fitter
+        sph = getattr(self, "round_scout", None)
+        if sph is None or not sph.contact or sph.params is None or sph.chi2 is None \
+                or self.runs_off(sph) or f._out_of_time():
+            return None
+        saved = dataclasses.replace(f._budget) if f._budget is not None else None
+        s_ln_r, s_ln_f, sx, sy = sph.params
+        gen = f._fit_model(strain, get_model("general"),
+                           np.array([s_ln_r, 0.95, 0.5 * math.pi, s_ln_f, sx, sy]), mask,
+                           scouting=True, start_chi2=sph.chi2)
+        fits = [sph] + ([gen] if gen.contact and gen.params is not None and gen.chi2 is not None
+                        and gen.window == sph.window else [])
+        crit = {r.model: self.on_band(r, strain, mask) for r in fits}
+        best = min(fits, key=lambda r: crit[r.model])
+        if best is gen and not f._out_of_time():
+            # the general's two extra parameters against the sphere at its best (as choose)
+            ln_ra, _, _, g_ln_f, gx, gy = gen.params
+            again = f._fit_model(strain, get_model("sphere"), np.array([ln_ra, g_ln_f, gx, gy]),
+                                 mask, scouting=True)
+            if again.contact and again.chi2 is not None and again.chi2 < sph.chi2 \
+                    and again.window == sph.window:
+                fits[0] = sph = again
+                crit["sphere"] = self.on_band(again, strain, mask)
+                best = min(fits, key=lambda r: crit[r.model])
+        if self.runs_off(best) or f._out_of_time():
+            if saved is not None:
+                f._budget = saved
+            return None
+        out = f._fit_model(strain, get_model(best.model), np.asarray(best.params), mask,
+                           start_chi2=best.chi2)
+        if not out.contact or out.params is None or self.runs_off(out):
+            if saved is not None:
+                f._budget = saved
+            return None
+        out.criterion = {k: float(v) for k, v in crit.items() if math.isfinite(v)}
+        out.iterations += sum(r.iterations for r in fits)
+        out.evaluations += sum(r.evaluations for r in fits)
+        return out
+
+    def on_band(self, r: FitResult, strain: np.ndarray, mask: np.ndarray | None) -> float:
+        """A point fit's BIC with known noise on the line's band, as :meth:`criteria` ranks it
+        beside the line (the same tactels, so the same choice), or on its own window where
+        there is no band."""
+        chi2, n = chi2_on_band(self.fitter, strain, mask, r.model, r.params)
+        if chi2 is None:
+            chi2, n = r.chi2, r.n_points
+        return chi2 + len(r.params) * math.log(max(n, 2))
 
     def solved(self, strain: np.ndarray, mask: np.ndarray | None, scout: FitResult) -> FitResult:
         """A point model's scout solved fully from where it stopped (or, the budget spent,
@@ -239,5 +302,5 @@ def round_blob(band: np.ndarray) -> bool:
     m, n = np.nonzero(band)
     if m.size < 3:
         return False
-    w = np.linalg.eigvalsh(np.cov(np.vstack((m, n)).astype(float)))
-    return bool(w[1] <= w[0] * RIDGE_ELONGATION ** 2)
+    small, big, _ = spread(m.astype(float), n.astype(float))
+    return bool(big <= small * RIDGE_ELONGATION ** 2)

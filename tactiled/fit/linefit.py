@@ -20,7 +20,10 @@ from tactiled.fit.line import STEPS as LINE_STEPS
 from tactiled.fit.line import LineProblem
 from tactiled.fit.linewindow import KeptFrames, line_frame
 from tactiled.fit.models import VALUE_KEYS
-from tactiled.fit.profile import angle_profile, flat_below, withhold_flat
+from tactiled.fit.profile import (ANGLE_SCAN_DEG, LINE_NEAR_STEPS, LINE_TEST_SIGMA,
+                                  PROFILE_ITERATIONS,
+                                  AngleProfile, angle_scan, flat_below, widen_by_points,
+                                  withhold_flat)
 from tactiled.fit.result import FitResult
 from tactiled.fit.search import LINE_BOUNDS, SCOUT_ITERATIONS, STOP_CHI2
 from tactiled.fit.solver import SolveResult
@@ -107,10 +110,14 @@ class LineFit:
             return res
         return self._finish(fr, prob, best, tried)
 
-    def _finish(self, fr: _Frame, prob: LineProblem, best: SolveResult, tried: int) -> FitResult:
+    def _finish(self, fr: _Frame, prob: LineProblem, best: SolveResult, tried: int,
+                known: list[tuple[float, np.ndarray]] | None = None) -> FitResult:
         """The FitResult of the line's search ``best`` on ``fr``: its values, their sigmas
         (widened where the frame says so, tested on their profile likelihood where it
-        converged) and what is withheld."""
+        converged) and what is withheld.  Where the angle's profile finds a deeper valley
+        than the search's, the line is searched again from there and that search is the
+        answer, its profile the points already searched (``known``, ``(chi^2, solution)``)
+        and its two near points."""
         f = self.fitter
         peak = fr.peak
         reasons: dict[str, str] = {}
@@ -137,7 +144,18 @@ class LineFit:
         if not best.converged:
             reasons.setdefault("fit", best.message)
         else:
-            self._profiles(fr, prob, best, values, std, reasons)
+            scan = self._profiles(fr, prob, best, values, std, reasons, line, known)
+            if scan.deeper is not None and known is None:
+                # the angle's profile found a valley deeper than the search's: search from
+                # there; where that does not reach it, the angle stays withheld (flat)
+                sol, _ = f._search(fr, compiled.LINE, [scan.deeper], LINE_STEPS, LINE_BOUNDS,
+                                   f.options.max_iter, STOP_CHI2, lambda: prob.residual_and_jacobian)
+                if sol.converged and sol.cost < best.cost:
+                    sol.iterations += best.iterations
+                    sol.evaluations += best.evaluations
+                    chi2 = best.cost * peak * peak / f.sigma**2
+                    seen = [(chi2 + rise, q) for rise, q in scan.points]
+                    return self._finish(fr, prob, sol, tried + 1, [(chi2, best.p), *seen])
         return FitResult(
             contact=True, model="cylinder", label=self._label(values, line),
             values=values, std=std,
@@ -149,19 +167,77 @@ class LineFit:
         )
 
     def _profiles(self, fr: _Frame, prob: LineProblem, best: SolveResult, values: dict,
-                  std: dict, reasons: dict[str, str]) -> None:
+                  std: dict, reasons: dict[str, str], line: dict | None,
+                  known: list[tuple[float, np.ndarray]] | None = None) -> AngleProfile:
         """The radius's and the angle's profile tests (:mod:`tactiled.fit.profile`) at the
-        converged solution ``best``: up to nine more searches, so a scout the line was ruled
-        out by (a ball's window) is tested only if it is the answer (:meth:`tested`)."""
+        converged solution ``best``: up to seven more searches (each angle point's from two
+        starts), so a scout the line was ruled out by (a ball's window) is tested only if it
+        is the answer (:meth:`tested`).  The angle's profile points widen the sigmas of the
+        place and of the line's offset and load that trade with it.  ``known``: the points a
+        scan from another valley searched (then only the two near points are searched).
+        Returns the angle's profile (its ``deeper``: a valley deeper than the search's, where
+        the angle is withheld as flat across it)."""
         f = self.fitter
         chi2 = best.cost * fr.peak * fr.peak / f.sigma**2
         withhold_flat(values, std, reasons, flat_below(
             f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
             lambda: prob.residual_and_jacobian, chi2, values.get("r1_mm"), std.get("r1_mm")))
-        withhold_flat(values, std, reasons, angle_profile(
-            f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
-            lambda: prob.residual_and_jacobian, chi2,
-            LINE_PARAMS.index("psi"), std.get("angle_deg")), "angle_deg")
+        scan = angle_scan(f, fr, compiled.LINE, best.p, LINE_STEPS, LINE_BOUNDS,
+                          lambda: prob.residual_and_jacobian, chi2, LINE_PARAMS.index("psi"),
+                          std.get("angle_deg"), scan=ANGLE_SCAN_DEG if known is None else (),
+                          starts_at=self._across(fr, prob), known=known or [],
+                          test_sigma=LINE_TEST_SIGMA, near_steps=LINE_NEAR_STEPS,
+                          cap=PROFILE_ITERATIONS)
+        withhold_flat(values, std, reasons, scan.why, "angle_deg")
+        if scan.points:
+            at = []
+            for rise, q in scan.points:
+                v, _, ln = prob.report(q, None)
+                at.append((rise, {**v, **ln}))
+            widen_by_points(values, std, reasons, at, ("x_mm", "y_mm"))
+            if line is not None:
+                sd = {k: line.get(k + "_std") for k in ("load_n_per_mm", "offset_mm")}
+                widen_by_points(line, sd, {}, at, ("load_n_per_mm", "offset_mm"))
+                line.update({k + "_std": v for k, v in sd.items()})
+        return scan
+
+    def _across(self, fr: _Frame, prob: LineProblem):
+        """For an angle profile point's search: its start, the line at the held angle placed
+        across the window where it explains the window best (its offset on a grid a tactel
+        apart across the window's tactels, or the solution's own; its load scaled to the
+        strains there: the least-squares scale, the strain being nearly proportional to the
+        load).  Turned about
+        the window's centre, a line can cross the band of tactels that see it anywhere along
+        it, and a search from there stops in the nearest of several valleys of the offset."""
+        g = self.fitter.sensor.geometry
+        step = min(g.dx, g.dy)
+        valid = fr.valid
+        px, py = prob.px[valid] - prob.ref[0], prob.py[valid] - prob.ref[1]
+        w2 = prob.inv_scale[valid] ** 2
+        target = prob.target[valid]
+
+        def starts(start: np.ndarray) -> list[np.ndarray]:
+            nx, ny = -math.sin(start[1]), math.cos(start[1])
+            across = px * nx + py * ny
+            best, out = math.inf, None
+            grid = np.arange(across.min(), across.max() + 0.5 * step, step)
+            for c in (start[3], *grid):
+                q = start.copy()
+                q[3] = c
+                m = prob.strains(q)[valid]
+                mm = float((w2 * m * m).sum())
+                if not mm > 0.0:
+                    continue
+                mt = float((w2 * m * target).sum())
+                if mt <= 0.0:
+                    continue
+                cost = -mt * mt / mm  # chi^2 less the target's own, at the best scale
+                if cost < best:
+                    best, out = cost, q
+                    out[2] = q[2] + math.log(mt / mm)
+            return [start] if out is None else [out]
+
+        return starts
 
     def _label(self, values: dict, line: dict | None) -> str | None:
         """The line's label: 'edge' for a radius under 1 mm, else 'line'; None for a line

@@ -287,7 +287,7 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
     out = [r for r in results if r is not None]
     deadline = None if budget_s is None else t0 + budget_s
     for group in _overlapping(fitter, out):
-        _refine_jointly(fitter, strain, usable, out, group, deadline)
+        _refine_jointly(fitter, strain, usable, out, group, deadline, predict)
     _widen_by_neighbours(fitter, out, usable)
     elapsed = (time.perf_counter() - t0) * 1e3
     for r in out:
@@ -366,11 +366,12 @@ def _windows_meet(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) ->
 
 
 def _refine_jointly(fitter: Any, strain: np.ndarray, usable: np.ndarray, results: list[FitResult],
-                    group: list[int], deadline: float | None) -> None:
+                    group: list[int], deadline: float | None, predict: Any = None) -> None:
     """Fit the contacts ``group`` together on the union of their windows, the model the sum of
     their strains (the others' predicted strain removed), and move each to the joint
     solution: its values from there, its sigmas kept (they are widened for the shared
-    information afterwards)."""
+    information afterwards); ``predict``: a result's strain on the whole array (default
+    :func:`predicted_strain`; the frame's memo, so a line's is not computed again)."""
     from tactiled.fit.search import bounds_of as _bounds
     from tactiled.fit.search import steps_of as _steps
     from tactiled.fit.solver import levenberg_marquardt
@@ -390,7 +391,7 @@ def _refine_jointly(fitter: Any, strain: np.ndarray, usable: np.ndarray, results
     target = flat[box].ravel()[rows].copy()
     for j, r in enumerate(results):
         if j not in group:
-            pred = predicted_strain(fitter, r)
+            pred = predicted_strain(fitter, r) if predict is None else predict(r)
             if pred is not None:
                 target -= pred[box].ravel()[rows]
     sd = fitter._tactel_sd(target)

@@ -14,12 +14,19 @@
 # the value is not a measurement and is withheld, with the reason and the profile's figure;
 # between that and 4 its sigma is widened so the tested point lies ``sqrt(rise)`` sigmas away,
 # as the profile says.
-# The test costs one search, started at the solution, within the fit's budget; a search the
-# budget cuts short is not used (its chi^2 only overstates the rise: never a withholding).
+# The test costs one search, started at the solution, within the fit's budget; a search its
+# iterations or the budget cut short still bounds the profile from above (its chi^2 only
+# overstates the rise: never a withholding or a widening the profile would not make).
+# A line's orientation is tested the same way at several points (``angle_scan``): every
+# point is one more constrained search, and every point within ``REACH_CHI2`` widens the
+# angle's sigma, and those of the values that trade with it, to put it ``sqrt(rise)``
+# sigmas away.
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -59,11 +66,50 @@ FLAT_ACROSS = "the likelihood is flat across it"
 #: on both sides (two more searches; below it the test is not worth its cost: a line whose
 #: angle is that sharp lies well above the noise along a window of several tactels).
 ANGLE_TEST_SIGMA = 2.0
+#: The near points of an angle's profile, in PROFILE_SIGMAS linearised sigmas to either side:
+#: at 2 sigmas (a quadratic rises by 4 there) and, for a line, at 4 (by 16: a likelihood
+#: whose shoulder is flatter there puts the value beyond the 4 sigmas it claims; below a rise
+#: of FLAT_CHI2 there it is flat).
+NEAR_STEPS = (1.0,)
+LINE_NEAR_STEPS = (2.0, 4.0)
+#: A line's orientation is tested at its near points wherever its linearised 1-sigma exceeds
+#: this (deg; the scan round the half-turn where it exceeds ANGLE_TEST_SIGMA): on the 12x32
+#: mat a 1 N line's single-frame fits with sigmas of 1.1-1.9 deg were 6-20 deg off (the band
+#: of a line at 4 noise sigmas holds a piece of it; the likelihood's shoulders are flat).
+LINE_TEST_SIGMA = 0.5
 #: Where a tested line's angle profile is also evaluated: these many degrees from the
 #: solution (the half-turn round).  A weak line seen by a few tactels can have a second valley
 #: of its likelihood far from the solution's (measured: 15-70 deg off on the 12x32 mat at 1 N),
 #: which the two points PROFILE_SIGMAS sigmas either side cannot see.
 ANGLE_SCAN_DEG = (30.0, 60.0, 90.0, 120.0, 150.0)
+#: A profile point whose chi^2 rises by less than this (a quadratic's rise 4 sigmas away) lies
+#: within 4 sigmas of the solution: every tested point below it widens the sigma to put it
+#: ``sqrt(rise)`` sigmas away, so the reported 2- and 4-sigma intervals reach every point the
+#: profile puts within them (a weak line's likelihood has long flat shoulders: on the 12x32 mat
+#: at 1 N a point 50 deg off rose by 5.5 where the linearised sigma, 6 deg, said 70).
+REACH_CHI2 = 16.0
+#: Iterations of a profile point's search: one stopped short still bounds the profile from
+#: above (a line held far from its angle can crawl its load towards zero for the whole cap).
+PROFILE_ITERATIONS = 10
+#: A profile point whose chi^2 lies this far below the solution's shows the search stopped in
+#: a valley that is not the deepest (a weak line's fit locked 40-85 deg off): the fit is
+#: searched again from there (:class:`AngleProfile` ``deeper``).
+DEEPER_CHI2 = 0.5
+
+
+@dataclass
+class AngleProfile:
+    """What :func:`angle_scan` found on a line's (or ellipse's) orientation profile.
+
+    ``why``: :func:`withhold_flat`'s answer for the angle (a reason, a widened sigma in deg, or
+    None); ``points``: ``(rise, solution)`` of each converged point within ``REACH_CHI2`` (the
+    solution vector with the angle held there, for the other values' widening:
+    :func:`widen_by_points`); ``deeper``: the solution vector of the lowest point below the
+    fit's chi^2 by over ``DEEPER_CHI2`` (the fit is in the wrong valley), else None."""
+
+    why: str | float | None = None
+    points: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    deeper: np.ndarray | None = None
 
 
 def flat_below(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
@@ -111,37 +157,100 @@ def angle_profile(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndar
                   bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
                   index: int, sd_deg: float | None,
                   scan: tuple[float, ...] = ANGLE_SCAN_DEG) -> str | float | None:
+    """The answer of :func:`angle_scan` for the angle alone (``AngleProfile.why``)."""
+    return angle_scan(fitter, fr, kind, p, steps, bounds, python_residual, chi2, index,
+                      sd_deg, scan).why
+
+
+def angle_scan(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
+               bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
+               index: int, sd_deg: float | None, scan: tuple[float, ...] = ANGLE_SCAN_DEG,
+               starts_at: Callable[[np.ndarray], list[np.ndarray]] | None = None,
+               known: list[tuple[float, np.ndarray]] = (),
+               test_sigma: float = ANGLE_TEST_SIGMA,
+               near_steps: tuple[float, ...] = NEAR_STEPS,
+               cap: int | None = None) -> AngleProfile:
     """A line's orientation (the parameter ``index`` of ``p``, rad; its linearised 1-sigma
     ``sd_deg``, deg) on its profile likelihood, as :func:`flat_below` tests a radius but on
     both sides (a line turned either way leaves the window alike): chi^2 minimised again with
-    the angle held ``PROFILE_SIGMAS`` sigmas either side.  The smaller rise decides: below
-    ``FLAT_CHI2`` the reason to withhold it, below ``PROFILE_SIGMAS^2`` its honest sigma (that
-    point lies ``sqrt(rise)`` sigmas away), else None.  A weak line in a small window (4-5
-    noise sigmas over 4x4 tactels of a 12x32 mat) has a likelihood far from quadratic in its
-    angle: its linearised sigma said 3 deg where it was 15-20 deg off.  ``scan``: the offsets
-    (deg) round the half-turn also evaluated; none for an ellipse, which turned 90 deg with its
-    radii swapped is the same one (:meth:`tactiled.fit.point.PointFit.fit`)."""
-    if sd_deg is None or not sd_deg > ANGLE_TEST_SIGMA:
-        return None
+    the angle held ``PROFILE_SIGMAS`` sigmas either side, and at the offsets ``scan`` (deg)
+    round the half-turn (none for an ellipse, which turned 90 deg with its radii swapped is
+    the same one: :meth:`tactiled.fit.point.PointFit.fit`).  A point below ``FLAT_CHI2``
+    withholds the angle; else every point below ``REACH_CHI2`` widens its sigma so that point
+    lies ``sqrt(rise)`` sigmas away (the widest such sigma); else it stays.  A weak line in a
+    small window (4-5 noise sigmas over 4x4 tactels of a 12x32 mat) has a likelihood far
+    from quadratic in its angle: its linearised sigma said 3 deg where it was 15-20 deg off.
+    ``starts_at(start)``: the starts of a scan point's search in place of ``start`` (``p``
+    with the angle held; a line turned about its window's centre can miss the tactels that
+    see it), the lowest search kept.  ``known``: points of the same profile already searched, ``(chi^2,
+    solution)`` (a scan made from another valley's solution), taken as they are.  Tested
+    where ``sd_deg`` exceeds ``test_sigma``; the near points at ``near_steps`` times
+    ``PROFILE_SIGMAS`` sigmas to either side; ``cap``: each point's search within that many
+    iterations, one stopped short kept as a bound (:func:`_held`'s ``bounded``), else the
+    fit's own cap, converged searches only."""
+    out = AngleProfile()
+    if sd_deg is None or not sd_deg > test_sigma:
+        return out
     # (distance in deg, rise of chi^2 there): the two near points, then the scan round the turn
-    away = [PROFILE_SIGMAS * sd_deg] * 2 + [min(d, 180.0 - d) for d in scan]
-    offsets = [-PROFILE_SIGMAS * sd_deg, PROFILE_SIGMAS * sd_deg, *scan]
+    if not sd_deg > ANGLE_TEST_SIGMA:
+        scan = ()  # a sharper angle's far valleys lie beyond reach: its near points only
+    near = [k * PROFILE_SIGMAS * sd_deg for k in near_steps]
+    away = [d for d in near for _ in (0, 1)] + [min(d, 180.0 - d) for d in scan]
+    offsets = [o for d in near for o in (-d, d)] + list(scan)
     points = []
-    for dist, off in zip(away, offsets):
-        rise = _rise(fitter, fr, kind, p, steps, bounds, python_residual, chi2,
-                     float(p[index]) + math.radians(off), index)
-        if rise is not None and rise < PROFILE_SIGMAS ** 2 and dist > 0.0:
+    lowest = -DEEPER_CHI2
+    # (the near points' searches start at the solution; the scan's also where starts_at says)
+    tried = [(dist, _held(fitter, fr, kind, p, steps, bounds, python_residual, chi2,
+                          float(p[index]) + math.radians(off), index,
+                          starts_at if i >= 2 * len(near) else None, cap,
+                          bounded=cap is not None))
+             for i, (dist, off) in enumerate(zip(away, offsets))]
+    for c2, q in known:
+        d = abs(math.degrees(float(q[index]) - float(p[index]))) % 180.0
+        tried.append((min(d, 180.0 - d), (c2 - chi2, q)))
+    for dist, got in tried:
+        if got is None:
+            continue
+        rise, sol = got
+        if rise < lowest:
+            lowest, out.deeper = rise, sol
+        if rise < REACH_CHI2 and dist > 0.0:
             points.append((dist, rise))
+            out.points.append((rise, sol))
     if not points:
-        return None
-    flat = [(d, r) for d, r in points if r < FLAT_CHI2]
+        return out
+    # flat: a point at least PROFILE_SIGMAS sigmas away (where a quadratic rises by 4) that
+    # rises by less than FLAT_CHI2 (a known point nearer says nothing of the kind)
+    flat = [(d, r) for d, r in points if r < FLAT_CHI2 and d >= PROFILE_SIGMAS * sd_deg * 0.999]
     if flat:
         dist, rise = max(flat)
-        return (f"orientation not observable: {FLAT_ACROSS} (chi^2 rises by "
-                f"{max(rise, 0.0):.2g}, not {(dist / sd_deg) ** 2:.3g}, {dist:.3g} deg to one "
-                "side): its sigma does not hold")
+        out.why = (f"orientation not observable: {FLAT_ACROSS} (chi^2 rises by "
+                   f"{max(rise, 0.0):.2g}, not {(dist / sd_deg) ** 2:.3g}, {dist:.3g} deg to "
+                   "one side): its sigma does not hold")
+        return out
     # each point lies sqrt(rise) sigmas away: the widest sigma that says so
-    return max(dist / math.sqrt(rise) for dist, rise in points)
+    widest = max(dist / math.sqrt(max(rise, FLAT_CHI2)) for dist, rise in points)
+    out.why = widest if widest > sd_deg else None
+    return out
+
+
+def widen_by_points(values: dict, std: dict, reasons: dict[str, str],
+                    points: list[tuple[float, dict]], keys: tuple[str, ...]) -> None:
+    """Each value of ``keys`` kept in ``values`` with a sigma in ``std``: widened so that
+    every profile point ``(rise, values there)`` lies at most ``sqrt(rise)`` of its sigmas
+    away (at most one sigma for a point below ``FLAT_CHI2``).  A point of the angle's profile
+    moves the values that trade with the angle (a line's place swings round the window it
+    is seen in): where the angle's likelihood is not quadratic, neither is theirs."""
+    for key in keys:
+        v, sd = values.get(key), std.get(key)
+        if v is None or sd is None:
+            continue
+        wide = max((abs(at[key] - v) / math.sqrt(max(rise, FLAT_CHI2))
+                    for rise, at in points if at.get(key) is not None), default=0.0)
+        if wide > sd:
+            std[key] = wide
+            reasons.setdefault(key, "poorly determined: its sigma widened to the profile "
+                               "likelihood of the orientation it trades with")
 
 
 def swapped(p: np.ndarray) -> np.ndarray | None:
@@ -233,15 +342,13 @@ def round_test(fitter: Any, fr: Any, p: np.ndarray, steps: np.ndarray,
     farthest): its sigma is widened to the widest the points imply (each ``sqrt(rise)``
     sigmas away: far points too, where the well is narrow and the profile beyond it flat),
     and withheld where that is over ``MAX_ANGLE_SIGMA`` (the one rule's bound).
-    A contact neither of whose radii is resolved (withheld, or a sigma reaching zero) is not
-    told from a point, which has no orientation: withheld without a search."""
+    A circle's orientation is ``undefined`` (as a sphere's is), which the daemon's tracker
+    does not lift while it tracks from that fit: a pooled linearised sigma has the same bias.
+    (Not told from a point, with neither radius resolved, is no reason: a rod fitted as an
+    ellipse has its radius unresolved and r2 unbounded, and its orientation sharp.)"""
     b2 = float(p[1]) ** 2
     if not b2 > 0.0:
         return None  # a cylinder: no circle near
-    if all(values.get(k) is None or not (std.get(k) or math.inf) < values[k]
-           for k in ("r1_mm", "r2_mm")):
-        return ("orientation not observable: neither radius is resolved (the contact is not "
-                "told from a point)")
     from tactiled.fit.models import get_model
     from tactiled.fit.search import bounds_of, steps_of
     sphere = get_model("sphere")
@@ -253,8 +360,8 @@ def round_test(fitter: Any, fr: Any, p: np.ndarray, steps: np.ndarray,
         return None
     rise = sol.cost * (fr.peak / fitter.sigma) ** 2 - chi2
     if rise < ROUND_CHI2:
-        return (f"orientation not observable: the two radii are not told apart (a sphere "
-                f"explains the frame within a chi^2 of {max(rise, 0.0):.2g}, under {ROUND_CHI2:g})")
+        return (f"undefined: the two radii are not told apart (a sphere explains the frame "
+                f"within a chi^2 of {max(rise, 0.0):.2g}, under {ROUND_CHI2:g})")
     if rise >= ROUND_SCAN_CHI2 and all(
             values.get(k) is not None and (std.get(k) or math.inf) <= TEST_RELATIVE_SIGMA * values[k]
             for k in ("r1_mm", "r2_mm")):
@@ -280,15 +387,36 @@ def _rise(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
     """chi^2 minimised with the parameter ``index`` (default the log radius) held at ``at``,
     less ``chi2``; None where the search did not converge (within ``cap`` iterations: by
     default the fit's own cap)."""
+    got = _held(fitter, fr, kind, p, steps, bounds, python_residual, chi2, at, index, cap=cap)
+    return None if got is None else got[0]
+
+
+def _held(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
+          bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
+          at: float, index: int = 0,
+          starts_at: Callable[[np.ndarray], list[np.ndarray]] | None = None,
+          cap: int | None = None, bounded: bool = False) -> tuple[float, np.ndarray] | None:
+    """``(rise, solution)``: chi^2 minimised with the parameter ``index`` held at ``at``, less
+    ``chi2``, from ``p`` so changed (or from each of the starts ``starts_at`` gives for it, the
+    lowest search kept), within ``cap`` iterations (default the fit's own cap): converged
+    searches only (None where none converged), or ``bounded``, a search stopped short kept
+    too (None where none evaluated): it still bounds the profile there from above, so it only
+    understates how far the likelihood reaches (never a withholding or a widening the
+    profile would not make)."""
     lo, hi = bounds[0].copy(), bounds[1].copy()
     lo[index] = hi[index] = at
     start = np.array(p, dtype=float)
     start[index] = at
-    sol, _ = fitter._search(fr, kind, [start], steps, (lo, hi), cap or fitter.options.max_iter,
-                            1e-2, python_residual)
-    if not sol.converged or not math.isfinite(sol.cost):
+    best = None
+    for s0 in ([start] if starts_at is None else starts_at(start)):
+        sol, _ = fitter._search(fr, kind, [s0], steps, (lo, hi), cap or fitter.options.max_iter,
+                                1e-2, python_residual)
+        ok = sol.jacobian.size > 0 if bounded else sol.converged
+        if ok and math.isfinite(sol.cost) and (best is None or sol.cost < best.cost):
+            best = sol
+    if best is None:
         return None
-    return sol.cost * (fr.peak / fitter.sigma) ** 2 - chi2
+    return best.cost * (fr.peak / fitter.sigma) ** 2 - chi2, best.p
 
 
 def withhold_flat(values: dict, std: dict, reasons: dict[str, str], why: str | float | None,

@@ -16,7 +16,11 @@
 #   :data:`MIN_Q_SIGMAS` sigma, so that its direction is known), or
 # * the friction is mobilised (the filtered ``lam`` above :data:`MOBILISED` by 2 sigma) and, for
 #   one start, the tangential force has levelled off by :data:`PLATEAU_Z` sigma while the centre
-#   moved by :data:`CONFIRM_Z` sigma, or
+#   moved by :data:`CONFIRM_Z` sigma, or the slide and the levelling-off together (the
+#   likelihood ratio of both scales >= 0) exceed :data:`COMBINE_Z` with the slide alone over
+#   :data:`CONFIRM_Z`, on a start whose frames since show no stick zone (the mean of their
+#   unclipped ``lam`` within 2 sigma of 1: a grip held just below the friction's limit levels
+#   off too, and its resolved stick zone keeps this rule shut), or
 # * the tangential force has fallen by more than :data:`DROP_Z` sigma below its mean over the
 #   :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction).
 #
@@ -39,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.fit.shear_filter import ShearFilter, SlideTest
+from tactiled.fit.shear_filter import WINDOW, ShearFilter, SlideTest
 
 ONSET_Z = 4.5
 #: Frames of a contact before the slide test counts: the filter's rates settle from their start.
@@ -63,6 +67,13 @@ SLIDING_WALK = 3.0
 #: :data:`CONFIRM_Z` sigma (the same start) is the onset.
 MOBILISED = 0.9
 PLATEAU_Z, CONFIRM_Z = 3.0, 3.0
+#: With the friction mobilised, the slide and the levelling-off together over COMBINE_Z (the
+#: slide test's own threshold), on a start since which the stick zone is gone, the slide alone
+#: over CONFIRM_Z: the evidence of both halves of a slip added, where the levelling-off alone
+#: falls short of PLATEAU_Z (``tactiled bench --suite shear``: no onset on its stick-only
+#: scenes nor on contacts held at 0.95 mu P; with the slide alone over 2.5 sigma instead,
+#: held contacts whose stick zone the array does not resolve gave onsets).
+COMBINE_Z = ONSET_Z
 
 
 @dataclass
@@ -100,6 +111,8 @@ class SlipDetector:
         self._calm = 0
         self._slide: deque[tuple[float, float, float, float]] = deque(maxlen=REST_FRAMES + 1)
         self._q: deque[tuple[float, float]] = deque(maxlen=RECENT)
+        #: the unclipped lam and its 1-sigma of the frames the slide test advanced on (newest last)
+        self._lam: deque[tuple[float, float]] = deque(maxlen=WINDOW + 1)
         #: the last frame's slide statistic and force drop (sigma), for the record
         self.z = 0.0
         self.drop = 0.0
@@ -112,6 +125,21 @@ class SlipDetector:
         zx = (x1 - x0) / math.hypot(sx0, sx1) if sx0 or sx1 else 0.0
         zy = (y1 - y0) / math.hypot(sy0, sy1) if sy0 or sy1 else 0.0
         return math.hypot(zx, zy) < REST_Z
+
+    def _gone_since(self, test: SlideTest) -> float:
+        """The largest combined statistic over the tracks whose frames since their start
+        show no stick zone: the mean of their unclipped ``lam`` within 2 sigma of 1 or above."""
+        gate = np.zeros(WINDOW + 2, bool)
+        num = den = 0.0
+        for age, (v, s) in enumerate(reversed(self._lam), start=1):
+            if not (math.isfinite(v) and math.isfinite(s) and s > 0):
+                break
+            num += v / (s * s)
+            den += 1.0 / (s * s)
+            gate[age] = num / den + 2.0 / math.sqrt(den) >= 1.0
+        ages = np.clip(test.ages, 0, WINDOW + 1)
+        ok = (test.ages > 0) & gate[ages] & (test.slides > CONFIRM_Z)
+        return float(test.tracks[ok].max(initial=0.0))
 
     def update(self, frame: int, params: np.ndarray, cov: np.ndarray, lam_free: float | None = None
                ) -> tuple[str | None, SlipEvent | None]:
@@ -128,19 +156,21 @@ class SlipDetector:
         q = math.hypot(params[4], params[5])
         self.filter.centre_walk = self.tracking.centre_walk = SLIDING_WALK if self.sliding else None
         self.tracking.update(params, cov, lam_free)
-        z = joint = 0.0
+        z = joint = both = 0.0
         mobilised = False
         if self.filter.update(params, cov, lam_free) and not self.sliding:
+            self._lam.append((float(lam_free) if lam_free is not None else lam, s_lam))
             fx, fy, qf, s_qf = self.filter.tangential()
             if qf > MIN_Q_SIGMAS * s_qf:  # slip runs along a resolved Q
                 z = self.test.update(self.filter, fx / qf, fy / qf)
                 joint = self.test.joint
+                both = self._gone_since(self.test)
             else:  # the tracks advance; no direction to test along
                 self.test.update(self.filter, 1.0, 0.0)
             lam_f, s_lam_f = self.filter.value(7)
             mobilised = lam_f - 2.0 * s_lam_f > MOBILISED
             if self.filter.frames <= SETTLE:
-                z = joint = 0.0
+                z = joint = both = 0.0
         # the stick zone gone within the frame's bound, or within the filter's (one frame's
         # lam scatters; the filter's follows the friction mobilised through the frames)
         gone_here = math.isfinite(s_lam) and lam + 2.0 * s_lam >= 1.0
@@ -156,7 +186,7 @@ class SlipDetector:
         self._q.append((q, s_q))
         self.z, self.drop = z, drop
         if not self.sliding:
-            if gone and (z > ONSET_Z or drop > DROP_Z or (mobilised and joint > CONFIRM_Z)):
+            if gone and (z > ONSET_Z or drop > DROP_Z or (mobilised and (joint > CONFIRM_Z or both > COMBINE_Z))):
                 self.sliding = True
                 self._calm = 0
                 event = SlipEvent("onset", frame)

@@ -37,6 +37,13 @@ def test_the_daemon_on_a_coarse_pad_against_the_truth() -> None:
     assert c["with_far"] <= 0.05 * c["contact_estimates"], c
     lines = live_sensors.report(desc, s, 100.0)
     assert any(line.startswith("| offset |") for line in lines)
+    # the ball's force is resolved by the whole pad's bound at the truth in most frames (its
+    # radius in none): what is withheld of it is scored against that
+    assert s["resolved"]["force_n"] >= 0.5 * s["n"]["force_n"] > 0, s["resolved"]
+    assert s["resolved"]["r1_mm"] == 0
+    assert s["resolved_withheld"]["force_n"] <= s["withheld"]["force_n"]
+    force = next(line for line in lines if line.startswith("| force_n |")).split(" | ")
+    assert force[5].endswith(f"({s['resolved']['force_n']})")
 
 
 def test_the_daemons_tracked_radii_on_a_coarse_pad_stay_within_their_sigmas() -> None:
@@ -72,13 +79,17 @@ def test_the_daemons_tracked_radii_on_a_coarse_pad_stay_within_their_sigmas() ->
 #: beyond ``live_sensors.FAR_SIGMAS`` of its sigma from the simulator's truth.
 LIVE_BAR = 0.01
 #: Descriptions whose simulated finger the daemon does not yet keep within the bar (what is
-#: left there: weak lines' fits, docs/performance/fit-time.md)
-_NOT_YET = {"flexitac_12x32": "a weak line's fitted orientation and place on the 12x32 mat "
-                              "(1 N at about 4 noise sigmas, fits of single frames), 1.3-2 % of "
-                              "estimates"}
+#: left there: docs/performance/fit-time.md)
+_NOT_YET: dict[str, str] = {}
+#: The share of the values other than the radius a description may withhold (below): 25 %,
+#: but on the 12x32 mat, where the demo's line (1 N at about 4 noise sigmas) is fitted on the
+#: band of tactels that see it above the noise, a piece of it, and its orientation and place
+#: are withheld where their profile likelihood is flat (28-46 % of the line's estimates on
+#: seeds 1-3; docs/concepts/uncertainty.md)
+WITHHELD_BAR = {"flexitac_12x32": 0.5}
 
 
-def _live_bar(s: dict) -> None:
+def _live_bar(s: dict, name: str = "") -> None:
     c = s["counts"]
     assert c["contact_estimates"] >= 1000, c
     assert c["phantom"] == 0, c
@@ -88,7 +99,8 @@ def _live_bar(s: dict) -> None:
     # radius (the demo's line is 10 mm at 1 N and its ball 8 mm at up to 1.5 N, radii the
     # coarse and flat descriptions do not resolve: docs/concepts/uncertainty.md)
     held = sum(v for k, v in s["withheld"].items() if k != "r1_mm")
-    assert held <= 0.25 * sum(v for k, v in s["n"].items() if k != "r1_mm"), s["withheld"]
+    bar = WITHHELD_BAR.get(name, 0.25)
+    assert held <= bar * sum(v for k, v in s["n"].items() if k != "r1_mm"), s["withheld"]
 
 
 def _nothing_stale(desc, estimates: list) -> tuple[int, int]:
@@ -194,4 +206,4 @@ def test_a_release_is_followed_without_a_confident_lag() -> None:
     pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=_NOT_YET[n])) if n in _NOT_YET
     else n for n in builtin_names()])
 def test_the_live_bar_on_every_builtin_description(name: str, seed: int) -> None:
-    _live_bar(live_sensors.score(load_description(name), 100.0, seed))
+    _live_bar(live_sensors.score(load_description(name), 100.0, seed), name)

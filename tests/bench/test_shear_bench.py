@@ -18,3 +18,14 @@ def test_resolve_makes_a_one_axis_description_three_axis():
     assert d.axes == 3 and d.rows == 16 and d.taxel_depth_mm == d.depth_x_mm
     assert shear.resolve("xela_uskin_4x6").axes == 3
     assert d.axis_gain == (1000.0, 1000.0, 1000.0)
+
+
+def test_known_onset_and_held_contacts_on_a_small_run():
+    """The statistic a test that knew the onset sees 5 frames after it is reported for every
+    constant-friction pull (on the 4x4 patch, far over the noise); contacts held at 0.95 mu P,
+    drawn from a fit's covariance, give no onset."""
+    desc = shear.resolve("xela_uskin_4x4")
+    slip = shear.slip(desc, pulls=2, sticks=0, seed=5, kinetic=1.0)
+    assert slip["known_median"] > 3.0 and 0.0 <= slip["known_over"] <= 1.0
+    held = shear.null_events(desc, 2, seed=6, hold_frames=100)
+    assert held["onsets"] == 0 and held["scenes"] == 2 and held["frames"] >= 2 * (150 + 100)

@@ -29,6 +29,7 @@ FRAMERS: dict[type, Callable[[], Any]] = {
     flexitac.FlexiTacFramer: lambda: flexitac.FlexiTacFramer(2, 3),
     flexitac.NativeFlexiTacFramer: lambda: flexitac.NativeFlexiTacFramer(2, 3),
     robotiq.RobotiqFramer: lambda: robotiq.RobotiqFramer(0),
+    robotiq.NativeRobotiqFramer: lambda: robotiq.NativeRobotiqFramer(0),
     xela.XelaFramer: lambda: xela.XelaFramer(1, 2, 3),
     paxini.PaxiniFramer: lambda: paxini.PaxiniFramer(0, 2, 3),
 }

@@ -14,6 +14,7 @@ import struct
 import zlib
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -74,13 +75,19 @@ def robotiq_packets(n: int, seed: int) -> list[bytes]:
     return out
 
 
+#: the Robotiq framer and its compiled core's
+ROBOTIQ = pytest.mark.parametrize("make", [robotiq.RobotiqFramer, robotiq.NativeRobotiqFramer],
+                                  ids=lambda c: c.__name__)
+
+
+@ROBOTIQ
 @settings(max_examples=300, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), **TEAR)
-def test_robotiq_torn_packet_costs_only_itself(seed, torn_at, frac, cuts) -> None:
+def test_robotiq_torn_packet_costs_only_itself(make, seed, torn_at, frac, cuts) -> None:
     packets = robotiq_packets(6, seed)
     torn_at = 2 * torn_at + 1  # a static packet: the unit that carries a frame
     keep = max(1, int(frac * len(packets[torn_at])))
-    framer = robotiq.RobotiqFramer(1)
+    framer = make(1)
     # the next period's first byte: it confirms a last packet that spans reads
     got = feed_reads(framer, hostile_reads(packets, torn_at, keep, cuts) + [b"\x9a"])
     want = [a for k, p in enumerate(packets) if k != torn_at
@@ -88,13 +95,14 @@ def test_robotiq_torn_packet_costs_only_itself(seed, torn_at, frac, cuts) -> Non
     assert len(got) == len(want) and all(np.array_equal(g.raw, w) for g, w in zip(got, want))
 
 
-def test_robotiq_torn_packet_run_into_the_next_is_not_a_frame() -> None:
+@ROBOTIQ
+def test_robotiq_torn_packet_run_into_the_next_is_not_a_frame(make) -> None:
     """The fault as seen: a static packet torn after 20 bytes, its declared 57 bytes then read
     from the next packets, whose fields parse."""
     packets = robotiq_packets(4, seed=7)
     torn = packets[3][:20]
     reads = [b"".join(packets[:3]) + torn, b"".join(packets[4:])]
-    framer = robotiq.RobotiqFramer(1)
+    framer = make(1)
     got = feed_reads(framer, reads)
     want = [robotiq_reference(p, 1) for p in packets[4:]]
     want = [w for w in want if w is not None]
@@ -102,16 +110,17 @@ def test_robotiq_torn_packet_run_into_the_next_is_not_a_frame() -> None:
     assert framer.stats.truncated >= 1
 
 
-def test_robotiq_packet_spanning_reads_waits_for_the_next_start() -> None:
+@ROBOTIQ
+def test_robotiq_packet_spanning_reads_waits_for_the_next_start(make) -> None:
     packets = robotiq_packets(2, seed=3)
-    framer = robotiq.RobotiqFramer(1)
+    framer = make(1)
     data = b"".join(packets[2:4])  # finger 1's two packets
     mid = len(packets[2]) + 10  # inside the static packet
     assert framer.feed(data[:mid]) == [] and framer.feed(data[mid:]) == []  # held
     (frame,) = framer.feed(packets[0][:1])  # the next start confirms it
     assert np.array_equal(frame.raw, robotiq_reference(packets[3], 1))
     # a whole packet in one read ending the read: the line paused, delivered at once
-    framer2 = robotiq.RobotiqFramer(1)
+    framer2 = make(1)
     assert len(framer2.feed(data)) == 1
 
 

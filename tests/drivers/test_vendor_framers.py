@@ -23,6 +23,9 @@ FLEXITAC = pytest.mark.parametrize("make", [flexitac.FlexiTacFramer,
 #: the lines framer and its compiled core's (tests/drivers/test_lines_core.py holds them equal)
 LINES = pytest.mark.parametrize("make", [lines.LinesFramer, lines.NativeLinesFramer],
                                 ids=lambda c: c.__name__)
+#: the Robotiq framer and its compiled core's (held equal below)
+ROBOTIQ = pytest.mark.parametrize("make", [robotiq.RobotiqFramer, robotiq.NativeRobotiqFramer],
+                                  ids=lambda c: c.__name__)
 
 
 def feed_chunks(framer, data: bytes, cuts: list[int]) -> list:
@@ -258,14 +261,15 @@ def robotiq_stream(draw):
     return readings
 
 
+@ROBOTIQ
 @settings(max_examples=150, deadline=None)
 @given(robotiq_stream(), st.lists(st.binary(max_size=90), max_size=3),
        st.lists(st.integers(0, 5000), max_size=6), st.integers(0, 1), st.data())
-def test_robotiq_garbage_between_packets(readings, junks, cuts, finger, data) -> None:
+def test_robotiq_garbage_between_packets(make, readings, junks, cuts, finger, data) -> None:
     units = [robotiq.encode_finger(f, raw, timestamp_ms=t) for f, raw, t in readings]
     for junk in junks:  # garbage without a start byte
         units.insert(data.draw(st.integers(0, len(units))), junk.replace(b"\x9a", b"\x9b"))
-    framer = robotiq.RobotiqFramer(finger)
+    framer = make(finger)
     # the next packet's start byte at the end: a last packet that spans reads waits for it
     got = feed_chunks(framer, b"".join(units) + b"\x9a", cuts)
     mine = [(raw, t) for f, raw, t in readings if f == finger]
@@ -274,12 +278,13 @@ def test_robotiq_garbage_between_packets(readings, junks, cuts, finger, data) ->
     assert all(g.sensor_id == finger and g.extras["timestamp"] == t for g, (_, t) in zip(got, mine))
 
 
+@ROBOTIQ
 @settings(max_examples=200, deadline=None)
 @given(robotiq_stream(), st.binary(min_size=1, max_size=200),
        st.lists(st.integers(0, 5000), max_size=6))
-def test_robotiq_start_bytes_in_garbage_deliver_nothing_false(readings, junk, cuts) -> None:
+def test_robotiq_start_bytes_in_garbage_deliver_nothing_false(make, readings, junk, cuts) -> None:
     data = junk + b"".join(robotiq.encode_finger(f, raw) for f, raw, _ in readings)
-    framer = robotiq.RobotiqFramer(0)
+    framer = make(0)
     got = feed_chunks(framer, data, cuts)
     sent = [raw for f, raw, _ in readings if f == 0]
     # whatever the garbage held, a delivered frame is a sent one... unless the garbage itself
@@ -290,23 +295,105 @@ def test_robotiq_start_bytes_in_garbage_deliver_nothing_false(readings, junk, cu
     assert framer.buffered <= robotiq.HEADER + robotiq.MAX_DATA
 
 
-def test_robotiq_pyrobotiqtactile_uint64_timestamp_parses() -> None:
+@ROBOTIQ
+def test_robotiq_pyrobotiqtactile_uint64_timestamp_parses(make) -> None:
     raw = np.arange(28, dtype=np.uint16).reshape(7, 4)
     stamp = bytes([robotiq.TIMESTAMP]) + (123456789).to_bytes(8, "big") + bytes([robotiq.DYNAMIC, 0, 5])
     static = bytes([robotiq.STATIC]) + raw.astype(">u2").tobytes()
     packet = b"".join(bytes([robotiq.START, 0, 0x58, len(d)]) + d for d in (stamp, static))
-    framer = robotiq.RobotiqFramer(0)
+    framer = make(0)
     (frame,) = framer.feed(packet)
     assert np.array_equal(frame.raw, raw) and frame.extras["timestamp"] == 123456789
     assert frame.extras["dynamic"] == 5
 
 
-def test_robotiq_timestamp_unwraps() -> None:
-    framer = robotiq.RobotiqFramer(0)
+@ROBOTIQ
+def test_robotiq_timestamp_unwraps(make) -> None:
+    framer = make(0)
     raw = np.zeros((7, 4), dtype=np.uint16)
     stamps = [65000, 65500, 200, 900]
     got = framer.feed(b"".join(robotiq.encode_finger(0, raw, timestamp_ms=t) for t in stamps))
     assert [f.device_time_us // 1000 for f in got] == [65000, 65500, 65736, 66436]
+
+
+#: field types of drawn packets: every kind, unknown ones, any finger and index bits
+ROBOTIQ_KINDS = st.sampled_from([*robotiq.FIELD_BYTES, 0x00, 0x80, 0xF0])
+
+
+@st.composite
+def robotiq_field(draw) -> bytes:
+    kind = draw(ROBOTIQ_KINDS) | draw(st.integers(0, 15))
+    size = robotiq.FIELD_BYTES.get(kind & 0xF0, 2)
+    if kind & 0xF0 == robotiq.TIMESTAMP and draw(st.booleans()):
+        size = 8  # pyrobotiqtactile's uint64, any value (its microseconds may pass 2^64)
+    return bytes([kind]) + draw(st.binary(min_size=size, max_size=size))
+
+
+@st.composite
+def robotiq_hostile_unit(draw) -> bytes:
+    """A whole reading, a torn one, a packet of drawn fields with its length drawn near the
+    truth, or noise rich in the start byte."""
+    kind = draw(st.integers(0, 3))
+    if kind <= 1:
+        raw = np.array(draw(st.lists(st.integers(0, 65535), min_size=28, max_size=28)),
+                       dtype=np.uint16).reshape(7, 4)
+        unit = robotiq.encode_finger(draw(st.integers(0, 3)), raw,
+                                     timestamp_ms=draw(st.integers(0, 2**17)),
+                                     dynamic=draw(st.integers(-32768, 32767)),
+                                     accelerometer=(draw(st.integers(-32768, 32767)), 0, -1))
+        return unit if kind == 0 else unit[:draw(st.integers(0, len(unit)))]
+    if kind == 2:
+        body = b"".join(draw(st.lists(robotiq_field(), max_size=4)))
+        length = max(0, min(255, len(body) + draw(st.integers(-2, 2))))
+        return bytes([robotiq.START, draw(st.integers(0, 255)), 0x58, length]) + body
+    noise = draw(st.binary(max_size=120))
+    return bytes(robotiq.START if b < 40 else b for b in noise)
+
+
+def robotiq_wire(framer, data: bytes, cuts: list[int]) -> list[tuple]:
+    """Every field of every frame, read by read, each read at its own host time (a frame with
+    no timestamp yet is clocked by the host), the extras' order too."""
+    points = [0, *sorted({c % (len(data) + 1) for c in cuts}), len(data)]
+    return [(f.seq, f.device_time_us, f.sensor_id, f.host_time, f.clocked,
+             list(f.extras.items()), f.raw.dtype, f.raw.shape, f.raw.tobytes())
+            for k, (a, b) in enumerate(zip(points, points[1:]))
+            for f in framer.feed(data[a:b], host_time=5.0 + 0.0011 * k)]
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(robotiq_hostile_unit(), max_size=14), st.lists(st.integers(0, 4000), max_size=8),
+       st.integers(0, 3), st.booleans())
+def test_robotiq_core_frames_as_the_reference(units, cuts, finger, reset) -> None:
+    """The same frames (seq, clocks, extras, counts) and counters, packets, held bytes, on
+    hostile streams cut anywhere, and after a reset."""
+    data = b"".join(units)
+    ref, got = robotiq.RobotiqFramer(finger), robotiq.NativeRobotiqFramer(finger)
+    for _ in range(2 if reset else 1):
+        assert robotiq_wire(got, data, cuts) == robotiq_wire(ref, data, cuts)
+        assert (got.buffered, got.packets, asdict(got.stats)) \
+            == (ref.buffered, ref.packets, asdict(ref.stats))
+        ref.reset()
+        got.reset()
+
+
+def test_robotiq_core_takes_a_timestamp_past_64_bits_as_the_reference() -> None:
+    """A uint64 timestamp near 2^64 ms: its microseconds pass 2^64; a uint16 one after it
+    unwraps past 2^64 ms; the two framers give the same Python ints."""
+    static = bytes([robotiq.STATIC]) + np.arange(28, dtype=">u2").tobytes()
+    stamps = [bytes([robotiq.TIMESTAMP]) + (2**64 - 5).to_bytes(8, "big"),
+              bytes([robotiq.TIMESTAMP]) + (3).to_bytes(2, "big")]
+    data = b"".join(bytes([robotiq.START, 0, 0x58, len(d)]) + d
+                    for stamp in stamps for d in (stamp + bytes([robotiq.DYNAMIC, 0xFF, 0xFE]),
+                                                  static))
+    want = robotiq_wire(robotiq.RobotiqFramer(0), data, [])
+    assert [w[1] for w in want] == [(2**64 - 5) * 1000, (2**64 - 2**16 + 3 + 2**16) * 1000]
+    assert want[0][5] == [("dynamic", -2), ("timestamp", 2**64 - 5)]
+    assert robotiq_wire(robotiq.NativeRobotiqFramer(0), data, []) == want
+
+
+def test_robotiq_core_refuses_a_finger_past_3() -> None:
+    with pytest.raises(ValueError, match="finger"):
+        robotiq.NativeRobotiqFramer(4)
 
 
 def test_robotiq_commands() -> None:

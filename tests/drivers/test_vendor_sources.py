@@ -13,6 +13,7 @@ from urllib.parse import quote
 import numpy as np
 import pytest
 
+from tactiled import native
 from tactiled.errors import DriverError
 from tactiled.frames import Frame
 from tactiled.sources import FrameSource, open_source
@@ -160,6 +161,9 @@ def test_robotiq_two_fingers_share_the_port(pty_device, wait_until) -> None:
         assert r0.frames[2].extras["dynamic"] == 2 and "accelerometer" in r0.frames[2].extras
         assert r0.src.decoder.stats.rejected >= 1 and r0.src.decoder.stats.resyncs == 1
         assert robotiq._PORTS == {}
+        # the compiled core's framer, unless TACTILED_CORE=python chose the reference
+        assert type(r0.src.decoder) is (robotiq.RobotiqFramer if native.core is None
+                                        else robotiq.NativeRobotiqFramer)
 
     asyncio.run(main())
 

@@ -44,6 +44,21 @@ def _band(fitter: Fitter, frame: np.ndarray) -> np.ndarray:
     return band
 
 
+def _spy(selector, name: str) -> list:
+    """The selector's method ``name`` replaced on the instance by the real one that records
+    its answers (the list returned; ``del selector.<name>`` restores the class's)."""
+    real = getattr(selector, name)
+    answers: list = []
+
+    def spy(*args, **kwargs):
+        res = real(*args, **kwargs)
+        answers.append(res)
+        return res
+
+    setattr(selector, name, spy)
+    return answers
+
+
 def test_a_balls_band_is_round_and_a_lines_is_not(flat16) -> None:
     sensor, model, fitter = flat16
     rng = np.random.default_rng(1)
@@ -64,15 +79,7 @@ def test_balls_beside_a_line_are_spheres_fitted_alone_and_within_their_sigmas(fl
     sensor, model, fitter = flat16
     sigma = sensor.noise.sigma
     rng = np.random.default_rng(8)
-    answers = []
-    sphere_alone = fitter.selector.sphere_alone
-
-    def spy(*args, **kwargs):  # the real method, its answers recorded
-        res = sphere_alone(*args, **kwargs)
-        answers.append(res)
-        return res
-
-    fitter.selector.sphere_alone = spy
+    answers = _spy(fitter.selector, "sphere_alone")
     try:
         for trial in range(6):
             psi = 15.0 + 25.0 * trial
@@ -145,3 +152,46 @@ def test_a_scouted_cylinder_whose_budget_ran_out_is_reported_not_left_a_scout() 
     assert res.values  # a report, not a scout's bare chi^2
     for key in ("x_mm", "y_mm", "force_n"):
         assert res.values.get(key) is not None or key in res.reasons
+
+
+def test_a_ridge_tests_second_moments_are_the_covariances_eigen_decomposition() -> None:
+    """linewindow.spread's closed form against numpy's sample covariance and eigh, on seeded
+    point sets (scattered, nearly collinear, a few tactels)."""
+    from tactiled.fit.linewindow import spread
+
+    rng = np.random.default_rng(5)
+    for trial in range(300):
+        k = int(rng.integers(3, 30))
+        x = rng.integers(0, 16, k).astype(float)
+        y = x * float(rng.integers(-2, 3)) + rng.integers(0, 2, k) if trial % 3 == 0 \
+            else rng.integers(0, 16, k).astype(float)
+        w, v = np.linalg.eigh(np.cov(np.vstack((x, y))))
+        small, big, (ux, uy) = spread(x, y)
+        assert small == pytest.approx(w[0], abs=1e-9) and big == pytest.approx(w[1], abs=1e-9)
+        if w[1] - w[0] > 1e-9:  # a unique principal axis: the same one, up to its sign
+            assert abs(ux * v[0, 1] + uy * v[1, 1]) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_a_round_blob_the_sphere_alone_misses_is_chosen_without_a_line_scout(flat16) -> None:
+    """An ellipsoid's blob (r2 1.5 times r1) beside a bar: its band is round, the sphere alone
+    leaves it above the noise, and the choice between the sphere and the general ellipse is
+    made without scouting a line for it (ModelSelector.round_choice): the general ellipse,
+    where auto on the blob alone also puts it, its centre within four of its sigmas."""
+    sensor, model, fitter = flat16
+    rng = np.random.default_rng(6)
+    answers = _spy(fitter.selector, "round_choice")
+    try:
+        line = LineContact(10.0, 20.0, 0.06, 20.0, 8.0)
+        ellipse = Contact(6.0, 9.0, 70.0, 1.0, 18.0, 28.0)
+        for _ in range(3):
+            noise = rng.normal(0.0, sensor.noise.sigma, (16, 16))
+            alone = fitter.fit(model.predict(ellipse) + noise, "auto")
+            out = fit_contacts(fitter, model.predict(line) + model.predict(ellipse) + noise, "auto")
+            assert len(out) == 2
+            (r,) = [r for r in out if r.line is None]
+            assert r.model == alone.model == "general"
+            for key, true in (("x_mm", ellipse.x0), ("y_mm", ellipse.y0)):
+                assert abs(r.values[key] - true) < 4.0 * r.std[key], key
+    finally:
+        del fitter.selector.round_choice
+    assert answers and all(a is not None and a.model == "general" for a in answers)

@@ -115,3 +115,39 @@ def test_the_force_levelling_off_at_the_friction_limit_declares_sooner(monkeypat
     assert all(b is not None and 100 <= b <= m for b, m in zip(both, motion)), (both, motion)
     assert np.mean(both) < np.mean(motion)
     assert all(_onset(scene(s, moves=False)) is None for s in range(8))
+
+
+def test_the_slide_and_the_levelling_off_add_up_where_the_stick_zone_is_gone(monkeypatch):
+    """A pull whose force stops rising at frame 100 while the centre starts to move (2.5 um
+    (k + 1)^2 against 40 um a frame, a noisy array): the slide and the levelling-off together
+    declare the onset no later, and on average sooner, than without that rule; a grip held at
+    0.95 of the friction's limit (its stick zone resolved: lam 0.95 +/- 0.02) levels off the
+    same way and is no slip, its centre still."""
+    import tactiled.fit.slip as slip
+
+    def scene(seed, lam_top=1.0, moves=True):
+        rng = np.random.default_rng(seed)
+        out = []
+        for i in range(112):
+            q = 0.3 + 0.002 * min(i, 100)
+            lam = lam_top * (0.5 + 0.5 * min(i, 100) / 100)
+            x = 5.0 + (0.0025 * (i - 99) ** 2 if moves and i >= 100 else 0.0)
+            out.append((x + 0.04 * rng.normal(), q + 0.003 * rng.normal(), lam + 0.02 * rng.normal()))
+        return out
+
+    def onset(frames):
+        det = SlipDetector()
+        for i, (x, q, lam) in enumerate(frames):
+            p, c = estimate(x, min(1.0, max(0.0, lam)), q=q, sx=0.04, s_lam=0.02)
+            _, ev = det.update(i, p, c, lam)
+            if ev and ev.kind == "onset":
+                return i
+        return None
+
+    both = [onset(scene(s)) for s in range(10)]
+    monkeypatch.setattr(slip, "COMBINE_Z", math.inf)
+    apart = [onset(scene(s)) for s in range(10)]
+    monkeypatch.undo()
+    assert all(b is not None and 100 <= b and (a is None or b <= a) for b, a in zip(both, apart)), (both, apart)
+    assert np.mean([b - 100 for b in both]) < np.mean([(a if a is not None else 112) - 100 for a in apart])
+    assert all(onset(scene(s, lam_top=0.95, moves=False)) is None for s in range(10))

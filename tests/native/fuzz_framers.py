@@ -1,9 +1,8 @@
 """An atheris fuzz target for the framers: the compiled core's (the wire format, text lines,
-FlexiTac), each input a stream and the reads it is cut into, fed to the core's framer and to
-its Python reference: they must agree frame for frame and counter for counter, never raise,
-and hold no more than the format's bound.  Robotiq's packets are framed in Python only (a
-115200-baud device of 28 tactels): its framer must never raise, deliver only whole 7x4 frames
-of its finger, and hold no more than two packets' bytes.
+FlexiTac, Robotiq), each input a stream and the reads it is cut into, fed to the core's framer
+and to its Python reference: they must agree frame for frame and counter for counter, never
+raise, and hold no more than the format's bound (Robotiq: whole 7x4 frames of its finger, at
+most two packets' bytes held).
 
 Run it by hand for as long as you like (libFuzzer's options after the script)::
 
@@ -33,6 +32,7 @@ with atheris.instrument_imports():
         HEADER as ROBOTIQ_HEADER,
         MAX_DATA,
         START,
+        NativeRobotiqFramer,
         RobotiqFramer,
         encode_finger,
     )
@@ -165,8 +165,9 @@ def flexitac_framers(data: bytes) -> None:
 
 @atheris.instrument_func
 def robotiq_framer(data: bytes) -> None:
-    """Robotiq: whole readings of drawn fingers, torn packets, packets with drawn (often
-    unknown) fields and lengths, and noise rich in the start byte, cut into drawn reads."""
+    """Robotiq: RobotiqFramer against NativeRobotiqFramer (whole readings of drawn fingers,
+    torn packets, packets with drawn (often unknown) fields and lengths, and noise rich in the
+    start byte, cut into drawn reads)."""
     fdp = atheris.FuzzedDataProvider(data)
     finger = fdp.ConsumeIntInRange(0, 3)
     kinds = [*FIELD_BYTES, 0x00, 0x80, 0xF0]
@@ -182,7 +183,10 @@ def robotiq_framer(data: bytes) -> None:
             body = bytearray()
             for _ in range(fdp.ConsumeIntInRange(0, 4)):
                 field = fdp.PickValueInList(kinds) | (fdp.ConsumeIntInRange(0, 15))
-                body += bytes([field]) + fdp.ConsumeBytes(FIELD_BYTES.get(field & 0xF0, 2))
+                size = FIELD_BYTES.get(field & 0xF0, 2)
+                if field & 0xF0 == 0x70 and fdp.ConsumeBool():
+                    size = 8  # pyrobotiqtactile's uint64 timestamp
+                body += bytes([field]) + fdp.ConsumeBytes(size)
             length = max(0, min(255, len(body) + fdp.ConsumeIntInRange(-2, 2)))
             out += bytes([START, fdp.ConsumeIntInRange(0, 255), 0x58, length]) + body
         elif kind == 3:  # noise with start bytes in it
@@ -192,16 +196,24 @@ def robotiq_framer(data: bytes) -> None:
             out += fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 40))
     stream = bytes(out)
     cuts = sorted({0, len(stream), *(fdp.ConsumeIntInRange(0, len(stream)) for _ in range(6))})
-    framer, seqs = RobotiqFramer(finger), []
+    framer, got, seqs = RobotiqFramer(finger), NativeRobotiqFramer(finger), []
     for k, (a, b) in enumerate(zip(cuts, cuts[1:])):
-        for f in framer.feed(stream[a:b], 0.5 * k):
+        want, have = framer.feed(stream[a:b], 0.5 * k), got.feed(stream[a:b], 0.5 * k)
+        for f in want:
             assert f.raw.shape == (7, 4) and f.raw.dtype == np.uint16, f.raw
             assert f.sensor_id == finger and f.device_time_us >= 0
             seqs.append(f.seq)
-        assert framer.buffered <= 2 * (ROBOTIQ_HEADER + MAX_DATA)
+        assert [_robotiq_key(f) for f in have] == [_robotiq_key(f) for f in want]
+        assert got.buffered == framer.buffered <= 2 * (ROBOTIQ_HEADER + MAX_DATA)
     st = framer.stats
     assert seqs == list(range(len(seqs))) and st.frames == len(seqs)
     assert st.bytes == len(stream) and st.discarded + framer.buffered <= st.bytes
+    assert asdict(got.stats) == asdict(st) and got.packets == framer.packets
+
+
+def _robotiq_key(f: Frame) -> tuple:
+    return (f.seq, f.device_time_us, f.sensor_id, f.host_time, f.clocked,
+            list(f.extras.items()), f.raw.dtype, f.raw.tobytes())
 
 
 TARGETS = {"wire": wire_decoders, "lines": lines_framers, "flexitac": flexitac_framers,

@@ -17,11 +17,14 @@ from websockets.exceptions import InvalidStatus
 from tactiled_service.options import ServiceOptions
 
 TOKEN = "t0k3n-for-tests-only"
+#: The servers' frame rate (Hz; SHARED_RATE_HZ: the module's shared_server): what is checked is
+#: who may connect, not the frame path, which shares the test's interpreter.
+RATE_HZ = SHARED_RATE_HZ = 100.0
 
 
 @pytest.fixture(scope="module")
 def token_server():
-    server = LiveServer(sim_settings(1, **{"server.token": TOKEN}),
+    server = LiveServer(sim_settings(1, rate_hz=RATE_HZ, **{"server.token": TOKEN}),
                         ServiceOptions(allowed_origins=("http://console.example:8080",)),
                         shared=True).start()
     try:
