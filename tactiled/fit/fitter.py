@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,6 +136,12 @@ class Fitter:
         m = self.model
         self._model_args = (m._rf, m._k, m._scale, m._dmin, m._imp)
         self._in_fit = False
+        #: a frozen fit's profile tests wait for :meth:`finish` (:meth:`deferring`)
+        self._deferring = False
+        #: :meth:`deferring` takes effect (off: every fit's tests run at once)
+        self.defer_tests = True
+        self._tails: list[tuple[FitResult, Callable[[], None]]] = []
+        self._deferred: dict[int, tuple[FitResult, Callable[[], None]]] = {}
         self._frame_memo: tuple[tuple[int, int], _Frame | FitResult] | None = None
         self._starts: StartTable | None = None  # start_table(sensor), once it is needed
         self._force_constants = force_constants(self.sensor)
@@ -239,26 +247,77 @@ class Fitter:
                     start = np.asarray(warm[1], dtype=float)
                 res = (self._fit_cylinder(strain, start, mask) if model == "cylinder"
                        else self._fit_model(strain, get_model(model), start, mask))
-            if self._budget.exhausted and res.converged:
-                # a converged search, but the fit's other starts or models were cut short
-                res.converged = False
-                res.reasons["fit"] = (f"{EXHAUSTED} before the fit ended: the {res.model} fit "
-                                      "kept converged, the other starts or models were not tried out")
+            tail = next((t for r, t in self._tails if r is res), None)
+            if tail is not None:
+                self._deferred[id(res)] = (res, self._finisher(res, tail, self._budget, self._deadline))
+                res.fit_ms = (time.perf_counter() - t0) * 1e3
+                return res
+            self._exhausted(res)
         finally:
             self._deadline = None
             self.spent = (self._budget.used_iterations, self._budget.used_work)
             self._budget = None
             self._in_fit = False
+            self._tails = []
             self.sigma = self._sigma1
             self._frame_memo = None  # the memo must not outlive the frame (ids are reused)
+        self._judged(res)
+        res.fit_ms = (time.perf_counter() - t0) * 1e3
+        return res
+
+    def _exhausted(self, res: FitResult) -> None:
+        if self._budget.exhausted and res.converged:
+            # a converged search, but the fit's other starts or models were cut short
+            res.converged = False
+            res.reasons["fit"] = (f"{EXHAUSTED} before the fit ended: the {res.model} fit "
+                                  "kept converged, the other starts or models were not tried out")
+
+    def _judged(self, res: FitResult) -> None:
         if res.contact:
             # the one rule before anything leaves the fitter (tactiled.fit.verdict)
             judge_values(res.values, res.std, res.reasons, self.limits, label=res.label,
                          withhold_relative_sigma=self.options.withhold_relative_sigma)
             if "ellipse" in res.reasons:
                 res.ellipse = None
-        res.fit_ms = (time.perf_counter() - t0) * 1e3
+
+    @contextmanager
+    def deferring(self, on: bool = True) -> Iterator[None]:
+        """While open (``on``) on a fitter that learns nothing (frozen, or ``learn_floor``
+        off), a point fit's profile tests, and the one rule after them, wait until
+        :meth:`finish` is called on its result: a frame of several contacts refits most of
+        the ones it seeks and publishes those refits, so the tests run only on what is
+        published.  With nothing learned between a fit and its tests, they see what they
+        would have seen at once, within the fit's own budget: the answers are the same."""
+        before = self._deferring
+        self._deferring = on and self.defer_tests and (self.frozen or not self.options.learn_floor)
+        try:
+            yield
+        finally:
+            self._deferring = before
+            if not before:
+                self._deferred.clear()  # the results never published: their tests never run
+
+    def finish(self, res: FitResult) -> FitResult:
+        """``res`` complete: its deferred tests run (:meth:`deferring`), once; any other result
+        as it is."""
+        entry = self._deferred.pop(id(res), None)
+        if entry is not None and entry[0] is res:
+            entry[1]()
         return res
+
+    def _finisher(self, res: FitResult, tests: Callable[[], None], budget: Budget,
+                  deadline: float | None) -> Callable[[], None]:
+        """The rest of :meth:`fit` on ``res``, its tests within its own fit's budget."""
+        def run() -> None:
+            self._budget, self._deadline, self._in_fit = budget, deadline, True
+            try:
+                tests()
+                self._exhausted(res)
+            finally:
+                self._budget, self._deadline, self._in_fit = None, None, False
+                self._frame_memo = None
+            self._judged(res)
+        return run
 
     def catch_up(self) -> bool:
         """Run the learning the last fits left due (the flat field's re-solve, 1-3 ms on an

@@ -93,8 +93,10 @@ def fit_contacts(fitter: Any, strain: np.ndarray, model: str = "cylinder",
     ``merged`` when its region holds a second maximum that the fit does not explain (two
     contacts closer than the cover spreads them).
     """
-    with fitter.line.frames.kept():  # a line's band is made once per strain and mask
-        return _fit_contacts(fitter, strain, model, mask, warm, budget_s)
+    # a line's band is made once per strain and mask; a point fit's profile tests run only on
+    # the results published (Fitter.deferring: most of those a frame of several seeks are refitted)
+    with fitter.line.frames.kept(), fitter.deferring():
+        return [fitter.finish(r) for r in _fit_contacts(fitter, strain, model, mask, warm, budget_s)]
 
 
 def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray | None,
@@ -143,6 +145,7 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
     if len(kept) < 2:
         if round_first or (several and not flat_array):  # one contact: Fitter.fit's answer
             res = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=budget_s)
+        fitter.finish(res)
         if res.contact and regions and (
                 (regions[0].absorbed and _merged(fitter, flat, res, regions[0]))
                 or one):
@@ -158,7 +161,7 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
     # sigma beyond the array), is strain the others leave unexplained, not a contact found
     out = [r for r in paying if _located(r)]
     if len(out) <= 1:  # the joint fit left one contact paying its way: it alone, fitted alone
-        alone = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left)
+        alone = fitter.finish(fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left))
         if len(out) < len(paying) and alone.contact:
             alone.label = "merged"
             alone.reasons["contacts"] = MERGED_REASON
@@ -284,7 +287,7 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
                 preds[i] = predict(res)
     finally:
         fitter.frozen = frozen
-    out = [r for r in results if r is not None]
+    out = [fitter.finish(r) for r in results if r is not None]
     deadline = None if budget_s is None else t0 + budget_s
     for group in _overlapping(fitter, out):
         _refine_jointly(fitter, strain, usable, out, group, deadline, predict)

@@ -75,6 +75,16 @@ class PointFit:
                              starts=tried, message=best.message,
                              params=tuple(best.p.tolist()))
         res = self.result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
+        if f._deferring:  # among several: run if the result is published (Fitter.finish)
+            f._tails.append((res, lambda: self.tests(fr, model, best, res)))
+            return res
+        self.tests(fr, model, best, res)
+        return res
+
+    def tests(self, fr, model: Model, best: SolveResult, res: FitResult) -> None:
+        """The profile-likelihood tests of the full solve ``best`` on the window ``fr``: each
+        value they find flat withheld or its sigma widened in ``res``, in place."""
+        f = self.fitter
         r1 = res.values.get("r1_mm")
         if best.converged and r1 is not None and abs(math.log(r1) - best.p[0]) < 1e-9:
             # every model's first parameter is a log radius: r1's, or the general's r_a
@@ -110,7 +120,6 @@ class PointFit:
                 res.std.get("r2_mm")), key="r2_mm")
             if not spent:
                 budget.exhausted = False
-        return res
 
     def cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
         """Up to ``max_starts`` starts from the start table's nearest shapes at the peak."""

@@ -195,3 +195,35 @@ def test_a_round_blob_the_sphere_alone_misses_is_chosen_without_a_line_scout(fla
     finally:
         del fitter.selector.round_choice
     assert answers and all(a is not None and a.model == "general" for a in answers)
+
+
+def test_profile_tests_run_only_on_published_fits_and_answers_are_unchanged(finger) -> None:
+    """Frozen, a frame of several contacts runs the point fits' profile tests only on the
+    results it publishes (Fitter.deferring): fewer tests than with every fit tested at once
+    (9 against 15 here), and the published contacts identical, every key (fit_ms aside)."""
+    sensor, model, fitter = finger
+    desc = load_description("fearing1988")
+    eager = Fitter(sensor, FitOptions(window=desc.window))
+    eager.frozen, eager.defer_tests = True, False
+    rng = np.random.default_rng(11)
+    runs = {id(f): [_spy(point, "tests") for point in f.points.values()] for f in (fitter, eager)}
+    several = 0
+    try:
+        for psi in (30.0, 80.0, 130.0):
+            clean = (model.predict(Contact(8.0, math.inf, psi, 1.0, 6.0, 6.0))
+                     + model.predict(Contact(4.0, 4.0, 0.0, 0.8, 18.0, 18.0))
+                     + model.predict(Contact(5.0, 5.0, 0.0, 0.8, 6.0, 20.0)))
+            frame = clean + rng.normal(0.0, sensor.noise.sigma, clean.shape)
+            got, want = fit_contacts(fitter, frame, "auto"), fit_contacts(eager, frame, "auto")
+            several += len(got) > 1
+            assert [_published(r) for r in got] == [_published(r) for r in want], psi
+    finally:
+        for point in fitter.points.values():
+            del point.tests
+    assert several >= 2, several
+    tested, tested_eager = (sum(len(v) for v in runs[id(f)]) for f in (fitter, eager))
+    assert 0 < tested < tested_eager, (tested, tested_eager)
+
+
+def _published(r) -> dict:
+    return {k: v for k, v in r.to_json_dict().items() if k != "fit_ms"}
