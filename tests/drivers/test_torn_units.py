@@ -15,7 +15,7 @@ import zlib
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from tactiled.frames import Frame, FrameDecoder, encode_frame
@@ -85,6 +85,10 @@ ROBOTIQ = pytest.mark.parametrize("make", [robotiq.RobotiqFramer, robotiq.Native
 @given(seed=st.integers(0, 2**32 - 1), **TEAR)
 def test_robotiq_torn_packet_costs_only_itself(make, seed, torn_at, frac, cuts) -> None:
     packets = robotiq_packets(6, seed)
+    # A good packet whose data holds, by chance, a run of whole packets ending at its end is
+    # lost by design, counted as truncated, never misread (robotiq.py's header: about once in
+    # 10^5 packets); a tear cannot be told from it.  Such draws are outside this test's claim.
+    assume(not any(robotiq._holds_packets(bytearray(p), len(p)) for p in packets))
     torn_at = 2 * torn_at + 1  # a static packet: the unit that carries a frame
     keep = max(1, int(frac * len(packets[torn_at])))
     framer = make(1)
