@@ -32,6 +32,7 @@ from tactiled_bench.suite import BENCH_NOISE, KINDS, build_suite, random_contact
 from tactiled.sensors.model import Geometry, SensorModel
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
+from tactiled.fit.result import FitResult
 from tactiled.fit.params import VALUE_KEYS
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.strain import StrainModel
@@ -197,16 +198,20 @@ def run(quick: bool, progress: bool | None) -> str:
     return "\n".join(lines)
 
 
-def budget_check(quick: bool = True) -> list[str]:
-    """Every budgeted fit of the frame sets against its budget: the problems found (empty when
-    each fit stayed within its iterations and work, and each fit the budget stopped says so,
-    not converged, with its values withheld or its sigmas widened)."""
+def budget_check(quick: bool = True, seed: int = 5,
+                 results: list[tuple[str, FitResult]] | None = None) -> list[str]:
+    """Every budgeted fit of the frame sets (``frame_sets(quick, seed)``) against its budget:
+    the problems found (empty when each fit stayed within its iterations and work, and each fit
+    the budget stopped says so, not converged, with its values withheld or its sigmas
+    widened).  ``results``, if given, receives each fit's ``(set name, result)``."""
     problems = []
     opts = daemon_options()
-    for name, sensor, frames in frame_sets(quick):
+    for name, sensor, frames in frame_sets(quick, seed):
         fitter = Fitter(sensor, opts)
         for i, frame in enumerate(frames):
             res = fitter.fit(frame, "auto")
+            if results is not None:
+                results.append((name, res))
             fitter.catch_up()
             its, work = fitter.spent
             max_its, max_work = fitter.budget_limits  # a flat array's are larger
