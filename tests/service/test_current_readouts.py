@@ -2,19 +2,33 @@
 strain (not that of the fit the tracker measures it through), health's ``fit_rate_hz`` counts
 the fits the workers return (the same fits ``workers.fits`` counts) and ``tracked_rate_hz`` the
 contact frames the tracker measured without a fit.  Against a real server (uvicorn on
-127.0.0.1, the real daemon on the simulated finger playing a moving contact)."""
+127.0.0.1, the real daemon on the simulated finger playing a moving contact), one for the
+module: both tests only read from it."""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 
+import pytest
+from live import LiveServer
 from svc_helpers import http, recv_until, sim_settings, subscribe, ws_connect
 
 MOVING = "sim://?scene=moving&seed=1&sensor_id=0"
 
 
-def test_peak_is_the_frame_s_own_while_the_tracker_answers(live_server, arun):
-    server = live_server(sim_settings(1, **{"sensor[0].url": MOVING}))
+@pytest.fixture(scope="module")
+def moving_server() -> Iterator[LiveServer]:
+    """The simulated finger playing a moving contact, served for the whole module."""
+    server = LiveServer(sim_settings(1, **{"sensor[0].url": MOVING}), shared=True).start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+def test_peak_is_the_frame_s_own_while_the_tracker_answers(moving_server, arun):
+    server = moving_server
 
     async def main() -> list[dict]:
         async with ws_connect(server.ws_url) as ws:
@@ -43,8 +57,8 @@ def test_peak_is_the_frame_s_own_while_the_tracker_answers(live_server, arun):
     assert set(est) >= {"peak", "seq", "gate"}
 
 
-def test_fit_and_tracked_rates_count_what_happens(live_server):
-    server = live_server(sim_settings(1, **{"sensor[0].url": MOVING}))
+def test_fit_and_tracked_rates_count_what_happens(moving_server):
+    server = moving_server
 
     def health() -> tuple[float, dict]:
         h = http(server.url, "GET", "/v1/health").json()
