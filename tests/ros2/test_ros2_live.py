@@ -1,9 +1,11 @@
 """A real ``tactiled run`` heard by ROS 2 subscribers that are not ours, on each middleware.
 
-* **DDS**: ``[ros2] middleware = "dds"`` and no ``[zenoh]``; the subscriber is a plain
-  Cyclone DDS reader in another process with its own IDL types (``dds_wrench_reader.py``), on a
-  private ``ROS_DOMAIN_ID`` with discovery on the loopback interface only
-  (``CYCLONEDDS_URI``), so nothing leaves the machine.
+* **DDS**: ``[ros2]`` on and no ``[zenoh]``, so DDS by default (``middleware = "dds"``
+  resolves the same: tests/ros2/test_ros2_settings.py); the subscriber is a plain Cyclone DDS
+  reader in another process with its own IDL types (``dds_wrench_reader.py``), on a private
+  ``ROS_DOMAIN_ID`` with discovery on the loopback interface only (``CYCLONEDDS_URI``), so
+  nothing leaves the machine.  One daemon serves both DDS tests (a reader on its domain and
+  one on another, at once).
 * **Zenoh**: ``--ros2`` on a loopback Zenoh port, multicast scouting off; the subscriber is
   zenoh-ros2-sdk's ``ROS2Subscriber``, which computes rmw_zenoh's key expression itself.
 
@@ -84,39 +86,53 @@ def check(samples: list[tuple[str, int, int, list[float]]]) -> None:
     assert all(math.isfinite(v) for *_, values in samples for v in values)
 
 
-def test_dds_reader_of_its_own_hears_tactiled_run() -> None:
+def _dds_reader(domain: int, seconds: float, wait_s: float,
+                env: dict[str, str]) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [PYTHON, str(HERE / "dds_wrench_reader.py"), str(domain), "rt/tactiled/finger0/wrench",
+         str(seconds), str(wait_s)], env={**os.environ, **env}, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True)
+
+
+@pytest.fixture(scope="module")
+def dds_heard() -> dict[str, tuple[int, str, str]]:
+    """One ``tactiled run`` with ``[ros2]`` on and no ``[zenoh]`` (so DDS, by default) on a
+    private domain, and two plain DDS readers started together once it is up: one on its
+    domain, one on the next, which listens for 8 s while the first hears the stream.  Each
+    reader's (exit code, stdout, stderr), by "same" and "other" domain."""
     domain = private_domain()
     env = {"CYCLONEDDS_URI": LOOPBACK}
-    reader = subprocess.Popen(
-        [PYTHON, str(HERE / "dds_wrench_reader.py"), str(domain), "rt/tactiled/finger0/wrench",
-         str(SECONDS), "90"], env={**os.environ, **env}, stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE, text=True)
+    readers: dict[str, subprocess.Popen[str]] = {}
+    heard: dict[str, tuple[int, str, str]] = {}
     try:
         with daemon([], {**env, "TACTILED_ROS2_ENABLED": "true",
-                         "TACTILED_ROS2_MIDDLEWARE": "dds",
                          "TACTILED_ROS2_DOMAIN_ID": str(domain)}):
-            out, err = reader.communicate(timeout=150)
+            readers["same"] = _dds_reader(domain, SECONDS, 90, env)
+            readers["other"] = _dds_reader(domain + 1, 1, 8, env)
+            for name, reader in readers.items():
+                out, err = reader.communicate(timeout=150)
+                heard[name] = (reader.returncode, out, err)
     finally:
-        if reader.poll() is None:
-            reader.kill()
-            reader.wait(5)
-    assert reader.returncode == 0, err
+        for reader in readers.values():
+            if reader.poll() is None:
+                reader.kill()
+                reader.wait(5)
+    return heard
+
+
+def test_dds_reader_of_its_own_hears_tactiled_run(dds_heard) -> None:
+    code, out, err = dds_heard["same"]
+    assert code == 0, err
     samples = [(s[0], s[1], s[2], s[3:]) for s in json.loads(out)["samples"]]
     check(samples)
 
 
-def test_dds_other_domain_hears_nothing() -> None:
-    """The domain id separates graphs: a reader on another domain gets no sample."""
-    domain = private_domain()
-    env = {"CYCLONEDDS_URI": LOOPBACK}
-    reader = subprocess.Popen(
-        [PYTHON, str(HERE / "dds_wrench_reader.py"), str(domain + 1),
-         "rt/tactiled/finger0/wrench", "1", "8"], env={**os.environ, **env},
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    with daemon([], {**env, "TACTILED_ROS2_ENABLED": "true",
-                     "TACTILED_ROS2_DOMAIN_ID": str(domain)}):  # no [zenoh]: DDS by default
-        out, err = reader.communicate(timeout=60)
-    assert reader.returncode == 0, err
+def test_dds_other_domain_hears_nothing(dds_heard) -> None:
+    """The domain id separates graphs: a reader on another domain, listening while the
+    daemon's own domain hears the stream, gets no sample."""
+    code, out, err = dds_heard["other"]
+    assert code == 0, err
+    assert json.loads(dds_heard["same"][1])["samples"], "the daemon's own domain heard nothing"
     assert json.loads(out)["samples"] == []
 
 
