@@ -4,8 +4,8 @@
   resolves the same: tests/ros2/test_ros2_settings.py); the subscriber is a plain Cyclone DDS
   reader in another process with its own IDL types (``dds_wrench_reader.py``), on a private
   ``ROS_DOMAIN_ID`` with discovery on the loopback interface only (``CYCLONEDDS_URI``), so
-  nothing leaves the machine.  One daemon serves both DDS tests (a reader on its domain and
-  one on another, at once).
+  nothing leaves the machine.  One daemon serves the three DDS tests (a reader on its domain,
+  one on another and ``tactiled watch --ros2``, at once).
 * **Zenoh**: ``--ros2`` on a loopback Zenoh port, multicast scouting off; the subscriber is
   zenoh-ros2-sdk's ``ROS2Subscriber``, which computes rmw_zenoh's key expression itself.
 
@@ -97,9 +97,10 @@ def _dds_reader(domain: int, seconds: float, wait_s: float,
 @pytest.fixture(scope="module")
 def dds_heard() -> dict[str, tuple[int, str, str]]:
     """One ``tactiled run`` with ``[ros2]`` on and no ``[zenoh]`` (so DDS, by default) on a
-    private domain, and two plain DDS readers started together once it is up: one on its
-    domain, one on the next, which listens for 8 s while the first hears the stream.  Each
-    reader's (exit code, stdout, stderr), by "same" and "other" domain."""
+    private domain, and, started together once it is up, two plain DDS readers (one on its
+    domain; one on the next, which listens for 8 s while the first hears the stream) and
+    ``tactiled watch --ros2`` on its domain.  Each one's (exit code, stdout, stderr), by
+    "same", "other" and "watch"."""
     domain = private_domain()
     env = {"CYCLONEDDS_URI": LOOPBACK}
     readers: dict[str, subprocess.Popen[str]] = {}
@@ -109,6 +110,12 @@ def dds_heard() -> dict[str, tuple[int, str, str]]:
                          "TACTILED_ROS2_DOMAIN_ID": str(domain)}):
             readers["same"] = _dds_reader(domain, SECONDS, 90, env)
             readers["other"] = _dds_reader(domain + 1, 1, 8, env)
+            full = {k: v for k, v in os.environ.items()
+                    if not k.startswith(("TACTILED_", "ROS_"))}
+            readers["watch"] = subprocess.Popen(
+                [PYTHON, "-m", "tactiled.cli", "watch", "--ros2", "--ros2-middleware", "dds",
+                 "--domain-id", str(domain), "--count", "20"], env={**full, **env},
+                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
             for name, reader in readers.items():
                 out, err = reader.communicate(timeout=150)
                 heard[name] = (reader.returncode, out, err)
@@ -188,18 +195,10 @@ def test_zenoh_sdk_subscriber_hears_no_repeated_stamp(tmp_path: Path) -> None:
              m.wrench.torque.y, m.wrench.torque.z]) for m in window])
 
 
-def test_watch_ros2_reads_dds() -> None:
-    domain = private_domain()
-    env = {"CYCLONEDDS_URI": LOOPBACK}
-    with daemon([], {**env, "TACTILED_ROS2_ENABLED": "true",
-                     "TACTILED_ROS2_DOMAIN_ID": str(domain)}):
-        full = {k: v for k, v in os.environ.items() if not k.startswith(("TACTILED_", "ROS_"))}
-        done = subprocess.run(
-            [PYTHON, "-m", "tactiled.cli", "watch", "--ros2", "--ros2-middleware", "dds",
-             "--domain-id", str(domain), "--count", "20"], env={**full, **env},
-            capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
-    lines = [json.loads(line) for line in done.stdout.splitlines()]
+def test_watch_ros2_reads_dds(dds_heard) -> None:
+    code, out, err = dds_heard["watch"]
+    assert code == 0, err
+    lines = [json.loads(line) for line in out.splitlines()]
     assert len(lines) == 20
     kinds = {line["topic"] for line in lines}
     assert kinds <= {f"/tactiled/finger0/{k}" for k in ("wrench", "contact", "contacts",
