@@ -107,7 +107,8 @@ def node(daemon_process: Callable[..., Any],
 
 @pytest.fixture(scope="module")
 def heard(node: Node, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """~4 s of the SDK's contacts and wrenches, the raw ROS samples and the JSON estimates."""
+    """The SDK's contacts and wrenches, the raw ROS samples and the JSON estimates, heard
+    until every topic has spoken and a contact is under way (and how many seconds that was)."""
     from zenoh_ros2_sdk import ROS2Subscriber
     from zenoh_ros2_sdk.message_registry import get_registry
     from zenoh_ros2_sdk.session import ZenohSession
@@ -134,25 +135,49 @@ def heard(node: Node, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any
     raw = client(node.endpoint)
     ros = raw.declare_subscriber("0/**", zenoh.handlers.FifoChannel(1_000_000))
     js = raw.declare_subscriber(f"{PREFIX}/finger0/estimate", zenoh.handlers.FifoChannel(100_000))
+    samples: list[tuple[str, bytes, bytes | None]] = []
+    estimates: list[dict[str, Any]] = []
+
+    def drain() -> None:
+        while (s := ros.try_recv()) is not None:
+            samples.append((str(s.key_expr), s.payload.to_bytes(),
+                            s.attachment.to_bytes() if s.attachment is not None else None))
+        while (s := js.try_recv()) is not None:
+            estimates.append(json.loads(s.payload.to_bytes()))
+
+    def enough() -> bool:
+        """What the tests below read is there: every kind of topic (the 1 Hz diagnostics
+        too), a contact heard by the SDK, and a span of estimates well past their 100."""
+        drain()
+        return (len(wrenches) >= 20 and sum(c.contact for c in contacts) >= 20
+                and len(estimates) >= 300 and {kind_of(key) for key, _, _ in samples} >= KINDS)
+
+    started = time.monotonic()
     try:
-        wait_for(lambda: len(contacts) >= 20 and len(wrenches) >= 20, 60, "the SDK's messages")
-        time.sleep(4.0)
+        wait_for(enough, 60, "the SDK's messages, every topic and a contact")
         tokens = [str(r.ok.key_expr) for r in raw.liveliness().get("@ros2_lv/0/**", timeout=3)
                   if r.ok is not None]
     finally:
         for sub in subs:
             sub.close()
-        samples = []
-        while (s := ros.try_recv()) is not None:
-            samples.append((str(s.key_expr), s.payload.to_bytes(),
-                            s.attachment.to_bytes() if s.attachment is not None else None))
-        estimates = []
-        while (s := js.try_recv()) is not None:
-            estimates.append(json.loads(s.payload.to_bytes()))
+        drain()
+        seconds = time.monotonic() - started
         raw.close()
         sdk.close()
-    return {"contacts": list(contacts), "wrenches": list(wrenches), "samples": samples,
+    return {"seconds": seconds, "contacts": list(contacts), "wrenches": list(wrenches),
+            "samples": samples,
             "estimates": estimates, "tokens": tokens}
+
+
+def kind_of(key: str) -> str:
+    """A ROS sample's kind, from its key (``0/<topic>/<type>/<hash>``): strain and taxels
+    share sensor_msgs/Image, so not from the type."""
+    topic = "/" + "/".join(key.split("/")[1:-2])
+    return "diagnostics" if topic == messages.DIAGNOSTICS_TOPIC else topic.rsplit("/", 1)[1]
+
+
+#: Every kind the simulated finger publishes (a 1-axis array: no 3-axis taxels image).
+KINDS = set(messages.TYPES) - {"taxels"}
 
 
 def test_the_sdk_subscriber_receives_every_estimate(heard: dict[str, Any]) -> None:
@@ -189,9 +214,7 @@ def test_every_payload_decodes_with_another_implementation(heard: dict[str, Any]
     kinds: dict[str, int] = defaultdict(int)
     for key, payload, attachment in heard["samples"]:
         parts = key.split("/")
-        topic = "/" + "/".join(parts[1:-2])
-        # the kind from the topic: strain and taxels share sensor_msgs/Image
-        kind = "diagnostics" if topic == messages.DIAGNOSTICS_TOPIC else topic.rsplit("/", 1)[1]
+        kind = kind_of(key)
         assert rmw.dds_type(messages.TYPES[kind]) == parts[-2], key
         decode = decoders[parts[-2]]
         assert parts[-1] == messages.type_hash(messages.TYPES[kind])
@@ -201,13 +224,12 @@ def test_every_payload_decodes_with_another_implementation(heard: dict[str, Any]
         assert abs(stamp / 1e9 - time.time()) < 600 and len(gid) == 16
         seen[key].append((seq, gid))
         kinds[kind] += 1
-    # the simulated finger is a 1-axis array: every kind but the 3-axis taxels image
-    assert set(kinds) == set(messages.TYPES) - {"taxels"}, dict(kinds)
+    assert set(kinds) == KINDS, dict(kinds)
     for key, got in seen.items():
         seqs = [s for s, _ in got]
         assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), f"{key}: a gap"
         assert len({g for _, g in got}) == 1, key
-    seconds = 4.0 + 3  # the window, generously
+    seconds = heard["seconds"] + 3  # the window, generously
     assert kinds["strain"] <= FRAME_RATE_HZ * seconds * 2
     # GIDs are those rmw_zenoh derives from the publishers' tokens.
     by_topic = {parse_token(t).get("topic"): t for t in heard["tokens"]
