@@ -202,7 +202,8 @@ def test_second_process_is_refused_with_a_clear_error(pty_device, arun, tmp_path
             stdout, stderr = await asyncio.wait_for(proc.communicate(), 60)
             second = _daemon(pty_device.path)
             await second.start()
-            await asyncio.sleep(0.5)
+            await wait_for(lambda: "in use" in second.stats(SENSOR)["last_error"], 10.0,
+                           "the second daemon refused the port")
             other = second.stats(SENSOR)
             frames_before = pipe.frames
             await wait_for(lambda: pipe.frames > frames_before, 5.0,
