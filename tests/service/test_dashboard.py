@@ -7,7 +7,7 @@ contacts with their ids, following a clicked sensor or contact) is in test_dashb
 
 ``TACTILED_DOCS_SCREENSHOT=docs/img/dashboard-strip.png`` makes
 ``test_strip_chart_of_a_moving_contact`` also write its screenshot there, in 256 colours (the
-README's picture, taken at a moment the badge says OK and the tracker's rates are shown: on a
+README's picture, of a full 10 s chart, taken at a moment the badge says OK and the tracker's rates are shown: on a
 busy machine it may wait up to a minute for one)."""
 
 from __future__ import annotations
