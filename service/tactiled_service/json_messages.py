@@ -134,8 +134,9 @@ class Encoder:
 
     def message(self, item: Estimate | ZeroedFrame) -> dict[str, Any]:
         """The message dict of a hub item (a fresh dict; callers may change it)."""
-        body = item.to_json_dict()
-        body.pop("type", None)
+        # (an estimate's JSON form is built once and shared: read, never changed; its "type"
+        # is the item's kind, and keeps its place first)
+        body = item.json_dict if isinstance(item, Estimate) else item.to_json_dict()
         msg: dict[str, Any] = {"type": item.kind, "v": SCHEMA_VERSION, **body}
         if isinstance(item, Estimate):
             msg["ellipse"] = self.ellipse(item)

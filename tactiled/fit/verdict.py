@@ -140,6 +140,48 @@ def _withhold(values: dict, std: dict, reasons: dict, key: str, why: str) -> Non
     reasons[key] = why
 
 
+def _all_kept(values: dict[str, Any], std: dict[str, Any], limits: ArrayLimits | None,
+              withhold_relative_sigma: float | None) -> bool:
+    """True when :func:`sigma_reason` and the finiteness rule keep every value (the common
+    case: a well measured contact), so :func:`judge_values` need not ask value by value.  The
+    same tests as theirs, inline; any doubt (an int, a missing sigma where one is needed) is
+    False and leaves the decision to them."""
+    inf = math.inf
+    for key in VALUE_KEYS:
+        v = values.get(key)
+        if v is None:
+            continue
+        if v.__class__ is not float or not -inf < v < inf:
+            return False
+        sd = std.get(key)
+        if sd is None:
+            if key == "x_mm" or key == "y_mm":
+                continue  # (no sigma for a place: judge_values keeps it)
+            return False
+        if sd.__class__ is not float or not 0.0 <= sd < inf:
+            return False
+        if key == "x_mm":
+            if limits is not None and not sd <= limits.span_x + limits.dx:
+                return False
+        elif key == "y_mm":
+            if limits is not None and not sd <= limits.span_y + limits.dy:
+                return False
+        elif key == "angle_deg":
+            if not sd <= MAX_ANGLE_SIGMA:
+                return False
+        else:  # force_n, r1_mm, r2_mm
+            if not v > 0.0:
+                return False
+            rel = sd / v
+            if rel > UNOBSERVABLE_RELATIVE_SIGMA:
+                return False
+            if key != "force_n" and ((withhold_relative_sigma is not None
+                                      and rel > withhold_relative_sigma)
+                                     or not RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1]):
+                return False
+    return True
+
+
 def judge_values(values: dict[str, Any], std: dict[str, Any], reasons: dict[str, str],
                  limits: ArrayLimits, *, label: str | None = None,
                  withhold_relative_sigma: float | None = None,
@@ -148,7 +190,7 @@ def judge_values(values: dict[str, Any], std: dict[str, Any], reasons: dict[str,
     ``reasons`` (``VALUE_KEYS``), in place.  Returns its Hertz contact ellipse from the values
     kept (:func:`ellipse_of`), None where they give none; an ellipse longer than the array
     sets ``reasons["ellipse"]``."""
-    for key in VALUE_KEYS:
+    for key in () if _all_kept(values, std, limits, withhold_relative_sigma) else VALUE_KEYS:
         v = values.get(key)
         if v is None:
             continue

@@ -107,13 +107,11 @@ def identified(fit: dict[str, Any], ids: ContactIds,
         if fresh:
             one = fit
             one.pop("contacts", None)
-        else:
-            one = fit if several is None else {k: v for k, v in fit.items() if k != "contacts"}
+        else:  # one copy, ours to complete
+            one = dict(fit) if several is None else {k: v for k, v in fit.items()
+                                                     if k != "contacts"}
         (cid,) = ids.assign((one,))
-        if fresh:
-            one["contact_id"] = cid
-        else:
-            one = {**one, "contact_id": cid}
+        one["contact_id"] = cid
         return {**one, "contacts": [one]}
     numbers = ids.assign(several)
     if fresh:

@@ -1,6 +1,6 @@
 """What the pipeline publishes: contact estimates and zeroed frames.
 
-Both are immutable records with a ``kind`` (the hub's routing key) and a ``to_json_dict()``
+Both are read-only records with a ``kind`` (the hub's routing key) and a ``to_json_dict()``
 that is strict JSON (no NaN or inf: ``json.dumps(..., allow_nan=False)`` never fails), in the
 style of gpsd's reports: a ``type`` field says what the object is (the same key as the
 WebSocket stream's and Zenoh's messages: one name for one thing on every interface).
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
-from typing import Any, TypeVar
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -74,17 +74,17 @@ _new = object.__new__
 def _record(cls: type[_R], fields: dict[str, Any]) -> _R:
     """An instance of the frozen dataclass ``cls`` holding ``fields`` (every one of its
     fields, by name), built without its generated ``__init__``: that one sets each field
-    through ``object.__setattr__`` (frozen), ~3 us for an :class:`Estimate` where this takes
-    1, and a frame's path builds a :class:`ZeroedFrame` and an :class:`Estimate` for each of up
-    to 6000 frames a second.  The result is the same object: frozen, equal, hashable alike."""
+    through ``object.__setattr__`` (frozen), ~3x the time this takes, and a frame's path
+    builds a :class:`ZeroedFrame` for each of up to 6000 frames a second.  The result is the
+    same object: frozen, equal, hashable alike."""
     obj = _new(cls)
     obj.__dict__.update(fields)
     return obj
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Estimate:
-    """One contact estimate of one sensor, for one frame.
+    """One contact estimate of one sensor, for one frame: a typed record (slots), read-only.
 
     ``seq`` / ``device_time_us`` / ``host_time`` / ``stamp`` are those of the frame this
     estimate answers (host time: ``time.monotonic()`` seconds when its bytes arrived; stamp:
@@ -95,6 +95,10 @@ class Estimate:
     request's round trip to the worker process (0 when not fitted), ``latency_ms`` the time from
     host receive to publication.  ``fit`` is the ``tactiled fit`` JSON line of the result
     (``FitResult.to_json_dict()``: mm, N, degrees) and must be treated as read-only.
+
+    Nothing changes an estimate once published (no setter is guarded: a frozen dataclass's
+    guarded fields cost 3x the construction on a path that builds up to 6000 a second).  Its
+    JSON form is built once, on first use, and shared by every consumer (:attr:`json_dict`).
     """
 
     sensor: str
@@ -108,8 +112,10 @@ class Estimate:
     fitted_seq: int | None
     worker_ms: float
     fit: dict[str, Any]
+    #: the JSON form, once built (:attr:`json_dict`)
+    _json: dict[str, Any] | None = field(default=None, init=False, repr=False, compare=False)
 
-    kind = "estimate"
+    kind: ClassVar[str] = "estimate"
 
     @property
     def latency_ms(self) -> float:
@@ -120,23 +126,34 @@ class Estimate:
     def contact(self) -> bool:
         return bool(self.fit.get("contact"))
 
-    def to_json_dict(self) -> dict[str, Any]:
-        """The envelope keys, then the fit line's keys (contact, model, x_mm, ... message)."""
-        out: dict[str, Any] = {
-            "type": "estimate",
-            "sensor": self.sensor,
-            "sensor_id": self.sensor_id,
-            "seq": self.seq,
-            "device_time_us": self.device_time_us,
-            "host_time": _finite(self.host_time),
-            "time": _finite(self.stamp),
-            "latency_ms": _finite(round(self.latency_ms, 4)),
-            "worker_ms": _finite(round(self.worker_ms, 4)),
-            "gate": self.gate,
-            "fitted_seq": self.fitted_seq,
-        }
-        out.update(self.fit)
+    @property
+    def json_dict(self) -> dict[str, Any]:
+        """The JSON form (:meth:`to_json_dict`), built on first use and kept: every consumer
+        (WebSocket, REST, Zenoh, MCAP, ROS 2, the CLI) reads this one dict, so it must not be
+        changed (take :meth:`to_json_dict` for a dict of your own)."""
+        out = self._json
+        if out is None:
+            out = {
+                "type": "estimate",
+                "sensor": self.sensor,
+                "sensor_id": self.sensor_id,
+                "seq": self.seq,
+                "device_time_us": self.device_time_us,
+                "host_time": _finite(self.host_time),
+                "time": _finite(self.stamp),
+                "latency_ms": _finite(round(self.latency_ms, 4)),
+                "worker_ms": _finite(round(self.worker_ms, 4)),
+                "gate": self.gate,
+                "fitted_seq": self.fitted_seq,
+            }
+            out.update(self.fit)
+            self._json = out
         return out
+
+    def to_json_dict(self) -> dict[str, Any]:
+        """The envelope keys, then the fit line's keys (contact, model, x_mm, ... message): a
+        new dict (its values, the fit's, are shared: treat them as read-only)."""
+        return dict(self.json_dict)
 
 
 @dataclass(frozen=True)
@@ -190,11 +207,8 @@ def make_estimate(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
     None or NaN: now, for a frame no clock stamped)."""
     if stamp is None or not math.isfinite(stamp):
         stamp = time.time()
-    return _record(Estimate, {
-        "sensor": sensor, "sensor_id": sensor_id, "seq": seq, "device_time_us": device_time_us,
-        "host_time": host_time, "published_time": time.monotonic(), "stamp": stamp,
-        "gate": gate, "fitted_seq": fitted_seq, "worker_ms": worker_ms, "fit": fit,
-    })
+    return Estimate(sensor, sensor_id, seq, device_time_us, host_time, time.monotonic(), stamp,
+                    gate, fitted_seq, worker_ms, fit)
 
 
 def make_zeroed_frame(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,

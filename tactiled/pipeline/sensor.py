@@ -42,7 +42,6 @@ from tactiled.pipeline.estimate import (
     GATE_NO_CONTACT,
     GATE_UNCHANGED,
     Estimate,
-    make_estimate,
     make_zeroed_frame,
     plain,
 )
@@ -528,9 +527,10 @@ class SensorPipeline:
             fit = self.shear.annotate(fit)
         # the one rule before anything is published, whatever made it (tactiled.fit.verdict)
         judge(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
-        est = make_estimate(sensor=self.name, sensor_id=w.sensor_id, seq=w.seq,
-                            device_time_us=w.device_time_us, host_time=w.host_time, gate=gate,
-                            fitted_seq=fitted_seq, worker_ms=worker_ms, fit=fit, stamp=w.stamp)
+        stamp = w.stamp  # (None or NaN: a frame no clock stamped: now, as make_estimate)
+        stamp = stamp if stamp is not None and math.isfinite(stamp) else time.time()
+        est = Estimate(self.name, w.sensor_id, w.seq, w.device_time_us, w.host_time,
+                       time.monotonic(), stamp, gate, fitted_seq, worker_ms, fit)
         self._send(est, w.ordinal)
         return est
 

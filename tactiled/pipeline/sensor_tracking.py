@@ -14,6 +14,7 @@ docs/concepts/pipeline.md ("The tracker").
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 import time
@@ -65,7 +66,8 @@ class _Waiting:
 MAX_PENDING = 64
 #: ... and none waits longer than this (s): past it, the waiting frames get the contact
 #: predicted to their time and go out (counted predicted), so a slow fit (a loaded machine,
-#: a frame far outside the model) costs precision for a while, never latency.  Live only: in
+#: a frame far outside the model) costs precision for a while, never latency.  A timer on the
+#: event loop sends them at that time, not when the sensor's next frame comes.  Live only: in
 #: lossless mode every frame waits for its fit.
 MAX_WAIT_S = 0.005
 #: A relinearisation is asked for at most once per this much device time (s).
@@ -106,6 +108,8 @@ class ContactTracking:
         #: tracked frames sent to a fit because their signal doubled since the tracked fit's
         #: frame (a light touch pressed harder: its model and curvatures fitted again)
         self.signal_grown = 0
+        #: the event loop's call that sends the waiting frames at MAX_WAIT_S (_arm_flush)
+        self._flush_timer: asyncio.TimerHandle | None = None
 
     def track(self, w: _Waiting, contact: bool, nonfinite: bool) -> None:
         """One frame through the tracker: measured at once when it can be, else it waits for
@@ -186,8 +190,43 @@ class ContactTracking:
         self.pipe.superseded += len(self.pending) - len(keep)
         self.pending = keep
 
+    def _arm_flush(self) -> None:
+        """Frames wait for a fit of a contact the tracker follows: they go out predicted
+        ``MAX_WAIT_S`` after the oldest arrived (:meth:`_flush_due`), whenever the sensor's
+        next frame comes.  Before the contact's first fit there is nothing to predict: the
+        next frame gives those up (:meth:`_flush_pending`), as it did."""
+        if self._flush_timer is not None or self.pipe.lossless or not self.tracker.started:
+            return
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:  # driven without a loop (a test's hand): the next frame flushes
+            return
+        self._flush_timer = loop.call_at(self.pending[0].since + MAX_WAIT_S, self._flush_due)
+
+    def _flush_due(self) -> None:
+        """The timer of :meth:`_arm_flush`: the oldest waiting frame is ``MAX_WAIT_S`` old."""
+        self._flush_timer = None
+        if not self.pending or not self.tracker.started:
+            return
+        if time.monotonic() - self.pending[0].since < MAX_WAIT_S:  # a newer oldest frame
+            self._arm_flush()
+            return
+        try:
+            self._flush_pending()
+        except Exception:  # a bug must cost these frames (counted), not the event loop's call
+            self.pipe.errors += len(self.pending)
+            self.pending.clear()
+            log.exception("%s: the frames waiting for a late fit failed", self.pipe.name)
+        self.pipe._check_settled()
+
+    def _disarm_flush(self) -> None:
+        if self._flush_timer is not None:
+            self._flush_timer.cancel()
+            self._flush_timer = None
+
     def _wait_for_fit(self, w: _Waiting) -> None:
         self.pending.append(w)
+        self._arm_flush()
         if len(self.pending) > MAX_PENDING:
             # give up the oldest, but never the frame being fitted: its fit may be slow (a
             # frame far outside the model runs into its time budget) and it is answered
@@ -239,6 +278,7 @@ class ContactTracking:
         self._drift_ref = self._outside = None
         self.pipe.superseded += len(self.pending)
         self.pending.clear()
+        self._disarm_flush()
 
     def result(self, w: _Waiting, job: FitJob, fit: dict[str, Any], worker_ms: float,
                warm: tuple[str, tuple[float, ...]] | None, lin: Any) -> None:

@@ -80,7 +80,7 @@ class McapWriter:
 
     def write_estimate(self, est: dict[str, Any], stamp_s: float) -> None:
         """The wrench, contact, contacts and markers of an estimate
-        (``Estimate.to_json_dict()``)."""
+        (``Estimate.json_dict``: read, never changed)."""
         sensor = str(est["sensor"])
         frame_id = messages.frame_name(self.frame_id, sensor)
         for kind in messages.ESTIMATE_KINDS:
@@ -203,6 +203,6 @@ class _Sink:
         if isinstance(item, tuple):
             self.writer.write_diagnostics(item[0], item[1], self.recorder.hardware_ids)
         elif item.kind == "estimate":
-            self.writer.write_estimate(item.to_json_dict(), messages.item_stamp(item, offset))
+            self.writer.write_estimate(item.json_dict, messages.item_stamp(item, offset))
         else:
             self.writer.write_zeroed(item, messages.item_stamp(item, offset))

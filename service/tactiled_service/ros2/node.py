@@ -212,7 +212,7 @@ class Ros2Node:
         if kind == "taxels":
             return lambda frame: messages.taxel_image(frame.taxels, stamp(frame, offset),
                                                       frame_id)
-        return lambda est: messages.estimate_message(kind, est.to_json_dict(),
+        return lambda est: messages.estimate_message(kind, est.json_dict,
                                                      stamp(est, offset), frame_id)
 
     def _on_item(self, item: Estimate | ZeroedFrame) -> None:
