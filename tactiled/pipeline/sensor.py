@@ -193,7 +193,7 @@ class SensorPipeline:
         self._task: asyncio.Task[None] | None = None
         self._recorder: Recorder | None = None
         self._record_failed = False
-        self.finished = False
+        self.finished, self.read_left = False, 0  # read_left: the read's frames not yet handled
         self.last_error = ""
         # -- counters
         self.frames = 0
@@ -264,18 +264,17 @@ class SensorPipeline:
                 async with contextlib.aclosing(self.source.frame_batches()) as batches:
                     async for batch in batches:  # the frames of one read
                         self.clock.stamp(batch)  # together: they arrived together
-                        if self.lossless:
-                            done = 0
-                            while done < len(batch):
-                                done = self.on_frames(batch, done, False, until_busy=True)
+                        done, lossless = 0, self.lossless
+                        while done < len(batch):  # lossless: each frame's fit awaited; else
+                            # a read of many frames (a stall) in slices, the loop's other
+                            # tasks (sensors, fit results) run between them
+                            done = self.on_frames(batch, done, not lossless, until_busy=lossless)
+                            self.read_left = len(batch) - done
+                            if lossless:
                                 await self.wait_settled()
-                            continue
-                        done = self.on_frames(batch)
-                        while done < len(batch):
-                            # a read of many frames (after a stall): the other sensors and
-                            # the fit results get the loop between slices of it
-                            await asyncio.sleep(0)
-                            done = self.on_frames(batch, done)
+                            elif self.read_left:
+                                await asyncio.sleep(0)
+                        self.read_left = 0
                 break  # the stream ended (a replay finished)
             except DriverError as err:
                 # A device that failed to open or vanished: it may come back, so retry.
@@ -311,7 +310,8 @@ class SensorPipeline:
 
     @property
     def settled(self) -> bool:
-        return self._idle() and not self.tracking.pending
+        """No frame waits for a fit or is in one, none of the read in hand waits its turn."""
+        return self._idle() and not self.tracking.pending and not self.read_left
 
     def _check_settled(self) -> None:
         if self._idle():

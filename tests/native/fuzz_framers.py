@@ -2,7 +2,7 @@
 FlexiTac, Robotiq), each input a stream and the reads it is cut into, fed to the core's framer
 and to its Python reference: they must agree frame for frame and counter for counter, never
 raise, and hold no more than the format's bound (Robotiq: whole 7x4 frames of its finger, at
-most two packets' bytes held).
+most two packets' bytes held); between reads the port may reopen (both framers reset).
 
 Run it by hand for as long as you like (libFuzzer's options after the script)::
 
@@ -86,6 +86,16 @@ def _stream(fdp: atheris.FuzzedDataProvider) -> bytes:
     return bytes(out)
 
 
+def _maybe_reset(fdp: atheris.FuzzedDataProvider, ref: object, got: object) -> None:
+    """Between two reads, one time in eight, the port reopened: both framers reset (a unit
+    cut short by it counted alike, the sequence history forgotten alike)."""
+    if fdp.ConsumeIntInRange(0, 7) == 0:
+        ref.reset()  # type: ignore[attr-defined]
+        got.reset()  # type: ignore[attr-defined]
+        assert got.buffered == ref.buffered == 0  # type: ignore[attr-defined]
+        assert asdict(got.stats) == asdict(ref.stats)  # type: ignore[attr-defined]
+
+
 def _wire_key(f: Frame) -> tuple:
     taxels = None if f.taxels is None else (f.taxels.shape, f.taxels.tobytes())
     return (f.seq, f.device_time_us, f.sensor_id, f.raw.shape, f.raw.tobytes(), taxels)
@@ -102,6 +112,7 @@ def wire_decoders(data: bytes) -> None:
         want, have = ref.feed(stream[a:b], 1.0), got.feed(stream[a:b], 1.0)
         assert [_wire_key(f) for f in have] == [_wire_key(f) for f in want]
         assert got.buffered == ref.buffered <= MAX_ENCODED_LEN
+        _maybe_reset(fdp, ref, got)
     assert asdict(got.stats) == asdict(ref.stats)
 
 
@@ -135,6 +146,7 @@ def lines_framers(data: bytes) -> None:
         assert [(f.seq, f.device_time_us, f.raw.tobytes()) for f in have] \
             == [(f.seq, f.device_time_us, f.raw.tobytes()) for f in want]
         assert got.buffered == ref.buffered <= MAX_LINE
+        _maybe_reset(fdp, ref, got)
     assert asdict(got.stats) == asdict(ref.stats)
 
 
@@ -162,6 +174,7 @@ def flexitac_framers(data: bytes) -> None:
         assert [(f.seq, f.device_time_us, f.raw.tobytes()) for f in have] \
             == [(f.seq, f.device_time_us, f.raw.tobytes()) for f in want]
         assert got.buffered == ref.buffered
+        _maybe_reset(fdp, ref, got)
     assert asdict(got.stats) == asdict(ref.stats)
 
 
@@ -207,6 +220,7 @@ def robotiq_framer(data: bytes) -> None:
             seqs.append(f.seq)
         assert [_robotiq_key(f) for f in have] == [_robotiq_key(f) for f in want]
         assert got.buffered == framer.buffered <= 2 * (ROBOTIQ_HEADER + MAX_DATA)
+        _maybe_reset(fdp, framer, got)
     st = framer.stats
     assert seqs == list(range(len(seqs))) and st.frames == len(seqs)
     assert st.bytes == len(stream) and st.discarded + framer.buffered <= st.bytes

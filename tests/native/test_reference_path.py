@@ -4,8 +4,11 @@ one), in every default run; the whole suite so with ``-m slow``.
 
 The short set keeps the published estimates of recorded sessions (the golden replays: frame
 path and fits alike), a damaged stream through the daemon over a real pty, a read's frames in
-one call, and the tracker's kernels honest under the reference on every run.  tests/native/test_published_reference.py holds the core's published
-estimates equal to the reference's on hypothesis-drawn streams.
+one call, the tracker's kernels, the Hertz ellipse against MODEL.md, a fit's choice of model and
+a vendor source's framer honest under the reference on every run: the directories where the
+reference's own code runs (pipeline, reliability, physics, fit, drivers).
+tests/native/test_published_reference.py holds the core's published estimates equal to the
+reference's on hypothesis-drawn streams.
 """
 
 from __future__ import annotations
@@ -33,6 +36,12 @@ REFERENCE_SET = [
     "tests/pipeline/test_sensor_batch.py",
     "tests/pipeline/test_kernels.py",
     "tests/native/test_core_build.py::test_the_install_built_the_core",
+    # where the reference's own bodies run and are held to MODEL.md or the truth: the Hertz
+    # ellipse's reference example and limits, a fit choosing the model of drawn contacts, and
+    # a vendor source built on the reference's framer (about 3 s of CPU more together)
+    "tests/physics/test_hertz.py",
+    "tests/fit/test_recovery.py::test_auto_picks_the_right_model",
+    "tests/drivers/test_lines_core.py::test_a_lines_source_frames_through_the_core_unless_told_otherwise",
 ]
 #: why a test may skip under the reference, the whole suite run (-rs lists the reasons):
 #: the slow ones (not asked for), those that compare the core with the reference, and this

@@ -3,11 +3,15 @@ estimates as the frames handed over one by one, and a long read handled in slice
 
 from __future__ import annotations
 
+import asyncio
+import time
+
 import numpy as np
 from pipeline_helpers import InProcessPool as Pool
 from pipeline_helpers import answer, contact_path, make_frames
 
 from tactiled.fit.fitter import FitOptions, Fitter
+from tactiled.frames import encode_frame
 from tactiled.pipeline import sensor as sensor_module
 from tactiled.pipeline.estimate import without_timing
 from tactiled.pipeline.hub import Hub
@@ -84,3 +88,38 @@ def test_a_long_read_is_handled_in_slices(monkeypatch) -> None:
     seqs = [e.seq for e in seen if e.kind == "estimate"]
     assert seqs == [f.seq for f in frames]
     assert np.isfinite(p.stats().frame_rate_hz)
+
+
+def test_a_read_in_slices_is_not_settled_until_its_last_frame(pty_device, arun, wait_until,
+                                                               monkeypatch) -> None:
+    """A read of many frames handled in slices (the loop's other tasks run between them, as
+    on a slow machine or the reference) leaves the sensor unsettled until its last frame is
+    handled: a test or a replay that waits for ``settled`` and then stops loses none of them.
+    Over a real pty, the frames written at once, one frame a slice."""
+    monkeypatch.setattr(sensor_module, "SLICE_S", -1.0)
+    frames = make_frames([], sensor_id=0, settle=24)
+    data = b"".join(encode_frame(f) for f in frames)
+
+    async def play() -> list[tuple[int, int, bool]]:
+        hub, pool = Hub(), _Pool()
+        p = SensorPipeline(SensorSettings(name="f", url=f"serial://{pty_device.path}",
+                                          noise_sigma=0.0005), pool=pool, hub=hub)
+        p.start()
+        try:
+            await wait_until(lambda: p.source.is_open, 30)
+            pty_device.write(data)
+            seen: list[tuple[int, int, bool]] = []  # (decoded, handled, settled) each turn
+            deadline = time.monotonic() + 60
+            while p.frames < len(frames) and time.monotonic() < deadline:
+                seen.append((p.source.decoder.stats.frames, p.frames, p.settled))
+                await asyncio.sleep(0)
+            seen.append((p.source.decoder.stats.frames, p.frames, p.settled))
+            return seen
+        finally:
+            await p.close()
+
+    seen = arun(play())
+    assert seen[-1] == (len(frames), len(frames), True)
+    behind = [s for s in seen if s[1] < s[0]]  # frames read, not all handled yet
+    assert behind, "no read was handled in slices"
+    assert not any(settled for _, _, settled in behind), behind[:3]
