@@ -23,8 +23,6 @@ if TYPE_CHECKING:
 #: What a round blob's sphere says (:meth:`ModelSelector.sphere_alone`), as auto says of a line
 #: that explains its band
 ROUND_MESSAGE = "a round blob the sphere explains to the noise: no other model tried"
-#: What a curved array's cylinder among several says when its scout explains the window
-CYLINDER_MESSAGE = "the cylinder explains the window to the noise: no other model tried"
 
 
 class ModelSelector:
@@ -100,14 +98,6 @@ class ModelSelector:
         if f.line.explains(cyl):
             cyl.message = f"the line explains the window to the noise: no other model tried; {cyl.message}"
             return cyl
-        if point_scout and cyl.converged and search.consistent(f, cyl):
-            # among several on a curved array, a cylinder whose scout explains the window to
-            # the noise is the answer, as a flat array's line is: solved fully, no other scout
-            best = self.solved(strain, mask, cyl)
-            best.iterations += cyl.iterations
-            best.evaluations += cyl.evaluations
-            best.message = f"{CYLINDER_MESSAGE}; {best.message}"
-            return best
         fits = [cyl]
         ln_r, psi, ln_f, x0, y0 = f.line.as_point(cyl)
         sph = f._fit_model(strain, get_model("sphere"), np.array([ln_r, ln_f, x0, y0]), mask,
