@@ -28,6 +28,8 @@ from collections import Counter
 from collections.abc import Iterable, Iterator
 from typing import Any
 
+from tactiled_bench.checkout import run_at
+
 #: Stage -> substrings of a stack frame ``function (file)`` that put a sample in it; matched
 #: from the innermost frame outwards, so the first stage met wins.
 STAGES: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -319,40 +321,17 @@ def functions_per_frame(path: str, frames: int) -> dict[str, tuple[float, float,
     return out
 
 
-def _run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> Any:
-    """``call`` (an expression calling ``func``, a self-contained function of this module)
-    evaluated on the code of checkout ``tree``, in a subprocess: this module's own ``func``
-    runs there, so a revision from before it existed is measured the same way.  Its result
-    must be JSON."""
-    import inspect
-    import json
-    import subprocess
-    import sys
-
-    from tactiled_bench.checkout import build, checkout_env
-
-    source = "\n".join(["from typing import Any", *preamble, inspect.getsource(func),
-                        "if __name__ == '__main__':",
-                        "    import json",
-                        f"    print(json.dumps({call}))"])
-    out = subprocess.run([sys.executable, "-c", source], cwd=tree, capture_output=True,
-                         text=True, env=checkout_env(tree, build(tree)))
-    if out.returncode != 0:
-        raise RuntimeError(f"{func.__name__} on {tree} failed:\n{out.stderr[-2000:]}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 def replay_at(tree: str, passes: int = 2, frames: int = 4000,
               parts: tuple[tuple[str, str, str], ...] = HAND_PARTS,
               profile: str | None = None) -> list[dict[str, Any]]:
     """:func:`replay_cost` on the code of checkout ``tree`` (its daemon and its workers)."""
-    return _run_at(tree, replay_cost, f"replay_cost({parts!r}, {frames!r}, passes={passes!r}, "
+    return run_at(tree, replay_cost, f"replay_cost({parts!r}, {frames!r}, passes={passes!r}, "
                    f"profile={profile!r})", (f"HAND_PARTS = {HAND_PARTS!r}",))
 
 
 def fits_at(tree: str, description: str, scene: str) -> dict[str, Any]:
     """:func:`fit_cost` on the code of checkout ``tree``."""
-    return _run_at(tree, fit_cost, f"fit_cost({description!r}, {scene!r})")
+    return run_at(tree, fit_cost, f"fit_cost({description!r}, {scene!r})")
 
 
 def _pstats(a: argparse.Namespace, code: str, round_: int) -> str | None:

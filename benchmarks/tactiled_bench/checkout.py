@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tarfile
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The checkout's folders that hold its import packages (the tree itself holds tactiled).
@@ -75,3 +76,24 @@ def checkout_env(tree: str, built: str | None = None) -> dict[str, str]:
     skip = [p for p in os.environ.get(SKIP_VARIABLE, "").split(os.pathsep) if p]
     return {**os.environ, "PYTHONPATH": os.pathsep.join(path),
             SKIP_VARIABLE: os.pathsep.join([*skip, *editable_finders()])}
+
+
+def run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> Any:
+    """``call`` (an expression calling ``func``, a self-contained function of its module)
+    evaluated on the code of checkout ``tree``, in a subprocess: this module's own ``func``
+    runs there, so a revision from before it existed is measured the same way.  Its result
+    must be JSON."""
+    import inspect
+    import json
+    import subprocess
+    import sys
+
+    source = "\n".join(["from typing import Any", *preamble, inspect.getsource(func),
+                        "if __name__ == '__main__':",
+                        "    import json",
+                        f"    print(json.dumps({call}))"])
+    out = subprocess.run([sys.executable, "-c", source], cwd=tree, capture_output=True,
+                         text=True, env=checkout_env(tree, build(tree)))
+    if out.returncode != 0:
+        raise RuntimeError(f"{func.__name__} on {tree} failed:\n{out.stderr[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])

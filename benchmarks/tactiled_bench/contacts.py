@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -171,52 +171,63 @@ def _score_frame(fitter: Fitter, desc: SensorDescription, kind: str, truths: lis
     return fits
 
 
+def frames_of(desc: SensorDescription, model: StrainModel, frames: int,
+              rng: np.random.Generator) -> Iterator[tuple[str, str, list[Contact | LineContact], np.ndarray]]:
+    """The resolved, close and single frames of one description, in the order :func:`score`
+    fits them: ``(part, kind, truths, frame)``, part ``resolved``, ``close`` or ``single``
+    (a frame that could not be drawn is left out).  The grasps' frames follow from the same
+    ``rng`` (:func:`tactiled_bench.grasps.frames_of`)."""
+    sigma = model.sensor.noise.sigma
+    depth = max(model.sensor.impulse.depth_x, model.sensor.impulse.depth_y)
+    kinds = ("sphere",) if desc.flat else ("sphere", "cylinder")
+    for n in (2, 3):
+        for f in range(frames):
+            kind = kinds[f % len(kinds)]
+            drawn = _draw(n, kind, rng, desc, model, n, RESOLVED_DEPTHS * depth)
+            if drawn is not None:
+                yield "resolved", kind, drawn[0], drawn[1] + rng.normal(0.0, sigma, drawn[1].shape)
+    for f in range(frames):
+        kind = kinds[f % len(kinds)]
+        drawn = _draw(2, kind, rng, desc, model, 1, CLOSE_DEPTHS[0] * depth, CLOSE_DEPTHS[1] * depth)
+        if drawn is not None:
+            yield "close", kind, drawn[0], drawn[1] + rng.normal(0.0, sigma, drawn[1].shape)
+    singles = ("sphere", "line") if desc.flat else kinds
+    for f in range(frames):
+        kind = singles[f % len(singles)]
+        place = _places(1, rng, desc, 0.0)[0]  # type: ignore[index]
+        c = _line(rng, model, place) if kind == "line" else _contact(kind, rng, model, place)
+        yield "single", kind, [c], model.predict(c) + rng.normal(0.0, sigma, (desc.rows, desc.cols))
+
+
+def rng_of(desc: SensorDescription, seed: int) -> np.random.Generator:
+    """The suite's random draws for ``desc`` (every frame of :func:`frames_of`, then the grasps')."""
+    return np.random.default_rng([seed, sum(desc.name.encode())])
+
+
 def score(desc: SensorDescription, frames: int, seed: int, bar: Progress | None = None) -> dict:
     """The resolved, close and single tallies of one description."""
     sensor = desc.sensor_model()
     model = StrainModel(sensor)
     fitter = Fitter(sensor, FitOptions(window=desc.window))
     fitter.frozen = True  # every frame alike, whatever came before it
-    sigma = sensor.noise.sigma
-    depth = max(sensor.impulse.depth_x, sensor.impulse.depth_y)
-    rng = np.random.default_rng([seed, sum(desc.name.encode())])
-    kinds = ("sphere",) if desc.flat else ("sphere", "cylinder")
+    rng = rng_of(desc, seed)
     resolved, close, single, close_tally = _Tally(), Counter(), Counter(), _Tally()
-    for n in (2, 3):
-        for f in range(frames):
-            kind = kinds[f % len(kinds)]
-            drawn = _draw(n, kind, rng, desc, model, n, RESOLVED_DEPTHS * depth)
-            if drawn is None:
-                continue
-            truths, clean = drawn
-            _score_frame(fitter, desc, kind, truths, clean + rng.normal(0.0, sigma, clean.shape), resolved)
-            if bar is not None:
-                bar.step()
-    for f in range(frames):
-        kind = kinds[f % len(kinds)]
-        drawn = _draw(2, kind, rng, desc, model, 1, CLOSE_DEPTHS[0] * depth, CLOSE_DEPTHS[1] * depth)
-        if drawn is None:
-            continue
-        truths, clean = drawn
-        pair = _Tally()
-        fits = _score_frame(fitter, desc, kind, truths, clean + rng.normal(0.0, sigma, clean.shape), pair)
-        if len(fits) == 2:  # told apart: scored as the resolved are (one, merged, is no measurement of either)
-            close_tally.merge(pair)
-        close["two" if len(fits) == 2 else "one, merged" if len(fits) == 1 and fits[0].label == "merged"
-              else "one" if len(fits) == 1 else f"{len(fits)}"] += 1
-        if bar is not None:
-            bar.step()
-    singles = ("sphere", "line") if desc.flat else kinds
-    for f in range(frames):
-        kind = singles[f % len(singles)]
-        place = _places(1, rng, desc, 0.0)[0]  # type: ignore[index]
-        c = _line(rng, model, place) if kind == "line" else _contact(kind, rng, model, place)
-        frame = model.predict(c) + rng.normal(0.0, sigma, (desc.rows, desc.cols))
-        fit_model = "cylinder" if kind == "line" else kind
-        a = fit_contacts(fitter, frame, fit_model)
-        b = fitter.fit(frame, fit_model)
-        same = len(a) == 1 and _same(a[0].to_json_dict(), b.to_json_dict())
-        single["same" if same else "different"] += 1
+    for part, kind, truths, frame in frames_of(desc, model, frames, rng):
+        if part == "resolved":
+            _score_frame(fitter, desc, kind, truths, frame, resolved)
+        elif part == "close":
+            pair = _Tally()
+            fits = _score_frame(fitter, desc, kind, truths, frame, pair)
+            if len(fits) == 2:  # told apart: scored as the resolved are (one, merged, is no measurement of either)
+                close_tally.merge(pair)
+            close["two" if len(fits) == 2 else "one, merged" if len(fits) == 1 and fits[0].label == "merged"
+                  else "one" if len(fits) == 1 else f"{len(fits)}"] += 1
+        else:
+            fit_model = "cylinder" if kind == "line" else kind
+            a = fit_contacts(fitter, frame, fit_model)
+            b = fitter.fit(frame, fit_model)
+            same = len(a) == 1 and _same(a[0].to_json_dict(), b.to_json_dict())
+            single["same" if same else "different"] += 1
         if bar is not None:
             bar.step()
     grasped, grasp_singles = grasps.score(desc, fitter, model, frames, rng, bar)

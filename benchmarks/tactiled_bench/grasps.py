@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from collections.abc import Iterator
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -231,39 +232,47 @@ def score_frame(fitter: Fitter, model: StrainModel, truths: list[Contact | LineC
                       crb.get(key), r.std.get(key))
 
 
-def score(desc: SensorDescription, fitter: Fitter, model: StrainModel, frames: int,
-          rng: np.random.Generator, bar=None) -> tuple[dict[str, Tally], Counter]:
-    """Each grasp's tally over ``frames`` frames, and the single contacts' counts of fits."""
+def frames_of(model: StrainModel, frames: int, rng: np.random.Generator
+              ) -> Iterator[tuple[str, tuple[str, ...], list[Contact | LineContact] | None, np.ndarray | None]]:
+    """Each grasp's ``frames`` frames, then as many single contacts (grasp ``single``), in the
+    order :func:`score` fits them: ``(grasp, kinds, truths, frame)``, truths and frame None
+    where no grasp could be drawn."""
     sensor = model.sensor
     depth = max(sensor.impulse.depth_x, sensor.impulse.depth_y)
     sigma = sensor.noise.sigma
-    grasps = FLAT_GRASPS if sensor.geometry.flat else CURVED_GRASPS
-    out: dict[str, Tally] = {}
-    for name, kinds in grasps.items():
-        tally = out.setdefault(name, Tally())
+    g = sensor.geometry
+    for name, kinds in (FLAT_GRASPS if g.flat else CURVED_GRASPS).items():
         for _ in range(frames):
             truths = draw(kinds, rng, model, depth)
-            if bar is not None:
-                bar.step()
             if truths is None:
-                tally.count["undrawn"] += 1
+                yield name, kinds, None, None
                 continue
             clean = sum(model.predict(c) for c in truths)
-            score_frame(fitter, model, truths, clean + rng.normal(0.0, sigma, clean.shape), tally, list(kinds))
-    singles: Counter = Counter()
-    single_ms = out.setdefault("single", Tally())
-    g = sensor.geometry
+            yield name, kinds, truths, clean + rng.normal(0.0, sigma, clean.shape)
     for f in range(frames):
         kind = SINGLES[f % len(SINGLES)]
         kind = "cylinder" if kind == "line" and not g.flat else kind
         place = (g.span_x * rng.uniform(0.25, 0.75), g.span_y * rng.uniform(0.25, 0.75))
         c = _one(kind, rng, model, place)
-        frame = model.predict(c) + rng.normal(0.0, sigma, (g.rows, g.cols))
-        before = single_ms.count["fits"]
-        score_frame(fitter, model, [c], frame, single_ms, [kind])
-        singles["one" if single_ms.count["fits"] - before == 1 else "other"] += 1
+        yield "single", (kind,), [c], model.predict(c) + rng.normal(0.0, sigma, (g.rows, g.cols))
+
+
+def score(desc: SensorDescription, fitter: Fitter, model: StrainModel, frames: int,
+          rng: np.random.Generator, bar=None) -> tuple[dict[str, Tally], Counter]:
+    """Each grasp's tally over ``frames`` frames, and the single contacts' counts of fits."""
+    out: dict[str, Tally] = {}
+    singles: Counter = Counter()
+    for name, kinds, truths, frame in frames_of(model, frames, rng):
+        tally = out.setdefault(name, Tally())
         if bar is not None:
             bar.step()
+        if truths is None:
+            tally.count["undrawn"] += 1
+            continue
+        before = tally.count["fits"]
+        score_frame(fitter, model, truths, frame, tally, list(kinds))
+        if name == "single":
+            singles["one" if tally.count["fits"] - before == 1 else "other"] += 1
     return out, singles
 
 

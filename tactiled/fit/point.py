@@ -35,6 +35,8 @@ if TYPE_CHECKING:
 #: rubber depths long, and its first evaluations spent the fit's base work before the search
 #: came near: 25 % of those ellipsoids' fits were stopped by the budget, 10 % from these.
 GENERAL_START_BETA2 = 0.5
+#: What :meth:`PointFit.result` finds beyond where the search ended (:meth:`PointFit.complete`).
+WHOLE_FIELDS = ("label", "values", "std", "condition", "reasons", "ellipse")
 
 
 class PointFit:
@@ -74,12 +76,38 @@ class PointFit:
                              converged=best.converged, peak=peak, n_points=n_points, window=win,
                              starts=tried, message=best.message,
                              params=tuple(best.p.tolist()))
-        res = self.result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
-        if f._deferring:  # among several: run if the result is published (Fitter.finish)
-            f._tails.append((res, lambda: self.tests(fr, model, best, res)))
+        if f._deferring:  # among several: made whole if the result is published (Fitter.finish)
+            res = self.searched(model, best, peak, win, n_points, tried)
+            f._tails.append((res, lambda: self.complete(fr, model, best, res)))
             return res
+        res = self.result(model, best, peak, win, n_points, tried, fr.zdata, fr.valid)
         self.tests(fr, model, best, res)
         return res
+
+    def searched(self, model: Model, sol: SolveResult, peak: float, win, n_points: int,
+                 starts: int) -> FitResult:
+        """The full solve ``sol`` as a result that says where it ended (its parameters,
+        chi^2, window, whether it converged) and nothing more: what a frame of several
+        contacts reads of a fit it may refit (its strain, its information criterion, a
+        refit's start).  :meth:`complete` makes it whole: the values, sigmas and reasons of
+        :meth:`result`, and the profile tests."""
+        f = self.fitter
+        return FitResult(contact=True, model=model.name, chi2=sol.cost * peak * peak / f.sigma**2,
+                         rms=math.sqrt(sol.cost / max(n_points, 1)), iterations=sol.iterations,
+                         evaluations=sol.evaluations, converged=sol.converged, peak=peak,
+                         n_points=n_points, window=win, starts=starts, message=sol.message,
+                         params=tuple(sol.p.tolist()))
+
+    def complete(self, fr, model: Model, sol: SolveResult, res: FitResult) -> None:
+        """:meth:`searched`'s ``res`` made whole, in place, as :meth:`fit` makes a result at
+        once: :meth:`result`'s values, sigmas, reasons, label and ellipse (what a model
+        selector wrote on it since, its message, counts and criterion, stays), then
+        :meth:`tests`."""
+        whole = self.result(model, sol, res.peak, res.window, res.n_points, res.starts,
+                            fr.zdata, fr.valid)
+        for name in WHOLE_FIELDS:
+            setattr(res, name, getattr(whole, name))
+        self.tests(fr, model, sol, res)
 
     def tests(self, fr, model: Model, best: SolveResult, res: FitResult) -> None:
         """The profile-likelihood tests of the full solve ``best`` on the window ``fr``: each

@@ -198,15 +198,17 @@ def test_a_round_blob_the_sphere_alone_misses_is_chosen_without_a_line_scout(fla
 
 
 def test_profile_tests_run_only_on_published_fits_and_answers_are_unchanged(finger) -> None:
-    """Frozen, a frame of several contacts runs the point fits' profile tests only on the
-    results it publishes (Fitter.deferring): fewer tests than with every fit tested at once
-    (9 against 15 here), and the published contacts identical, every key (fit_ms aside)."""
+    """Frozen, a frame of several contacts runs the point fits' profile tests, and makes
+    their values and sigmas (PointFit.result), only on the results it publishes
+    (Fitter.deferring): fewer of each than with every fit made whole at once (9 tests against
+    15 here), and the published contacts identical, every key (fit_ms aside)."""
     sensor, model, fitter = finger
     desc = load_description("fearing1988")
     eager = Fitter(sensor, FitOptions(window=desc.window))
     eager.frozen, eager.defer_tests = True, False
     rng = np.random.default_rng(11)
     runs = {id(f): [_spy(point, "tests") for point in f.points.values()] for f in (fitter, eager)}
+    made = {id(f): [_spy(point, "result") for point in f.points.values()] for f in (fitter, eager)}
     several = 0
     try:
         for psi in (30.0, 80.0, 130.0):
@@ -218,11 +220,14 @@ def test_profile_tests_run_only_on_published_fits_and_answers_are_unchanged(fing
             several += len(got) > 1
             assert [_published(r) for r in got] == [_published(r) for r in want], psi
     finally:
-        for point in fitter.points.values():
-            del point.tests
+        for f in (fitter, eager):
+            for point in f.points.values():
+                del point.tests, point.result
     assert several >= 2, several
     tested, tested_eager = (sum(len(v) for v in runs[id(f)]) for f in (fitter, eager))
     assert 0 < tested < tested_eager, (tested, tested_eager)
+    whole, whole_eager = (sum(len(v) for v in made[id(f)]) for f in (fitter, eager))
+    assert 0 < whole < whole_eager, (whole, whole_eager)
 
 
 def _published(r) -> dict:
