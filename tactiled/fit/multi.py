@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from tactiled.fit.auto import round_blob
+from tactiled.fit.budget import budget_spent
 from tactiled.fit.linearize import SeveralLinearizations
 from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
@@ -37,7 +38,9 @@ from tactiled.fit.regions import (
 )
 from tactiled.fit.linewindow import bounding_window, runs_across
 from tactiled.fit.result import FitResult
-from tactiled.fit.selection import CORE_SHARE, Predictions, prune, region_of, select, unexplained
+from tactiled.fit.selection import (CORE_SHARE, Predictions, pays_against, prune, region_of,
+                                    select, unexplained)
+from tactiled.fit.wide import wide_fit
 from tactiled.fit.warm import SEVERAL, nearest_start
 from tactiled.physics.contact import LineContact
 
@@ -137,11 +140,22 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
     one = (len(regions) == 1 and res.contact and res.chi2 is not None
            and not (res.line is not None and fitter._consistent(res))
            and unexplained(fitter, flat, usable, res, predict))
+    # a point contact the budget stopped on its window, alone on the array, may be wider
+    # than it (a hard press on a fine array): it is fitted on all it presses, from cold
+    stopped = (len(regions) == 1 and res.contact and not res.converged
+               and budget_spent(res.reasons))
+    wide = (wide_fit(fitter, strain, flat, usable, mask, res, budget_s, t0)
+            if (one or stopped) and _is_point(fitter, res) else None)
+    if wide is not None and not unexplained(fitter, flat, usable, wide, predict):
+        res, one = wide, False  # one contact wider than its window: fitted on all it presses
     if res.contact and (len(regions) > 1 or one):
         deadline = None if budget_s is None else t0 + budget_s
         with fitter.selector.among_several():
             kept = select(fitter, np.asarray(strain, dtype=float), flat, model, usable, res,
                           max(len(regions), 2), deadline, predict, lambda s: _raw(fitter, s))
+        if wide is not None and len(kept) > 1 and not pays_against(
+                fitter, flat, usable, predict(wide), kept):
+            kept, res = [], wide  # no second contact pays against the one on its whole area
     if len(kept) < 2:
         if round_first or (several and not flat_array):  # one contact: Fitter.fit's answer
             res = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=budget_s)
