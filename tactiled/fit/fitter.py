@@ -143,6 +143,8 @@ class Fitter:
         self._tails: list[tuple[FitResult, Callable[[], None]]] = []
         self._deferred: dict[int, tuple[FitResult, Callable[[], None]]] = {}
         self._frame_memo: tuple[tuple[int, int], _Frame | FitResult] | None = None
+        #: a window set for the next fits (:meth:`on_window`), else None: the options' square
+        self._window_at: tuple[int, int, int, int] | None = None
         self._starts: StartTable | None = None  # start_table(sensor), once it is needed
         self._force_constants = force_constants(self.sensor)
         #: what the sensor's recent fits say of its departure from the model (tactiled.fit.uncertainty.mismatch)
@@ -231,7 +233,7 @@ class Fitter:
         self.catch_up()  # a worker runs it after its last answer; anyone else, here
         t0 = time.perf_counter()
         self._deadline = None if budget_s is None else t0 + budget_s
-        self._budget = Budget(self.budget_limits[0], self.options.budget_work, self.allowance)
+        self._budget = self._new_budget()
         self._in_fit = True
         if frames != 1:
             if not (isinstance(frames, int) and frames >= 1):
@@ -264,6 +266,32 @@ class Fitter:
         self._judged(res)
         res.fit_ms = (time.perf_counter() - t0) * 1e3
         return res
+
+    def _new_budget(self) -> Budget:
+        """A fit's budget: the options', its work scaled to the window :meth:`on_window` set
+        (an evaluation's work is its nodes times the window's tactels, so a window ``k`` times
+        the options' square costs ``k`` times as much for the same search)."""
+        work, reserve = self.options.budget_work, self.allowance
+        if self._window_at is not None and work is not None:
+            side = self.options.window
+            scale = max(self._window_at[2] * self._window_at[3] / float(side * side), 1.0)
+            work, reserve = int(work * scale), reserve * scale
+        return Budget(self.budget_limits[0], work, reserve)
+
+    @contextmanager
+    def on_window(self, win: tuple[int, int, int, int] | None) -> Iterator[None]:
+        """While open, point fits take the window ``win`` (``(row0, col0, rows, cols)``)
+        instead of the options' square round the peak, their work budget scaled to it (None:
+        the options' square): a contact wider than the window is fitted on all the tactels
+        it presses (:func:`tactiled.fit.multi.fit_contacts`)."""
+        before = self._window_at
+        self._window_at = win
+        self._frame_memo = None
+        try:
+            yield
+        finally:
+            self._window_at = before
+            self._frame_memo = None
 
     def _exhausted(self, res: FitResult) -> None:
         if self._budget.exhausted and res.converged:
@@ -406,7 +434,7 @@ class Fitter:
         key = (id(strain), id(mask))
         if self._frame_memo is not None and self._frame_memo[0] == key:
             return self._frame_memo[1]
-        out = self._plain_frame(strain) if mask is None else None
+        out = self._plain_frame(strain) if mask is None and self._window_at is None else None
         if out is None:
             out = self._general_frame(strain, mask)
         if self._deadline is not None or self._in_fit:
@@ -451,8 +479,8 @@ class Fitter:
             if not peak > MIN_PEAK:
                 out = FitResult(contact=False, peak=peak, message=f"no strain above {MIN_PEAK:g}")
             else:
-                out = self._window_arrays(clean, ok, peak_idx, peak,
-                                          choose_window(clean, peak_idx, self.options.window))
+                out = self._window_arrays(clean, ok, peak_idx, peak, self._window_at
+                                          or choose_window(clean, peak_idx, self.options.window))
         return out
 
     def _window_arrays(self, clean: np.ndarray, ok: np.ndarray, peak_idx: tuple[int, int], peak: float,

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from tactiled.fit.auto import round_blob
+from tactiled.fit.budget import budget_spent
 from tactiled.fit.linearize import SeveralLinearizations
 from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
@@ -37,7 +38,9 @@ from tactiled.fit.regions import (
 )
 from tactiled.fit.linewindow import bounding_window, runs_across
 from tactiled.fit.result import FitResult
-from tactiled.fit.selection import CORE_SHARE, Predictions, prune, region_of, select, unexplained
+from tactiled.fit.selection import (CORE_SHARE, Predictions, pays_against, prune, region_of,
+                                    select, unexplained)
+from tactiled.fit.wide import wide_fit
 from tactiled.fit.warm import SEVERAL, nearest_start
 from tactiled.physics.contact import LineContact
 
@@ -137,41 +140,55 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
     one = (len(regions) == 1 and res.contact and res.chi2 is not None
            and not (res.line is not None and fitter._consistent(res))
            and unexplained(fitter, flat, usable, res, predict))
+    # a point contact the budget stopped on its window, alone on the array, may be wider
+    # than it (a hard press on a fine array): it is fitted on all it presses, from cold
+    stopped = (len(regions) == 1 and res.contact and not res.converged
+               and budget_spent(res.reasons))
+    wide = (wide_fit(fitter, strain, flat, usable, mask, res, budget_s, t0)
+            if (one or stopped) and _is_point(fitter, res) else None)
+    explains = wide is not None and not unexplained(fitter, flat, usable, wide, predict)
     if res.contact and (len(regions) > 1 or one):
         deadline = None if budget_s is None else t0 + budget_s
         with fitter.selector.among_several():
             kept = select(fitter, np.asarray(strain, dtype=float), flat, model, usable, res,
                           max(len(regions), 2), deadline, predict, lambda s: _raw(fitter, s))
-    if len(kept) < 2:
-        if round_first or (several and not flat_array):  # one contact: Fitter.fit's answer
-            res = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=budget_s)
-        fitter.finish(res)
-        if res.contact and regions and (
-                (regions[0].absorbed and _merged(fitter, flat, res, regions[0]))
-                or one):
-            res.label = "merged"
-            res.reasons["contacts"] = MERGED_REASON
-        return [res]
-    left = None if budget_s is None else max(budget_s - (time.perf_counter() - t0), 0.0)
-    found = _fit_several(fitter, np.asarray(strain, dtype=float), model, mask,
-                         [region_of(fitter, p) for _, p in kept], left,
-                         [None] * len(kept), first=[r for r, _ in kept], predict=predict)
-    paying = prune(fitter, flat, usable, found, predict)
-    # a contact whose place the one rule withholds, wholly or along one axis (a position's
-    # sigma beyond the array), is strain the others leave unexplained, not a contact found
-    out = [r for r in paying if _located(r)]
-    if len(out) <= 1:  # the joint fit left one contact paying its way: it alone, fitted alone
-        alone = fitter.finish(fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left))
-        if len(out) < len(paying) and alone.contact:
-            alone.label = "merged"
-            alone.reasons["contacts"] = MERGED_REASON
-        return [alone]
-    elapsed = (time.perf_counter() - t0) * 1e3
-    for r in out:
-        r.fit_ms = elapsed  # the whole frame's: the contacts' choice and fits together
-        if len(out) < len(found):
-            r.reasons["contacts"] = SEVERAL_REASON.format(n=len(out))
-    return out
+    if len(kept) > 1:
+        left = None if budget_s is None else max(budget_s - (time.perf_counter() - t0), 0.0)
+        found = _fit_several(fitter, np.asarray(strain, dtype=float), model, mask,
+                             [region_of(fitter, p) for _, p in kept], left,
+                             [None] * len(kept), first=[r for r, _ in kept], predict=predict)
+        paying = prune(fitter, flat, usable, found, predict)
+        # a contact whose place the one rule withholds, wholly or along one axis (a position's
+        # sigma beyond the array), is strain the others leave unexplained, not a contact found
+        out = [r for r in paying if _located(r)]
+        if wide is not None and len(out) > 1 and not pays_against(
+                fitter, flat, usable, predict(wide), [(r, predict(r)) for r in out]):
+            out = []  # the contacts do not pay against the one fitted on all it presses
+        if len(out) > 1:
+            elapsed = (time.perf_counter() - t0) * 1e3
+            for r in out:
+                r.fit_ms = elapsed  # the whole frame's: the contacts' choice and fits together
+                if len(out) < len(found):
+                    r.reasons["contacts"] = SEVERAL_REASON.format(n=len(out))
+            return out
+        if wide is None:  # the joint fit left one contact paying its way: it alone, fitted alone
+            alone = fitter.finish(fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=left))
+            if len(out) < len(paying) and alone.contact:
+                alone.label = "merged"
+                alone.reasons["contacts"] = MERGED_REASON
+            return [alone]
+    if wide is not None and (one or explains):
+        # one contact, fitted on all it presses; merged where even so it leaves strain standing
+        res, one = wide, not explains
+    if round_first or (several and not flat_array):  # one contact: Fitter.fit's answer
+        res = fitter.fit(strain, model, mask=mask, warm=first_warm, budget_s=budget_s)
+    fitter.finish(res)
+    if res.contact and regions and (
+            (regions[0].absorbed and _merged(fitter, flat, res, regions[0]))
+            or one):
+        res.label = "merged"
+        res.reasons["contacts"] = MERGED_REASON
+    return [res]
 
 
 def _located(r: FitResult) -> bool:

@@ -133,6 +133,18 @@ def unexplained(fitter: Any, flat: np.ndarray, usable: np.ndarray, res: FitResul
     return bool(free.any()) and float(np.max((flat - pred)[free])) > SIGNIFICANT_Z * fitter.sigma
 
 
+def pays_against(fitter: Any, flat: np.ndarray, usable: np.ndarray, one: np.ndarray,
+                 kept: list[tuple[FitResult, np.ndarray]]) -> bool:
+    """Do the contacts ``kept`` (each with its predicted strain) explain the frame better
+    than the single contact whose strain is ``one`` (fitted on all the tactels it presses)
+    by more than the information criterion charges for every contact beyond the first?"""
+    sd = fitter._tactel_sd(flat)
+    n = int(usable.sum())
+    total = sum(p for _, p in kept)
+    gain = chi2(flat - one, sd, usable) - chi2(flat - total, sd, usable)
+    return gain > sum(penalty(r, n) for r, _ in kept[1:])
+
+
 def prune(fitter: Any, flat: np.ndarray, usable: np.ndarray, results: list[FitResult],
           predict: Any) -> list[FitResult]:
     """``results`` less each contact that, the others fitted, no longer pays its
