@@ -89,9 +89,10 @@ def test_recycling_while_live_keeps_fitting(tmp_path: Path, arun) -> None:
     """At 1 kHz in real time with two sensors sharing one worker: recycling costs no fit and
     fitting goes on across every replacement.  4 s of frames: on a loaded machine a successor
     takes up to a second to start and the one worker fits fewer frames (the rest superseded),
-    and two recycles after 40 fits each must still fit in the run."""
+    and two recycles after 20 fits each must still fit in the run (a worker answers 80 fits
+    in it at a load average of 25)."""
     path = moving_recording(tmp_path, 4000)
-    overrides = {"fit.workers": 1, "fit.max_fits_per_worker": 40,
+    overrides = {"fit.workers": 1, "fit.max_fits_per_worker": 20,
                  "sensor[0].url": f"replay://{path}?speed={5 / PACE:g}",
                  "sensor[1].url": f"replay://{path}?speed={5 / PACE:g}", "sensor[1].name": "finger1",
                  "sensor[0].reuse_unchanged": False, "sensor[1].reuse_unchanged": False,
@@ -107,10 +108,10 @@ def test_recycling_while_live_keeps_fitting(tmp_path: Path, arun) -> None:
         return estimates, stats["sensors"], stats["workers"]
 
     estimates, sensors, workers = arun(main())
-    assert workers["recycles"] >= 2 and workers["restarts"] == 0, workers
+    assert workers["recycles"] >= 2 and workers["restarts"] == 0, (workers, sensors)
     for name, st in sensors.items():
         assert st["fit_failed"] == 0 and st["fit_errors"] == 0, (name, st)
         assert st["frames"] == accounted(st)
         check_estimates([e for e in estimates if e.sensor == name], name, 0)
     # Fits were answered by more workers than the one slot had at start.
-    assert workers["fits"] >= 3 * 40
+    assert workers["fits"] >= 3 * 20
