@@ -273,10 +273,39 @@ def feedable_source(request: pytest.FixtureRequest, tmp_path: Path) -> FeedableS
     return FeedableSource(request.param, tmp_path, device)
 
 
+#: Test directories whose tests only compute: no real-time process, port, device or server.
+COMPUTE_ONLY = frozenset({"calibration", "docs", "fit", "frames", "house", "io", "native",
+                          "physics", "stress"})
+_TESTS = Path(__file__).resolve().parent
+
+
+def _in_groups(items: list[pytest.Item]) -> None:
+    """For pytest-xdist's ``--dist loadgroup`` (the README's test command, ``-n 2``): every test
+    that runs real processes, servers, devices or clocks is in the group ``live``, run in
+    collection order on one worker, so no two of them compete for the machine and their
+    deadlines mean what they meant in a serial run; a compute-only module's tests are a group
+    of their own (its module fixtures set up once), run on the other worker meanwhile.  The
+    ``live`` group comes first: it is the longest."""
+    live, compute = [], []
+    for item in items:
+        rel = Path(str(item.path)).resolve().relative_to(_TESTS)
+        if len(rel.parts) > 1 and rel.parts[0] in COMPUTE_ONLY:
+            item.add_marker(pytest.mark.xdist_group(rel.as_posix()))
+            compute.append(item)
+        else:
+            item.add_marker(pytest.mark.xdist_group("live"))
+            live.append(item)
+    items[:] = live + compute
+
+
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Tests marked ``slow`` (long soaks, full benchmarks, fresh environments) run only when
     asked for (``-m slow``, as the marker's description in pyproject.toml says); the short
-    version of each is always on."""
+    version of each is always on.  Under pytest-xdist, the tests are put in groups
+    (:func:`_in_groups`)."""
+    if getattr(config.option, "numprocesses", None):
+        _in_groups(items)
     if "slow" in (config.getoption("markexpr") or ""):
         return
     skip = pytest.mark.skip(reason="slow: opt in with -m slow")
