@@ -1,6 +1,7 @@
 """The flat field: each tactel's gain and position learned from a finger's own fits
 (tactiled.fit.flatfield), checked against the simulated finger's truth."""
 
+import copy
 import math
 
 import numpy as np
@@ -15,26 +16,49 @@ from tactiled.physics.strain import StrainModel
 CENTRE = (slice(2, 6), slice(2, 6))
 
 
-def _fit_frames(spec: FingerSpec, n: int, seed: int):
-    """A learning fitter on ``n`` test cylinders of the finger ``spec``."""
+def _fitting(spec: FingerSpec, seed: int):
+    """A learning fitter of the finger ``spec``, and ``fit(n)``: ``n`` more of its test
+    cylinders (the draws of ``seed``, in order) through it."""
     fitter, linearise = bench.nominal_fitter(spec)
     truth = StrainModel(spec.sensor(noise=NoiseModel(bench.FRAME_SIGMA)))
     rng = np.random.default_rng(seed)
-    for _ in range(n):
-        clean = truth.predict(bench.test_cylinder(rng))
-        fitter.fit(linearise(spec.to_counts(clean + rng.normal(0.0, bench.FRAME_SIGMA, clean.shape))), "cylinder")
+
+    def fit(n: int) -> None:
+        for _ in range(n):
+            clean = truth.predict(bench.test_cylinder(rng))
+            fitter.fit(linearise(spec.to_counts(clean + rng.normal(0.0, bench.FRAME_SIGMA, clean.shape))), "cylinder")
+    return fitter, fit
+
+
+def _fit_frames(spec: FingerSpec, n: int, seed: int):
+    """A learning fitter on ``n`` test cylinders of the finger ``spec``."""
+    fitter, fit = _fitting(spec, seed)
+    fit(n)
     return fitter
+
+
+@pytest.fixture(scope="module")
+def gains_and_positions():
+    """5 % gains and 0.1 mm displacements the model does not know (``FingerSpec`` seed 6),
+    its learning fitter on seed 41's test cylinders: ``(spec, a copy of the fitter after 300
+    fits, the fitter after 400)``, the 400 the same 300 and 100 more (two tests share them)."""
+    spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=6)
+    fitter, fit = _fitting(spec, seed=41)
+    fit(300)
+    at_300 = copy.deepcopy(fitter)
+    fit(100)
+    return spec, at_300, fitter
 
 
 def _rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(a * a)))
 
 
-def test_the_flat_field_learns_a_fingers_gains_and_positions():
+def test_the_flat_field_learns_a_fingers_gains_and_positions(gains_and_positions):
     """5 % gains and 0.1 mm displacements the model does not know: after 400 fits the
     tactels under the contacts are known to a fraction of their spread."""
-    spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=6)
-    flat = _fit_frames(spec, 400, seed=41).flat
+    spec, _, fitter = gains_and_positions
+    flat = fitter.flat
     assert flat.active
     gains = spec.gains()
     gains = gains / gains.mean()  # the array's mean is what no contact can tell
@@ -91,15 +115,14 @@ def test_the_estimate_and_its_covariance_on_a_linear_problem():
     assert math.sqrt(flat._var[1]) == pytest.approx(0.1, rel=0.25)
 
 
-def test_a_linearisation_reads_raw_frames_as_the_corrected_fit_does():
+def test_a_linearisation_reads_raw_frames_as_the_corrected_fit_does(gains_and_positions):
     """The tracker measures later frames as they come (uncorrected) with a fit's
     linearisation: with the flat field on, that linearisation is in the frames' own units, so
     it measures a moved contact where a fit on the same frame lands."""
     from tactiled.fit.linearize import linearize
     from tactiled.physics.contact import Contact
 
-    spec = FingerSpec(gain_error=0.05, position_error=0.1, seed=6)
-    fitter = _fit_frames(spec, 300, seed=41)
+    spec, fitter, _ = gains_and_positions  # after 300 fits (this test's own copy)
     assert fitter.flat.active
     fitter.flat._next_solve = 10**9  # hold the corrections still from here
     truth = StrainModel(spec.sensor())
