@@ -38,8 +38,8 @@ from tactiled.fit.regions import (
 )
 from tactiled.fit.linewindow import bounding_window, runs_across
 from tactiled.fit.result import FitResult
-from tactiled.fit.selection import (CORE_SHARE, Predictions, pays_against, prune, region_of,
-                                    select, unexplained)
+from tactiled.fit.selection import (CORE_SHARE, Predictions, could_pay_against, pays_against,
+                                    prune, region_of, select, unexplained)
 from tactiled.fit.wide import wide_fit
 from tactiled.fit.warm import SEVERAL, nearest_start
 from tactiled.physics.contact import LineContact
@@ -152,6 +152,9 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
         with fitter.selector.among_several():
             kept = select(fitter, np.asarray(strain, dtype=float), flat, model, usable, res,
                           max(len(regions), 2), deadline, predict, lambda s: _raw(fitter, s))
+    if len(kept) > 1 and wide is not None and predict(wide) is not None and not could_pay_against(
+            fitter, flat, usable, predict(wide), kept):
+        kept = []  # the one fitted on all it presses leaves the others' footprints to the noise
     if len(kept) > 1:
         left = None if budget_s is None else max(budget_s - (time.perf_counter() - t0), 0.0)
         found = _fit_several(fitter, np.asarray(strain, dtype=float), model, mask,

@@ -145,6 +145,24 @@ def pays_against(fitter: Any, flat: np.ndarray, usable: np.ndarray, one: np.ndar
     return gain > sum(penalty(r, n) for r, _ in kept[1:])
 
 
+def could_pay_against(fitter: Any, flat: np.ndarray, usable: np.ndarray, one: np.ndarray,
+                      kept: list[tuple[FitResult, np.ndarray]]) -> bool:
+    """Could the contacts ``kept`` beyond the first pay against the single contact whose
+    strain is ``one`` (:func:`pays_against`), before their joint fit?  What they can gain is
+    bounded by the strain ``one`` leaves over their footprints (the tactels where their
+    predicted strain stands ``SUPPORT_Z`` sigmas above the noise): a residual chi^2 there
+    within the information criterion's charge for them is the noise, which no further contact
+    pays for (a cheap check: the joint fit of contacts that then fail is the costly part)."""
+    sd = fitter._tactel_sd(flat)
+    n = int(usable.sum())
+    floor = max(SUPPORT_Z * fitter.sigma, 1e-300)
+    footprint = np.zeros(flat.shape, bool)
+    for _, p in kept[1:]:
+        footprint |= p > floor
+    bound = chi2(flat - one, sd, usable & footprint)
+    return bound > sum(penalty(r, n) for r, _ in kept[1:])
+
+
 def prune(fitter: Any, flat: np.ndarray, usable: np.ndarray, results: list[FitResult],
           predict: Any) -> list[FitResult]:
     """``results`` less each contact that, the others fitted, no longer pays its

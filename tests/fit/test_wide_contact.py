@@ -91,3 +91,44 @@ def test_a_window_the_contact_fits_in_is_not_widened(mat):
     frame = clean + np.random.default_rng(3).normal(0.0, sensor.noise.sigma, clean.shape)
     one = fitter.fit(frame, "general")
     assert pressed_window(fitter, frame, np.ones(frame.shape, bool), one) is None
+
+
+def test_a_second_contact_is_refined_only_where_the_wide_fit_leaves_strain_to_pay_for(mat, monkeypatch):
+    """The pre-check before the joint fit (selection.could_pay_against): over a candidate's
+    footprint, the wide fit of a hard press leaves only the noise, which cannot pay the
+    information criterion; a real second contact there can.  Skipping the joint fit changes
+    no answer: the press's fits are the same with the check bypassed."""
+    import tactiled.fit.multi as multi
+    from tactiled.fit.selection import could_pay_against
+
+    sensor, model, fitter = mat
+    truth = PRESSES[0]
+    clean = model.predict(truth)
+    frame = clean + np.random.default_rng(5).normal(0.0, sensor.noise.sigma, clean.shape)
+    usable = np.ones(frame.shape, bool)
+    one = fitter.fit(frame, "general")
+    with fitter.on_window(pressed_window(fitter, frame, usable, one)):
+        wide = fitter.fit(frame, "general")
+    w = predicted_strain(fitter, wide)
+    # a ball pressing beside the press, its peak ~30 noise sigmas
+    second = Contact(5.0, 5.0, 0.0, 0.4, 11.6, 56.0)
+    extra = model.predict(second)
+    assert 20.0 * sensor.noise.sigma < extra.max() < 60.0 * sensor.noise.sigma
+    cand = fitter.fit(extra, "sphere")
+    kept = [(wide, w), (cand, predicted_strain(fitter, cand))]
+    assert not could_pay_against(fitter, frame, usable, w, kept)
+    assert could_pay_against(fitter, frame + extra, usable, w, kept)
+
+    calls = []
+    real = multi.could_pay_against
+    monkeypatch.setattr(multi, "could_pay_against",
+                        lambda *a: calls.append(real(*a)) or calls[-1])
+    with_check = [fit_contacts(fitter, clean + np.random.default_rng(s).normal(
+        0.0, sensor.noise.sigma, clean.shape), "general") for s in range(6)]
+    assert False in calls  # the check ran and skipped a joint fit on these draws
+    monkeypatch.setattr(multi, "could_pay_against", lambda *a: True)
+    without = [fit_contacts(fitter, clean + np.random.default_rng(s).normal(
+        0.0, sensor.noise.sigma, clean.shape), "general") for s in range(6)]
+    for a, b in zip(with_check, without):
+        assert [r.values for r in a] == [r.values for r in b]
+        assert [r.std for r in a] == [r.std for r in b]
