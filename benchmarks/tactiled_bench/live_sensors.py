@@ -41,19 +41,30 @@ FAR_SIGMAS = 4.0
 REFERENCE_WINDOW = 6
 
 
-def play(desc: SensorDescription, rate: float, seed: int) -> list[tuple[int, dict[str, Any]]]:
-    """The daemon's estimates of one pass of the scene: ``(tick, fit dict)``."""
-    url = (f"sim://?scene={SCENE}&sensor={desc.name}&seed={seed}&rate={rate:g}&speed=0&loop=0"
+#: How long (s) the bench waits for its fit worker to be ready: the most ``fit.startup_timeout``
+#: allows.  A worker builds its description's Fitter before it is ready (flat32's took 50 s on
+#: a loaded machine); the daemon starts streaming only once it is, so the bench waits for
+#: readiness, not for a time a quiet machine happens to need.
+WORKER_READY_S = 3600.0
+
+
+def play(desc: SensorDescription, rate: float, seed: int,
+         scene: str = SCENE) -> list[tuple[int, dict[str, Any]]]:
+    """The daemon's estimates of one pass of the scene (a name in ``tactiled.sim.SCENES``):
+    ``(tick, fit dict)``."""
+    url = (f"sim://?scene={scene}&sensor={desc.name}&seed={seed}&rate={rate:g}&speed=0&loop=0"
            "&drift=0&hysteresis=0")
-    overrides = {"sensor[0].url": url, "sensor[0].description": desc.name, "fit.workers": 1}
+    overrides = {"sensor[0].url": url, "sensor[0].description": desc.name, "fit.workers": 1,
+                 "fit.startup_timeout": WORKER_READY_S}
     return [(round(it.device_time_us * 1e-6 * rate), it.fit) for it in play_lossless(overrides)]
 
 
-def truth(desc: SensorDescription, rate: float, ticks: int) -> list[list[Any]]:
+def truth(desc: SensorDescription, rate: float, ticks: int,
+          scene: str = SCENE) -> list[list[Any]]:
     """The scene's true contacts at each tick."""
     from tactiled.sim import FingerSimulator
 
-    sim = FingerSimulator(desc.sensor_model(), SCENE, rate_hz=rate, noise=0.0, drift=None,
+    sim = FingerSimulator(desc.sensor_model(), scene, rate_hz=rate, noise=0.0, drift=None,
                           hysteresis=None, loop=False)
     return [list(sim.step().contacts) for _ in range(ticks)]
 

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from tactiled.sensors.model import Geometry
-from tactiled.fit.profile import FLAT, TEST_RELATIVE_SIGMA
+from tactiled.fit.profile import FLAT, FLAT_ACROSS, TEST_RELATIVE_SIGMA
 from tactiled.fit.verdict import sigma_reason
 from tactiled.fit.params import (
     MOVING,
@@ -55,6 +55,7 @@ from tactiled.fit.params import (
     radius_tied_force,
     wrap_deg,
 )
+from tactiled.pipeline.fit_sigmas import fit_widening, radius_force_variance
 from tactiled.pipeline.kernels import (
     C_HIGH,
     C_LIN_SD,
@@ -260,6 +261,10 @@ class Tracker:
         self._judged_memo: tuple[dict[str, Any], Any] | None = None
         self._constants: tuple[tuple[str, ...], Any] = ((), None)
         self._beta_floor: tuple[int, float] | None = None
+        #: per value key (VALUE_KEYS order): the fit's sigma over its linearised single-frame
+        #: sigma at its point, where over 1 (its profile test widened it): the tracked sigma is
+        #: multiplied by it (:func:`fit_widening`)
+        self._widen: list[float] = [1.0] * len(VALUE_KEYS)
         #: the frame's kernel on the arrays above (kernels.TrackStep; None: built at next use)
         self._k: Any = None
 
@@ -278,11 +283,16 @@ class Tracker:
         """True when the filter holds an estimate."""
         return self._s is not None
 
-    def adopt(self, lin, zero_var: float = 0.0) -> None:
+    def adopt(self, lin, zero_var: float = 0.0, fit: dict[str, Any] | None = None) -> None:
         """Measure the following frames through ``lin`` (a new fit's, or a relinearisation's).
         A different model than the filter's restarts it at the next frame.  ``zero_var``: the
         variance (strain^2) of each tactel's zero (``Zeroer.baseline_var``), an error every
-        frame of the contact shares: systematic, ``zero_var / sigma^2`` times ``lin.cov``."""
+        frame of the contact shares: systematic, ``zero_var / sigma^2`` times ``lin.cov``.
+        ``fit``: the fit's JSON dict when ``lin`` is that fit's (its sigmas over the
+        linearised ones at its point are kept: :func:`fit_widening`); None for a
+        relinearisation (what the last fit's gave is kept)."""
+        if fit is not None:
+            self._widen = fit_widening(fit, lin)
         if self.model is not None and lin.model != self.model:
             self._s, self.t, self.n = None, None, 0
         names = PARAMS[lin.model]
@@ -532,22 +542,37 @@ class Tracker:
                 out[key] = base.get(key)
                 std[key] = base_std.get(key)
                 continue
-            sd_i = math.sqrt(var[i])
+            sd_i = math.sqrt(var[i]) * self._widen[i]
             withheld = self._withheld(key, v, sd_i, flat[i])
+            tied = None
             if not withheld and key == "force_n" and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
                 r1, sd_r = values.get("r1_mm"), math.sqrt(var[i_r])
                 # a radius this estimate withholds (below) is as unresolved as one whose
-                # interval reaches zero: a force that trades with it rests on it
+                # interval reaches zero: the frames pooled do not tell it better than one
+                # frame, so the part of the force's variance that is the radius's is one
+                # frame's, not averaged (radius_force_variance)
                 unresolved = (soft_keys[i_r] and r1 is not None
                               and self._withheld("r1_mm", r1, sd_r, flat[i_r]) is not None)
-                withheld = radius_tied_force(r1, sd_r, sd_i, cov_rf, unresolved) or (
-                    _on_unresolved_radius(r1, sd_r, self.n) if unresolved else None)
+                if unresolved or radius_tied_force(r1, sd_r, sd_i, cov_rf) is not None:
+                    # at least the fit's relative sigma, too: it holds the radius's
+                    # uncertainty where the fit found it, which the frames' linearisations,
+                    # taken wherever the filter has since drifted along that valley, do not
+                    f0, sd0 = base.get(key), base_std.get(key)
+                    rel0 = sd0 / f0 if f0 and sd0 and f0 > 0.0 else 0.0
+                    sd_i = max(math.sqrt(sd_i * sd_i + v * v * self.excess * self._radius_share()),
+                               v * rel0)
+                    withheld = self._withheld(key, v, sd_i)
+                    tied = (f"poorly determined ({TOO_LIGHT}: the force rests on a radius the "
+                            f"frames do not resolve: its sigma holds one frame's uncertainty "
+                            f"of that radius, {100 * sd_i / v:.0f} % of it)")
             if withheld:
                 out[key], std[key] = None, None
                 reasons[key] = withheld
                 continue
             out[key], std[key] = v, sd_i
-            if soft_reasons[i]:
+            if tied is not None:
+                reasons[key] = tied
+            elif soft_reasons[i] and self._widen[i] <= 1.0:
                 del reasons[key]
         rows = self._s.tolist()
         rates, rate_sd = self._rates(values, reasons, rows[V], rows[PVV])
@@ -557,6 +582,13 @@ class Tracker:
         out["reasons"] = reasons
         out["frames_used"] = self.n
         return out
+
+    def _radius_share(self) -> float:
+        """The part of one frame's variance of ln F that its radii (``ln_r``, ``ln_ra``,
+        ``beta``) explain, ``c_fR C_RR^-1 c_Rf`` of the linearisation's covariance: what
+        pooling frames does not average away while the radius is not resolved."""
+        assert self.lin is not None
+        return radius_force_variance(np.asarray(self.lin.cov, dtype=np.float64), self.names)
 
     def _judged(self, base: dict[str, Any]) -> tuple[list[bool], list[bool], dict[str, Any],
                                                        dict[str, Any], list[bool]]:
@@ -568,7 +600,10 @@ class Tracker:
         if memo is not None and memo[0] is base:
             return memo[1]
         reasons = base.get("reasons") or {}
-        why = [str(reasons.get(key, "")).startswith(_SOFT) for key in VALUE_KEYS]
+        # (not an orientation the fit's profile found flat across the half-turn: the frames
+        # pooled are linearised at a point that likelihood does not single out, as a circle's)
+        why = [str(reasons.get(key, "")).startswith(_SOFT)
+               and FLAT_ACROSS not in str(reasons.get(key, "")) for key in VALUE_KEYS]
         soft = [base.get(key) is not None or w for key, w in zip(VALUE_KEYS, why)]
         # a radius whose fit left it beyond the linearised sigma's tested range (its relative
         # sigma over TEST_RELATIVE_SIGMA: a likelihood not shown quadratic, the regime where a
@@ -620,28 +655,6 @@ class Tracker:
         if self.model == "sphere":
             reasons["angle_rate_deg_s"] = "undefined: sphere model"
         return rates, sds
-
-
-#: A tracked force resting on a radius the tracker withholds whose sigma is over this share
-#: of it is withheld with the radius, whatever their linearised correlation says.
-TIED_RELATIVE_SIGMA = 0.3
-
-
-def _on_unresolved_radius(r: float, sd_r: float, frames: int) -> str | None:
-    """Why a tracked force goes with a radius ``r`` (1-sigma ``sd_r``, mm) the tracker
-    withholds, or None.  Such a radius lies anywhere along a curved valley of (radius,
-    force) that the frames leave open, and the filter measures every frame through the
-    point it holds: on the XELA pads a light 8 mm ball held at 30-300 mm (relative sigmas
-    30-65 %) had its force measured 20-30 % low with the sigma of a point, while the
-    linearised share of the force's variance that is the radius's (``radius_tied_force``'s
-    test) swung 0.0-0.9 from one frame to the next.  Over the three noise draws of every
-    built-in description's demo, 14 of the 92 forces published on such a radius with a
-    relative sigma over ``TIED_RELATIVE_SIGMA`` lay beyond 4 of their sigmas, none of the
-    469 below it."""
-    if not sd_r > TIED_RELATIVE_SIGMA * r:
-        return None
-    return (f"{TOO_LIGHT}: the force rests on a radius the frames do not resolve (its sigma "
-            f"over {frames} frame(s) is {100 * sd_r / r:.0f} % of it)")
 
 
 def _swapped(x: np.ndarray, p: np.ndarray, names: tuple[str, ...]) -> bool:

@@ -130,7 +130,7 @@ class ContactTrackers:
                 self._keep([self._nearest([(float(lin.p[-2]), float(lin.p[-1]))])[0]
                             or self.trackers[0]])
                 self.bases = []
-            self.trackers[0].adopt(lin, zero_var)
+            self.trackers[0].adopt(lin, zero_var, base)
             return True
         lins = lin.lins
         if base is None:
@@ -146,9 +146,9 @@ class ContactTrackers:
         matched = self._nearest([(float(one.p[-2]), float(one.p[-1])) for one in lins])
         kept = [tr if tr is not None else self._make() for tr in matched]
         self._keep(kept)
-        for tr, one in zip(kept, lins):
-            tr.adopt(one, zero_var)
         self.bases = [dict(e) for e in elements]
+        for tr, one, b in zip(kept, lins, self.bases):
+            tr.adopt(one, zero_var, b)
         self._cross_terms()
         return True
 

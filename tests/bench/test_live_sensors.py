@@ -42,6 +42,9 @@ def test_the_daemon_on_a_coarse_pad_against_the_truth() -> None:
     assert s["resolved"]["force_n"] >= 0.5 * s["n"]["force_n"] > 0, s["resolved"]
     assert s["resolved"]["r1_mm"] == 0
     assert s["resolved_withheld"]["force_n"] <= s["withheld"]["force_n"]
+    # ... and withheld in at most 10 % of those (the issue's bar; 52 % when the tracker withheld
+    # a force resting on a radius it withholds, now published with that radius's uncertainty)
+    assert s["resolved_withheld"]["force_n"] <= 0.1 * s["resolved"]["force_n"], s["resolved_withheld"]
     force = next(line for line in lines if line.startswith("| force_n |")).split(" | ")
     assert force[5].endswith(f"({s['resolved']['force_n']})")
 
@@ -172,19 +175,23 @@ def _tracked_far(desc, estimates: list, key: str) -> tuple[list[tuple], int]:
     return far, n
 
 
-def test_a_light_balls_tracked_force_on_a_coarse_pad_rests_on_no_unresolved_radius() -> None:
+def test_a_light_balls_tracked_force_on_a_coarse_pad_carries_its_radiuss_uncertainty() -> None:
     """XELA 4x4 (4.7 mm pitch), second noise draw: an 8 mm ball pressed from 0.2 to 1.5 N is
-    fitted at 30-300 mm, a radius the frames do not resolve, and the force measured through
-    that point ran 20-30 % low with the sigma of a point (10 estimates 4.6-8.7 sigmas off,
-    1.3 % of the description's estimates), the linearised share of its variance that is the
-    radius's swinging 0.0-0.9 from one frame to the next.  A tracked force resting on a
-    radius the tracker withholds with a sigma over 30 % of it is withheld with it: no
-    tracked force beyond 4 sigma, and the live bar."""
+    fitted at 30-300 mm, a radius the frames do not resolve, and the filter, relinearised
+    wherever its state drifts along that valley, measured the force 20-30 % low with the
+    sigma of a point (10 estimates 4.6-8.7 sigmas off), the linearised share of its variance
+    that is the radius's swinging 0.0-0.9 from one frame to the next.  A tracked force resting
+    on a radius the tracker withholds is published with the radius's part of one frame's
+    variance and at least its fit's relative sigma: published (withheld in 52 % of the frames
+    whose bound resolves it when such a force went with its radius), at most one beyond 4 sigma
+    (a filter's third frame run off to a radius of 180 m), and the live bar."""
     desc = load_description("xela_uskin_4x4")
     estimates = live_sensors.play(desc, 100.0, seed=2)
     far, n = _tracked_far(desc, estimates, "force_n")
-    assert n >= 50 and not far, (n, far)
-    _live_bar(live_sensors.score(desc, 100.0, 2, estimates))
+    assert n >= 150 and len(far) <= 1, (n, far)
+    s = live_sensors.score(desc, 100.0, 2, estimates)
+    assert s["resolved_withheld"]["force_n"] <= 0.1 * s["resolved"]["force_n"], s["resolved_withheld"]
+    _live_bar(s)
 
 
 def test_a_release_is_followed_without_a_confident_lag() -> None:
@@ -207,3 +214,63 @@ def test_a_release_is_followed_without_a_confident_lag() -> None:
     else n for n in builtin_names()])
 def test_the_live_bar_on_every_builtin_description(name: str, seed: int) -> None:
     _live_bar(live_sensors.score(load_description(name), 100.0, seed), name)
+
+
+def _ellipsoid(r1: float, r2: float, force: float):
+    """A scene of one ellipsoid (radii ``r1``, ``r2`` mm) at the array's centre: pressed to
+    ``force`` N at 30 deg, held, turned to 90 deg, held, released."""
+    from tactiled.sim import Pose, SceneBuilder
+
+    def scene(g):
+        xc, yc = 0.5 * (g.rows - 1) * g.dx, 0.5 * (g.cols - 1) * g.dy
+        return (SceneBuilder(Pose(r1=r1, r2=r2, psi_deg=30.0, x0=xc, y0=yc)).idle(0.3)
+                .press(0.3, force=force).hold(0.6).rotate(0.6, psi_deg=90.0).hold(0.3)
+                .release(0.3).idle(0.3).build("ellipsoid"))
+    return scene
+
+
+def _ellipse_scores(desc, estimates: list) -> dict[str, list[int]]:
+    """Per value of a general contact: [estimates, withheld, within 2 sigma, beyond 4 sigma,
+    published with a sigma its fit's profile widened] against the simulator's truth."""
+    true = live_sensors.truth(desc, 100.0, max(t for t, _ in estimates) + 1, scene="ellipsoid")
+    out: dict[str, list[int]] = {}
+    for tick, fit in estimates:
+        if not (fit.get("contact") and true[tick]):
+            continue
+        c = true[tick][0]
+        for key, t in (("r2_mm", c.r2), ("angle_deg", c.psi_deg), ("force_n", c.force)):
+            v, sd = fit.get(key), (fit.get("std") or {}).get(key)
+            row = out.setdefault(key, [0, 0, 0, 0, 0])
+            row[0] += 1
+            if v is None:
+                row[1] += 1
+                continue
+            err = (v - t + 90.0) % 180.0 - 90.0 if key == "angle_deg" else v - t
+            row[2] += abs(err) <= 2.0 * sd
+            row[3] += abs(err) > live_sensors.FAR_SIGMAS * sd
+            row[4] += "widened" in str(fit["reasons"].get(key, ""))
+    return out
+
+
+@pytest.mark.slow
+def test_a_live_ellipsoid_is_published_no_more_confident_than_its_fits(monkeypatch) -> None:
+    """The tracker carries the sigma a fit's profile test widened (an ellipse's orientation,
+    its larger radius) and does not lift an orientation the fit found flat across the
+    half-turn.  On the paper's finger a 5 x 10 mm ellipsoid at 1 N: its orientation and r2
+    within their sigmas, most orientations published with the fit's widened sigma.  On the
+    XELA 4x6 pad a 6 x 8 mm one at 2 N, whose fits find the orientation's likelihood flat:
+    the tracker lifted it and published 13 of 124 orientations beyond 4 sigma; now none."""
+    from tactiled.sim import SCENES
+
+    for name, (r1, r2, force), widened in (("fearing1988", (5.0, 10.0, 1.0), True),
+                                           ("xela_uskin_4x6", (6.0, 8.0, 2.0), False)):
+        monkeypatch.setitem(SCENES, "ellipsoid", _ellipsoid(r1, r2, force))
+        desc = load_description(name)
+        s = _ellipse_scores(desc, live_sensors.play(desc, 100.0, 1, scene="ellipsoid"))
+        for key in ("r2_mm", "angle_deg", "force_n"):
+            n, held, within, far, _ = s[key]
+            assert n >= 150 and far == 0, (name, key, s[key])
+            # (coverage where enough are published to measure it)
+            assert n - held < 20 or within >= 0.9 * (n - held), (name, key, s[key])
+        if widened:
+            assert s["angle_deg"][4] >= 100, s
