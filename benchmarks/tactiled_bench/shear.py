@@ -19,7 +19,10 @@ pull-until-slip scenes (onset delay), and stick-only scenes (no slip events shou
 #   falling by 30 %);
 #   and, on the constant-friction pulls, what a test that knew the onset would see
 #   ONSET_FRAMES frames after it (the slide and the levelling-off together on the track from
-#   the true onset: the information in the readings, which no search over starts can exceed);
+#   the true onset: the information in the readings, which no search over starts can exceed),
+#   the slide's statistic alone on that track (the motion: all that tells a slip from a contact
+#   held at the friction's limit, whose force levels off too), and from the same tests on the
+#   noiseless truth the factor on the signal over the noise that 95 % over ONSET_Z needs;
 # * stick-only scenes (STICKS in turn, every frame of their tangential loading);
 # * along all those scenes, the shear filter's fx, fy and torsion against the truth (error over
 #   the filter's sigma); the slide test's null distribution on Gaussian estimates (null_tail),
@@ -33,6 +36,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+from scipy.special import ndtr
 
 from tactiled.fit.shear import ShearFitter, ShearStep
 from tactiled.fit.shear_filter import ShearFilter, SlideTest
@@ -64,17 +68,22 @@ def resolve(spec: str) -> SensorDescription:
 def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None = None,
            every: int = FIT_EVERY, truth: dict[str, np.ndarray] | None = None,
            errors: list[tuple[float, float, float]] | None = None,
-           known: list[float] | None = None) -> list[tuple[str, int]]:
+           known: list[tuple[float, float]] | None = None, clean: list[tuple[float, float]] | None = None
+           ) -> list[tuple[str, int]]:
     """Estimate ``frames[first:last]`` in order through a slip detector, as the daemon does: a
     fit (warm-started) on every ``every``-th frame, the step from the last fit on each frame;
     the detector's events.  With ``truth``, ``errors`` gains each frame's errors of the
     filtered ``fx``, ``fy`` and torsion over their sigma (the reported filter's, as the
-    daemon's tables, once it has settled), and ``known`` the statistic of the best test that
-    knows the true onset (:func:`_known_onset`) at :data:`ONSET_FRAMES` after it."""
+    daemon's tables, once it has settled), ``known`` the statistics of the best tests that
+    know the true onset (:func:`_known_onset`: the slide and the levelling-off together, the
+    slide alone) at :data:`ONSET_FRAMES` after it, and ``clean`` the same on the noiseless
+    truth (each frame's true parameters with its estimate's covariance): their means, the
+    signal the noise scatters about."""
     det, prev, step, events = SlipDetector(), None, None, []
     flt = det.tracking
     onset = int(truth["true_onset"]) if truth is not None and "true_onset" in truth else -1
     oracle = (ShearFilter(DETECT_WALK), SlideTest()) if known is not None and onset >= 0 else None
+    ideal = (ShearFilter(DETECT_WALK), SlideTest()) if clean is not None and onset >= 0 else None
     for i in range(first, len(frames) if last is None else min(last, len(frames))):
         if step is None or (i - first) % every == 0:
             fit = fitter.fit(frames[i], start=prev)
@@ -84,6 +93,10 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
             z = _known_onset(*oracle, est, i - onset)
             if z is not None and known is not None:
                 known.append(z)
+        if ideal is not None and truth is not None and clean is not None and i <= onset + ONSET_FRAMES:
+            z = _known_onset(*ideal, _truth_estimate(truth, i, est), i - onset)
+            if z is not None:
+                clean.append(z)
         _, ev = det.feed(i, est)
         if ev is not None:
             events.append((ev.kind, ev.frame))
@@ -93,18 +106,60 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
     return events
 
 
-def _known_onset(flt: ShearFilter, test: SlideTest, est, k: int) -> float | None:
+def _known_onset(flt: ShearFilter, test: SlideTest, est, k: int) -> tuple[float, float] | None:
     """Feed ``est`` to a stick filter and its slide test; ``k`` frames after the true onset
     (:data:`ONSET_FRAMES`), the statistic of the slide and the levelling-off together on the
     track that starts at the true onset, accelerating from rest: what a test that knew the
-    onset, and so searched no starts, would see there (the information in the readings)."""
+    onset, and so searched no starts, would see there (the information in the readings); and
+    the slide's statistic alone on that track: what tells a slip from a contact held at the
+    friction's limit, whose force levels off too."""
     flt.update(est.params, est.cov, est.lam_free)
     fx, fy, q, _ = flt.tangential()
     u = (fx / q, fy / q) if q > 0 else (1.0, 0.0)
     test.update(flt, *u)
     if k != ONSET_FRAMES:
         return None
-    return float(test.tracks[test.track(k + 1, "accelerating")])
+    j = test.track(k + 1, "accelerating")
+    return float(test.tracks[j]), float(test.slides[j])
+
+
+class _Truth:
+    """A frame's true parameters (the shear fit's order) with an estimate's covariance."""
+
+    def __init__(self, params: np.ndarray, cov: np.ndarray, lam: float) -> None:
+        self.params, self.cov, self.lam_free = params, cov, lam
+
+
+def _truth_estimate(truth: dict[str, np.ndarray], i: int, est) -> _Truth:
+    """Frame ``i``'s truth as an estimate without noise, bounded by ``est``'s covariance."""
+    p = np.array([math.log(truth["true_r1"][i]), math.log(truth["true_force"][i])]
+                 + [truth[k][i] for k in ("true_x", "true_y", "true_fx", "true_fy", "true_torque", "true_lam")])
+    return _Truth(p, est.cov, float(p[7]))
+
+
+#: The one-sided 95 % point of a unit normal: a statistic whose mean is this far over the
+#: threshold exceeds it on 95 % of draws.
+Z95 = 1.6449
+
+
+def snr_needed(clean: list[float], threshold: float = ONSET_Z, share: float = 0.95) -> float:
+    """The factor by which the signal over the noise (the slide's acceleration and the force's
+    ramp over the bounds of the estimates) must grow for ``share`` of the pulls' known-onset
+    statistics to exceed ``threshold``: each pull's statistic taken as its noiseless value
+    ``m`` (which scales with that factor) plus a unit normal, the least ``f`` with ``mean
+    Phi(f m - threshold) >= share``.  Below 1: the readings hold that much margin."""
+    m = np.array(clean, dtype=float)
+    if not m.size or not np.all(np.isfinite(m)) or m.max() <= 0:
+        return math.nan
+    lo, hi = 0.0, 1.0
+    while np.mean(ndtr(hi * m - threshold)) < share:
+        hi *= 2.0
+        if hi > 1e3:
+            return math.inf
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.mean(ndtr(mid * m - threshold)) < share else (lo, mid)
+    return hi
 
 
 def null_tail(desc: SensorDescription, frames: int, seed: int) -> dict[str, float]:
@@ -204,12 +259,13 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: f
     gains the filtered forces' errors over their sigma along every scene."""
     rng = np.random.default_rng(seed)
     fitter = ShearFitter(desc)
-    delays, early, known = [], 0, []
+    delays, early, known, clean = [], 0, [], []
     for _ in range(pulls):
         extra = {"ramp_s": rng.uniform(0.15, 0.6), "force_change": rng.choice((0.0, -0.3))} if varied else {}
         frames, truth = sequence(desc, "pull", rng, kinetic=kinetic, **extra)
         onset = int(truth["true_onset"])
-        events = _track(fitter, frames, onset - LEAD, onset + AFTER, truth=truth, errors=errors, known=known)
+        events = _track(fitter, frames, onset - LEAD, onset + AFTER, truth=truth, errors=errors, known=known,
+                        clean=clean)
         onsets = [f for kind, f in events if kind == "onset"]
         declared = next((f for f in onsets if f >= onset), None)
         early += sum(1 for f in onsets if f < onset)
@@ -228,8 +284,24 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: f
             "max_delay": float(ok.max()) if ok.size else math.nan, "missed": int(np.sum(~np.isfinite(d))),
             "early": early, "sticks": sticks, "false": false,
             "p95_delay": float(np.percentile(d, 95)) if pulls else math.nan,
-            "known_median": float(np.median(known)) if known else math.nan,
-            "known_over": float(np.mean(np.array(known) > ONSET_Z)) if known else math.nan}
+            **_known_figures(known, clean)}
+
+
+def _known_figures(known: list[tuple[float, float]], clean: list[tuple[float, float]]) -> dict[str, float]:
+    """The known-onset statistics' median and share over :data:`ONSET_Z` (the slide and the
+    levelling-off together: ``known_``; the slide alone: ``motion_``), the noiseless ones'
+    median (``clean_``, ``motion_clean_``) and the factor on the signal over the noise that
+    95 % over :data:`ONSET_Z` needs (``snr_needed``, ``motion_snr_needed``)."""
+    out: dict[str, float] = {}
+    k, c = np.array(known, dtype=float).reshape(-1, 2), np.array(clean, dtype=float).reshape(-1, 2)
+    for j, name in enumerate(("known", "motion")):
+        out[f"{name}_median"] = float(np.median(k[:, j])) if k.size else math.nan
+        out[f"{name}_over"] = float(np.mean(k[:, j] > ONSET_Z)) if k.size else math.nan
+    for j, name in enumerate(("clean", "motion_clean")):
+        out[f"{name}_median"] = float(np.median(c[:, j])) if c.size else math.nan
+    out["snr_needed"] = snr_needed(list(c[:, 0])) if c.size else math.nan
+    out["motion_snr_needed"] = snr_needed(list(c[:, 1])) if c.size else math.nan
+    return out
 
 
 def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, seed: int = 1,
@@ -266,6 +338,8 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
             f"{r['within']:.0%} ({r['pulls']}), {r['median_delay']:g} / {r['p95_delay']:g} / {r['max_delay']:g}, {r['missed']}"
             for r in (s, c, v)) + " | " + " / ".join(
             f"{r['known_over']:.0%} ({r['known_median']:.1f})" for r in (c, v))
+            + " | " + " / ".join(f"{r['motion_over']:.0%} ({r['motion_median']:.1f})" for r in (c, v))
+            + " | " + " / ".join(f"{r['snr_needed']:.2f}, {r['motion_snr_needed']:.2f}" for r in (c, v))
             + f" | {s['early'] + c['early'] + v['early']} | {s['false']} ({s['sticks']}) |")
         e = np.array(errors).reshape(-1, 3)
         rows_f.append(f"| {d.name} | " + " | ".join(
@@ -277,7 +351,10 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
     head_s = [f"| array | friction turning kinetic: within {ONSET_FRAMES} frames (pulls), delay median / p95 / max, missed "
               "| constant friction: the same | constant friction, varied pulls: the same "
               f"| the onset known: over {ONSET_Z:g} sigma at {ONSET_FRAMES} frames (median sigma), constant / varied "
-              "| early | slip events on stick-only scenes (scenes) |", "|---|---|---|---|---|---|---|"]
+              f"| the onset known, the motion alone: the same "
+              f"| the factor on the signal over the noise that {ONSET_Z:g} sigma on 95 % needs: both, the motion alone; "
+              "constant / varied "
+              "| early | slip events on stick-only scenes (scenes) |", "|---|---|---|---|---|---|---|---|---|"]
     head_f = ["| array | filtered fx error/sigma RMS / 2-sigma cover | fy | torque | frames "
               f"| slide test under stick: share of frames over 3 / 4 / {ONSET_Z:g} sigma (frames) "
               "| slip onsets on contacts held at 0.95 mu P (scenes) |",

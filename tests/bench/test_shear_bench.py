@@ -1,5 +1,9 @@
 """The shear bench's pieces on a few frames: figures computed against the simulator's truth."""
 
+import math
+
+import pytest
+
 from tactiled_bench import shear
 
 
@@ -27,5 +31,18 @@ def test_known_onset_and_held_contacts_on_a_small_run():
     desc = shear.resolve("xela_uskin_4x4")
     slip = shear.slip(desc, pulls=2, sticks=0, seed=5, kinetic=1.0)
     assert slip["known_median"] > 3.0 and 0.0 <= slip["known_over"] <= 1.0
+    # the motion alone is part of the joint evidence: never more than both together
+    assert 0.0 < slip["motion_median"] <= slip["known_median"] and 0.0 <= slip["motion_over"] <= 1.0
+    assert 0.0 < slip["motion_clean_median"] <= slip["clean_median"]
+    assert 0.0 < slip["snr_needed"] <= slip["motion_snr_needed"]
     held = shear.null_events(desc, 2, seed=6, hold_frames=100)
     assert held["onsets"] == 0 and held["scenes"] == 2 and held["frames"] >= 2 * (150 + 100)
+
+
+def test_the_factor_95_percent_needs_against_its_closed_form():
+    """Equal noiseless statistics m: 95 % over the threshold t needs f m - t = 1.6449 (the
+    one-sided 95 % point of a unit normal), so f = (t + 1.6449) / m; a spread adds to it."""
+    assert shear.snr_needed([3.0] * 5, threshold=4.5) == pytest.approx((4.5 + 1.6449) / 3.0, rel=1e-4)
+    assert shear.snr_needed([12.0] * 5, threshold=4.5) == pytest.approx(6.1449 / 12.0, rel=1e-4)
+    assert shear.snr_needed([2.0, 6.0], threshold=4.5) > 6.1449 / 4.0
+    assert math.isnan(shear.snr_needed([]))
