@@ -71,6 +71,14 @@ def _finite(x: float) -> float | None:
 _new = object.__new__
 
 
+def _envelope(kind: str, item: Estimate | ZeroedFrame) -> dict[str, Any]:
+    """The keys every published item's JSON starts with, in order: what it is, whose, which
+    frame and when."""
+    return {"type": kind, "sensor": item.sensor, "sensor_id": item.sensor_id, "seq": item.seq,
+            "device_time_us": item.device_time_us, "host_time": _finite(item.host_time),
+            "time": _finite(item.stamp)}
+
+
 def _record(cls: type[_R], fields: dict[str, Any]) -> _R:
     """An instance of the frozen dataclass ``cls`` holding ``fields`` (every one of its
     fields, by name), built without its generated ``__init__``: that one sets each field
@@ -133,19 +141,11 @@ class Estimate:
         changed (take :meth:`to_json_dict` for a dict of your own)."""
         out = self._json
         if out is None:
-            out = {
-                "type": "estimate",
-                "sensor": self.sensor,
-                "sensor_id": self.sensor_id,
-                "seq": self.seq,
-                "device_time_us": self.device_time_us,
-                "host_time": _finite(self.host_time),
-                "time": _finite(self.stamp),
-                "latency_ms": _finite(round(self.latency_ms, 4)),
-                "worker_ms": _finite(round(self.worker_ms, 4)),
-                "gate": self.gate,
-                "fitted_seq": self.fitted_seq,
-            }
+            out = _envelope("estimate", self)
+            out["latency_ms"] = _finite(round(self.latency_ms, 4))
+            out["worker_ms"] = _finite(round(self.worker_ms, 4))
+            out["gate"] = self.gate
+            out["fitted_seq"] = self.fitted_seq
             out.update(self.fit)
             self._json = out
         return out
@@ -183,18 +183,10 @@ class ZeroedFrame:
     def to_json_dict(self, digits: int = 6) -> dict[str, Any]:
         """The frame with strain rounded to ``digits`` decimals, rows first."""
         strain = np.round(np.nan_to_num(self.strain, nan=0.0, posinf=0.0, neginf=0.0), digits)
-        out = {
-            "type": "frame",
-            "sensor": self.sensor,
-            "sensor_id": self.sensor_id,
-            "seq": self.seq,
-            "device_time_us": self.device_time_us,
-            "host_time": _finite(self.host_time),
-            "time": _finite(self.stamp),
-            "contact": self.contact,
-            "statistic": _finite(round(self.statistic, 9)),
-            "strain": strain.tolist(),
-        }
+        out = _envelope("frame", self)
+        out["contact"] = self.contact
+        out["statistic"] = _finite(round(self.statistic, 9))
+        out["strain"] = strain.tolist()
         if self.taxels is not None:
             out["taxels"] = np.round(self.taxels, 3).tolist()
         return out
