@@ -1,8 +1,12 @@
 """Mutation check of the reliability tests: each test must be able to fail.
 
 Each mutation below is a deliberate defect applied to a *copy* of the repository in a temporary
-directory (never to the working tree); the named tests are run there (``PYTHONPATH`` points at
-the copy, which wins over the editable install) and must fail.  Run from the repository root::
+directory (never to the working tree); the named tests are run there and must fail.  The copy's
+packages are imported, not this tree's: ``PYTHONPATH`` points at the copy, this interpreter's
+editable finders are told to stand aside (``tactiled_bench.checkout.checkout_env``: without it
+scikit-build-core's finder answers ``import tactiled`` from the working tree, and every mutant
+would run unmutated code), and the compiled core this tree built is copied into the copy's
+``tactiled/`` (the mutations are in Python; the core's ABI is checked on import).  Run from the repository root::
 
     .venv/bin/python tests/reliability/mutation_check.py            # all (~4 min)
     .venv/bin/python tests/reliability/mutation_check.py M3 M14     # some
@@ -14,8 +18,11 @@ import os, shutil, subprocess, sys, tempfile, time
 from pathlib import Path
 SRC = str(Path(__file__).resolve().parents[2])
 DST = tempfile.mkdtemp(prefix="tactiled-mut-") + "/repo"
-ENV = dict(os.environ, PYTHONPATH=f"{DST}:{DST}/benchmarks:{DST}/drivers:{DST}/service")
 PY = sys.executable
+sys.path.insert(0, os.path.join(SRC, "benchmarks"))
+from tactiled_bench.checkout import checkout_env  # noqa: E402
+import tactiled._core as _core  # noqa: E402  (this tree's build, copied into each mutant)
+ENV = checkout_env(DST)
 
 MUTATIONS = [
  ("M1 decoder accepts frames failing their CRC", "tactiled/frames.py",
@@ -40,13 +47,14 @@ MUTATIONS = [
   "        self.decoder.reset()", "        pass",
   ["tests/reliability/test_unplug.py::test_unplug_replug_cycles[10]"]),
  ("M7 worker death not noticed (sentinel and EOF)", "tactiled/pipeline/supervision.py",
-  '        if w.state in ("starting", "ready"):\n            self._lose(w, "died"', '        if False:\n            self._lose(w, "died"',
+  '        if w.state in ("starting", "ready", "retiring"):\n            self._lose(w, "died"', '        if False:\n            self._lose(w, "died"',
   ["tests/reliability/test_worker_faults.py::test_sigkilled_worker[3]"], [("tactiled/pipeline/supervision.py", 'self._lose(w, "died", f"connection lost: {str(err) or type(err).__name__}")', 'w.conn = None')]),
  ("M8 hung worker never killed", "tactiled/pipeline/supervision.py",
-  "                        if now - w.head_since > head.timeout:", "                        if False:",
+  "                        if now - w.head_since > head.timeout and not self._starved(w, head, now):",
+  "                        if False:",
   ["tests/reliability/test_worker_faults.py::test_hung_worker[2]"]),
  ("M8b fit time budget ignored", "tactiled/fit/fitter.py",
-  "                deadline=self._deadline,", "                deadline=None,",
+  "            self._deadline is not None and time.perf_counter() > self._deadline)", "            False)",
   ["tests/reliability/test_worker_faults.py::"
    "test_frame_far_outside_the_model_costs_a_budgeted_fit_not_a_worker"]),
  ("M9 a fitter exception kills the worker", "tactiled/pipeline/worker.py",
@@ -62,7 +70,7 @@ MUTATIONS = [
   "            if self._waiting is not None:\n                self.superseded += 1", "            if self._waiting is not None:\n                pass",
   ["tests/reliability/test_serial_faults.py::test_damaged_stream[garbage]", "tests/reliability/test_soak.py::test_soak_short"]),
  ("M12 calibration version not checked", "tactiled/io/calibration.py",
-  "    if not _is_int(version) or version != VERSION:", "    if not _is_int(version):",
+  "    if not _is_int(version) or version not in VERSIONS:", "    if not _is_int(version):",
   ["tests/reliability/test_bad_files.py::test_bad_calibration_files_are_refused_before_any_worker_starts",
    "tests/reliability/test_bad_files.py::test_replay_and_record_commands_refuse_bad_files"]),
  ("M13 recording version not checked", "tactiled/io/recording.py",
@@ -84,7 +92,7 @@ MUTATIONS = [
   "            doc = tomllib.load(fh)", "            doc = {}",
   ["tests/reliability/test_bad_files.py::test_truncated_and_invalid_config_files_are_refused"]),
  ("M19 frames of the wrong shape reach the calibration stage", "tactiled/pipeline/sensor.py",
-  "        if frame.shape != (g.rows, g.cols):", "        if False:",
+  "        if frame.raw.shape != self._grid_shape:", "        if False:",
   ["tests/reliability/test_serial_faults.py::test_damaged_stream[length]"]),
  ("M20 the decoder slows down (10 us per chunk)", "tactiled/frames.py",
   '    """Decode one delimiter-free chunk to a Frame, or name the DecoderStats counter to bump."""',
@@ -107,13 +115,13 @@ MUTATIONS = [
    "tests/reliability/test_unplug.py::"
    "test_device_plugged_in_after_daemon_start_resumes_within_a_second"]),
  ("M24 (bug 2) a fitter that cannot be built kills the worker", "tactiled/pipeline/worker.py",
-  "            fitters[key] = Fitter(sensor, FitOptions(**dict(options)))\n        except Exception as err:",
-  "            fitters[key] = Fitter(sensor, FitOptions(**dict(options)))\n        except KeyError as err:",
+  "            fitters[key] = _build(sensor, options, keepers, key)\n        except Exception as err:",
+  "            fitters[key] = _build(sensor, options, keepers, key)\n        except KeyError as err:",
   ["tests/pipeline/test_pipeline_workers.py::"
    "test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker"]),
  ("M25 (bug 3) the baseline step is not clipped", "tactiled/calibration/zeroing.py",
-  "                    z = np.clip(z, -limit, limit)",
-  "                    pass",
+  "                                MAX_STEP_SIGMAS * self.detector.sigma, True)",
+  "                                MAX_STEP_SIGMAS * self.detector.sigma, False)",
   ["tests/reliability/test_worker_faults.py::test_one_glitch_frame_barely_moves_the_baseline[0]"]),
  ("M26 (bug 4) replay does not check the records first", "tactiled/commands/replay.py",
   "            reader.scan()", "            pass",
@@ -148,7 +156,12 @@ def fresh():
         shutil.rmtree(DST)
     shutil.copytree(SRC, DST, ignore=shutil.ignore_patterns(
         ".venv", ".git", ".hypothesis", ".mypy_cache", ".ruff_cache", ".pytest_cache",
-        "*.egg-info"))
+        "*.egg-info", "build", "_built"))
+    shutil.copy2(_core.__file__, os.path.join(DST, "tactiled"))
+    probe = subprocess.run([PY, "-c", "import tactiled, tactiled._core as c; print(tactiled.__file__, c.__file__)"],
+                           cwd=DST, env=ENV, capture_output=True, text=True)
+    if not all(f.startswith(DST) for f in probe.stdout.split()) or probe.returncode:
+        sys.exit(f"the copy does not import its own code: {probe.stdout}{probe.stderr}")
 
 only = sys.argv[1:]
 results = []

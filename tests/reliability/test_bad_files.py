@@ -53,7 +53,9 @@ def _bad_calibrations(tmp: Path) -> dict[str, tuple[Path, str]]:
     write("truncated", text[: len(text) // 2], "truncated")
     write("truncated_at_end", text.rstrip()[:-2], "truncated")
     write("empty", "", "not valid JSON")
-    write("version_2", edited(lambda d: d.update(version=2)), "version")
+    write("version_3", edited(lambda d: d.update(version=3)), "this tactiled reads versions")
+    write("version_2_without_model", edited(lambda d: d.update(version=2)),
+          "missing key 'model' (version 2)")
     write("not_a_calibration", edited(lambda d: d.update(format="something-else")), "format")
     write("counts_not_increasing",
           edited(lambda d: d["tactels"][9].update(counts=d["tactels"][9]["counts"][::-1])),
