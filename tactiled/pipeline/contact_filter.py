@@ -443,10 +443,6 @@ class Tracker:
                  LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA)))
         return k
 
-    def run_limit(self) -> int:
-        """Frames the tracked run may step before the one that folds the residuals."""
-        return MEAN_RESIDUAL_FOLD - 1 - self._eframes
-
     def stepped(self, t: float) -> None:
         """What :meth:`step` keeps of a frame at ``t`` (s) the tracked run stepped, tracked."""
         self._eframes += 1
@@ -528,9 +524,8 @@ class Tracker:
     def estimate_from(self, base: dict[str, Any], numbers: list[float], var: list[float],
                       cov_rf: float, absent: int, rate: list[float],
                       pvv: list[float]) -> dict[str, Any]:
-        """:meth:`estimate` from the kernel's numbers (``TrackStep.estimate``'s, and the
-        state's rates ``rate`` with their variances ``pvv``): also the tracked run's
-        (:mod:`tactiled.pipeline.tracked_run`), which computes them in the core."""
+        """:meth:`estimate` from ``TrackStep.estimate``'s numbers and the state's ``rate``
+        and ``pvv`` rows (as :mod:`tactiled.pipeline.tracked_run` gets them from the core)."""
         values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
         if absent:
             for i, key in enumerate(VALUE_KEYS):

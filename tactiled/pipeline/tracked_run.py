@@ -30,7 +30,7 @@ import numpy as np
 from tactiled import native
 from tactiled.calibration.zeroing import DRIFT_STEP_S
 from tactiled.frames import Frame
-from tactiled.pipeline.contact_filter import RELINEARIZE_SIGMA, SHARPEN
+from tactiled.pipeline.contact_filter import MEAN_RESIDUAL_FOLD, RELINEARIZE_SIGMA, SHARPEN
 from tactiled.pipeline.estimate import GATE_UNCHANGED, make_zeroed_frame
 from tactiled.pipeline.sensor_tracking import MIN_RELINEARIZE_S, REFIT_SIGNAL_RATIO, _Waiting
 
@@ -67,7 +67,8 @@ class TrackedRun:
         drift_t = (math.inf if tracking._drift_ref is None
                    else math.nan if zr._drift_t is None else zr._drift_t)
         self.tests = np.array((
-            min(tr.run_limit() for tr in trackers), drift_t, DRIFT_STEP_S - 1e-9,
+            # (frames it may step before the one that folds the residuals: Tracker._fold)
+            min(MEAN_RESIDUAL_FOLD - 1 - tr._eframes for tr in trackers), drift_t, DRIFT_STEP_S - 1e-9,
             pipe._elsewhere_strain,
             REFIT_SIGNAL_RATIO * peak0 if peak0 is not None and peak0 > 0.0 else math.nan,
             tracking.lin_asked_t, MIN_RELINEARIZE_S, RELINEARIZE_SIGMA, SHARPEN))
