@@ -6,6 +6,8 @@ same counters, on a press that comes and goes, with hostile frames among the goo
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -14,7 +16,7 @@ from pipeline_helpers import InProcessPool, contact_path, make_frames, play_read
 
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.frames import Frame
-from tactiled.pipeline import frame_run, tracked_run
+from tactiled.pipeline import frame_run, sensor_tracking, tracked_run
 from tactiled.pipeline import sensor as sensor_module
 from tactiled.pipeline.estimate import without_timing
 from tactiled.pipeline.hub import Hub
@@ -170,8 +172,12 @@ def _same_published(frames: list[Frame], sizes: list[int], model: str = "auto"
     for batched in (True, False):
         p, seen, fitter = _pipeline(batched, True)
         p.model = model
-        _play_reads(p, fitter, [Frame(seq=f.seq, device_time_us=f.device_time_us, raw=f.raw,
-                                      sensor_id=f.sensor_id) for f in frames], sizes)
+        with pytest.MonkeyPatch.context() as mp:
+            # (frames never wait so long that the clock decides: both paths see the same)
+            mp.setattr(sensor_tracking, "MAX_WAIT_S", math.inf)
+            _play_reads(p, fitter, [Frame(seq=f.seq, device_time_us=f.device_time_us,
+                                          raw=f.raw, sensor_id=f.sensor_id) for f in frames],
+                        sizes)
         out.append((p, [without_timing(e.to_json_dict()) for e in seen if e.kind == "estimate"],
                     [e for e in seen if e.kind == "frame"]))
     (runs, est_r, frm_r), (single, est_s, frm_s) = out
@@ -245,3 +251,44 @@ def test_drawn_scenes_publish_what_the_per_frame_path_does(force, r1, moving, ps
                          + [None] * 10 + contact_path(20, force=force / 2, r1=r1), sensor_id=0,
                          tail=10, seed=seed)
     _same_published(frames, sizes)
+
+
+def test_the_tracked_run_refuses_arrays_that_do_not_fit() -> None:
+    """Arrays of the wrong size or an index outside the frame are a clear error before any
+    frame is touched, never a read out of bounds."""
+    from tactiled import native
+
+    p, _, fitter = _pipeline(True, True)
+    frames = make_frames(contact_path(40, moving=False), sensor_id=0, seed=2)
+    _play_reads(p, fitter, frames[:-1], [1])
+    run = tracked_run.plan(p)
+    assert run is not None  # a held contact, tracked
+    stage = p.stage
+    raws = [frames[-1].raw]
+    times = np.array([frames[-1].device_time_us * 1e-6])
+    state = stage._run_state.copy()
+    state[:] = 0.0
+    state[5] = 1.0
+
+    def call(**change):
+        args = dict(runner=stage._runner, raws=raws, times=times, z=np.empty((1, 8, 8)),
+                    stats=np.empty(1), peaks=np.empty(1), state=state, steps=run.steps,
+                    ats=run.ats, per=run.per, tests=run.tests, outside=run.outside,
+                    expected=run.expected, mask=run.mask,
+                    out=np.empty((1, len(run.steps), 14 + 2 * max(run.k))))
+        args.update(change)
+        return native.core.track_run(**args)
+
+    before = [s.s.copy() for s in run.steps]
+    with pytest.raises(ValueError, match="tests"):
+        call(tests=run.tests[:-1])
+    with pytest.raises(ValueError, match="ats"):
+        call(ats=[np.zeros(3)])
+    with pytest.raises(ValueError, match="out"):
+        call(out=np.empty((1, 1, 3)))
+    with pytest.raises(IndexError, match="outside"):
+        call(outside=np.array([64]), expected=np.zeros(1))
+    with pytest.raises(ValueError, match="mask"):
+        call(mask=np.ones(3, dtype=np.uint8))
+    for s, b in zip(run.steps, before):
+        np.testing.assert_array_equal(s.s, b)
