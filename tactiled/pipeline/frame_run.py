@@ -86,10 +86,7 @@ def take_run(pipe: SensorPipeline, frames: Sequence[Frame], k: int, end: int, no
     quiet = pipe.quiet_at == pipe._ordinal and pipe._idle() and not pipe.tracking.pending
     for i in range(taken):
         frame = run[i]
-        pipe.frames += 1
-        if pipe.record_path is not None:
-            pipe._record(frame)
-        strain = frame.strain = z[i]
+        strain = tracked_run.took(pipe, frame, z[i])
         contact = ends_in_contact and i == taken - 1
         if quiet and not contact:
             _publish_quiet(pipe, frame, strain, statistic[i])

@@ -101,10 +101,7 @@ class TrackedRun:
         w = None
         for i in range(tracked):
             frame = run[i]
-            pipe.frames += 1
-            if pipe.record_path is not None:
-                pipe._record(frame)
-            strain = frame.strain = z[i]
+            strain = took(pipe, frame, z[i])
             numbers = [(r[:6], r[6:12], r[12], int(r[13]), r[14:14 + k], r[14 + k:14 + 2 * k])
                        for r, k in zip(rows[i], self.k)]
             w = _Waiting(0, frame.seq, frame.sensor_id, frame.device_time_us, frame.host_time,
@@ -120,10 +117,7 @@ class TrackedRun:
             tracking._maybe_relinearize(w)
         if taken > tracked:  # the frame the run stopped at: the per-frame path from the stage on
             frame = run[tracked]
-            pipe.frames += 1
-            if pipe.record_path is not None:
-                pipe._record(frame)
-            strain = frame.strain = z[tracked]
+            strain = took(pipe, frame, z[tracked])
             pipe._guarded(frame, dispatch, pipe._after_stage, frame, strain,
                           self.stop != _ENDED, False, now, stats[tracked], peaks[tracked])
 
@@ -142,6 +136,16 @@ class TrackedRun:
         tracking = pipe.tracking
         fit = tracking.tracker.estimate_from(tracking.base, numbers)
         pipe._publish(w, GATE_UNCHANGED, tracking.base_seq, 0.0, fit, fresh=True)
+
+
+def took(pipe: SensorPipeline, frame: Frame, strain: np.ndarray) -> np.ndarray:
+    """A frame a run took (this module's or :mod:`.frame_run`'s): counted, recorded, its
+    zeroed ``strain`` (read-only) given it."""
+    pipe.frames += 1
+    if pipe.record_path is not None:
+        pipe._record(frame)
+    frame.strain = strain
+    return strain
 
 
 _NO_INDEX = np.zeros(0, dtype=np.int64)

@@ -138,12 +138,7 @@ def _play_reads(p: SensorPipeline, fitter: Fitter, frames: list[Frame], sizes: l
     i = r = 0
     while i < len(frames):
         read = frames[i:i + sizes[r % len(sizes)]]
-        p.clock.stamp(read)
-        done = 0
-        while done < len(read):
-            done = p.on_frames(read, done)
-        while p._waiting is not None and p._in_flight is None:
-            _answer_as_worker(p, fitter, p.take_job())
+        play_read(p, fitter, read, _answer_as_worker)
         i, r = i + len(read), r + 1
 
 
