@@ -24,5 +24,6 @@ void bind_all(pybind11::module_& m) {
     bind_regions(m);
     bind_zero_run(m);
     bind_track_step(m);
+    bind_track_run(m);
 }
 }  // namespace tactiled

@@ -26,5 +26,6 @@ void bind_halfspace(pybind11::module_& m);
 void bind_regions(pybind11::module_& m);
 void bind_zero_run(pybind11::module_& m);
 void bind_track_step(pybind11::module_& m);
+void bind_track_run(pybind11::module_& m);
 void bind_all(pybind11::module_& m);
 }  // namespace tactiled

@@ -251,6 +251,17 @@ std::int64_t estimate_numbers(std::int64_t model, const double* s, std::int64_t 
     cov_rf = idx[6] >= 0 ? delta_cov(idx, grad, 3, 2, sd.data(), corr, sys, has_sys, k) : NaN;
     return absent;
 }
+
+bool moved_from_point(const double* st, std::int64_t k, const double* c, double sigmas,
+                      double sharpen) {
+    for (std::int64_t i = 0; i < k; ++i) {
+        const double lin_sd = c[C_LIN_SD * k + i];
+        if (std::fabs(st[X * k + i] - c[C_POINT * k + i]) > sigmas * c[C_SD1 * k + i] ||
+            !(lin_sd == lin_sd) || sharpen * sharpen * st[PXX * k + i] < lin_sd * lin_sd)
+            return true;
+    }
+    return false;
+}
 }  // namespace tracker
 
 namespace {
@@ -402,15 +413,7 @@ bool moved_from_point_py(In<double> s, In<double> cst, double sigmas, double sha
     if (s.ndim() != 2 || s.shape(0) != 6) throw py::value_error("s: expected shape (6, k)");
     const py::ssize_t k = s.shape(1);
     need_shape(cst, "const", 8, k);
-    const double* st = s.data();
-    const double* c = cst.data();
-    for (py::ssize_t i = 0; i < k; ++i) {
-        const double lin_sd = c[C_LIN_SD * k + i];
-        if (std::fabs(st[X * k + i] - c[C_POINT * k + i]) > sigmas * c[C_SD1 * k + i] ||
-            !(lin_sd == lin_sd) || sharpen * sharpen * st[PXX * k + i] < lin_sd * lin_sd)
-            return true;
-    }
-    return false;
+    return moved_from_point(s.data(), k, cst.data(), sigmas, sharpen);
 }
 
 py::tuple estimate_numbers_py(std::int64_t model, In<double> s, In<double> cst, double dt,

@@ -35,5 +35,10 @@ std::int64_t estimate_numbers(std::int64_t model, const double* s, std::int64_t 
                               double dt, double excess, const double* corr, const double* sys,
                               bool has_sys, double lag_noise, double* values, double* var,
                               double& cov_rf);
+
+// The state s (6, k) has moved from the linearisation point, or sharpened past it
+// (kernels.moved_from_point).
+bool moved_from_point(const double* s, std::int64_t k, const double* c, double sigmas,
+                      double sharpen);
 }  // namespace tracker
 }  // namespace tactiled

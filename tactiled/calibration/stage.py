@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 
 import numpy as np
 
@@ -131,8 +132,8 @@ class CalibrationStage:
                 and zr._last_t is not None and zr.baseline.flags.c_contiguous
                 and isinstance(self.table._forward, Segments))
 
-    def process_run(self, raws: list[np.ndarray], times: np.ndarray,
-                    z: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    def process_run(self, raws: list[np.ndarray], times: np.ndarray, z: np.ndarray,
+                    track: Callable[..., int] | None = None) -> tuple[int, np.ndarray, np.ndarray]:
         """:meth:`process` for a read's frames in one call into the core
         (:class:`~tactiled.calibration.fused.ZeroRun`): ``raws`` (integer counts of this
         table's shape) at device times ``times`` (s); their zeroed strain into ``z``
@@ -140,7 +141,9 @@ class CalibrationStage:
         taken: :attr:`in_contact` is then True) and before a frame the compiled path does not
         take.  Returns ``(frames taken, statistics, largest strains)``: the detector's
         ``last_statistic`` after each frame and each frame's largest strain.  Call only when
-        :meth:`can_run`; the objects' state is the same as after :meth:`process` of each."""
+        :meth:`can_run`; the objects' state is the same as after :meth:`process` of each.
+        ``track``: the run goes on past contact, ``track(runner, raws, times, z, stats, peaks,
+        state)`` runs it (:mod:`tactiled.pipeline.tracked_run`) and returns the frames taken."""
         zr = self.zeroer
         det = zr.detector
         comp = zr.hysteresis
@@ -156,7 +159,8 @@ class CalibrationStage:
                     det.last_statistic, det.in_contact, False, self.peak, False)
         n = len(raws)
         stats, peaks = np.empty(n), np.empty(n)
-        taken = self._runner.run(raws, times, z, stats, peaks, state)
+        taken = (self._runner.run(raws, times, z, stats, peaks, state) if track is None
+                 else track(self._runner, raws, times, z, stats, peaks, state))
         if taken:
             (zr._last_t, frames, _, zr._release_until, zr.baseline_var, in_contact, active,
              count, head, det.last_statistic, det_in, residual_valid, self.peak,

@@ -453,6 +453,12 @@ class Tracker:
                  LAG_Z * LAG_Z * DRIFT_ALPHA / (2.0 - DRIFT_ALPHA)))
         return k
 
+    def stepped(self, t: float) -> None:
+        """What :meth:`step` keeps of a frame at ``t`` (s) the tracked run stepped, tracked."""
+        self._eframes += 1
+        self._edt += max(t - self.t, 0.0)
+        self.t, self.n = t, self.n + 1
+
     def skip(self) -> None:
         """A frame the tracker must not use (non-finite tactels): counted, nothing learnt."""
         self.skipped += 1
@@ -522,6 +528,14 @@ class Tracker:
         # each moving value's lag (kernels.TrackStep.estimate).  A runaway value overflows to
         # inf (withheld).
         numbers, var, cov_rf, absent = self._kernel().estimate(dt, self.excess)
+        rows = self._s.tolist()
+        return self.estimate_from(base, numbers, var, cov_rf, absent, rows[V], rows[PVV])
+
+    def estimate_from(self, base: dict[str, Any], numbers: list[float], var: list[float],
+                      cov_rf: float, absent: int, rate: list[float],
+                      pvv: list[float]) -> dict[str, Any]:
+        """:meth:`estimate` from ``TrackStep.estimate``'s numbers and the state's ``rate``
+        and ``pvv`` rows (as :mod:`tactiled.pipeline.tracked_run` gets them from the core)."""
         values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
         if absent:
             for i, key in enumerate(VALUE_KEYS):
@@ -574,8 +588,7 @@ class Tracker:
                 reasons[key] = tied
             elif soft_reasons[i] and self._widen[i] <= 1.0:
                 del reasons[key]
-        rows = self._s.tolist()
-        rates, rate_sd = self._rates(values, reasons, rows[V], rows[PVV])
+        rates, rate_sd = self._rates(values, reasons, rate, pvv)
         out.update(rates)
         std.update(rate_sd)
         out["std"] = std

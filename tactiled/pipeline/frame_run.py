@@ -9,7 +9,8 @@ no contact published without the per-frame Python path (:meth:`SensorPipeline.on
 # per-frame path (``_after_stage``) publishes; a frame that is not quiet, and the contact frame
 # that ends a run, take that path.  ``pipe.quiet_at``: the arrival number of the last frame
 # after which the pipeline was quiet (any frame since through the per-frame path moves
-# ``_ordinal`` past it; with nothing in a fit, no result can come back in between).  ``TACTILED_CORE=python`` (or
+# ``_ordinal`` past it; with nothing in a fit, no result can come back in between).  While a
+# contact is tracked, the run goes on past contact (:mod:`.tracked_run`).  ``TACTILED_CORE=python`` (or
 # ``SensorPipeline.batched = False``) runs every frame through the per-frame path, the
 # reference the run is held to (tests/pipeline/test_frame_run.py).
 
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactiled.frames import Frame
+from tactiled.pipeline import tracked_run
 from tactiled.pipeline.estimate import GATE_NO_CONTACT, make_estimate, make_zeroed_frame
 
 if TYPE_CHECKING:
@@ -65,8 +67,9 @@ def take_run(pipe: SensorPipeline, frames: Sequence[Frame], k: int, end: int, no
     run = frames[k:k + n]
     times = np.fromiter((f.device_time_us for f in run), float, n) * 1e-6
     z = np.empty((n, *shape))
+    track = tracked_run.plan(pipe)
     try:
-        taken, stats, peaks = stage.process_run(raws, times, z)
+        taken, stats, peaks = stage.process_run(raws, times, z, track)
     except Exception:  # a bug must not stop the sensor: its frames take the per-frame path
         pipe.batched = False
         pipe.errors += 1
@@ -75,15 +78,15 @@ def take_run(pipe: SensorPipeline, frames: Sequence[Frame], k: int, end: int, no
     if not taken:
         return 0
     z.setflags(write=False)
+    if track is not None:  # a tracked contact's run (tactiled.pipeline.tracked_run)
+        track.publish(pipe, run, z, stats.tolist(), peaks.tolist(), taken, now, dispatch)
+        return taken
     ends_in_contact = stage.zeroer.in_contact
     statistic, peak = stats.tolist(), peaks.tolist()
     quiet = pipe.quiet_at == pipe._ordinal and pipe._idle() and not pipe.tracking.pending
     for i in range(taken):
         frame = run[i]
-        pipe.frames += 1
-        if pipe.record_path is not None:
-            pipe._record(frame)
-        strain = frame.strain = z[i]
+        strain = tracked_run.took(pipe, frame, z[i])
         contact = ends_in_contact and i == taken - 1
         if quiet and not contact:
             _publish_quiet(pipe, frame, strain, statistic[i])

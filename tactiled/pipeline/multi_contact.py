@@ -264,6 +264,30 @@ class ContactTrackers:
         the strongest at the top level and every one in ``contacts``, the strongest first."""
         if not self.several:
             return self.trackers[0].estimate(base, at)
-        each = [tr.estimate(b, at) for tr, b in zip(self.trackers, self.bases)]
-        each.sort(key=_force, reverse=True)
-        return {**each[0], "contacts": each}
+        return _strongest_first([tr.estimate(b, at) for tr, b in zip(self.trackers, self.bases)])
+
+    def estimate_from(self, base: dict[str, Any], numbers: list[tuple]) -> dict[str, Any]:
+        """:meth:`estimate` from the tracked run's numbers, one tuple per contact
+        (:meth:`Tracker.estimate_from`'s arguments after ``base``)."""
+        if not self.several:
+            return self.trackers[0].estimate_from(base, *numbers[0])
+        return _strongest_first([tr.estimate_from(b, *nums)
+                                 for tr, b, nums in zip(self.trackers, self.bases, numbers)])
+
+    def overlapping(self) -> bool:
+        """Whether a contact's window overlaps another's (their strain there then moves with
+        the other's state, frame by frame: ``_windows``)."""
+        return any(overlaps for _, overlaps in self._cross)
+
+    def measured_at(self) -> list[np.ndarray]:
+        """What each contact's window is measured less, when no window overlaps another."""
+        if not self.several:
+            return [self.trackers[0]._at]
+        return [at for at, _ in self._cross]
+
+
+def _strongest_first(each: list[dict[str, Any]]) -> dict[str, Any]:
+    """Several contacts' estimates as one: the strongest at the top level, all in
+    ``contacts``, the strongest first."""
+    each.sort(key=_force, reverse=True)
+    return {**each[0], "contacts": each}

@@ -176,15 +176,16 @@ class InProcessPool:
         pass
 
 
-def play_read(p: Any, fitter: Any, read: list[Frame]) -> None:
+def play_read(p: Any, fitter: Any, read: list[Frame], respond: Any = None) -> None:
     """One read's frames through the SensorPipeline ``p`` (in slices, as the loop hands them
-    over), then the fits they left waiting answered with ``fitter`` (:func:`answer`)."""
+    over), then the fits they left waiting answered with ``fitter`` (``respond``, by default
+    :func:`answer`)."""
     p.clock.stamp(read)
     done = 0
     while done < len(read):
         done = p.on_frames(read, done)
     while p._waiting is not None and p._in_flight is None:
-        answer(p, fitter, p.take_job())
+        (respond or answer)(p, fitter, p.take_job())
 
 
 def answer(p: Any, fitter: Any, job: Any) -> None:
