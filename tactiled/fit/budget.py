@@ -226,3 +226,10 @@ class Budget:
 def budget_spent(reasons: dict[str, str]) -> bool:
     """True when a fit's ``reasons`` (as in its JSON) say the budget stopped it."""
     return reasons.get("fit", "").startswith(EXHAUSTED)
+
+
+def stopped_by_budget(res: Any) -> bool:
+    """True when the budget stopped the fit of result ``res``: its reasons say so, or, for a
+    result among several searched only (its reasons written when it is published), its
+    solver's message does."""
+    return budget_spent(res.reasons) or (res.message or "").startswith(EXHAUSTED)

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from tactiled.fit.auto import round_blob
-from tactiled.fit.budget import budget_spent
+from tactiled.fit.budget import stopped_by_budget
 from tactiled.fit.linearize import SeveralLinearizations
 from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
@@ -143,7 +143,7 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
     # a point contact the budget stopped on its window, alone on the array, may be wider
     # than it (a hard press on a fine array): it is fitted on all it presses, from cold
     stopped = (len(regions) == 1 and res.contact and not res.converged
-               and budget_spent(res.reasons))
+               and stopped_by_budget(res))
     wide = (wide_fit(fitter, strain, flat, usable, mask, res, budget_s, t0)
             if (one or stopped) and _is_point(fitter, res) else None)
     explains = wide is not None and not unexplained(fitter, flat, usable, wide, predict)

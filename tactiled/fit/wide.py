@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.fit.budget import budget_spent
+from tactiled.fit.budget import stopped_by_budget
 from tactiled.fit.linewindow import bounding_window, ridge_band
 from tactiled.fit.models import get_model
 from tactiled.fit.regions import SIGNIFICANT_Z
@@ -132,7 +132,7 @@ def wide_fit(fitter: Any, strain: np.ndarray, flat: np.ndarray, usable: np.ndarr
     if win is None or res.model is None:
         return None
     start = None
-    warm = (res.model, res.params) if res.converged or not budget_spent(res.reasons) else None
+    warm = (res.model, res.params) if res.converged or not stopped_by_budget(res) else None
     if warm is None:
         start = moment_start(fitter, res.model, flat, pressed_tactels(fitter, flat, usable))
     left = None if budget_s is None else max(budget_s - (time.perf_counter() - t0), 0.0)
