@@ -284,8 +284,9 @@ def _in_groups(items: list[pytest.Item]) -> None:
     that runs real processes, servers, devices or clocks is in the group ``live``, run in
     collection order on one worker, so no two of them compete for the machine and their
     deadlines mean what they meant in a serial run; a compute-only module's tests are a group
-    of their own (its module fixtures set up once), run on the other worker meanwhile.  The
-    ``live`` group comes first: it is the longest."""
+    of their own (its module fixtures set up once), run on the other worker meanwhile, niced
+    (``COMPUTE_NICE``: :func:`pytest_runtest_setup`) so the ``live`` tests keep the machine
+    first.  The ``live`` group comes first: it is the longest."""
     live, compute = [], []
     for item in items:
         rel = Path(str(item.path)).resolve().relative_to(_TESTS)
@@ -296,6 +297,18 @@ def _in_groups(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.xdist_group("live"))
             live.append(item)
     items[:] = live + compute
+
+
+#: The niceness a pytest-xdist worker takes on for a compute-only test: the group ``live`` keeps
+#: the machine first (its processes' deadlines), the compute-only modules use what it leaves.
+COMPUTE_NICE = 10
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    group = item.get_closest_marker("xdist_group")
+    if (os.environ.get("PYTEST_XDIST_WORKER") and group is not None and group.args
+            and group.args[0] != "live" and os.getpriority(os.PRIO_PROCESS, 0) < COMPUTE_NICE):
+        os.setpriority(os.PRIO_PROCESS, 0, COMPUTE_NICE)
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -116,7 +116,7 @@ class Hand:
         # bytes while the pipeline looks idle (seen once: a stats snapshot one fit short).
         pipes = [self.daemon.sensors[n] for n in FINGERS]
         await wait_for(lambda: all(p.frames >= s.sent for p, s in zip(pipes, self.streamers)),
-                       10, "every frame written decoded")
+                       30, "every frame written decoded")
         await wait_for(lambda: all(p.settled for p in pipes), 10, "every fit done")
         return {n: self.daemon.stats(n) for n in FINGERS}
 
