@@ -115,8 +115,14 @@ class Hand:
         # Every frame written decoded first: the serial reader thread may still hold the last
         # bytes while the pipeline looks idle (seen once: a stats snapshot one fit short).
         pipes = [self.daemon.sensors[n] for n in FINGERS]
-        await wait_for(lambda: all(p.frames >= s.sent for p, s in zip(pipes, self.streamers)),
-                       30, "every frame written decoded")
+        try:
+            await wait_for(lambda: all(p.frames >= s.sent for p, s in zip(pipes, self.streamers)),
+                           30, "every frame written decoded")
+        except AssertionError as err:  # what each finger's reading holds, to find out why
+            raise AssertionError(f"{err}: " + "; ".join(
+                f"{n}: sent {s.sent}, dropped {s.dropped}, frames {p.frames}, read_left "
+                f"{p.read_left}, decoder {self.daemon.stats(n)['decoder']}"
+                for n, p, s in zip(FINGERS, pipes, self.streamers))) from None
         await wait_for(lambda: all(p.settled for p in pipes), 10, "every fit done")
         return {n: self.daemon.stats(n) for n in FINGERS}
 
