@@ -280,7 +280,7 @@ _TESTS = Path(__file__).resolve().parent
 
 
 def _in_groups(items: list[pytest.Item]) -> None:
-    """For pytest-xdist's ``--dist loadgroup`` (the README's test command, ``-n 2``): every test
+    """For pytest-xdist's ``--dist loadgroup`` (``pytest -n 2``; CI runs the suite serially): every test
     that runs real processes, servers, devices or clocks is in the group ``live``, run in
     collection order on one worker, so no two of them compete for the machine and their
     deadlines mean what they meant in a serial run; a compute-only module's tests are a group
