@@ -136,6 +136,7 @@ def test_robotiq_two_fingers_share_the_port(pty_device, wait_until) -> None:
     packets = [robotiq.encode_finger(0, a, timestamp_ms=10 * k, dynamic=k)
                + robotiq.encode_finger(1, b, timestamp_ms=10 * k)
                for k, (a, b) in enumerate(zip(left, right))]
+    other = robotiq.encode_finger(2, left[0])
 
     async def main() -> None:
         base = f"robotiq://{quote(pty_device.path)}"
@@ -145,13 +146,17 @@ def test_robotiq_two_fingers_share_the_port(pty_device, wait_until) -> None:
             async with Reader(base + "?finger=1") as r1:
                 assert read_master(pty_device, 1, timeout=0.2) == b""  # the port is shared
                 junk = b"\x9a\x00\x58\x30" + b"\x9a" * 7 + b"noise"
-                await pty_device.send(b"".join(packets[:8]) + junk + b"".join(packets[8:]))
+                # A packet whose bytes span reads and end the stream waits for the next
+                # packet's start (the driver's module text): a third finger's packets, which
+                # neither reader frames, confirm each burst's last.
+                await pty_device.send(b"".join(packets[:8]) + junk + b"".join(packets[8:])
+                                      + other)
                 await wait_until(lambda: len(r0.frames) == 15 and len(r1.frames) == 15, 5.0)
                 assert r0.src.connected and r1.src.connected
                 assert r0.src.device_array().shape == (7, 4)
             # the other finger still reads
             more = robotiq.encode_finger(0, left[0], timestamp_ms=999)
-            await pty_device.send(more)
+            await pty_device.send(more + other)
             await wait_until(lambda: len(r0.frames) == 16, 5.0)
         # the last to close stops the auto-send
         assert read_master(pty_device, 5) == bytes([0x9A, 0x00, 0x58, 0x01, 0x00])
@@ -173,12 +178,14 @@ def test_robotiq_unplug_mid_packet_and_replug(pty_device, wait_until) -> None:
     to the new connection's bytes (a static field is 57 bytes whatever they hold), and the
     auto-send is started again on the new device."""
     a, b = arrays(3, (7, 4), 65536, seed=5), arrays(3, (7, 4), 65536, seed=6)
+    other = robotiq.encode_finger(2, a[0])
 
     async def main() -> None:
         base = f"robotiq://{quote(pty_device.path)}"
         async with Reader(base + "?finger=0") as r0, Reader(base + "?finger=1") as r1:
             assert read_master(pty_device, 5)[:3] == bytes([0x9A, 0x00, 0x58])
-            await pty_device.send(robotiq.encode_finger(0, a[0]) + robotiq.encode_finger(1, b[0]))
+            await pty_device.send(robotiq.encode_finger(0, a[0]) + robotiq.encode_finger(1, b[0])
+                                  + other)  # (confirms finger 1's packet: as above)
             await wait_until(lambda: len(r0.frames) == 1 and len(r1.frames) == 1, 5.0)
             cut = robotiq.encode_finger(0, a[1]) + robotiq.encode_finger(1, b[1])
             await pty_device.send(cut[:len(cut) - 30])  # finger 1's static packet, cut short
@@ -188,7 +195,8 @@ def test_robotiq_unplug_mid_packet_and_replug(pty_device, wait_until) -> None:
             pty_device.replug()
             await wait_until(lambda: r0.src.reconnects == 1 and r1.src.connected, 5.0)
             assert read_master(pty_device, 5) == bytes([0x9A, 0x00, 0x58, 0x01, 10])
-            await pty_device.send(robotiq.encode_finger(0, a[2]) + robotiq.encode_finger(1, b[2]))
+            await pty_device.send(robotiq.encode_finger(0, a[2]) + robotiq.encode_finger(1, b[2])
+                                  + other)  # (confirms finger 1's packet: as above)
             await wait_until(lambda: len(r0.frames) == 3 and len(r1.frames) == 2, 5.0)
             assert "ttyTACT" in r0.src.status().last_error
             await asyncio.sleep(0.1)

@@ -5,6 +5,7 @@ it delivers, a device writer, and the checks every published estimate must pass.
 from __future__ import annotations
 
 import asyncio
+import collections
 import json
 import math
 import os
@@ -59,10 +60,18 @@ def fingerprint(frame: Frame) -> tuple[int, int, tuple[int, int], bytes]:
 class Streamer:
     """Plays a device: writes ``frames`` (encoded, cycled with increasing seq) to a pty device
     at ``rate_hz`` while it is plugged, as a background task.  While unplugged, the frames due
-    are not sent (a device that is away sends nothing).  ``sent`` counts frames written."""
+    are not sent (a device that is away sends nothing).
+
+    Like a device's UART, it never tears a frame: when the pty is full (the reader fell
+    behind: the machine is busy, the event loop shared with the daemon stalled), the frames
+    due wait in the streamer's own buffer, in order, and go out whole as the reader makes
+    room, so a slow reader costs time, not frames.  Only a buffer of ``backlog_s`` seconds of
+    frames counts further frames ``dropped`` (a reader that stopped).  ``sent`` counts frames
+    written whole; ``unsent`` those due while paused or unplugged (a gap in seq), including
+    frames buffered when the device went away."""
 
     def __init__(self, device: Any, *, rate_hz: float = 500.0, scene: str = "demo",
-                 seed: int = 1, sensor_id: int = 0) -> None:
+                 seed: int = 1, sensor_id: int = 0, backlog_s: float = 10.0) -> None:
         self.device = device
         self.rate_hz = rate_hz
         self.sim = FingerSimulator(scene=scene, seed=seed, rate_hz=rate_hz, sensor_id=sensor_id,
@@ -74,8 +83,39 @@ class Streamer:
         self.dropped = 0
         self.unsent = 0
         self.last_seq: int | None = None
+        self.backlog_max = max(1, round(backlog_s * rate_hz))
+        self._queue: collections.deque[tuple[int, bytes]] = collections.deque()
+        self._offset = 0  # bytes of the queue's first frame already written
         self._task: asyncio.Task[None] | None = None
         self.paused = False
+
+    @property
+    def backlog(self) -> int:
+        """Frames due but not yet written whole."""
+        return len(self._queue)
+
+    def _drain(self) -> None:
+        """Write what the pty takes, whole frames counted as they complete."""
+        if not self.device.plugged:  # gone: what waited is never sent
+            self.unsent += len(self._queue)
+            self._queue.clear()
+            self._offset = 0
+            return
+        while self._queue:
+            seq, data = self._queue[0]
+            try:
+                n = os.write(self.device.master, memoryview(data)[self._offset:])
+            except BlockingIOError:
+                return
+            except OSError:  # the pty vanished under the write: as unplugged
+                return
+            self._offset += n
+            if self._offset < len(data):
+                continue
+            self._queue.popleft()
+            self._offset = 0
+            self.sent += 1
+            self.last_seq = seq
 
     async def _run(self) -> None:
         period = 1.0 / self.rate_hz
@@ -88,23 +128,29 @@ class Streamer:
                 if self.paused or not self.device.plugged:
                     self.unsent += 1  # the receiver sees a gap in seq here
                     continue
-                try:
-                    self.device.write(encode_frame(frame))
-                except (BlockingIOError, OSError):
-                    self.dropped += 1  # the reader fell behind (or the pty vanished): lost
+                if len(self._queue) >= self.backlog_max:
+                    self.dropped += 1  # the reader stopped reading: lost
                     continue
-                self.sent += 1
-                self.last_seq = frame.seq
+                self._queue.append((frame.seq, encode_frame(frame)))
+            if not self.paused:
+                self._drain()
             await asyncio.sleep(max(0.0, min(due - time.monotonic(), 0.01)))
 
     def start(self) -> None:
         self._task = asyncio.create_task(self._run(), name="test-streamer")
 
-    async def stop(self) -> None:
+    async def stop(self, flush_s: float = 30.0) -> None:
+        """Stop making frames; the frames already due are written first (up to ``flush_s``
+        s: a reader that stopped leaves them counted neither sent nor unsent)."""
         if self._task is not None:
             self._task.cancel()
             await asyncio.gather(self._task, return_exceptions=True)
             self._task = None
+            deadline = time.monotonic() + flush_s
+            while self._queue and time.monotonic() < deadline:
+                self._drain()
+                if self._queue:
+                    await asyncio.sleep(0.001)
 
 
 async def wait_for(condition: Callable[[], bool], timeout: float, what: str,
