@@ -20,15 +20,8 @@ long Framer::find(std::size_t from, std::size_t to) const {
     return -1;
 }
 
-void Framer::drop(std::size_t n) {
-    head_ += n;
-    discard(n);
-}
-
 void Framer::reset() {
-    cut(size());
-    buf_.clear();
-    head_ = 0;
+    clear_held();
     synced_ = false;
 }
 
@@ -74,14 +67,13 @@ void Framer::emit(double host_time, std::vector<Frame>& out, std::vector<std::ui
     for (std::size_t c = 0; c < cells_; ++c) counts.push_back(at(2 + c));
     out.push_back(f);
     accepted();
-    head_ += period_;
+    consume(period_);
 }
 
 void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
                   std::vector<Frame>& out, std::vector<std::uint16_t>& counts) {
     if (n == 0) return;
-    stats_.bytes += n;
-    buf_.insert(buf_.end(), data, data + n);
+    append(data, n);
     while (true) {
         if (synced_) {
             if (size() < period_ + 2) break;
@@ -110,8 +102,7 @@ void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
         }
         if (!find_phase()) break;
     }
-    buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(head_));
-    head_ = 0;
+    compact();
 }
 
 }  // namespace flexitac

@@ -8,7 +8,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "lines.hpp"  // (the vendor framers' bookkeeping: lines::FramerBase)
+#include "lines.hpp"  // (the vendor framers' bookkeeping: lines::HeldBytes)
 
 namespace tactiled {
 namespace flexitac {
@@ -19,30 +19,25 @@ struct Frame {
     std::size_t offset;  // into the batch's counts
 };
 
-class Framer : public lines::FramerBase {
+class Framer : public lines::HeldBytes {
 public:
     Framer(std::size_t rows, std::size_t cols) : cells_(rows * cols), period_(2 + rows * cols) {}
     void feed(const std::uint8_t* data, std::size_t n, double host_time, std::vector<Frame>& out,
               std::vector<std::uint16_t>& counts);
     void reset();
-    std::size_t buffered() const { return buf_.size(); }
+    std::size_t buffered() const { return size(); }
 
 private:
     // where the marker starts in [from, to) of the held bytes (whole marker inside), or -1
     long find(std::size_t from, std::size_t to) const;
     bool find_phase();
-    void drop(std::size_t n);
     // 0xAA at i followed by a whole marker: a marker torn after its first byte
     bool torn_marker(std::size_t i) const;
     // deliver the frame that starts the held bytes and step over it
     void emit(double host_time, std::vector<Frame>& out, std::vector<std::uint16_t>& counts);
-    std::size_t size() const { return buf_.size() - head_; }
-    std::uint8_t at(std::size_t k) const { return buf_[head_ + k]; }
     bool marker_at(std::size_t k) const { return k + 2 <= size() && at(k) == 0xAA && at(k + 1) == 0x55; }
 
     std::size_t cells_, period_;
-    std::vector<std::uint8_t> buf_;
-    std::size_t head_ = 0;  // bytes of buf_ already consumed
     bool synced_ = false;
     std::uint32_t seq_ = 0;
 };

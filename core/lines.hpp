@@ -75,6 +75,38 @@ private:
     double t0_ = 0.0;
 };
 
+// The bytes a packet framer holds between reads (the Robotiq and FlexiTac framers): a read's
+// bytes are appended at the back and consumed from the front by moving a head, so a read of
+// many units moves the held bytes once, when the read is done (compact()).
+class HeldBytes : public FramerBase {
+protected:
+    std::size_t size() const { return buf_.size() - head_; }
+    std::uint8_t at(std::size_t k) const { return buf_[head_ + k]; }
+    const std::uint8_t* held(std::size_t k = 0) const { return buf_.data() + head_ + k; }
+    void append(const std::uint8_t* data, std::size_t n) {
+        stats_.bytes += n;
+        buf_.insert(buf_.end(), data, data + n);
+    }
+    void consume(std::size_t n) { head_ += n; }  // a unit delivered
+    void drop(std::size_t n) {                   // bytes skipped, counted
+        head_ += n;
+        discard(n);
+    }
+    void compact() {
+        buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(head_));
+        head_ = 0;
+    }
+    void clear_held() {  // a reset: what was held is one truncated unit
+        cut(size());
+        buf_.clear();
+        head_ = 0;
+    }
+
+private:
+    std::vector<std::uint8_t> buf_;
+    std::size_t head_ = 0;  // bytes of buf_ already consumed
+};
+
 struct Line {
     std::uint32_t seq;
     std::int64_t device_time_us;

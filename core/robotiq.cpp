@@ -60,12 +60,12 @@ inline std::size_t minus(std::size_t a, std::size_t b) { return a > b ? a - b : 
 long Framer::find(std::size_t from, std::size_t to) const {
     to = to < size() ? to : size();
     if (from >= to) return -1;
-    const void* p = std::memchr(buf_.data() + head_ + from, START, to - from);
-    return p ? static_cast<const std::uint8_t*>(p) - (buf_.data() + head_) : -1;
+    const void* p = std::memchr(held(from), START, to - from);
+    return p ? static_cast<const std::uint8_t*>(p) - held() : -1;
 }
 
 bool Framer::parses(std::size_t from, std::size_t to) const {
-    return parse_fields(buf_.data() + head_ + from, to - from, 0, nullptr);
+    return parse_fields(held(from), to - from, 0, nullptr);
 }
 
 bool Framer::starts_packet(std::size_t i) const {
@@ -109,15 +109,8 @@ bool Framer::holds_packets(std::size_t end) const {
     return false;
 }
 
-void Framer::drop(std::size_t n) {
-    head_ += n;
-    discard(n);
-}
-
 void Framer::reset() {
-    cut(size());
-    buf_.clear();
-    head_ = 0;
+    clear_held();
     have_stamp_ = false;
 }
 
@@ -134,10 +127,10 @@ void Framer::stamp(Wide value, std::size_t width) {
     stamp_ms_ = next;
 }
 
-void Framer::deliver(const std::vector<Field>& fields, std::size_t data_at, double host_time,
-                     std::vector<Frame>& out, std::vector<std::uint16_t>& counts) {
+void Framer::deliver(const std::vector<Field>& fields, const std::uint8_t* data,
+                     double host_time, std::vector<Frame>& out,
+                     std::vector<std::uint16_t>& counts) {
     ++packets_;
-    const std::uint8_t* data = buf_.data() + data_at;
     const std::uint8_t* array = nullptr;
     for (const Field& f : fields) {
         if (f.finger != finger_) continue;
@@ -169,9 +162,8 @@ void Framer::deliver(const std::vector<Field>& fields, std::size_t data_at, doub
 void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
                   std::vector<Frame>& out, std::vector<std::uint16_t>& counts) {
     if (n == 0) return;
-    stats_.bytes += n;
     std::size_t carried = size();  // bytes at the front that came in earlier reads
-    buf_.insert(buf_.end(), data, data + n);
+    append(data, n);
     while (true) {
         const long start = find(0, size());
         if (start < 0) {
@@ -191,7 +183,7 @@ void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
         const std::size_t end = HEADER + length;
         if (size() < end) break;
         fields_.clear();
-        if (!parse_fields(buf_.data() + head_ + HEADER, length, 0, &fields_)) {
+        if (!parse_fields(held(HEADER), length, 0, &fields_)) {
             reject(stats_.parse_errors);
             drop(1);
             carried = minus(carried, 1);
@@ -209,12 +201,11 @@ void Framer::feed(const std::uint8_t* data, std::size_t n, double host_time,
             carried = minus(carried, 1);
             continue;
         }
-        deliver(fields_, head_ + HEADER, host_time, out, counts);
-        head_ += end;
+        deliver(fields_, held(HEADER), host_time, out, counts);
+        consume(end);
         carried = minus(carried, end);
     }
-    buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(head_));
-    head_ = 0;
+    compact();
 }
 
 }  // namespace robotiq

@@ -47,33 +47,28 @@ struct Frame {
     std::size_t offset;  // into the batch's counts
 };
 
-class Framer : public lines::FramerBase {
+class Framer : public lines::HeldBytes {
 public:
     explicit Framer(unsigned finger) : finger_(finger) {}
     void feed(const std::uint8_t* data, std::size_t n, double host_time, std::vector<Frame>& out,
               std::vector<std::uint16_t>& counts);
     void reset();
-    std::size_t buffered() const { return buf_.size() - head_; }
+    std::size_t buffered() const { return size(); }
     std::uint64_t packets() const { return packets_; }
     unsigned finger() const { return finger_; }
 
 private:
-    std::size_t size() const { return buf_.size() - head_; }
-    std::uint8_t at(std::size_t k) const { return buf_[head_ + k]; }
     long find(std::size_t from, std::size_t to) const;  // START in [from, to), or -1
     bool starts_packet(std::size_t i) const;
     int packet_at(std::size_t i) const;       // 1, 0, or -1: its bytes have not all arrived
     int start_inside(std::size_t end) const;  // 1, 0, or -1: as packet_at
     bool holds_packets(std::size_t end) const;
     bool parses(std::size_t from, std::size_t to) const;
-    void drop(std::size_t n);
-    void deliver(const std::vector<Field>& fields, std::size_t data, double host_time,
+    void deliver(const std::vector<Field>& fields, const std::uint8_t* data, double host_time,
                  std::vector<Frame>& out, std::vector<std::uint16_t>& counts);
     void stamp(Wide value, std::size_t width);
 
     unsigned finger_;
-    std::vector<std::uint8_t> buf_;
-    std::size_t head_ = 0;  // bytes of buf_ already consumed
     std::uint32_t seq_ = 0;
     bool have_stamp_ = false;
     Wide stamp_ms_ = 0;

@@ -165,7 +165,7 @@ class Owner:
 
 
 def test_worker_answers_nan_and_malformed_frames_and_survives(arun) -> None:
-    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+    clean = clean_strain()
     with_nan = clean.copy()
     with_nan[3, 3] = np.nan
     with_nan[0, :] = np.inf
@@ -203,7 +203,7 @@ def test_a_frame_waiting_for_its_fit_goes_before_background_work(arun) -> None:
     """With one worker, a relinearisation that has waited longer still goes after every
     frame's fit (a frame that waits past 5 ms is published with a prediction); among frames,
     the longest-waiting first."""
-    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+    clean = clean_strain()
 
     async def main() -> list[str]:
         pool = WorkerPool(1, FitSettings())
@@ -228,6 +228,11 @@ def test_a_frame_waiting_for_its_fit_goes_before_background_work(arun) -> None:
     assert arun(main()) == ["early", "late", "lin"]
 
 
+def clean_strain() -> np.ndarray:
+    """The strain of the tests' press: a 10 mm cylinder at 1 N across the finger's centre."""
+    return predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+
+
 def pool_of_owners(size: int, owners: tuple[tuple[str, bool], ...]
                    ) -> tuple[WorkerPool, dict[str, Owner], list[str]]:
     """A pool of ``size`` workers serving an :class:`Owner` per ``(name, background)``, which
@@ -248,7 +253,7 @@ def test_a_frame_dispatched_now_leaves_before_the_callbacks_the_loop_holds(arun)
     """``dispatch_now`` hands a waiting job to a free worker within the call: a frame's fit does
     not wait behind the other sensors' reads already queued on the loop (``wake`` only queues
     a dispatch, after them)."""
-    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+    clean = clean_strain()
 
     async def main() -> tuple[list[str], list[str]]:
         pool, owners, order = pool_of_owners(1, (("woken", False), ("now", False)))
@@ -280,7 +285,7 @@ def test_a_frame_dispatched_now_leaves_before_the_callbacks_the_loop_holds(arun)
 def test_a_waiting_job_goes_to_the_worker_that_answers_before_the_loop_moves_on(arun) -> None:
     """When a worker answers, the job waiting for it (another sensor's frame) is in its hands
     before the loop runs any other callback: it does not wait behind the reads the loop holds."""
-    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+    clean = clean_strain()
 
     async def main() -> tuple[list[str], list[str]]:
         pool, owners, order = pool_of_owners(1, (("first", False), ("second", False)))
@@ -316,7 +321,7 @@ def test_the_last_free_worker_is_kept_for_a_frame(arun) -> None:
     """With more than one worker, relinearisations (jobs that answer no frame) never take the
     last free one: two wait and two workers are free, one goes out; a frame's fit that comes
     next finds the other worker at once, not behind a relinearisation."""
-    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+    clean = clean_strain()
 
     async def main() -> tuple[list[str], list[str]]:
         pool, owners, taken = pool_of_owners(2, (("lin1", True), ("lin2", True), ("frame", False)))
@@ -348,7 +353,7 @@ def test_a_fitter_that_cannot_be_built_costs_its_fits_not_the_worker(arun) -> No
     from tactiled.sensors.model import NoiseModel
 
     broken = dataclasses.replace(DEFAULT_SENSOR, noise=NoiseModel(sigma=1e-300, quantum=0.0))
-    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+    clean = clean_strain()
 
     async def main() -> tuple[Owner, Owner, Owner, int]:
         pool = WorkerPool(1, FitSettings(startup_timeout=20.0))
@@ -437,7 +442,7 @@ def test_a_worker_answer_that_does_not_unpickle_replaces_the_worker(arun,
     """An answer this process cannot read (bytes that are no pickle; a worker of other code,
     an upgrade under a running daemon, would send one) costs that worker, counted as a
     protocol loss, not the event loop's callback: the replacement answers the next fit."""
-    clean = predict_strain(Contact(10.0, float("inf"), 90.0, 1.0, 11.0, 13.0))
+    clean = clean_strain()
 
     async def main() -> tuple[int | None, dict[str, int], list[int | None], Owner]:
         pool = WorkerPool(1, FitSettings())
