@@ -128,7 +128,7 @@ class PointFit:
             # radii swapped is the same one, so the scan round the half-turn means nothing here
             withhold_flat(res.values, res.std, res.reasons, angle_profile(
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
-                lambda: f._residual(fr, model), res.chi2, 2, sd_angle, scan=()),
+                lambda: f._residual(fr, model), res.chi2, 2, sd_angle, scan=(), bounded=True),
                 key="angle_deg")
         if best.converged and model.name == "general":
             # a test the budget cuts short is not used, and does not make the fit a stopped one

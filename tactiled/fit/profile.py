@@ -156,10 +156,11 @@ def flat_below(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray
 def angle_profile(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
                   bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
                   index: int, sd_deg: float | None,
-                  scan: tuple[float, ...] = ANGLE_SCAN_DEG) -> str | float | None:
+                  scan: tuple[float, ...] = ANGLE_SCAN_DEG,
+                  bounded: bool = False) -> str | float | None:
     """The answer of :func:`angle_scan` for the angle alone (``AngleProfile.why``)."""
     return angle_scan(fitter, fr, kind, p, steps, bounds, python_residual, chi2, index,
-                      sd_deg, scan).why
+                      sd_deg, scan, bounded=bounded).why
 
 
 def angle_scan(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
@@ -169,7 +170,7 @@ def angle_scan(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray
                known: list[tuple[float, np.ndarray]] = (),
                test_sigma: float = ANGLE_TEST_SIGMA,
                near_steps: tuple[float, ...] = NEAR_STEPS,
-               cap: int | None = None) -> AngleProfile:
+               cap: int | None = None, bounded: bool = False) -> AngleProfile:
     """A line's orientation (the parameter ``index`` of ``p``, rad; its linearised 1-sigma
     ``sd_deg``, deg) on its profile likelihood, as :func:`flat_below` tests a radius but on
     both sides (a line turned either way leaves the window alike): chi^2 minimised again with
@@ -187,7 +188,11 @@ def angle_scan(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray
     where ``sd_deg`` exceeds ``test_sigma``; the near points at ``near_steps`` times
     ``PROFILE_SIGMAS`` sigmas to either side; ``cap``: each point's search within that many
     iterations, one stopped short kept as a bound (:func:`_held`'s ``bounded``), else the
-    fit's own cap, converged searches only."""
+    fit's own cap, converged searches only.  ``bounded``: the profile of an ellipse's
+    orientation, which a circle bounds (it rises by at most the circle's chi^2 anywhere, and
+    one side can rise steeply where the other stays low): a point below ``FLAT_CHI2`` widens
+    the sigma as any other does (``sqrt(rise)`` sigmas away, the profile's honest interval),
+    and the angle is withheld only where that sigma is over ``MAX_ANGLE_SIGMA``."""
     out = AngleProfile()
     if sd_deg is None or not sd_deg > test_sigma:
         return out
@@ -222,6 +227,9 @@ def angle_scan(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray
     # flat: a point at least PROFILE_SIGMAS sigmas away (where a quadratic rises by 4) that
     # rises by less than FLAT_CHI2 (a known point nearer says nothing of the kind)
     flat = [(d, r) for d, r in points if r < FLAT_CHI2 and d >= PROFILE_SIGMAS * sd_deg * 0.999]
+    if bounded:
+        out.why = _bounded_sigma(points, sd_deg)
+        return out
     if flat:
         dist, rise = max(flat)
         out.why = (f"orientation not observable: {FLAT_ACROSS} (chi^2 rises by "
@@ -232,6 +240,19 @@ def angle_scan(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray
     widest = max(dist / math.sqrt(max(rise, FLAT_CHI2)) for dist, rise in points)
     out.why = widest if widest > sd_deg else None
     return out
+
+
+def _bounded_sigma(points: list[tuple[float, float]], sd_deg: float) -> str | float | None:
+    """The sigma (deg) of a bounded orientation profile whose tested points ``(distance deg,
+    rise)`` each lie ``sqrt(rise)`` sigmas away: the widest they imply, None where that is
+    not over ``sd_deg``, the reason to withhold it where it is over ``MAX_ANGLE_SIGMA``."""
+    dist, rise = max(points, key=lambda pt: pt[0] / math.sqrt(max(pt[1], 1e-12)))
+    wide = dist / math.sqrt(max(rise, 1e-12))
+    if wide > MAX_ANGLE_SIGMA:
+        return (f"orientation not observable: {FLAT_ACROSS} (chi^2 rises by "
+                f"{max(rise, 0.0):.2g}, {dist:.3g} deg to one side: a sigma over "
+                f"{MAX_ANGLE_SIGMA:g} deg): its sigma does not hold")
+    return wide if wide > sd_deg else None
 
 
 def widen_by_points(values: dict, std: dict, reasons: dict[str, str],

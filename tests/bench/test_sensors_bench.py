@@ -52,6 +52,10 @@ def test_a_value_is_resolved_where_its_bound_leaves_it_two_bounds_from_zero() ->
     assert sensors.resolved_by("force_n", 1.0, 0.2) and not sensors.resolved_by("r2_mm", 30.0, 40.0)
     assert sensors.resolved_by("angle_deg", 30.0, 19.0) and not sensors.resolved_by("angle_deg", 30.0, 21.0)
     assert sensors.resolved_by("x_mm", 3.0, 50.0)
+    # an ellipse's orientation only where its best circle lies two sigmas or more away
+    assert sensors.resolved_by("angle_deg", 30.0, 19.0, circle_chi2=4.1)
+    assert not sensors.resolved_by("angle_deg", 30.0, 19.0, circle_chi2=2.3)
+    assert not sensors.resolved_by("angle_deg", 30.0, 21.0, circle_chi2=400.0)
     assert not sensors.resolved_by("x_mm", 3.0, None) and not sensors.resolved_by("r1_mm", 3.0, math.inf)
 
 
