@@ -252,7 +252,7 @@ def test_several_contacts_drawn_with_their_ids(browser_page, live_server, pty_de
         page.goto(server.url + "/")
         page.wait_for_function(
             "() => JSON.parse(document.querySelector('#sensor-pad canvas.overlay')"
-            ".dataset.contacts || '[]').length === 2", timeout=30_000)
+            "?.dataset.contacts || '[]').length === 2", timeout=30_000)
         sent = http(server.url, "GET", "/v1/sensors/pad/estimate").json()["contacts"]
         assert [c["contact_id"] for c in sent] == [3, 7]
         assert all(c["ellipse"] and c["ellipse"]["a_mm"] > 0 for c in sent), sent
