@@ -278,9 +278,13 @@ COMPUTE_ONLY = frozenset({"calibration", "docs", "fit", "frames", "house", "io",
                           "physics", "stress"})
 #: Modules of the other directories that only compute likewise: frames made and fed in this
 #: process (the pipeline driven through its own entry points, its worker's work done here,
-#: framers, scenes, message encoders), no clock read as a deadline.
+#: framers, scenes, message encoders) or commands run to their end on files (``tactiled fit``,
+#: ``tactiled bench``'s tables, imports without the optional packages), no clock read as a
+#: deadline.
 COMPUTE_ONLY_MODULES = frozenset({
-    "bench/test_runner_scoring.py", "bench/test_shear_bench.py",
+    "bench/test_bench_cli.py", "bench/test_runner_scoring.py", "bench/test_shear_bench.py",
+    "cli/test_every_command_bad_files.py", "cli/test_fit_cli.py",
+    "cli/test_newcomer_papercuts.py", "packaging/test_shipped_dependencies.py",
     "drivers/test_lines_core.py", "drivers/test_torn_units.py",
     "drivers/test_vendor_framers.py",
     "pipeline/test_association.py", "pipeline/test_contact_filter.py",

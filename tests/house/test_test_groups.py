@@ -9,10 +9,11 @@ from pathlib import Path
 import conftest
 
 TESTS = Path(conftest.__file__).resolve().parent
-#: What a test that runs in real time uses: devices, servers, processes, threads, the loop.
+#: What a test that runs in real time uses: devices, servers, daemons, threads, the loop.  A
+#: command run to its end in a process of its own computes (its timeout is no deadline).
 LIVE = re.compile(r"pty_device|live_server|shared_server|daemon_process|SimulatedDevice|"
-                  r"browser_page|subprocess|Popen|multiprocessing|threading|asyncio|"
-                  r"Daemon\(|WorkerPool\(|open_source|serial://|time\.sleep")
+                  r"browser_page|threading|asyncio|Daemon\(|WorkerPool\(|open_source|"
+                  r"serial://|time\.sleep")
 
 
 def test_every_compute_only_module_exists_and_runs_nothing_live() -> None:

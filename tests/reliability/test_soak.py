@@ -6,7 +6,8 @@ is the service's, the subscribers in another (see that module).
 Bars, all judged on every run whatever else the machine is doing:
 
 * memory: the service's RSS over the second half of the window stays within 5 MB of its
-  value after the warm-up (its least sample there: :func:`rss_floor_growth`); its open
+  value after the warm-up (its least sample there:
+  ``tactiled_bench.soak_meters.floor_growth_mb``); its open
   descriptors do not grow;
 * acquisition: no frame lost through the daemon's fault.  Frames missing at the decoder are
   attributed by seq with what the simulators record: a simulator starved by other jobs for
@@ -48,13 +49,14 @@ import sys
 
 import pytest
 from rel_helpers import figures
+from tactiled_bench.reliability import RSS_BAR_MB
+from tactiled_bench.soak_meters import floor_growth_mb
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="needs Linux ptys and /proc")
 
 LONG = float(os.environ.get("TACTILED_SOAK_SECONDS", "600"))
 SUBSCRIBERS, STALLED = 50, 5
-RSS_BAR_MB = 5.0
 #: The fingers' scene: contacts that press, roll, turn and change shape all the time, so the
 #: fit workers are busy (tactiled_bench.scenes.busy_scene; the built-in ``moving`` scene of
 #: tactiled.sim, once there, is meant for the same and may replace it).
@@ -75,20 +77,6 @@ def _soak(seconds: float, rate_hz: float = 1000.0, scene: str = SCENE,
     return json.loads(lines[-1])
 
 
-def rss_floor_growth(series: list[list[float]]) -> float:
-    """MB by which the service's RSS at its lowest over the second half of the window
-    (``series``: ``[s, MB]`` samples from the warm-up's end) exceeds the first sample.
-
-    A leak raises every later sample, the floor with them; what a busy machine adds for a
-    while (bytes the serial readers hold while the loop waits for a CPU, messages queued for
-    subscribers) raises some samples and is given back (a peak 9.3 MB above the start in
-    one ``pytest -n 2`` run, against 2.2 MB in a run alone).  The 10-minute and 1-hour runs
-    judge the slope as well."""
-    start = series[0][0]
-    half = start + (series[-1][0] - start) / 2.0
-    return min(v for t, v in series if t >= half) - series[0][1]
-
-
 def _check(r: dict) -> None:
     rss = {k: v for k, v in r["rss_mb"].items() if k != "series"}
     workers = {pid: {k: v for k, v in w.items() if k != "heap_series"}
@@ -101,11 +89,10 @@ def _check(r: dict) -> None:
             cpu_cores=r["cpu_cores"], service_loop_lag=r["service_loop_lag"],
             passed=r["passed"])
     problems = []
-    floor = rss_floor_growth(r["rss_mb"]["series"])
-    if not floor < RSS_BAR_MB:
+    if not r["rss_mb"]["floor_growth"] < RSS_BAR_MB:
         problems.append(f"service RSS: its least sample over the window's second half is "
-                        f"{floor:.2f} MB above the window's first (bar {RSS_BAR_MB:g} MB): "
-                        f"{r['rss_mb']}")
+                        f"{r['rss_mb']['floor_growth']} MB above the window's first (bar "
+                        f"{RSS_BAR_MB:g} MB): {r['rss_mb']}")
     if r["passed"].get("rss_slope_under_1MB_per_h") is False:
         slopes = {"service": r["rss_mb"]["slope_after_settle_mb_per_h"],
                   **{pid: w["slope_after_settle_mb_per_h"]
@@ -149,12 +136,12 @@ def _check(r: dict) -> None:
 
 def test_the_memory_bar_sees_a_leak_not_a_peak() -> None:
     """A leak of 1 MB/s fails the bar; a 9 MB peak given back, and caches that settle, pass."""
-    leak = [[t, 100.0 + t] for t in range(11)]
-    peak = [[t, 100.0 + (9.0 if 3 <= t <= 6 else 0.5 * (t > 0))] for t in range(11)]
-    caches = [[t, 100.0 + min(t, 3) * 0.7] for t in range(11)]
-    assert rss_floor_growth(leak) == 5.0 and not rss_floor_growth(leak) < RSS_BAR_MB
-    assert rss_floor_growth(peak) == 0.5
-    assert rss_floor_growth(caches) == pytest.approx(2.1)
+    leak = [(t, 100.0 + t) for t in range(11)]
+    peak = [(t, 100.0 + (9.0 if 3 <= t <= 6 else 0.5 * (t > 0))) for t in range(11)]
+    caches = [(t, 100.0 + min(t, 3) * 0.7) for t in range(11)]
+    assert floor_growth_mb(leak) == 5.0 and not floor_growth_mb(leak) < RSS_BAR_MB
+    assert floor_growth_mb(peak) == 0.5
+    assert floor_growth_mb(caches) == pytest.approx(2.1)
 
 
 @pytest.mark.parametrize("seconds, warmup", [
