@@ -276,6 +276,30 @@ def feedable_source(request: pytest.FixtureRequest, tmp_path: Path) -> FeedableS
 #: Test directories whose tests only compute: no real-time process, port, device or server.
 COMPUTE_ONLY = frozenset({"calibration", "docs", "fit", "frames", "house", "io", "native",
                           "physics", "stress"})
+#: Modules of the other directories that only compute likewise: frames made and fed in this
+#: process (the pipeline driven through its own entry points, its worker's work done here,
+#: framers, scenes, message encoders) or commands run to their end on files (``tactiled fit``,
+#: ``tactiled bench``'s tables, imports without the optional packages), no clock read as a
+#: deadline.
+COMPUTE_ONLY_MODULES = frozenset({
+    "bench/test_bench_cli.py", "bench/test_runner_scoring.py", "bench/test_shear_bench.py",
+    "cli/test_every_command_bad_files.py", "cli/test_fit_cli.py",
+    "cli/test_newcomer_papercuts.py", "packaging/test_shipped_dependencies.py",
+    "drivers/test_lines_core.py", "drivers/test_torn_units.py",
+    "drivers/test_vendor_framers.py",
+    "pipeline/test_association.py", "pipeline/test_contact_filter.py",
+    "pipeline/test_contact_filter_general.py", "pipeline/test_estimate_records.py",
+    "pipeline/test_frame_run.py", "pipeline/test_held_drift.py",
+    "pipeline/test_hysteresis_learnt.py", "pipeline/test_kernels.py",
+    "pipeline/test_multi_contact.py", "pipeline/test_pipeline_gate.py",
+    "pipeline/test_sensor_stats.py", "pipeline/test_several_contacts.py",
+    "pipeline/test_signal_refit.py", "pipeline/test_tracked_dispatch.py",
+    "pipeline/test_tracker_sigmas.py", "pipeline/test_worker_packing.py",
+    "reliability/test_decoder_fuzz.py", "reliability/test_golden_truth.py",
+    "sensors/test_three_axis.py", "service/test_json_messages.py",
+    "service/test_slip_pacing.py",
+    "sim/test_hand_scene.py", "sim/test_moving_scene.py", "sim/test_scenes.py",
+    "sim/test_simulator.py"})
 _TESTS = Path(__file__).resolve().parent
 
 
@@ -283,14 +307,16 @@ def _in_groups(items: list[pytest.Item]) -> None:
     """For pytest-xdist's ``--dist loadgroup`` (``pytest -n 2``; CI runs the suite serially): every test
     that runs real processes, servers, devices or clocks is in the group ``live``, run in
     collection order on one worker, so no two of them compete for the machine and their
-    deadlines mean what they meant in a serial run; a compute-only module's tests are a group
+    deadlines mean what they meant in a serial run; a compute-only module's (a module of
+    ``COMPUTE_ONLY`` or ``COMPUTE_ONLY_MODULES``) tests are a group
     of their own (its module fixtures set up once), run on the other worker meanwhile, niced
     (``COMPUTE_NICE``: :func:`pytest_runtest_setup`) so the ``live`` tests keep the machine
     first.  The ``live`` group comes first: it is the longest."""
     live, compute = [], []
     for item in items:
         rel = Path(str(item.path)).resolve().relative_to(_TESTS)
-        if len(rel.parts) > 1 and rel.parts[0] in COMPUTE_ONLY:
+        if (len(rel.parts) > 1 and rel.parts[0] in COMPUTE_ONLY
+                or rel.as_posix() in COMPUTE_ONLY_MODULES):
             item.add_marker(pytest.mark.xdist_group(rel.as_posix()))
             compute.append(item)
         else:

@@ -194,6 +194,19 @@ async def fd_peak(span: float = 1.0, samples: int = 11) -> int:
     return peak
 
 
+def floor_growth_mb(samples: list[tuple[float, float]]) -> float:
+    """MB by which ``(t s, MB)`` samples at their least over the second half of their span
+    exceed the first sample: what the soak's memory bar judges.
+
+    A leak raises every later sample, the floor with them; what a busy machine adds for a
+    while (bytes the serial readers hold while the loop waits for a CPU, messages queued for
+    subscribers) raises some samples and is given back (one ``pytest -n 2`` run saw a peak
+    9.3 MB above the start, against 2.2 MB in a run alone)."""
+    start = samples[0][0]
+    half = start + (samples[-1][0] - start) / 2.0
+    return min(v for t, v in samples if t >= half) - samples[0][1]
+
+
 def slope_mb_per_h(samples: list[tuple[float, float]]) -> float | None:
     """Least-squares slope of ``(t s, MB)`` samples, MB per hour (None below 3 samples)."""
     if len(samples) < 3:

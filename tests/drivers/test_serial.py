@@ -24,6 +24,10 @@ from tactiled_drivers.serial import SerialSource
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"),
                                 reason="needs Linux ptys and /proc/self/fd")
 
+#: How long a wait for the driver (bytes read, frames decoded, a port lost or back) may take on
+#: a loaded machine: not a bar; the tests that time the driver assert their own bounds.
+WAIT_S = 10.0
+
 
 def serial_url(path: str, **params: object) -> str:
     query = "&".join(f"{k}={v}" for k, v in params.items())
@@ -67,7 +71,7 @@ def test_frames_decoded(pty_device, frame_factory, same_frame, wait_until) -> No
     async def main() -> None:
         async with Consumer(serial_url(pty_device.path)) as c:
             await pty_device.send(b"".join(encode_frame(f) for f in sent))
-            await wait_until(lambda: len(c.frames) == len(sent), 2.0)
+            await wait_until(lambda: len(c.frames) == len(sent), WAIT_S)
             assert c.src.connected
             assert c.src.bytes_read == sum(len(encode_frame(f)) for f in sent)
         assert all(same_frame(a, b) for a, b in zip(c.frames, sent, strict=True))
@@ -92,10 +96,10 @@ def test_frame_split_at_every_byte_boundary(pty_device, frame_factory, same_fram
                 pty_device.write(wire[:k])
                 # The driver must have *read* the first part before the rest is written, so
                 # the frame really is split across reads.
-                await wait_until(lambda n=before + k: c.src.bytes_read == n, 1.0)
+                await wait_until(lambda n=before + k: c.src.bytes_read == n, WAIT_S)
                 assert len(c.frames) == k - 1
                 pty_device.write(wire[k:])
-                await wait_until(lambda k=k: len(c.frames) == k, 1.0)
+                await wait_until(lambda k=k: len(c.frames) == k, WAIT_S)
         assert all(same_frame(a, b) for a, b in zip(c.frames, sent, strict=True))
         assert c.src.decoder.stats.rejected == 0
 
@@ -114,14 +118,14 @@ def test_garbage_between_frames(pty_device, frame_factory, same_frame, wait_unti
     async def main() -> None:
         async with Consumer(serial_url(pty_device.path)) as c:
             await pty_device.send(b"".join(garbage() + encode_frame(f) for f in sent))
-            await wait_until(lambda: len(c.frames) == len(sent), 2.0)
+            await wait_until(lambda: len(c.frames) == len(sent), WAIT_S)
             assert all(same_frame(a, b) for a, b in zip(c.frames, sent, strict=True))
             assert c.src.decoder.stats.rejected >= len(sent)  # each b"\xff\x13..." chunk
             # Garbage *without* a final 0x00 is glued to the next frame: that one is lost,
             # the one after it arrives.
             more = frame_factory(2, seed=4, start_seq=len(sent))
             await pty_device.send(b"\x07\x99\x42" + encode_frame(more[0]) + encode_frame(more[1]))
-            await wait_until(lambda: len(c.frames) == len(sent) + 1, 2.0)
+            await wait_until(lambda: len(c.frames) == len(sent) + 1, WAIT_S)
             assert same_frame(c.frames[-1], more[1])
             assert c.src.decoder.stats.lost == 1
 
@@ -150,7 +154,7 @@ def test_3_axis_frames_and_hostile_3_axis_headers(pty_device, wait_until) -> Non
     async def main() -> None:
         async with Consumer(serial_url(pty_device.path)) as c:
             await pty_device.send(stream)
-            await wait_until(lambda: len(c.frames) == 5, 2.0)
+            await wait_until(lambda: len(c.frames) == 5, WAIT_S)
             assert [f.seq for f in c.frames] == [0, 1, 2, 4, 5]
             for got in c.frames:
                 np.testing.assert_array_equal(got.taxels, sent[got.seq].taxels)
@@ -218,7 +222,7 @@ def test_unplug_reported_and_replug_resumes(pty_device, frame_factory, same_fram
     async def main() -> None:
         async with Consumer(serial_url(pty_device.path)) as c:
             await pty_device.send(b"".join(map(encode_frame, before)) + half)
-            await wait_until(lambda: len(c.frames) == 5 and c.src.decoder.buffered == 70, 2.0)
+            await wait_until(lambda: len(c.frames) == 5 and c.src.decoder.buffered == 70, WAIT_S)
 
             pty_device.unplug()
             lost_after = await wait_until(lambda: not c.src.connected, 1.0)
@@ -232,7 +236,7 @@ def test_unplug_reported_and_replug_resumes(pty_device, frame_factory, same_fram
             assert c.src.reconnects == 1 and c.src.disconnects == 1
             # The half frame from before the unplug must not spoil the first new frame.
             await pty_device.send(b"".join(map(encode_frame, after)))
-            await wait_until(lambda: len(c.frames) == 10, 2.0)
+            await wait_until(lambda: len(c.frames) == 10, WAIT_S)
         assert all(same_frame(a, b) for a, b in zip(c.frames, before + after, strict=True))
         assert c.src.decoder.stats.rejected == 0
 
@@ -247,7 +251,7 @@ def test_late_replug_resumes_within_a_second(pty_device, wait_until) -> None:
     async def main() -> None:
         async with Consumer(serial_url(pty_device.path)) as c:
             pty_device.unplug()
-            await wait_until(lambda: not c.src.connected, 1.0)
+            await wait_until(lambda: not c.src.connected, WAIT_S)
             await asyncio.sleep(0.45)  # the retries at 0.1 s and 0.3 s find nothing
             assert not c.src.connected
             assert "does not exist" in c.src.last_error
@@ -258,42 +262,46 @@ def test_late_replug_resumes_within_a_second(pty_device, wait_until) -> None:
 
 
 class _FastRetry(SerialSource):
-    """Backoff scaled down so its shape can be timed quickly; records open attempts."""
+    """Backoff scaled down so its shape can be timed quickly; records open attempts and the
+    pauses it takes before each re-open."""
 
     RETRY_MIN = 0.015
     RETRY_MAX = 0.24
     attempts: list[float]
+    pauses: list[float]
 
     def _open_port(self) -> serial.Serial:
         self.attempts.append(time.monotonic())
         return super()._open_port()
 
+    async def _pause(self, delay: float, *, while_open: bool) -> None:
+        if while_open:
+            self.pauses.append(delay)
+        await super()._pause(delay, while_open=while_open)
+
 
 def test_backoff_doubles_up_to_the_cap(pty_device, wait_until) -> None:
+    """The pauses the source takes double from ``RETRY_MIN`` up to ``RETRY_MAX`` (what it
+    asks for, exactly), and it waits them: no attempt comes before its pause is over (a
+    loaded machine may make one late, never early)."""
     assert (SerialSource.RETRY_MIN, SerialSource.RETRY_MAX) == (0.1, 2.0)
 
     async def main() -> None:
         src = _FastRetry(serial_url(pty_device.path))
-        src.attempts = []
+        src.attempts, src.pauses = [], []
         async with src:
             task = asyncio.create_task(collect(src, []))
             await asyncio.sleep(0.01)
             pty_device.unplug()
-            await wait_until(lambda: not src.connected, 1.0)
-            del src.attempts[:]  # the initial open
-            lost_at = time.monotonic()
-            await wait_until(lambda: len(src.attempts) >= 6, 3.0)
+            await wait_until(lambda: not src.connected, WAIT_S)
+            await wait_until(lambda: len(src.attempts) >= 7, WAIT_S)  # the first open + 6
             pty_device.replug()
-            await wait_until(lambda: src.connected, 1.0)
-        await asyncio.wait_for(task, 1.0)
-        # lost_at is seen by polling, a little after the loss: only bound the first retry.
-        assert src.attempts[0] - lost_at <= 0.015 + 0.1
-        # Delays 0.015, 0.03, 0.06, 0.12, 0.24, 0.24: gaps between attempts double, then
-        # stay at the cap.  Ratios are robust to a constant scheduling overhead.
-        gaps = np.diff(src.attempts[:6])
-        ratios = gaps[1:] / gaps[:-1]
-        assert all(1.6 <= r <= 2.4 for r in ratios[:3]), gaps
-        assert 0.8 <= ratios[3] <= 1.25 and 0.23 <= gaps[-1] <= 0.35, gaps
+            await wait_until(lambda: src.connected, WAIT_S)
+        await asyncio.wait_for(task, WAIT_S)
+        assert src.pauses[:6] == pytest.approx([0.015, 0.03, 0.06, 0.12, 0.24, 0.24])
+        # attempts[0] is the first open; each re-open k comes after its pause k
+        gaps = np.diff(src.attempts[1:7])
+        assert all(g >= 0.95 * d for g, d in zip(gaps, src.pauses[1:6])), (gaps, src.pauses)
 
     asyncio.run(main())
 
@@ -340,7 +348,7 @@ def test_close_while_device_is_away_is_prompt(pty_device, wait_until) -> None:
             task = asyncio.create_task(collect(src, []))
             await asyncio.sleep(0.01)
             pty_device.unplug()
-            await wait_until(lambda: not src.connected, 1.0)
+            await wait_until(lambda: not src.connected, WAIT_S)
             await asyncio.sleep(0.01)  # now in the 5 s backoff
             start = time.monotonic()
         await asyncio.wait_for(task, 6.0)
@@ -356,9 +364,9 @@ def test_no_fd_leak_over_20_replugs(pty_device, wait_until, open_fd_count) -> No
             baseline = open_fd_count()
             for _ in range(20):
                 pty_device.unplug()
-                await wait_until(lambda: not c.src.connected, 1.0)
+                await wait_until(lambda: not c.src.connected, WAIT_S)
                 pty_device.replug()
-                await wait_until(lambda: c.src.connected, 2.0)
+                await wait_until(lambda: c.src.connected, WAIT_S)
                 assert open_fd_count() == baseline
             assert c.src.reconnects == 20 and c.src.disconnects == 20
 

@@ -302,20 +302,20 @@ async def _split_every_point(pty_device, frames: list[Frame], byte_at_a_time: Fr
     try:
         await wait_open(daemon, SENSOR)
         await pty_device.send(b"\x00")
-        await wait_for(lambda: tap.stats.bytes == 1, 2, "start-up delimiter read")
+        await wait_for(lambda: tap.stats.bytes == 1, 10, "start-up delimiter read")
         fed = 1
         for k, frame in enumerate(frames, start=1):  # frame k split after its k-th byte
             encoded = encode_frame(frame)
             await pty_device.send(encoded[:k])
-            await wait_for(lambda: tap.buffered == k, 2, f"first {k} bytes read")
+            await wait_for(lambda: tap.buffered == k, 10, f"first {k} bytes read")
             await pty_device.send(encoded[k:])
             fed += len(encoded)
-            await wait_for(lambda: tap.stats.bytes == fed, 2, "rest read")
+            await wait_for(lambda: tap.stats.bytes == fed, 10, "rest read")
         encoded = encode_frame(byte_at_a_time)
         for j in range(len(encoded)):  # one read per byte
             await pty_device.send(encoded[j:j + 1])
             fed += 1
-            await wait_for(lambda: tap.stats.bytes == fed, 2, f"byte {j} read")
+            await wait_for(lambda: tap.stats.bytes == fed, 10, f"byte {j} read")
         pipe = daemon.sensors[SENSOR]
         await wait_for(lambda: pipe.settled, 10, "fits done")
         st = daemon.stats(SENSOR)

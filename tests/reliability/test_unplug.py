@@ -136,7 +136,7 @@ async def _long_absence(device, away: float) -> float:
         pipe = daemon.sensors[SENSOR]
         await wait_for(lambda: pipe.frames > 5, 5, "first frames")
         device.unplug()
-        await wait_for(lambda: not daemon.stats(SENSOR)["connected"], 1, "unplug reported")
+        await wait_for(lambda: not daemon.stats(SENSOR)["connected"], 10, "unplug reported")
         await asyncio.sleep(away)
         frames_before = pipe.frames
         device.replug()

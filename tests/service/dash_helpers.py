@@ -14,7 +14,7 @@ def follow(page: Any, sensor: str) -> None:
     page.wait_for_function(
         "s => { const p = document.querySelector('#follow-panel');"
         " return p.dataset.mode === 'sensor' && p.dataset.sensor === s; }",
-        arg=sensor, timeout=5000)
+        arg=sensor, timeout=30_000)
 
 
 def wait_numeric_seq(page: Any, sensor: str, timeout_ms: int = 30_000) -> None:

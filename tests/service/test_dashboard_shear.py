@@ -28,7 +28,7 @@ def test_the_dashboard_draws_the_tangential_arrow(browser_page, live_server):
         wait_numeric_seq(page, "xela")
         found = page.wait_for_function(
             "() => { const d = JSON.parse(document.querySelector('#sensor-xela canvas.overlay')"
-            ".dataset.contacts || '[]').find(d => d.shear && Math.hypot(d.shear.dx, d.shear.dy) > 15);"
+            "?.dataset.contacts || '[]').find(d => d.shear && Math.hypot(d.shear.dx, d.shear.dy) > 15);"
             " return d ? d.shear : false; }", timeout=300_000)
         arrow = found.json_value()
         # x to the right, y up on screen: the arrow's direction is (fx, fy)'s
@@ -84,7 +84,7 @@ def test_the_dashboard_draws_each_taxels_in_plane_reading(browser_page, live_ser
         page.goto(server.url + "/")
         # a drawn frame whose largest tick is a visible fraction of a pitch, that the client got
         drawn = page.wait_for_function(
-            "seen => { const t = document.querySelector('#sensor-xela canvas.map').dataset.taxels;"
+            "seen => { const t = document.querySelector('#sensor-xela canvas.map')?.dataset.taxels;"
             " if (!t) return false; const d = JSON.parse(t);"
             " return d.ticks.some(k => Math.hypot(k[2], k[3]) > 8) ? d : false; }",
             arg=None, timeout=120_000).json_value()
