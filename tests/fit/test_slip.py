@@ -155,7 +155,7 @@ def test_the_slide_and_the_levelling_off_add_up_where_the_stick_zone_is_gone(mon
     assert all(onset(scene(s, lam_top=0.95, moves=False)) is None for s in range(10))
 
 
-def _limit_scene(seed: int, top: float, frames: int = 330, s_lam: float = 0.03):
+def _limit_scene(seed: int, top: float, frames: int = 330, s_lam: float = 0.015):
     """A pull whose tangential force ramps (0.002 N a frame from 0.1 N; 1 N normal, mu 0.5)
     until ``Q / (mu P)`` reaches ``top`` and stays there, the centre still: with ``top`` 1 the
     true onset is frame 200 (the friction at its limit, no motion, no drop); below 1 a hold.
@@ -168,7 +168,7 @@ def _limit_scene(seed: int, top: float, frames: int = 330, s_lam: float = 0.03):
     return out
 
 
-def _limit_onset(frames, s_lam: float = 0.03):
+def _limit_onset(frames, s_lam: float = 0.015):
     det = SlipDetector()
     for i, (q, lam) in enumerate(frames):
         p, c = estimate(5.0, min(1.0, max(0.0, lam)), q=q, s_lam=s_lam)
@@ -208,10 +208,11 @@ def test_an_unresolved_margin_declares_nothing():
 
 
 def test_the_margin_and_its_bound_against_the_truth():
-    """The pooled margin (lam = (Q/P) / mu under stick, weighted least squares through the
+    """The pooled slope (lam = (Q/P) / mu under stick, weighted least squares through the
     origin) on 300 noisy histories of known mu: its error over its sigma is a unit normal
-    (RMS within 15 % of 1, 2-sigma coverage 90-99 %); on noiseless frames it is exact."""
-    from tactiled.fit.slip import Margin
+    (RMS within 15 % of 1, 2-sigma coverage 90-99 %); the margin's sigma adds the floor for a
+    frame's bias (BIAS times the frames' sigma of lam); on noiseless frames it is exact."""
+    from tactiled.fit.slip import BIAS, NEAR, Margin
 
     rng = np.random.default_rng(3)
     z = []
@@ -222,7 +223,10 @@ def test_the_margin_and_its_bound_against_the_truth():
             p, c = estimate(5.0, 0.0, q=q + 0.003 * rng.normal(), s_lam=0.05)
             m.add(p, c, q / mu + 0.05 * rng.normal())
         est, s = m.margin(0.9 * mu, 0.0)
-        z.append((est - 0.1) / s)
+        k, s_k, n = m.slope(NEAR * 0.9 * mu)
+        assert n == m.frames >= 20
+        assert s == pytest.approx(math.hypot(0.9 * mu * s_k, BIAS * 0.05), rel=1e-9)
+        z.append((k - 1.0 / mu) / s_k)
     z = np.array(z)
     assert 0.85 < math.sqrt(np.mean(z ** 2)) < 1.15 and 0.90 <= np.mean(np.abs(z) <= 2) <= 0.99
     m = Margin()
