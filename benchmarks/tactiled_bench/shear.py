@@ -40,7 +40,7 @@ from scipy.special import ndtr
 
 from tactiled.fit.shear import ShearFitter, ShearStep
 from tactiled.fit.shear_filter import ShearFilter, SlideTest
-from tactiled.fit.slip import DETECT_WALK, ONSET_Z, SETTLE, SlipDetector
+from tactiled.fit.slip import DETECT_WALK, MARGIN_SIGMA, ONSET_Z, SETTLE, SlipDetector
 from tactiled.physics.threeaxis import three_axis
 from tactiled.sensors import load_description
 from tactiled.sensors.description import SensorDescription
@@ -68,8 +68,8 @@ def resolve(spec: str) -> SensorDescription:
 def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None = None,
            every: int = FIT_EVERY, truth: dict[str, np.ndarray] | None = None,
            errors: list[tuple[float, float, float]] | None = None,
-           known: list[tuple[float, float]] | None = None, clean: list[tuple[float, float]] | None = None
-           ) -> list[tuple[str, int]]:
+           known: list[tuple[float, float]] | None = None, clean: list[tuple[float, float]] | None = None,
+           margins: list[float] | None = None) -> list[tuple[str, int]]:
     """Estimate ``frames[first:last]`` in order through a slip detector, as the daemon does: a
     fit (warm-started) on every ``every``-th frame, the step from the last fit on each frame;
     the detector's events.  With ``truth``, ``errors`` gains each frame's errors of the
@@ -78,7 +78,8 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
     know the true onset (:func:`_known_onset`: the slide and the levelling-off together, the
     slide alone) at :data:`ONSET_FRAMES` after it, and ``clean`` the same on the noiseless
     truth (each frame's true parameters with its estimate's covariance): their means, the
-    signal the noise scatters about."""
+    signal the noise scatters about; ``margins`` the 1-sigma of the detector's margin to slip
+    (:class:`tactiled.fit.slip.Margin`) :data:`ONSET_FRAMES` after the true onset."""
     det, prev, step, events = SlipDetector(), None, None, []
     flt = det.tracking
     onset = int(truth["true_onset"]) if truth is not None and "true_onset" in truth else -1
@@ -98,6 +99,8 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
             if z is not None:
                 clean.append(z)
         _, ev = det.feed(i, est)
+        if margins is not None and i == onset + ONSET_FRAMES:
+            margins.append(det.margin[1])
         if ev is not None:
             events.append((ev.kind, ev.frame))
         if truth is not None and errors is not None and flt.frames > SETTLE:
@@ -192,13 +195,17 @@ def null_tail(desc: SensorDescription, frames: int, seed: int) -> dict[str, floa
 def null_events(desc: SensorDescription, scenes: int, seed: int, hold: float = 0.95,
                 hold_frames: int = 300) -> dict[str, float]:
     """Slip onsets declared on held contacts near slip: a push to ``hold`` of ``mu P`` fitted
-    once; its estimate, the tangential force and ``lam`` ramping to it (over 150-600 frames) and
-    held, drawn ``scenes`` times with Gaussian noise of the fit's covariance through the slip
-    detector (the whole detector: every rule, on the stick hypothesis's null)."""
+    once; its true parameters, the tangential force and ``lam`` ramping to them (over 150-600
+    frames) and held, drawn ``scenes`` times with Gaussian noise of the fit's covariance through
+    the slip detector (the whole detector: every rule, on the stick hypothesis's null).  The
+    draws centre on the truth, not on the fit: a fit whose ``lam`` sat at 1 would make every
+    draw a contact at the limit."""
     rng = np.random.default_rng(seed)
     fitter = ShearFitter(desc)
-    scene, _ = sequence(desc, "push", rng, hold=hold)
+    scene, truth = sequence(desc, "push", rng, hold=hold)
     est = fitter.fit(scene[-1])
+    fit_lam = float(est.params[7])
+    est.params = _truth_estimate(truth, len(scene) - 1, est).params
     keep = np.nonzero(np.isfinite(np.diag(est.cov)))[0]
     chol = np.linalg.cholesky(est.cov[np.ix_(keep, keep)])
     onsets, frames = 0, 0
@@ -217,7 +224,7 @@ def null_events(desc: SensorDescription, scenes: int, seed: int, hold: float = 0
             onsets += ev is not None and ev.kind == "onset"
             frames += 1
     return {"scenes": float(scenes), "frames": float(frames), "onsets": float(onsets),
-            "lam": float(est.params[7]), "lam_sigma": float(np.sqrt(est.cov[7, 7]))}
+            "lam": fit_lam, "lam_sigma": float(np.sqrt(est.cov[7, 7]))}
 
 
 def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
@@ -247,39 +254,46 @@ def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
 
 #: The stick-only scenes, in turn: a push to 0.8 mu P, a twist, a push held near slip (0.95
 #: mu P), a push while the normal force falls by 30 % (Q following it at 0.8 mu P).
-STICKS = (("push", {}), ("twist", {}), ("push", {"hold": 0.95}), ("push", {"force_change": -0.3}))
+STICKS = (("push", {}), ("twist", {}), ("push", {"hold": 0.95}), ("push", {"force_change": -0.3}),
+          ("push", {"hold": 0.9}))
 
 
 def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: float = 0.8,
-         varied: bool = False, errors: list[tuple[float, float, float]] | None = None
-         ) -> dict[str, float]:
+         varied: bool = False, errors: list[tuple[float, float, float]] | None = None,
+         kind: str = "pull") -> dict[str, float]:
     """Onset delays on pull scenes (friction turning kinetic at ``kinetic`` times the static;
     ``varied``: each pull's ramp drawn in 0.15-0.6 s and its normal force constant or falling
     by 30 % over it), slip events on stick-only scenes (:data:`STICKS` in turn); ``errors``
-    gains the filtered forces' errors over their sigma along every scene."""
+    gains the filtered forces' errors over their sigma along every scene.  ``kind`` ``limit``:
+    the pulls stay put at the friction's limit (no drop, no motion; ``kinetic`` unused).  A
+    pull's delay is the first onset's from :data:`ONSET_FRAMES` before the true one (negative:
+    declared before it, as the margin's bound allows); ``early`` counts onsets before that."""
     rng = np.random.default_rng(seed)
     fitter = ShearFitter(desc)
-    delays, early, known, clean = [], 0, [], []
+    delays, early, known, clean, margins = [], 0, [], [], []
     for _ in range(pulls):
         extra = {"ramp_s": rng.uniform(0.15, 0.6), "force_change": rng.choice((0.0, -0.3))} if varied else {}
-        frames, truth = sequence(desc, "pull", rng, kinetic=kinetic, **extra)
+        frames, truth = sequence(desc, kind, rng, kinetic=kinetic, **extra)
         onset = int(truth["true_onset"])
         events = _track(fitter, frames, onset - LEAD, onset + AFTER, truth=truth, errors=errors, known=known,
-                        clean=clean)
-        onsets = [f for kind, f in events if kind == "onset"]
-        declared = next((f for f in onsets if f >= onset), None)
-        early += sum(1 for f in onsets if f < onset)
+                        clean=clean, margins=margins)
+        onsets = [f for ev, f in events if ev == "onset"]
+        declared = next((f for f in onsets if f >= onset - ONSET_FRAMES), None)
+        early += sum(1 for f in onsets if f < onset - ONSET_FRAMES)
         delays.append(math.inf if declared is None else declared - onset)
     false = 0
     for k in range(sticks):
-        kind, extra = STICKS[k % len(STICKS)]
-        frames, truth = sequence(desc, kind, rng, **extra)
+        scene, extra = STICKS[k % len(STICKS)]
+        frames, truth = sequence(desc, scene, rng, **extra)
         loaded = int(np.argmax(np.abs(truth["true_fx"]) + np.abs(truth["true_fy"]) + np.abs(truth["true_torque"]) > 0))
-        false += sum(1 for kind, _ in _track(fitter, frames, max(0, loaded - 30), truth=truth, errors=errors)
-                     if kind == "onset")
+        false += sum(1 for ev, _ in _track(fitter, frames, max(0, loaded - 30), truth=truth, errors=errors)
+                     if ev == "onset")
     d = np.array(delays)
     ok = d[np.isfinite(d)]
-    return {"pulls": pulls, "within": float(np.mean(d <= ONSET_FRAMES)) if pulls else math.nan,
+    m = np.array(margins, dtype=float)
+    return {"pulls": pulls, "within": float(np.mean(np.abs(d) <= ONSET_FRAMES)) if pulls else math.nan,
+            "margin_resolved": float(np.mean(m <= MARGIN_SIGMA)) if m.size else math.nan,
+            "margin_snr_needed": float(np.percentile(m, 95) / MARGIN_SIGMA) if m.size else math.nan,
             "median_delay": float(np.median(ok)) if ok.size else math.nan,
             "max_delay": float(ok.max()) if ok.size else math.nan, "missed": int(np.sum(~np.isfinite(d))),
             "early": early, "sticks": sticks, "false": false,
@@ -314,7 +328,7 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
 
             raise ConfigError(f"sensor {d.name!r} is a 1-axis array: the shear suite needs axes = 3")
     n, pulls, flat, sticks, null = (40, 3, 3, 4, 2000) if quick else (150, 20, 20, 8, 20000)
-    rows_a, rows_s, rows_f = [], [], []
+    rows_a, rows_s, rows_f, rows_l = [], [], [], []
     for k, d in enumerate(descs):
         t0 = time.perf_counter()
         a = accuracy(d, n, seed + 10 * k)
@@ -322,6 +336,8 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
         s = slip(d, pulls, sticks, seed + 10 * k + 1, errors=errors)
         c = slip(d, flat, 0, seed + 10 * k + 2, kinetic=1.0, errors=errors)
         v = slip(d, flat, 0, seed + 10 * k + 3, kinetic=1.0, varied=True, errors=errors)
+        lim = slip(d, flat, 0, seed + 10 * k + 6, kind="limit", errors=errors)
+        limv = slip(d, flat, 0, seed + 10 * k + 7, kind="limit", varied=True, errors=errors)
         tail = null_tail(d, null, seed + 10 * k + 4)
         held = null_events(d, 4 if quick else 20, seed + 10 * k + 5)
         if progress is not False:
@@ -341,6 +357,11 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
             + " | " + " / ".join(f"{r['motion_over']:.0%} ({r['motion_median']:.1f})" for r in (c, v))
             + " | " + " / ".join(f"{r['snr_needed']:.2f}, {r['motion_snr_needed']:.2f}" for r in (c, v))
             + f" | {s['early'] + c['early'] + v['early']} | {s['false']} ({s['sticks']}) |")
+        rows_l.append(f"| {d.name} | " + " | ".join(
+            f"{r['within']:.0%} ({r['pulls']}), {r['median_delay']:g} / {r['p95_delay']:g} / {r['max_delay']:g}, "
+            f"{r['missed']}, {r['early']}" for r in (lim, limv)) + " | " + " / ".join(
+            f"{r['margin_resolved']:.0%}" for r in (lim, limv)) + " | " + " / ".join(
+            f"{r['margin_snr_needed']:.2f}" for r in (lim, limv)) + " |")
         e = np.array(errors).reshape(-1, 3)
         rows_f.append(f"| {d.name} | " + " | ".join(
             f"{np.sqrt(np.mean(e[:, j] ** 2)):.2f} / {np.mean(np.abs(e[:, j]) <= 2):.0%}" for j in range(3))
@@ -359,9 +380,56 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
               f"| slide test under stick: share of frames over 3 / 4 / {ONSET_Z:g} sigma (frames) "
               "| slip onsets on contacts held at 0.95 mu P (scenes) |",
               "|---|---|---|---|---|---|---|"]
+    head_l = [f"| array | at the limit, the ramp of 0.3 s: within {ONSET_FRAMES} frames (pulls), delay median / p95 / max, "
+              "missed, early | at the limit, varied pulls: the same "
+              f"| the margin resolved ({MARGIN_SIGMA:g}) {ONSET_FRAMES} frames after the onset, 0.3 s / varied "
+              "| the factor on the signal over the noise that resolves it on 95 % (its sigma's p95 over "
+              f"{MARGIN_SIGMA:g}), 0.3 s / varied |", "|---|---|---|---|---|"]
     return "\n".join([f"Independent frames ({n} per array):", "", *head_a, *rows_a, "",
                       f"Slip: pull-until-slip and stick-only scenes at 1 kHz (a fit every {FIT_EVERY} frames, "
                       "the step on every frame, as the daemon runs); delays in frames (ms at 1 kHz):", "",
                       *head_s, *rows_s, "",
+                      "Pulls that stay put at the friction's limit (no force drop, no motion: the margin "
+                      "to slip alone shows the onset):", "", *head_l, *rows_l, "",
                       "The shear filter along those scenes, and the slide test's null distribution:", "",
                       *head_f, *rows_f])
+
+
+def limits(sensors: list[str], seed: int, pulls: int, sticks: int) -> str:
+    """The slip figures alone, per array: pulls that stay put at the friction's limit (the ramp
+    of 0.3 s and varied ramps), pulls that slide with a constant friction, the stick-only
+    scenes (:data:`STICKS` in turn) and contacts held at 0.95 ``mu P`` drawn from a fit's
+    covariance (:func:`null_events`, 20 scenes).  ``python -m tactiled_bench.shear``."""
+    rows = ["| array | at the limit, 0.3 s: within / delay p50, p95 / missed, early | at the limit, varied: the same "
+            f"| margin resolved ({MARGIN_SIGMA:g}) at +{ONSET_FRAMES}, 0.3 s / varied; sigma p95 over it "
+            "| sliding, constant friction: within / delay p50, p95 / missed, early "
+            "| onsets on stick-only scenes (scenes) | onsets on held contacts (scenes) |",
+            "|---|---|---|---|---|---|---|"]
+    for k, spec in enumerate(sensors):
+        d = resolve(spec)
+        base = seed + 10 * k
+        lim = slip(d, pulls, 0, base + 6, kind="limit")
+        limv = slip(d, pulls, 0, base + 7, kind="limit", varied=True)
+        c = slip(d, pulls, sticks, base + 2, kinetic=1.0)
+        held = null_events(d, 20, base + 5)
+
+        def cell(r: dict[str, float]) -> str:
+            return (f"{r['within']:.0%} ({r['pulls']}) / {r['median_delay']:g}, {r['p95_delay']:g} / "
+                    f"{r['missed']}, {r['early']}")
+
+        rows.append(f"| {d.name} | {cell(lim)} | {cell(limv)} | {lim['margin_resolved']:.0%} / "
+                    f"{limv['margin_resolved']:.0%}; {lim['margin_snr_needed']:.2f} / {limv['margin_snr_needed']:.2f} "
+                    f"| {cell(c)} | {c['false']} ({c['sticks']}) | {held['onsets']:.0f} ({held['scenes']:.0f}) |")
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m tactiled_bench.shear", description=limits.__doc__)
+    ap.add_argument("--sensor", action="append", required=True)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--pulls", type=int, default=10)
+    ap.add_argument("--sticks", type=int, default=5)
+    a = ap.parse_args()
+    print(limits(a.sensor, a.seed, a.pulls, a.sticks))

@@ -31,16 +31,17 @@ from tactiled.io.files import read_npz, write_npz
 from tactiled.sensors import load_description
 from tactiled.sensors.description import SensorDescription
 
-LOADS = ("random", "push", "twist", "pull")
+LOADS = ("random", "push", "twist", "pull", "limit")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The 3-axis flags of ``tactiled simulate`` (file mode, a 3-axis --sensor)."""
     g = p.add_argument_group("3-axis arrays (a --sensor with axes = 3): tangential loads")
     g.add_argument("--load", choices=LOADS, default="random",
-                   help="random: independent frames (--frames); push, twist, pull: --sequences "
-                   "scenes at 1 kHz (pull slides; docs/concepts/shear.md) (default random)")
-    g.add_argument("--sequences", type=int, default=1, help="scenes of --load push|twist|pull (default 1)")
+                   help="random: independent frames (--frames); push, twist, pull, limit: --sequences "
+                   "scenes at 1 kHz (pull slides; limit stays put at the friction's limit; "
+                   "docs/concepts/shear.md) (default random)")
+    g.add_argument("--sequences", type=int, default=1, help="scenes of --load push|twist|pull|limit (default 1)")
     g.add_argument("--mu", default="0.3:1.0", help="friction coefficient, value or LO:HI (default 0.3:1.0)")
     g.add_argument("--lam", default="0:0.95",
                    help="random: the friction mobilised Q/(mu P), value or LO:HI (default 0:0.95)")

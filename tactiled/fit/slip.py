@@ -22,7 +22,11 @@
 #   unclipped ``lam`` within 2 sigma of 1: a grip held just below the friction's limit levels
 #   off too, and its resolved stick zone keeps this rule shut), or
 # * the tangential force has fallen by more than :data:`DROP_Z` sigma below its mean over the
-#   :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction).
+#   :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction), or
+# * the margin to slip ``1 - Q/(mu P)``, from the contact's whole history under stick
+#   (:class:`Margin`: ``lam`` against ``Q/P``, a line of slope ``1/mu``), is resolved (its sigma
+#   at most :data:`MARGIN_SIGMA`) and within one sigma of 0: a pull that stays put at the
+#   friction's limit (no motion, no drop) shows its onset only there.
 #
 # :data:`ONSET_Z` is set from the slide test's null distribution (``tactiled bench --suite
 # shear`` measures it on the filter fed by Gaussian estimates: a few 1e-6 of the frames of a
@@ -74,6 +78,92 @@ PLATEAU_Z, CONFIRM_Z = 3.0, 3.0
 #: scenes nor on contacts held at 0.95 mu P; with the slide alone over 2.5 sigma instead,
 #: held contacts whose stick zone the array does not resolve gave onsets).
 COMBINE_Z = ONSET_Z
+#: The margin rule: the margin to slip ``1 - Q/(mu P)`` from the contact's history
+#: (:class:`Margin`) resolved to this many hundredths of ``mu P`` (its 1-sigma) before it may
+#: declare an onset; a contact held at 0.95 ``mu P`` then sits 5 of its sigma from the limit.
+MARGIN_SIGMA = 0.01
+#: Frames of stick the margin needs before it counts (its slope settles, its residuals say
+#: whether the model holds).
+MARGIN_FRAMES = 20
+#: The margin pools the frames whose ``Q/P`` is at least this share of the present one.
+NEAR = 0.5
+#: The margin's memory: the newest this many frames of the contact (2 s at 1 kHz: a pull's ramp).
+HISTORY = 2000
+#: A frame's linear ``lam`` near slip is biased by up to half its single-frame sigma (measured
+#: on the PaXini module: contacts held at 0.95 ``mu P`` whose frames' ``lam`` averaged 0.98 at a
+#: sigma of 0.06, or 0.89-0.94), the same on every frame: the margin's sigma keeps this share
+#: of the frames' RMS sigma as a floor, so the rule needs frames whose ``lam`` is itself sharp.
+BIAS = 0.5
+
+
+class Margin:
+    """The margin to slip ``1 - Q/(mu P)`` from a contact's history under stick.
+
+    Under stick every frame's ``lam`` is ``(Q/P) / mu`` with one ``mu`` for the contact: the
+    stick zone shrinks as the friction mobilised grows.  The frames' ``lam`` (before the clip)
+    against their ``Q/P`` is a line through the origin of slope ``k = 1/mu``; its weighted least
+    squares (each residual ``lam - k Q/P`` weighed by its variance from the frame's covariance,
+    the correlation of ``lam`` and ``Q`` included) pools the contact's frames, where one
+    frame's ``lam`` is known to a few hundredths near slip at best.  Only the frames whose
+    ``Q/P`` is at least :data:`NEAR` of the present one enter: far from slip the likelihood of
+    ``lam`` is one-sided (flat toward full stick) and its linear estimate biased, and a
+    selection on the regressor leaves the slope unbiased.  The slope's sigma is widened by the
+    residuals' chi-square per degree of freedom where that exceeds 1 (the model or the step's
+    linearisation off).  The margin now is ``1 - k q`` at the present ``Q/P``; its sigma has a
+    floor of :data:`BIAS` times the pooled frames' RMS single-frame sigma of ``lam``, the bias
+    of a frame's ``lam`` near slip, which pooling does not reduce."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self._h = np.zeros((4, HISTORY))  # Q/P, lam, weight, lam's variance: the newest frames
+        self._n = 0
+        self._k = 1.0
+        #: frames the last :meth:`margin` used, and the floor of its sigma (:data:`BIAS`)
+        self.frames = 0
+        self.floor = math.inf
+
+    def add(self, params: np.ndarray, cov: np.ndarray, lam_free: float | None) -> None:
+        """One frame's estimate (the shear fit's order; ``lam_free`` its unclipped ``lam``)."""
+        lam = float(params[7]) if lam_free is None else float(lam_free)
+        fx, fy, force = float(params[4]), float(params[5]), math.exp(float(params[1]))
+        q = math.hypot(fx, fy)
+        if not (math.isfinite(lam) and q > 0 and np.all(np.isfinite(cov[np.ix_((1, 4, 5, 7), (1, 4, 5, 7))]))):
+            return
+        k = self._k
+        g = np.zeros(8)  # the gradient of lam - k Q/P
+        g[7] = 1.0
+        g[4], g[5], g[1] = -k * fx / (q * force), -k * fy / (q * force), k * q / force
+        var = float(g @ cov @ g)
+        if not var > 0:
+            return
+        self._h[:, self._n % HISTORY] = (q / force, lam, 1.0 / var, float(cov[7, 7]))
+        self._n += 1
+
+    def slope(self, lo: float = 0.0) -> tuple[float, float, int]:
+        """``1/mu`` and its 1-sigma (widened by the residuals' scatter beyond the bounds) from
+        the frames whose ``Q/P`` is at least ``lo``, and their count."""
+        x, y, w, v = self._h[:, : min(self._n, HISTORY)]
+        sel = x >= lo
+        n = int(sel.sum())
+        if n < 2:
+            return math.nan, math.inf, n
+        x, y, w, v = x[sel], y[sel], w[sel], v[sel]
+        sxx, sxy, syy = float(w @ (x * x)), float(w @ (x * y)), float(w @ (y * y))
+        k = sxy / sxx
+        chi2 = max(0.0, syy - sxy * sxy / sxx)
+        self.floor = BIAS * math.sqrt(float(v.mean()))
+        return k, math.sqrt(max(1.0, chi2 / (n - 1)) / sxx), n
+
+    def margin(self, q_over_p: float, s_qp: float) -> tuple[float, float]:
+        """The margin ``1 - Q/(mu P)`` at the friction mobilised ``q_over_p`` (its sigma
+        ``s_qp``) and its 1-sigma; :attr:`frames` the frames it pooled."""
+        k, s_k, self.frames = self.slope(NEAR * q_over_p)
+        if not math.isfinite(k):
+            return math.nan, math.inf
+        self._k = k
+        return 1.0 - k * q_over_p, math.hypot(q_over_p * s_k, k * s_qp, self.floor)
 
 
 @dataclass
@@ -116,6 +206,10 @@ class SlipDetector:
         #: the last frame's slide statistic and force drop (sigma), for the record
         self.z = 0.0
         self.drop = 0.0
+        #: the contact's margin to slip from its history under stick (:class:`Margin`), and the
+        #: last frame's margin and its 1-sigma
+        self.history = Margin()
+        self.margin = (math.nan, math.inf)
 
     def _at_rest(self) -> bool:
         """The centre moved by less than :data:`REST_Z` sigma over the last frames."""
@@ -159,6 +253,8 @@ class SlipDetector:
         z = joint = both = 0.0
         mobilised = False
         if self.filter.update(params, cov, lam_free) and not self.sliding:
+            self.history.add(params, cov, lam_free)
+            self.margin = self.history.margin(*self.filter.shear()["q_over_p"])
             self._lam.append((float(lam_free) if lam_free is not None else lam, s_lam))
             fx, fy, qf, s_qf = self.filter.tangential()
             if qf > MIN_Q_SIGMAS * s_qf:  # slip runs along a resolved Q
@@ -185,8 +281,12 @@ class SlipDetector:
             drop = (ref - q) / math.sqrt(s_q * s_q + s_ref * s_ref)
         self._q.append((q, s_q))
         self.z, self.drop = z, drop
+        m, s_m = self.margin
+        at_limit = (not self.sliding and self.history.frames >= MARGIN_FRAMES and s_m <= MARGIN_SIGMA
+                    and m <= s_m)
         if not self.sliding:
-            if gone and (z > ONSET_Z or drop > DROP_Z or (mobilised and (joint > CONFIRM_Z or both > COMBINE_Z))):
+            if gone and (at_limit or z > ONSET_Z or drop > DROP_Z
+                         or (mobilised and (joint > CONFIRM_Z or both > COMBINE_Z))):
                 self.sliding = True
                 self._calm = 0
                 event = SlipEvent("onset", frame)
@@ -197,6 +297,7 @@ class SlipDetector:
                 self.sliding = False
                 self._slide.clear()
                 self.test.reset()
+                self.history.reset()
                 event = SlipEvent("end", frame)
         return ("slip" if self.sliding else None), event
 

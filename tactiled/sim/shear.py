@@ -14,6 +14,10 @@ the ``shear`` bench and the tests.
 #   - ``push``: ``Q`` ramps to ``0.8 mu P`` over 200 ms and holds 100 ms (stick only);
 #   - ``twist``: the torsion ramps to half Lubkin's gross-slip torque ``3 pi mu P a / 16`` over
 #     200 ms and holds 100 ms (stick only);
+#   - ``limit``: ``Q`` ramps toward ``1.5 mu P`` over 300 ms and stays at ``mu P`` from when it
+#     reaches it (the true onset): the stick zone shrinks to nothing (``lam = 1``, the traction
+#     ``mu p``) and the contact stays put (a quasi-static pull: the friction holds the object
+#     at its limit, no motion and no drop of the force shows the onset);
 #   - ``pull``: ``Q`` ramps to ``1.5 mu P`` over 300 ms; when it reaches ``mu P`` (``mu`` the
 #     static coefficient) the contact slides (the true slip onset): the friction becomes kinetic,
 #     ``Q = kinetic mu P`` (``kinetic`` 0.8 by default; 1 for none), the traction is
@@ -35,7 +39,7 @@ import numpy as np
 from tactiled.physics.threeaxis import ShearContact, ThreeAxisModel, lam_for
 from tactiled.sensors.description import SensorDescription
 
-SEQUENCES = ("push", "twist", "pull")
+SEQUENCES = ("push", "twist", "pull", "limit")
 TRUTH = ("true_r1", "true_force", "true_x", "true_y", "true_fx", "true_fy", "true_torque",
          "true_mu", "true_lam", "true_slip")
 #: The default ranges of :func:`random_frames` (radius log-uniform).
@@ -82,11 +86,13 @@ def sequence(desc: SensorDescription, kind: str, rng: np.random.Generator, rate_
              accel: float = 5000.0, kinetic: float = 0.8, ramp_s: float | None = None,
              hold: float = 0.8, force_change: float = 0.0) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """One scene (:data:`SEQUENCES`) of noisy frames at ``rate_hz`` and its truth.  ``ramp_s``
-    replaces the loading ramp's duration (s; 0.3 for a pull, 0.2 else), ``hold`` a push's
+    replaces the loading ramp's duration (s; 0.3 for a pull or a limit, 0.2 else), ``hold`` a push's
     level (a fraction of ``mu P``), ``force_change`` the normal force's relative change over
     the ramp (-0.3: it falls to 70 %; the pull then slides sooner)."""
     if kind not in SEQUENCES:
         raise ValueError(f"no shear scene {kind!r} (scenes: {', '.join(SEQUENCES)})")
+    if kind == "limit":  # a pull held at the friction's limit: no kinetic drop, no motion
+        kind, kinetic, accel = "pull", 1.0, 0.0
     model = ThreeAxisModel(desc)
     radius = math.exp(rng.uniform(math.log(5.0), math.log(20.0)))
     force, mu = rng.uniform(0.8, 2.0), rng.uniform(0.3, 1.0)
