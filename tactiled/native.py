@@ -43,7 +43,8 @@ core: ModuleType | None = _load()
 
 
 def name() -> str:
-    """``"native"`` or ``"python"``: what this process runs (health and bench output say it)."""
+    """``"native"`` or ``"python"``: what this process runs (``tactiled replay``'s summary
+    ends with it: ``core native``)."""
     return "python" if core is None else "native"
 
 

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
+from tactiled import native
 from tactiled.errors import TactiledError
 from tactiled.io.files import check_input
 from tactiled.io.recording import RecordingReader
@@ -140,6 +141,6 @@ def run(args: argparse.Namespace) -> int:
     stats = asyncio.run(_replay(args))
     print(f"replayed {stats['frames']} frame(s): {stats['published']} estimates, "
           f"{stats['fitted']} fitted, skipped {stats['skipped']}, superseded "
-          f"{stats['superseded']}, errors {stats['fit_errors'] + stats['errors']}",
-          file=sys.stderr)
+          f"{stats['superseded']}, errors {stats['fit_errors'] + stats['errors']}, "
+          f"core {native.name()}", file=sys.stderr)
     return 0

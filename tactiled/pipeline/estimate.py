@@ -9,7 +9,9 @@ WebSocket stream's and Zenoh's messages: one name for one thing on every interfa
 from __future__ import annotations
 
 import math
+import threading
 import time
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, TypeVar
 
@@ -69,6 +71,9 @@ def _finite(x: float) -> float | None:
 
 
 _new = object.__new__
+#: held while an estimate's encoded bytes are built (:meth:`Estimate.encoded`): consumers on
+#: different threads (the ROS 2 node's sender, the MCAP recorder's writer) build each once
+_encoding = threading.Lock()
 
 
 def _envelope(kind: str, item: Estimate | ZeroedFrame) -> dict[str, Any]:
@@ -106,7 +111,8 @@ class Estimate:
 
     Nothing changes an estimate once published (no setter is guarded: a frozen dataclass's
     guarded fields cost 3x the construction on a path that builds up to 6000 a second).  Its
-    JSON form is built once, on first use, and shared by every consumer (:attr:`json_dict`).
+    JSON form is built once, on first use, and shared by every consumer (:attr:`json_dict`);
+    so are its other encodings, such as its ROS 2 messages' CDR (:meth:`encoded`).
     """
 
     sensor: str
@@ -122,6 +128,9 @@ class Estimate:
     fit: dict[str, Any]
     #: the JSON form, once built (:attr:`json_dict`)
     _json: dict[str, Any] | None = field(default=None, init=False, repr=False, compare=False)
+    #: encoded forms by key, once built (:meth:`encoded`)
+    _encoded: dict[Hashable, bytes] | None = field(default=None, init=False, repr=False,
+                                                   compare=False)
 
     kind: ClassVar[str] = "estimate"
 
@@ -154,6 +163,21 @@ class Estimate:
         """The envelope keys, then the fit line's keys (contact, model, x_mm, ... message): a
         new dict (its values, the fit's, are shared: treat them as read-only)."""
         return dict(self.json_dict)
+
+    def encoded(self, key: Hashable, build: Callable[[Estimate], bytes]) -> bytes:
+        """This estimate's bytes in the encoding ``key`` names (e.g. a ROS 2 message's CDR
+        for one topic kind, frame id and stamp), built by ``build(self)`` on first use and
+        kept: every consumer of that encoding, on any thread, gets the same bytes object, built
+        once per estimate.  ``key`` must name everything the bytes depend on besides the
+        estimate."""
+        with _encoding:
+            cache = self._encoded
+            if cache is None:
+                cache = self._encoded = {}
+            out = cache.get(key)
+            if out is None:
+                out = cache[key] = build(self)
+            return out
 
 
 @dataclass(frozen=True)

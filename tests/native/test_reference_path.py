@@ -13,11 +13,13 @@ reference's on hypothesis-drawn streams.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -25,6 +27,9 @@ import pytest
 from tactiled import native
 
 ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT / "tests" / "reliability") not in sys.path:
+    sys.path.insert(0, str(ROOT / "tests" / "reliability"))
+import regen_golden as g  # noqa: E402
 #: what the child runs: the golden replays, a stream damaged every way at once through the
 #: daemon over a pty (as read, and lossless), a read's frames in one call, the tracker's
 #: kernels against numpy, and the check that the child really runs the reference (about 40 s
@@ -65,6 +70,35 @@ def test_the_key_tests_pass_against_the_python_reference() -> None:
     run = _under_reference(REFERENCE_SET, timeout=900)
     assert run.returncode == 0, run.stdout[-4000:] + run.stderr[-2000:]
     assert " passed" in run.stdout and "failed" not in run.stdout and "skipped" not in run.stdout
+
+
+def _replay(core: str, session: str) -> tuple[str, str]:
+    """``tactiled replay`` of a golden session in a child process run with
+    ``TACTILED_CORE=core``, numerics pinned as the goldens' are: (stdout, stderr)."""
+    env = {**os.environ, **g.PINNED_ENV, "TACTILED_CORE": core}
+    done = subprocess.run(g.replay_command(g.recording(session)), cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout, done.stderr
+
+
+def test_a_replay_on_the_reference_publishes_the_cores_estimates() -> None:
+    """The selection end to end: the daemon of ``tactiled replay`` (replay source, decoder,
+    calibration, gate, tracker, a real fit worker, the hub) in two child processes, one per
+    ``TACTILED_CORE``; each says which frame path it ran, and they publish the same estimates:
+    every string, integer, boolean and null equal, floats within the reference's stated
+    relative 1e-8 (``regen_golden.REL_TOL``: its sums run in NumPy's order, not the core's)."""
+    with ThreadPoolExecutor(2) as ex:
+        (core_out, core_err), (ref_out, ref_err) = ex.map(
+            lambda core: _replay(core, "press"), ["native", "python"])
+    assert core_err.rstrip().endswith("core native"), core_err[-500:]
+    assert ref_err.rstrip().endswith("core python"), ref_err[-500:]
+    cores = [json.loads(line) for line in core_out.splitlines()]
+    refs = [json.loads(line) for line in ref_out.splitlines()]
+    assert len(cores) == 90 and sum(e["contact"] for e in cores) > 30  # the press's frames
+    assert [e["seq"] for e in refs] == [e["seq"] for e in cores]
+    diffs = [d for c, r in zip(cores, refs) for d in g.compare(c, r, f"seq {c['seq']}", 1e-8)]
+    assert not diffs, diffs[:8]
 
 
 @pytest.mark.slow

@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pipeline_helpers import InProcessPool, contact_path, make_frames, play_read
 
+from tactiled import native
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.frames import Frame
 from tactiled.pipeline import frame_run, sensor_tracking, tracked_run
@@ -63,7 +64,10 @@ def _play(p: SensorPipeline, fitter: Fitter, frames: list[Frame], sizes: list[in
 
 
 @pytest.mark.parametrize("track", [True, False])
-def test_runs_publish_what_the_per_frame_path_does(track: bool) -> None:
+def test_runs_publish_what_the_per_frame_path_does(track: bool, monkeypatch) -> None:
+    # frames never wait so long that the clock decides (a fit of the reference's, in this
+    # process, can outlast MAX_WAIT_S): both paths see the same
+    monkeypatch.setattr(sensor_tracking, "MAX_WAIT_S", math.inf)
     runs, seen_r, fit_r = _pipeline(True, track)
     single, seen_s, fit_s = _pipeline(False, track)
     sizes = [7, 1, 12, 3, 16]
@@ -200,9 +204,12 @@ def test_a_tracked_contact_goes_through_the_core_in_runs(stops) -> None:
     frames = make_frames(contact_path(120) + [None] * 20 + contact_path(60, force=0.4),
                          sensor_id=0, tail=20, seed=3)
     est, runs = _same_published(frames, [16, 5, 33, 1, 12])
-    assert stops.get("tracked", 0) > 0.8 * runs.tracking.tracked > 100, stops
+    assert sum(e["gate"] == "unchanged" for e in est) == runs.tracking.tracked > 100
+    if native.core is None:  # the tracked run is the core's: the reference goes frame by frame
+        assert stops == {}, stops
+        return
+    assert stops.get("tracked", 0) > 0.8 * runs.tracking.tracked, stops
     assert min(stops.get(why, 0) for why in ("fold", "drift", "relinearize")) >= 5, stops
-    assert sum(e["gate"] == "unchanged" for e in est) == runs.tracking.tracked
 
 
 def _two_contacts(seed: int) -> list[Frame]:
@@ -231,7 +238,8 @@ def test_several_contacts_in_tracked_runs_publish_what_the_per_frame_path_does(s
     est, runs = _same_published(_two_contacts(7), [9, 4, 20], model="sphere")
     several = [e for e in est if len(e["contacts"]) == 2 and e["gate"] == "unchanged"]
     assert len(several) > 20
-    assert stops.get("tracked", 0) > 20
+    # the tracked run is the core's: the reference goes frame by frame
+    assert stops.get("tracked", 0) > 20 if native.core is not None else stops == {}, stops
 
 
 @pytest.mark.slow  # (about 20 s a scene on a loaded machine: the fits are real)
@@ -248,11 +256,11 @@ def test_drawn_scenes_publish_what_the_per_frame_path_does(force, r1, moving, ps
     _same_published(frames, sizes)
 
 
+@pytest.mark.skipif(native.core is None, reason="TACTILED_CORE=python: no core to compare")
 def test_the_tracked_run_refuses_arrays_that_do_not_fit() -> None:
     """Arrays of the wrong size or an index outside the frame are a clear error before any
-    frame is touched, never a read out of bounds."""
-    from tactiled import native
-
+    frame is touched, never a read out of bounds (the core's tracked run; the reference has
+    none)."""
     p, _, fitter = _pipeline(True, True)
     frames = make_frames(contact_path(40, moving=False), sensor_id=0, seed=2)
     _play_reads(p, fitter, frames[:-1], [1])

@@ -70,22 +70,28 @@ class McapWriter:
 
     def write(self, topic: str, typename: str, message: Any, stamp_s: float) -> None:
         """One message on ``topic``, logged at ``stamp_s`` (Unix seconds)."""
+        self.write_cdr(topic, typename, messages.serialize(message, typename), stamp_s)
+
+    def write_cdr(self, topic: str, typename: str, data: bytes, stamp_s: float) -> None:
+        """One message's CDR bytes (:func:`.messages.serialize`) on ``topic``, logged at
+        ``stamp_s`` (Unix seconds)."""
         channel = self._channel(topic, typename)
         seq = self._sequence.get(channel, 0)
         self._sequence[channel] = seq + 1
         t_ns = messages.nanoseconds(stamp_s)
         self.writer.add_message(channel, log_time=t_ns, publish_time=t_ns, sequence=seq,
-                                data=messages.serialize(message, typename))
+                                data=data)
         self.messages += 1
 
-    def write_estimate(self, est: dict[str, Any], stamp_s: float) -> None:
-        """The wrench, contact, contacts and markers of an estimate
-        (``Estimate.json_dict``: read, never changed)."""
-        sensor = str(est["sensor"])
+    def write_estimate(self, est: Estimate | dict[str, Any], stamp_s: float) -> None:
+        """The wrench, contact, contacts and markers of an estimate: an ``Estimate`` (its
+        bytes built once, shared with the live ROS 2 node: :func:`.messages.estimate_cdr`)
+        or its JSON dict (``Estimate.json_dict``: read, never changed)."""
+        sensor = str(est["sensor"] if isinstance(est, dict) else est.sensor)
         frame_id = messages.frame_name(self.frame_id, sensor)
         for kind in messages.ESTIMATE_KINDS:
-            self.write(messages.topic(self.namespace, sensor, kind), messages.TYPES[kind],
-                       messages.estimate_message(kind, est, stamp_s, frame_id), stamp_s)
+            self.write_cdr(messages.topic(self.namespace, sensor, kind), messages.TYPES[kind],
+                           messages.estimate_cdr(kind, est, stamp_s, frame_id), stamp_s)
 
     def write_frame(self, sensor: str, strain: np.ndarray, stamp_s: float) -> None:
         """The strain image of a zeroed frame."""
@@ -203,6 +209,6 @@ class _Sink:
         if isinstance(item, tuple):
             self.writer.write_diagnostics(item[0], item[1], self.recorder.hardware_ids)
         elif item.kind == "estimate":
-            self.writer.write_estimate(item.json_dict, messages.item_stamp(item, offset))
+            self.writer.write_estimate(item, messages.item_stamp(item, offset))
         else:
             self.writer.write_zeroed(item, messages.item_stamp(item, offset))

@@ -213,6 +213,17 @@ def estimate_message(kind: str, est: dict[str, Any], stamp_s: float, frame_id: s
     return _ESTIMATE_BUILDERS[kind](est, stamp_s, frame_id)
 
 
+def estimate_cdr(kind: str, est: Any, stamp_s: float, frame_id: str) -> bytes:
+    """The CDR bytes of ``kind``'s message (:func:`serialize` of :func:`estimate_message`) for
+    ``est``: an ``Estimate`` record (its bytes built once per estimate, kind, frame id and stamp,
+    kept on the record and shared by every consumer: the live node's middlewares and the MCAP
+    recorder), or an estimate's JSON dict (built each call: ``tactiled export``)."""
+    if isinstance(est, dict):
+        return serialize(estimate_message(kind, est, stamp_s, frame_id), TYPES[kind])
+    return est.encoded(("ros2", kind, frame_id, stamp_s), lambda record: serialize(
+        estimate_message(kind, record.json_dict, stamp_s, frame_id), TYPES[kind]))
+
+
 def contact(est: dict[str, Any], stamp_s: float, frame_id: str) -> Any:
     """tactiled_msgs/Contact: every value of the estimate with its 1-sigma (NaN for null)."""
     std = est.get("std") or {}

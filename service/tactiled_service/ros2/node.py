@@ -4,7 +4,7 @@ With ``[ros2] enabled`` the daemon is a ROS 2 node (default ``/tactiled/tactiled
 installation and no bridge, on DDS (:mod:`.dds`, Cyclone DDS) and/or Zenoh (:mod:`.rmw`), as
 ``[ros2] middleware`` says.  Read-only: per sensor wrench, contact, contacts, markers and
 strain (and a 3-axis array's taxels) topics, and ``/diagnostics``.  Each message is built once, on a sender thread of its own,
-and the same bytes go to every middleware.
+and the same bytes go to every middleware (an estimate's, to the MCAP recorder too).
 """
 # Middlewares: DDS lays topics out as ROS 2's DDS middlewares do (rt/<topic>,
 # pkg::msg::dds_::Type_); Zenoh uses the daemon's session with the key expressions, liveliness
@@ -66,14 +66,15 @@ class ZenohSink:
 
 
 class Topic:
-    """One ROS publisher on every middleware: :meth:`put` runs on the sender thread: it builds
-    the message of an item and serialises it once, then hands the same bytes to each sink
+    """One ROS publisher on every middleware: :meth:`put` runs on the sender thread: it takes
+    the CDR bytes of an item (``encode``: an estimate's are built once per estimate, shared
+    with the MCAP recorder: ``messages.estimate_cdr``), then hands the same bytes to each sink
     (a :class:`ZenohSink`, a :class:`~tactiled_service.ros2.dds.DdsSink`)."""
 
-    def __init__(self, name: str, typename: str, build: Callable[[Any], Any]) -> None:
+    def __init__(self, name: str, typename: str, encode: Callable[[Any], bytes]) -> None:
         self.name = name
         self.typename = typename
-        self.build = build
+        self.encode = encode
         self.sinks: list[Any] = []
 
     @property
@@ -82,7 +83,7 @@ class Topic:
         return any(sink.matched for sink in self.sinks)
 
     def put(self, item: Any) -> None:
-        payload = messages.serialize(self.build(item), self.typename)
+        payload = self.encode(item)
         now = time.time_ns()
         for sink in self.sinks:
             if sink.matched:
@@ -199,21 +200,24 @@ class Ros2Node:
 
         return on_status
 
-    def _builder(self, sensor: str, kind: str) -> Callable[[Any], Any]:
-        """The function that makes ``kind``'s message of a hub item (on the sender thread)."""
+    def _builder(self, sensor: str, kind: str) -> Callable[[Any], bytes]:
+        """The function that makes the CDR bytes of ``kind``'s message of a hub item (on the
+        sender thread)."""
+        typename = messages.TYPES[kind]
+        serialize = messages.serialize
         if kind == "diagnostics":
-            return lambda item: messages.diagnostics(item[0], item[1], self.hardware_ids)
+            return lambda item: serialize(
+                messages.diagnostics(item[0], item[1], self.hardware_ids), typename)
         frame_id = self.frame_ids[sensor]
         offset = self.clock_offset
         stamp = messages.item_stamp
         if kind == "strain":
-            return lambda frame: messages.strain_image(frame.strain, stamp(frame, offset),
-                                                       frame_id)
+            return lambda frame: serialize(
+                messages.strain_image(frame.strain, stamp(frame, offset), frame_id), typename)
         if kind == "taxels":
-            return lambda frame: messages.taxel_image(frame.taxels, stamp(frame, offset),
-                                                      frame_id)
-        return lambda est: messages.estimate_message(kind, est.json_dict,
-                                                     stamp(est, offset), frame_id)
+            return lambda frame: serialize(
+                messages.taxel_image(frame.taxels, stamp(frame, offset), frame_id), typename)
+        return lambda est: messages.estimate_cdr(kind, est, stamp(est, offset), frame_id)
 
     def _on_item(self, item: Estimate | ZeroedFrame) -> None:
         """The hub's listener (the event loop's thread): queue the item, never wait."""
