@@ -20,7 +20,10 @@
 # A line's orientation is tested the same way at several points (``angle_scan``): every
 # point is one more constrained search, and every point within ``REACH_CHI2`` widens the
 # angle's sigma, and those of the values that trade with it, to put it ``sqrt(rise)``
-# sigmas away.
+# sigmas away.  An ellipse's orientation is tested at its near points too, but its profile is bounded
+# (a circle caps the rise anywhere) and often one-sided: a near point below ``FLAT_CHI2``
+# widens its sigma as any point does, and it is withheld only where the widest sigma the
+# points imply is over ``MAX_ANGLE_SIGMA`` (``angle_scan``'s ``bounded``).
 
 from __future__ import annotations
 
@@ -249,8 +252,8 @@ def _bounded_sigma(points: list[tuple[float, float]], sd_deg: float) -> str | fl
     dist, rise = max(points, key=lambda pt: pt[0] / math.sqrt(max(pt[1], 1e-12)))
     wide = dist / math.sqrt(max(rise, 1e-12))
     if wide > MAX_ANGLE_SIGMA:
-        return (f"orientation not observable: {FLAT_ACROSS} (chi^2 rises by "
-                f"{max(rise, 0.0):.2g}, {dist:.3g} deg to one side: a sigma over "
+        return (f"orientation not observable: {FLAT_ACROSS} (the ellipse turned {dist:.3g} "
+                f"deg explains the frame within a chi^2 of {max(rise, 0.0):.2g}: a sigma over "
                 f"{MAX_ANGLE_SIGMA:g} deg): its sigma does not hold")
     return wide if wide > sd_deg else None
 
@@ -394,12 +397,7 @@ def round_test(fitter: Any, fr: Any, p: np.ndarray, steps: np.ndarray,
         if r is not None:
             points.append((abs(off), max(r, 1e-12)))
     # every point, however far, lies sqrt(rise) sigmas away: the widest sigma that says so
-    wide = max(points, key=lambda pt: pt[0] / math.sqrt(pt[1]), default=None)
-    if wide is not None and wide[0] / math.sqrt(wide[1]) > MAX_ANGLE_SIGMA:
-        return (f"orientation not observable: {FLAT_ACROSS} (the ellipse turned {wide[0]:g} "
-                f"deg explains the frame within a chi^2 of {wide[1]:.2g}: a sigma over "
-                f"{MAX_ANGLE_SIGMA:g} deg): its sigma does not hold")
-    return None if wide is None else wide[0] / math.sqrt(wide[1])
+    return _bounded_sigma(points, 0.0) if points else None
 
 
 def _rise(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
