@@ -91,9 +91,12 @@ REFERENCE = native.bind(globals(), ("ridge_band",))
 
 
 def bounding_window(tactels: np.ndarray) -> tuple[int, int, int, int]:
-    """``(row0, col0, rows, cols)`` of the smallest window holding every True tactel."""
-    m, n = np.nonzero(tactels)
-    return int(m.min()), int(n.min()), int(m.max() - m.min() + 1), int(n.max() - n.min() + 1)
+    """``(row0, col0, rows, cols)`` of the smallest window holding every True tactel (from
+    the rows and columns that hold one: a few microseconds where the tactels' indices'
+    extremes cost ~25)."""
+    rows = np.flatnonzero(tactels.any(axis=1))
+    cols = np.flatnonzero(tactels.any(axis=0))
+    return int(rows[0]), int(cols[0]), int(rows[-1] - rows[0] + 1), int(cols[-1] - cols[0] + 1)
 
 
 def square_window(fitter: Any, clean: np.ndarray, ok: np.ndarray, peak: float,
