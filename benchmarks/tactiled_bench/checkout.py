@@ -92,8 +92,11 @@ def run_at(tree: str, func: Any, call: str, preamble: tuple[str, ...] = ()) -> A
                         "if __name__ == '__main__':",
                         "    import json",
                         f"    print(json.dumps({call}))"])
-    out = subprocess.run([sys.executable, "-c", source], cwd=tree, capture_output=True,
-                         text=True, env=checkout_env(tree, build(tree)))
+    built = build(tree)
+    # run from where the code is imported: `python -c` puts its working folder first on
+    # sys.path, and a built revision's source tree there has no compiled core
+    out = subprocess.run([sys.executable, "-c", source], cwd=built, capture_output=True,
+                         text=True, env=checkout_env(tree, built))
     if out.returncode != 0:
         raise RuntimeError(f"{func.__name__} on {tree} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])

@@ -86,7 +86,7 @@ class LineProblem:
         (strain above half the peak) of the whole frame, its offset through the peak, and the
         load that gives the peak strain, for each of :data:`START_RADII`."""
         s = np.where(clean >= 0.5 * peak, clean, 0.0)
-        X, Y = np.meshgrid(xs, ys, indexing="ij")
+        X, Y = np.asarray(xs, dtype=float)[:, None], np.asarray(ys, dtype=float)[None, :]  # broadcast
         w = s.sum()
         mx, my = (s * X).sum() / w, (s * Y).sum() / w
         cxx = (s * (X - mx) ** 2).sum() / w

@@ -29,7 +29,7 @@ from tactiled.fit.budget import stopped_by_budget
 from tactiled.fit.linearize import SeveralLinearizations
 from tactiled.fit.models import get_model
 from tactiled.fit.params import VALUE_KEYS
-from tactiled.fit.pointstrain import point_contact, point_strain
+from tactiled.fit.pointstrain import point_strain
 from tactiled.fit.regions import (
     ABSORBED_SHARE,
     SIGNIFICANT_Z,
@@ -465,17 +465,17 @@ def _point_jacobian(fitter: Any, model: str, params: tuple[float, ...],
                     window: tuple[int, int, int, int] | None = None) -> np.ndarray | None:
     """d(strain on the whole array, or on ``window``)/d(internal parameters), ``(tactels,
     size)``; None for a contact that is not a point contact of a known model."""
-    phys = point_contact(model, params)
-    if phys is None:
-        return None
+    try:
+        phys, dphys = get_model(model).physical(np.asarray(params, dtype=float))
+    except (ValueError, KeyError):
+        return None  # (as point_contact: no point contact)
     m = fitter.model
     xs, ys = m.xs_full, m.ys_full
     if window is not None:
         r0, c0, nr, nc = window
         xs, ys = xs[r0:r0 + nr], ys[c0:c0 + nc]
-    _, dphys = get_model(model).physical(np.asarray(params, dtype=float))
-    _, jac, _ = m.strain_and_jacobian(*phys, xs, ys)
-    return np.asarray(jac).reshape(-1, 6) @ dphys
+    _, jac, _ = m.strain_and_jacobian(*(float(v) for v in phys), xs, ys)
+    return jac.reshape(-1, 6) @ dphys
 
 
 def _window_mask(shape: tuple[int, int], win: tuple[int, int, int, int] | None) -> np.ndarray:
@@ -491,46 +491,51 @@ def joint_bounds(fitter: Any, contacts: list[tuple[str, tuple[float, ...]]],
     """The Cramer-Rao bounds (user units, ``VALUE_KEYS``) of each point contact
     ``(model, internal params)`` on the usable ``tactels`` (a boolean frame): ``(joint,
     alone)``, joint with every contact's parameters unknown, alone with the others' known.
-    None when a contact is not a point contact or the information is singular."""
+    None when a contact is not a point contact or the information is singular.  (Computed
+    once per frame of several contacts: each contact's Jacobian on the tactels' box once,
+    every inverse and delta-method variance with one floating-point guard.)"""
     if not tactels.any():
         return None
     win = bounding_window(tactels)  # the tactels' box: the Jacobians there alone
-    jacs = [_point_jacobian(fitter, m, p, win) for m, p in contacts]
-    if any(j is None for j in jacs):
-        return None
     r0, c0, nr, nc = win
     rows = tactels[r0:r0 + nr, c0:c0 + nc].ravel()
     sd = fitter._tactel_sd(np.zeros(int(rows.sum()))) if hasattr(fitter, "_tactel_sd") else None
-    scale = 1.0 / (sd if sd is not None else fitter.sigma)
-    blocks = [np.asarray(j)[rows] * np.reshape(scale, (-1, 1)) for j in jacs]
+    scale = np.reshape(1.0 / (sd if sd is not None else fitter.sigma), (-1, 1))
+    blocks = []
+    for m, p in contacts:
+        jac = _point_jacobian(fitter, m, p, win)
+        if jac is None:
+            return None
+        blocks.append(jac[rows] * scale)
     full = np.hstack(blocks)
-    info = full.T @ full
-    try:
-        cov = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        return None
-    joint, alone = [], []
+    size = full.shape[1]
+    # the joint information and, block-diagonal, each contact's alone: inverted in one call
+    info = np.zeros((2, size, size))
+    info[0] = full.T @ full
+    grad = np.full((6 * len(blocks), size), np.nan)  # each contact's rows: its own block
     start = 0
-    for (m, p), b in zip(contacts, blocks):
+    for i, ((m, p), b) in enumerate(zip(contacts, blocks)):
         n = b.shape[1]
-        c_joint = cov[start:start + n, start:start + n]
+        info[1, start:start + n, start:start + n] = b.T @ b
+        grad[6 * i:6 * i + 6, :] = 0.0
+        grad[6 * i:6 * i + 6, start:start + n] = get_model(m).report(np.asarray(p, dtype=float))[1]
+        start += n
+    with np.errstate(invalid="ignore"):
         try:
-            c_alone = np.linalg.inv(b.T @ b)
+            cov = np.linalg.inv(info)
         except np.linalg.LinAlgError:
             return None
-        start += n
-        _, grad = get_model(m).report(np.asarray(p, dtype=float))
-        joint.append(_user_std(grad, c_joint))
-        alone.append(_user_std(grad, c_alone))
+        var = np.einsum("ki,sij,kj->sk", grad, cov, grad)
+    joint = [_user_std(var[0, 6 * i:6 * i + 6]) for i in range(len(blocks))]
+    alone = [_user_std(var[1, 6 * i:6 * i + 6]) for i in range(len(blocks))]
     return joint, alone
 
 
-def _user_std(grad: np.ndarray, cov: np.ndarray) -> dict[str, float | None]:
-    """1-sigma of each user value (delta method); None for a value the model lacks (its
-    gradient row is NaN) or a negative variance."""
-    with np.errstate(invalid="ignore"):
-        var = np.einsum("ki,ij,kj->k", grad, cov, grad)
-    return {key: math.sqrt(v) if v >= 0.0 and math.isfinite(v) else None
+def _user_std(var: np.ndarray) -> dict[str, float | None]:
+    """1-sigma of each user value from its variance (delta method, ``VALUE_KEYS``' order);
+    None for a value the model lacks (its gradient row is NaN: a NaN variance) or a
+    negative variance."""
+    return {key: math.sqrt(v) if v >= 0.0 and v < math.inf else None
             for key, v in zip(VALUE_KEYS, var.tolist())}
 
 

@@ -59,7 +59,8 @@ class Region:
 
 def _local_maxima(s: np.ndarray, floor: float) -> int:
     """How many tactels exceed ``floor`` and every 8-neighbour (a fast first look)."""
-    p = np.pad(s, 1, constant_values=-np.inf)
+    p = np.full((s.shape[0] + 2, s.shape[1] + 2), -np.inf)  # padded (np.pad costs 30 us)
+    p[1:-1, 1:-1] = s
     c = p[1:-1, 1:-1]
     is_max = c > floor
     for dr in (-1, 0, 1):

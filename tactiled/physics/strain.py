@@ -259,6 +259,18 @@ class StrainModel:
             px, py = px + moved[0], py + moved[1]
         return px, py
 
+    def grid_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """The nominal grid's ``(x, y)`` of every tactel, mm, ``(rows, cols)`` each (read-only,
+        made once: a frame of several contacts predicts a line on the whole grid several
+        times)."""
+        grid = getattr(self, "_grid", None)
+        if grid is None:
+            grid = np.meshgrid(self.xs_full, self.ys_full, indexing="ij")
+            for arr in grid:
+                arr.setflags(write=False)
+            self._grid = grid = (grid[0], grid[1])
+        return grid
+
     def _predict_line(self, contact, xs, ys, moved) -> np.ndarray:
         """:meth:`predict` of a line contact (a cylinder on a flat array)."""
         from tactiled.physics.line import line_strain
@@ -268,6 +280,8 @@ class StrainModel:
                              "(load per length), not a total force")
         if xs is None and ys is None:
             px, py = self.tactel_points(moved)
+        elif (xs is None or xs is self.xs_full) and (ys is None or ys is self.ys_full):
+            px, py = self.grid_points()
         else:
             gx = self.xs_full if xs is None else np.asarray(xs, dtype=float)
             gy = self.ys_full if ys is None else np.asarray(ys, dtype=float)

@@ -46,3 +46,26 @@ def test_this_tree_is_run_in_this_environment(tmp_path: Path) -> None:
     import tactiled
 
     assert Path(got["tactiled"]) == Path(tactiled.__file__)
+
+
+def _where_tactiled() -> str:
+    import tactiled
+
+    return tactiled.__file__
+
+
+def test_a_built_revision_runs_from_its_built_folder(tmp_path: Path, monkeypatch) -> None:
+    """A revision with a compiled core runs from the folder pip built it into, not from its
+    source tree, whose packages lack the core: ``python -c`` puts its working folder first on
+    sys.path.  (pip's build of the core takes minutes: a folder laid out as its answer, the
+    four packages, stands in for it.)"""
+    from tactiled_bench import checkout
+
+    tree = _fake_tree(tmp_path / "tree")
+    built = tmp_path / "built"
+    for name in PACKAGES:
+        (built / name).mkdir(parents=True)
+        (built / name / "__init__.py").write_text("")
+    monkeypatch.setattr(checkout, "build", lambda t: str(built) if Path(t) == tree else t)
+    got = checkout.run_at(str(tree), _where_tactiled, "_where_tactiled()")
+    assert Path(got) == built / "tactiled" / "__init__.py", got
