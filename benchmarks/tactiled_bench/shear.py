@@ -23,7 +23,12 @@ pull-until-slip scenes (onset delay), and stick-only scenes (no slip events shou
 #   the slide's statistic alone on that track (the motion: all that tells a slip from a contact
 #   held at the friction's limit, whose force levels off too), and from the same tests on the
 #   noiseless truth the factor on the signal over the noise that 95 % over ONSET_Z needs;
+# * pulls that stay put at the friction's limit (the simulator's ``limit``: no drop, no motion;
+#   the ramp of 0.3 s and varied ones): the same delays, and the margin to slip's sigma
+#   ONSET_FRAMES after the onset against the MARGIN_SIGMA the detector's margin rule needs;
 # * stick-only scenes (STICKS in turn, every frame of their tangential loading);
+# * ``python -m tactiled_bench.shear --sensor NAME --seed N`` prints the slip figures alone
+#   (:func:`limits`);
 # * along all those scenes, the shear filter's fx, fy and torsion against the truth (error over
 #   the filter's sigma); the slide test's null distribution on Gaussian estimates (null_tail),
 #   and the whole detector's onsets on contacts held near slip, Gaussian estimates of a fit's
