@@ -302,8 +302,17 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: f
             "median_delay": float(np.median(ok)) if ok.size else math.nan,
             "max_delay": float(ok.max()) if ok.size else math.nan, "missed": int(np.sum(~np.isfinite(d))),
             "early": early, "sticks": sticks, "false": false,
-            "p95_delay": float(np.percentile(d, 95)) if pulls else math.nan,
+            "p95_delay": _p95(d) if pulls else math.nan,
             **_known_figures(known, clean)}
+
+
+def _p95(d: np.ndarray) -> float:
+    """The 95th percentile of delays, ``inf`` where it falls among the missed pulls (``inf``)."""
+    ok = np.isfinite(d)
+    if ok.all():
+        return float(np.percentile(d, 95))
+    v = float(np.percentile(np.where(ok, d, 1e9), 95))
+    return v if v <= d[ok].max(initial=-math.inf) else math.inf
 
 
 def _known_figures(known: list[tuple[float, float]], clean: list[tuple[float, float]]) -> dict[str, float]:
