@@ -46,3 +46,15 @@ def test_the_factor_95_percent_needs_against_its_closed_form():
     assert shear.snr_needed([12.0] * 5, threshold=4.5) == pytest.approx(6.1449 / 12.0, rel=1e-4)
     assert shear.snr_needed([2.0, 6.0], threshold=4.5) > 6.1449 / 4.0
     assert math.isnan(shear.snr_needed([]))
+
+
+def test_pulls_at_the_limit_report_the_margins_resolution():
+    """A pull that stays put at the friction's limit (``limit``) on the 4x4 patch: its delay is
+    scored within 5 frames either side, and the margin's sigma 5 frames after the onset is
+    reported against the detector's MARGIN_SIGMA (the patch does not resolve it: a factor
+    over 1)."""
+    desc = shear.resolve("xela_uskin_4x4")
+    r = shear.slip(desc, pulls=1, sticks=0, seed=4, kind="limit")
+    assert r["pulls"] == 1 and r["early"] == 0 and 0.0 <= r["within"] <= 1.0
+    assert r["margin_resolved"] == (r["margin_snr_needed"] <= 1.0)
+    assert r["margin_snr_needed"] > 1.0
