@@ -55,7 +55,8 @@ from tactiled.fit.params import (
     radius_tied_force,
     wrap_deg,
 )
-from tactiled.pipeline.fit_sigmas import fit_widening, radius_force_variance
+from tactiled.pipeline.fit_sigmas import (beyond_tested, fit_widening, radius_force_variance,
+                                          runaway_radius)
 from tactiled.pipeline.kernels import (
     C_HIGH,
     C_LIN_SD,
@@ -156,6 +157,8 @@ MIN_FORCE_N, MAX_FORCE_N = 1e-4, 100.0
 OFF_ARRAY_MM = 5.0
 LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
 LN_F_BOUNDS = (math.log(MIN_FORCE_N), math.log(MAX_FORCE_N))
+#: A state whose (first) radius is beyond any a fit gives has run off the contact (runaway_radius)
+LN_R_FIT = math.log(RADIUS_LIMITS[1])
 
 
 def reasonable_bounds(names: tuple[str, ...], geometry) -> list[tuple[int, float, float]]:
@@ -369,7 +372,8 @@ class Tracker:
         """Measure one zeroed frame (flattened row-major, strain) taken at device time ``t``
         (s) and update the estimate: ``"tracked"``, ``"reset"`` (a change: the filter restarted
         from this frame) or ``"refit"`` (it needs a fit of its own: outside the linear range,
-        or a jump the linearisation would measure poorly; the estimate is unchanged).
+        or a jump the linearisation would measure poorly; the estimate is unchanged; or its
+        radius ran beyond any a fit gives: the filter is cleared, and that fit restarts it).
         ``fitted``: the frame is the one the current linearisation was fitted on (it is
         measured exactly there, and a jump restarts the filter).  ``measured``: the caller
         has measured the frame already (:meth:`measure_at`).  One call into the kernels
@@ -392,6 +396,10 @@ class Tracker:
         if code == 0:
             self.t = t
             self.n += 1
+            if not float(self._s[X, 0]) <= LN_R_FIT:
+                self._s, self._k, self.n = None, None, 0  # (a fit of this frame restarts it)
+                self.resets += 1
+                return "refit"
             return "tracked"
         if code == STEP_REFIT:  # the estimate is unchanged (its fit will be measured from there)
             return "refit"
@@ -575,7 +583,7 @@ class Tracker:
                     rel0 = sd0 / f0 if f0 and sd0 and f0 > 0.0 else 0.0
                     sd_i = max(math.sqrt(sd_i * sd_i + v * v * self.excess * self._radius_share()),
                                v * rel0)
-                    withheld = self._withheld(key, v, sd_i)
+                    withheld = self._withheld(key, v, sd_i) or runaway_radius(r1)
                     tied = (f"poorly determined ({TOO_LIGHT}: the force rests on a radius the "
                             f"frames do not resolve: its sigma holds one frame's uncertainty "
                             f"of that radius, {100 * sd_i / v:.0f} % of it)")
@@ -625,7 +633,7 @@ class Tracker:
         # value is published only once the frames bring its sigma within that range
         std0 = base.get("std") or {}
         flat = [FLAT in str(reasons.get(key, "")) or (
-            key in ("r1_mm", "r2_mm") and _beyond_tested(base.get(key), std0.get(key)))
+            key in ("r1_mm", "r2_mm") and beyond_tested(base.get(key), std0.get(key)))
             for key in VALUE_KEYS]
         judged = (soft, why, reasons, base.get("std") or {}, flat)
         self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
@@ -677,12 +685,6 @@ def _swapped(x: np.ndarray, p: np.ndarray, names: tuple[str, ...]) -> bool:
     i = names.index("beta")
     a, b = float(x[i]), float(p[i])
     return (abs(a) > 1.0) != (abs(b) > 1.0) or (abs(a) > 1.0 and a * b < 0.0)
-
-
-def _beyond_tested(v: float | None, sd: float | None) -> bool:
-    """A fit's radius ``v`` (1-sigma ``sd``) outside the range where its linearised sigma is
-    tested (:data:`TEST_RELATIVE_SIGMA`), or not given at all."""
-    return v is None or sd is None or not (v > 0.0 and sd <= TEST_RELATIVE_SIGMA * v)
 
 
 def untracked(fit: dict[str, Any], frames_used: int, reason: str) -> dict[str, Any]:
