@@ -157,8 +157,6 @@ MIN_FORCE_N, MAX_FORCE_N = 1e-4, 100.0
 OFF_ARRAY_MM = 5.0
 LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
 LN_F_BOUNDS = (math.log(MIN_FORCE_N), math.log(MAX_FORCE_N))
-#: A state whose (first) radius is beyond any a fit gives has run off the contact (runaway_radius)
-LN_R_FIT = math.log(RADIUS_LIMITS[1])
 
 
 def reasonable_bounds(names: tuple[str, ...], geometry) -> list[tuple[int, float, float]]:
@@ -372,8 +370,7 @@ class Tracker:
         """Measure one zeroed frame (flattened row-major, strain) taken at device time ``t``
         (s) and update the estimate: ``"tracked"``, ``"reset"`` (a change: the filter restarted
         from this frame) or ``"refit"`` (it needs a fit of its own: outside the linear range,
-        or a jump the linearisation would measure poorly; the estimate is unchanged; or its
-        radius ran beyond any a fit gives: the filter is cleared, and that fit restarts it).
+        or a jump the linearisation would measure poorly; the estimate is unchanged).
         ``fitted``: the frame is the one the current linearisation was fitted on (it is
         measured exactly there, and a jump restarts the filter).  ``measured``: the caller
         has measured the frame already (:meth:`measure_at`).  One call into the kernels
@@ -396,10 +393,6 @@ class Tracker:
         if code == 0:
             self.t = t
             self.n += 1
-            if not float(self._s[X, 0]) <= LN_R_FIT:
-                self._s, self._k, self.n = None, None, 0  # (a fit of this frame restarts it)
-                self.resets += 1
-                return "refit"
             return "tracked"
         if code == STEP_REFIT:  # the estimate is unchanged (its fit will be measured from there)
             return "refit"

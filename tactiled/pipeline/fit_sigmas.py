@@ -88,8 +88,8 @@ def runaway_radius(r1: float | None) -> str | None:
     if r1 is None or r1 <= RADIUS_LIMITS[1]:
         return None
     return (f"not observable: the force rests on a tracked radius of {r1:.3g} mm, beyond any a "
-            f"fit gives ({RADIUS_LIMITS[1]:g} mm): the filter has left the contact; a fit of "
-            "the next frame restarts it")
+            f"fit gives ({RADIUS_LIMITS[1]:g} mm): the filter has run off along the valley of "
+            "a radius the frames do not resolve")
 
 
 def beyond_tested(v: float | None, sd: float | None) -> bool:
