@@ -231,7 +231,7 @@ private:
                               double& cov_rf) {
         const std::int64_t absent =
             estimate_numbers(k.model, s_, k_, c_, dt, excess, corr_, sys_, k.has_sys,
-                             k.lag_noise, values, var, cov_rf);
+                             k.lag_noise, k.drift_alpha, values, var, cov_rf);
         lag_variance(lag_, k_, k.lag_weight, k.lag_significant, extra_.data());
         for (py::ssize_t i = 0; i < k_; ++i) {
             const std::int64_t key = lag_key_[i];

@@ -162,12 +162,23 @@ double delta_cov(const std::int64_t* idx, const double* grad, int ka, int kb, co
     }
     return total;
 }
+
+// A held parameter's lag (kernels.held_lag): the squared mean innovation its drift detector
+// shows for the frames it has gathered, where significant (kernels.HELD_LAG_SCALE); else 0.
+constexpr double HELD_LAG_SCALE = 2.25;
+double held_lag(double drift, double pxx, double r, double lag_noise, double alpha) {
+    if (!(drift * drift > 0.0 && pxx > 0.0)) return 0.0;
+    const double q = std::pow(1.0 - alpha, std::max(r / pxx, 1.0));
+    if (!(drift * drift > HELD_LAG_SCALE * lag_noise * (1.0 - q * q))) return 0.0;
+    const double m = drift / (1.0 - q);
+    return m * m;
+}
 }  // namespace
 
 std::int64_t estimate_numbers(std::int64_t model, const double* s, std::int64_t k, const double* c,
                               double dt, double excess, const double* corr, const double* sys,
-                              bool has_sys, double lag_noise, double* values, double* var,
-                              double& cov_rf) {
+                              bool has_sys, double lag_noise, double drift_alpha, double* values,
+                              double* var, double& cov_rf) {
     std::vector<double> x(k), pxx(k), sd(k);
     auto S = [&](int row, std::int64_t i) { return s[row * k + i]; };
     for (std::int64_t i = 0; i < k; ++i) {
@@ -181,8 +192,12 @@ std::int64_t estimate_numbers(std::int64_t model, const double* s, std::int64_t 
     }
     for (std::int64_t i = 0; i < k; ++i) {
         const double d = S(DRIFT, i);
-        if (c[C_MOVING * k + i] != 0.0 && d * d > lag_noise)
-            pxx[i] = pxx[i] + d * d * (pxx[i] + c[C_R * k + i]);
+        const double r = c[C_R * k + i];
+        if (c[C_MOVING * k + i] != 0.0) {
+            if (d * d > lag_noise) pxx[i] = pxx[i] + d * d * (pxx[i] + r);
+        } else {
+            pxx[i] = pxx[i] + held_lag(d, pxx[i], r, lag_noise, drift_alpha) * (pxx[i] + r);
+        }
     }
     for (std::int64_t i = 0; i < k; ++i) {
         const double q = pxx[i] * excess;
@@ -418,7 +433,7 @@ bool moved_from_point_py(In<double> s, In<double> cst, double sigmas, double sha
 
 py::tuple estimate_numbers_py(std::int64_t model, In<double> s, In<double> cst, double dt,
                               double excess, In<double> corr, In<double> sys, bool has_sys,
-                              double lag_noise) {
+                              double lag_noise, double drift_alpha) {
     if (s.ndim() != 2 || s.shape(0) != 6) throw py::value_error("s: expected shape (6, k)");
     const py::ssize_t k = s.shape(1);
     const py::ssize_t least = model == 2 ? 6 : model == 0 ? 5 : 4;
@@ -430,7 +445,8 @@ py::tuple estimate_numbers_py(std::int64_t model, In<double> s, In<double> cst, 
     double cov_rf = 0.0;
     const std::int64_t absent =
         estimate_numbers(model, s.data(), k, cst.data(), dt, excess, corr.data(), sys.data(),
-                         has_sys, lag_noise, values.mutable_data(), var.mutable_data(), cov_rf);
+                         has_sys, lag_noise, drift_alpha, values.mutable_data(),
+                         var.mutable_data(), cov_rf);
     return py::make_tuple(values, var, cov_rf, absent);
 }
 }  // namespace

@@ -33,8 +33,8 @@ std::int64_t filter_frame(const double* z, std::int64_t k, double* s, const doub
 // The estimate's values and variances (kernels.estimate_numbers): values, var of 6 each.
 std::int64_t estimate_numbers(std::int64_t model, const double* s, std::int64_t k, const double* c,
                               double dt, double excess, const double* corr, const double* sys,
-                              bool has_sys, double lag_noise, double* values, double* var,
-                              double& cov_rf);
+                              bool has_sys, double lag_noise, double drift_alpha,
+                              double* values, double* var, double& cov_rf);
 
 // The state s (6, k) has moved from the linearisation point, or sharpened past it
 // (kernels.moved_from_point).

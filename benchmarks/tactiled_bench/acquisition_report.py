@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from tactiled_bench.acquisition_runs import (HAND, INDENTORS, PARAMS, Answers, RunResult,
-                                             counter_delta, devices, scene_truth, summarise,
+from tactiled_bench.acquisition_runs import (HAND, INDENTORS, LATE_RELEASE_S, PARAMS, Answers,
+                                             RunResult, counter_delta, devices, scene_truth, summarise,
                                              timeline)
 
 
@@ -113,6 +113,7 @@ def _answers_figures(a: Answers, elapsed: float, sensors: int) -> dict[str, Any]
         "auto_kept_pct": 100.0 * a.kept / a.own_fit if a.own_fit else 0.0,
         "contacts_reported": a.contacts_reported, "estimates_with_several_contacts": a.several,
         "truth_touching": a.touching, "missed": a.missed, "phantom": a.phantom,
+        "phantom_after_release": a.phantom_after_release,
     }
 
 
@@ -143,11 +144,12 @@ def figures(result: RunResult, scene: str, rate: float) -> dict[str, Any]:
     """Every figure of one run's tables, machine-readable: totals, and per sensor."""
     truth = scene_truth(scene, rate)
     accuracy = scene != HAND
-    a = summarise(result, truth, accuracy=accuracy)
+    late = round(LATE_RELEASE_S * rate)
+    a = summarise(result, truth, accuracy=accuracy, late_ticks=late)
     sensors = integrity(result)
     n = len(result.parts)
     for name in result.parts:
-        sensors[name].update(_answers_figures(summarise(result, truth, name, accuracy),
+        sensors[name].update(_answers_figures(summarise(result, truth, name, accuracy, late),
                                               result.elapsed, 1))
     total_keys = ("frames", "device_sent", "device_not_sent", "gaps_seen", "lost_in_acquisition",
                   "rejected", "duplicated", "stale", "unaccounted")
@@ -302,12 +304,14 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
                   "alike) against the truth of *its own* frame (matched by seq), so a reuse that lags a moving contact "
                   "costs accuracy here (rows 'own fits' and 'reuses' split them; then by the true indentor); withheld: the estimate's value was null (e.g. radius 'force too low for "
                   "curvature'), its share of the estimates.  Angles are not compared on spheres."]
-    lines += ["", f"| {col} | truth touching | missed (published as no contact) | contact published without truth |",
-              "|---|---|---|---|"]
+    lines += ["", f"| {col} | truth touching | missed (published as no contact) | contact published without truth "
+              f"| ... of which within {LATE_RELEASE_S:g} s of a lift-off |",
+              "|---|---|---|---|---|"]
     for r, f in zip(results, figs):
         t = f["total"]
         lines.append(f"| {r.who} | {t['truth_touching']} | {t['missed']} "
-                     f"({100.0 * t['missed'] / max(t['truth_touching'], 1):.1f} %) | {t['phantom']} |")
+                     f"({100.0 * t['missed'] / max(t['truth_touching'], 1):.1f} %) | {t['phantom']} "
+                     f"| {t.get('phantom_after_release', '-')} |")
     # -- integrity
     lines += ["", "### Acquisition", "",
               f"| {col} | finger | frames/s | gaps seen | not sent by the device | lost in acquisition | "

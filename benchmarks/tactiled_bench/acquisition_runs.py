@@ -15,10 +15,13 @@ import numpy as np
 
 from tactiled.physics.contact import Contact
 from tactiled.sensors import DEFAULT_NAME
-from tactiled.sim import HAND_PARTS, AnyScene, MultiScene, named_scene
+from tactiled.sim import DEFAULT_HYSTERESIS, HAND_PARTS, AnyScene, MultiScene, named_scene
 
 
 FINGERS = ("thumb", "index", "middle")
+#: A phantom contact estimate this soon (s) after the truth last touched is a lift-off published
+#: late (Answers.phantom_after_release): the simulated rubber's hysteresis time constant.
+LATE_RELEASE_S = DEFAULT_HYSTERESIS.tau_s
 #: The scene that runs six devices at once: a hand's five fingertips and its palm, each its
 #: own simulator playing its part of one grasp (``tactiled.sim.HAND_PARTS``).
 HAND = "hand"
@@ -244,6 +247,10 @@ class Answers:
     touching: int = 0  # estimates of frames whose truth touches
     missed: int = 0  # ... published as no contact (too light at touch-down / lift-off)
     phantom: int = 0  # estimates in contact whose truth does not touch
+    #: ... of which the truth touched within LATE_RELEASE_S before: a lift-off published late
+    #: (the simulated rubber's hysteresis residual holds the detector on until the daemon's
+    #: learner has found it and its compensator takes it out: docs/concepts/calibration.md)
+    phantom_after_release: int = 0
     latency_contact: list[float] = field(default_factory=list)  # ms, fit + reuse
     latency_fit: list[float] = field(default_factory=list)  # ms, own fits only
     contacts_reported: int = 0  # contacts the estimates reported (a list's length, or 0/1)
@@ -263,12 +270,13 @@ def counter_delta(after: dict[str, Any], before: dict[str, Any], key: str, sub: 
 
 
 def summarise(result: RunResult, truth: Callable[[int], Contact | None] | None,
-              only: str | None = None, accuracy: bool = True) -> Answers:
+              only: str | None = None, accuracy: bool = True, late_ticks: int = 0) -> Answers:
     """The shares, latencies and accuracy of one run (of its sensor ``only``, else of all).
     Published answers come from the estimates the listener saw in the window; frames never
     answered (superseded, stale, lost) from the pipelines' counters over the same window.
     ``accuracy=False``: compare with ``truth`` only whether a frame touches (the truth says
-    when, not what)."""
+    when, not what).  ``late_ticks``: a phantom whose truth touched within that many ticks
+    before is also counted ``phantom_after_release``."""
     a = Answers()
     acc: dict[str, Accuracy] = {"all": Accuracy()}
     index = None if only is None else result.parts.index(only)
@@ -296,6 +304,8 @@ def summarise(result: RunResult, truth: Callable[[int], Contact | None] | None,
         c = truth(s.seq)
         if c is None:
             a.phantom += in_contact
+            a.phantom_after_release += in_contact and any(
+                truth(s.seq - j) is not None for j in range(1, late_ticks + 1))
             continue
         a.touching += 1
         if not in_contact:

@@ -55,7 +55,8 @@ from tactiled.fit.params import (
     radius_tied_force,
     wrap_deg,
 )
-from tactiled.pipeline.fit_sigmas import fit_widening, radius_force_variance
+from tactiled.pipeline.fit_sigmas import (beyond_tested, fit_widening, radius_force_variance,
+                                          runaway_radius)
 from tactiled.pipeline.kernels import (
     C_HIGH,
     C_LIN_SD,
@@ -575,7 +576,7 @@ class Tracker:
                     rel0 = sd0 / f0 if f0 and sd0 and f0 > 0.0 else 0.0
                     sd_i = max(math.sqrt(sd_i * sd_i + v * v * self.excess * self._radius_share()),
                                v * rel0)
-                    withheld = self._withheld(key, v, sd_i)
+                    withheld = self._withheld(key, v, sd_i) or runaway_radius(r1)
                     tied = (f"poorly determined ({TOO_LIGHT}: the force rests on a radius the "
                             f"frames do not resolve: its sigma holds one frame's uncertainty "
                             f"of that radius, {100 * sd_i / v:.0f} % of it)")
@@ -625,7 +626,7 @@ class Tracker:
         # value is published only once the frames bring its sigma within that range
         std0 = base.get("std") or {}
         flat = [FLAT in str(reasons.get(key, "")) or (
-            key in ("r1_mm", "r2_mm") and _beyond_tested(base.get(key), std0.get(key)))
+            key in ("r1_mm", "r2_mm") and beyond_tested(base.get(key), std0.get(key)))
             for key in VALUE_KEYS]
         judged = (soft, why, reasons, base.get("std") or {}, flat)
         self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
@@ -677,12 +678,6 @@ def _swapped(x: np.ndarray, p: np.ndarray, names: tuple[str, ...]) -> bool:
     i = names.index("beta")
     a, b = float(x[i]), float(p[i])
     return (abs(a) > 1.0) != (abs(b) > 1.0) or (abs(a) > 1.0 and a * b < 0.0)
-
-
-def _beyond_tested(v: float | None, sd: float | None) -> bool:
-    """A fit's radius ``v`` (1-sigma ``sd``) outside the range where its linearised sigma is
-    tested (:data:`TEST_RELATIVE_SIGMA`), or not given at all."""
-    return v is None or sd is None or not (v > 0.0 and sd <= TEST_RELATIVE_SIGMA * v)
 
 
 def untracked(fit: dict[str, Any], frames_used: int, reason: str) -> dict[str, Any]:

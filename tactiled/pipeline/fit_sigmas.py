@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from tactiled.fit.params import VALUE_KEYS, report_terms
+from tactiled.fit.params import RADIUS_LIMITS, VALUE_KEYS, report_terms
+from tactiled.fit.profile import TEST_RELATIVE_SIGMA
 
 #: The parameters of a model that are its radii (a force trades with them).
 _RADIUS_PARAMS = ("ln_r", "ln_ra", "beta")
@@ -73,3 +74,25 @@ def fit_widening(fit: dict[str, Any], lin: Any) -> list[float]:
         if v1 > 0.0 and math.isfinite(sd_fit) and sd_fit > WIDENED * math.sqrt(v1):
             out[i] = sd_fit / math.sqrt(v1)
     return out
+
+
+def runaway_radius(r1: float | None) -> str | None:
+    """Why a tracked force resting on the tracked radius ``r1`` (mm; the smaller one) is
+    withheld: that radius lies beyond any a fit gives (``RADIUS_LIMITS``, where the fitter
+    calls a radius "not a measurement"), so the filter has run along the valley of a radius
+    the frames do not resolve to where its model no longer explains the frame (on the XELA
+    4x4 pad a light ball's filter reached 180 m on its third frame, its force 0.008 +- 0.057 N
+    against 0.25 N: at such a radius the model puts no strain on the window whatever the
+    force).  None below it: a radius at the small end is a point contact, whose force the
+    strain fixes."""
+    if r1 is None or r1 <= RADIUS_LIMITS[1]:
+        return None
+    return (f"not observable: the force rests on a tracked radius of {r1:.3g} mm, beyond any a "
+            f"fit gives ({RADIUS_LIMITS[1]:g} mm): the filter has run off along the valley of "
+            "a radius the frames do not resolve")
+
+
+def beyond_tested(v: float | None, sd: float | None) -> bool:
+    """A fit's radius ``v`` (1-sigma ``sd``) outside the range where its linearised sigma is
+    tested (:data:`TEST_RELATIVE_SIGMA`), or not given at all."""
+    return v is None or sd is None or not (v > 0.0 and sd <= TEST_RELATIVE_SIGMA * v)

@@ -219,6 +219,38 @@ def moved_from_point(s: np.ndarray, const: np.ndarray, sigmas: float, sharpen: f
     return False
 
 
+#: A held parameter's lag is tested at 1.5 times the moving parameters' z (3 sigmas where
+#: they take 2), this squared: its variance is averaged down to ``r / n``, and a chance
+#: excursion of the running mean adds about ``4 alpha / (2 - alpha) r`` (a sixteenth of one
+#: frame's variance), n/16 times the variance itself after n frames: at 2 sigmas a held
+#: contact's radius would be widened so (and withheld) in 5 % of its frames.
+HELD_LAG_SCALE = 2.25
+
+
+def held_lag(drift: float, pxx: float, r: float, lag_noise: float, alpha: float) -> float:
+    """The squared mean innovation (in units of the innovations' spread) of a held parameter
+    (a curvature) whose drift detector's running mean (weight ``alpha``) is ``drift``, where it
+    is beyond ``HELD_LAG_SCALE`` times ``lag_noise`` (the moving parameters' threshold,
+    ``LAG_Z^2 alpha / (2 - alpha)``) for the frames it has gathered; else 0.
+
+    A held parameter's filter averages every frame since it (re)started: its variance ``pxx``
+    is about ``r / n`` after ``n`` frames of variance ``r``, while the drift detector's mean has
+    gathered only ``1 - (1 - alpha)^n`` of its weight (it starts at zero).  Frames measured
+    with a bias that changes as the contact does (a press through linearisations at earlier
+    points, a sphere fitted to an ellipse's frames) leave the average behind them by about
+    that mean times the spread, an error its ``r / n`` does not hold: the caller adds the
+    returned share of ``pxx + r``.  The test and the mean are corrected for the weight the
+    mean has (``n = r / pxx``, at least 1: the filter's own count of frames): a 3-sigma test
+    of the mean of ``n`` innovations."""
+    if not (drift * drift > 0.0 and pxx > 0.0):
+        return 0.0
+    q = (1.0 - alpha) ** max(r / pxx, 1.0)
+    if not drift * drift > HELD_LAG_SCALE * lag_noise * (1.0 - q * q):
+        return 0.0
+    m = drift / (1.0 - q)
+    return m * m
+
+
 def _delta_cov(terms: list[list[tuple[int, float]]], ka: int, kb: int, sd: list[float],
                corr: list[list[float]], sys: list[list[float]], has_sys: bool) -> float:
     """The covariance of values ``ka`` and ``kb`` from their gradient terms (``terms[key]``:
@@ -240,15 +272,16 @@ _RAD_TO_DEG = 180.0 / math.pi
 
 
 def estimate_numbers(model: int, s: np.ndarray, const: np.ndarray, dt: float, excess: float,
-                     corr: np.ndarray, sys: np.ndarray, has_sys: bool,
-                     lag_noise: float) -> tuple[np.ndarray, np.ndarray, float, int]:
+                     corr: np.ndarray, sys: np.ndarray, has_sys: bool, lag_noise: float,
+                     drift_alpha: float) -> tuple[np.ndarray, np.ndarray, float, int]:
     """The numbers of a tracker's estimate (:meth:`~tactiled.pipeline.contact_filter.Tracker.estimate`):
     the state ``s`` predicted ``dt`` s ahead (0: as it is), each value of
     ``tactiled.fit.params.VALUE_KEYS`` (:func:`~tactiled.fit.params.report_terms` of
     ``model``, a :data:`MODEL_CODES` code; the orientation as psi in radians, for the caller
     to wrap) and its variance by the delta method term by term: the state's variances (each
     moving parameter's lag added where its drift detector's mean, squared, is beyond
-    ``lag_noise``; times ``excess``) with the single frame's correlations ``corr``, plus the
+    ``lag_noise``, and each held one's: :func:`held_lag`; times ``excess``) with the single
+    frame's correlations ``corr``, plus the
     systematic covariance ``sys`` when ``has_sys``; the covariance of r1 and the force.
     Returns ``(values, variances, cov_r1_force, absent)``, ``absent`` a bit mask of the
     values the model does not have (bit i: key i; their value and variance NaN)."""
@@ -262,8 +295,11 @@ def estimate_numbers(model: int, s: np.ndarray, const: np.ndarray, dt: float, ex
         x, pxx = list(rows[X]), list(rows[PXX])
     for i in range(k):
         d = rows[DRIFT][i]
-        if moving[i] != 0.0 and d * d > lag_noise:
-            pxx[i] = pxx[i] + d * d * (pxx[i] + r_[i])
+        if moving[i] != 0.0:
+            if d * d > lag_noise:
+                pxx[i] = pxx[i] + d * d * (pxx[i] + r_[i])
+        else:
+            pxx[i] = pxx[i] + held_lag(d, pxx[i], r_[i], lag_noise, drift_alpha) * (pxx[i] + r_[i])
     sd = [_sqrt(q) if q >= 0.0 else math.nan for q in (p * excess for p in pxx)]
     values = [math.nan] * 6
     # each value's gradient: up to two (parameter, derivative) terms; none: absent
@@ -434,7 +470,7 @@ class TrackStep:
         angle's: degrees).  ``(values, variances, cov_r1_force, absent)``, lists of 6."""
         values, var, cov_rf, absent = estimate_numbers(
             self.model, self.s, self.c, dt, excess, self.corr, self.sys, self.has_sys,
-            self.lag_noise)
+            self.lag_noise, self.drift_alpha)
         values, var = values.tolist(), var.tolist()
         extra = lag_variance(self.lag, self.lag_weight, self.lag_significant).tolist()
         for i, key in enumerate(self.lag_key):

@@ -120,6 +120,13 @@ def test_shares_latency_and_accuracy_of_a_run() -> None:
     assert a.share(a.own_fit) == "38.5 %"
     assert sorted(a.latency_fit) == [2.0, 2.0, 2.0, 3.0, 4.0] and len(a.latency_contact) == 11
     assert (a.touching, a.missed, a.phantom) == (11, 1, 1)
+    # the phantom counts as a lift-off published late only within late_ticks of the truth's
+    # last touching tick before it
+    gap = next(j for j in range(1, 6000) if truth(base + 201 - j) is not None)
+    for late, want in ((gap - 1, 0), (gap, 1)):
+        b = runs.summarise(runs.RunResult(2, before, after, 1.0, seen, {}), truth, late_ticks=late)
+        assert (b.phantom, b.phantom_after_release) == (1, want), (late, gap)
+    assert a.phantom_after_release == 0  # (late_ticks 0: none)
     own, reuses = a.accuracy["own fits"], a.accuracy["reuses"]
     assert own.estimates == 4 and own.errors["x_mm"] == pytest.approx([0.0] * 4)
     assert own.withheld["r1_mm"] == 1 and "25 % withheld" in own.cell("r1_mm")

@@ -203,7 +203,10 @@ def test_estimate_numbers_equal_the_reference(seed, model, dt, excess, has_sys, 
     sd = np.sqrt(np.diag(cov))
     corr = cov / np.outer(sd, sd)
     sys = rng.normal(0.0, 1e-3, (k, k))
-    args = (kernels.MODEL_CODES[model], s, const, dt, excess, corr, sys, has_sys, 0.5)
+    # (a drift detector's weight of 1/32, as the tracker's, and of 1/2: a held parameter's
+    # lag is corrected for the frames it has gathered, both ways)
+    args = (kernels.MODEL_CODES[model], s, const, dt, excess, corr, sys, has_sys, 0.5,
+            float(rng.choice([1.0 / 32.0, 0.5])))
     got, want = core.estimate_numbers(*args), REF["estimate_numbers"](*args)
     same(got, want)
     assert type(got[3]) is int
@@ -238,7 +241,7 @@ def test_bad_arguments_are_refused_not_read_out_of_bounds() -> None:
     with pytest.raises(ValueError):
         core.filter_frame(np.zeros(4), s, const, 0.01, 1.0, 1e-4, False, 5.0, 0.1, 3.0)
     with pytest.raises(ValueError):
-        core.estimate_numbers(2, s, const, 0.0, 1.0, np.eye(5), np.eye(5), False, 0.5)
+        core.estimate_numbers(2, s, const, 0.0, 1.0, np.eye(5), np.eye(5), False, 0.5, 0.03)
 
 
 # --- the line's band, the half-space -----------------------------------------------------------

@@ -101,3 +101,39 @@ def test_a_forces_variance_its_radius_explains() -> None:
     v = np.array([0.005, 0.005])
     assert full == pytest.approx(v @ np.linalg.solve(np.eye(2) * 0.01, v))
     assert math.isclose(full, 0.005)
+
+
+def test_a_filter_run_off_to_a_radius_no_fit_gives_publishes_no_force() -> None:
+    """XELA 4x4 (4.7 mm pitch): a light ball's radius is not seen (one frame's sigma of ln R is
+    several units), so each frame's step of it passes as noise and the filter can run along
+    the valley of radius and force: in the daemon one reached 180 m on its third frame, where
+    the model puts no strain on the window whatever the force, and published 0.008 +- 0.057 N
+    against the truth's 0.25 N.  Such a state's force is withheld (its radius is beyond any
+    a fit gives); where the state comes back within it, its force is published again."""
+    from tactiled.fit.params import PARAMS, RADIUS_LIMITS
+    from tactiled.pipeline.kernels import X
+
+    desc = load_description("xela_uskin_4x4")
+    sensor = desc.sensor_model()
+    g = sensor.geometry
+    fitter = Fitter(sensor, FitOptions(window=desc.window))
+    clean = StrainModel(sensor).predict(Contact(8.0, 8.0, 0.0, 0.25, 0.5 * g.span_x, 0.5 * g.span_y))
+    rng = np.random.default_rng(3)
+    frames = [clean + rng.normal(0.0, sensor.noise.sigma, clean.shape) for _ in range(3)]
+    res = fitter.fit(frames[0], "sphere")
+    fit = res.to_json_dict()
+    lin = linearize(fitter, frames[0], res.model, np.array(res.params))
+    tr = Tracker(geometry=g)
+    tr.adopt(lin, 0.0, fit)
+    tr.step(frames[0].ravel(), 0.0, fitted=True)
+    assert tr.step(frames[1].ravel(), 1.0 / RATE) == "tracked"
+    i_r, i_f = PARAMS["sphere"].index("ln_r"), PARAMS["sphere"].index("ln_f")
+    # where the daemon's filter went: 180 m, 0.008 N
+    tr._s[X, i_r], tr._s[X, i_f] = math.log(1.8e5), math.log(0.008)
+    est = tr.estimate(fit)
+    assert est["force_n"] is None and est["std"]["force_n"] is None
+    assert "beyond any a fit gives" in est["reasons"]["force_n"]
+    assert est["r1_mm"] is None
+    # ... and inside the limits the same force is published (the rule is the radius's)
+    tr._s[X, i_r] = math.log(0.5 * RADIUS_LIMITS[1])
+    assert tr.estimate(fit)["force_n"] is not None
