@@ -287,7 +287,9 @@ def radius_points(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndar
     """``(rise, solution)`` of the radius's profile points on either side of the solution
     ``p`` (its first entry the log radius ``ln r``, 1-sigma ``sd_r`` mm; chi^2 ``chi2``) that
     lie within ``REACH_CHI2``: chi^2 minimised again with ``ln r`` held a step further out each
-    time (``RADIUS_STEP_LN``, ``RADIUS_STEPS``), each search started at the one before it; a
+    time (``RADIUS_STEP_LN``, ``RADIUS_STEPS``), each search started at the one before it and
+    capped at ``PROFILE_ITERATIONS`` (one stopped short kept: it bounds the profile there from
+    above, so it only understates how far the likelihood reaches); a
     side ends at a point rising by ``REACH_CHI2`` or more, at the bounds, or below
     ``POINT_MM``.  Tested where the
     radius's relative sigma exceeds ``TEST_RELATIVE_SIGMA``, as :func:`flat_below` tests one
@@ -308,7 +310,8 @@ def radius_points(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndar
             at = float(p[0]) + side * j * step
             if not lo < at < hi:
                 break
-            got = _held(fitter, fr, kind, q, steps, bounds, python_residual, chi2, at)
+            got = _held(fitter, fr, kind, q, steps, bounds, python_residual, chi2, at,
+                        cap=PROFILE_ITERATIONS, bounded=True)
             if got is None:
                 continue
             if got[0] >= REACH_CHI2:

@@ -22,7 +22,7 @@ from tactiled.physics.strain import StrainModel
 from tactiled.sensors import load_description
 
 PAD = Path(__file__).resolve().parents[2] / "benchmarks" / "descriptions" / "pad6x4.toml"
-#: A 5.2 mm ball at 0.84 N (a peak of 56 noise sigmas): about a third of its fits land at
+#: A 5.2 mm ball at 0.84 N (a peak of 56 noise sigmas): about a quarter of its fits land at
 #: under half its radius.
 BALL = Contact(5.2, 5.2, 0.0, 0.84, 11.0, 4.9)
 DRAWS = 200
