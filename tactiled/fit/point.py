@@ -16,8 +16,9 @@ import numpy as np
 
 from tactiled.fit import compiled, search, uncertainty
 from tactiled.fit.models import Model, get_model
-from tactiled.fit.profile import (PROFILE_SIGMAS, angle_profile, flat_below, r2_profile,
-                                  round_test, withhold_flat)
+from tactiled.fit.profile import (PROFILE_SIGMAS, WIDENED_BY_RADIUS, angle_profile, flat_below,
+                                  r2_profile, radius_points, round_test, widen_by_points,
+                                  withhold_flat)
 from tactiled.fit.result import FitResult
 from tactiled.fit.search import SCOUT_ITERATIONS, STOP_CHI2, bounds_of, steps_of
 from tactiled.fit.solver import SolveResult
@@ -116,10 +117,20 @@ class PointFit:
         r1 = res.values.get("r1_mm")
         if best.converged and r1 is not None and abs(math.log(r1) - best.p[0]) < 1e-9:
             # every model's first parameter is a log radius: r1's, or the general's r_a
+            sd_r1 = res.std.get("r1_mm")
+            below: list = []
             withhold_flat(res.values, res.std, res.reasons, flat_below(
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
-                lambda: f._residual(fr, model), res.chi2, res.values.get("r1_mm"),
-                res.std.get("r1_mm")))
+                lambda: f._residual(fr, model), res.chi2, r1, sd_r1, seen=below))
+            if model.name == "sphere":
+                # a ball fitted too small or too large: its radius's likelihood flat on one
+                # side, the place and force that trade with it widened by the profile's points
+                up = radius_points(f, fr, compiled.KINDS[model.name], best.p, steps_of(model),
+                                   bounds_of(model), lambda: f._residual(fr, model), res.chi2,
+                                   r1, sd_r1)
+                widen_by_points(res.values, res.std, res.reasons,
+                                [(rise, model.report(q)[0]) for rise, q in below + up],
+                                ("r1_mm", "x_mm", "y_mm", "force_n"), WIDENED_BY_RADIUS)
         sd_angle = res.std.get("angle_deg")
         if (best.converged and model.name == "general" and sd_angle is not None
                 and PROFILE_SIGMAS * sd_angle < 45.0):

@@ -117,14 +117,17 @@ class AngleProfile:
 
 def flat_below(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
                bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
-               r: float | None, sd_r: float | None) -> str | float | None:
+               r: float | None, sd_r: float | None,
+               seen: list[tuple[float, np.ndarray]] | None = None) -> str | float | None:
     """The radius ``r`` (mm; 1-sigma ``sd_r``) at the solution ``p`` (its first entry the log
     radius, chi^2 ``chi2``) on its profile likelihood: the reason to withhold it (flat
     below it), or its honest sigma where the profile rises more slowly than the linearised
     sigma says but by at least ``FLAT_CHI2`` (the distance to the tested point over the
     square root of the rise: that point lies ``sqrt(rise)`` sigmas away), or None to keep it
     as it is.  ``fitter`` searches (``Fitter._search``) the window ``fr`` of the model
-    ``kind`` with the log radius pinned by ``bounds``."""
+    ``kind`` with the log radius pinned by ``bounds``.  ``seen``: where given, the tested
+    point's ``(rise, solution)`` is appended to it if it rises by under ``REACH_CHI2`` (for
+    :func:`widen_by_points`)."""
     if r is None or sd_r is None or not (r > 0.0 and sd_r > 0.0):
         return None
     s = sd_r / r  # the log radius's sigma
@@ -134,9 +137,12 @@ def flat_below(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray
     at = float(p[0]) - PROFILE_SIGMAS * s
     if not at > lo[0]:
         return None
-    rise = _rise(fitter, fr, kind, p, steps, (lo, hi), python_residual, chi2, at)
-    if rise is None:
+    got = _held(fitter, fr, kind, p, steps, (lo, hi), python_residual, chi2, at)
+    if got is None:
         return None
+    rise = got[0]
+    if seen is not None and rise < REACH_CHI2:
+        seen.append(got)
     if rise >= PROFILE_SIGMAS ** 2:
         # quadratic where it was tested; but a likelihood with a second valley at a point
         # contact (a line's radius on a coarse pad: 700 mm fitted, 10 mm true) rises there
@@ -258,8 +264,66 @@ def _bounded_sigma(points: list[tuple[float, float]], sd_deg: float) -> str | fl
     return wide if wide > sd_deg else None
 
 
+#: A sphere's radius profile (:func:`radius_points`) is evaluated on either side of the
+#: solution at steps of ``PROFILE_SIGMAS`` of the log radius's linearised sigmas, at most
+#: ``RADIUS_STEP_LN`` (a factor of 2) each, up to ``RADIUS_STEPS`` per side and, below,
+#: down to ``POINT_MM`` (a contact that small is a point to any pitch of 1 mm or more: the
+#: profile is flat from there down and the place no longer moves).  A light ball's
+#: fit on a coarse pad (a 6x4 pad of 4 mm pitch under a 2 mm cover) can land at a radius
+#: several times too small or too large (0.7 or 19 mm for 5.2), the likelihood flat toward
+#: the truth, and the linearised sigmas of the place and the radius there a quarter of the
+#: bound at the truth.
+RADIUS_STEP_LN = math.log(2.0)
+RADIUS_STEPS = 8
+POINT_MM = 0.25 * EDGE_MM
+#: The reason a value widened by a radius's profile points gives.
+WIDENED_BY_RADIUS = ("poorly determined: its sigma widened to the profile likelihood of the "
+                     "radius it trades with")
+
+
+def radius_points(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
+                  bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
+                  r: float | None, sd_r: float | None) -> list[tuple[float, np.ndarray]]:
+    """``(rise, solution)`` of the radius's profile points on either side of the solution
+    ``p`` (its first entry the log radius ``ln r``, 1-sigma ``sd_r`` mm; chi^2 ``chi2``) that
+    lie within ``REACH_CHI2``: chi^2 minimised again with ``ln r`` held a step further out each
+    time (``RADIUS_STEP_LN``, ``RADIUS_STEPS``), each search started at the one before it and
+    capped at ``PROFILE_ITERATIONS`` (one stopped short kept: it bounds the profile there from
+    above, so it only understates how far the likelihood reaches); a
+    side ends at a point rising by ``REACH_CHI2`` or more, at the bounds, or below
+    ``POINT_MM``.  Tested where the
+    radius's relative sigma exceeds ``TEST_RELATIVE_SIGMA``, as :func:`flat_below` tests one
+    point below.  The points widen the sigmas of the radius and of the values that trade with
+    it (:func:`widen_by_points`): where the likelihood is flat toward the truth from a radius
+    fitted too small or too large, the place and the force it gives are as uncertain."""
+    if r is None or sd_r is None or not (r > 0.0 and sd_r > 0.0):
+        return []
+    s = sd_r / r
+    if s <= TEST_RELATIVE_SIGMA:
+        return []
+    step = min(PROFILE_SIGMAS * s, RADIUS_STEP_LN)
+    lo, hi = max(float(bounds[0][0]), math.log(POINT_MM)), float(bounds[1][0])
+    out = []
+    for side in (1.0, -1.0):
+        q = np.array(p, dtype=float)
+        for j in range(1, RADIUS_STEPS + 1):
+            at = float(p[0]) + side * j * step
+            if not lo < at < hi:
+                break
+            got = _held(fitter, fr, kind, q, steps, bounds, python_residual, chi2, at,
+                        cap=PROFILE_ITERATIONS, bounded=True)
+            if got is None:
+                continue
+            if got[0] >= REACH_CHI2:
+                break
+            out.append(got)
+            q = got[1]
+    return out
+
+
 def widen_by_points(values: dict, std: dict, reasons: dict[str, str],
-                    points: list[tuple[float, dict]], keys: tuple[str, ...]) -> None:
+                    points: list[tuple[float, dict]], keys: tuple[str, ...],
+                    why: str | None = None) -> None:
     """Each value of ``keys`` kept in ``values`` with a sigma in ``std``: widened so that
     every profile point ``(rise, values there)`` lies at most ``sqrt(rise)`` of its sigmas
     away (at most one sigma for a point below ``FLAT_CHI2``).  A point of the angle's profile
@@ -273,8 +337,8 @@ def widen_by_points(values: dict, std: dict, reasons: dict[str, str],
                     for rise, at in points if at.get(key) is not None), default=0.0)
         if wide > sd:
             std[key] = wide
-            reasons.setdefault(key, "poorly determined: its sigma widened to the profile "
-                               "likelihood of the orientation it trades with")
+            reasons.setdefault(key, why or "poorly determined: its sigma widened to the "
+                               "profile likelihood of the orientation it trades with")
 
 
 def swapped(p: np.ndarray) -> np.ndarray | None:
