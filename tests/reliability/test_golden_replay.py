@@ -139,22 +139,24 @@ def test_an_unmeasured_estimate_keeps_its_outline() -> None:
 
 
 def test_the_comparison_catches_a_change() -> None:
-    """The comparison itself can fail: a float off by 1e-8 relative, a changed model name, an
-    extra key, a missing line."""
+    """The comparison itself can fail: a float off by ten times the tolerance (``REL_TOL``:
+    1e-9 on the core, 1e-8 on the reference) relative, a changed model name, an extra key, a
+    missing line."""
+    tol = g.REL_TOL
     lines = [json.loads(line) for line in g.golden("press").read_text().splitlines()]
     fit = next(line for line in lines if line["gate"] == "fit" and line["x_mm"] is not None)
     assert not g.compare(fit, json.loads(json.dumps(fit)))
-    changed = dict(fit, x_mm=fit["x_mm"] * (1 + 1e-8))
+    changed = dict(fit, x_mm=fit["x_mm"] * (1 + 10 * tol))
     assert g.compare(fit, changed) == [f".x_mm: {changed['x_mm']!r}, expected {fit['x_mm']!r}"]
     assert g.compare(fit, dict(fit, model="general" if fit["model"] != "general" else "sphere"))
     assert g.compare(fit, dict(fit, latency_ms=1.0))
     assert g.compare(fit, dict(fit, std=dict(fit["std"], x_mm=None)))
     assert g.compare(lines, lines[:-1])
-    assert not g.compare(fit, dict(fit, x_mm=fit["x_mm"] * (1 + 1e-12)))
+    assert not g.compare(fit, dict(fit, x_mm=fit["x_mm"] * (1 + 1e-3 * tol)))
     # ... or by the tolerance times its own sigma, not more
     sd = fit["std"]["x_mm"]
-    assert not g.compare(fit, dict(fit, x_mm=fit["x_mm"] + 0.5e-9 * sd))
-    assert g.compare(fit, dict(fit, x_mm=fit["x_mm"] + 2e-9 * sd + 1e-8 * abs(fit["x_mm"])))
+    assert not g.compare(fit, dict(fit, x_mm=fit["x_mm"] + 0.5 * tol * sd))
+    assert g.compare(fit, dict(fit, x_mm=fit["x_mm"] + 2 * tol * sd + 10 * tol * abs(fit["x_mm"])))
 
 
 def test_golden_files_are_small_and_reproduce_their_recordings() -> None:
