@@ -342,8 +342,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """Tests marked ``slow`` (long soaks, full benchmarks, fresh environments) run only when
     asked for (``-m slow``, as the marker's description in pyproject.toml says); the short
     version of each is always on.  Under pytest-xdist, the tests are put in groups
-    (:func:`_in_groups`)."""
-    if getattr(config.option, "numprocesses", None):
+    (:func:`_in_groups`) where they are collected: in each worker (whose options xdist has
+    reset: ``numprocesses`` is None there, ``PYTEST_XDIST_WORKER`` names it), before xdist
+    reads the groups into the test ids it schedules by."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
         _in_groups(items)
     if "slow" in (config.getoption("markexpr") or ""):
         return

@@ -23,3 +23,36 @@ def test_every_compute_only_module_exists_and_runs_nothing_live() -> None:
         found = LIVE.search(path.read_text(encoding="utf-8"))
         assert found is None, f"{rel} uses {found.group()!r}: it belongs to the group live"
     assert all((TESTS / d).is_dir() for d in conftest.COMPUTE_ONLY)
+
+
+def test_a_worker_puts_its_tests_in_groups(monkeypatch) -> None:
+    """In a pytest-xdist worker (``PYTEST_XDIST_WORKER`` set; xdist resets ``numprocesses``
+    there) the collected tests get their groups: ``live`` first, then a group per
+    compute-only module; without xdist, none."""
+    from types import SimpleNamespace
+
+    import pytest
+
+    class Item:
+        def __init__(self, rel: str) -> None:
+            self.path = TESTS / rel
+            self.marks: list[pytest.Mark] = []
+            self.keywords: dict[str, object] = {}
+
+        def add_marker(self, mark: pytest.MarkDecorator) -> None:
+            self.marks.append(mark.mark)
+
+    rels = ["fit/test_recovery.py", "service/test_rest.py", "pipeline/test_kernels.py",
+            "reliability/test_soak.py"]
+    config = SimpleNamespace(option=SimpleNamespace(numprocesses=None),
+                             getoption=lambda name: "")
+    items = [Item(r) for r in rels]
+    monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+    conftest.pytest_collection_modifyitems(config, items)
+    assert [i.marks for i in items] == [[]] * 4
+    monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw0")
+    conftest.pytest_collection_modifyitems(config, items)
+    groups = [(i.path.relative_to(TESTS).as_posix(), i.marks[0].args[0]) for i in items]
+    assert groups == [("service/test_rest.py", "live"), ("reliability/test_soak.py", "live"),
+                      ("fit/test_recovery.py", "fit/test_recovery.py"),
+                      ("pipeline/test_kernels.py", "pipeline/test_kernels.py")]
