@@ -303,6 +303,38 @@ COMPUTE_ONLY_MODULES = frozenset({
 _TESTS = Path(__file__).resolve().parent
 
 
+def group_of(rel: str) -> str:
+    """The xdist group of the test module at ``rel`` (its path under tests/): ``live``, or
+    the module's own for a compute-only one."""
+    parts = rel.split("/")
+    if len(parts) > 1 and parts[0] in COMPUTE_ONLY or rel in COMPUTE_ONLY_MODULES:
+        return rel
+    return "live"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+    """``--dist loadgroup`` (pyproject's addopts) as :func:`_in_groups` means it: each work unit
+    is a group of :func:`group_of`, read from the test id's path.  xdist's own loadgroup reads
+    the group from a suffix its workers append to each test id, which pytest 9 no longer
+    keeps (a node's id is no longer ``_nodeid``): every test was a unit of its own, the live
+    ones spread over both workers at once."""
+    if config.getoption("dist", "no") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GroupScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return group_of_id(nodeid)
+
+    return GroupScheduling(config, log)
+
+
+def group_of_id(nodeid: str) -> str:
+    """:func:`group_of` a test id (its path relative to the repository's root)."""
+    return group_of(nodeid.split("::", 1)[0].removeprefix("tests/"))
+
+
 def _in_groups(items: list[pytest.Item]) -> None:
     """For pytest-xdist's ``--dist loadgroup`` (``pytest -n 2``; CI runs the suite serially): every test
     that runs real processes, servers, devices or clocks is in the group ``live``, run in
@@ -314,14 +346,9 @@ def _in_groups(items: list[pytest.Item]) -> None:
     first.  The ``live`` group comes first: it is the longest."""
     live, compute = [], []
     for item in items:
-        rel = Path(str(item.path)).resolve().relative_to(_TESTS)
-        if (len(rel.parts) > 1 and rel.parts[0] in COMPUTE_ONLY
-                or rel.as_posix() in COMPUTE_ONLY_MODULES):
-            item.add_marker(pytest.mark.xdist_group(rel.as_posix()))
-            compute.append(item)
-        else:
-            item.add_marker(pytest.mark.xdist_group("live"))
-            live.append(item)
+        group = group_of(Path(str(item.path)).resolve().relative_to(_TESTS).as_posix())
+        item.add_marker(pytest.mark.xdist_group(group))
+        (live if group == "live" else compute).append(item)
     items[:] = live + compute
 
 

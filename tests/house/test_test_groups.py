@@ -3,12 +3,15 @@ exists, and uses nothing that runs in real time (such a test belongs to the grou
 
 from __future__ import annotations
 
+import importlib.util
 import re
 from pathlib import Path
 
-import conftest
-
-TESTS = Path(conftest.__file__).resolve().parent
+TESTS = Path(__file__).resolve().parents[1]
+# tests/conftest.py itself: ``import conftest`` finds whichever conftest comes first on the path
+_spec = importlib.util.spec_from_file_location("tests_root_conftest", TESTS / "conftest.py")
+conftest = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(conftest)
 #: What a test that runs in real time uses: devices, servers, daemons, threads, the loop.  A
 #: command run to its end in a process of its own computes (its timeout is no deadline).
 LIVE = re.compile(r"pty_device|live_server|shared_server|daemon_process|SimulatedDevice|"
@@ -56,3 +59,17 @@ def test_a_worker_puts_its_tests_in_groups(monkeypatch) -> None:
     assert groups == [("service/test_rest.py", "live"), ("reliability/test_soak.py", "live"),
                       ("fit/test_recovery.py", "fit/test_recovery.py"),
                       ("pipeline/test_kernels.py", "pipeline/test_kernels.py")]
+
+
+def test_the_scheduler_makes_a_unit_of_each_group(pytestconfig) -> None:
+    """Under ``--dist loadgroup`` the work units are the groups, read from the test ids; under
+    another ``--dist``, xdist's own scheduler."""
+    from types import SimpleNamespace
+
+    assert conftest.group_of_id("tests/service/test_rest.py::test_x[a]") == "live"
+    assert conftest.group_of_id("tests/test_readme_commands.py::test_x") == "live"
+    assert conftest.group_of_id("tests/fit/test_recovery.py::T::test_y") == "fit/test_recovery.py"
+    assert (conftest.group_of_id("tests/pipeline/test_kernels.py::test_z[1-2]")
+            == "pipeline/test_kernels.py")
+    other = SimpleNamespace(getoption=lambda name, default=None: "load")
+    assert conftest.pytest_xdist_make_scheduler(other, None) is None
