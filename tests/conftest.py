@@ -327,6 +327,17 @@ def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | 
         def _split_scope(self, nodeid: str) -> str:
             return group_of_id(nodeid)
 
+        def schedule(self) -> None:
+            # Units in collection order (live first: _in_groups), not by size: the live group
+            # goes to a worker that has run nothing yet, never to one a compute-only module
+            # has niced.
+            reorder = self.config.option.loadscopereorder
+            self.config.option.loadscopereorder = False
+            try:
+                super().schedule()
+            finally:
+                self.config.option.loadscopereorder = reorder
+
     return GroupScheduling(config, log)
 
 
