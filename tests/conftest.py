@@ -303,6 +303,49 @@ COMPUTE_ONLY_MODULES = frozenset({
 _TESTS = Path(__file__).resolve().parent
 
 
+def group_of(rel: str) -> str:
+    """The xdist group of the test module at ``rel`` (its path under tests/): ``live``, or
+    the module's own for a compute-only one."""
+    parts = rel.split("/")
+    if len(parts) > 1 and parts[0] in COMPUTE_ONLY or rel in COMPUTE_ONLY_MODULES:
+        return rel
+    return "live"
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+    """``--dist loadgroup`` (pyproject's addopts) as :func:`_in_groups` means it: each work unit
+    is a group of :func:`group_of`, read from the test id's path.  xdist's own loadgroup reads
+    the group from a suffix its workers append to each test id, which pytest 9 no longer
+    keeps (a node's id is no longer ``_nodeid``): every test was a unit of its own, the live
+    ones spread over both workers at once."""
+    if config.getoption("dist", "no") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GroupScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return group_of_id(nodeid)
+
+        def schedule(self) -> None:
+            # Units in collection order (live first: _in_groups), not by size: the live group
+            # goes to a worker that has run nothing yet, never to one a compute-only module
+            # has niced.
+            reorder = self.config.option.loadscopereorder
+            self.config.option.loadscopereorder = False
+            try:
+                super().schedule()
+            finally:
+                self.config.option.loadscopereorder = reorder
+
+    return GroupScheduling(config, log)
+
+
+def group_of_id(nodeid: str) -> str:
+    """:func:`group_of` a test id (its path relative to the repository's root)."""
+    return group_of(nodeid.split("::", 1)[0].removeprefix("tests/"))
+
+
 def _in_groups(items: list[pytest.Item]) -> None:
     """For pytest-xdist's ``--dist loadgroup`` (``pytest -n 2``; CI runs the suite serially): every test
     that runs real processes, servers, devices or clocks is in the group ``live``, run in
@@ -314,14 +357,9 @@ def _in_groups(items: list[pytest.Item]) -> None:
     first.  The ``live`` group comes first: it is the longest."""
     live, compute = [], []
     for item in items:
-        rel = Path(str(item.path)).resolve().relative_to(_TESTS)
-        if (len(rel.parts) > 1 and rel.parts[0] in COMPUTE_ONLY
-                or rel.as_posix() in COMPUTE_ONLY_MODULES):
-            item.add_marker(pytest.mark.xdist_group(rel.as_posix()))
-            compute.append(item)
-        else:
-            item.add_marker(pytest.mark.xdist_group("live"))
-            live.append(item)
+        group = group_of(Path(str(item.path)).resolve().relative_to(_TESTS).as_posix())
+        item.add_marker(pytest.mark.xdist_group(group))
+        (live if group == "live" else compute).append(item)
     items[:] = live + compute
 
 
@@ -342,8 +380,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     """Tests marked ``slow`` (long soaks, full benchmarks, fresh environments) run only when
     asked for (``-m slow``, as the marker's description in pyproject.toml says); the short
     version of each is always on.  Under pytest-xdist, the tests are put in groups
-    (:func:`_in_groups`)."""
-    if getattr(config.option, "numprocesses", None):
+    (:func:`_in_groups`) where they are collected: in each worker (whose options xdist has
+    reset: ``numprocesses`` is None there, ``PYTEST_XDIST_WORKER`` names it), before xdist
+    reads the groups into the test ids it schedules by."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
         _in_groups(items)
     if "slow" in (config.getoption("markexpr") or ""):
         return

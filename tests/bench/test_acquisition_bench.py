@@ -180,7 +180,11 @@ def test_the_moving_scene_on_ptys_with_a_workers_sweep(table_rows, workers: str,
         assert r[13] == "none" or set(r[13].split(", ")) <= set(runs.FINGERS)
     accuracy = rows("| workers | estimates of |")
     kinds = {(r[0], r[1]) for r in accuracy}
-    assert {(w, "all") for w in sweep} | {(sweep[-1], "own fits")} <= kinds
+    # a row for the own fits where the run made some: on a loaded machine a short window's
+    # contact frames may all go out as reuses or be superseded
+    own = {r[0]: float(r[2].rstrip(" %")) for r in answers}
+    assert {(w, "all") for w in sweep} | {(w, "own fits") for w in sweep if own[w] >= 1.0} <= kinds
+    assert {k for _, k in kinds} <= {"all", "own fits", "reuses", *runs.INDENTORS, "general"}
     integrity = rows("| workers | finger |")
     assert len(integrity) == 3 * len(sweep) and {r[1] for r in integrity} == set(runs.FINGERS)
     assert all(r[-1] == "0" for r in integrity), integrity  # every frame accounted for
