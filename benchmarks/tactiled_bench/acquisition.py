@@ -185,7 +185,9 @@ async def _run(tmp: Path, seconds: float, warmup: float, workers: int, sim_pids:
     in ``window`` of the pass (see :func:`tare_window` and :class:`_Tarer`).  ``parts``: the
     devices on ``tmp``'s ttys, in order (default the three fingers)."""
     parts = tuple(parts) if parts is not None else devices("demo")
-    overrides: dict[str, object] = {"fit.workers": workers}
+    # what the daemon learns (hysteresis, flat fields) in the run's own directory: a run
+    # starts from nothing learned, whatever earlier runs left in the user's state
+    overrides: dict[str, object] = {"fit.workers": workers, "state.dir": str(tmp / "state")}
     for i, dev in enumerate(parts):
         overrides[f"sensor[{i}].name"] = dev.name
         overrides[f"sensor[{i}].url"] = f"serial://{tmp / f'tty{i}'}"
