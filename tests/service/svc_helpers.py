@@ -38,9 +38,13 @@ def sim_settings(sensors: int = 2, *, rate_hz: float | None = None, **extra: Any
 
 
 def ws_connect(url: str, **kwargs: Any) -> Any:
-    """``websockets`` client connection (no compression unless asked)."""
+    """``websockets`` client connection (no compression unless asked).  Its closing handshake
+    waits at most 2 s (websockets' default: 10): a client that stops reading a 1 kHz stream
+    leaves the server's close frame behind a backlog, and what these tests check is done by
+    then (a test of the close itself reads its code, not the handshake's end)."""
     kwargs.setdefault("compression", None)
     kwargs.setdefault("open_timeout", 10)
+    kwargs.setdefault("close_timeout", 2)
     kwargs.setdefault("max_size", 2**22)
     return connect(url, **kwargs)
 
