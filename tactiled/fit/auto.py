@@ -23,6 +23,9 @@ if TYPE_CHECKING:
 #: What a round blob's sphere says (:meth:`ModelSelector.sphere_alone`), as auto says of a line
 #: that explains its band
 ROUND_MESSAGE = "a round blob the sphere explains to the noise: no other model tried"
+#: What a contact among several on a curved array says when its cylinder explains its window
+#: (:meth:`ModelSelector.plain`)
+PLAIN_MESSAGE = "the cylinder explains the window to the noise: the general ellipse not tried"
 
 
 class ModelSelector:
@@ -37,6 +40,8 @@ class ModelSelector:
         self.round = False
         #: the sphere's scout :meth:`sphere_alone` made last (:meth:`round_choice` goes on from it)
         self.round_scout: FitResult | None = None
+        #: a general ellipse whose cylinder an auto fit tries instead (:meth:`instead_of`)
+        self.general: FitResult | None = None
 
     @contextmanager
     def among_several(self, on: bool = True, round_blob: bool = False) -> Iterator[None]:
@@ -51,6 +56,19 @@ class ModelSelector:
             yield
         finally:
             self.several, self.round = before
+
+    @contextmanager
+    def instead_of(self, general: FitResult) -> Iterator[None]:
+        """While open, an auto fit tries only the cylinder in place of the general ellipse
+        ``general`` (a full solve on the same strain and mask), from its point
+        (:meth:`simpler`): the cylinder where it explains the window to the noise, else a
+        result that is no contact (``general`` stands)."""
+        before = self.general
+        self.general = general
+        try:
+            yield
+        finally:
+            self.general = before
 
     def fit(self, strain: np.ndarray, mask: np.ndarray | None,
             warm: tuple[str, tuple[float, ...]] | None = None) -> FitResult:
@@ -69,6 +87,8 @@ class ModelSelector:
                warm: tuple[str, tuple[float, ...]] | None = None) -> FitResult:
         """:meth:`fit`'s choice, before a scouted line's profile tests."""
         f = self.fitter
+        if self.general is not None:
+            return self.simpler(strain, mask, self.general)
         if warm is not None and warm[0] in ("cylinder", "sphere", "general") and warm[1]:
             p_warm = np.asarray(warm[1], dtype=float)
             kept = (f._fit_cylinder(strain, p_warm, mask) if warm[0] == "cylinder"
@@ -105,6 +125,10 @@ class ModelSelector:
         fits.append(sph)
         if f._out_of_time():
             return self.cut_short(cyl, fits, self.solved(strain, mask, cyl) if point_scout else None)
+        if point_scout:  # among several on a curved array: the general only where needed
+            plain = self.plain(fits, cyl, strain, mask)
+            if plain is not None:
+                return plain
         gen_model = get_model("general")
         gen_starts: list[tuple[np.ndarray, float | None]] = [
             (np.array([ln_r, 0.2, psi, ln_f, x0, y0]), None)]
@@ -153,6 +177,60 @@ class ModelSelector:
         best.iterations = iterations
         best.evaluations = evaluations + (best.evaluations if resolved else 0)
         return best
+
+    def plain(self, scouts: list[FitResult], cyl: FitResult, strain: np.ndarray,
+              mask: np.ndarray | None) -> FitResult | None:
+        """Among several contacts on a curved array: the cylinder, solved fully from where its
+        scout ``cyl`` stopped, when that scout converged with chi^2 consistent with the noise
+        (:func:`tactiled.fit.search.consistent`) and the information criterion ranks it first
+        of the ``scouts`` (the cylinder's and the sphere's); else None, and the general
+        ellipse is scouted as :meth:`choose` scouts it for one contact.  Where the cylinder
+        explains the window to the noise, the general ellipse's one more parameter can only
+        fit the noise or a neighbour's strain (the mirror of a flat array's line that
+        explains its band, :meth:`tactiled.fit.linefit.LineFit.explains`): on the paper's
+        finger the general was chosen so for 28 % of the crossing cylinders of ``tactiled
+        bench --suite contacts``'s grasps, each the costliest fit of its frame (its
+        orientation's profile tests).  Not where the sphere ranks first: an ellipsoid whose
+        sphere is within the noise is still told from it by the criterion."""
+        f = self.fitter
+        crit = self.criteria(scouts, cyl, strain, mask)
+        if (min(scouts, key=lambda r: crit[r.model]) is not cyl or not cyl.contact
+                or not cyl.converged or cyl.chi2 is None or cyl.params is None
+                or not search.consistent(f, cyl) or self.runs_off(cyl)):
+            return None
+        out = self.solved(strain, mask, cyl)
+        if not out.contact or out.params is None:
+            return None
+        out.criterion = {k: float(v) for k, v in crit.items() if math.isfinite(v)}
+        out.iterations += sum(r.iterations for r in scouts)
+        out.evaluations += sum(r.evaluations for r in scouts)
+        out.message = f"{PLAIN_MESSAGE}; {out.message}"
+        return out
+
+    def simpler(self, strain: np.ndarray, mask: np.ndarray | None, general: FitResult) -> FitResult:
+        """:meth:`plain` for a general ellipse ``general`` solved on this strain and mask: the
+        cylinder along its long axis (its radius the smaller) and the sphere (its radius the
+        ellipse's first) scouted from the ellipse's point, the cylinder solved fully where it
+        explains the window to the noise and ranks first; else a result that is no contact.
+        (A contact's model chosen on the whole frame, its window holding its neighbours'
+        strain, is tried so again on the frame less theirs: :func:`tactiled.fit.multi.fit_contacts`.)"""
+        f = self.fitter
+        none = FitResult(contact=False, message="no simpler model explains the window")
+        if general.model != "general" or general.params is None or general.chi2 is None:
+            return none
+        ln_ra, beta, psi, ln_f, x0, y0 = general.params
+        b2 = beta * beta
+        small, axis = (ln_ra, psi) if b2 <= 1.0 else (ln_ra - math.log(b2), psi + 0.5 * math.pi)
+        cyl = f._fit_model(strain, get_model("cylinder"), np.array([small, axis, ln_f, x0, y0]),
+                           mask, scouting=True)
+        if f._out_of_time():
+            return none
+        sph = f._fit_model(strain, get_model("sphere"), np.array([ln_ra, ln_f, x0, y0]), mask,
+                           scouting=True)
+        if f._out_of_time():
+            return none
+        plain = self.plain([cyl, sph], cyl, strain, mask)
+        return none if plain is None else plain
 
     def sphere_alone(self, strain: np.ndarray, mask: np.ndarray | None) -> FitResult | None:
         """The sphere, when its scout converges with chi^2 consistent with the noise

@@ -194,6 +194,14 @@ def _fit_contacts(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray 
     return [res]
 
 
+def _chosen_on_the_whole(fitter: Any, res: FitResult) -> bool:
+    """A general ellipse on a curved array, refitted with its neighbours' strain removed in
+    the model chosen on the whole frame: the cylinder is tried again there
+    (:meth:`tactiled.fit.auto.ModelSelector.simpler`)."""
+    return (res.contact and res.model == "general" and res.params is not None
+            and not fitter.sensor.geometry.flat)
+
+
 def _located(r: FitResult) -> bool:
     """The contact has a place: a line (its position across is its offset), or a point
     contact whose centre the one rule publishes, both coordinates (one withheld leaves the
@@ -301,6 +309,14 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
                 fit_model = (prev.model if first is not None and prev is not None and prev.model
                              else model if model == "auto" or prev is None else prev.model or model)
                 res = fitter.fit(residual, fit_model, mask=m, warm=warm, budget_s=left)
+                if first is not None and model == "auto" and _chosen_on_the_whole(fitter, res):
+                    # its model was chosen with its neighbours' strain in its window: where
+                    # the cylinder explains the window less theirs, the cylinder (auto's rule
+                    # among several on a curved array, ModelSelector.plain)
+                    with fitter.selector.instead_of(res):
+                        plain = fitter.fit(residual, model, mask=m, budget_s=left)
+                    if plain.contact:
+                        res = plain
                 if prev is not None and not res.contact:
                     res = prev  # the refinement lost it: keep the first pass's
                 results[i] = res

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.fit.auto import ROUND_MESSAGE, round_blob
+from tactiled.fit.auto import PLAIN_MESSAGE, ROUND_MESSAGE, round_blob
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.linewindow import runs_across
@@ -18,6 +18,7 @@ from tactiled.fit.multi import fit_contacts
 from tactiled.physics.contact import Contact, LineContact
 from tactiled.physics.strain import StrainModel
 from tactiled.sensors import load_description
+from tactiled_bench import grasps
 
 
 def _setup(name: str, **options):
@@ -232,3 +233,50 @@ def test_profile_tests_run_only_on_published_fits_and_answers_are_unchanged(fing
 
 def _published(r) -> dict:
     return {k: v for k, v in r.to_json_dict().items() if k != "fit_ms"}
+
+
+def test_crossing_cylinders_on_the_finger_are_cylinders_the_general_ellipse_not_tried(finger) -> None:
+    """The contacts bench's crossing cylinders on the paper's finger (tactiled_bench.grasps,
+    seeded): every contact is reported as a cylinder, within four of its sigmas of its truth,
+    the general ellipse not tried where the cylinder explains the window to the noise (as a
+    candidate, ModelSelector.plain) and a general ellipse chosen on the whole frame replaced
+    by the cylinder on the frame less its neighbour (ModelSelector.simpler).  Choosing by the
+    criterion alone, the general ellipse took about a quarter of these cylinders."""
+    sensor, model, fitter = finger
+    drawn = [(truths, frame) for grasp, _, truths, frame in
+             grasps.frames_of(model, 8, np.random.default_rng(3))
+             if grasp == "crossing" and truths is not None]
+    replaced = _spy(fitter.selector, "simpler")
+    plain = 0
+    try:
+        for truths, frame in drawn:
+            out = fit_contacts(fitter, frame, "auto")
+            assert len(out) == 2 and all(r.model == "cylinder" for r in out), [r.model for r in out]
+            plain += sum(r.message.startswith(PLAIN_MESSAGE) for r in out)
+            for c in truths:
+                r = min(out, key=lambda r: math.dist((r.values["x_mm"], r.values["y_mm"]), (c.x0, c.y0)))
+                for key, true in (("x_mm", c.x0), ("y_mm", c.y0), ("force_n", c.force)):
+                    assert abs(r.values[key] - true) < 4.0 * r.std[key], key
+                gap = abs((r.values["angle_deg"] - c.psi_deg + 90.0) % 180.0 - 90.0)
+                assert gap < 4.0 * r.std["angle_deg"]
+    finally:
+        del fitter.selector.simpler
+    assert len(drawn) == 8
+    assert plain >= len(drawn)  # most contacts' cylinders explain their windows ...
+    assert any(r.contact for r in replaced)  # ... and a whole frame's general became one
+
+
+@pytest.mark.parametrize("r1,r2,force", [(3.0, 9.0, 1.0), (4.0, 12.0, 1.5)])
+def test_an_ellipsoid_beside_a_ball_on_the_finger_is_still_a_general_ellipse(finger, r1, r2, force) -> None:
+    """An ellipsoid (radii 3 times apart, 100-150 noise sigmas) beside a ball on the paper's
+    finger: two contacts, the ellipsoid a general ellipse at every orientation (neither the
+    cylinder nor the sphere explains it), as it is alone."""
+    sensor, model, fitter = finger
+    rng = np.random.default_rng(3)
+    for psi in (20.0, 60.0, 100.0, 140.0):
+        ellipsoid = Contact(r1, r2, psi, force, 7.0, 8.0)
+        clean = model.predict(ellipsoid) + model.predict(Contact(5.0, 5.0, 0.0, 1.0, 19.0, 22.0))
+        out = fit_contacts(fitter, clean + rng.normal(0.0, sensor.noise.sigma, clean.shape), "auto")
+        assert len(out) == 2, psi
+        r = min(out, key=lambda r: math.dist((r.values["x_mm"], r.values["y_mm"]), (7.0, 8.0)))
+        assert r.model == "general", psi

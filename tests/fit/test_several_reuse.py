@@ -56,7 +56,8 @@ def test_grasp_frames_publish_the_same_contacts_with_every_window_computed_afres
     """The contacts bench's grasps (tactiled_bench.grasps: lines, edges, balls, three
     contacts; a frame of each, seeded), fitted with the kept windows and without: every
     published key identical.  On the flat pad a candidate's ridge test and its fit read the
-    same windows (kept); the curved finger has no line windows to share."""
+    same windows (kept); on the curved finger, a refitted general ellipse's simpler models
+    (ModelSelector.simpler) read the square window its refit read."""
     desc = load_description(name)
     model = StrainModel(desc.sensor_model())
     drawn = [(grasp, frame) for grasp, _, truths, frame in
@@ -81,7 +82,7 @@ def test_grasp_frames_publish_the_same_contacts_with_every_window_computed_afres
     finally:
         KeptFrames.get = real_get
     assert several >= len(drawn) // 2, several  # the frames hold several contacts
-    assert any(hits) == desc.sensor_model().geometry.flat, "kept windows reused where none are shared"
+    assert any(hits), "no kept window reused"
 
 
 def _fisher(model: StrainModel, contacts: list[tuple[str, np.ndarray]], tactels: np.ndarray,
