@@ -202,7 +202,7 @@ def test_profile_tests_run_only_on_published_fits_and_answers_are_unchanged(fing
     """Frozen, a frame of several contacts runs the point fits' profile tests, and makes
     their values and sigmas (PointFit.result), only on the results it publishes
     (Fitter.deferring): fewer of each than with every fit made whole at once (9 tests against
-    15 here), and the published contacts identical, every key (fit_ms aside)."""
+    16 here), and the published contacts identical, every key (fit_ms aside)."""
     sensor, model, fitter = finger
     desc = load_description("fearing1988")
     eager = Fitter(sensor, FitOptions(window=desc.window))
