@@ -313,10 +313,13 @@ def _fit_several(fitter: Any, strain: np.ndarray, model: str, mask: np.ndarray |
                     # its model was chosen with its neighbours' strain in its window: where
                     # the cylinder explains the window less theirs, the cylinder (auto's rule
                     # among several on a curved array, ModelSelector.plain)
-                    with fitter.selector.instead_of(res):
-                        plain = fitter.fit(residual, model, mask=m, budget_s=left)
-                    if plain.contact:
-                        res = plain
+                    if left is not None:  # what the refit left of this contact's share
+                        left = max(left - res.fit_ms * 1e-3, 0.0)
+                    if left is None or left > 0.0:
+                        with fitter.selector.instead_of(res):
+                            plain = fitter.fit(residual, model, mask=m, budget_s=left)
+                        if plain.contact:
+                            res = plain
                 if prev is not None and not res.contact:
                     res = prev  # the refinement lost it: keep the first pass's
                 results[i] = res
