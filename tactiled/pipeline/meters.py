@@ -54,9 +54,11 @@ class WindowMean:
 
     def add(self, now: float, value: float) -> None:
         self.last = value
-        self._items.append((now, value))
+        items = self._items
+        items.append((now, value))
         self._sum += value
-        self._prune(now)
+        if items[0][0] <= now - self.window:  # (checked here: this runs for every estimate)
+            self._prune(now)
 
     def _prune(self, now: float) -> None:
         edge = now - self.window
