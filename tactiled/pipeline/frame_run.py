@@ -72,7 +72,7 @@ def take_run(pipe: SensorPipeline, frames: Sequence[Frame], k: int, end: int, no
         return 0
     run = frames[k:k + n]
     z = np.empty((n, *shape))
-    track = tracked_run.plan(pipe)
+    track = tracked_run.plan(pipe) if stage.zeroer.in_contact else None  # (plan needs it)
     try:
         taken, statistic, peak = stage.process_run(raws, times, z, track)
     except Exception:  # a bug must not stop the sensor: its frames take the per-frame path

@@ -218,6 +218,8 @@ class Hub:
         for sub in self._subs:
             if sub.wants(item):
                 sub.offer(item)
+        if not (self._listeners or self._event_listeners):
+            return
         for listeners in ((self._listeners, self._event_listeners)
                           if item.kind in _STATE_KINDS else (self._event_listeners,)):
             for callback in listeners:

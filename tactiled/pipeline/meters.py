@@ -26,7 +26,10 @@ class RateMeter:
     def tick_many(self, now: float, n: int) -> None:
         """Count ``n`` events at ``now`` (s): the frames of one read."""
         times = self._times
-        times.extend([now] * n)
+        if n == 1:
+            times.append(now)
+        else:
+            times.extend([now] * n)
         edge = now - self.window
         while times and times[0] <= edge:
             times.popleft()

@@ -535,7 +535,7 @@ class SensorPipeline:
         """Count and publish the estimate of the frame of arrival number ``ordinal``."""
         self._last_published = ordinal
         self.published += 1
-        latency_ms = est.latency_ms
+        latency_ms = (est.published_time - est.host_time) * 1e3  # (est.latency_ms)
         if math.isfinite(latency_ms):
             self.latency_ms.add(est.published_time, latency_ms)
             self.latency_hist[est.gate].observe(latency_ms / 1e3)
