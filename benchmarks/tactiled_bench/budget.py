@@ -408,6 +408,10 @@ def _cli() -> None:
     p.add_argument("--per-frame", action="store_true",
                    help="with --replay: this tree's runs through the core and its per-frame "
                         "path, in turn (two rounds)")
+    p.add_argument("--empty", metavar="DESCRIPTION", nargs="+", default=None,
+                   help="with --replay: instead of the hand, one array of each DESCRIPTION alone "
+                        "on a scene that never touches it (three passes each): a frame with no "
+                        "contact")
     p.add_argument("--cprofile", metavar="DIR", default=None,
                    help="with --replay: a third pass of each run under cProfile, its statistics "
                         "into DIR (<code>-<round>.pstats), and the functions that cost the most "
@@ -415,6 +419,8 @@ def _cli() -> None:
     a = p.parse_args()
     if a.cprofile is not None and (not a.replay or a.per_frame):
         p.error("--cprofile goes with --replay, without --per-frame")
+    if a.empty is not None and (not a.replay or a.per_frame or a.cprofile):
+        p.error("--empty goes with --replay, without --per-frame or --cprofile")
     if a.per_frame and (not a.replay or a.baseline is not None):
         p.error("--per-frame goes with --replay, without --baseline")
     if a.baseline is not None and not (a.replay or a.fits):
@@ -442,6 +448,14 @@ def _cli() -> None:
                 for _ in range(2):
                     rows.append(("this tree, runs", replay_cost(batched=True)))
                     rows.append(("this tree, per frame", replay_cost(batched=False)))
+            elif a.empty is not None:
+                for _ in range(1 if tree is None else 2):
+                    for desc in a.empty:
+                        part = (("one", "empty", desc),)
+                        rows.append((f"this tree, {desc}", replay_at(_here(), 3, parts=part)))
+                        if tree is not None:
+                            rows.append((f"baseline {a.baseline}, {desc}",
+                                         replay_at(tree, 3, parts=part)))
             elif tree is None:
                 rows.append(("this tree", replay_cost(passes=3, profile=_pstats(a, "this", 1))
                              if a.cprofile else replay_cost()))
