@@ -17,9 +17,9 @@ import numpy as np
 from tactiled.fit import compiled, search, uncertainty
 from tactiled.fit.budget import BudgetExhausted
 from tactiled.fit.models import Model, get_model
-from tactiled.fit.profile import (PROFILE_SIGMAS, WIDENED_BY_RADIUS, angle_profile, flat_below,
-                                  r2_profile, radius_points, round_test, widen_by_points,
-                                  withhold_flat)
+from tactiled.fit.profile import (PROFILE_SIGMAS, TEST_RELATIVE_SIGMA, WIDENED_BY_RADIUS,
+                                  angle_profile, flat_below, place_sigma, r2_profile,
+                                  radius_points, round_test, widen_by_points, withhold_flat)
 from tactiled.fit.result import FitResult
 from tactiled.fit.search import SCOUT_ITERATIONS, STOP_CHI2, bounds_of, steps_of
 from tactiled.fit.solver import SolveResult
@@ -170,6 +170,20 @@ class PointFit:
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, res.values.get("r2_mm"),
                 res.std.get("r2_mm")), key="r2_mm")
+            r1, sd_r1 = res.values.get("r1_mm"), res.std.get("r1_mm")
+            if f.sensor.geometry.flat and (r1 is None or sd_r1 is None
+                                           or sd_r1 > TEST_RELATIVE_SIGMA * r1) \
+                    and not f._runs_off(res):
+                # an ellipsoid on a flat array whose smaller radius is not resolved to 10 %:
+                # its place on its profile likelihood too (tactiled.fit.profile.place_sigma;
+                # under the paper's finger's 4.3-6 mm cover a light contact's place does not
+                # sharpen with its radius, and its place covers 94-98 % as it is; an ellipse
+                # running off the array at both ends is a line there, its place no point's)
+                for key, name in (("x_mm", "x0"), ("y_mm", "y0")):
+                    withhold_flat(res.values, res.std, res.reasons, place_sigma(
+                        f, fr, compiled.KINDS[model.name], best.p, steps_of(model),
+                        bounds_of(model), lambda: f._residual(fr, model), res.chi2,
+                        model.params.index(name), res.std.get(key)), key=key)
             if not spent:
                 budget.exhausted = False
 
