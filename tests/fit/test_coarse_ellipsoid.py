@@ -16,6 +16,7 @@ published value is scored against the truth by its own sigma."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -145,3 +146,48 @@ def test_a_hard_ellipsoid_is_fitted_within_the_budget(pad) -> None:
     for k in TRUTH_KEYS:
         assert np.mean(np.array(z[k]) <= 2.0) >= 0.85, k
         assert np.max(z[k]) <= 4.0, k
+
+
+def _profile_rise(model: StrainModel, sigma: float, frame: np.ndarray, values: dict,
+                  key: str, at: float, chi2: float) -> float:
+    """chi^2 of ``frame`` minimised over every other parameter with the place's ``key`` held
+    at ``at`` (mm), less ``chi2``: the simulator's strain model and scipy's least squares
+    (started at the fit's values, the place moved), none of the fitter's code."""
+    from scipy.optimize import least_squares
+
+    def contact(q: np.ndarray) -> Contact:
+        x, y = (at, q[4]) if key == "x_mm" else (q[4], at)
+        r1 = math.exp(q[0])
+        return Contact(r1, r1 * math.exp(abs(q[1])), math.degrees(q[2]), math.exp(q[3]), x, y)
+
+    def residual(q: np.ndarray) -> np.ndarray:
+        return ((model.predict(contact(q)) - frame) / sigma).ravel()
+
+    other = values["y_mm"] if key == "x_mm" else values["x_mm"]
+    q0 = [math.log(values["r1_mm"]), math.log(values["r2_mm"] / values["r1_mm"]),
+          math.radians(values["angle_deg"]), math.log(values["force_n"]), other]
+    sol = least_squares(residual, q0, x_scale=[0.3, 0.3, 0.3, 0.1, 0.3])
+    return 2.0 * float(sol.cost) - chi2
+
+
+def test_a_widened_place_is_no_narrower_than_its_independent_profile(pad) -> None:
+    # where the place's test widened its sigma, the chi^2 computed independently with the
+    # place held two published sigmas out rises by about a quadratic's 4 or more (within the
+    # capped searches' slack): the published interval reaches no further than the profile's
+    model, fitter, sigma = pad
+    gm = point.get_model("general")
+    rises = []
+    for frame in _frames(model, sigma, LIGHT, 8):
+        res = fitter.fit(frame, "general")
+        raw = gm.report(np.asarray(res.params))[0]  # every value, withheld or not
+        for key in ("x_mm", "y_mm"):
+            if "profile likelihood" not in res.reasons.get(key, ""):
+                continue
+            rise = min(_profile_rise(model, sigma, frame, raw, key,
+                                     res.values[key] + side * 2.0 * res.std[key], res.chi2)
+                       for side in (-1.0, 1.0))
+            rises.append(rise)
+        if len(rises) >= 8:
+            break
+    assert len(rises) >= 4  # the case: places the test widened
+    assert np.median(rises) >= 3.0 and min(rises) >= 1.5, rises
