@@ -15,10 +15,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactiled.fit import compiled, search, uncertainty
+from tactiled.fit.budget import BudgetExhausted
 from tactiled.fit.models import Model, get_model
-from tactiled.fit.profile import (PROFILE_SIGMAS, WIDENED_BY_RADIUS, angle_profile, flat_below,
-                                  r2_profile, radius_points, round_test, widen_by_points,
-                                  withhold_flat)
+from tactiled.fit.profile import (PROFILE_SIGMAS, TEST_RELATIVE_SIGMA, WIDENED_BY_RADIUS,
+                                  angle_profile, flat_below, place_sigma, r2_profile,
+                                  radius_points, round_test, widen_by_points, withhold_flat)
 from tactiled.fit.result import FitResult
 from tactiled.fit.search import SCOUT_ITERATIONS, STOP_CHI2, bounds_of, steps_of
 from tactiled.fit.solver import SolveResult
@@ -26,7 +27,7 @@ from tactiled.fit.start import start_point, start_table
 from tactiled.physics.hertz import Ellipse
 
 if TYPE_CHECKING:
-    from tactiled.fit.fitter import Fitter
+    from tactiled.fit.fitter import Fitter, _Frame
 
 
 #: The general model's cold starts: the start table's radius as r1 and this many times less
@@ -36,6 +37,16 @@ if TYPE_CHECKING:
 #: rubber depths long, and its first evaluations spent the fit's base work before the search
 #: came near: 25 % of those ellipsoids' fits were stopped by the budget, 10 % from these.
 GENERAL_START_BETA2 = 0.5
+#: A ball's or an ellipsoid's first cold start on a flat array has this many times the
+#: array's width (its smaller extent, edge to edge) for its radius (:meth:`PointFit.cold_starts`):
+#: a curvature the array resolves.  On the 6x4 pad of 4 mm pitch under 2 mm (16 mm wide) a
+#: light 3 x 11 mm ellipsoid's searches from 6-24 mm all reached the least-squares minimum
+#: (80 noise draws each), from 3 mm 3 of 80 stopped on the plateau of a point.
+START_RADIUS_SPAN = 1.0
+#: Gauss-Newton steps in the log force alone that scale a cold start to its window
+#: (:meth:`PointFit.scaled`), each at most ``SCALE_STEP_LN`` (a factor of e^2).
+SCALE_STEPS = 2
+SCALE_STEP_LN = 2.0
 #: What :meth:`PointFit.result` finds beyond where the search ended (:meth:`PointFit.complete`).
 WHOLE_FIELDS = ("label", "values", "std", "condition", "reasons", "ellipse")
 
@@ -64,7 +75,7 @@ class PointFit:
         if isinstance(fr, FitResult):
             return fr
         peak, win, n_points = fr.peak, fr.win, fr.n_points
-        starts = [start] if start is not None else self.cold_starts(fr.clean, fr.peak_idx, model)
+        starts = [start] if start is not None else self.cold_starts(fr.clean, fr.peak_idx, model, fr)
         cap = SCOUT_ITERATIONS if scouting else f.options.max_iter
         # stop once the next step would lower chi^2 by less than STOP_CHI2 (0.01 scouting): a
         # parameter then moves by under 0.01 of its sigma, and a warm fit saves an evaluation
@@ -122,9 +133,11 @@ class PointFit:
             withhold_flat(res.values, res.std, res.reasons, flat_below(
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, r1, sd_r1, seen=below))
-            if model.name == "sphere":
+            if model.name in ("sphere", "general"):
                 # a ball fitted too small or too large: its radius's likelihood flat on one
                 # side, the place and force that trade with it widened by the profile's points
+                # (an ellipsoid's smaller radius alike: on the 6x4 pad of 4 mm pitch under
+                # 2 mm the light ones' linearised sigmas of the place covered 76-84 % in two)
                 up = radius_points(f, fr, compiled.KINDS[model.name], best.p, steps_of(model),
                                    bounds_of(model), lambda: f._residual(fr, model), res.chi2,
                                    r1, sd_r1)
@@ -157,11 +170,28 @@ class PointFit:
                 f, fr, compiled.KINDS[model.name], best.p, steps_of(model), bounds_of(model),
                 lambda: f._residual(fr, model), res.chi2, res.values.get("r2_mm"),
                 res.std.get("r2_mm")), key="r2_mm")
+            r1, sd_r1 = res.values.get("r1_mm"), res.std.get("r1_mm")
+            if f.sensor.geometry.flat and (r1 is None or sd_r1 is None
+                                           or sd_r1 > TEST_RELATIVE_SIGMA * r1) \
+                    and not f._runs_off(res):
+                # an ellipsoid on a flat array whose smaller radius is not resolved to 10 %:
+                # its place on its profile likelihood too (tactiled.fit.profile.place_sigma;
+                # under the paper's finger's 4.3-6 mm cover a light contact's place does not
+                # sharpen with its radius, and its place covers 94-98 % as it is; an ellipse
+                # running off the array at both ends is a line there, its place no point's)
+                for key, name in (("x_mm", "x0"), ("y_mm", "y0")):
+                    withhold_flat(res.values, res.std, res.reasons, place_sigma(
+                        f, fr, compiled.KINDS[model.name], best.p, steps_of(model),
+                        bounds_of(model), lambda: f._residual(fr, model), res.chi2,
+                        model.params.index(name), res.std.get(key)), key=key)
             if not spent:
                 budget.exhausted = False
 
-    def cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model) -> list[np.ndarray]:
-        """Up to ``max_starts`` starts from the start table's nearest shapes at the peak."""
+    def cold_starts(self, strain: np.ndarray, peak_idx: tuple[int, int], model: Model,
+                    fr: _Frame | None = None) -> list[np.ndarray]:
+        """Up to ``max_starts`` starts from the start table's nearest shapes at the peak (a
+        ball's or an ellipsoid's on a flat array after one of a curvature the array resolves,
+        its force scaled to the window ``fr`` where given: :meth:`scaled`)."""
         f = self.fitter
         # interpolated_peak, force_estimate and features in one compiled call
         x0, y0, f0, feat = start_point(strain, peak_idx[0], peak_idx[1], float(strain.sum()),
@@ -170,6 +200,23 @@ class PointFit:
             f._starts = start_table(f.sensor)
         cands = f._starts.candidates(feat, count=f.options.max_starts)
         out = []
+        if f.sensor.geometry.flat and model.name in ("sphere", "general") and cands:
+            # a flat array's table holds lines (its cylinder), whose radius and the point
+            # load's force say little of a ball or an ellipsoid: a 3 x 11 mm ellipsoid at
+            # 1.4 N on a 6x4 pad of 4 mm pitch under 2 mm started at a 0.3 mm line and 0.5 N,
+            # where the likelihood is flat in the radius (a point to the tactels), and its
+            # search stopped there at chi^2 60-170 (the truth's 12-38); a 21 x 82 mm one at
+            # 9.5 N started at 85 x 170 mm and 42 N, whose first evaluation spent the fit's
+            # base work.  So first a curvature the array resolves (START_RADIUS_SPAN: radius
+            # the array's width), the table's best orientation, the force scaled to the
+            # window (:meth:`scaled`); from there the search descends to a small contact
+            # where the frame has one, and the likelihood's plateau of a point lies above it
+            g = f.sensor.geometry
+            r0 = START_RADIUS_SPAN * min(g.span_x + g.dx, g.span_y + g.dy)
+            first = model.from_values(r0, r0 / GENERAL_START_BETA2 if model.name == "general"
+                                      else r0, cands[0].psi_deg, f0, x0, y0)
+            out.append(first if fr is None else self.scaled(fr, model, first))
+            cands = cands[:max(f.options.max_starts - 1, 1)]
         for c in cands:
             if model.name == "general":
                 out.append(model.from_values(c.radius, c.radius / GENERAL_START_BETA2, c.psi_deg,
@@ -179,6 +226,30 @@ class PointFit:
             if model.name == "sphere":
                 break  # orientation plays no part
         return out
+
+    def scaled(self, fr: _Frame, model: Model, p: np.ndarray) -> np.ndarray:
+        """``p`` with its force scaled to the window ``fr`` (``SCALE_STEPS`` Gauss-Newton steps
+        in the log force alone, the rest held): the point-load force estimate a cold start
+        takes is the strain summed over the tactels over the kernel summed at the peak, which
+        a pitch twice the cover's depth samples so coarsely that it reads 0.5-5 times the
+        force (a 3 x 11 mm ellipsoid at 1.4 N on the 6x4 pad of 4 mm pitch under 2 mm:
+        0.5 N), and a search started that light crawled into a point contact.  Each step is
+        one evaluation, charged to the fit's budget; ``p`` as it is where the budget cannot
+        pay for them."""
+        q = np.array(p, dtype=float)
+        i = model.params.index("ln_f")
+        try:
+            residual = self.fitter._residual(fr, model)
+            for _ in range(SCALE_STEPS):
+                r, jac = residual(q)
+                j = jac[:, i]
+                jj = float(j @ j)
+                if not (jj > 0.0 and math.isfinite(jj)):
+                    break
+                q[i] -= max(-SCALE_STEP_LN, min(SCALE_STEP_LN, float(j @ r) / jj))
+        except BudgetExhausted:
+            return np.array(p, dtype=float)
+        return q if np.all(np.isfinite(q)) else np.array(p, dtype=float)
 
     def result(self, model: Model, sol: SolveResult, peak: float, win, n_points: int, starts: int,
                zdata: np.ndarray, valid: np.ndarray) -> FitResult:

@@ -341,6 +341,34 @@ def widen_by_points(values: dict, std: dict, reasons: dict[str, str],
                                "profile likelihood of the orientation it trades with")
 
 
+def place_sigma(fitter: Any, fr: Any, kind: int, p: np.ndarray, steps: np.ndarray,
+                bounds: tuple[np.ndarray, np.ndarray], python_residual: Any, chi2: float,
+                index: int, sd: float | None,
+                near_steps: tuple[float, ...] = LINE_NEAR_STEPS) -> float | None:
+    """The place's coordinate ``index`` of ``p`` (mm; linearised 1-sigma ``sd``) on its
+    profile likelihood: chi^2 minimised again with it held ``near_steps`` times
+    ``PROFILE_SIGMAS`` sigmas to either side (each search capped at ``PROFILE_ITERATIONS``,
+    one stopped short kept as the bound on the profile it is), and its sigma widened so that
+    every point that rises by less than a quadratic's there lies ``sqrt(rise)`` sigmas away
+    (one sigma below a rise of ``FLAT_CHI2``); None where no point says it is wider.  A light
+    ellipsoid on a coarse pad (a 6x4 pad of 4 mm pitch under 2 mm) fitted near a point has a
+    sharper place than the truth's: its linearised sigma put 80 % of the places within 2
+    sigmas and 5.7 % beyond 4, though the profile at the true place rose by 1-3.5 on most of
+    those beyond 2."""
+    if sd is None or not sd > 0.0:
+        return None
+    wide = sd
+    for k in near_steps:
+        dist = k * PROFILE_SIGMAS * sd
+        for side in (-1.0, 1.0):
+            got = _held(fitter, fr, kind, p, steps, bounds, python_residual, chi2,
+                        float(p[index]) + side * dist, index, cap=PROFILE_ITERATIONS,
+                        bounded=True)
+            if got is not None and got[0] < (k * PROFILE_SIGMAS) ** 2:
+                wide = max(wide, dist / math.sqrt(max(got[0], FLAT_CHI2)))
+    return wide if wide > sd else None
+
+
 def swapped(p: np.ndarray) -> np.ndarray | None:
     """The general model's vector ``p`` (``[ln R_a, beta, psi, ...]``) written with its first
     entry the log of r2, the larger radius (the same contact: ``kappa_b = beta^2 kappa_a``, so
