@@ -80,6 +80,7 @@ from tactiled.pipeline.kernels import (
 )
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
+_I_ANGLE = VALUE_KEYS.index("angle_deg")
 #: the value (its index in VALUE_KEYS) each moving parameter's lag widens (kernels.lag_variance)
 _LAG_KEY = dict(x0=VALUE_KEYS.index("x_mm"), y0=VALUE_KEYS.index("y_mm"), psi=VALUE_KEYS.index(
     "angle_deg"), ln_f=_I_FORCE)
@@ -157,6 +158,8 @@ MIN_FORCE_N, MAX_FORCE_N = 1e-4, 100.0
 OFF_ARRAY_MM = 5.0
 LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
 LN_F_BOUNDS = (math.log(MIN_FORCE_N), math.log(MAX_FORCE_N))
+#: why a tracked position is withheld (Tracker._withheld)
+_OFF_ARRAY = f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
 
 
 def reasonable_bounds(names: tuple[str, ...], geometry) -> list[tuple[int, float, float]]:
@@ -260,6 +263,7 @@ class Tracker:
         self._eframes = 0
         self._edt = 0.0
         self._judged_memo: tuple[dict[str, Any], Any] | None = None
+        self._share_memo: tuple[Any, float] | None = None
         self._constants: tuple[tuple[str, ...], Any] = ((), None)
         self._beta_floor: tuple[int, float] | None = None
         #: per value key (VALUE_KEYS order): the fit's sigma over its linearised single-frame
@@ -535,33 +539,30 @@ class Tracker:
     def estimate_from(self, base: dict[str, Any], numbers: list[float], var: list[float],
                       cov_rf: float, absent: int, rate: list[float],
                       pvv: list[float]) -> dict[str, Any]:
-        """:meth:`estimate` from ``TrackStep.estimate``'s numbers and the state's ``rate``
-        and ``pvv`` rows (as :mod:`tactiled.pipeline.tracked_run` gets them from the core)."""
-        values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
-        if absent:
-            for i, key in enumerate(VALUE_KEYS):
-                if absent >> i & 1:
-                    values[key] = None
-        if values["angle_deg"] is not None:
-            values["angle_deg"] = wrap_deg(values["angle_deg"])
+        """:meth:`estimate` from ``TrackStep.estimate``'s numbers and the state's ``rate`` and
+        ``pvv`` rows (as :mod:`tactiled.pipeline.tracked_run` gets them from the core)."""
+        values: list[float | None] = [None if absent >> i & 1 else v  # (VALUE_KEYS order)
+                                      for i, v in enumerate(numbers)] if absent else list(numbers)
+        if values[_I_ANGLE] is not None:
+            values[_I_ANGLE] = wrap_deg(values[_I_ANGLE])
         i_f, i_r = _I_FORCE, _I_R1
         out = dict(base)
-        soft_keys, soft_reasons, base_reasons, base_std, flat = self._judged(base)
+        soft_keys, soft_reasons, base_reasons, base_std, flat, std0, slots = self._judged(base)
         reasons = dict(base_reasons)
-        std: dict[str, float | None] = {}
-        for i, key in enumerate(VALUE_KEYS):
-            v = values[key]
+        std: dict[str, float | None] = dict(std0)  # (a value not judged again: the fit's sigma)
+        for i, key in slots:  # (VALUE_KEYS order: the judged values, and any base lacks)
+            v = values[i]
             if not soft_keys[i] or v is None or not math.isfinite(var[i]):
                 # not in this model, or withheld by the fit for what frames do not change (a
                 # line contact's radius): stays as the fit said
                 out[key] = base.get(key)
-                std[key] = base_std.get(key)
                 continue
             sd_i = math.sqrt(var[i]) * self._widen[i]
-            withheld = self._withheld(key, v, sd_i, flat[i])
+            withheld = ((_OFF_ARRAY if sd_i > OFF_ARRAY_MM else None) if i < 2  # x_mm, y_mm
+                        else self._withheld(key, v, sd_i, flat[i]))
             tied = None
-            if not withheld and key == "force_n" and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
-                r1, sd_r = values.get("r1_mm"), math.sqrt(var[i_r])
+            if not withheld and i == i_f and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
+                r1, sd_r = values[i_r], math.sqrt(var[i_r])
                 # a radius this estimate withholds (below) is as unresolved as one whose
                 # interval reaches zero: the frames pooled do not tell it better than one
                 # frame, so the part of the force's variance that is the radius's is one
@@ -601,15 +602,22 @@ class Tracker:
         """The part of one frame's variance of ln F that its radii (``ln_r``, ``ln_ra``,
         ``beta``) explain, ``c_fR C_RR^-1 c_Rf`` of the linearisation's covariance: what
         pooling frames does not average away while the radius is not resolved."""
-        assert self.lin is not None
-        return radius_force_variance(np.asarray(self.lin.cov, dtype=np.float64), self.names)
+        lin = self.lin
+        assert lin is not None
+        memo = self._share_memo  # (it depends on the linearisation only)
+        if memo is None or memo[0] is not lin:
+            memo = self._share_memo = (lin, radius_force_variance(
+                np.asarray(lin.cov, dtype=np.float64), self.names))
+        return memo[1]
 
-    def _judged(self, base: dict[str, Any]) -> tuple[list[bool], list[bool], dict[str, Any],
-                                                       dict[str, Any], list[bool]]:
+    def _judged(self, base: dict[str, Any]) -> tuple[
+            list[bool], list[bool], dict[str, Any], dict[str, Any], list[bool],
+            dict[str, Any], tuple[tuple[int, str], ...]]:
         """What of ``base`` (the fit the estimates rest on) the tracker judges again, per value
         key: a value the fit gave, or withheld for a reason the frames gathered since may
         lift (``_SOFT``); which of those reasons to drop once lifted; the fit's reasons and
-        1-sigma.  Kept while the same fit dict is the base (every frame of a contact)."""
+        1-sigma; the estimate's sigmas before the frame's, and which values a frame writes.
+        Kept while the same fit dict is the base (every frame of a contact)."""
         memo = self._judged_memo
         if memo is not None and memo[0] is base:
             return memo[1]
@@ -628,7 +636,10 @@ class Tracker:
         flat = [FLAT in str(reasons.get(key, "")) or (
             key in ("r1_mm", "r2_mm") and beyond_tested(base.get(key), std0.get(key)))
             for key in VALUE_KEYS]
-        judged = (soft, why, reasons, base.get("std") or {}, flat)
+        # the fit's sigmas in VALUE_KEYS order, and the values a frame writes (those judged
+        # again, any the base lacks): what estimate_from need not redo every frame
+        slots = tuple((i, key) for i, key in enumerate(VALUE_KEYS) if soft[i] or key not in base)
+        judged = (soft, why, reasons, std0, flat, {k: std0.get(k) for k in VALUE_KEYS}, slots)
         self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
         return judged
 
@@ -641,9 +652,7 @@ class Tracker:
         the frames give it a relative sigma within ``TEST_RELATIVE_SIGMA``, where its sigma is
         not in question."""
         if key in ("x_mm", "y_mm"):
-            if sd > OFF_ARRAY_MM:
-                return f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
-            return None
+            return _OFF_ARRAY if sd > OFF_ARRAY_MM else None
         if key not in ("r1_mm", "r2_mm", "force_n", "angle_deg") or (key != "angle_deg" and v <= 0.0):
             return None
         limit = self.withhold
@@ -651,7 +660,7 @@ class Tracker:
             limit = min(limit if limit is not None else math.inf, TEST_RELATIVE_SIGMA)
         return sigma_reason(key, v, sd, None, limit, f" over {self.n} frame(s)")
 
-    def _rates(self, values: dict[str, float | None], reasons: dict[str, str], v: list[float],
+    def _rates(self, values: list[float | None], reasons: dict[str, str], v: list[float],
                pvv: list[float]) -> tuple[dict[str, float | None], dict[str, float | None]]:
         rates: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
         sds: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
@@ -663,7 +672,7 @@ class Tracker:
             excess = self.excess
             for i, key, name in self._rate_of:
                 scale = (180.0 / math.pi if name == "psi"
-                         else (values["force_n"] or 0.0) if name == "ln_f" else 1.0)
+                         else (values[_I_FORCE] or 0.0) if name == "ln_f" else 1.0)
                 rates[key] = v[i] * scale
                 sds[key] = math.sqrt(max(pvv[i] * excess, 0.0)) * abs(scale)
         if self.model == "sphere":
