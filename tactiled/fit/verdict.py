@@ -261,22 +261,38 @@ def judge(fit: dict[str, Any], limits: ArrayLimits, *,
     ``fit``."""
     if not fit.get("contact"):
         return fit
-    before = ({k: fit.get(k) for k in VALUE_KEYS}, fit.get("std"), fit.get("reasons"),
-              fit.get("label"))
+    before = _contact_of(fit)
     _judge_one(fit, limits, withhold_relative_sigma)
     for c in fit.get("contacts") or ():
         if c is fit or not isinstance(c, dict):
             continue
-        if (c.get("std") == before[1] and c.get("reasons") == before[2]
-                and c.get("label") == before[3] and all(c.get(k) == v for k, v in before[0].items())):
+        if _reads_as(c, before):
             # the top level's own contact (one contact: the same dict's copy): judged already
-            c.update({k: fit.get(k) for k in VALUE_KEYS})
-            c["std"], c["reasons"] = dict(fit["std"]), dict(fit["reasons"])
-            if "ellipse" in fit:
-                c["ellipse"] = fit["ellipse"]
+            _take_verdict(c, fit)
             continue
         _judge_one(c, limits, withhold_relative_sigma)
     return fit
+
+
+def _contact_of(fit: dict[str, Any]) -> tuple:
+    """What the rule reads of a contact: its sigmas, reasons, label and values."""
+    return (fit.get("std"), fit.get("reasons"), fit.get("label"),
+            {k: fit.get(k) for k in VALUE_KEYS})
+
+
+def _reads_as(c: dict[str, Any], before: tuple) -> bool:
+    """Whether contact ``c`` reads as ``before`` (:func:`_contact_of`) to the rule."""
+    std, reasons, label, values = before
+    return (c.get("std") == std and c.get("reasons") == reasons and c.get("label") == label
+            and all(c.get(k) == v for k, v in values.items()))
+
+
+def _take_verdict(c: dict[str, Any], fit: dict[str, Any]) -> None:
+    """Contact ``c`` given ``fit``'s verdict (the same contact's, judged)."""
+    c.update({k: fit.get(k) for k in VALUE_KEYS})
+    c["std"], c["reasons"] = dict(fit["std"]), dict(fit["reasons"])
+    if "ellipse" in fit:
+        c["ellipse"] = fit["ellipse"]
 
 
 def judge_fresh(fit: dict[str, Any], limits: ArrayLimits, *,
@@ -295,11 +311,14 @@ def judge_fresh(fit: dict[str, Any], limits: ArrayLimits, *,
     if (first is None or first is fit or first.__class__ is not dict
             or fit.get("std") is not first.get("std")
             or fit.get("reasons") is not first.get("reasons")
-            or fit.get("label") is not first.get("label")
-            or any(fit.get(k) is not first.get(k) for k in VALUE_KEYS)):
+            or fit.get("label") is not first.get("label") or not _copied(fit, first)):
         return judge(fit, limits, withhold_relative_sigma=withhold_relative_sigma)
+    # (another contact that reads as the first, as judge takes it: given the same verdict)
+    before = _contact_of(first) if len(contacts) > 1 else None
+    same = [c for c in contacts[1:] if before is not None and c is not fit
+            and isinstance(c, dict) and _reads_as(c, before)]
     for c in contacts:
-        if c is not fit and isinstance(c, dict):
+        if c is not fit and isinstance(c, dict) and not any(c is d for d in same):
             _judge_in_place(c, limits, withhold_relative_sigma)
     for k in VALUE_KEYS:
         if k in first:
@@ -307,7 +326,18 @@ def judge_fresh(fit: dict[str, Any], limits: ArrayLimits, *,
     fit["std"], fit["reasons"] = dict(first["std"]), dict(first["reasons"])
     if "ellipse" in first:
         fit["ellipse"] = first["ellipse"]
+    for c in same:
+        _take_verdict(c, fit)
     return fit
+
+
+def _copied(fit: dict[str, Any], first: dict[str, Any]) -> bool:
+    """Whether ``fit``'s values are ``first``'s own objects (a copy of its keys)."""
+    get, got = fit.get, first.get
+    for k in VALUE_KEYS:
+        if get(k) is not got(k):
+            return False
+    return True
 
 
 def _judge_in_place(fit: dict[str, Any], limits: ArrayLimits,

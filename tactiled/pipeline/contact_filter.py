@@ -46,15 +46,9 @@ import numpy as np
 from tactiled.sensors.model import Geometry
 from tactiled.fit.profile import FLAT, FLAT_ACROSS, TEST_RELATIVE_SIGMA
 from tactiled.fit.verdict import sigma_reason
-from tactiled.fit.params import (
-    MOVING,
-    PARAMS,
-    RADIUS_LIMITS,
-    TOO_LIGHT,
-    VALUE_KEYS,
-    radius_tied_force,
-    wrap_deg,
-)
+from tactiled.fit.params import (MAX_ANGLE_SIGMA, MOVING, PARAMS, RADIUS_LIMITS, TOO_LIGHT,
+                                 UNOBSERVABLE_RELATIVE_SIGMA, VALUE_KEYS, radius_tied_force,
+                                 wrap_deg)
 from tactiled.pipeline.fit_sigmas import (beyond_tested, fit_widening, radius_force_variance,
                                           runaway_radius)
 from tactiled.pipeline.kernels import (
@@ -144,6 +138,7 @@ _SOFT = (TOO_LIGHT, "poorly determined", "orientation not observable")
 
 #: Estimate keys the tracker adds: rates (their 1-sigma in ``std`` under the same key).
 RATE_KEYS = ("vx_mm_s", "vy_mm_s", "angle_rate_deg_s", "force_rate_n_s")
+_NO_RATES = dict.fromkeys(RATE_KEYS)
 _RATE_OF = {"x0": "vx_mm_s", "y0": "vy_mm_s", "psi": "angle_rate_deg_s",
             "ln_f": "force_rate_n_s"}
 
@@ -260,9 +255,8 @@ class Tracker:
         self._esum: np.ndarray | None = None  # per tactel: the residuals' sum, their count
         self._ecount: np.ndarray | None = None
         self._ebuf: np.ndarray | None = None  # residuals not yet folded into the sums
-        self._eframes = 0
-        self._edt = 0.0
-        self._judged_memo: tuple[dict[str, Any], Any] | None = None
+        self._eframes, self._edt = 0, 0.0
+        self._judged_memo: tuple[dict[str, Any], float | None, Any] | None = None
         self._share_memo: tuple[Any, float] | None = None
         self._constants: tuple[tuple[str, ...], Any] = ((), None)
         self._beta_floor: tuple[int, float] | None = None
@@ -547,7 +541,7 @@ class Tracker:
             values[_I_ANGLE] = wrap_deg(values[_I_ANGLE])
         i_f, i_r = _I_FORCE, _I_R1
         out = dict(base)
-        soft_keys, soft_reasons, base_reasons, base_std, flat, std0, slots = self._judged(base)
+        soft_keys, lifted, base_reasons, base_std, flat, std0, slots, lims = self._judged(base)
         reasons = dict(base_reasons)
         std: dict[str, float | None] = dict(std0)  # (a value not judged again: the fit's sigma)
         for i, key in slots:  # (VALUE_KEYS order: the judged values, and any base lacks)
@@ -558,7 +552,11 @@ class Tracker:
                 out[key] = base.get(key)
                 continue
             sd_i = math.sqrt(var[i]) * self._widen[i]
-            withheld = ((_OFF_ARRAY if sd_i > OFF_ARRAY_MM else None) if i < 2  # x_mm, y_mm
+            # (_withheld inline where it answers None for sure: by the sigma's limit)
+            withheld = ((_OFF_ARRAY if sd_i > OFF_ARRAY_MM else None) if i < 2
+                        else None if (sd_i <= MAX_ANGLE_SIGMA if i == _I_ANGLE else v <= 0.0 or (
+                            v > 0.0 and not sd_i / v > lims[i]
+                            and (i == i_f or RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1])))
                         else self._withheld(key, v, sd_i, flat[i]))
             tied = None
             if not withheld and i == i_f and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
@@ -588,11 +586,9 @@ class Tracker:
             out[key], std[key] = v, sd_i
             if tied is not None:
                 reasons[key] = tied
-            elif soft_reasons[i] and self._widen[i] <= 1.0:
+            elif lifted[i] and self._widen[i] <= 1.0:
                 del reasons[key]
-        rates, rate_sd = self._rates(values, reasons, rate, pvv)
-        out.update(rates)
-        std.update(rate_sd)
+        self._rates(values[i_f], reasons, rate, pvv, out, std)
         out["std"] = std
         out["reasons"] = reasons
         out["frames_used"] = self.n
@@ -610,17 +606,15 @@ class Tracker:
                 np.asarray(lin.cov, dtype=np.float64), self.names))
         return memo[1]
 
-    def _judged(self, base: dict[str, Any]) -> tuple[
-            list[bool], list[bool], dict[str, Any], dict[str, Any], list[bool],
-            dict[str, Any], tuple[tuple[int, str], ...]]:
+    def _judged(self, base: dict[str, Any]) -> tuple[Any, ...]:
         """What of ``base`` (the fit the estimates rest on) the tracker judges again, per value
         key: a value the fit gave, or withheld for a reason the frames gathered since may
         lift (``_SOFT``); which of those reasons to drop once lifted; the fit's reasons and
-        1-sigma; the estimate's sigmas before the frame's, and which values a frame writes.
-        Kept while the same fit dict is the base (every frame of a contact)."""
+        1-sigma; what a frame's estimate starts from.  Kept while the same fit dict is the
+        base (every frame of a contact)."""
         memo = self._judged_memo
-        if memo is not None and memo[0] is base:
-            return memo[1]
+        if memo is not None and memo[0] is base and memo[1] == self.withhold:
+            return memo[2]
         reasons = base.get("reasons") or {}
         # (not an orientation the fit's profile found flat across the half-turn: the frames
         # pooled are linearised at a point that likelihood does not single out, as a circle's)
@@ -636,11 +630,16 @@ class Tracker:
         flat = [FLAT in str(reasons.get(key, "")) or (
             key in ("r1_mm", "r2_mm") and beyond_tested(base.get(key), std0.get(key)))
             for key in VALUE_KEYS]
-        # the fit's sigmas in VALUE_KEYS order, and the values a frame writes (those judged
-        # again, any the base lacks): what estimate_from need not redo every frame
+        # the values a frame writes (those judged again, any the base lacks), the fit's
+        # sigmas, the relative sigma past which a force or radius may be withheld (_withheld)
         slots = tuple((i, key) for i, key in enumerate(VALUE_KEYS) if soft[i] or key not in base)
-        judged = (soft, why, reasons, std0, flat, {k: std0.get(k) for k in VALUE_KEYS}, slots)
-        self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
+        limit = math.inf if self.withhold is None else self.withhold
+        lims = [min(UNOBSERVABLE_RELATIVE_SIGMA, min(limit, TEST_RELATIVE_SIGMA) if f else limit)
+                if k in ("r1_mm", "r2_mm") else UNOBSERVABLE_RELATIVE_SIGMA
+                for k, f in zip(VALUE_KEYS, flat)]
+        judged = (soft, why, reasons, std0, flat, {k: std0.get(k) for k in VALUE_KEYS}, slots,
+                  lims)
+        self._judged_memo = (base, self.withhold, judged)  # (holds base: its id is not reused)
         return judged
 
     def _withheld(self, key: str, v: float, sd: float, flat: bool = False) -> str | None:
@@ -660,10 +659,12 @@ class Tracker:
             limit = min(limit if limit is not None else math.inf, TEST_RELATIVE_SIGMA)
         return sigma_reason(key, v, sd, None, limit, f" over {self.n} frame(s)")
 
-    def _rates(self, values: list[float | None], reasons: dict[str, str], v: list[float],
-               pvv: list[float]) -> tuple[dict[str, float | None], dict[str, float | None]]:
-        rates: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
-        sds: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
+    def _rates(self, force: float | None, reasons: dict[str, str], v: list[float],
+               pvv: list[float], out: dict[str, Any], std: dict[str, Any]) -> None:
+        """The rates (``RATE_KEYS``, null where not given) into ``out``, their 1-sigma into
+        ``std``, from the state's rates ``v`` and their variances ``pvv``."""
+        out.update(_NO_RATES)
+        std.update(_NO_RATES)
         if self.n < MIN_RATE_FRAMES:
             why = f"the contact changed {self.n} frame(s) ago: too few frames for a rate"
             for _, key, _ in self._rate_of:
@@ -672,12 +673,11 @@ class Tracker:
             excess = self.excess
             for i, key, name in self._rate_of:
                 scale = (180.0 / math.pi if name == "psi"
-                         else (values[_I_FORCE] or 0.0) if name == "ln_f" else 1.0)
-                rates[key] = v[i] * scale
-                sds[key] = math.sqrt(max(pvv[i] * excess, 0.0)) * abs(scale)
+                         else (force or 0.0) if name == "ln_f" else 1.0)
+                out[key] = v[i] * scale
+                std[key] = math.sqrt(max(pvv[i] * excess, 0.0)) * abs(scale)
         if self.model == "sphere":
             reasons["angle_rate_deg_s"] = "undefined: sphere model"
-        return rates, sds
 
 
 def _swapped(x: np.ndarray, p: np.ndarray, names: tuple[str, ...]) -> bool:
@@ -693,8 +693,8 @@ def untracked(fit: dict[str, Any], frames_used: int, reason: str) -> dict[str, A
     """``fit`` (a fit's JSON dict) with the tracker's keys for an estimate it did not make
     (no contact, tracking off): ``frames_used`` as given, the rates null with ``reason``."""
     out = dict(fit)
-    out.update(dict.fromkeys(RATE_KEYS))
+    out.update(_NO_RATES)
     out["frames_used"] = frames_used
-    out["std"] = {**(fit.get("std") or {}), **dict.fromkeys(RATE_KEYS)}
+    out["std"] = {**(fit.get("std") or {}), **_NO_RATES}
     out["reasons"] = {**(fit.get("reasons") or {}), **{k: reason for k in RATE_KEYS}}
     return out
