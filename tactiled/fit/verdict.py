@@ -313,13 +313,16 @@ def judge_fresh(fit: dict[str, Any], limits: ArrayLimits, *,
             or fit.get("reasons") is not first.get("reasons")
             or fit.get("label") is not first.get("label") or not _copied(fit, first)):
         return judge(fit, limits, withhold_relative_sigma=withhold_relative_sigma)
-    # (another contact that reads as the first, as judge takes it: given the same verdict)
-    before = _contact_of(first) if len(contacts) > 1 else None
-    same = [c for c in contacts[1:] if before is not None and c is not fit
-            and isinstance(c, dict) and _reads_as(c, before)]
-    for c in contacts:
-        if c is not fit and isinstance(c, dict) and not any(c is d for d in same):
-            _judge_in_place(c, limits, withhold_relative_sigma)
+    same = []
+    if len(contacts) == 1:
+        _judge_in_place(first, limits, withhold_relative_sigma)
+    else:  # (another contact that reads as the first, as judge takes it: its verdict too)
+        before = _contact_of(first)
+        same = [c for c in contacts[1:] if c is not fit and isinstance(c, dict)
+                and _reads_as(c, before)]
+        for c in contacts:
+            if c is not fit and isinstance(c, dict) and not any(c is d for d in same):
+                _judge_in_place(c, limits, withhold_relative_sigma)
     for k in VALUE_KEYS:
         if k in first:
             fit[k] = first[k]
