@@ -49,8 +49,8 @@ from tactiled.fit.verdict import sigma_reason
 from tactiled.fit.params import (MAX_ANGLE_SIGMA, MOVING, PARAMS, RADIUS_LIMITS, TOO_LIGHT,
                                  UNOBSERVABLE_RELATIVE_SIGMA, VALUE_KEYS, radius_tied_force,
                                  wrap_deg)
-from tactiled.pipeline.fit_sigmas import (beyond_tested, fit_widening, radius_force_variance,
-                                          runaway_radius)
+from tactiled.pipeline.fit_sigmas import (beyond_tested, fit_widening, kept_by_limits,
+                                          radius_force_variance, runaway_radius)
 from tactiled.pipeline.kernels import (
     C_HIGH,
     C_LIN_SD,
@@ -552,11 +552,7 @@ class Tracker:
                 out[key] = base.get(key)
                 continue
             sd_i = math.sqrt(var[i]) * self._widen[i]
-            # (_withheld inline where it answers None for sure: by the sigma's limit)
-            withheld = ((_OFF_ARRAY if sd_i > OFF_ARRAY_MM else None) if i < 2
-                        else None if (sd_i <= MAX_ANGLE_SIGMA if i == _I_ANGLE else v <= 0.0 or (
-                            v > 0.0 and not sd_i / v > lims[i]
-                            and (i == i_f or RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1])))
+            withheld = (None if kept_by_limits(i, v, sd_i, lims[i])
                         else self._withheld(key, v, sd_i, flat[i]))
             tied = None
             if not withheld and i == i_f and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
@@ -566,6 +562,7 @@ class Tracker:
                 # frame, so the part of the force's variance that is the radius's is one
                 # frame's, not averaged (radius_force_variance)
                 unresolved = (soft_keys[i_r] and r1 is not None
+                              and not kept_by_limits(i_r, r1, sd_r, lims[i_r])
                               and self._withheld("r1_mm", r1, sd_r, flat[i_r]) is not None)
                 if unresolved or radius_tied_force(r1, sd_r, sd_i, cov_rf) is not None:
                     # at least the fit's relative sigma, too: it holds the radius's
@@ -631,11 +628,12 @@ class Tracker:
             key in ("r1_mm", "r2_mm") and beyond_tested(base.get(key), std0.get(key)))
             for key in VALUE_KEYS]
         # the values a frame writes (those judged again, any the base lacks), the fit's
-        # sigmas, the relative sigma past which a force or radius may be withheld (_withheld)
+        # sigmas, each value's sigma limit (kept_by_limits: a force's or radius's relative)
         slots = tuple((i, key) for i, key in enumerate(VALUE_KEYS) if soft[i] or key not in base)
         limit = math.inf if self.withhold is None else self.withhold
-        lims = [min(UNOBSERVABLE_RELATIVE_SIGMA, min(limit, TEST_RELATIVE_SIGMA) if f else limit)
-                if k in ("r1_mm", "r2_mm") else UNOBSERVABLE_RELATIVE_SIGMA
+        lims = [OFF_ARRAY_MM if k in ("x_mm", "y_mm") else MAX_ANGLE_SIGMA if k == "angle_deg"
+                else min(UNOBSERVABLE_RELATIVE_SIGMA, min(limit, TEST_RELATIVE_SIGMA) if f else
+                         limit) if k in ("r1_mm", "r2_mm") else UNOBSERVABLE_RELATIVE_SIGMA
                 for k, f in zip(VALUE_KEYS, flat)]
         judged = (soft, why, reasons, std0, flat, {k: std0.get(k) for k in VALUE_KEYS}, slots,
                   lims)

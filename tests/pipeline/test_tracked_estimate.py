@@ -32,7 +32,7 @@ from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
 from tactiled.pipeline import contact_filter as cf
 from tactiled.pipeline.contact_filter import OFF_ARRAY_MM, Tracker
-from tactiled.pipeline.fit_sigmas import beyond_tested, runaway_radius
+from tactiled.pipeline.fit_sigmas import beyond_tested, kept_by_limits, runaway_radius
 from tactiled.sensors.model import NoiseModel, SensorModel
 
 
@@ -192,3 +192,20 @@ def _outcome(build: Any, *args: Any) -> str:
         return json.dumps(build(*args))
     except ArithmeticError as e:
         return type(e).__name__
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.data())
+def test_a_value_kept_by_its_limits_is_one_the_rules_keep(tracked, data) -> None:
+    """``kept_by_limits`` answers only where ``Tracker._withheld`` answers None."""
+    tr, fit = tracked
+    base = data.draw(frames(fit))[0]
+    tr.withhold = data.draw(st.sampled_from([None, 0.5, 0.2]))
+    judged = tr._judged(base)
+    flat, lims = judged[4], judged[-1]
+    i = data.draw(st.integers(0, len(VALUE_KEYS) - 1))
+    v = data.draw(_values)[i]
+    sd = data.draw(st.one_of(st.floats(0.0, 50.0), _odd, st.sampled_from(
+        [OFF_ARRAY_MM, MAX_ANGLE_SIGMA, 0.5 * abs(v) if math.isfinite(v) else 1.0])))
+    if kept_by_limits(i, v, sd, lims[i]):
+        assert tr._withheld(VALUE_KEYS[i], v, sd, flat[i]) is None
