@@ -256,7 +256,8 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
 
 
 def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: int = 4000,
-                  every: int = 53, repeats: int = 200) -> dict[str, Any]:
+                  every: int = 53, repeats: int = 200,
+                  profile: str | None = None) -> dict[str, Any]:
     """A tracked contact frame's estimate alone, from the core's numbers to the ``Estimate``
     record handed to ``SensorPipeline._send``: microseconds of this process's CPU per call of
     ``TrackedRun._publish_one`` (the zeroed frame's record, the trackers' frame counts, the
@@ -265,8 +266,11 @@ def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: 
     ``every``-th tracked frame's call is repeated ``repeats`` times on the spot, on the
     pipeline's state then (what the repeats change is put back), and timed as one.  Per part:
     ``median_us``, ``p90_us`` and ``samples``; ``all``: the median over every part's samples
-    (the palm's several contacts weigh as often as they are tracked)."""
+    (the palm's several contacts weigh as often as they are tracked).  ``profile``: instead,
+    a file that gets the cProfile statistics of every call, once each (this process's CPU
+    clock; ``calls`` in the answer: :func:`functions_per_frame`'s ``frames``)."""
     import copy
+    import cProfile
     import time
 
     from tactiled.pipeline import tracked_run
@@ -276,8 +280,16 @@ def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: 
     seen = [0]
     samples: dict[str, list[float]] = {}
 
+    prof = None if profile is None else cProfile.Profile(time.process_time)
+
     def timed(self: Any, pipe: Any, w: Any, statistic: float, numbers: Any) -> Any:
         seen[0] += 1
+        if prof is not None:
+            prof.enable()
+            try:
+                return original(self, pipe, w, statistic, numbers)
+            finally:
+                prof.disable()
         if seen[0] % every == 0:
             trackers = pipe.tracking.tracker.trackers
             kept = ([(tr.t, tr.n, tr._eframes, tr._edt) for tr in trackers], pipe._ordinal,
@@ -304,6 +316,9 @@ def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: 
         replay_cost(parts, frames, passes=1)
     finally:
         run._publish_one = original
+    if prof is not None:
+        prof.dump_stats(profile)
+        return {"calls": seen[0]}
 
     def stats(v: list[float]) -> dict[str, Any]:
         v = sorted(v)
@@ -315,12 +330,12 @@ def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: 
     return out
 
 
-def estimate_at(tree: str, parts: tuple[tuple[str, str, str], ...] = HAND_PARTS
-                ) -> dict[str, Any]:
+def estimate_at(tree: str, parts: tuple[tuple[str, str, str], ...] = HAND_PARTS,
+                profile: str | None = None) -> dict[str, Any]:
     """:func:`estimate_cost` on the code of checkout ``tree``."""
     import inspect
 
-    return run_at(tree, estimate_cost, f"estimate_cost({parts!r})",
+    return run_at(tree, estimate_cost, f"estimate_cost({parts!r}, profile={profile!r})",
                   (f"HAND_PARTS = {HAND_PARTS!r}", inspect.getsource(replay_cost)))
 
 
