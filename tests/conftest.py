@@ -294,6 +294,7 @@ COMPUTE_ONLY_MODULES = frozenset({
     "pipeline/test_multi_contact.py", "pipeline/test_pipeline_gate.py",
     "pipeline/test_sensor_stats.py", "pipeline/test_several_contacts.py",
     "pipeline/test_signal_refit.py", "pipeline/test_tracked_dispatch.py",
+    "pipeline/test_tracked_estimate.py",
     "pipeline/test_tracker_sigmas.py", "pipeline/test_worker_packing.py",
     "reliability/test_decoder_fuzz.py", "reliability/test_golden_truth.py",
     "sensors/test_three_axis.py", "service/test_json_messages.py",

@@ -4,7 +4,8 @@
 
 Splits a ``py-spy --format raw`` profile of a running acquisition bench by pipeline stage, for
 the daemon's main process only (event loop and serial read thread); ``--stage``, ``--replay``
-and ``--fits`` time the calibration stage, the whole main process on a replay, and a fit worker.
+and ``--fits`` time the calibration stage, the whole main process on a replay, and a fit worker;
+``--estimate`` a tracked contact frame's estimate alone.
 """
 # Record the profile with:
 #     py-spy record --subprocesses --nonblocking --format raw -r 250 -o prof.txt -- \
@@ -264,6 +265,90 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
                 SensorPipeline.batched = was
 
 
+def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: int = 4000,
+                  every: int = 53, repeats: int = 200,
+                  profile: str | None = None) -> dict[str, Any]:
+    """A tracked contact frame's estimate alone, from the core's numbers to the ``Estimate``
+    record handed to ``SensorPipeline._send``: microseconds of this process's CPU per call of
+    ``TrackedRun._publish_one`` (the zeroed frame's record, the trackers' frame counts, the
+    tracker's estimate, the contacts' ids, the verdict, the record), the hub and ``_send``
+    left out.  The hand replayed lossless as :func:`replay_cost` plays it (one pass); every
+    ``every``-th tracked frame's call is repeated ``repeats`` times on the spot, on the
+    pipeline's state then (what the repeats change is put back), and timed as one.  Per part:
+    ``median_us``, ``p90_us`` and ``samples``; ``all``: the median over every part's samples
+    (the palm's several contacts weigh as often as they are tracked).  ``profile``: instead,
+    a file that gets the cProfile statistics of every call, once each (this process's CPU
+    clock; ``calls`` in the answer: :func:`functions_per_frame`'s ``frames``)."""
+    import copy
+    import cProfile
+    import time
+
+    from tactiled.pipeline import tracked_run
+
+    run = tracked_run.TrackedRun
+    original = run._publish_one
+    seen = [0]
+    samples: dict[str, list[float]] = {}
+
+    prof = None if profile is None else cProfile.Profile(time.process_time)
+
+    def timed(self: Any, pipe: Any, w: Any, statistic: float, numbers: Any) -> Any:
+        seen[0] += 1
+        if prof is not None:
+            prof.enable()
+            try:
+                return original(self, pipe, w, statistic, numbers)
+            finally:
+                prof.disable()
+        if seen[0] % every == 0:
+            trackers = pipe.tracking.tracker.trackers
+            kept = ([(tr.t, tr.n, tr._eframes, tr._edt) for tr in trackers], pipe._ordinal,
+                    dict(pipe.skipped), copy.deepcopy(pipe.ids.__dict__), w.ordinal)
+            pipe._send = pipe.hub.publish = lambda *a: None  # (instance attributes: removed below)
+            try:
+                t0 = time.process_time()
+                for _ in range(repeats):
+                    original(self, pipe, w, statistic, numbers)
+                cpu = time.process_time() - t0
+            finally:
+                del pipe._send, pipe.hub.publish
+                for tr, (t, n, ef, edt) in zip(trackers, kept[0]):
+                    tr.t, tr.n, tr._eframes, tr._edt = t, n, ef, edt
+                pipe._ordinal, w.ordinal = kept[1], kept[4]
+                pipe.skipped.clear()
+                pipe.skipped.update(kept[2])
+                pipe.ids.__dict__.update(kept[3])
+            samples.setdefault(pipe.name, []).append(1e6 * cpu / repeats)
+        return original(self, pipe, w, statistic, numbers)
+
+    run._publish_one = timed
+    try:
+        replay_cost(parts, frames, passes=1)
+    finally:
+        run._publish_one = original
+    if prof is not None:
+        prof.dump_stats(profile)
+        return {"calls": seen[0]}
+
+    def stats(v: list[float]) -> dict[str, Any]:
+        v = sorted(v)
+        return {"median_us": v[len(v) // 2], "p90_us": v[int(0.9 * (len(v) - 1))],
+                "samples": len(v)}
+
+    out = {name: stats(v) for name, v in samples.items() if v}
+    out["all"] = stats([x for v in samples.values() for x in v])
+    return out
+
+
+def estimate_at(tree: str, parts: tuple[tuple[str, str, str], ...] = HAND_PARTS,
+                profile: str | None = None) -> dict[str, Any]:
+    """:func:`estimate_cost` on the code of checkout ``tree``."""
+    import inspect
+
+    return run_at(tree, estimate_cost, f"estimate_cost({parts!r}, profile={profile!r})",
+                  (f"HAND_PARTS = {HAND_PARTS!r}", inspect.getsource(replay_cost)))
+
+
 #: The arrays whose fits :func:`fit_cost` times: (description, scene), the palm's several
 #: contacts and a fingertip's two.
 FIT_PARTS = (("flat16", "hand-palm"), ("fearing1988", "hand-finger2"))
@@ -402,9 +487,12 @@ def _cli() -> None:
     p.add_argument("--fits", action="store_true",
                    help="instead: a worker's time per fit job (the fit, then its "
                         "linearisation) on the palm's and a fingertip's frames (fit_cost)")
+    p.add_argument("--estimate", action="store_true",
+                   help="instead: a tracked contact frame's estimate alone, us of CPU per "
+                        "estimate, the hand replayed lossless (estimate_cost)")
     p.add_argument("--baseline", metavar="REV", default=None,
-                   help="with --replay or --fits: also the code of git revision REV, in turn "
-                        "with this tree's (two rounds)")
+                   help="with --replay, --fits or --estimate: also the code of git revision "
+                        "REV, in turn with this tree's (two rounds)")
     p.add_argument("--per-frame", action="store_true",
                    help="with --replay: this tree's runs through the core and its per-frame "
                         "path, in turn (two rounds)")
@@ -423,8 +511,20 @@ def _cli() -> None:
         p.error("--empty goes with --replay, without --per-frame or --cprofile")
     if a.per_frame and (not a.replay or a.baseline is not None):
         p.error("--per-frame goes with --replay, without --baseline")
-    if a.baseline is not None and not (a.replay or a.fits):
-        p.error("--baseline goes with --replay or --fits")
+    if a.baseline is not None and not (a.replay or a.fits or a.estimate):
+        p.error("--baseline goes with --replay, --fits or --estimate")
+    if a.estimate:
+        print("| code | part | tracked estimates timed | us of CPU per estimate: median / p90 |")
+        print("|---|---|---|---|")
+        with _baseline_tree(a.baseline) as tree:
+            codes = [("this tree", _here())]
+            if tree is not None:
+                codes = [*codes, (f"baseline {a.baseline}", tree)] * 2
+            for code, where in codes:
+                for part, r in estimate_at(where).items():
+                    print(f"| {code} | {part} | {r['samples']} | {r['median_us']:.1f} / "
+                          f"{r['p90_us']:.1f} |")
+        return
     if a.fits:
         print("| code | array | scene | fit jobs | fit, ms p50 / p90 | linearisation, ms p50 / p90 |")
         print("|---|---|---|---|---|---|")

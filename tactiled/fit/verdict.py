@@ -29,6 +29,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from tactiled.fit.params import (
     MAX_ANGLE_SIGMA,
     RADIUS_LIMITS,
@@ -37,7 +39,9 @@ from tactiled.fit.params import (
     VALUE_KEYS,
 )
 from tactiled.fit.profile import FLAT_ACROSS
-from tactiled.physics.hertz import contact_ellipse_radii
+from tactiled.physics import hertz
+
+_NO_JAC = np.zeros((0, 0))
 
 #: What the ellipse rule withholds: the values that say how large a contact is.
 SIZE_KEYS = ("force_n", "r1_mm", "r2_mm")
@@ -124,13 +128,23 @@ def ellipse_of(values: dict[str, Any], limits: ArrayLimits) -> dict[str, float] 
         angle = 0.0
     if math.isinf(r2) and math.isinf(limits.finger_radius):
         return None  # a cylinder on a flat array is a line, not an ellipse
+    # contact_ellipse_radii's arithmetic and its checks, without its records (a tracked
+    # estimate asks for one a frame): the same numbers, the same None where it raises
     try:
-        ell = contact_ellipse_radii(r1, r2, angle, f, limits.finger_radius, limits.compliance)
+        kappa_a, kappa_b, psi = 1.0 / r1, 0.0 if math.isinf(r2) else 1.0 / r2, math.radians(angle)
+    except (ZeroDivisionError, OverflowError):
+        return None
+    if not (r2 > 0.0 and kappa_a >= 0.0 and kappa_b >= 0.0 and math.isfinite(f)
+            and math.isfinite(kappa_a) and math.isfinite(kappa_b) and math.isfinite(psi)):
+        return None
+    try:
+        a, b, theta, _ = hertz.ellipse_core(kappa_a, kappa_b, psi, f, limits.finger_radius,
+                                            limits.compliance, _NO_JAC)
     except (ValueError, ZeroDivisionError, OverflowError):
         return None
-    if not (math.isfinite(ell.a) and math.isfinite(ell.b) and ell.a >= 0.0):
-        return None
-    return {"a_mm": ell.a, "b_mm": ell.b, "theta_deg": math.degrees(ell.theta) % 180.0}
+    if not (math.isfinite(a) and math.isfinite(b) and a >= 0.0):
+        return None  # (a < 0: an infinite line, which contact_ellipse raises on)
+    return {"a_mm": a, "b_mm": b, "theta_deg": math.degrees(theta) % 180.0}
 
 
 def _withhold(values: dict, std: dict, reasons: dict, key: str, why: str) -> None:
@@ -215,7 +229,13 @@ def judge_values(values: dict[str, Any], std: dict[str, Any], reasons: dict[str,
                 if values.get(key) is not None:
                     _withhold(values, std, reasons, key, why)
         return None  # a line's radius and load are judged above; it has no ellipse to bound
-    ell = ellipse_of(values, limits)
+    return _bounded(ellipse_of(values, limits), values, std, reasons, limits)
+
+
+def _bounded(ell: dict[str, float] | None, values: dict[str, Any], std: dict[str, Any],
+             reasons: dict[str, str], limits: ArrayLimits) -> dict[str, float] | None:
+    """``ell`` (the values' ellipse) where it is not longer than the array allows; else None,
+    the size keys of ``values`` (and ``std``) withheld with the reason."""
     if ell is None:
         return None
     extent = limits.extent(math.radians(ell["theta_deg"]))
@@ -241,22 +261,104 @@ def judge(fit: dict[str, Any], limits: ArrayLimits, *,
     ``fit``."""
     if not fit.get("contact"):
         return fit
-    before = ({k: fit.get(k) for k in VALUE_KEYS}, fit.get("std"), fit.get("reasons"),
-              fit.get("label"))
+    before = _contact_of(fit)
     _judge_one(fit, limits, withhold_relative_sigma)
     for c in fit.get("contacts") or ():
         if c is fit or not isinstance(c, dict):
             continue
-        if (c.get("std") == before[1] and c.get("reasons") == before[2]
-                and c.get("label") == before[3] and all(c.get(k) == v for k, v in before[0].items())):
+        if _reads_as(c, before):
             # the top level's own contact (one contact: the same dict's copy): judged already
-            c.update({k: fit.get(k) for k in VALUE_KEYS})
-            c["std"], c["reasons"] = dict(fit["std"]), dict(fit["reasons"])
-            if "ellipse" in fit:
-                c["ellipse"] = fit["ellipse"]
+            _take_verdict(c, fit)
             continue
         _judge_one(c, limits, withhold_relative_sigma)
     return fit
+
+
+def _contact_of(fit: dict[str, Any]) -> tuple:
+    """What the rule reads of a contact: its sigmas, reasons, label and values."""
+    return (fit.get("std"), fit.get("reasons"), fit.get("label"),
+            {k: fit.get(k) for k in VALUE_KEYS})
+
+
+def _reads_as(c: dict[str, Any], before: tuple) -> bool:
+    """Whether contact ``c`` reads as ``before`` (:func:`_contact_of`) to the rule."""
+    std, reasons, label, values = before
+    return (c.get("std") == std and c.get("reasons") == reasons and c.get("label") == label
+            and all(c.get(k) == v for k, v in values.items()))
+
+
+def _take_verdict(c: dict[str, Any], fit: dict[str, Any]) -> None:
+    """Contact ``c`` given ``fit``'s verdict (the same contact's, judged)."""
+    c.update({k: fit.get(k) for k in VALUE_KEYS})
+    c["std"], c["reasons"] = dict(fit["std"]), dict(fit["reasons"])
+    if "ellipse" in fit:
+        c["ellipse"] = fit["ellipse"]
+
+
+def judge_fresh(fit: dict[str, Any], limits: ArrayLimits, *,
+                withhold_relative_sigma: float | None = None) -> dict[str, Any]:
+    """:func:`judge` on an estimate made for this publication alone (a tracker's, completed
+    by ``association.identified(..., fresh=True)``): each contact's ``std`` and ``reasons``
+    dicts its own, the top level a copy of its first contact's.  Each contact is judged in
+    place, once, and the top level takes its first contact's verdict, where :func:`judge`
+    judges the top level, compares it with each contact and judges the others: the same
+    dicts, key for key (tests/fit/test_verdict_fresh.py).  Anything else (a top level that
+    is not its first contact's copy, a dict it cannot vouch for) goes to :func:`judge`."""
+    if not fit.get("contact"):
+        return fit
+    contacts = fit.get("contacts")
+    first = contacts[0] if contacts else None
+    if (first is None or first is fit or first.__class__ is not dict
+            or fit.get("std") is not first.get("std")
+            or fit.get("reasons") is not first.get("reasons")
+            or fit.get("label") is not first.get("label") or not _copied(fit, first)):
+        return judge(fit, limits, withhold_relative_sigma=withhold_relative_sigma)
+    same = []
+    if len(contacts) == 1:
+        _judge_in_place(first, limits, withhold_relative_sigma)
+    else:  # (another contact that reads as the first, as judge takes it: its verdict too)
+        before = _contact_of(first)
+        same = [c for c in contacts[1:] if c is not fit and isinstance(c, dict)
+                and _reads_as(c, before)]
+        for c in contacts:
+            if c is not fit and isinstance(c, dict) and not any(c is d for d in same):
+                _judge_in_place(c, limits, withhold_relative_sigma)
+    for k in VALUE_KEYS:
+        if k in first:
+            fit[k] = first[k]
+    fit["std"], fit["reasons"] = dict(first["std"]), dict(first["reasons"])
+    if "ellipse" in first:
+        fit["ellipse"] = first["ellipse"]
+    for c in same:
+        _take_verdict(c, fit)
+    return fit
+
+
+def _copied(fit: dict[str, Any], first: dict[str, Any]) -> bool:
+    """Whether ``fit``'s values are ``first``'s own objects (a copy of its keys)."""
+    get, got = fit.get, first.get
+    for k in VALUE_KEYS:
+        if get(k) is not got(k):
+            return False
+    return True
+
+
+def _judge_in_place(fit: dict[str, Any], limits: ArrayLimits,
+                    withhold_relative_sigma: float | None) -> None:
+    """:func:`_judge_one` on a contact whose ``std`` and ``reasons`` are its own: where every
+    value stands by its sigma (:func:`_all_kept`), only its ellipse is judged, in place."""
+    std, reasons = fit.get("std"), fit.get("reasons")
+    if (std.__class__ is not dict or reasons.__class__ is not dict
+            or fit.get("label") == "line" or fit.get("line") is not None
+            or not _all_kept(fit, std, limits, withhold_relative_sigma)):
+        _judge_one(fit, limits, withhold_relative_sigma)
+        return
+    ell = _bounded(ellipse_of(fit, limits), fit, std, reasons, limits)
+    if ell is not None:
+        fit["ellipse"] = ell
+    elif fit.get("ellipse") is not None or "ellipse" in reasons:
+        fit["ellipse"] = None
+        reasons.setdefault("ellipse", "not estimated: a value it follows from is withheld")
 
 
 def _judge_one(fit: dict[str, Any], limits: ArrayLimits,

@@ -57,9 +57,11 @@ class ContactIds:
         return i
 
     def _near(self, held: tuple[int, float | None, float | None, float | None],
-              c: dict[str, Any]) -> bool:
+              c: tuple[float | None, float | None, float | None]) -> bool:
+        """Whether a held contact and a contact placed at ``c`` (``x_mm, y_mm`` and its well
+        measured radius, any of them None) can be the same."""
         _, hx, hy, hr = held
-        x, y, r = c.get("x_mm"), c.get("y_mm"), _radius(c)
+        x, y, r = c
         if hx is None or hy is None or x is None or y is None:
             return False
         if math.hypot(x - hx, y - hy) > self.gate_mm:
@@ -70,13 +72,14 @@ class ContactIds:
         """The id of each of this frame's ``contacts`` (dicts with ``x_mm``, ``y_mm`` and
         ``r1_mm``, any of them None), in order; they become the held contacts."""
         held = self._held
-        if len(held) == 1 and len(contacts) == 1:  # the common case: one contact, held
-            c = contacts[0]
-            unplaced = None in (held[0][1], held[0][2], c.get("x_mm"), c.get("y_mm"))
+        places = [(c.get("x_mm"), c.get("y_mm"), _radius(c)) for c in contacts]
+        if len(held) == 1 and len(places) == 1:  # the common case: one contact, held
+            c = places[0]
+            unplaced = None in (held[0][1], held[0][2], c[0], c[1])
             # a withheld place says nothing against it being the same contact
             ids = [held[0][0] if unplaced or self._near(held[0], c) else self._new()]
         else:
-            near = [[k for k, h in enumerate(held) if self._near(h, c)] for c in contacts]
+            near = [[k for k, h in enumerate(held) if self._near(h, c)] for c in places]
             claims = [sum(k in n for n in near) for k in range(len(held))]
             ids = []
             for n in near:
@@ -86,7 +89,7 @@ class ContactIds:
                     self.merges += len(n) > 1
                     ids.append(self._new())
             self.splits += sum(1 for c in claims if c > 1)
-        self._held = [(i, c.get("x_mm"), c.get("y_mm"), _radius(c)) for i, c in zip(ids, contacts)]
+        self._held = [(i, *c) for i, c in zip(ids, places)]
         return ids
 
 

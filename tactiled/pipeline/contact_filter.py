@@ -46,17 +46,11 @@ import numpy as np
 from tactiled.sensors.model import Geometry
 from tactiled.fit.profile import FLAT, FLAT_ACROSS, TEST_RELATIVE_SIGMA
 from tactiled.fit.verdict import sigma_reason
-from tactiled.fit.params import (
-    MOVING,
-    PARAMS,
-    RADIUS_LIMITS,
-    TOO_LIGHT,
-    VALUE_KEYS,
-    radius_tied_force,
-    wrap_deg,
-)
-from tactiled.pipeline.fit_sigmas import (beyond_tested, fit_widening, radius_force_variance,
-                                          runaway_radius)
+from tactiled.fit.params import (MAX_ANGLE_SIGMA, MOVING, PARAMS, RADIUS_LIMITS, TOO_LIGHT,
+                                 UNOBSERVABLE_RELATIVE_SIGMA, VALUE_KEYS, radius_tied_force,
+                                 wrap_deg)
+from tactiled.pipeline.fit_sigmas import (beyond_tested, fit_widening, kept_by_limits,
+                                          radius_force_variance, runaway_radius)
 from tactiled.pipeline.kernels import (
     C_HIGH,
     C_LIN_SD,
@@ -80,6 +74,7 @@ from tactiled.pipeline.kernels import (
 )
 
 _I_FORCE, _I_R1 = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("r1_mm")
+_I_ANGLE = VALUE_KEYS.index("angle_deg")
 #: the value (its index in VALUE_KEYS) each moving parameter's lag widens (kernels.lag_variance)
 _LAG_KEY = dict(x0=VALUE_KEYS.index("x_mm"), y0=VALUE_KEYS.index("y_mm"), psi=VALUE_KEYS.index(
     "angle_deg"), ln_f=_I_FORCE)
@@ -143,6 +138,7 @@ _SOFT = (TOO_LIGHT, "poorly determined", "orientation not observable")
 
 #: Estimate keys the tracker adds: rates (their 1-sigma in ``std`` under the same key).
 RATE_KEYS = ("vx_mm_s", "vy_mm_s", "angle_rate_deg_s", "force_rate_n_s")
+_NO_RATES = dict.fromkeys(RATE_KEYS)
 _RATE_OF = {"x0": "vx_mm_s", "y0": "vy_mm_s", "psi": "angle_rate_deg_s",
             "ln_f": "force_rate_n_s"}
 
@@ -157,6 +153,8 @@ MIN_FORCE_N, MAX_FORCE_N = 1e-4, 100.0
 OFF_ARRAY_MM = 5.0
 LN_R_BOUNDS = (math.log(0.5 * RADIUS_LIMITS[0]), math.log(2.0 * RADIUS_LIMITS[1]))
 LN_F_BOUNDS = (math.log(MIN_FORCE_N), math.log(MAX_FORCE_N))
+#: why a tracked position is withheld (Tracker._withheld)
+_OFF_ARRAY = f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
 
 
 def reasonable_bounds(names: tuple[str, ...], geometry) -> list[tuple[int, float, float]]:
@@ -257,9 +255,9 @@ class Tracker:
         self._esum: np.ndarray | None = None  # per tactel: the residuals' sum, their count
         self._ecount: np.ndarray | None = None
         self._ebuf: np.ndarray | None = None  # residuals not yet folded into the sums
-        self._eframes = 0
-        self._edt = 0.0
-        self._judged_memo: tuple[dict[str, Any], Any] | None = None
+        self._eframes, self._edt = 0, 0.0
+        self._judged_memo: tuple[dict[str, Any], float | None, Any] | None = None
+        self._share_memo: tuple[Any, float] | None = None
         self._constants: tuple[tuple[str, ...], Any] = ((), None)
         self._beta_floor: tuple[int, float] | None = None
         #: per value key (VALUE_KEYS order): the fit's sigma over its linearised single-frame
@@ -535,38 +533,36 @@ class Tracker:
     def estimate_from(self, base: dict[str, Any], numbers: list[float], var: list[float],
                       cov_rf: float, absent: int, rate: list[float],
                       pvv: list[float]) -> dict[str, Any]:
-        """:meth:`estimate` from ``TrackStep.estimate``'s numbers and the state's ``rate``
-        and ``pvv`` rows (as :mod:`tactiled.pipeline.tracked_run` gets them from the core)."""
-        values: dict[str, float | None] = dict(zip(VALUE_KEYS, numbers))
-        if absent:
-            for i, key in enumerate(VALUE_KEYS):
-                if absent >> i & 1:
-                    values[key] = None
-        if values["angle_deg"] is not None:
-            values["angle_deg"] = wrap_deg(values["angle_deg"])
+        """:meth:`estimate` from ``TrackStep.estimate``'s numbers and the state's ``rate`` and
+        ``pvv`` rows (as :mod:`tactiled.pipeline.tracked_run` gets them from the core)."""
+        values: list[float | None] = [None if absent >> i & 1 else v  # (VALUE_KEYS order)
+                                      for i, v in enumerate(numbers)] if absent else list(numbers)
+        if values[_I_ANGLE] is not None:
+            values[_I_ANGLE] = wrap_deg(values[_I_ANGLE])
         i_f, i_r = _I_FORCE, _I_R1
         out = dict(base)
-        soft_keys, soft_reasons, base_reasons, base_std, flat = self._judged(base)
+        soft_keys, lifted, base_reasons, base_std, flat, std0, slots, lims = self._judged(base)
         reasons = dict(base_reasons)
-        std: dict[str, float | None] = {}
-        for i, key in enumerate(VALUE_KEYS):
-            v = values[key]
+        std: dict[str, float | None] = dict(std0)  # (a value not judged again: the fit's sigma)
+        for i, key in slots:  # (VALUE_KEYS order: the judged values, and any base lacks)
+            v = values[i]
             if not soft_keys[i] or v is None or not math.isfinite(var[i]):
                 # not in this model, or withheld by the fit for what frames do not change (a
                 # line contact's radius): stays as the fit said
                 out[key] = base.get(key)
-                std[key] = base_std.get(key)
                 continue
             sd_i = math.sqrt(var[i]) * self._widen[i]
-            withheld = self._withheld(key, v, sd_i, flat[i])
+            withheld = (None if kept_by_limits(i, v, sd_i, lims[i])
+                        else self._withheld(key, v, sd_i, flat[i]))
             tied = None
-            if not withheld and key == "force_n" and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
-                r1, sd_r = values.get("r1_mm"), math.sqrt(var[i_r])
+            if not withheld and i == i_f and math.isfinite(var[i_r]) and math.isfinite(cov_rf):
+                r1, sd_r = values[i_r], math.sqrt(var[i_r])
                 # a radius this estimate withholds (below) is as unresolved as one whose
                 # interval reaches zero: the frames pooled do not tell it better than one
                 # frame, so the part of the force's variance that is the radius's is one
                 # frame's, not averaged (radius_force_variance)
                 unresolved = (soft_keys[i_r] and r1 is not None
+                              and not kept_by_limits(i_r, r1, sd_r, lims[i_r])
                               and self._withheld("r1_mm", r1, sd_r, flat[i_r]) is not None)
                 if unresolved or radius_tied_force(r1, sd_r, sd_i, cov_rf) is not None:
                     # at least the fit's relative sigma, too: it holds the radius's
@@ -587,11 +583,9 @@ class Tracker:
             out[key], std[key] = v, sd_i
             if tied is not None:
                 reasons[key] = tied
-            elif soft_reasons[i] and self._widen[i] <= 1.0:
+            elif lifted[i] and self._widen[i] <= 1.0:
                 del reasons[key]
-        rates, rate_sd = self._rates(values, reasons, rate, pvv)
-        out.update(rates)
-        std.update(rate_sd)
+        self._rates(values[i_f], reasons, rate, pvv, out, std)
         out["std"] = std
         out["reasons"] = reasons
         out["frames_used"] = self.n
@@ -601,18 +595,23 @@ class Tracker:
         """The part of one frame's variance of ln F that its radii (``ln_r``, ``ln_ra``,
         ``beta``) explain, ``c_fR C_RR^-1 c_Rf`` of the linearisation's covariance: what
         pooling frames does not average away while the radius is not resolved."""
-        assert self.lin is not None
-        return radius_force_variance(np.asarray(self.lin.cov, dtype=np.float64), self.names)
+        lin = self.lin
+        assert lin is not None
+        memo = self._share_memo  # (it depends on the linearisation only)
+        if memo is None or memo[0] is not lin:
+            memo = self._share_memo = (lin, radius_force_variance(
+                np.asarray(lin.cov, dtype=np.float64), self.names))
+        return memo[1]
 
-    def _judged(self, base: dict[str, Any]) -> tuple[list[bool], list[bool], dict[str, Any],
-                                                       dict[str, Any], list[bool]]:
+    def _judged(self, base: dict[str, Any]) -> tuple[Any, ...]:
         """What of ``base`` (the fit the estimates rest on) the tracker judges again, per value
         key: a value the fit gave, or withheld for a reason the frames gathered since may
         lift (``_SOFT``); which of those reasons to drop once lifted; the fit's reasons and
-        1-sigma.  Kept while the same fit dict is the base (every frame of a contact)."""
+        1-sigma; what a frame's estimate starts from.  Kept while the same fit dict is the
+        base (every frame of a contact)."""
         memo = self._judged_memo
-        if memo is not None and memo[0] is base:
-            return memo[1]
+        if memo is not None and memo[0] is base and memo[1] == self.withhold:
+            return memo[2]
         reasons = base.get("reasons") or {}
         # (not an orientation the fit's profile found flat across the half-turn: the frames
         # pooled are linearised at a point that likelihood does not single out, as a circle's)
@@ -628,8 +627,17 @@ class Tracker:
         flat = [FLAT in str(reasons.get(key, "")) or (
             key in ("r1_mm", "r2_mm") and beyond_tested(base.get(key), std0.get(key)))
             for key in VALUE_KEYS]
-        judged = (soft, why, reasons, base.get("std") or {}, flat)
-        self._judged_memo = (base, judged)  # (holds base, so its id is not reused)
+        # the values a frame writes (those judged again, any the base lacks), the fit's
+        # sigmas, each value's sigma limit (kept_by_limits: a force's or radius's relative)
+        slots = tuple((i, key) for i, key in enumerate(VALUE_KEYS) if soft[i] or key not in base)
+        limit = math.inf if self.withhold is None else self.withhold
+        lims = [OFF_ARRAY_MM if k in ("x_mm", "y_mm") else MAX_ANGLE_SIGMA if k == "angle_deg"
+                else min(UNOBSERVABLE_RELATIVE_SIGMA, min(limit, TEST_RELATIVE_SIGMA) if f else
+                         limit) if k in ("r1_mm", "r2_mm") else UNOBSERVABLE_RELATIVE_SIGMA
+                for k, f in zip(VALUE_KEYS, flat)]
+        judged = (soft, why, reasons, std0, flat, {k: std0.get(k) for k in VALUE_KEYS}, slots,
+                  lims)
+        self._judged_memo = (base, self.withhold, judged)  # (holds base: its id is not reused)
         return judged
 
     def _withheld(self, key: str, v: float, sd: float, flat: bool = False) -> str | None:
@@ -641,9 +649,7 @@ class Tracker:
         the frames give it a relative sigma within ``TEST_RELATIVE_SIGMA``, where its sigma is
         not in question."""
         if key in ("x_mm", "y_mm"):
-            if sd > OFF_ARRAY_MM:
-                return f"position not observable: sigma above {OFF_ARRAY_MM:g} mm"
-            return None
+            return _OFF_ARRAY if sd > OFF_ARRAY_MM else None
         if key not in ("r1_mm", "r2_mm", "force_n", "angle_deg") or (key != "angle_deg" and v <= 0.0):
             return None
         limit = self.withhold
@@ -651,10 +657,12 @@ class Tracker:
             limit = min(limit if limit is not None else math.inf, TEST_RELATIVE_SIGMA)
         return sigma_reason(key, v, sd, None, limit, f" over {self.n} frame(s)")
 
-    def _rates(self, values: dict[str, float | None], reasons: dict[str, str], v: list[float],
-               pvv: list[float]) -> tuple[dict[str, float | None], dict[str, float | None]]:
-        rates: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
-        sds: dict[str, float | None] = dict.fromkeys(RATE_KEYS)
+    def _rates(self, force: float | None, reasons: dict[str, str], v: list[float],
+               pvv: list[float], out: dict[str, Any], std: dict[str, Any]) -> None:
+        """The rates (``RATE_KEYS``, null where not given) into ``out``, their 1-sigma into
+        ``std``, from the state's rates ``v`` and their variances ``pvv``."""
+        out.update(_NO_RATES)
+        std.update(_NO_RATES)
         if self.n < MIN_RATE_FRAMES:
             why = f"the contact changed {self.n} frame(s) ago: too few frames for a rate"
             for _, key, _ in self._rate_of:
@@ -663,12 +671,11 @@ class Tracker:
             excess = self.excess
             for i, key, name in self._rate_of:
                 scale = (180.0 / math.pi if name == "psi"
-                         else (values["force_n"] or 0.0) if name == "ln_f" else 1.0)
-                rates[key] = v[i] * scale
-                sds[key] = math.sqrt(max(pvv[i] * excess, 0.0)) * abs(scale)
+                         else (force or 0.0) if name == "ln_f" else 1.0)
+                out[key] = v[i] * scale
+                std[key] = math.sqrt(max(pvv[i] * excess, 0.0)) * abs(scale)
         if self.model == "sphere":
             reasons["angle_rate_deg_s"] = "undefined: sphere model"
-        return rates, sds
 
 
 def _swapped(x: np.ndarray, p: np.ndarray, names: tuple[str, ...]) -> bool:
@@ -684,8 +691,8 @@ def untracked(fit: dict[str, Any], frames_used: int, reason: str) -> dict[str, A
     """``fit`` (a fit's JSON dict) with the tracker's keys for an estimate it did not make
     (no contact, tracking off): ``frames_used`` as given, the rates null with ``reason``."""
     out = dict(fit)
-    out.update(dict.fromkeys(RATE_KEYS))
+    out.update(_NO_RATES)
     out["frames_used"] = frames_used
-    out["std"] = {**(fit.get("std") or {}), **dict.fromkeys(RATE_KEYS)}
+    out["std"] = {**(fit.get("std") or {}), **_NO_RATES}
     out["reasons"] = {**(fit.get("reasons") or {}), **{k: reason for k in RATE_KEYS}}
     return out

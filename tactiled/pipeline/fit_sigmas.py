@@ -96,3 +96,18 @@ def beyond_tested(v: float | None, sd: float | None) -> bool:
     """A fit's radius ``v`` (1-sigma ``sd``) outside the range where its linearised sigma is
     tested (:data:`TEST_RELATIVE_SIGMA`), or not given at all."""
     return v is None or sd is None or not (v > 0.0 and sd <= TEST_RELATIVE_SIGMA * v)
+
+
+_I_FORCE, _I_ANGLE = VALUE_KEYS.index("force_n"), VALUE_KEYS.index("angle_deg")
+
+
+def kept_by_limits(i: int, v: float, sd: float, limit: float) -> bool:
+    """True where the tracker's rules surely keep its value ``v`` (``VALUE_KEYS[i]``, 1-sigma
+    ``sd``; ``Tracker._withheld`` answers None): a place's or an angle's sigma within
+    ``limit``, a force's or radius's relative sigma within ``limit`` (a radius within
+    ``RADIUS_LIMITS``), or a force or radius not positive (which the fit's rule judges).
+    False: the rules decide.  Asked first, so the rules' reasons are built only where due."""
+    if i < 2 or i == _I_ANGLE:  # x_mm, y_mm, angle_deg
+        return sd <= limit
+    return v <= 0.0 or (v > 0.0 and not sd / v > limit
+                        and (i == _I_FORCE or RADIUS_LIMITS[0] <= v <= RADIUS_LIMITS[1]))

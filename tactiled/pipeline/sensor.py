@@ -35,7 +35,7 @@ from tactiled.sensors import load_description
 from tactiled.errors import CalibrationError, ConfigError, DriverError, FrameError
 from tactiled.fit.budget import budget_spent
 from tactiled.fit.result import FitResult
-from tactiled.fit.verdict import ArrayLimits, carry, judge
+from tactiled.fit.verdict import ArrayLimits, carry, judge, judge_fresh
 from tactiled.frames import Frame
 from tactiled.pipeline.estimate import (
     GATE_FIT,
@@ -522,8 +522,8 @@ class SensorPipeline:
         fit = identified(fit, self.ids, self._untracked_element, fresh)  # (a copy unless fresh)
         if self.shear is not None:
             fit = self.shear.annotate(fit)
-        # the one rule before anything is published, whatever made it (tactiled.fit.verdict)
-        judge(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
+        rule = judge_fresh if fresh else judge  # the one rule on all (tactiled.fit.verdict)
+        rule(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
         stamp = w.stamp  # (None or NaN: a frame no clock stamped: now, as make_estimate)
         stamp = stamp if stamp is not None and math.isfinite(stamp) else time.time()
         est = Estimate(self.name, w.sensor_id, w.seq, w.device_time_us, w.host_time,
