@@ -74,7 +74,8 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
            every: int = FIT_EVERY, truth: dict[str, np.ndarray] | None = None,
            errors: list[tuple[float, float, float]] | None = None,
            known: list[tuple[float, float]] | None = None, clean: list[tuple[float, float]] | None = None,
-           margins: list[float] | None = None) -> list[tuple[str, int]]:
+           margins: list[float] | None = None, biases: list[tuple[float, float]] | None = None
+           ) -> list[tuple[str, int]]:
     """Estimate ``frames[first:last]`` in order through a slip detector, as the daemon does: a
     fit (warm-started) on every ``every``-th frame, the step from the last fit on each frame;
     the detector's events.  With ``truth``, ``errors`` gains each frame's errors of the
@@ -84,8 +85,11 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
     slide alone) at :data:`ONSET_FRAMES` after it, and ``clean`` the same on the noiseless
     truth (each frame's true parameters with its estimate's covariance): their means, the
     signal the noise scatters about; ``margins`` the 1-sigma of the detector's margin to slip
-    (:class:`tactiled.fit.slip.Margin`) :data:`ONSET_FRAMES` after the true onset."""
-    det, prev, step, events = SlipDetector(), None, None, []
+    (:class:`tactiled.fit.slip.Margin`) :data:`ONSET_FRAMES` after the true onset; ``biases``
+    gains the scene's mean error of the unclipped ``lam`` over its sigma on the frames under
+    stick whose true ``lam`` is :data:`NEAR_SLIP` or more, and that mean's standard error
+    (:func:`_scene_bias`; 10 such frames at least)."""
+    det, prev, step, events, near = SlipDetector(), None, None, [], []
     flt = det.tracking
     onset = int(truth["true_onset"]) if truth is not None and "true_onset" in truth else -1
     oracle = (ShearFilter(DETECT_WALK), SlideTest()) if known is not None and onset >= 0 else None
@@ -104,6 +108,9 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
             if z is not None:
                 clean.append(z)
         _, ev = det.feed(i, est)
+        if biases is not None and truth is not None and NEAR_SLIP <= truth["true_lam"][i] < 1.0 \
+                and not truth["true_slip"][i] and est.cov[7, 7] > 0:
+            near.append((est.lam_free - truth["true_lam"][i]) / math.sqrt(est.cov[7, 7]))
         if margins is not None and i == onset + ONSET_FRAMES:
             margins.append(det.margin[1])
         if ev is not None:
@@ -111,7 +118,24 @@ def _track(fitter: ShearFitter, frames: np.ndarray, first: int, last: int | None
         if truth is not None and errors is not None and flt.frames > SETTLE:
             errors.append(tuple((flt.value(k)[0] - truth[key][i]) / flt.value(k)[1]
                                 for k, key in ((4, "true_fx"), (5, "true_fy"), (6, "true_torque"))))
+    if biases is not None and len(near) >= 10:
+        z = np.array(near)
+        biases.append((float(z.mean()), float(z.std() / math.sqrt(z.size))))
     return events
+
+
+#: The frames whose bias of ``lam`` the bench measures: under stick, the true ``lam`` at least this.
+NEAR_SLIP = 0.8
+
+
+def _scene_bias(biases: list[tuple[float, float]]) -> tuple[float, float, float, int]:
+    """Over the scenes: the mean of their mean error of ``lam`` near slip (in its sigma), the
+    spread of those means, the RMS of their standard errors (the spread their noise alone
+    makes) and the count of scenes."""
+    if not biases:
+        return math.nan, math.nan, math.nan, 0
+    m, se = np.array(biases).T
+    return float(m.mean()), float(m.std()), float(np.sqrt(np.mean(se ** 2))), len(m)
 
 
 def _known_onset(flt: ShearFilter, test: SlideTest, est, k: int) -> tuple[float, float] | None:
@@ -275,13 +299,13 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: f
     declared before it, as the margin's bound allows); ``early`` counts onsets before that."""
     rng = np.random.default_rng(seed)
     fitter = ShearFitter(desc)
-    delays, early, known, clean, margins = [], 0, [], [], []
+    delays, early, known, clean, margins, biases = [], 0, [], [], [], []
     for _ in range(pulls):
         extra = {"ramp_s": rng.uniform(0.15, 0.6), "force_change": rng.choice((0.0, -0.3))} if varied else {}
         frames, truth = sequence(desc, kind, rng, kinetic=kinetic, **extra)
         onset = int(truth["true_onset"])
         events = _track(fitter, frames, onset - LEAD, onset + AFTER, truth=truth, errors=errors, known=known,
-                        clean=clean, margins=margins)
+                        clean=clean, margins=margins, biases=biases)
         onsets = [f for ev, f in events if ev == "onset"]
         declared = next((f for f in onsets if f >= onset - ONSET_FRAMES), None)
         early += sum(1 for f in onsets if f < onset - ONSET_FRAMES)
@@ -291,7 +315,8 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: f
         scene, extra = STICKS[k % len(STICKS)]
         frames, truth = sequence(desc, scene, rng, **extra)
         loaded = int(np.argmax(np.abs(truth["true_fx"]) + np.abs(truth["true_fy"]) + np.abs(truth["true_torque"]) > 0))
-        false += sum(1 for ev, _ in _track(fitter, frames, max(0, loaded - 30), truth=truth, errors=errors)
+        false += sum(1 for ev, _ in _track(fitter, frames, max(0, loaded - 30), truth=truth, errors=errors,
+                                           biases=biases)
                      if ev == "onset")
     d = np.array(delays)
     ok = d[np.isfinite(d)]
@@ -303,7 +328,7 @@ def slip(desc: SensorDescription, pulls: int, sticks: int, seed: int, kinetic: f
             "max_delay": float(ok.max()) if ok.size else math.nan, "missed": int(np.sum(~np.isfinite(d))),
             "early": early, "sticks": sticks, "false": false,
             "p95_delay": _p95(d) if pulls else math.nan,
-            **_known_figures(known, clean)}
+            "biases": biases, **_known_figures(known, clean)}
 
 
 def _p95(d: np.ndarray) -> float:
@@ -417,8 +442,10 @@ def limits(sensors: list[str], seed: int, pulls: int, sticks: int) -> str:
     rows = ["| array | at the limit, 0.3 s: within / delay p50, p95 / missed, early | at the limit, varied: the same "
             f"| margin resolved ({MARGIN_SIGMA:g}) at +{ONSET_FRAMES}, 0.3 s / varied; sigma p95 over it "
             "| sliding, constant friction: within / delay p50, p95 / missed, early "
-            "| onsets on stick-only scenes (scenes) | onsets on held contacts (scenes) |",
-            "|---|---|---|---|---|---|---|"]
+            "| onsets on stick-only scenes (scenes) | onsets on held contacts (scenes) "
+            f"| lam's error near slip (true lam >= {NEAR_SLIP:g}, under stick): mean of the scenes' means, their "
+            "spread / their noise (scenes), sigma |",
+            "|---|---|---|---|---|---|---|---|"]
     for k, spec in enumerate(sensors):
         d = resolve(spec)
         base = seed + 10 * k
@@ -433,7 +460,8 @@ def limits(sensors: list[str], seed: int, pulls: int, sticks: int) -> str:
 
         rows.append(f"| {d.name} | {cell(lim)} | {cell(limv)} | {lim['margin_resolved']:.0%} / "
                     f"{limv['margin_resolved']:.0%}; {lim['margin_snr_needed']:.2f} / {limv['margin_snr_needed']:.2f} "
-                    f"| {cell(c)} | {c['false']} ({c['sticks']}) | {held['onsets']:.0f} ({held['scenes']:.0f}) |")
+                    f"| {cell(c)} | {c['false']} ({c['sticks']}) | {held['onsets']:.0f} ({held['scenes']:.0f}) "
+                    "| {:+.2f}, {:.2f} / {:.2f} ({}) |".format(*_scene_bias(lim["biases"] + limv["biases"] + c["biases"])))
     return "\n".join(rows)
 
 

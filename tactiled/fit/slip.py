@@ -24,7 +24,7 @@
 # * the tangential force has fallen by more than :data:`DROP_Z` sigma below its mean over the
 #   :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction), or
 # * the margin to slip ``1 - Q/(mu P)``, from the contact's whole history under stick
-#   (:class:`Margin`: ``lam`` against ``Q/P``, a line of slope ``1/mu``), is resolved (its sigma
+#   (:class:`Margin`: ``lam`` against ``Q/P`` under stick, a line read off at the present ``Q/P``), is resolved (its sigma
 #   at most :data:`MARGIN_SIGMA`) and within one sigma of 0: a pull that stays put at the
 #   friction's limit (no motion, no drop) shows its onset only there.
 #
@@ -89,37 +89,58 @@ MARGIN_FRAMES = 20
 NEAR = 0.5
 #: The margin's memory: the newest this many frames of the contact (2 s at 1 kHz: a pull's ramp).
 HISTORY = 2000
-#: A frame's linear ``lam`` near slip is biased by up to half its single-frame sigma (measured
-#: on the PaXini module: contacts held at 0.95 ``mu P`` whose frames' ``lam`` averaged 0.98 at a
-#: sigma of 0.06, or 0.89-0.94), the same on every frame: the margin's sigma keeps this share
-#: of the frames' RMS sigma as a floor, so the rule needs frames whose ``lam`` is itself sharp.
-BIAS = 0.5
+#: The margin's pooled sums are kept per bin of ``Q/P`` this wide (the selection ``Q/P >=
+#: NEAR q`` is taken at the bin edge at or above it); ``Q/P`` beyond the last bin joins it.
+BIN, BINS = 0.005, 1024
+#: The sums kept per bin: frames, ``w``, ``w x``, ``w y``, ``w x^2``, ``w x y``, ``w y^2``,
+#: ``w s``, ``w x s`` (``x = Q/P``, ``y`` the unclipped ``lam``, ``w`` its weight, ``s`` its
+#: single-frame sigma).
+_SUMS = 9
+#: A frame's linear ``lam`` near slip may be biased, by the same share of its sigma on a
+#: contact's frames (its likelihood is one-sided), which pooling does not reduce: the
+#: margin's sigma keeps a floor of this share of the frames' sigma carried through the line
+#: (measured by ``python -m tactiled_bench.shear``: the mean error of frames under stick whose
+#: true ``lam`` is 0.8 or more is +0.07 to +0.12 of their sigma on the XELA-like patches, the
+#: PaXini module and the 16x16 pad, and no contact's beyond that by more than its noise).
+BIAS = 0.25
 
 
 class Margin:
     """The margin to slip ``1 - Q/(mu P)`` from a contact's history under stick.
 
     Under stick every frame's ``lam`` is ``(Q/P) / mu`` with one ``mu`` for the contact: the
-    stick zone shrinks as the friction mobilised grows.  The frames' ``lam`` (before the clip)
-    against their ``Q/P`` is a line through the origin of slope ``k = 1/mu``; its weighted least
-    squares (each residual ``lam - k Q/P`` weighed by its variance from the frame's covariance,
-    the correlation of ``lam`` and ``Q`` included) pools the contact's frames, where one
-    frame's ``lam`` is known to a few hundredths near slip at best.  Only the frames whose
-    ``Q/P`` is at least :data:`NEAR` of the present one enter: far from slip the likelihood of
-    ``lam`` is one-sided (flat toward full stick) and its linear estimate biased, and a
-    selection on the regressor leaves the slope unbiased.  The slope's sigma is widened by the
-    residuals' chi-square per degree of freedom where that exceeds 1 (the model or the step's
-    linearisation off).  The margin now is ``1 - k q`` at the present ``Q/P``; its sigma has a
-    floor of :data:`BIAS` times the pooled frames' RMS single-frame sigma of ``lam``, the bias
-    of a frame's ``lam`` near slip, which pooling does not reduce."""
+    stick zone shrinks as the friction mobilised grows, ``lam`` a line in ``Q/P``.  The
+    frames' ``lam`` (before the clip) against their ``Q/P``, fitted by weighted least squares
+    (each residual weighed by its variance from the frame's covariance, the correlation of
+    ``lam`` and ``Q`` included), pools the contact's frames, where one frame's ``lam`` is known
+    to a few hundredths near slip at best; the margin now is ``1 - lam`` read off the line at
+    the present ``Q/P``.  The line has an intercept: a frame's linear ``lam`` near slip is
+    biased by a share of its sigma, of one sign on a contact's frames (the likelihood of
+    ``lam`` is one-sided), which pooling does not reduce and a line through the origin turns
+    into a bias of the margin; the intercept takes it up, at the price of a wider bound at the
+    end of the range.  Only the frames whose ``Q/P`` is at least :data:`NEAR` of the present
+    one enter (a selection on the regressor leaves the line unbiased), and the bound is widened
+    by the residuals' chi-square per degree of freedom where that exceeds 1 (the model or the
+    step's linearisation off).  A frame's weight is the previous frame's variance: a frame's
+    own bound of ``lam`` shrinks as its noise pushes ``lam`` toward 1, and weights drawn from
+    the noise of ``lam`` itself would tilt the fit toward slip.
+
+    The sums are kept per bin of ``Q/P`` (:data:`BIN`) over the newest :data:`HISTORY` frames,
+    the oldest frame's share taken out as a new one comes (and the bins summed afresh every
+    :data:`HISTORY` frames, so rounding does not accumulate): a frame costs a sum over the bins,
+    not over the frames."""
 
     def __init__(self) -> None:
         self.reset()
 
     def reset(self) -> None:
-        self._h = np.zeros((4, HISTORY))  # Q/P, lam, weight, lam's variance: the newest frames
+        self._ring = np.zeros((HISTORY, _SUMS))  # each frame's share of the sums, newest frames
+        self._bin = np.zeros(HISTORY, dtype=np.int64)
+        self._sums = np.zeros((BINS, _SUMS))
         self._n = 0
+        self._top = 0  # one past the highest bin used
         self._k = 1.0
+        self._last: float | None = None  # the previous frame's variance
         #: frames the last :meth:`margin` used, and the floor of its sigma (:data:`BIAS`)
         self.frames = 0
         self.floor = math.inf
@@ -138,32 +159,52 @@ class Margin:
         var = float(g @ cov @ g)
         if not var > 0:
             return
-        self._h[:, self._n % HISTORY] = (q / force, lam, 1.0 / var, float(cov[7, 7]))
+        var, self._last = (self._last if self._last is not None else var), var
+        x, w, s = q / force, 1.0 / var, math.sqrt(max(0.0, float(cov[7, 7])))
+        slot = self._n % HISTORY
+        if self._n >= HISTORY:
+            self._sums[self._bin[slot]] -= self._ring[slot]
+        row = self._ring[slot]
+        row[:] = (1.0, w, w * x, w * lam, w * x * x, w * x * lam, w * lam * lam, w * s, w * x * s)
+        self._bin[slot] = b = min(int(x / BIN), BINS - 1)
+        self._sums[b] += row
+        self._top = max(self._top, b + 1)
         self._n += 1
+        if self._n % HISTORY == 0:  # rounding does not pile up over a long contact
+            self._sums[:] = 0.0
+            np.add.at(self._sums, self._bin, self._ring)
 
-    def slope(self, lo: float = 0.0) -> tuple[float, float, int]:
-        """``1/mu`` and its 1-sigma (widened by the residuals' scatter beyond the bounds) from
-        the frames whose ``Q/P`` is at least ``lo``, and their count."""
-        x, y, w, v = self._h[:, : min(self._n, HISTORY)]
-        sel = x >= lo
-        n = int(sel.sum())
-        if n < 2:
-            return math.nan, math.inf, n
-        x, y, w, v = x[sel], y[sel], w[sel], v[sel]
-        sxx, sxy, syy = float(w @ (x * x)), float(w @ (x * y)), float(w @ (y * y))
-        k = sxy / sxx
-        chi2 = max(0.0, syy - sxy * sxy / sxx)
-        self.floor = BIAS * math.sqrt(float(v.mean()))
-        return k, math.sqrt(max(1.0, chi2 / (n - 1)) / sxx), n
+    def line(self, at: float, lo: float = 0.0) -> tuple[float, float, float, int]:
+        """The line ``lam = a + k Q/P`` through the frames whose ``Q/P`` is at least ``lo`` (at
+        the bin edge at or above it): ``lam`` on it at ``Q/P = at`` and its 1-sigma (widened by
+        the residuals' scatter beyond the bounds), the slope ``k`` and the frames' count."""
+        first = min(BINS - 1, max(0, math.ceil(lo / BIN - 1e-9)))
+        bins = self._sums[first:max(first, self._top)]
+        n, sw, sx, sy, sxx, sxy, syy, _, _ = bins.sum(axis=0)
+        n = int(round(n))
+        det = sw * sxx - sx * sx
+        if n < 3 or not (sw > 0 and det > 1e-12 * sw * sxx):
+            self.floor = math.inf
+            return math.nan, math.inf, math.nan, n
+        k = (sw * sxy - sx * sy) / det
+        a = (sy - k * sx) / sw
+        chi2 = max(0.0, syy - a * sy - k * sxy)  # the weighted residuals' sum of squares
+        var = (sxx - 2.0 * at * sx + at * at * sw) / det
+        # lam on the line at ``at`` is sum_i h_i y_i with h_i = w_i (alpha + beta x_i): a bias
+        # of BIAS s_i on every frame moves it by at most BIAS sum_i |h_i| s_i (per bin)
+        alpha, beta = (sxx - at * sx) / det, (at * sw - sx) / det
+        self.floor = BIAS * float(np.abs(alpha * bins[:, 7] + beta * bins[:, 8]).sum())
+        return a + k * at, math.sqrt(max(1.0, chi2 / (n - 2)) * max(0.0, var)), k, n
 
     def margin(self, q_over_p: float, s_qp: float) -> tuple[float, float]:
         """The margin ``1 - Q/(mu P)`` at the friction mobilised ``q_over_p`` (its sigma
         ``s_qp``) and its 1-sigma; :attr:`frames` the frames it pooled."""
-        k, s_k, self.frames = self.slope(NEAR * q_over_p)
-        if not math.isfinite(k):
+        lam, s_lam, k, self.frames = self.line(q_over_p, NEAR * q_over_p)
+        if not math.isfinite(lam):
             return math.nan, math.inf
-        self._k = k
-        return 1.0 - k * q_over_p, math.hypot(q_over_p * s_k, k * s_qp, self.floor)
+        if k > 0:  # the weights' gradient: lam's change with Q/P
+            self._k = k
+        return 1.0 - lam, math.hypot(s_lam, k * s_qp, self.floor)
 
 
 @dataclass

@@ -58,3 +58,23 @@ def test_pulls_at_the_limit_report_the_margins_resolution():
     assert r["pulls"] == 1 and r["early"] == 0 and 0.0 <= r["within"] <= 1.0
     assert r["margin_resolved"] == (r["margin_snr_needed"] <= 1.0)
     assert r["margin_snr_needed"] > 1.0
+
+
+def test_the_bias_of_lam_near_slip_is_measured_scene_by_scene():
+    """The bench's measure behind the margin's floor (tactiled.fit.slip.BIAS): on three pulls
+    at the limit of the 4x4 patch, each scene's mean error of the unclipped lam over its sigma,
+    on its frames under stick with a true lam of 0.8 or more, and that mean's standard error;
+    the means lie within 4 standard errors of 0 plus BIAS (the floor covers them), and the
+    summary is their mean, spread and noise."""
+    import numpy as np
+
+    from tactiled.fit.slip import BIAS
+
+    desc = shear.resolve("xela_uskin_4x4")
+    r = shear.slip(desc, pulls=3, sticks=0, seed=6, kind="limit")
+    assert len(r["biases"]) == 3
+    m, se = np.array(r["biases"]).T
+    assert np.all(se > 0) and np.all(se < 0.5) and np.all(np.abs(m) <= BIAS + 4 * se), r["biases"]
+    mean, spread, noise, n = shear._scene_bias(r["biases"])
+    assert n == 3 and mean == pytest.approx(m.mean()) and spread == pytest.approx(m.std())
+    assert noise == pytest.approx(math.sqrt(np.mean(se ** 2)))

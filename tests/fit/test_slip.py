@@ -146,10 +146,10 @@ def test_the_slide_and_the_levelling_off_add_up_where_the_stick_zone_is_gone(mon
                 return i
         return None
 
-    both = [onset(scene(s)) for s in range(10)]
+    monkeypatch.setattr(slip, "MARGIN_SIGMA", -1.0)  # the motion's rules alone: lam reaches 1
+    both = [onset(scene(s)) for s in range(10)]  # at frame 100, where the margin rule may fire
     monkeypatch.setattr(slip, "COMBINE_Z", math.inf)
     apart = [onset(scene(s)) for s in range(10)]
-    monkeypatch.undo()
     assert all(b is not None and 100 <= b and (a is None or b <= a) for b, a in zip(both, apart)), (both, apart)
     assert np.mean([b - 100 for b in both]) < np.mean([(a if a is not None else 112) - 100 for a in apart])
     assert all(onset(scene(s, lam_top=0.95, moves=False)) is None for s in range(10))
@@ -208,32 +208,76 @@ def test_an_unresolved_margin_declares_nothing():
 
 
 def test_the_margin_and_its_bound_against_the_truth():
-    """The pooled slope (lam = (Q/P) / mu under stick, weighted least squares through the
-    origin) on 300 noisy histories of known mu: its error over its sigma is a unit normal
-    (RMS within 15 % of 1, 2-sigma coverage 90-99 %); the margin's sigma adds the floor for a
-    frame's bias (BIAS times the frames' sigma of lam); on noiseless frames it is exact."""
+    """The pooled line (lam against Q/P under stick, weighted least squares with an
+    intercept) on 300 noisy histories of known mu: the margin's error over its statistical
+    sigma is a unit normal (RMS within 15 % of 1, 2-sigma coverage 90-99 %); where every
+    frame's lam is biased by BIAS of its sigma, the margin moves by that bias (the line's
+    prediction of a constant is the constant), within the floor its sigma keeps; on
+    noiseless frames it is exact."""
     from tactiled.fit.slip import BIAS, NEAR, Margin
 
     rng = np.random.default_rng(3)
-    z = []
-    for _ in range(300):
-        mu, m = rng.uniform(0.3, 1.0), Margin()
-        qs = np.linspace(0.05, 0.9 * mu, 60)
-        for q in qs:
-            p, c = estimate(5.0, 0.0, q=q + 0.003 * rng.normal(), s_lam=0.05)
-            m.add(p, c, q / mu + 0.05 * rng.normal())
-        est, s = m.margin(0.9 * mu, 0.0)
-        k, s_k, n = m.slope(NEAR * 0.9 * mu)
-        assert n == m.frames >= 20
-        assert s == pytest.approx(math.hypot(0.9 * mu * s_k, BIAS * 0.05), rel=1e-9)
-        z.append((k - 1.0 / mu) / s_k)
-    z = np.array(z)
-    assert 0.85 < math.sqrt(np.mean(z ** 2)) < 1.15 and 0.90 <= np.mean(np.abs(z) <= 2) <= 0.99
+    for bias in (0.0, BIAS * 0.05):
+        z, err = [], []
+        for _ in range(300):
+            mu, m = rng.uniform(0.3, 1.0), Margin()
+            for q in np.linspace(0.05, 0.9 * mu, 60):
+                p, c = estimate(5.0, 0.0, q=q + 0.003 * rng.normal(), s_lam=0.05)
+                m.add(p, c, q / mu + bias + 0.05 * rng.normal())
+            est, s = m.margin(0.9 * mu, 0.0)
+            lam, s_line, _, n = m.line(0.9 * mu, NEAR * 0.9 * mu)
+            assert n == m.frames >= 20 and est == pytest.approx(1.0 - lam)
+            assert s == pytest.approx(math.hypot(s_line, m.floor)) and m.floor >= BIAS * 0.05 * (1 - 1e-9)
+            z.append((est - 0.1 + bias) / s_line)
+            err.append(est - 0.1)
+        z = np.array(z)
+        assert 0.85 < math.sqrt(np.mean(z ** 2)) < 1.15 and 0.90 <= np.mean(np.abs(z) <= 2) <= 0.99
+        assert abs(np.mean(err) + bias) < 3 * np.std(err) / math.sqrt(len(err))
     m = Margin()
-    for q in (0.1, 0.2, 0.3):
+    for q in (0.2, 0.25, 0.3):
         p, c = estimate(5.0, 0.0, q=q)
         m.add(p, c, q / 0.4)
     assert m.margin(0.38, 0.0)[0] == pytest.approx(0.05, abs=1e-12)
+
+
+def test_the_margins_sums_are_those_of_its_newest_frames():
+    """The margin keeps its sums per bin of Q/P over the newest HISTORY frames (the oldest
+    taken out as a new one comes): after 2.6 HISTORY frames of a varied history its line, its
+    bound and its floor equal a weighted least squares over those frames computed afresh (the
+    weights: the previous frame's variance), the selection at the bin edge."""
+    from tactiled.fit.slip import BIN, HISTORY, Margin
+
+    rng = np.random.default_rng(5)
+    m, rows, prev = Margin(), [], None
+    for i in range(int(2.6 * HISTORY)):
+        q = 0.05 + 0.45 * (0.5 + 0.5 * math.sin(i / 300.0)) + 0.003 * rng.normal()
+        s_lam = rng.uniform(0.02, 0.08)
+        p, c = estimate(5.0, 0.0, q=q, s_lam=s_lam)
+        lam = q / 0.6 + s_lam * rng.normal()
+        m.add(p, c, lam)
+        # lam - k Q/P: Q's sigma 3 mN, ln P's 0.01 at P = 1 N (the estimate's bounds)
+        var = s_lam ** 2 + (m._k * 0.003) ** 2 + (m._k * q * 0.01) ** 2
+        rows.append((q, lam, 1.0 / (prev if prev is not None else var), s_lam))
+        prev = var
+    x, y, w, s_w = np.array(rows[-HISTORY:]).T
+    at, lo = 0.45, 0.3
+    sel = x >= math.ceil(lo / BIN - 1e-9) * BIN
+    a = np.stack((np.ones(sel.sum()), x[sel]), axis=1)
+    coef = np.linalg.solve(a.T @ (w[sel, None] * a), a.T @ (w[sel] * y[sel]))
+    lam, s, k, n = m.line(at, lo)
+    assert n == sel.sum() and k == pytest.approx(coef[1], rel=1e-9)
+    assert lam == pytest.approx(coef[0] + coef[1] * at, rel=1e-9)
+    cov = np.linalg.inv(a.T @ (w[sel, None] * a))
+    res = y[sel] - a @ coef
+    scale = max(1.0, float(w[sel] @ res ** 2) / (n - 2))
+    assert s == pytest.approx(math.sqrt(scale * np.array((1.0, at)) @ cov @ np.array((1.0, at))), rel=1e-6)
+    h = (cov @ np.array((1.0, at))) @ (w[sel, None] * a).T  # lam at ``at`` is sum h_i y_i
+    assert h.sum() == pytest.approx(1.0)
+    from tactiled.fit.slip import BIAS
+
+    b = np.minimum(np.floor(x[sel] / BIN), 1023)
+    per_bin = [float(np.sum(h[b == v] * s_w[sel][b == v])) for v in np.unique(b)]
+    assert m.floor == pytest.approx(BIAS * np.sum(np.abs(per_bin)), rel=1e-6)
 
 
 def test_the_limit_scene_stays_put_at_the_friction_limit():
