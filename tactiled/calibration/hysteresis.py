@@ -224,12 +224,12 @@ class ReleaseSteps:
         self._sum = np.zeros(shape)
         self._frames = 0
         self._opened: float | None = None  # time (s) of the open step's first frame
-        #: the finished steps: (mean strain beyond the contact's baseline, time s, frames)
-        self.steps: list[tuple[np.ndarray, float, int]] = []
 
-    def frame(self, zeroed: np.ndarray, t: float, weight: float) -> None:
+    def frame(self, zeroed: np.ndarray, t: float, weight: float) -> tuple[np.ndarray, int] | None:
         """A frame with no contact at ``t`` s (``zeroed``); the baseline then moves by
-        ``weight`` of it."""
+        ``weight`` of it.  Returns the step this frame finishes (its mean strain beyond the
+        contact's baseline, and its frames), else None."""
+        step = None
         if t >= self.start:
             self._sum += zeroed
             self._sum += self.moved
@@ -237,7 +237,8 @@ class ReleaseSteps:
             if self._opened is None:
                 self._opened = t
             if t - self._opened >= self.step_s - 1e-9:
-                self.steps.append((self._sum / self._frames, t, self._frames))
+                step = (self._sum / self._frames, self._frames)
                 self._sum = np.zeros_like(self._sum)
                 self._frames, self._opened = 0, None
         self.moved += weight * zeroed
+        return step

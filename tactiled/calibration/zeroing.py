@@ -170,6 +170,7 @@ class Zeroer:
         #: the hold-off's frames after the last release, as the learner's steps
         #: (:meth:`begin_release`; None: none kept)
         self._release: ReleaseSteps | None = None
+        self._release_learnt = False  # ... of which the learner has taken a step
 
     @property
     def settling(self) -> bool:
@@ -289,14 +290,12 @@ class Zeroer:
         return True
 
     def _learn_hysteresis(self, error: np.ndarray, predicted: ArrayLike, outside: np.ndarray,
-                          t: float, sigma: float, raw: bool = False, frames: int = 1) -> None:
+                          t: float, sigma: float) -> None:
         """One step of the hysteresis learner on the latest frame (its error before
-        compensation; ``raw``: ``error`` is that already), and the compensator set to what it
-        has learnt, or off."""
-        if not raw:
-            error = error if self._residual is None else error + self._residual
+        compensation), and the compensator set to what it has learnt, or off."""
+        raw = error if self._residual is None else error + self._residual
         learner = self.hysteresis_learner
-        learner.learn(error, np.asarray(predicted, dtype=np.float64), outside, t, sigma, frames)
+        learner.learn(raw, np.asarray(predicted, dtype=np.float64), outside, t, sigma)
         on = self.hysteresis.fraction > 0.0
         usable = learner.usable(on=on)
         if usable is not None:
@@ -315,22 +314,30 @@ class Zeroer:
 
     def note_release(self, zeroed: np.ndarray, t: float, dt: float) -> None:
         """A frame with no contact (``zeroed``, at ``t`` s, ``dt`` s after the last) in the
-        hold-off after a release, before the baseline's step (:meth:`begin_release`)."""
+        hold-off after a release, before the baseline's step (:meth:`begin_release`): each
+        finished step goes to the hysteresis learner at once; what it learnt is taken up when
+        the next contact starts (:meth:`_learn_release`)."""
         steps = self._release
-        if steps is not None and t < self._release_until:
-            steps.frame(zeroed, t, -math.expm1(-dt / self.tau_release))
+        if steps is None or t >= self._release_until:
+            return
+        step = steps.frame(zeroed, t, -math.expm1(-dt / self.tau_release))
+        if step is not None and self.learns_hysteresis:
+            mean, frames = step
+            self.hysteresis_learner.learn(mean, np.zeros(self.shape), np.ones(self.shape, dtype=bool),
+                                          t, self.detector.sigma, frames)
+            self._release_learnt = True
 
     def _learn_release(self) -> None:
-        """A contact starts: the last release's steps go to the hysteresis learner, and the
-        compensator is set to what it has learnt (from the next frame on, on every path)."""
-        steps, self._release = self._release, None
-        if steps is None or not self.learns_hysteresis:
+        """A contact starts: the compensator is set to what the learner has learnt from the
+        last release (from the next frame on, on every path: a read's frames in one call into
+        the core end at a contact's first frame)."""
+        self._release = None
+        learnt, self._release_learnt = self._release_learnt, False
+        if not learnt or not self.learns_hysteresis:
             return
-        everywhere = np.ones(self.shape, dtype=bool)
-        unloaded = np.zeros(self.shape)
-        for mean, t, frames in steps.steps:
-            self._learn_hysteresis(mean, unloaded, everywhere, t, self.detector.sigma, raw=True,
-                                   frames=frames)
+        usable = self.hysteresis_learner.usable(on=False)
+        if usable is not None:
+            self.hysteresis.set(*usable)
 
     def set_hysteresis(self, on: bool) -> None:
         """Learn the rubber's hysteresis and take it out (``on``), or leave frames as read
@@ -361,6 +368,7 @@ class Zeroer:
         self.hysteresis.reset()  # the peaks were measured from the old baseline
         self.hysteresis_learner.reset()
         self._release = None
+        self._release_learnt = False
         if strain is None:
             self._pending_tare = True
             return
@@ -387,6 +395,7 @@ class Zeroer:
         self.hysteresis_learner = HysteresisLearner(self.shape)
         self._residual = None
         self._release = None
+        self._release_learnt = False
 
     def _tare_to(self, x: np.ndarray, bad: np.ndarray | None) -> None:
         self._pending_tare = False
