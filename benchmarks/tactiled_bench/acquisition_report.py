@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 
 from tactiled_bench.acquisition_runs import (HAND, INDENTORS, LATE_RELEASE_S, PARAMS, Answers,
-                                             RunResult, counter_delta, devices, scene_truth, summarise,
-                                             timeline)
+                                             RunResult, counter_delta, devices, scene_detectable,
+                                             scene_truth, summarise, timeline)
 
 
 #: A finger counts as locked in contact when it published fewer "no contact" estimates than
@@ -114,6 +114,7 @@ def _answers_figures(a: Answers, elapsed: float, sensors: int) -> dict[str, Any]
         "contacts_reported": a.contacts_reported, "estimates_with_several_contacts": a.several,
         "truth_touching": a.touching, "missed": a.missed, "phantom": a.phantom,
         "phantom_after_release": a.phantom_after_release,
+        "touching_detectable": a.touching_detectable, "missed_detectable": a.missed_detectable,
     }
 
 
@@ -143,14 +144,15 @@ def garbage_collection(result: RunResult) -> dict[str, float | int | None]:
 def figures(result: RunResult, scene: str, rate: float) -> dict[str, Any]:
     """Every figure of one run's tables, machine-readable: totals, and per sensor."""
     truth = scene_truth(scene, rate)
+    detectable = scene_detectable(scene, rate)
     accuracy = scene != HAND
     late = round(LATE_RELEASE_S * rate)
-    a = summarise(result, truth, accuracy=accuracy, late_ticks=late)
+    a = summarise(result, truth, accuracy=accuracy, late_ticks=late, detectable=detectable)
     sensors = integrity(result)
     n = len(result.parts)
     for name in result.parts:
-        sensors[name].update(_answers_figures(summarise(result, truth, name, accuracy, late),
-                                              result.elapsed, 1))
+        sensors[name].update(_answers_figures(summarise(result, truth, name, accuracy, late,
+                                                        detectable), result.elapsed, 1))
     total_keys = ("frames", "device_sent", "device_not_sent", "gaps_seen", "lost_in_acquisition",
                   "rejected", "duplicated", "stale", "unaccounted")
     total: dict[str, Any] = {
@@ -304,14 +306,22 @@ def report(results: list[RunResult], scene: str, rate: float, seconds: float, wa
                   "alike) against the truth of *its own* frame (matched by seq), so a reuse that lags a moving contact "
                   "costs accuracy here (rows 'own fits' and 'reuses' split them; then by the true indentor); withheld: the estimate's value was null (e.g. radius 'force too low for "
                   "curvature'), its share of the estimates.  Angles are not compared on spheres."]
-    lines += ["", f"| {col} | truth touching | missed (published as no contact) | contact published without truth "
-              f"| ... of which within {LATE_RELEASE_S:g} s of a lift-off |",
-              "|---|---|---|---|---|"]
+    lines += ["", f"| {col} | truth touching | missed (published as no contact) | ... above the detection limit: "
+              f"touching / missed | contact published without truth | ... of which within {LATE_RELEASE_S:g} s of "
+              "a lift-off |",
+              "|---|---|---|---|---|---|"]
     for r, f in zip(results, figs):
         t = f["total"]
+        above, missed_above = t.get("touching_detectable", 0), t.get("missed_detectable", 0)
         lines.append(f"| {r.who} | {t['truth_touching']} | {t['missed']} "
-                     f"({100.0 * t['missed'] / max(t['truth_touching'], 1):.1f} %) | {t['phantom']} "
+                     f"({100.0 * t['missed'] / max(t['truth_touching'], 1):.1f} %) | {above} / {missed_above} "
+                     f"({100.0 * missed_above / max(above, 1):.1f} %) | {t['phantom']} "
                      f"| {t.get('phantom_after_release', '-')} |")
+    lines += ["",
+              "Truth touching: frames whose scene presses the finger, however lightly; above the detection limit: "
+              "those whose noise-free strain reaches the detector's enter threshold (the daemon's defaults), "
+              "which a press's first and a release's last few hundredths of a newton do not: "
+              "docs/concepts/calibration.md, \"Contact detection\"."]
     # -- integrity
     lines += ["", "### Acquisition", "",
               f"| {col} | finger | frames/s | gaps seen | not sent by the device | lost in acquisition | "

@@ -169,6 +169,45 @@ def scene_truth(scene: str, rate: float) -> Callable[[int], Contact | None]:
     return truth
 
 
+def scene_detectable(scene: str, rate: float) -> Callable[[int, int], bool]:
+    """``detectable(finger, seq)``: whether the truth of device ``finger``'s frame ``seq``
+    (its own scene and array, :func:`devices`) is above the detection limit: its noise-free
+    strain's matched-filter statistic at least the daemon's enter threshold (its defaults:
+    noise sigma 0.0005, 1e-4 false contacts a frame, two frames averaged;
+    docs/concepts/calibration.md, "Contact detection").  Below it no detector can see the
+    touch without more false contacts: a press's first and a release's last few
+    hundredths of a newton."""
+    from tactiled.calibration.detection import ContactDetector
+    from tactiled.settings import SensorSettings
+    from tactiled.sensors import load_description
+    from tactiled.sim import FingerSimulator
+
+    d = SensorSettings()
+    cache: dict[int, np.ndarray] = {}
+    devs = devices(scene)
+
+    def limits(finger: int) -> np.ndarray:
+        dev = devs[finger]
+        sensor = load_description(dev.description).sensor_model()
+        sim = FingerSimulator(sensor, scene=dev.scene, rate_hz=rate, noise=0.0, drift=None,
+                              hysteresis=None, loop=False)
+        det = ContactDetector(d.noise_sigma, sensor=sensor, false_rate=d.false_rate,
+                              average=d.detector_average)
+        out = np.zeros(sim.ticks_per_pass, dtype=bool)
+        for k in range(out.size):
+            tick = sim.step()
+            out[k] = bool(tick.contacts) and det.statistic(tick.physics) >= det.enter_threshold
+        return out
+
+    def detectable(finger: int, seq: int) -> bool:
+        if finger not in cache:
+            cache[finger] = limits(finger)
+        above = cache[finger]
+        return bool(above[seq % above.size])
+
+    return detectable
+
+
 def tare_window(scene: str, rate: float) -> tuple[int, int] | None:
     """Ticks ``[lo, hi)`` into a pass of ``scene`` at which to tare: early in its first idle of
     0.4 s or more, so the zeroer's baseline (formed over its 0.25 s settling time, and moved
@@ -246,6 +285,10 @@ class Answers:
     unanswered: int = 0  # stale fit results dropped, fits lost, fitter errors
     touching: int = 0  # estimates of frames whose truth touches
     missed: int = 0  # ... published as no contact (too light at touch-down / lift-off)
+    #: ... of those, frames whose truth is above the detection limit (scene_detectable), and
+    #: of these the ones published as no contact
+    touching_detectable: int = 0
+    missed_detectable: int = 0
     phantom: int = 0  # estimates in contact whose truth does not touch
     #: ... of which the truth touched within LATE_RELEASE_S before: a lift-off published late
     #: (the simulated rubber's hysteresis residual holds the detector on until the daemon's
@@ -270,13 +313,15 @@ def counter_delta(after: dict[str, Any], before: dict[str, Any], key: str, sub: 
 
 
 def summarise(result: RunResult, truth: Callable[[int], Contact | None] | None,
-              only: str | None = None, accuracy: bool = True, late_ticks: int = 0) -> Answers:
+              only: str | None = None, accuracy: bool = True, late_ticks: int = 0,
+              detectable: Callable[[int, int], bool] | None = None) -> Answers:
     """The shares, latencies and accuracy of one run (of its sensor ``only``, else of all).
     Published answers come from the estimates the listener saw in the window; frames never
     answered (superseded, stale, lost) from the pipelines' counters over the same window.
     ``accuracy=False``: compare with ``truth`` only whether a frame touches (the truth says
     when, not what).  ``late_ticks``: a phantom whose truth touched within that many ticks
-    before is also counted ``phantom_after_release``."""
+    before is also counted ``phantom_after_release``.  ``detectable`` (:func:`scene_detectable`):
+    the touching frames above the detection limit, and their misses, are counted apart."""
     a = Answers()
     acc: dict[str, Accuracy] = {"all": Accuracy()}
     index = None if only is None else result.parts.index(only)
@@ -308,8 +353,11 @@ def summarise(result: RunResult, truth: Callable[[int], Contact | None] | None,
                 truth(s.seq - j) is not None for j in range(1, late_ticks + 1))
             continue
         a.touching += 1
+        above = detectable is not None and detectable(s.finger, s.seq)
+        a.touching_detectable += above
         if not in_contact:
             a.missed += 1
+            a.missed_detectable += above
             continue
         if not accuracy:
             continue

@@ -69,7 +69,7 @@ Z_OFF = 6.0
 #: ... after this many steps (~2.5 s of tracked contact: a first estimate swings) ...
 MIN_STEPS = 200
 #: ... and only for a fraction in this range.
-FRACTION_RANGE = (0.005, 0.5)
+FRACTION_RANGE = (0.01, 0.5)
 
 
 class HysteresisCompensator:
@@ -145,21 +145,28 @@ class HysteresisLearner:
         self._t = None
 
     def learn(self, unexplained: np.ndarray, predicted: np.ndarray, outside: np.ndarray,
-              t: float, sigma: float) -> None:
+              t: float, sigma: float, frames: int = 1) -> None:
         """One step at time ``t`` (s): ``predicted`` is the model's strain on the whole array,
         ``unexplained`` the frame (before compensation) less ``predicted``, learnt from on the
-        ``outside`` tactels (boolean; noise sigma ``sigma``)."""
+        ``outside`` tactels (boolean; noise sigma ``sigma`` of one frame).  ``frames``: the
+        step is the mean of that many frames (noise ``sigma / sqrt(frames)``), weighed as that
+        many steps of one frame (inverse variance) and counted so."""
         # (the peak-holds and the normal equations' sums in one compiled pass)
         dt = 0.0 if self._t is None else t - self._t
         self._t = t
+        if frames > 1:
+            normal, moment = self._normal * FORGET, self._moment * FORGET
         if not learn_hysteresis(self._peaks, TAUS_S, dt,
                                 np.ascontiguousarray(predicted, dtype=np.float64).reshape(-1),
                                 np.ascontiguousarray(unexplained, dtype=np.float64).reshape(-1),
                                 np.ascontiguousarray(outside, dtype=bool).reshape(-1),
                                 MIN_PEAK_SIGMAS * sigma, self._normal, self._moment, FORGET):
             return
-        self.steps += 1
-        if self.steps % SOLVE_EVERY == 0 or self.estimate is None:
+        if frames > 1:  # the step's sums, added frames - 1 times more
+            self._normal += (frames - 1) * (self._normal - normal)
+            self._moment += (frames - 1) * (self._moment - moment)
+        before, self.steps = self.steps, self.steps + max(int(frames), 1)
+        if self.steps // SOLVE_EVERY != before // SOLVE_EVERY or self.estimate is None:
             self.estimate = self._solve(sigma)
 
     def _solve(self, sigma: float) -> tuple[float, float, float] | None:
@@ -194,3 +201,44 @@ class HysteresisLearner:
         if z >= (Z_OFF if on else Z_ON) and interior and FRACTION_RANGE[0] <= f <= FRACTION_RANGE[1]:
             return f, tau
         return None
+
+
+class ReleaseSteps:
+    """The frames after a release as steps of :class:`HysteresisLearner`: nothing touches, so
+    what a frame holds beyond the baseline the contact was measured from is the rubber's
+    recovery (with noise, and drift: the learner's constant).  A contact held still leaves no
+    trail around it to learn from while it is held; its release shows the recovery whole, on
+    every tactel it loaded.  The learner's peak-holds of the load the contact's model predicted,
+    decayed since, are the steps' regressors.
+
+    :meth:`frame` takes each frame with no contact, in order (its zeroed strain, before the
+    baseline's step; the compensator off), from ``start`` s on; each ``step_s`` of frames is
+    one step, their mean (ten frames at 1 kHz: a third of one frame's noise), weighed as
+    that many frames (``HysteresisLearner.learn``).  The hold-off's baseline moves towards
+    each frame (``weight`` of it: ``Zeroer``'s faster release constant) and so takes part of
+    the recovery in: the steps add that movement back."""
+
+    def __init__(self, shape: tuple[int, int], start: float, step_s: float) -> None:
+        self.start, self.step_s = float(start), float(step_s)
+        self.moved = np.zeros(shape)  # the baseline's movement since the release (strain)
+        self._sum = np.zeros(shape)
+        self._frames = 0
+        self._opened: float | None = None  # time (s) of the open step's first frame
+
+    def frame(self, zeroed: np.ndarray, t: float, weight: float) -> tuple[np.ndarray, int] | None:
+        """A frame with no contact at ``t`` s (``zeroed``); the baseline then moves by
+        ``weight`` of it.  Returns the step this frame finishes (its mean strain beyond the
+        contact's baseline, and its frames), else None."""
+        step = None
+        if t >= self.start:
+            self._sum += zeroed
+            self._sum += self.moved
+            self._frames += 1
+            if self._opened is None:
+                self._opened = t
+            if t - self._opened >= self.step_s - 1e-9:
+                step = (self._sum / self._frames, self._frames)
+                self._sum = np.zeros_like(self._sum)
+                self._frames, self._opened = 0, None
+        self.moved += weight * zeroed
+        return step

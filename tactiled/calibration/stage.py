@@ -170,6 +170,7 @@ class CalibrationStage:
         stats, peaks = self._run_out
         if len(stats) < len(raws):  # (kept between runs: the core writes the first ones)
             stats, peaks = self._run_out = np.empty(len(raws)), np.empty(len(raws))
+        before = (zr.in_contact, zr._last_t)
         taken = (self._runner.run(raws, times, z, stats, peaks, state) if track is None
                  else track(self._runner, raws, times, z, stats, peaks, state))
         if not taken:
@@ -184,10 +185,34 @@ class CalibrationStage:
         zr._residual = self._run_residual.copy() if residual_valid else None
         if released:
             zr._drift_t = None
+        self._after_run(taken, times, z, stats, before, bool(released))
         self.finite = True
         if taken < len(stats):
             stats, peaks = stats[:taken], peaks[:taken]
         return taken, stats.tolist(), peaks.tolist()
+
+    def _after_run(self, taken: int, times: np.ndarray, z: np.ndarray, stats: np.ndarray,
+                   before: tuple[bool, float], released: bool) -> None:
+        """What :meth:`Zeroer._settle_frame` does for the hysteresis learner, for a run's
+        ``taken`` frames (``before``: in contact, and the last frame's time, before the run):
+        the hold-off's frames after a release kept (``Zeroer.note_release``), and learnt from
+        when a contact starts, as on the per-frame path, frame by frame."""
+        zr = self.zeroer
+        in_contact, last_t = before
+        first = 0
+        if released:  # (a run that starts in contact leaves it at the first frame below exit)
+            first = next(i for i in range(taken) if stats[i] < zr.detector.exit_threshold)
+            zr.begin_release(float(times[first]))
+        elif in_contact:
+            return  # (held throughout)
+        if zr._release is not None:
+            for i in range(first, taken - zr.in_contact):
+                t = float(times[i])
+                prior = last_t if i == 0 else float(times[i - 1])
+                if t - prior > 0.0:
+                    zr.note_release(z[i], t, t - prior)
+        if zr.in_contact:  # the run's last frame starts a contact
+            zr._learn_release()
 
     def _new_runner(self) -> ZeroRun:
         """The stage's :class:`~tactiled.calibration.fused.ZeroRun`: its arrays (flat views,

@@ -87,7 +87,7 @@ from numpy.typing import ArrayLike
 
 from tactiled.calibration.detection import ContactDetector
 from tactiled.calibration.fused import drift_error, follow_baseline, pull_baseline
-from tactiled.calibration.hysteresis import HysteresisCompensator, HysteresisLearner
+from tactiled.calibration.hysteresis import HysteresisCompensator, HysteresisLearner, ReleaseSteps
 
 DEFAULT_TAU_DRIFT = 5.0  # s
 DEFAULT_TAU_RELEASE = 0.3  # s
@@ -107,6 +107,11 @@ DRIFT_CLIP_SIGMAS = 3.0
 #: moved 0.2 mm from the prediction adds ~2 (2 N: 0.1 mm adds 1.4), its prediction outside the
 #: window then off by up to 2 sigma, of which one step takes a 500th.
 DRIFT_EXPLAINED = 4.0
+#: After a contact ends, the hysteresis learner takes the frames from this long on (s): the
+#: detector lets go of a contact eased off below its exit threshold, and the last of that load
+#: (a tenth of a newton and less, on the paper's finger) is gone within tens of milliseconds
+#: of a hand's release; learnt as recovery it would read as hysteresis on a rubber without.
+RELEASE_SKIP_S = 0.05
 
 
 class Zeroer:
@@ -162,6 +167,10 @@ class Zeroer:
         self.hysteresis = HysteresisCompensator(self.shape)
         self.hysteresis_learner = HysteresisLearner(self.shape)
         self._residual: np.ndarray | None = None  # what the compensator took from the last frame
+        #: the hold-off's frames after the last release, as the learner's steps
+        #: (:meth:`begin_release`; None: none kept)
+        self._release: ReleaseSteps | None = None
+        self._release_learnt = False  # ... of which the learner has taken a step
 
     @property
     def settling(self) -> bool:
@@ -209,13 +218,17 @@ class Zeroer:
         """After the zeroed frame ``z`` (time ``t``, ``dt`` s after the last) was decided:
         the contact state, and the baseline's step towards an untouched frame."""
         if contact:
+            if not self.in_contact:
+                self._learn_release()
             self.in_contact = True
             return  # frozen: a held contact is never absorbed
         if self.in_contact:
             self.in_contact = False
             self._release_until = t + self.holdoff
             self._drift_t = None
+            self.begin_release(t)
         if dt > 0.0:
+            self.note_release(z, t, dt)
             if not self.baseline.flags.c_contiguous:  # (stepped in place, flat)
                 self.baseline = np.ascontiguousarray(self.baseline)
             tau = self.tau_release if t < self._release_until else self.tau_drift
@@ -290,6 +303,42 @@ class Zeroer:
         elif on:
             self.hysteresis.set(0.0, self.hysteresis.tau_s)
 
+    def begin_release(self, t: float) -> None:
+        """The contact ended with the frame at ``t`` (s): the frames of the hold-off that
+        follows are kept as steps of the hysteresis learner (:meth:`note_release`), learnt
+        from when the next contact starts.  Only while the compensator is off: then what the
+        frames hold beyond the contact's baseline is the rubber's whole recovery."""
+        self._release = None
+        if self.learns_hysteresis and self.hysteresis.fraction == 0.0 and self.baseline is not None:
+            self._release = ReleaseSteps(self.shape, t + RELEASE_SKIP_S, DRIFT_STEP_S)
+
+    def note_release(self, zeroed: np.ndarray, t: float, dt: float) -> None:
+        """A frame with no contact (``zeroed``, at ``t`` s, ``dt`` s after the last) in the
+        hold-off after a release, before the baseline's step (:meth:`begin_release`): each
+        finished step goes to the hysteresis learner at once; what it learnt is taken up when
+        the next contact starts (:meth:`_learn_release`)."""
+        steps = self._release
+        if steps is None or t >= self._release_until:
+            return
+        step = steps.frame(zeroed, t, -math.expm1(-dt / self.tau_release))
+        if step is not None and self.learns_hysteresis:
+            mean, frames = step
+            self.hysteresis_learner.learn(mean, np.zeros(self.shape), np.ones(self.shape, dtype=bool),
+                                          t, self.detector.sigma, frames)
+            self._release_learnt = True
+
+    def _learn_release(self) -> None:
+        """A contact starts: the compensator is set to what the learner has learnt from the
+        last release (from the next frame on, on every path: a read's frames in one call into
+        the core end at a contact's first frame)."""
+        self._release = None
+        learnt, self._release_learnt = self._release_learnt, False
+        if not learnt or not self.learns_hysteresis:
+            return
+        usable = self.hysteresis_learner.usable(on=False)
+        if usable is not None:
+            self.hysteresis.set(*usable)
+
     def set_hysteresis(self, on: bool) -> None:
         """Learn the rubber's hysteresis and take it out (``on``), or leave frames as read
         (the compensator off; what was learnt is kept for when it is on again)."""
@@ -318,6 +367,8 @@ class Zeroer:
         self._drift_t = None
         self.hysteresis.reset()  # the peaks were measured from the old baseline
         self.hysteresis_learner.reset()
+        self._release = None
+        self._release_learnt = False
         if strain is None:
             self._pending_tare = True
             return
@@ -343,6 +394,8 @@ class Zeroer:
         self.hysteresis = HysteresisCompensator(self.shape)
         self.hysteresis_learner = HysteresisLearner(self.shape)
         self._residual = None
+        self._release = None
+        self._release_learnt = False
 
     def _tare_to(self, x: np.ndarray, bad: np.ndarray | None) -> None:
         self._pending_tare = False

@@ -281,3 +281,43 @@ def test_a_tare_is_repeated_until_the_baseline_forms_on_untouched_frames() -> No
     for seq in range(2 * per_pass + lo, 2 * per_pass + lo + 320, 3):  # gaps are fine while idle
         tarer.frame("thumb", seq)
     assert tarer.done() and tarer.tares == 4 and daemon.tared == ["thumb", "index", "middle", "thumb"]
+
+
+def test_touches_below_the_detection_limit_are_counted_apart() -> None:
+    """A press's first frames and a release's last carry a few hundredths of a newton: their
+    noise-free strain's statistic is below the detector's enter threshold, so a miss there is
+    no miss of the daemon's.  Checked against the threshold computed here, from the strain
+    model and the detector, and against the scene's force."""
+    from tactiled.calibration.detection import ContactDetector
+    from tactiled.physics.strain import StrainModel
+    from tactiled.sensors.model import SensorModel
+    from tactiled.sim import named_scene
+
+    rate = 1000.0
+    truth, detectable = runs.scene_truth("hand", rate), runs.scene_detectable("hand", rate)
+    finger3 = runs.devices("hand").index(runs.Device("finger3", "hand-finger3"))
+    touching = [k for k in range(4000) if truth(k) is not None]
+    above = [k for k in touching if detectable(finger3, k)]
+    assert detectable(finger3, 1500) and not detectable(finger3, 200)  # held; nothing touches
+    # the ends of the touch are below: a light press and a lift-off, each tens of frames
+    first, last = above[0], above[-1]
+    assert 10 < first - touching[0] < 100 and 10 < touching[-1] - last < 100, (first, last)
+    assert above == list(range(first, last + 1))
+    sensor = SensorModel()
+    det = ContactDetector(0.0005, sensor=sensor, average=2)
+    model = StrainModel(sensor)
+    own = named_scene("hand-finger3", sensor.geometry)  # (truth(k): any part's contact)
+    for k in (first - 1, first, last, last + 1):
+        c = own.contact_at(k / rate)
+        assert c is not None and c.force < 0.1
+        stat = det.statistic(model.predict(c))
+        assert (stat >= det.enter_threshold) == (k in (first, last)), (k, stat)
+    # summarise counts them apart: a miss below the limit, a miss above it
+    seen = [runs.Seen(finger3, touching[0], "no_contact", 0.1, fit_line(None)),
+            runs.Seen(finger3, 1500, "no_contact", 0.1, fit_line(None)),
+            runs.Seen(finger3, 1501, "fit", 1.0, fit_line(truth(1501)))]
+    parts = tuple(d.name for d in runs.devices("hand"))
+    counts = {"sensors": {name: counters() for name in parts}}
+    run = runs.RunResult(2, counts, counts, 1.0, seen, {}, parts=parts)
+    a = runs.summarise(run, truth, accuracy=False, detectable=detectable)
+    assert (a.touching, a.missed, a.touching_detectable, a.missed_detectable) == (3, 2, 2, 1)
