@@ -106,6 +106,47 @@ double along_line(double px, double py, double c, double s, const double* imp) {
     return both.re / ((2.0 * M_PI) * M_PI);
 }
 
+namespace {
+// One residue of along_line off the axes as a real function of a point's offset: with the pole
+// the first factor's (roles exchanged by `swap`), w = w0 - i s2 e where e = p2 + mq21 p1 (p1,
+// p2 the offsets along x, y, exchanged by `swap`), and the residue's real part is
+// -2 pi [ca Re((2 a2 z + b2) z^2) + cb Re((a2 z + b2) z)] with z = 1/w: one real division a
+// point instead of the complex arithmetic of pair() (line.py's _residue_line).
+struct ResidueLine {
+    bool zero, swap;
+    double w0, a2, b2, ca, cb, mq21;
+};
+
+ResidueLine residue_line(double a1, double b1, double d1, double s1, double q1, double a2,
+                         double b2, double d2, double s2, double q2) {
+    const double im1 = -s1 * d1 / q1;
+    const double im2 = -s2 * d2 / q2;
+    const bool zero = (im1 > 0.0) == (im2 > 0.0);
+    const bool swap = !(im1 > 0.0);
+    if (swap) {
+        std::swap(a1, a2);
+        std::swap(b1, b2);
+        std::swap(d1, d2);
+        std::swap(s1, s2);
+        std::swap(q1, q2);
+    }
+    const double mq21 = -q2 / q1;
+    return {zero, swap, d2 + ((s2 * s1) * d1) * mq21, a2, b2, ((a1 / ((-q1) * q1)) * q2) * s2,
+            b1 / (s1 * q1), mq21};
+}
+
+// The residue's bracket [ca Re((2 a2 z + b2) z^2) + cb Re((a2 z + b2) z)] at offset (p1, p2).
+double residue_at(const ResidueLine& r, double p1, double p2) {
+    const double e = r.swap ? p1 + r.mq21 * p2 : p2 + r.mq21 * p1;
+    const double inv = 1.0 / (r.w0 * r.w0 + e * e);
+    const double x = r.w0 * inv;
+    const double y2 = (e * inv) * (e * inv);
+    const double re2 = x * x - y2;
+    const double re3 = x * (x * x - 3.0 * y2);
+    return r.ca * (2.0 * r.a2 * re3 + r.b2 * re2) + r.cb * (r.a2 * re2 + r.b2 * x);
+}
+}  // namespace
+
 std::vector<double> line_strain_points(double load, double half_width, double psi, double cx_,
                                        double cy_, const double* px, const double* py, int n,
                                        const double* imp, double modulus, const double* nodes,
@@ -113,11 +154,29 @@ std::vector<double> line_strain_points(double load, double half_width, double ps
     const double c = std::cos(psi), s = std::sin(psi);
     std::vector<double> out(n, 0.0);
     const double scale = 2.0 * load / (M_PI * modulus);
+    if (std::fabs(c) < AXIS_EPS || std::fabs(s) < AXIS_EPS) {  // along an axis: the principal value
+        for (int k = 0; k < n; ++k) {
+            double acc = 0.0;
+            for (int i = 0; i < nn; ++i) {
+                const double off = half_width * nodes[i];  // across the line, along n = (-s, c)
+                acc += weights[i] * along_line(px[k] - cx_ + off * s, py[k] - cy_ - off * c, c, s, imp);
+            }
+            out[k] = scale * acc;
+        }
+        return out;
+    }
+    const double dx = imp[0], nux = imp[1], dy = imp[2], nuy = imp[3];
+    const double ax = (1.0 + nux) * dx, bx = 1.0 - nux;
+    const double ay = (1.0 + nuy) * dy, by = 1.0 - nuy;
+    // exactly one of along_line's two residues is nonzero off the axes (its poles straddle)
+    const ResidueLine one = residue_line(ax, bx, dx, 1.0, -c, ay, by, dy, 1.0, -s);
+    const ResidueLine r = one.zero ? residue_line(ax, bx, dx, 1.0, -c, ay, by, dy, -1.0, -s) : one;
+    const double norm = -1.0 / M_PI;  // along_line = -bracket / pi
     for (int k = 0; k < n; ++k) {
         double acc = 0.0;
         for (int i = 0; i < nn; ++i) {
-            const double off = half_width * nodes[i];  // across the line, along n = (-s, c)
-            acc += weights[i] * along_line(px[k] - cx_ + off * s, py[k] - cy_ - off * c, c, s, imp);
+            const double off = half_width * nodes[i];
+            acc += weights[i] * (norm * residue_at(r, px[k] - cx_ + off * s, py[k] - cy_ - off * c));
         }
         out[k] = scale * acc;
     }

@@ -90,6 +90,37 @@ def _along(px, py, c: float, s: float, imp: np.ndarray):
     return both.real / (2.0 * math.pi * math.pi)
 
 
+def _residue_line(a1: float, b1: float, d1: float, s1: float, q1: float,
+                  a2: float, b2: float, d2: float, s2: float, q2: float):
+    """One residue of :func:`_pair` off the axes (``q1``, ``q2`` nonzero) as a real function
+    of the offset: with the pole the first factor's (the roles exchanged when it is the
+    second's), ``w = w0 - i s2 e`` where ``e = p2 + mq21 p1`` (``p1``, ``p2`` exchanged with
+    the roles) and the residue's real part is ``-2 pi [ca Re((2 a2 z + b2) z^2) + cb Re((a2 z
+    + b2) z)]``, ``z = 1/w``: one real division a point (:func:`_residue_at`).  Returns
+    ``(zero, swap, w0, a2, b2, ca, cb, mq21)``."""
+    im1 = -s1 * d1 / q1
+    im2 = -s2 * d2 / q2
+    zero = (im1 > 0.0) == (im2 > 0.0)
+    swap = not im1 > 0.0
+    if swap:
+        a1, b1, d1, s1, q1, a2, b2, d2, s2, q2 = a2, b2, d2, s2, q2, a1, b1, d1, s1, q1
+    mq21 = -q2 / q1
+    return (zero, swap, d2 + s2 * s1 * d1 * mq21, a2, b2, a1 / (-q1 * q1) * q2 * s2,
+            b1 / (s1 * q1), mq21)
+
+
+def _residue_at(r, p1, p2):
+    """:func:`_residue_line`'s bracket at offsets ``(p1, p2)`` (elementwise on arrays)."""
+    _, swap, w0, a2, b2, ca, cb, mq21 = r
+    e = p1 + mq21 * p2 if swap else p2 + mq21 * p1
+    inv = 1.0 / (w0 * w0 + e * e)
+    x = w0 * inv
+    y2 = (e * inv) * (e * inv)
+    re2 = x * x - y2
+    re3 = x * (x * x - 3.0 * y2)
+    return ca * (2.0 * a2 * re3 + b2 * re2) + cb * (a2 * re2 + b2 * x)
+
+
 def line_strain_points(load: float, half_width: float, psi: float, cx: float, cy: float,
                        px: np.ndarray, py: np.ndarray, imp: np.ndarray, modulus: float,
                        nodes: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -98,13 +129,23 @@ def line_strain_points(load: float, half_width: float, psi: float, cx: float, cy
     ``(cx, cy)``; ``nodes``/``weights`` a Gauss-Chebyshev (second kind) rule on [-1, 1]."""
     c, s = math.cos(psi), math.sin(psi)
     scale = 2.0 * load / (math.pi * modulus)
-    # every point and node at once: along_line's branches depend on the line's direction
-    # alone, so its arithmetic runs elementwise on the (points, nodes) offsets, each element
-    # as the core computes it; the nodes are summed in their order, as the core sums them
+    # every point and node at once, each element as the core computes it; the nodes are
+    # summed in their order, as the core sums them
     off = half_width * np.asarray(nodes, dtype=float)  # across the line, along n = (-s, c)
     qx = (np.asarray(px, dtype=float)[:, None] - cx) + off[None, :] * s
     qy = (np.asarray(py, dtype=float)[:, None] - cy) - off[None, :] * c
-    vals = np.broadcast_to(_along(qx, qy, c, s, imp), qx.shape)
+    if abs(c) < _AXIS_EPS or abs(s) < _AXIS_EPS:  # along an axis: the principal value
+        vals = np.broadcast_to(_along(qx, qy, c, s, imp), qx.shape)
+    else:
+        # off the axes exactly one of along_line's two residues is nonzero (its poles
+        # straddle the real line), and it is a real function of the offset (_residue_line)
+        dx, nux, dy, nuy = imp[0], imp[1], imp[2], imp[3]
+        ax, bx = (1.0 + nux) * dx, 1.0 - nux
+        ay, by = (1.0 + nuy) * dy, 1.0 - nuy
+        r = _residue_line(ax, bx, dx, 1.0, -c, ay, by, dy, 1.0, -s)
+        if r[0]:
+            r = _residue_line(ax, bx, dx, 1.0, -c, ay, by, dy, -1.0, -s)
+        vals = (-1.0 / math.pi) * _residue_at(r, qx, qy)
     acc = np.zeros(qx.shape[0])
     for i in range(off.size):
         acc += weights[i] * vals[:, i]
