@@ -75,14 +75,25 @@ LineCoef line_coefficients(double c, double s, const double* imp) {
     return k;
 }
 
-double across_value(double dist, const LineCoef& k) {
-    const double inv = 1.0 / (k.v * k.v + dist * dist);
-    const double zr = k.v * inv;
+namespace {
+// z = 1/(v + i dist) and the parts of z^2, z^3 (line.py's _powers)
+struct ZPowers {
+    double zr, zi, r2, i2, r3;
+};
+
+ZPowers z_powers(double v, double dist) {
+    const double inv = 1.0 / (v * v + dist * dist);
+    const double zr = v * inv;
     const double zi = -dist * inv;
     const double r2 = zr * zr - zi * zi;
     const double i2 = 2.0 * zr * zi;
-    const double r3 = r2 * zr - i2 * zi;
-    return (k.a * r3 + k.b * r2 + k.cc * zr) / M_PI;
+    return {zr, zi, r2, i2, r2 * zr - i2 * zi};
+}
+}  // namespace
+
+double across_value(double dist, const LineCoef& k) {
+    const ZPowers z = z_powers(k.v, dist);
+    return (k.a * z.r3 + k.b * z.r2 + k.cc * z.zr) / M_PI;
 }
 
 std::vector<double> line_strain_points(double load, double half_width, double psi, double cx_,
@@ -117,12 +128,8 @@ void across_at(double dist, const LineAngle& ang, const double* imp, double& val
                double& d_psi) {
     (void)imp;
     const LineCoef& k = ang.kj;
-    const double inv = 1.0 / (k.v * k.v + dist * dist);
-    const double zr = k.v * inv;
-    const double zi = -dist * inv;
-    const double r2 = zr * zr - zi * zi;
-    const double i2 = 2.0 * zr * zi;
-    const double r3 = r2 * zr - i2 * zi;
+    const ZPowers z = z_powers(k.v, dist);
+    const double zr = z.zr, zi = z.zi, r2 = z.r2, i2 = z.i2, r3 = z.r3;
     const double i3 = r2 * zi + i2 * zr;
     const double r4 = r2 * r2 - i2 * i2;
     const double i4 = 2.0 * r2 * i2;

@@ -143,15 +143,21 @@ def _coefficients(c: float, s: float, imp: np.ndarray):
             ax * by * as_ + ay * bx * ac, ax * by * das + ay * bx * dac, bx * by)
 
 
-def _across_value(dist, k):
-    """``L(dist)`` (1/mm) of :func:`_coefficients` ``k`` (elementwise on arrays)."""
-    v, _, a, _, bb, _, cc = k
+def _powers(v, dist):
+    """``z = 1/(v + i dist)`` and the parts of ``z^2``, ``z^3``: ``(Re z, Im z, Re z^2, Im
+    z^2, Re z^3)`` (elementwise on arrays)."""
     inv = 1.0 / (v * v + dist * dist)
     zr = v * inv
     zi = -dist * inv
     r2 = zr * zr - zi * zi
     i2 = 2.0 * zr * zi
-    r3 = r2 * zr - i2 * zi
+    return zr, zi, r2, i2, r2 * zr - i2 * zi
+
+
+def _across_value(dist, k):
+    """``L(dist)`` (1/mm) of :func:`_coefficients` ``k`` (elementwise on arrays)."""
+    v, _, a, _, bb, _, cc = k
+    zr, _, r2, _, r3 = _powers(v, dist)
     return (a * r3 + bb * r2 + cc * zr) / math.pi
 
 
@@ -172,12 +178,7 @@ def _across_at(dist: float, ang, imp: np.ndarray) -> tuple[float, float, float]:
     ``dz^n/dd = -i n z^(n+1)`` and ``dz^n/dV = -n z^(n+1)`` (:func:`_coefficients`)."""
     c, s, near, k0, kj = ang
     v, dv, a, da, bb, dbb, cc = kj
-    inv = 1.0 / (v * v + dist * dist)
-    zr = v * inv
-    zi = -dist * inv
-    r2 = zr * zr - zi * zi
-    i2 = 2.0 * zr * zi
-    r3 = r2 * zr - i2 * zi
+    zr, zi, r2, i2, r3 = _powers(v, dist)
     i3 = r2 * zi + i2 * zr
     r4 = r2 * r2 - i2 * i2
     i4 = 2.0 * r2 * i2
