@@ -46,55 +46,6 @@ Cx pair(double a1, double b1, double d1, double s1, double p1, double q1, double
     return (Cx{0.0, 2.0} * M_PI) * res;
 }
 
-PairSetup pair_setup(double a1, double b1, double d1, double s1, double q1, double a2, double b2,
-                     double d2, double s2, double q2) {
-    const double im1 = -s1 * d1 / q1;
-    const double im2 = -s2 * d2 / q2;
-    const bool zero = (im1 > 0.0) == (im2 > 0.0);
-    const bool swap = !(im1 > 0.0);
-    if (swap) {  // the pole is the second factor's: the roles exchanged
-        std::swap(a1, a2);
-        std::swap(b1, b2);
-        std::swap(d1, d2);
-        std::swap(s1, s2);
-        std::swap(q1, q2);
-    }
-    const double alpha = a1 / ((-q1) * q1);
-    const Cx beta = b1 / (((-J1) * s1) * q1);
-    return {zero, swap, a1, d1, s1, q1, a2, b2, d2, s2, q2, alpha, beta,
-            2.0 * a1 / ((q1 * q1) * q1), -q2 / q1};
-}
-
-// pair() off the axes and its partials in (p1, q1, p2, q2): the residue's closed form,
-// differentiated.
-void pair_partials(const PairSetup& st, double p1, double p2, Cx out[5]) {
-    if (st.zero) {
-        for (int i = 0; i < 5; ++i) out[i] = {0.0, 0.0};
-        return;
-    }
-    if (st.swap) std::swap(p1, p2);
-    const Cx t = (((-J1) * st.s1) * st.d1 - p1) / st.q1;
-    const Cx u2 = p2 + st.q2 * t;
-    const Cx w = st.d2 - (J1 * st.s2) * u2;
-    const Cx iw = 1.0 / w;
-    const Cx iw2 = iw * iw;
-    const Cx g2 = (st.a2 * iw + st.b2) * iw;
-    const Cx dg2 = ((J1 * st.s2) * ((2.0 * st.a2) * iw + st.b2)) * iw2;
-    const Cx ddg2 = (((-st.s2) * st.s2) * ((6.0 * st.a2) * iw + 2.0 * st.b2)) * iw2 * iw;
-    const Cx k = Cx{0.0, 2.0} * M_PI;
-    const Cx val = k * ((st.alpha * st.q2) * dg2 + st.beta * g2);
-    const Cx du = k * ((st.alpha * st.q2) * ddg2 + st.beta * dg2);  // d value / d u2
-    const Cx dp1 = du * st.mq21;
-    const Cx dq1 = k * ((st.a1q3 * st.q2) * dg2 - (st.beta / st.q1) * g2) + du * (((-st.q2) * t) / st.q1);
-    const Cx dp2 = du;
-    const Cx dq2 = (k * st.alpha) * dg2 + du * t;
-    out[0] = val;
-    if (st.swap) {
-        out[1] = dp2; out[2] = dq2; out[3] = dp1; out[4] = dq1;
-    } else {
-        out[1] = dp1; out[2] = dq1; out[3] = dp2; out[4] = dq2;
-    }
-}
 }  // namespace
 
 double along_line(double px, double py, double c, double s, const double* imp) {
@@ -106,6 +57,45 @@ double along_line(double px, double py, double c, double s, const double* imp) {
     return both.re / ((2.0 * M_PI) * M_PI);
 }
 
+LineCoef line_coefficients(double c, double s, const double* imp) {
+    const double dx = imp[0], nux = imp[1], dy = imp[2], nuy = imp[3];
+    const double ax = (1.0 + nux) * dx, bx = 1.0 - nux;
+    const double ay = (1.0 + nuy) * dy, by = 1.0 - nuy;
+    const double ac = std::fabs(c), as = std::fabs(s);
+    const double dac = c >= 0.0 ? -s : s;  // d|cos|/d psi
+    const double das = s >= 0.0 ? c : -c;  // d|sin|/d psi
+    LineCoef k;
+    k.v = dy * ac + dx * as;
+    k.dv = dy * dac + dx * das;
+    k.a = 2.0 * ax * ay * (ac * as);
+    k.da = 2.0 * ax * ay * (dac * as + ac * das);
+    k.b = ax * by * as + ay * bx * ac;
+    k.db = ax * by * das + ay * bx * dac;
+    k.cc = bx * by;
+    return k;
+}
+
+namespace {
+// z = 1/(v + i dist) and the parts of z^2, z^3 (line.py's _powers)
+struct ZPowers {
+    double zr, zi, r2, i2, r3;
+};
+
+ZPowers z_powers(double v, double dist) {
+    const double inv = 1.0 / (v * v + dist * dist);
+    const double zr = v * inv;
+    const double zi = -dist * inv;
+    const double r2 = zr * zr - zi * zi;
+    const double i2 = 2.0 * zr * zi;
+    return {zr, zi, r2, i2, r2 * zr - i2 * zi};
+}
+}  // namespace
+
+double across_value(double dist, const LineCoef& k) {
+    const ZPowers z = z_powers(k.v, dist);
+    return (k.a * z.r3 + k.b * z.r2 + k.cc * z.zr) / M_PI;
+}
+
 std::vector<double> line_strain_points(double load, double half_width, double psi, double cx_,
                                        double cy_, const double* px, const double* py, int n,
                                        const double* imp, double modulus, const double* nodes,
@@ -113,13 +103,15 @@ std::vector<double> line_strain_points(double load, double half_width, double ps
     const double c = std::cos(psi), s = std::sin(psi);
     std::vector<double> out(n, 0.0);
     const double scale = 2.0 * load / (M_PI * modulus);
-    for (int k = 0; k < n; ++k) {
+    const LineCoef k = line_coefficients(c, s, imp);
+    for (int j = 0; j < n; ++j) {
         double acc = 0.0;
         for (int i = 0; i < nn; ++i) {
             const double off = half_width * nodes[i];  // across the line, along n = (-s, c)
-            acc += weights[i] * along_line(px[k] - cx_ + off * s, py[k] - cy_ - off * c, c, s, imp);
+            const double qx = px[j] - cx_ + off * s, qy = py[j] - cy_ - off * c;
+            acc += weights[i] * across_value(-qx * s + qy * c, k);
         }
-        out[k] = scale * acc;
+        out[j] = scale * acc;
     }
     return out;
 }
@@ -127,32 +119,23 @@ std::vector<double> line_strain_points(double load, double half_width, double ps
 LineAngle line_angle(double psi, const double* imp) {
     const double c = std::cos(psi), s = std::sin(psi);
     const bool near = std::fabs(c) < AXIS_NEAR || std::fabs(s) < AXIS_NEAR;
-    double cj = c, sj = s;
-    if (near) {
-        cj = std::cos(psi + AXIS_NUDGE);
-        sj = std::sin(psi + AXIS_NUDGE);
-    }
-    const double dx = imp[0], nux = imp[1], dy = imp[2], nuy = imp[3];
-    const double ax = (1.0 + nux) * dx, bx = 1.0 - nux;
-    const double ay = (1.0 + nuy) * dy, by = 1.0 - nuy;
-    return {c, s, near, cj, sj,
-            pair_setup(ax, bx, dx, 1.0, -cj, ay, by, dy, 1.0, -sj),
-            pair_setup(ax, bx, dx, 1.0, -cj, ay, by, dy, -1.0, -sj)};
+    const LineCoef at = line_coefficients(c, s, imp);
+    return {c, s, near, at,
+            near ? line_coefficients(std::cos(psi + AXIS_NUDGE), std::sin(psi + AXIS_NUDGE), imp) : at};
 }
 
 void across_at(double dist, const LineAngle& ang, const double* imp, double& val, double& d_dist,
                double& d_psi) {
-    if (ang.near) val = along_line((-dist) * ang.s, dist * ang.c, ang.c, ang.s, imp);
-    Cx one[5], two[5];
-    pair_partials(ang.st1, (-dist) * ang.sj, dist * ang.cj, one);
-    pair_partials(ang.st2, (-dist) * ang.sj, dist * ang.cj, two);
-    const double norm = 1.0 / ((2.0 * M_PI) * M_PI);
-    if (!ang.near) val = (one[0] + two[0]).re * norm;
-    const double dp1 = (one[1] + two[1]).re, dq1 = (one[2] + two[2]).re;
-    const double dp2 = (one[3] + two[3]).re, dq2 = (one[4] + two[4]).re;
-    d_dist = ((-ang.sj) * dp1 + ang.cj * dp2) * norm;
-    // p1 = -d s, q1 = -c, p2 = d c, q2 = -s
-    d_psi = (((-dist) * ang.cj) * dp1 + ang.sj * dq1 - (dist * ang.sj) * dp2 - ang.cj * dq2) * norm;
+    (void)imp;
+    const LineCoef& k = ang.kj;
+    const ZPowers z = z_powers(k.v, dist);
+    const double zr = z.zr, zi = z.zi, r2 = z.r2, i2 = z.i2, r3 = z.r3;
+    const double i3 = r2 * zi + i2 * zr;
+    const double r4 = r2 * r2 - i2 * i2;
+    const double i4 = 2.0 * r2 * i2;
+    val = ang.near ? across_value(dist, ang.k0) : (k.a * r3 + k.b * r2 + k.cc * zr) / M_PI;
+    d_dist = (3.0 * k.a * i4 + 2.0 * k.b * i3 + k.cc * i2) / M_PI;
+    d_psi = (k.da * r3 + k.db * r2 - k.dv * (3.0 * k.a * r4 + 2.0 * k.b * r3 + k.cc * r2)) / M_PI;
 }
 
 void across_line(double dist, double psi, const double* imp, bool want, double& val,

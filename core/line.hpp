@@ -20,27 +20,32 @@ constexpr double AXIS_EPS = 1e-12;
 constexpr double AXIS_NEAR = 1e-7;
 constexpr double AXIS_NUDGE = 1e-6;
 
-// What a residue's partials need of the line's angle only (line.py's _pair_setup).
-struct PairSetup {
-    bool zero, swap;
-    double a1, d1, s1, q1, a2, b2, d2, s2, q2, alpha;
-    Cx beta;
-    double a1q3, mq21;
+// The across-line closed form's coefficients at a line's direction (cos, sin) and their
+// derivatives in its angle (line.py's _coefficients): the one residue of along_line that does
+// not vanish is L(d) = (A Re z^3 + B Re z^2 + C Re z)/pi, z = 1/(V + i d).
+struct LineCoef {
+    double v, dv, a, da, b, db, cc;
 };
 
-// What across_line needs of the angle psi (line.py's _line_angle).
+// What across_line needs of the angle psi (line.py's _line_angle): the coefficients at psi
+// (the value's) and at psi nudged off an axis (the partials').
 struct LineAngle {
     double c, s;
     bool near;
-    double cj, sj;
-    PairSetup st1, st2;
+    LineCoef k0, kj;
 };
+
+LineCoef line_coefficients(double c, double s, const double* imp);
+
+// L(d) of line_coefficients k at signed distance dist (mm) from the line (1/mm).
+double across_value(double dist, const LineCoef& k);
 
 // integral over the whole line of h_x(px - t c) h_y(py - t s) dt (1/mm).
 double along_line(double px, double py, double c, double s, const double* imp);
 
 // Strains at points (px, py) of a line contact of load per length `load` (N/mm), half-width
 // (mm) along psi (rad) through (cx, cy); nodes/weights: a Gauss-Chebyshev rule on [-1, 1].
+// L(d) of across_value at each point and node.
 std::vector<double> line_strain_points(double load, double half_width, double psi, double cx,
                                        double cy, const double* px, const double* py, int n,
                                        const double* imp, double modulus, const double* nodes,
@@ -48,7 +53,8 @@ std::vector<double> line_strain_points(double load, double half_width, double ps
 
 LineAngle line_angle(double psi, const double* imp);
 
-// L(d, psi) at signed distance dist from the line, with its partials in dist and psi.
+// L(d, psi) at signed distance dist from the line, with its partials in dist and psi:
+// L = (A Re z^3 + B Re z^2 + C Re z)/pi, z = 1/(V + i d) (line.py's _across_at).
 void across_at(double dist, const LineAngle& ang, const double* imp, double& val, double& d_dist,
                double& d_psi);
 

@@ -15,7 +15,11 @@
 # The integral along the (infinite) line is exact: writing the impulse response as
 # ``h(u) = Re g(u) / pi`` with ``g(u) = (1 + nu) d / (d - i u)^2 + (1 - nu) / (d - i u)`` (one
 # double pole, in the lower half-plane), ``h_x h_y = Re[g_x g_y + g_x conj(g_y)] / (2 pi^2)`` and
-# each product's integral over the real line is one residue.  Across the line a Gauss-Chebyshev
+# each product's integral over the real line is one residue.  Off the axes one of the two
+# vanishes (both poles on one side) and the other, as a function of the distance from the line,
+# has a closed form in real arithmetic (``_coefficients``): the strain, the fit's residual and
+# its partials use it; ``along_line`` keeps the residues (the reference the closed form is
+# tested against, and the principal value on an axis).  Across the line a Gauss-Chebyshev
 # (second kind) rule integrates the square-root pressure.  Compiled (core/line.cpp; these bodies
 # are its reference); the total force and the position along the line do not exist for such a
 # contact.
@@ -31,11 +35,11 @@ from tactiled import native
 from tactiled.physics.quadrature_rules import _rule_s, nodes_for
 
 #: Below this |cos psi| or |sin psi| the line lies along an axis and the residue's far pole
-#: is at infinity: its limit, a principal value, is taken.  Near an axis the formula loses
-#: digits to cancellation (2e-6 of the value at 1e-6 rad from it, none at 1e-4), far below any
-#: sensor's noise.  The response has a kink at the axes (it grows as |angle| from them: a
-#: kernel's 1/u^2 tail meeting the other's slow drift), so a Jacobian by differences takes
-#: steps in the angle of 1e-4 rad (tactiled.fit.line).
+#: is at infinity: its limit, a principal value, is taken.  Near an axis the residue form loses
+#: digits to cancellation (2e-6 of the value at 1e-6 rad from it, none at 1e-4; the closed form
+#: of ``_coefficients`` loses none), far below any sensor's noise.  The response has a kink at
+#: the axes (it grows as |angle| from them: a kernel's 1/u^2 tail meeting the other's slow
+#: drift), so a Jacobian by differences takes steps in the angle of 1e-4 rad (tactiled.fit.line).
 _AXIS_EPS = 1e-12
 
 
@@ -98,64 +102,17 @@ def line_strain_points(load: float, half_width: float, psi: float, cx: float, cy
     ``(cx, cy)``; ``nodes``/``weights`` a Gauss-Chebyshev (second kind) rule on [-1, 1]."""
     c, s = math.cos(psi), math.sin(psi)
     scale = 2.0 * load / (math.pi * modulus)
-    # every point and node at once: along_line's branches depend on the line's direction
-    # alone, so its arithmetic runs elementwise on the (points, nodes) offsets, each element
-    # as the core computes it; the nodes are summed in their order, as the core sums them
+    # every point and node at once (L of _across_value at each one's distance from the line),
+    # each element as the core computes it; the nodes are summed in their order, as the core
+    # sums them
     off = half_width * np.asarray(nodes, dtype=float)  # across the line, along n = (-s, c)
     qx = (np.asarray(px, dtype=float)[:, None] - cx) + off[None, :] * s
     qy = (np.asarray(py, dtype=float)[:, None] - cy) - off[None, :] * c
-    vals = np.broadcast_to(_along(qx, qy, c, s, imp), qx.shape)
+    vals = _across_value(-qx * s + qy * c, _coefficients(c, s, imp))
     acc = np.zeros(qx.shape[0])
     for i in range(off.size):
         acc += weights[i] * vals[:, i]
     return scale * acc
-
-
-def _pair_setup(a1: float, b1: float, d1: float, s1: float, q1: float,
-                a2: float, b2: float, d2: float, s2: float, q2: float):
-    """What :func:`_pair_partials` needs that depends on the line's angle only (``q1``,
-    ``q2``, both nonzero) and not on the distance: which factor's pole the residue is taken
-    at (the roles exchanged when it is the second's), whether the integral vanishes (both
-    poles on one side), and the residue's coefficients."""
-    im1 = -s1 * d1 / q1
-    im2 = -s2 * d2 / q2
-    zero = (im1 > 0.0) == (im2 > 0.0)
-    swap = not im1 > 0.0
-    if swap:
-        a1, b1, d1, s1, q1, a2, b2, d2, s2, q2 = a2, b2, d2, s2, q2, a1, b1, d1, s1, q1
-    alpha = a1 / (-q1 * q1)
-    beta = b1 / (-1j * s1 * q1)
-    return (zero, swap, a1, d1, s1, q1, a2, b2, d2, s2, q2, alpha, beta,
-            2.0 * a1 / (q1 * q1 * q1), -q2 / q1)
-
-
-def _pair_partials(st, p1: float, p2: float
-                   ) -> tuple[complex, complex, complex, complex, complex]:
-    """:func:`_pair` off the axes and its partials in ``(p1, q1, p2, q2)``: the one residue's
-    closed form, differentiated; ``st`` is :func:`_pair_setup` of the angle."""
-    zero, swap, a1, d1, s1, q1, a2, b2, d2, s2, q2, alpha, beta, a1q3, mq21 = st
-    if zero:
-        return 0j, 0j, 0j, 0j, 0j
-    if swap:  # the pole is the second factor's: the same formula with the roles exchanged
-        p1, p2 = p2, p1
-    t = (-1j * s1 * d1 - p1) / q1
-    u2 = p2 + q2 * t
-    w = d2 - 1j * s2 * u2
-    iw = 1.0 / w
-    iw2 = iw * iw
-    g2 = (a2 * iw + b2) * iw
-    dg2 = 1j * s2 * (2.0 * a2 * iw + b2) * iw2
-    ddg2 = -s2 * s2 * (6.0 * a2 * iw + 2.0 * b2) * iw2 * iw
-    k = 2j * math.pi
-    val = k * (alpha * q2 * dg2 + beta * g2)
-    du = k * (alpha * q2 * ddg2 + beta * dg2)  # d value / d u2
-    dp1 = du * mq21
-    dq1 = k * (a1q3 * q2 * dg2 - beta / q1 * g2) + du * (-q2 * t / q1)
-    dp2 = du
-    dq2 = k * alpha * dg2 + du * t
-    if swap:
-        return val, dp2, dq2, dp1, dq1
-    return val, dp1, dq1, dp2, dq2
 
 
 #: Within this of an axis (|cos psi| or |sin psi|) the partials are taken a little off it (at
@@ -165,37 +122,69 @@ _AXIS_NEAR = 1e-7
 _AXIS_NUDGE = 1e-6
 
 
-def _line_angle(psi: float, imp: np.ndarray):
-    """What :func:`across_line` needs of the angle ``psi`` (radians), whatever the distance:
-    its cosine and sine, whether it is within ``_AXIS_NEAR`` of an axis, the cosine and sine
-    the partials are taken at (nudged off an axis) and the two residues' setups there."""
-    c, s = math.cos(psi), math.sin(psi)
-    near = abs(c) < _AXIS_NEAR or abs(s) < _AXIS_NEAR
-    cj, sj = c, s
-    if near:
-        cj, sj = math.cos(psi + _AXIS_NUDGE), math.sin(psi + _AXIS_NUDGE)
+def _coefficients(c: float, s: float, imp: np.ndarray):
+    """The across-line closed form's coefficients at a line's direction ``(c, s)`` (cosine,
+    sine) and their derivatives in its angle: ``(V, dV, A, dA, B, dB, C)``.
+
+    Off the axes exactly one of :func:`along_line`'s two residues is nonzero (its poles
+    straddle the real line), and at distance ``d`` from the line it is ``L = (A Re z^3 + B Re
+    z^2 + C Re z) / pi`` with ``z = 1/(V + i d)``, ``V = depth_y |cos| + depth_x |sin|``, ``A
+    = 2 a_x a_y |cos||sin|``, ``B = a_x b_y |sin| + a_y b_x |cos|``, ``C = b_x b_y`` (``a = (1
+    + nu) depth``, ``b = 1 - nu``); on an axis it is the principal value's limit.  Real
+    arithmetic, one division a point; symmetric in x and y, as it must be."""
     dx, nux, dy, nuy = imp[0], imp[1], imp[2], imp[3]
     ax, bx = (1.0 + nux) * dx, 1.0 - nux
     ay, by = (1.0 + nuy) * dy, 1.0 - nuy
-    st1 = _pair_setup(ax, bx, dx, 1.0, -cj, ay, by, dy, 1.0, -sj)
-    st2 = _pair_setup(ax, bx, dx, 1.0, -cj, ay, by, dy, -1.0, -sj)
-    return c, s, near, cj, sj, st1, st2
+    ac, as_ = abs(c), abs(s)
+    dac = -s if c >= 0.0 else s  # d|cos|/d psi
+    das = c if s >= 0.0 else -c  # d|sin|/d psi
+    return (dy * ac + dx * as_, dy * dac + dx * das,
+            2.0 * ax * ay * (ac * as_), 2.0 * ax * ay * (dac * as_ + ac * das),
+            ax * by * as_ + ay * bx * ac, ax * by * das + ay * bx * dac, bx * by)
+
+
+def _powers(v, dist):
+    """``z = 1/(v + i dist)`` and the parts of ``z^2``, ``z^3``: ``(Re z, Im z, Re z^2, Im
+    z^2, Re z^3)`` (elementwise on arrays)."""
+    inv = 1.0 / (v * v + dist * dist)
+    zr = v * inv
+    zi = -dist * inv
+    r2 = zr * zr - zi * zi
+    i2 = 2.0 * zr * zi
+    return zr, zi, r2, i2, r2 * zr - i2 * zi
+
+
+def _across_value(dist, k):
+    """``L(dist)`` (1/mm) of :func:`_coefficients` ``k`` (elementwise on arrays)."""
+    v, _, a, _, bb, _, cc = k
+    zr, _, r2, _, r3 = _powers(v, dist)
+    return (a * r3 + bb * r2 + cc * zr) / math.pi
+
+
+def _line_angle(psi: float, imp: np.ndarray):
+    """What :func:`across_line` needs of the angle ``psi`` (radians), whatever the distance:
+    its cosine and sine, whether it is within ``_AXIS_NEAR`` of an axis, and
+    :func:`_coefficients` at the angle (the value's) and at the angle nudged off an axis
+    (the partials')."""
+    c, s = math.cos(psi), math.sin(psi)
+    near = abs(c) < _AXIS_NEAR or abs(s) < _AXIS_NEAR
+    at = _coefficients(c, s, imp)
+    kj = _coefficients(math.cos(psi + _AXIS_NUDGE), math.sin(psi + _AXIS_NUDGE), imp) if near else at
+    return c, s, near, at, kj
 
 
 def _across_at(dist: float, ang, imp: np.ndarray) -> tuple[float, float, float]:
-    """:func:`across_line` with its partials, ``ang`` = :func:`_line_angle` of the angle."""
-    c, s, near, cj, sj, st1, st2 = ang
-    if near:
-        val = along_line(-dist * s, dist * c, c, s, imp)
-    v1, a1, b1, c1, d1 = _pair_partials(st1, -dist * sj, dist * cj)
-    v2, a2, b2, c2, d2 = _pair_partials(st2, -dist * sj, dist * cj)
-    norm = 1.0 / (2.0 * math.pi * math.pi)
-    if not near:
-        val = (v1 + v2).real * norm
-    dp1, dq1, dp2, dq2 = (a1 + a2).real, (b1 + b2).real, (c1 + c2).real, (d1 + d2).real
-    d_dist = (-sj * dp1 + cj * dp2) * norm
-    # p1 = -d s, q1 = -c, p2 = d c, q2 = -s
-    d_psi = (-dist * cj * dp1 + sj * dq1 - dist * sj * dp2 - cj * dq2) * norm
+    """:func:`across_line` with its partials, ``ang`` = :func:`_line_angle` of the angle:
+    ``dz^n/dd = -i n z^(n+1)`` and ``dz^n/dV = -n z^(n+1)`` (:func:`_coefficients`)."""
+    c, s, near, k0, kj = ang
+    v, dv, a, da, bb, dbb, cc = kj
+    zr, zi, r2, i2, r3 = _powers(v, dist)
+    i3 = r2 * zi + i2 * zr
+    r4 = r2 * r2 - i2 * i2
+    i4 = 2.0 * r2 * i2
+    val = _across_value(dist, k0) if near else (a * r3 + bb * r2 + cc * zr) / math.pi
+    d_dist = (3.0 * a * i4 + 2.0 * bb * i3 + cc * i2) / math.pi
+    d_psi = (da * r3 + dbb * r2 - dv * (3.0 * a * r4 + 2.0 * bb * r3 + cc * r2)) / math.pi
     return val, d_dist, d_psi
 
 
