@@ -140,9 +140,13 @@ class LineFit:
                 q = np.array(r, dtype=float)
                 q[1] = best.p[1] + math.radians(turn)
                 starts += place(q)
-        starts.sort(key=lambda q: self._cost(prob, q))  # the cheap scan: the lowest first
+        costs = sorted((self._cost(prob, q), i) for i, q in enumerate(starts))
+        starts = [starts[i] for _, i in costs]  # the cheap scan: the lowest first
+        # (its chi^2 lets the first search draw on the flat allowance the lost search spent
+        # its base work to, where it is within a right model's reach: Budget.grant_cost)
         sol, more = f._search(fr, compiled.LINE, starts, LINE_STEPS, LINE_BOUNDS,
-                              f.options.max_iter, STOP_CHI2, lambda: prob.residual_and_jacobian)
+                              f.options.max_iter, STOP_CHI2, lambda: prob.residual_and_jacobian,
+                              costs[0][0] * fr.peak * fr.peak / f.sigma**2)
         if not sol.cost < best.cost:
             best.iterations += sol.iterations
             best.evaluations += sol.evaluations
@@ -264,10 +268,7 @@ class LineFit:
             std["angle_deg"] = wide
             reasons.setdefault("angle_deg", why)
         widen_by_points(values, std, reasons, at, ("x_mm", "y_mm"), why)
-        if line is not None:
-            sd = {k: line.get(k + "_std") for k in ("load_n_per_mm", "offset_mm")}
-            widen_by_points(line, sd, {}, at, ("load_n_per_mm", "offset_mm"))
-            line.update({k + "_std": v for k, v in sd.items()})
+        _widen_line(line, at)
 
     def _profiles(self, fr: _Frame, prob: LineProblem, best: SolveResult, values: dict,
                   std: dict, reasons: dict[str, str], line: dict | None,
@@ -298,10 +299,7 @@ class LineFit:
                 v, _, ln = prob.report(q, None)
                 at.append((rise, {**v, **ln}))
             widen_by_points(values, std, reasons, at, ("x_mm", "y_mm"))
-            if line is not None:
-                sd = {k: line.get(k + "_std") for k in ("load_n_per_mm", "offset_mm")}
-                widen_by_points(line, sd, {}, at, ("load_n_per_mm", "offset_mm"))
-                line.update({k + "_std": v for k, v in sd.items()})
+            _widen_line(line, at)
         return scan
 
     def _across(self, fr: _Frame, prob: LineProblem):
@@ -449,3 +447,13 @@ class LineFit:
         full.iterations += scout.iterations
         full.evaluations += scout.evaluations
         return full
+
+
+def _widen_line(line: dict | None, at: list[tuple[float, dict]]) -> None:
+    """The line's load and offset sigmas widened by the profile points ``at``
+    (:func:`tactiled.fit.profile.widen_by_points`)."""
+    if line is None:
+        return
+    sd = {k: line.get(k + "_std") for k in ("load_n_per_mm", "offset_mm")}
+    widen_by_points(line, sd, {}, at, ("load_n_per_mm", "offset_mm"))
+    line.update({k + "_std": v for k, v in sd.items()})

@@ -30,6 +30,10 @@ PAD = Path(__file__).resolve().parents[2] / "benchmarks" / "descriptions" / "pad
 LINE = LineContact(4.97, 83.29, 0.2786, 8.43, 7.27)
 #: An edge (0.5 mm) 7 deg off them, its strain falling along the row (a peak of ~55 sigmas).
 EDGE = LineContact(0.5, 82.9, 0.1439, 7.22, 8.50)
+#: A thin edge crossing the pad between two rows, its strain on two tactels of each: one
+#: tactel above half its peak, whose moments point anywhere (a cold search lost at chi^2
+#: 5000-6000 over the 24 tactels on 3 of 25 draws).
+BETWEEN = LineContact(0.5, 80.56, 0.2298, 13.21, 3.74)
 DRAWS = 25
 
 
@@ -50,7 +54,7 @@ def _offset(line: LineContact, psi_deg: float, centre: tuple[float, float]) -> f
     return -math.sin(psi) * (line.x0 - centre[0]) + math.cos(psi) * (line.y0 - centre[1])
 
 
-@pytest.mark.parametrize("line", [LINE, EDGE], ids=["line", "edge"])
+@pytest.mark.parametrize("line", [LINE, EDGE, BETWEEN], ids=["line", "edge", "between"])
 def test_a_line_off_a_row_lands_in_its_own_valley(pad, line: LineContact) -> None:
     model, fitter, sigma = pad
     clean = model.predict(line)
@@ -58,16 +62,20 @@ def test_a_line_off_a_row_lands_in_its_own_valley(pad, line: LineContact) -> Non
     g = fitter.sensor.geometry
     centre = (0.5 * g.span_x, 0.5 * g.span_y)
     bound = fitter.line_cramer_rao(clean, line)["angle_deg"]
-    within, beyond, short, z = 0, 0, 0, []
+    within, beyond, short, withheld, z = 0, 0, 0, 0, []
     for _ in range(DRAWS):
         frame = clean + rng.normal(0.0, sigma, clean.shape)
         res = fitter.fit(frame, "cylinder")
-        assert res.contact and res.label in ("line", "edge"), res.message
+        assert res.contact, res.message
         # the whole pad is the window: chi^2 at the truth bounds the minimum from above
         truth_chi2 = float(np.sum(((clean - frame) / sigma) ** 2))
         short += res.chi2 > truth_chi2 + 1.0
         a, sa = res.values["angle_deg"], res.std["angle_deg"]
-        assert a is not None and sa is not None, res.reasons
+        if a is None:  # withheld, with its reason (a search its budget stopped far off)
+            assert res.reasons.get("angle_deg") or res.reasons.get("fit"), res.reasons
+            withheld += 1
+            continue
+        assert res.label in ("line", "edge") and sa is not None, res.reasons
         err = _angle_err(a, line.psi_deg)
         within += abs(err) <= 2.0 * sa
         z.append(err / bound)
@@ -75,8 +83,9 @@ def test_a_line_off_a_row_lands_in_its_own_valley(pad, line: LineContact) -> Non
         off_err = off - _offset(line, a, centre)
         beyond += abs(err) > 4.0 * sa or abs(off_err) > 4.0 * s_off
     # the old cold start stopped in the mirror valley on 20 of 25 of the line's frames
-    assert short <= 1, f"{short} of {DRAWS} fits short of the least-squares minimum"
-    assert within >= 0.88 * DRAWS, f"angle within 2 sigma on {within} of {DRAWS}"
+    assert short <= 1 + withheld, f"{short} of {DRAWS} fits short of the least-squares minimum"
+    assert withheld <= 1, f"the angle withheld on {withheld} of {DRAWS}"
+    assert within >= 0.88 * (DRAWS - withheld), f"angle within 2 sigma on {within} of {DRAWS}"
     assert beyond == 0
     rms = float(np.sqrt(np.mean(np.square(z))))
     assert rms <= 1.5, f"angle RMS error {rms:.2f} of its bound {bound:.3f} deg"
