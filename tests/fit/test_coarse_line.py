@@ -19,11 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactiled.fit.fitter import FitOptions, Fitter
 from tactiled.fit.line import LineProblem
 from tactiled.physics.contact import LineContact
-from tactiled.physics.strain import StrainModel
-from tactiled.sensors import load_description
 
 PAD = Path(__file__).resolve().parents[2] / "benchmarks" / "descriptions" / "pad6x4.toml"
 #: A 5 mm line 7 deg off the pad's y rows (a peak of about 75 noise sigmas on one row).
@@ -38,10 +35,9 @@ DRAWS = 25
 
 
 @pytest.fixture(scope="module")
-def pad():
-    desc = load_description(PAD)
-    sensor = desc.sensor_model()
-    return StrainModel(sensor), Fitter(sensor, FitOptions(window=desc.window)), sensor.noise.sigma
+def pad(on_description):
+    sensor, model, fitter = on_description(PAD)
+    return model, fitter, sensor.noise.sigma
 
 
 def _angle_err(est: float, truth: float) -> float:
