@@ -87,6 +87,20 @@ def test_a_line_off_a_row_lands_in_its_own_valley(pad, line: LineContact) -> Non
     assert rms <= 1.5, f"angle RMS error {rms:.2f} of its bound {bound:.3f} deg"
 
 
+def test_auto_chooses_the_line_in_its_own_valley(pad) -> None:
+    """The daemon's default: auto's line, scouted first, is searched in both valleys too."""
+    model, fitter, sigma = pad
+    clean = model.predict(LINE)
+    rng = np.random.default_rng(4)
+    for _ in range(DRAWS):
+        res = fitter.fit(clean + rng.normal(0.0, sigma, clean.shape), "auto")
+        assert res.model == "cylinder" and res.label == "line", (res.model, res.label)
+        a, sa = res.values["angle_deg"], res.std["angle_deg"]
+        assert a is not None and abs(_angle_err(a, LINE.psi_deg)) <= 4.0 * sa, (a, sa)
+        # a fit in the mirror valley was 12 deg off with a sigma of 0.4-0.5 deg
+        assert abs(_angle_err(a, LINE.psi_deg)) < 3.0, a
+
+
 def test_the_mirror_keeps_where_the_line_crosses_the_row(pad) -> None:
     """The mirror image of a line about the row its pressed tactels lie on crosses the row
     where the line does, at the row's direction turned the other way by the line's tilt."""
