@@ -27,6 +27,10 @@ PARAMS = ("ln_r", "psi", "ln_p", "c")
 STEPS = np.array([1.0, 0.5, 1.0, 2.0])
 #: Radii (mm) the cold starts try, smallest first.
 START_RADII = (4.0, 25.0)
+#: The pressed tactels (above half the peak) lie on one lattice line when their second moment
+#: across their major axis is under this share of the squared pitch: their moments then give
+#: the line's direction along that lattice line, and nothing of its tilt either way.
+COLLINEAR_SHARE = 0.01
 FORCE_REASON = ("line contact: a cylinder on a flat array touches along a line longer than the "
                 "array, whose total force is not observable; its load per length is "
                 "line.load_n_per_mm")
@@ -62,6 +66,9 @@ class LineProblem:
         self.inv_scale = f(inv_scale, dtype=float)
         g = sensor.geometry
         self.centre = (0.5 * g.span_x, 0.5 * g.span_y)
+        #: set by :meth:`starts`: the lattice line the pressed tactels lie on (its direction,
+        #: rad, and their centroid, mm), or None where they span more than one (:meth:`mirrored`)
+        self.axis: tuple[float, float, float] | None = None
 
     def strains(self, p: np.ndarray) -> np.ndarray:
         """The model's strains at the window's tactels for internal vector ``p``."""
@@ -86,6 +93,7 @@ class LineProblem:
         (strain above half the peak) of the whole frame, its offset through the peak, and the
         load that gives the peak strain, for each of :data:`START_RADII`."""
         s = np.where(clean >= 0.5 * peak, clean, 0.0)
+        g = self.sensor.geometry
         X, Y = np.asarray(xs, dtype=float)[:, None], np.asarray(ys, dtype=float)[None, :]  # broadcast
         w = s.sum()
         mx, my = (s * X).sum() / w, (s * Y).sum() / w
@@ -93,10 +101,37 @@ class LineProblem:
         cyy = (s * (Y - my) ** 2).sum() / w
         cxy = (s * (X - mx) * (Y - my)).sum() / w
         psi = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)  # the major axis: along the line
+        minor = 0.5 * (cxx + cyy - math.hypot(cxx - cyy, 2.0 * cxy))
+        self.axis = (psi, mx, my) if minor <= COLLINEAR_SHARE * min(g.dx, g.dy) ** 2 else None
         c = -math.sin(psi) * (mx - self.ref[0]) + math.cos(psi) * (my - self.ref[1])
         unit = along_line(0.0, 0.0, math.cos(psi), math.sin(psi), self.imp)  # strain per N/mm * E
         load = max(peak * self.modulus / max(unit, 1e-9), 1e-6)
         return [np.array([math.log(r), psi, math.log(load), c]) for r in START_RADII]
+
+    def mirrored(self, p: np.ndarray) -> np.ndarray | None:
+        """The line ``p`` reflected about the lattice line its pressed tactels lie on
+        (:attr:`axis`, set by :meth:`starts`; the point where it crosses that line stays):
+        a start in the other valley of its angle's likelihood.  A ridge along one row of
+        tactels tells its tilt either way only by the faint strain beside it, so a line tilted
+        a few degrees off that row has two valleys of nearly equal depth, mirror images, and
+        a cold start on the row's direction lies on the ridge between them (on a 6x4 pad of
+        4 mm pitch: a 5 mm line at 83 deg fitted at 95 deg on 20 of 25 frames).  None where
+        the tactels span more than one lattice line or ``p`` lies along it."""
+        if self.axis is None:
+            return None
+        psi0, mx, my = self.axis
+        psi = float(p[1])
+        tilt = (psi - psi0 + 0.5 * math.pi) % math.pi - 0.5 * math.pi
+        if abs(tilt) < 1e-6:
+            return None
+        # where the line crosses the lattice line (the reflection leaves it in place)
+        rx, ry = mx - self.ref[0], my - self.ref[1]
+        t = (float(p[3]) - (-math.sin(psi) * rx + math.cos(psi) * ry)) / -math.sin(tilt)
+        xx, xy = rx + t * math.cos(psi0), ry + t * math.sin(psi0)
+        q = np.array(p, dtype=float)
+        q[1] = psi - 2.0 * tilt
+        q[3] = -math.sin(q[1]) * xx + math.cos(q[1]) * xy
+        return q
 
     def report(self, p: np.ndarray, cov: np.ndarray | None) -> tuple[dict, dict, dict]:
         """``(values, std, line)``: the user-unit values (``VALUE_KEYS``), their 1-sigma

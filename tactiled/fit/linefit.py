@@ -21,7 +21,7 @@ from tactiled.fit.line import LineProblem
 from tactiled.fit.linewindow import KeptFrames, line_frame
 from tactiled.fit.models import VALUE_KEYS
 from tactiled.fit.profile import (ANGLE_SCAN_DEG, LINE_NEAR_STEPS, LINE_TEST_SIGMA,
-                                  PROFILE_ITERATIONS,
+                                  FLAT_CHI2, PROFILE_ITERATIONS, REACH_CHI2,
                                   AngleProfile, angle_scan, flat_below, widen_by_points,
                                   withhold_flat)
 from tactiled.fit.result import FitResult
@@ -31,6 +31,10 @@ from tactiled.physics.contact import LineContact
 
 if TYPE_CHECKING:
     from tactiled.fit.fitter import Fitter, _Frame
+
+#: The starts across the half-turn of a cold line search that stopped far above the noise
+#: (:meth:`LineFit._around`), in degrees from its angle.
+ANGLE_STARTS_DEG = (30.0, 60.0, 90.0, 120.0, 150.0)
 
 
 class LineFit:
@@ -96,6 +100,11 @@ class LineFit:
                                        False, best.message)
                 best.iterations += scout.iterations
                 best.evaluations += scout.evaluations
+        other = None
+        if start is None and not self.scouted:
+            if not scout_first:  # (auto's other models answer a frame no line explains)
+                best, tried = self._around(fr, prob, best, tried, starts[0])
+            best, tried, other = self._mirror(fr, prob, best, tried)
         if self.scouted:  # ranked by chi^2, its report made only if it is the answer (tested)
             values, std, line = prob.report(best.p, None)
             self.point = (values["x_mm"], values["y_mm"], line["load_n_per_mm"])
@@ -108,10 +117,84 @@ class LineFit:
                 message=best.message, params=tuple(best.p.tolist()), line=line)
             self.untested = (res, fr, prob, best, tried)
             return res
-        return self._finish(fr, prob, best, tried)
+        return self._finish(fr, prob, best, tried, valley=other)
+
+    def _around(self, fr: _Frame, prob: LineProblem, best: SolveResult, tried: int,
+                cold: np.ndarray) -> tuple[SolveResult, int]:
+        """A cold search ``best`` that stopped far above what the noise allows
+        (:func:`tactiled.fit.search.good_enough`) searched again from starts across the
+        half-turn, ``ANGLE_STARTS_DEG`` from its angle, the cheapest first, each at its radius and at the cold
+        start ``cold``'s (a search lost far from a line can stop at the smallest radius the
+        solver allows) and placed across the window where it explains it best (:meth:`_across`):
+        the line's angle is one periodic parameter,
+        and a cold direction from a ridge whose half-peak tactels are one or two (a thin
+        line crossing a coarse pad between rows) can lie in no valley of a line at all
+        (chi^2 5500-6000 over 24 tactels on a 6x4 pad).  ``(the best search, starts tried)``.
+        Not under auto, whose sphere and ellipse answer a frame the line does not explain
+        (a ball's: on the 4x4 XELA pad those starts put auto's p99 up by a fifth)."""
+        f = self.fitter
+        if search.good_enough(f, best, fr.peak, fr.n_points, len(LINE_PARAMS)) \
+                or f._out_of_time():
+            return best, tried
+        place = self._across(fr, prob)
+        starts = []
+        for turn in ANGLE_STARTS_DEG:
+            for r in (best.p, cold):
+                q = np.array(r, dtype=float)
+                q[1] = best.p[1] + math.radians(turn)
+                starts += place(q)
+        costs = sorted((self._cost(prob, q), i) for i, q in enumerate(starts))
+        starts = [starts[i] for _, i in costs]  # the cheap scan: the lowest first
+        # (its chi^2 lets the first search draw on the flat allowance the lost search spent
+        # its base work to, where it is within a right model's reach: Budget.grant_cost)
+        sol, more = f._search(fr, compiled.LINE, starts, LINE_STEPS, LINE_BOUNDS,
+                              f.options.max_iter, STOP_CHI2, lambda: prob.residual_and_jacobian,
+                              costs[0][0] * fr.peak * fr.peak / f.sigma**2)
+        if not sol.cost < best.cost:
+            best.iterations += sol.iterations
+            best.evaluations += sol.evaluations
+            return best, tried + more
+        sol.iterations += best.iterations
+        sol.evaluations += best.evaluations
+        return sol, tried + more
+
+    @staticmethod
+    def _cost(prob: LineProblem, q: np.ndarray) -> float:
+        """The line ``q``'s cost on ``prob``'s window (inf for a line too wide to integrate)."""
+        try:
+            r, _ = prob.residual_and_jacobian(q)
+        except ValueError:
+            return math.inf
+        return float(r @ r)
+
+    def _mirror(self, fr: _Frame, prob: LineProblem, best: SolveResult, tried: int
+                ) -> tuple[SolveResult, int, tuple[float, np.ndarray] | None]:
+        """A cold search ``best`` whose pressed tactels lie on one lattice line, searched
+        again from its mirror image about that line (:meth:`LineProblem.mirrored`): the
+        deeper of the two valleys is the answer, ``(best, starts tried, the other valley's
+        (chi^2, solution) or None)``.  Both are searched whatever their chi^2: the two
+        mirror images both explain the frame to the noise (chi^2 31-50 and 16-32 over 24
+        tactels), so only their depths tell them apart; a line that does not explain the frame
+        (a ball's blob on one or two tactels, under auto) has no mirror worth a search."""
+        f = self.fitter
+        q = prob.mirrored(best.p) if best.converged else None
+        if q is None or f._out_of_time() \
+                or not search.good_enough(f, best, fr.peak, fr.n_points, len(LINE_PARAMS)):
+            return best, tried, None
+        sol, _ = f._search(fr, compiled.LINE, [q], LINE_STEPS, LINE_BOUNDS, f.options.max_iter,
+                           STOP_CHI2, lambda: prob.residual_and_jacobian)
+        if not sol.converged:
+            return best, tried + 1, None
+        sol.iterations += best.iterations
+        sol.evaluations += best.evaluations
+        win, lose = (sol, best) if sol.cost < best.cost else (best, sol)
+        win.iterations, win.evaluations = sol.iterations, sol.evaluations
+        unit = fr.peak * fr.peak / f.sigma**2
+        return win, tried + 1, (lose.cost * unit, lose.p)
 
     def _finish(self, fr: _Frame, prob: LineProblem, best: SolveResult, tried: int,
-                known: list[tuple[float, np.ndarray]] | None = None) -> FitResult:
+                known: list[tuple[float, np.ndarray]] | None = None,
+                valley: tuple[float, np.ndarray] | None = None) -> FitResult:
         """The FitResult of the line's search ``best`` on ``fr``: its values, their sigmas
         (widened where the frame says so, tested on their profile likelihood where it
         converged) and what is withheld.  Where the angle's profile finds a deeper valley
@@ -145,6 +228,8 @@ class LineFit:
             reasons.setdefault("fit", best.message)
         else:
             scan = self._profiles(fr, prob, best, values, std, reasons, line, known)
+            if valley is not None:  # (after the profile tests: they test the curvature's sigma)
+                self._valleys(fr, prob, best, valley, values, std, reasons, line)
             if scan.deeper is not None and known is None:
                 # the angle's profile found a valley deeper than the search's: search from
                 # there; where that does not reach it, the angle stays withheld (flat)
@@ -165,6 +250,30 @@ class LineFit:
             condition=condition, peak=peak, n_points=fr.n_points, window=fr.win, starts=tried,
             message=best.message, reasons=reasons, params=tuple(best.p.tolist()), line=line,
         )
+
+    def _valleys(self, fr: _Frame, prob: LineProblem, best: SolveResult,
+                 valley: tuple[float, np.ndarray], values: dict, std: dict,
+                 reasons: dict[str, str], line: dict | None) -> None:
+        """The angle's sigma (and the place's, offset's and load's that trade with it) widened
+        so that the other valley ``valley`` (``(chi^2, solution)``, :meth:`_mirror`) lies
+        ``sqrt(rise)`` sigmas away, where it rises by under ``REACH_CHI2`` (a rise under
+        ``FLAT_CHI2`` puts it one sigma away): two valleys that explain the frame alike are
+        one answer with the sigma that covers both, never a confident pick of one."""
+        chi2 = best.cost * fr.peak * fr.peak / self.fitter.sigma**2
+        rise = valley[0] - chi2
+        if not rise < REACH_CHI2 or values.get("angle_deg") is None:
+            return
+        at_v, _, at_l = prob.report(valley[1], None)
+        at = [(rise, {**at_v, **at_l})]
+        why = ("poorly determined: its sigma widened to cover the mirror-image valley of its "
+               f"likelihood (chi^2 {max(rise, 0.0):.2g} above)")
+        turn = abs(at_v["angle_deg"] - values["angle_deg"]) % 180.0  # (the half-turn round)
+        wide = min(turn, 180.0 - turn) / math.sqrt(max(rise, FLAT_CHI2))
+        if std.get("angle_deg") is not None and wide > std["angle_deg"]:
+            std["angle_deg"] = wide
+            reasons.setdefault("angle_deg", why)
+        widen_by_points(values, std, reasons, at, ("x_mm", "y_mm"), why)
+        _widen_line(line, at)
 
     def _profiles(self, fr: _Frame, prob: LineProblem, best: SolveResult, values: dict,
                   std: dict, reasons: dict[str, str], line: dict | None,
@@ -195,10 +304,7 @@ class LineFit:
                 v, _, ln = prob.report(q, None)
                 at.append((rise, {**v, **ln}))
             widen_by_points(values, std, reasons, at, ("x_mm", "y_mm"))
-            if line is not None:
-                sd = {k: line.get(k + "_std") for k in ("load_n_per_mm", "offset_mm")}
-                widen_by_points(line, sd, {}, at, ("load_n_per_mm", "offset_mm"))
-                line.update({k + "_std": v for k, v in sd.items()})
+            _widen_line(line, at)
         return scan
 
     def _across(self, fr: _Frame, prob: LineProblem):
@@ -346,3 +452,13 @@ class LineFit:
         full.iterations += scout.iterations
         full.evaluations += scout.evaluations
         return full
+
+
+def _widen_line(line: dict | None, at: list[tuple[float, dict]]) -> None:
+    """The line's load and offset sigmas widened by the profile points ``at``
+    (:func:`tactiled.fit.profile.widen_by_points`)."""
+    if line is None:
+        return
+    sd = {k: line.get(k + "_std") for k in ("load_n_per_mm", "offset_mm")}
+    widen_by_points(line, sd, {}, at, ("load_n_per_mm", "offset_mm"))
+    line.update({k + "_std": v for k, v in sd.items()})

@@ -49,11 +49,20 @@ _LOG_RADII = ("ln_r", "ln_ra")
 MISMATCH_LEVEL = 0.99
 
 
+#: A search whose chi^2 is above this quantile of a right model's (and ``MODEL_SLACK``) stopped
+#: far above what the noise allows: the search's other starts are tried (:func:`good_enough`).
+NOISE_LEVEL = 0.999
+#: The model error a fit is allowed before other starts are tried: this share of the peak
+#: strain's square per tactel (a residual of 1 % of the peak at every tactel), so a sensor
+#: whose model is off by that much does not send every fit through all its starts.
+MODEL_SLACK = 1e-4
+
+
 @lru_cache(maxsize=None)
-def _chi2_limit(dof: int) -> float:
-    """The ``MISMATCH_LEVEL`` quantile of chi^2 with ``dof`` degrees of freedom: scipy.stats'
+def _chi2_limit(dof: int, level: float = MISMATCH_LEVEL) -> float:
+    """The ``level`` quantile of chi^2 with ``dof`` degrees of freedom: scipy.stats'
     ``chi2.ppf``, bit for bit, from scipy.special (scipy.stats costs a second to import)."""
-    return float(2.0 * gammaincinv(dof / 2.0, MISMATCH_LEVEL))
+    return float(2.0 * gammaincinv(dof / 2.0, level))
 
 
 _STEP = {"ln_r": 1.0, "ln_ra": 1.0, "beta": 0.5, "psi": 0.5, "ln_f": 0.7, "x0": 2.0, "y0": 2.0}
@@ -158,7 +167,7 @@ def search(fitter: Fitter, fr: _Frame, kind: int, starts: list[np.ndarray], step
         ran_out(fitter, sol, max_iter, cap)
         if best is None or sol.cost < best.cost:
             best = sol
-        if good_enough(fitter, best, peak, fr.n_points) or fitter._out_of_time():
+        if good_enough(fitter, best, peak, fr.n_points, len(p0)) or fitter._out_of_time():
             break
     assert best is not None
     return best, tried
@@ -183,13 +192,17 @@ def stopped(sol: SolveResult) -> bool:
         sol.message.startswith(EXHAUSTED))
 
 
-def good_enough(fitter: Fitter, sol: SolveResult, peak: float, n_points: int) -> bool:
-    """Residual consistent with sensor noise (chi^2 per point under ~4 with slack for
-    model error), so further starts cannot be expected to help."""
+def good_enough(fitter: Fitter, sol: SolveResult, peak: float, n_points: int,
+                params: int = 0) -> bool:
+    """The search's chi^2 within what the noise allows a right model with ``params``
+    parameters (its ``NOISE_LEVEL`` quantile) and ``MODEL_SLACK`` of model error, so further
+    starts cannot be expected to help.  (A bound of 4 per tactel let a line on a 6x4 pad
+    stop in its wrong valley at chi^2 60 over 24 tactels, where the noise allows 45.)"""
     if not math.isfinite(sol.cost):
         return False
     chi2 = sol.cost * peak * peak / (fitter.sigma * fitter.sigma)
-    return chi2 <= 4.0 * n_points + 1e-4 * n_points * (peak / fitter.sigma) ** 2
+    dof = max(n_points - params, 1)
+    return chi2 <= _chi2_limit(dof, NOISE_LEVEL) + MODEL_SLACK * n_points * (peak / fitter.sigma) ** 2
 
 
 def consistent(fitter: Fitter, res: FitResult) -> bool:

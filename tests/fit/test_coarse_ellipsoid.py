@@ -24,10 +24,9 @@ import pytest
 
 import tactiled.fit.point as point
 from tactiled.fit.budget import stopped_by_budget
-from tactiled.fit.fitter import FitOptions, Fitter
+from tactiled.fit.fitter import Fitter
 from tactiled.physics.contact import Contact
 from tactiled.physics.strain import StrainModel
-from tactiled.sensors import load_description
 
 PAD = Path(__file__).resolve().parents[2] / "benchmarks" / "descriptions" / "pad6x4.toml"
 #: A light ellipsoid (a peak of about 60 noise sigmas), its smaller radius below the pitch.
@@ -44,10 +43,9 @@ TRUTH_KEYS = ("x_mm", "y_mm", "force_n")
 
 
 @pytest.fixture(scope="module")
-def pad():
-    desc = load_description(PAD)
-    sensor = desc.sensor_model()
-    return StrainModel(sensor), Fitter(sensor, FitOptions(window=desc.window)), sensor.noise.sigma
+def pad(on_description):
+    sensor, model, fitter = on_description(PAD)
+    return model, fitter, sensor.noise.sigma
 
 
 def _frames(model: StrainModel, sigma: float, contact: Contact, seed: int) -> list[np.ndarray]:
