@@ -136,6 +136,10 @@ class FrameClock:
 
     def stamp(self, frames: Sequence[Frame]) -> None:
         """Set ``frame.time`` (Unix s) on the frames of one read, in order."""
+        if len(frames) == 1 and frames[0].clocked:  # a live port's read: one clocked frame
+            frame = frames[0]
+            frame.time = self._monotone(*self._mapped(frame)) + self.wall_offset
+            return
         spread = [f for f in frames if not f.clocked]
         if not spread:  # every frame carries the device's clock (the common case): mapped
             for frame in frames:

@@ -174,7 +174,7 @@ HAND_PARTS = (("palm", "hand-palm", "flat16"),
 
 def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: int = 4000,
                 workers: int = 2, passes: int = 2, batched: bool | None = None,
-                profile: str | None = None) -> list[dict[str, Any]]:
+                profile: str | None = None, read_only: bool = False) -> list[dict[str, Any]]:
     """The main process's CPU per frame with nothing else competing: each part's ``frames``
     frames (its scene from the start, seed 1, at 1 kHz) recorded, then replayed as fast as
     the daemon takes them, every part at once, lossless (each frame waits for what it
@@ -187,7 +187,9 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
     pipeline's per-frame path instead of the core's runs (``SensorPipeline.batched``).
     ``profile``: a file that gets the last pass's cProfile statistics (this process's CPU
     clock, the replay alone: ``python -m pstats FILE``); a profiled pass costs more, so its
-    ``us_per_frame`` is no measure of the code."""
+    ``us_per_frame`` is no measure of the code.  ``read_only``: each read's frames are read,
+    decoded and stamped, then only counted (``SensorPipeline.on_frames`` replaced): what the
+    loop, the source and the decoder cost a frame without the pipeline."""
     import asyncio
     import cProfile
     import tempfile
@@ -243,6 +245,13 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
         was = getattr(SensorPipeline, "batched", False)
         if batched is not None and hasattr(SensorPipeline, "batched"):
             SensorPipeline.batched = batched and was
+        on_frames = SensorPipeline.on_frames
+        if read_only:
+            def counted(pipe: Any, frames: Any, start: int = 0, *_a: Any, **_k: Any) -> int:
+                pipe.frames += len(frames) - start
+                return len(frames)
+
+            SensorPipeline.on_frames = counted  # type: ignore[method-assign]
         try:
             runs = [asyncio.run(play(paths)) for _ in range(passes - (profile is not None))]
             if profile is not None:
@@ -251,6 +260,7 @@ def replay_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: in
                 prof.dump_stats(profile)
             return runs
         finally:
+            SensorPipeline.on_frames = on_frames  # type: ignore[method-assign]
             if hasattr(SensorPipeline, "batched"):
                 SensorPipeline.batched = was
 
@@ -486,6 +496,10 @@ def _cli() -> None:
     p.add_argument("--per-frame", action="store_true",
                    help="with --replay: this tree's runs through the core and its per-frame "
                         "path, in turn (two rounds)")
+    p.add_argument("--empty", metavar="DESCRIPTION", nargs="+", default=None,
+                   help="with --replay: instead of the hand, one array of each DESCRIPTION alone "
+                        "on a scene that never touches it (three passes each): a frame with no "
+                        "contact")
     p.add_argument("--cprofile", metavar="DIR", default=None,
                    help="with --replay: a third pass of each run under cProfile, its statistics "
                         "into DIR (<code>-<round>.pstats), and the functions that cost the most "
@@ -493,6 +507,8 @@ def _cli() -> None:
     a = p.parse_args()
     if a.cprofile is not None and (not a.replay or a.per_frame):
         p.error("--cprofile goes with --replay, without --per-frame")
+    if a.empty is not None and (not a.replay or a.per_frame or a.cprofile):
+        p.error("--empty goes with --replay, without --per-frame or --cprofile")
     if a.per_frame and (not a.replay or a.baseline is not None):
         p.error("--per-frame goes with --replay, without --baseline")
     if a.baseline is not None and not (a.replay or a.fits or a.estimate):
@@ -532,6 +548,14 @@ def _cli() -> None:
                 for _ in range(2):
                     rows.append(("this tree, runs", replay_cost(batched=True)))
                     rows.append(("this tree, per frame", replay_cost(batched=False)))
+            elif a.empty is not None:
+                for _ in range(1 if tree is None else 2):
+                    for desc in a.empty:
+                        part = (("one", "empty", desc),)
+                        rows.append((f"this tree, {desc}", replay_at(_here(), 3, parts=part)))
+                        if tree is not None:
+                            rows.append((f"baseline {a.baseline}, {desc}",
+                                         replay_at(tree, 3, parts=part)))
             elif tree is None:
                 rows.append(("this tree", replay_cost(passes=3, profile=_pstats(a, "this", 1))
                              if a.cprofile else replay_cost()))

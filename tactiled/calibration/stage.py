@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+import struct
 from collections.abc import Callable
 
 import numpy as np
@@ -29,6 +30,9 @@ from tactiled.calibration.zeroing import MAX_STEP_SIGMAS, Zeroer
 from tactiled.errors import CalibrationError
 from tactiled.frames import Frame
 from tactiled.sensors.model import SensorModel
+
+#: a run's state vector (``RUN_STATE``) as the core reads it: float64, native order
+_STATE = struct.Struct(f"={len(RUN_STATE)}d")
 
 
 class CalibrationStage:
@@ -50,6 +54,9 @@ class CalibrationStage:
         self._runner: ZeroRun | None = None  # process_run's, kept between runs ...
         self._run_key: tuple | None = None  # ... while its constants ...
         self._run_on: tuple = ()  # ... and the arrays it writes are the stage's
+        self._run_out = (np.empty(0), np.empty(0))  # a run's statistics and peaks
+        #: a run's device times (s), written by its caller (tactiled.pipeline.frame_run)
+        self.run_times = np.empty(0)
         if self.zeroer.shape != table.shape:
             raise ValueError(f"zeroer shape {self.zeroer.shape} != table shape {table.shape}")
 
@@ -133,17 +140,18 @@ class CalibrationStage:
                 and isinstance(self.table._forward, Segments))
 
     def process_run(self, raws: list[np.ndarray], times: np.ndarray, z: np.ndarray,
-                    track: Callable[..., int] | None = None) -> tuple[int, np.ndarray, np.ndarray]:
+                    track: Callable[..., int] | None = None) -> tuple[int, list[float], list[float]]:
         """:meth:`process` for a read's frames in one call into the core
         (:class:`~tactiled.calibration.fused.ZeroRun`): ``raws`` (integer counts of this
-        table's shape) at device times ``times`` (s); their zeroed strain into ``z``
-        (``(N, rows, cols)`` float64).  Stops after the first frame in contact (that frame
-        taken: :attr:`in_contact` is then True) and before a frame the compiled path does not
-        take.  Returns ``(frames taken, statistics, largest strains)``: the detector's
-        ``last_statistic`` after each frame and each frame's largest strain.  Call only when
-        :meth:`can_run`; the objects' state is the same as after :meth:`process` of each.
-        ``track``: the run goes on past contact, ``track(runner, raws, times, z, stats, peaks,
-        state)`` runs it (:mod:`tactiled.pipeline.tracked_run`) and returns the frames taken."""
+        table's shape) at device times ``times`` (s; at least one per frame); their zeroed
+        strain into ``z`` (``(N, rows, cols)`` float64).  Stops after the first frame in
+        contact (that frame taken: :attr:`in_contact` is then True) and before a frame the
+        compiled path does not take.  Returns ``(frames taken, statistics, largest strains)``:
+        the detector's ``last_statistic`` after each frame taken and each one's largest strain.
+        Call only when :meth:`can_run`; the objects' state is the same as after :meth:`process`
+        of each.  ``track``: the run goes on past contact, ``track(runner, raws, times, z,
+        stats, peaks, state)`` runs it (:mod:`tactiled.pipeline.tracked_run`) and returns the
+        frames taken."""
         zr = self.zeroer
         det = zr.detector
         comp = zr.hysteresis
@@ -154,26 +162,32 @@ class CalibrationStage:
             self._runner = self._new_runner()
             self._run_key, self._run_on = key, (zr.baseline, comp._peak, det._ring)
         state = self._run_state
-        state[:] = (zr._last_t, zr._frames, zr._settle_until, zr._release_until,
-                    zr.baseline_var, zr.in_contact, comp._active, det._count, det._head,
-                    det.last_statistic, det.in_contact, False, self.peak, False)
-        n = len(raws)
-        stats, peaks = np.empty(n), np.empty(n)
+        # (packed, not assigned through numpy: a read of one frame pays this per frame)
+        _STATE.pack_into(state, 0, zr._last_t, zr._frames, zr._settle_until,
+                         zr._release_until, zr.baseline_var, zr.in_contact, comp._active,
+                         det._count, det._head, det.last_statistic, det.in_contact, False,
+                         self.peak, False)
+        stats, peaks = self._run_out
+        if len(stats) < len(raws):  # (kept between runs: the core writes the first ones)
+            stats, peaks = self._run_out = np.empty(len(raws)), np.empty(len(raws))
         taken = (self._runner.run(raws, times, z, stats, peaks, state) if track is None
                  else track(self._runner, raws, times, z, stats, peaks, state))
-        if taken:
-            (zr._last_t, frames, _, zr._release_until, zr.baseline_var, in_contact, active,
-             count, head, det.last_statistic, det_in, residual_valid, self.peak,
-             released) = state.tolist()
-            zr._frames, det._count, det._head = int(frames), int(count), int(head)
-            zr.in_contact, det.in_contact = bool(in_contact), bool(det_in)
-            if comp.fraction > 0.0:
-                comp._active = bool(active)
-            zr._residual = self._run_residual.copy() if residual_valid else None
-            if released:
-                zr._drift_t = None
-            self.finite = True
-        return taken, stats, peaks
+        if not taken:
+            return 0, [], []
+        (zr._last_t, frames, _, zr._release_until, zr.baseline_var, in_contact, active,
+         count, head, det.last_statistic, det_in, residual_valid, self.peak,
+         released) = _STATE.unpack_from(state)
+        zr._frames, det._count, det._head = int(frames), int(count), int(head)
+        zr.in_contact, det.in_contact = bool(in_contact), bool(det_in)
+        if comp.fraction > 0.0:
+            comp._active = bool(active)
+        zr._residual = self._run_residual.copy() if residual_valid else None
+        if released:
+            zr._drift_t = None
+        self.finite = True
+        if taken < len(stats):
+            stats, peaks = stats[:taken], peaks[:taken]
+        return taken, stats.tolist(), peaks.tolist()
 
     def _new_runner(self) -> ZeroRun:
         """The stage's :class:`~tactiled.calibration.fused.ZeroRun`: its arrays (flat views,

@@ -17,6 +17,8 @@ no contact published without the per-frame Python path (:meth:`SensorPipeline.on
 from __future__ import annotations
 
 import logging
+import math
+import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -24,7 +26,7 @@ import numpy as np
 
 from tactiled.frames import Frame
 from tactiled.pipeline import tracked_run
-from tactiled.pipeline.estimate import GATE_NO_CONTACT, make_estimate, make_zeroed_frame
+from tactiled.pipeline.estimate import GATE_NO_CONTACT, Estimate
 
 if TYPE_CHECKING:
     from tactiled.pipeline.sensor import SensorPipeline
@@ -54,22 +56,25 @@ def take_run(pipe: SensorPipeline, frames: Sequence[Frame], k: int, end: int, no
     assert stage is not None
     sid = stage.table.sensor_id
     shape = pipe._grid_shape
+    times = stage.run_times  # (the device times, s: written here, read by the core)
+    if len(times) < MAX_RUN:
+        times = stage.run_times = np.empty(MAX_RUN)
     raws = []
-    for j in range(k, min(end, k + MAX_RUN)):
-        f = frames[j]
+    n = 0
+    for f in frames[k:min(end, k + MAX_RUN)]:
         raw = f.raw
         if f.sensor_id != sid or raw.shape != shape or raw.dtype.kind not in "ui":
             break
         raws.append(raw)
-    n = len(raws)
+        times[n] = f.device_time_us * 1e-6
+        n += 1
     if not n:
         return 0
     run = frames[k:k + n]
-    times = np.fromiter((f.device_time_us for f in run), float, n) * 1e-6
     z = np.empty((n, *shape))
-    track = tracked_run.plan(pipe)
+    track = tracked_run.plan(pipe) if stage.zeroer.in_contact else None  # (plan needs it)
     try:
-        taken, stats, peaks = stage.process_run(raws, times, z, track)
+        taken, statistic, peak = stage.process_run(raws, times, z, track)
     except Exception:  # a bug must not stop the sensor: its frames take the per-frame path
         pipe.batched = False
         pipe.errors += 1
@@ -79,39 +84,51 @@ def take_run(pipe: SensorPipeline, frames: Sequence[Frame], k: int, end: int, no
         return 0
     z.setflags(write=False)
     if track is not None:  # a tracked contact's run (tactiled.pipeline.tracked_run)
-        track.publish(pipe, run, z, stats.tolist(), peaks.tolist(), taken, now, dispatch)
+        track.publish(pipe, run, z, statistic, peak, taken, now, dispatch)
         return taken
-    ends_in_contact = stage.zeroer.in_contact
-    statistic, peak = stats.tolist(), peaks.tolist()
+    # the frames before the one in contact, if any: quiet ones published together
+    last = taken - 1 if stage.zeroer.in_contact else taken
     quiet = pipe.quiet_at == pipe._ordinal and pipe._idle() and not pipe.tracking.pending
-    for i in range(taken):
+    i = 0
+    while i < taken:
+        if quiet and i < last:
+            _publish_quiet(pipe, run, z, statistic, i, last)
+            i = last
+            continue
         frame = run[i]
         strain = tracked_run.took(pipe, frame, z[i])
-        contact = ends_in_contact and i == taken - 1
-        if quiet and not contact:
-            _publish_quiet(pipe, frame, strain, statistic[i])
-            continue
+        contact = i == last
         pipe._guarded(frame, dispatch, pipe._after_stage, frame, strain, contact, False, now,
                       statistic[i], peak[i])
         quiet = not contact and pipe._idle() and not pipe.tracking.pending
         if quiet:
             pipe.quiet_at = pipe._ordinal
+        i += 1
     return taken
 
 
-def _publish_quiet(pipe: SensorPipeline, frame: Frame, strain: np.ndarray,
-                   statistic: float) -> None:
-    """A frame with no contact after another, nothing waiting for or in a fit: what
-    ``_after_stage`` does then (contact ended already, ids cleared, the gate reset), less the
-    steps that change nothing a second time."""
-    pipe._ordinal = pipe.quiet_at = pipe._ordinal + 1
-    pipe.hub.publish(make_zeroed_frame(
-        sensor=pipe.name, sensor_id=frame.sensor_id, seq=frame.seq,
-        device_time_us=frame.device_time_us, host_time=frame.host_time, contact=False,
-        statistic=statistic, strain=strain, stamp=frame.time))
-    pipe.skipped[GATE_NO_CONTACT] += 1
-    pipe._send(make_estimate(
-        sensor=pipe.name, sensor_id=frame.sensor_id, seq=frame.seq,
-        device_time_us=frame.device_time_us, host_time=frame.host_time, gate=GATE_NO_CONTACT,
-        fitted_seq=None, worker_ms=0.0, fit=pipe._no_contact_fit, stamp=frame.time),
-        pipe._ordinal)
+def _publish_quiet(pipe: SensorPipeline, run: Sequence[Frame], z: np.ndarray,
+                   statistic: list[float], i: int, end: int) -> None:
+    """Frames ``i`` to ``end`` of a run, with no contact after another, nothing waiting for or
+    in a fit: what ``_after_stage`` does then (contact ended already, ids cleared, the gate
+    reset), less the steps that change nothing a second time; the counters moved once."""
+    hub, name, fit, record = pipe.hub, pipe.name, pipe._no_contact_fit, pipe.record_path
+    ordinal = pipe._ordinal
+    for j in range(i, end):
+        frame = run[j]
+        if record is not None:
+            pipe._record(frame)
+        frame.strain = strain = z[j]
+        sensor_id, seq, device_us, host, stamp = (frame.sensor_id, frame.seq,
+                                                  frame.device_time_us, frame.host_time,
+                                                  frame.time)
+        hub.publish_frame(name, sensor_id, seq, device_us, host, False, statistic[j], strain,
+                          stamp)
+        if stamp is None or not math.isfinite(stamp):  # (as make_estimate)
+            stamp = time.time()
+        ordinal += 1
+        pipe._send(Estimate(name, sensor_id, seq, device_us, host, time.monotonic(), stamp,
+                            GATE_NO_CONTACT, None, 0.0, fit), ordinal)
+    pipe.frames += end - i
+    pipe.skipped[GATE_NO_CONTACT] += end - i
+    pipe._ordinal = pipe.quiet_at = ordinal

@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Union
 
+import numpy as np
+
 from tactiled.errors import TactiledError
-from tactiled.pipeline.estimate import Estimate, ZeroedFrame
+from tactiled.pipeline.estimate import Estimate, ZeroedFrame, zeroed_frame
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +134,10 @@ class Hub:
         self._listeners: list[Callable[[Item], None]] = []
         self._event_listeners: list[Callable[[Item], None]] = []
         self._latest_estimate: dict[str, Estimate] = {}
-        self._latest_frame: dict[str, ZeroedFrame] = {}
+        #: a sensor's latest frame: its record, or the record's fields while nobody takes
+        #: frames (:meth:`publish_frame`: built when :meth:`latest_frame` asks)
+        self._latest_frame: dict[str, ZeroedFrame | tuple] = {}
+        self._frame_takers = False  # a listener, or a subscription to frames
         self.published = {"estimate": 0, "frame": 0, "slip": 0}
         self.closed = False
 
@@ -162,6 +168,7 @@ class Hub:
             sub.close()
         else:
             self._subs.append(sub)
+            self._recount()
         return sub
 
     def _remove(self, sub: Subscription) -> None:
@@ -169,6 +176,12 @@ class Hub:
             self._subs.remove(sub)
         except ValueError:
             pass
+        self._recount()
+
+    def _recount(self) -> None:
+        """Whether anyone takes zeroed frames as they are published (:meth:`publish_frame`)."""
+        self._frame_takers = bool(self._listeners or self._event_listeners
+                                  or any("frame" in s.kinds for s in self._subs))
 
     @property
     def subscriptions(self) -> tuple[Subscription, ...]:
@@ -183,10 +196,12 @@ class Hub:
         """
         listeners = self._event_listeners if events else self._listeners
         listeners.append(callback)
+        self._recount()
 
         def remove() -> None:
             if callback in listeners:
                 listeners.remove(callback)
+                self._recount()
 
         return remove
 
@@ -203,6 +218,8 @@ class Hub:
         for sub in self._subs:
             if sub.wants(item):
                 sub.offer(item)
+        if not (self._listeners or self._event_listeners):
+            return
         for listeners in ((self._listeners, self._event_listeners)
                           if item.kind in _STATE_KINDS else (self._event_listeners,)):
             for callback in listeners:
@@ -211,13 +228,31 @@ class Hub:
                 except Exception:  # a broken listener must not stop the pipeline
                     log.exception("hub listener %r failed", callback)
 
+    def publish_frame(self, sensor: str, sensor_id: int, seq: int, device_time_us: int,
+                      host_time: float, contact: bool, statistic: float, strain: np.ndarray,
+                      stamp: float = math.nan, taxels: np.ndarray | None = None) -> None:
+        """Publish a zeroed frame of these fields (:class:`ZeroedFrame`'s, in order): as
+        ``publish(ZeroedFrame(...))``, but while no listener and no subscription takes frames,
+        the record is built only if :meth:`latest_frame` asks for it (a frame path publishes
+        up to 6000 a second, most of them read by nobody)."""
+        if self._frame_takers:
+            self.publish(zeroed_frame(sensor, sensor_id, seq, device_time_us, host_time, contact,
+                                      statistic, strain, stamp, taxels))
+            return
+        self._latest_frame[sensor] = (sensor, sensor_id, seq, device_time_us, host_time, contact,
+                                      statistic, strain, stamp, taxels)
+        self.published["frame"] += 1
+
     def latest_estimate(self, sensor: str) -> Estimate | None:
         """The last estimate published for ``sensor`` (None before the first)."""
         return self._latest_estimate.get(sensor)
 
     def latest_frame(self, sensor: str) -> ZeroedFrame | None:
         """The last zeroed frame published for ``sensor`` (None before the first)."""
-        return self._latest_frame.get(sensor)
+        item = self._latest_frame.get(sensor)
+        if type(item) is tuple:  # (publish_frame's fields: the record, now)
+            item = self._latest_frame[sensor] = zeroed_frame(*item)
+        return item  # type: ignore[return-value]
 
     def stats(self) -> dict[str, object]:
         """Published counts and each subscription's queue and drops."""

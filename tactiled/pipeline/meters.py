@@ -26,7 +26,10 @@ class RateMeter:
     def tick_many(self, now: float, n: int) -> None:
         """Count ``n`` events at ``now`` (s): the frames of one read."""
         times = self._times
-        times.extend([now] * n)
+        if n == 1:
+            times.append(now)
+        else:
+            times.extend([now] * n)
         edge = now - self.window
         while times and times[0] <= edge:
             times.popleft()
@@ -54,9 +57,11 @@ class WindowMean:
 
     def add(self, now: float, value: float) -> None:
         self.last = value
-        self._items.append((now, value))
+        items = self._items
+        items.append((now, value))
         self._sum += value
-        self._prune(now)
+        if items[0][0] <= now - self.window:  # (checked here: this runs for every estimate)
+            self._prune(now)
 
     def _prune(self, now: float) -> None:
         edge = now - self.window

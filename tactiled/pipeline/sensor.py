@@ -42,7 +42,6 @@ from tactiled.pipeline.estimate import (
     GATE_NO_CONTACT,
     GATE_UNCHANGED,
     Estimate,
-    make_zeroed_frame,
     plain,
 )
 from tactiled.pipeline.gate import Gate
@@ -270,8 +269,8 @@ class SensorPipeline:
                             # tasks (sensors, fit results) run between them
                             done = self.on_frames(batch, done, not lossless, until_busy=lossless)
                             self.read_left = len(batch) - done
-                            if lossless:
-                                await self.wait_settled()
+                            if lossless:  # (no coroutine made when nothing is to wait for)
+                                self._idle() or await self.wait_settled()
                             elif self.read_left:
                                 await asyncio.sleep(0)
                         self.read_left = 0
@@ -417,10 +416,8 @@ class SensorPipeline:
         self._ordinal += 1
         ordinal = self._ordinal
         taxels = None if self.shear is None else self.shear.on_frame(frame, contact)
-        self.hub.publish(make_zeroed_frame(
-            sensor=self.name, sensor_id=frame.sensor_id, seq=frame.seq,
-            device_time_us=frame.device_time_us, host_time=frame.host_time, contact=contact,
-            statistic=statistic, strain=strain, stamp=frame.time, taxels=taxels))
+        self.hub.publish_frame(self.name, frame.sensor_id, frame.seq, frame.device_time_us,
+                               frame.host_time, contact, statistic, strain, frame.time, taxels)
         waiting = _Waiting(ordinal, frame.seq, frame.sensor_id, frame.device_time_us,
                            frame.host_time, strain, now, frame.device_time_us * 1e-6,
                            peak=peak if contact else math.nan, stamp=frame.time)
@@ -538,7 +535,7 @@ class SensorPipeline:
         """Count and publish the estimate of the frame of arrival number ``ordinal``."""
         self._last_published = ordinal
         self.published += 1
-        latency_ms = est.latency_ms
+        latency_ms = (est.published_time - est.host_time) * 1e3  # (est.latency_ms)
         if math.isfinite(latency_ms):
             self.latency_ms.add(est.published_time, latency_ms)
             self.latency_hist[est.gate].observe(latency_ms / 1e3)

@@ -42,6 +42,20 @@ def test_the_replayed_hand_counts_every_frame_and_its_relinearisations() -> None
     assert r["relinearized"]["finger1"] > 0 and r["fits"]["finger1"] > 0
 
 
+def test_the_read_path_alone_reads_every_frame_and_hands_none_to_the_pipeline() -> None:
+    """``read_only``: every frame read, decoded and counted, none taken through the stage (no
+    fit, no relinearisation although the part rolls a contact), and the pipeline's own
+    ``on_frames`` back in place after."""
+    from tactiled.pipeline.sensor import SensorPipeline
+
+    on_frames = SensorPipeline.on_frames
+    (r,) = budget.replay_cost(budget.HAND_PARTS[1:2], frames=1000, workers=1, passes=1,
+                              read_only=True)
+    assert r["frames"] == 1000 and 0.0 < r["us_per_frame"] < 1e5
+    assert r["fits"] == {"finger1": 0} and r["relinearized"] == {"finger1": 0}
+    assert SensorPipeline.on_frames is on_frames
+
+
 def test_a_checkout_is_replayed_in_its_own_process_with_this_measure(tmp_path) -> None:
     """``--replay --baseline REV`` runs this module's replay_cost on another checkout's code
     (here this tree's own, in a subprocess that imports it from the given path); with

@@ -122,3 +122,28 @@ def test_framers_say_whether_the_device_sent_a_clock() -> None:
     got = robotiq.RobotiqFramer(0).feed(static_only + robotiq.encode_finger(0, raw,
                                                                           timestamp_ms=9))
     assert [f.clocked for f in got] == [False, True]
+
+
+def test_a_read_of_one_frame_is_stamped_as_the_same_frame_in_a_longer_read() -> None:
+    # One clocked frame per read (a live port, a replay) takes the short path of stamp(); it
+    # must give every frame the stamp that stamping the frames together gives, bit for bit,
+    # through bursts, a stall and a device restart.
+    rng = np.random.default_rng(4)
+    n, rate = 6000, 1000.0
+    device = np.concatenate([np.arange(3000), np.arange(3000)]) / rate
+    send = 20.0 + np.arange(n) / rate * (1 + 40e-6)
+    reads = bursts(rng, n)
+    arrival = link(rng, send, reads)
+    arrival[1500:1700] = np.maximum(arrival[1500:1700], arrival[1700])  # a stall
+    def frames() -> list[Frame]:
+        return [Frame(seq=k, device_time_us=round(device[k] * 1e6), raw=RAW,
+                      host_time=float(arrival[k])) for k in range(n)]
+
+    alone, together = frames(), frames()
+    one_by_one = FrameClock(rate, wall_offset=0.0)
+    for f in alone:
+        one_by_one.stamp([f])
+    clock = FrameClock(rate, wall_offset=0.0)
+    clock.stamp(together)
+    assert [f.time for f in alone] == [f.time for f in together]
+    assert clock.filter.restarts == 1 and clock.slewed > 0  # the paths above were taken

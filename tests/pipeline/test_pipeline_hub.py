@@ -142,3 +142,36 @@ def test_a_failing_listener_is_logged_not_raised(arun, caplog) -> None:
         assert "boom" in caplog.text
 
     arun(main())
+
+
+def test_a_frame_nobody_takes_is_built_when_latest_frame_asks(arun) -> None:
+    # publish_frame keeps a frame's fields while no listener or subscription takes frames: the
+    # latest frame is then the record its constructor gives, and every frame published while
+    # someone takes frames is that record, delivered.
+    strain = np.full((8, 8), 1e-5)
+    fields = ("f0", 1, 7, 7000, 2.5, False, 3e-6, strain, 1.7e9, None)
+
+    async def main() -> None:
+        hub = Hub(["f0"])
+        estimates = hub.subscribe(None, {"estimate"}, maxsize=4)  # takes no frames
+        hub.publish_frame(*fields)
+        assert hub.published["frame"] == 1 and estimates.qsize() == 0
+        built = hub.latest_frame("f0")
+        assert isinstance(built, ZeroedFrame)
+        assert repr(built) == repr(ZeroedFrame(*fields)) and built.strain is strain
+        assert hub.latest_frame("f0") is built  # built once
+        frames = hub.subscribe({"f0"}, {"frame"}, maxsize=4)
+        hub.publish_frame(*fields[:2], 8, *fields[3:])
+        got = frames.get_nowait()
+        assert got is hub.latest_frame("f0") and got.seq == 8
+        frames.close()
+        seen: list[int] = []
+        remove = hub.add_listener(lambda item: seen.append(item.seq))
+        hub.publish_frame(*fields[:2], 9, *fields[3:])
+        remove()
+        hub.publish_frame(*fields[:2], 10, *fields[3:])
+        assert seen == [9] and hub.latest_frame("f0").seq == 10
+        assert hub.published["frame"] == 4
+        hub.close()
+
+    arun(main())
