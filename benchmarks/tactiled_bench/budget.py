@@ -270,9 +270,10 @@ def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: 
                   profile: str | None = None) -> dict[str, Any]:
     """A tracked contact frame's estimate alone, from the core's numbers to the ``Estimate``
     record handed to ``SensorPipeline._send``: microseconds of this process's CPU per call of
-    ``TrackedRun._publish_one`` (the zeroed frame's record, the trackers' frame counts, the
-    tracker's estimate, the contacts' ids, the verdict, the record), the hub and ``_send``
-    left out.  The hand replayed lossless as :func:`replay_cost` plays it (one pass); every
+    ``TrackedRun._publish_one`` (the zeroed frame handed to the hub, the trackers' frame
+    counts, the tracker's estimate, the contacts' ids, the verdict, the record), ``Hub.publish``
+    and ``_send`` left out (``Hub.publish_frame``, where the code has it, kept: with nobody
+    taking frames, it keeps the frame's fields).  The hand replayed lossless as :func:`replay_cost` plays it (one pass); every
     ``every``-th tracked frame's call is repeated ``repeats`` times on the spot, on the
     pipeline's state then (what the repeats change is put back), and timed as one.  Per part:
     ``median_us``, ``p90_us`` and ``samples``; ``all``: the median over every part's samples
@@ -303,7 +304,8 @@ def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: 
         if seen[0] % every == 0:
             trackers = pipe.tracking.tracker.trackers
             kept = ([(tr.t, tr.n, tr._eframes, tr._edt) for tr in trackers], pipe._ordinal,
-                    dict(pipe.skipped), copy.deepcopy(pipe.ids.__dict__), w.ordinal)
+                    dict(pipe.skipped), copy.deepcopy(pipe.ids.__dict__), w.ordinal,
+                    dict(pipe.hub.published))
             pipe._send = pipe.hub.publish = lambda *a: None  # (instance attributes: removed below)
             try:
                 t0 = time.process_time()
@@ -318,6 +320,7 @@ def estimate_cost(parts: tuple[tuple[str, str, str], ...] = HAND_PARTS, frames: 
                 pipe.skipped.clear()
                 pipe.skipped.update(kept[2])
                 pipe.ids.__dict__.update(kept[3])
+                pipe.hub.published.update(kept[5])  # (Hub.publish_frame counts, where it is)
             samples.setdefault(pipe.name, []).append(1e6 * cpu / repeats)
         return original(self, pipe, w, statistic, numbers)
 

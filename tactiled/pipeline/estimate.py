@@ -227,19 +227,11 @@ def make_estimate(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
                     gate, fitted_seq, worker_ms, fit)
 
 
-def make_zeroed_frame(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
-                      host_time: float, contact: bool, statistic: float,
-                      strain: np.ndarray, stamp: float = math.nan,
-                      taxels: np.ndarray | None = None) -> ZeroedFrame:
-    """A :class:`ZeroedFrame` (the same as its constructor's, built faster: ``_record``)."""
-    return zeroed_frame(sensor, sensor_id, seq, device_time_us, host_time, contact, statistic,
-                        strain, stamp, taxels)
-
-
 def zeroed_frame(sensor: str, sensor_id: int, seq: int, device_time_us: int, host_time: float,
                  contact: bool, statistic: float, strain: np.ndarray, stamp: float = math.nan,
                  taxels: np.ndarray | None = None) -> ZeroedFrame:
-    """:func:`make_zeroed_frame` of positional fields, in :class:`ZeroedFrame`'s order."""
+    """A :class:`ZeroedFrame` of these fields, in its order (the same as its constructor's,
+    built faster: ``_record``)."""
     return _record(ZeroedFrame, {
         "sensor": sensor, "sensor_id": sensor_id, "seq": seq, "device_time_us": device_time_us,
         "host_time": host_time, "contact": contact, "statistic": statistic, "strain": strain,

@@ -31,7 +31,7 @@ from tactiled import native
 from tactiled.calibration.zeroing import DRIFT_STEP_S
 from tactiled.frames import Frame
 from tactiled.pipeline.contact_filter import MEAN_RESIDUAL_FOLD, RELINEARIZE_SIGMA, SHARPEN
-from tactiled.pipeline.estimate import GATE_UNCHANGED, make_zeroed_frame
+from tactiled.pipeline.estimate import GATE_UNCHANGED
 from tactiled.pipeline.sensor_tracking import MIN_RELINEARIZE_S, REFIT_SIGNAL_RATIO, _Waiting
 
 if TYPE_CHECKING:
@@ -126,10 +126,8 @@ class TrackedRun:
         """A tracked frame: what ``_after_stage`` and ``ContactTracking.track`` do with it."""
         pipe._ordinal += 1
         w.ordinal = pipe._ordinal
-        pipe.hub.publish(make_zeroed_frame(
-            sensor=pipe.name, sensor_id=w.sensor_id, seq=w.seq, device_time_us=w.device_time_us,
-            host_time=w.host_time, contact=True, statistic=statistic, strain=w.strain,
-            stamp=w.stamp))
+        pipe.hub.publish_frame(pipe.name, w.sensor_id, w.seq, w.device_time_us, w.host_time, True,
+                               statistic, w.strain, w.stamp)
         for tr in self.trackers:
             tr.stepped(w.t)
         pipe.skipped[GATE_UNCHANGED] += 1

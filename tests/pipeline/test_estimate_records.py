@@ -1,4 +1,4 @@
-"""The published records built by make_estimate / make_zeroed_frame are the dataclasses'
+"""The published records built by make_estimate / zeroed_frame are the dataclasses'
 own: every field set, equal to the constructor's, and the same JSON; an estimate is a slots
 record whose JSON form is built once and shared, a zeroed frame a frozen dataclass."""
 
@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from tactiled.pipeline.estimate import Estimate, ZeroedFrame, make_estimate, make_zeroed_frame
+from tactiled.pipeline.estimate import Estimate, ZeroedFrame, make_estimate, zeroed_frame
 
 
 def test_make_estimate_is_the_constructors_estimate() -> None:
@@ -46,10 +46,9 @@ def test_the_json_form_is_built_once_and_to_json_dict_is_the_callers_own() -> No
     assert json.loads(json.dumps(shared, allow_nan=False)) == shared
 
 
-def test_make_zeroed_frame_is_the_constructors_frame() -> None:
+def test_zeroed_frame_is_the_constructors_frame() -> None:
     strain = np.arange(64, dtype=float).reshape(8, 8) * 1e-5
-    made = make_zeroed_frame(sensor="f0", sensor_id=3, seq=7, device_time_us=7000,
-                             host_time=12.5, contact=True, statistic=2e-4, strain=strain)
+    made = zeroed_frame("f0", 3, 7, 7000, 12.5, True, 2e-4, strain)
     assert set(vars(made)) == {f.name for f in dataclasses.fields(ZeroedFrame)}
     built = ZeroedFrame("f0", 3, 7, 7000, 12.5, True, 2e-4, strain)
     assert repr(made) == repr(built)

@@ -25,10 +25,14 @@ from tactiled.pipeline.sensor import SensorPipeline
 from tactiled.settings import SensorSettings
 
 
-def _pipeline(batched: bool, track: bool) -> tuple[SensorPipeline, list, Fitter]:
+def _pipeline(batched: bool, track: bool, listen: bool = True
+              ) -> tuple[SensorPipeline, list, Fitter]:
+    """A pipeline of a simulated sensor; ``listen``: a listener puts every published item in
+    the list returned (else nobody takes its zeroed frames)."""
     hub = Hub()
     seen: list = []
-    hub.add_listener(seen.append)
+    if listen:
+        hub.add_listener(seen.append)
     pool = InProcessPool()
     p = SensorPipeline(SensorSettings(name="f", url="sim://", noise_sigma=0.0005, track=track,
                                       wire_id=0),
@@ -210,6 +214,35 @@ def test_a_tracked_contact_goes_through_the_core_in_runs(stops) -> None:
         return
     assert stops.get("tracked", 0) > 0.8 * runs.tracking.tracked, stops
     assert min(stops.get(why, 0) for why in ("fold", "drift", "relinearize")) >= 5, stops
+
+
+def test_tracked_runs_nobody_takes_frames_from_keep_the_latest(stops, monkeypatch) -> None:
+    """With no listener and no frame subscription a tracked run keeps its zeroed frames'
+    fields (Hub.publish_frame): after each read the latest frame, built when asked, and the
+    latest estimate are the per-frame path's, and so are the published counts."""
+    monkeypatch.setattr(sensor_tracking, "MAX_WAIT_S", math.inf)
+    frames = make_frames(contact_path(60, moving=False), sensor_id=0, tail=10, seed=4)
+    ref, _, fit_ref = _pipeline(False, True)
+    runs, _, fit_runs = _pipeline(True, True, listen=False)
+    assert not runs.hub._frame_takers
+    i = r = 0
+    while i < len(frames):
+        n = (9, 4, 17)[r % 3]
+        for p, fitter in ((ref, fit_ref), (runs, fit_runs)):
+            _play_reads(p, fitter, [Frame(seq=f.seq, device_time_us=f.device_time_us,
+                                          raw=f.raw, sensor_id=f.sensor_id)
+                                    for f in frames[i:i + n]], [n])
+        i, r = i + n, r + 1
+        a, b = runs.hub.latest_frame("f"), ref.hub.latest_frame("f")
+        assert (a.sensor_id, a.seq, a.device_time_us, a.contact, a.statistic) == (
+            b.sensor_id, b.seq, b.device_time_us, b.contact, b.statistic)
+        np.testing.assert_array_equal(a.strain, b.strain)
+        assert (without_timing(runs.hub.latest_estimate("f").to_json_dict())
+                == without_timing(ref.hub.latest_estimate("f").to_json_dict()))
+    assert runs.hub.published == ref.hub.published
+    assert runs.tracking.tracked == ref.tracking.tracked > 20
+    # the tracked run is the core's: the reference goes frame by frame
+    assert stops.get("tracked", 0) > 20 if native.core is not None else stops == {}, stops
 
 
 def _two_contacts(seed: int) -> list[Frame]:

@@ -11,6 +11,8 @@ import pytest
 from svc_helpers import FIT_LINE_KEYS, recv_json, recv_until, subscribe, ws_connect
 from websockets.exceptions import ConnectionClosed
 
+from tactiled.pipeline import tracked_run
+
 SENSORS = {"finger0", "finger1"}
 
 
@@ -84,6 +86,49 @@ def test_subscribe_to_both_streams(shared_server, arun):
                     (t, s) for t in ("estimate", "frame") for s in SENSORS}, 20)
 
     assert {m["type"] for m in arun(main())} == {"estimate", "frame"}
+
+
+def test_frame_subscribers_see_a_tracked_contacts_frames(shared_server, arun, monkeypatch):
+    """A tracked contact's frames that go through the core's tracked runs (which publish
+    their zeroed frames as records only for those who take them) reach a frames subscriber,
+    seq for seq, in contact, with their tracked estimates.  (The server runs in this process:
+    the runs' frames are noted as the real TrackedRun.publish is called.)"""
+    ran: set[int] = set()  # finger0's frames a tracked run stepped
+    publish = tracked_run.TrackedRun.publish
+
+    def noted(self, pipe, run, *args, **kwargs):
+        if pipe.name == "finger0":
+            ran.update(f.seq for f in run[:self.tracked])
+        return publish(self, pipe, run, *args, **kwargs)
+
+    monkeypatch.setattr(tracked_run.TrackedRun, "publish", noted)
+
+    tracked: set[int] = set()  # seqs of finger0's estimates gated "unchanged"
+    framed: dict[int, dict] = {}  # finger0's frames by seq
+    seqs: set[int] = set()  # frames a tracked run stepped, seen as frames and estimates
+
+    def done(ms: list[dict]) -> bool:  # (one message at a time: the client keeps up)
+        m = ms[-1] if ms else {}
+        if m.get("type") == "estimate" and m["gate"] == "unchanged":
+            tracked.add(m["seq"])
+        elif m.get("type") == "frame":
+            framed[m["seq"]] = m
+        else:
+            return False
+        if m["seq"] in ran and m["seq"] in tracked and m["seq"] in framed:
+            seqs.add(m["seq"])
+        return len(seqs) >= 20
+
+    async def main() -> list[dict]:
+        async with ws_connect(shared_server.ws_url) as ws:
+            await subscribe(ws, streams=["estimates", "frames"], sensors=["finger0"])
+            return await recv_until(ws, done, 40)
+
+    msgs = arun(main())
+    frames = [m for m in msgs if m["type"] == "frame"]
+    assert all(framed[q]["contact"] for q in seqs)
+    assert [m["seq"] for m in frames] == sorted(framed)
+    assert all(len(framed[q]["strain"]) == framed[q]["rows"] == 8 for q in seqs)
 
 
 def test_max_rate_caps_messages_per_sensor(shared_server, arun):
