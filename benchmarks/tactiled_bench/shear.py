@@ -22,7 +22,7 @@ pull-until-slip scenes (onset delay), and stick-only scenes (no slip events shou
 #   the true onset: the information in the readings, which no search over starts can exceed),
 #   the slide's statistic alone on that track (the motion: all that tells a slip from a contact
 #   held at the friction's limit, whose force levels off too), and from the same tests on the
-#   noiseless truth the factor on the signal over the noise that 95 % over ONSET_Z needs;
+#   noiseless truth the factor on the signal over the noise that 95 % over COMBINE_Z needs;
 # * pulls that stay put at the friction's limit (the simulator's ``limit``: no drop, no motion;
 #   the ramp of 0.3 s and varied ones): the same delays, and the margin to slip's sigma
 #   ONSET_FRAMES after the onset against the MARGIN_SIGMA the detector's margin rule needs;
@@ -45,7 +45,7 @@ from scipy.special import ndtr
 
 from tactiled.fit.shear import ShearFitter, ShearStep
 from tactiled.fit.shear_filter import ShearFilter, SlideTest
-from tactiled.fit.slip import DETECT_WALK, MARGIN_SIGMA, ONSET_Z, SETTLE, SlipDetector
+from tactiled.fit.slip import COMBINE_Z, DETECT_WALK, MARGIN_SIGMA, ONSET_Z, SETTLE, SlipDetector
 from tactiled.physics.threeaxis import three_axis
 from tactiled.sensors import load_description
 from tactiled.sensors.description import SensorDescription
@@ -174,7 +174,7 @@ def _truth_estimate(truth: dict[str, np.ndarray], i: int, est) -> _Truth:
 Z95 = 1.6449
 
 
-def snr_needed(clean: list[float], threshold: float = ONSET_Z, share: float = 0.95) -> float:
+def snr_needed(clean: list[float], threshold: float = COMBINE_Z, share: float = 0.95) -> float:
     """The factor by which the signal over the noise (the slide's acceleration and the force's
     ramp over the bounds of the estimates) must grow for ``share`` of the pulls' known-onset
     statistics to exceed ``threshold``: each pull's statistic taken as its noiseless value
@@ -341,15 +341,15 @@ def _p95(d: np.ndarray) -> float:
 
 
 def _known_figures(known: list[tuple[float, float]], clean: list[tuple[float, float]]) -> dict[str, float]:
-    """The known-onset statistics' median and share over :data:`ONSET_Z` (the slide and the
+    """The known-onset statistics' median and share over :data:`COMBINE_Z` (the slide and the
     levelling-off together: ``known_``; the slide alone: ``motion_``), the noiseless ones'
     median (``clean_``, ``motion_clean_``) and the factor on the signal over the noise that
-    95 % over :data:`ONSET_Z` needs (``snr_needed``, ``motion_snr_needed``)."""
+    95 % over :data:`COMBINE_Z` needs (``snr_needed``, ``motion_snr_needed``)."""
     out: dict[str, float] = {}
     k, c = np.array(known, dtype=float).reshape(-1, 2), np.array(clean, dtype=float).reshape(-1, 2)
     for j, name in enumerate(("known", "motion")):
         out[f"{name}_median"] = float(np.median(k[:, j])) if k.size else math.nan
-        out[f"{name}_over"] = float(np.mean(k[:, j] > ONSET_Z)) if k.size else math.nan
+        out[f"{name}_over"] = float(np.mean(k[:, j] > COMBINE_Z)) if k.size else math.nan
     for j, name in enumerate(("clean", "motion_clean")):
         out[f"{name}_median"] = float(np.median(c[:, j])) if c.size else math.nan
     out["snr_needed"] = snr_needed(list(c[:, 0])) if c.size else math.nan
@@ -410,9 +410,9 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
               "| mu resolved | mu 2-sigma cover / beyond 4 sigma |", "|---|---|---|---|---|---|---|---|"]
     head_s = [f"| array | friction turning kinetic: within {ONSET_FRAMES} frames (pulls), delay median / p95 / max, missed "
               "| constant friction: the same | constant friction, varied pulls: the same "
-              f"| the onset known: over {ONSET_Z:g} sigma at {ONSET_FRAMES} frames (median sigma), constant / varied "
+              f"| the onset known: over {COMBINE_Z:g} sigma at {ONSET_FRAMES} frames (median sigma), constant / varied "
               f"| the onset known, the motion alone: the same "
-              f"| the factor on the signal over the noise that {ONSET_Z:g} sigma on 95 % needs: both, the motion alone; "
+              f"| the factor on the signal over the noise that {COMBINE_Z:g} sigma on 95 % needs: both, the motion alone; "
               "constant / varied "
               "| early | slip events on stick-only scenes (scenes) |", "|---|---|---|---|---|---|---|---|---|"]
     head_f = ["| array | filtered fx error/sigma RMS / 2-sigma cover | fy | torque | frames "
