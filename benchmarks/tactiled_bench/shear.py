@@ -256,6 +256,43 @@ def null_events(desc: SensorDescription, scenes: int, seed: int, hold: float = 0
             "lam": fit_lam, "lam_sigma": float(np.sqrt(est.cov[7, 7]))}
 
 
+def centre_along_q(desc: SensorDescription, scenes: int, seed: int) -> dict[str, tuple[float, float, int]]:
+    """The centre's error along the true tangential force, in its sigma, on pushes to 0.8 ``mu
+    P`` (stick throughout: the centre does not move), every frame from 30 before the load, the
+    step from a fit every :data:`FIT_EVERY` frames: per kind of frame (``fit``, ``step``) and
+    band of the true ``lam`` (0-0.3, 0.3-0.6, 0.6-1), the mean, the spread and the frames.  A
+    shift of the centre by the cover's shear under the load, were the model to miss it, shows
+    as a mean away from 0 growing with ``lam``."""
+    rng = np.random.default_rng(seed)
+    fitter = ShearFitter(desc)
+    rows: dict[bool, list[tuple[float, float]]] = {True: [], False: []}
+    for _ in range(scenes):
+        frames, truth = sequence(desc, "push", rng)
+        loaded = int(np.argmax(np.hypot(truth["true_fx"], truth["true_fy"]) > 0))
+        first, prev, step = max(0, loaded - 30), None, None
+        for i in range(first, len(frames)):
+            fitted = step is None or (i - first) % FIT_EVERY == 0
+            if fitted:
+                fit = fitter.fit(frames[i], start=prev)
+                prev, step = fit.params, fitter.step(fit)
+            est = step(frames[i])
+            q = math.hypot(truth["true_fx"][i], truth["true_fy"][i])
+            if q <= 0:
+                continue
+            u = np.array((truth["true_fx"][i], truth["true_fy"][i])) / q
+            e = np.array((est.params[2] - truth["true_x"][i], est.params[3] - truth["true_y"][i]))
+            s = math.sqrt(float(u @ est.cov[2:4, 2:4] @ u))
+            rows[fitted].append((float(u @ e) / s, float(truth["true_lam"][i])))
+    out = {}
+    for fitted, v in rows.items():
+        a = np.array(v).reshape(-1, 2)
+        for lo, hi in ((0.0, 0.3), (0.3, 0.6), (0.6, 1.0)):
+            z = a[(a[:, 1] >= lo) & (a[:, 1] < hi), 0]
+            out[f"{'fit' if fitted else 'step'} {lo:g}-{hi:g}"] = (
+                float(z.mean()) if z.size else math.nan, float(z.std()) if z.size else math.nan, int(z.size))
+    return out
+
+
 def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
     """RMS/CRB and 2-sigma coverage of fx, fy, torque; mu's resolved share and coverage."""
     frames, truth = random_frames(desc, n, np.random.default_rng(seed))
