@@ -22,7 +22,7 @@ pull-until-slip scenes (onset delay), and stick-only scenes (no slip events shou
 #   the true onset: the information in the readings, which no search over starts can exceed),
 #   the slide's statistic alone on that track (the motion: all that tells a slip from a contact
 #   held at the friction's limit, whose force levels off too), and from the same tests on the
-#   noiseless truth the factor on the signal over the noise that 95 % over ONSET_Z needs;
+#   noiseless truth the factor on the signal over the noise that 95 % over COMBINE_Z needs;
 # * pulls that stay put at the friction's limit (the simulator's ``limit``: no drop, no motion;
 #   the ramp of 0.3 s and varied ones): the same delays, and the margin to slip's sigma
 #   ONSET_FRAMES after the onset against the MARGIN_SIGMA the detector's margin rule needs;
@@ -45,7 +45,7 @@ from scipy.special import ndtr
 
 from tactiled.fit.shear import ShearFitter, ShearStep
 from tactiled.fit.shear_filter import ShearFilter, SlideTest
-from tactiled.fit.slip import DETECT_WALK, MARGIN_SIGMA, ONSET_Z, SETTLE, SlipDetector
+from tactiled.fit.slip import COMBINE_Z, DETECT_WALK, MARGIN_SIGMA, SETTLE, SlipDetector
 from tactiled.physics.threeaxis import three_axis
 from tactiled.sensors import load_description
 from tactiled.sensors.description import SensorDescription
@@ -174,7 +174,7 @@ def _truth_estimate(truth: dict[str, np.ndarray], i: int, est) -> _Truth:
 Z95 = 1.6449
 
 
-def snr_needed(clean: list[float], threshold: float = ONSET_Z, share: float = 0.95) -> float:
+def snr_needed(clean: list[float], threshold: float = COMBINE_Z, share: float = 0.95) -> float:
     """The factor by which the signal over the noise (the slide's acceleration and the force's
     ramp over the bounds of the estimates) must grow for ``share`` of the pulls' known-onset
     statistics to exceed ``threshold``: each pull's statistic taken as its noiseless value
@@ -197,7 +197,8 @@ def snr_needed(clean: list[float], threshold: float = ONSET_Z, share: float = 0.
 def null_tail(desc: SensorDescription, frames: int, seed: int) -> dict[str, float]:
     """The slide test under the stick hypothesis: a held contact's estimates drawn from the
     fit's covariance (its tangential force ramping, then held), through the filter and the
-    test; the share of frames whose statistic exceeds 3, 4 and :data:`ONSET_Z` sigma."""
+    test; the share of frames whose statistic exceeds 3, 4 and :data:`COMBINE_Z` sigma (the
+    combined rule's threshold; the slide alone needs :data:`tactiled.fit.slip.ONSET_Z`)."""
     rng = np.random.default_rng(seed)
     fitter = ShearFitter(desc)
     scene, _ = sequence(desc, "push", rng)
@@ -218,7 +219,7 @@ def null_tail(desc: SensorDescription, frames: int, seed: int) -> dict[str, floa
                 zs.append(z)
     a = np.array(zs[:frames])
     return {"frames": float(a.size), "over3": float(np.mean(a > 3.0)), "over4": float(np.mean(a > 4.0)),
-            "over_onset": float(np.mean(a > ONSET_Z))}
+            "over_onset": float(np.mean(a > COMBINE_Z))}
 
 
 def null_events(desc: SensorDescription, scenes: int, seed: int, hold: float = 0.95,
@@ -254,6 +255,43 @@ def null_events(desc: SensorDescription, scenes: int, seed: int, hold: float = 0
             frames += 1
     return {"scenes": float(scenes), "frames": float(frames), "onsets": float(onsets),
             "lam": fit_lam, "lam_sigma": float(np.sqrt(est.cov[7, 7]))}
+
+
+def centre_along_q(desc: SensorDescription, scenes: int, seed: int) -> dict[str, tuple[float, float, int]]:
+    """The centre's error along the true tangential force, in its sigma, on pushes to 0.8 ``mu
+    P`` (stick throughout: the centre does not move), every frame from 30 before the load, the
+    step from a fit every :data:`FIT_EVERY` frames: per kind of frame (``fit``, ``step``) and
+    band of the true ``lam`` (0-0.3, 0.3-0.6, 0.6-1), the mean, the spread and the frames.  A
+    shift of the centre by the cover's shear under the load, were the model to miss it, shows
+    as a mean away from 0 growing with ``lam``."""
+    rng = np.random.default_rng(seed)
+    fitter = ShearFitter(desc)
+    rows: dict[bool, list[tuple[float, float]]] = {True: [], False: []}
+    for _ in range(scenes):
+        frames, truth = sequence(desc, "push", rng)
+        loaded = int(np.argmax(np.hypot(truth["true_fx"], truth["true_fy"]) > 0))
+        first, prev, step = max(0, loaded - 30), None, None
+        for i in range(first, len(frames)):
+            fitted = step is None or (i - first) % FIT_EVERY == 0
+            if fitted:
+                fit = fitter.fit(frames[i], start=prev)
+                prev, step = fit.params, fitter.step(fit)
+            est = step(frames[i])
+            q = math.hypot(truth["true_fx"][i], truth["true_fy"][i])
+            if q <= 0:
+                continue
+            u = np.array((truth["true_fx"][i], truth["true_fy"][i])) / q
+            e = np.array((est.params[2] - truth["true_x"][i], est.params[3] - truth["true_y"][i]))
+            s = math.sqrt(float(u @ est.cov[2:4, 2:4] @ u))
+            rows[fitted].append((float(u @ e) / s, float(truth["true_lam"][i])))
+    out = {}
+    for fitted, v in rows.items():
+        a = np.array(v).reshape(-1, 2)
+        for lo, hi in ((0.0, 0.3), (0.3, 0.6), (0.6, 1.0)):
+            z = a[(a[:, 1] >= lo) & (a[:, 1] < hi), 0]
+            out[f"{'fit' if fitted else 'step'} {lo:g}-{hi:g}"] = (
+                float(z.mean()) if z.size else math.nan, float(z.std()) if z.size else math.nan, int(z.size))
+    return out
 
 
 def accuracy(desc: SensorDescription, n: int, seed: int) -> dict[str, float]:
@@ -341,15 +379,15 @@ def _p95(d: np.ndarray) -> float:
 
 
 def _known_figures(known: list[tuple[float, float]], clean: list[tuple[float, float]]) -> dict[str, float]:
-    """The known-onset statistics' median and share over :data:`ONSET_Z` (the slide and the
+    """The known-onset statistics' median and share over :data:`COMBINE_Z` (the slide and the
     levelling-off together: ``known_``; the slide alone: ``motion_``), the noiseless ones'
     median (``clean_``, ``motion_clean_``) and the factor on the signal over the noise that
-    95 % over :data:`ONSET_Z` needs (``snr_needed``, ``motion_snr_needed``)."""
+    95 % over :data:`COMBINE_Z` needs (``snr_needed``, ``motion_snr_needed``)."""
     out: dict[str, float] = {}
     k, c = np.array(known, dtype=float).reshape(-1, 2), np.array(clean, dtype=float).reshape(-1, 2)
     for j, name in enumerate(("known", "motion")):
         out[f"{name}_median"] = float(np.median(k[:, j])) if k.size else math.nan
-        out[f"{name}_over"] = float(np.mean(k[:, j] > ONSET_Z)) if k.size else math.nan
+        out[f"{name}_over"] = float(np.mean(k[:, j] > COMBINE_Z)) if k.size else math.nan
     for j, name in enumerate(("clean", "motion_clean")):
         out[f"{name}_median"] = float(np.median(c[:, j])) if c.size else math.nan
     out["snr_needed"] = snr_needed(list(c[:, 0])) if c.size else math.nan
@@ -410,13 +448,13 @@ def run(quick: bool, progress: bool | None, sensors: list[str] | None = None, se
               "| mu resolved | mu 2-sigma cover / beyond 4 sigma |", "|---|---|---|---|---|---|---|---|"]
     head_s = [f"| array | friction turning kinetic: within {ONSET_FRAMES} frames (pulls), delay median / p95 / max, missed "
               "| constant friction: the same | constant friction, varied pulls: the same "
-              f"| the onset known: over {ONSET_Z:g} sigma at {ONSET_FRAMES} frames (median sigma), constant / varied "
+              f"| the onset known: over {COMBINE_Z:g} sigma at {ONSET_FRAMES} frames (median sigma), constant / varied "
               f"| the onset known, the motion alone: the same "
-              f"| the factor on the signal over the noise that {ONSET_Z:g} sigma on 95 % needs: both, the motion alone; "
+              f"| the factor on the signal over the noise that {COMBINE_Z:g} sigma on 95 % needs: both, the motion alone; "
               "constant / varied "
               "| early | slip events on stick-only scenes (scenes) |", "|---|---|---|---|---|---|---|---|---|"]
     head_f = ["| array | filtered fx error/sigma RMS / 2-sigma cover | fy | torque | frames "
-              f"| slide test under stick: share of frames over 3 / 4 / {ONSET_Z:g} sigma (frames) "
+              f"| slide test under stick: share of frames over 3 / 4 / {COMBINE_Z:g} sigma (frames) "
               "| slip onsets on contacts held at 0.95 mu P (scenes) |",
               "|---|---|---|---|---|---|---|"]
     head_l = [f"| array | at the limit, the ramp of 0.3 s: within {ONSET_FRAMES} frames (pulls), delay median / p95 / max, "

@@ -234,6 +234,7 @@ class SlideTest:
         self.joint = 0.0
         self.slides = np.zeros(len(self._age))
         self.tracks = np.zeros(len(self._age))
+        self.levels = np.zeros(len(self._age))
         self.ages = np.zeros(len(self._age), dtype=int)
         #: the best track's slide scale ``A`` (mm per template unit) and template name
         self.scale = 0.0
@@ -242,7 +243,7 @@ class SlideTest:
     def reset(self) -> None:
         self._age[:] = -1
         self.z, self.joint, self.scale, self.template = 0.0, 0.0, 0.0, ""
-        self.slides[:] = self.tracks[:] = 0.0
+        self.slides[:] = self.tracks[:] = self.levels[:] = 0.0
         self.ages[:] = 0
 
     def update(self, flt: ShearFilter, ux: float, uy: float) -> float:
@@ -283,6 +284,8 @@ class SlideTest:
         #: per track: the slide's statistic, the slide's and the levelling-off's together
         #: (sigma) and the frames since its start (0: no track)
         self.slides = za
+        #: per track: the levelling-off's statistic (sigma)
+        self.levels = zb
         self.tracks = self._combined(ux, uy, live, za)
         self.ages = np.maximum(self._age, 0)
         return self.z

@@ -13,24 +13,28 @@
 # the bound (``lam + 2 sigma >= 1``, the frame's or the filter's), and either
 #
 # * the slide test exceeds :data:`ONSET_Z` (with the filtered ``Q`` resolved: over
-#   :data:`MIN_Q_SIGMAS` sigma, so that its direction is known), or
+#   :data:`MIN_Q_SIGMAS` sigma, so that its direction is known; on the tracks of
+#   :data:`SLIDE_FRAMES` frames or more), or
 # * the friction is mobilised (the filtered ``lam`` above :data:`MOBILISED` by 2 sigma) and, for
 #   one start, the tangential force has levelled off by :data:`PLATEAU_Z` sigma while the centre
 #   moved by :data:`CONFIRM_Z` sigma, or the slide and the levelling-off together (the
 #   likelihood ratio of both scales >= 0) exceed :data:`COMBINE_Z` with the slide alone over
-#   :data:`CONFIRM_Z`, on a start whose frames since show no stick zone (the mean of their
+#   :data:`CONFIRM_Z`, both on a start whose frames since show no stick zone (the mean of their
 #   unclipped ``lam`` within 2 sigma of 1: a grip held just below the friction's limit levels
-#   off too, and its resolved stick zone keeps this rule shut), or
-# * the tangential force has fallen by more than :data:`DROP_Z` sigma below its mean over the
-#   :data:`RECENT` frames before (static friction giving way to the weaker kinetic friction), or
+#   off too, and its stick zone, resolved by those frames pooled, keeps these rules shut), or
+# * the tangential force's mean over the last :data:`DROP_FRAMES` frames has fallen by more
+#   than :data:`DROP_Z` sigma below its mean over the :data:`RECENT` frames before (static
+#   friction giving way to the weaker kinetic friction), or
 # * the margin to slip ``1 - Q/(mu P)``, from the contact's whole history under stick
 #   (:class:`Margin`: ``lam`` against ``Q/P`` under stick, a line read off at the present ``Q/P``), is resolved (its sigma
 #   at most :data:`MARGIN_SIGMA`) and within one sigma of 0: a pull that stays put at the
 #   friction's limit (no motion, no drop) shows its onset only there.
 #
-# :data:`ONSET_Z` is set from the slide test's null distribution (``tactiled bench --suite
-# shear`` measures it on the filter fed by Gaussian estimates: a few 1e-6 of the frames of a
-# held contact beyond it); no threshold on raw readings enters.  The slip ends when the object
+# :data:`ONSET_Z` and :data:`DROP_Z` are set from their null distributions on Gaussian
+# estimates (``tactiled bench --suite shear``: a few 1e-6 of a held contact's frames beyond 4.5
+# for the slide test) against the frames the bench holds without slip (some 3e5 over seeds 1-5
+# and four arrays: no false onset there needs some 2e-7 a frame); no threshold on raw readings
+# enters.  The slip ends when the object
 # sticks again: the frame's stick zone resolved (``lam + 2 sigma < 1``) and the centre at rest
 # (moved by less than :data:`REST_Z` sigma over the last :data:`REST_FRAMES` frames) on
 # :data:`END_FRAMES` frames in a row; the slide test then starts afresh.  A sliding contact's
@@ -49,13 +53,26 @@ import numpy as np
 
 from tactiled.fit.shear_filter import WINDOW, ShearFilter, SlideTest
 
-ONSET_Z = 4.5
+#: The slide test alone (no mobilised friction needed): its rate on a held contact's Gaussian
+#: estimates is about ``Phi(-ONSET_Z)`` a frame (``tactiled bench --suite shear``'s null tail:
+#: a few 1e-6 over 4.5), and the bench's 3e5 stick-only frames (seeds 1-5, four arrays) need
+#: some 2e-7 a frame for all rules together before a single false onset becomes unlikely.
+ONSET_Z = 5.0
 #: Frames of a contact before the slide test counts: the filter's rates settle from their start.
 SETTLE = 10
 END_FRAMES = 3
 #: At rest: moved by less than this many sigma over this many frames.
 REST_Z, REST_FRAMES = 3.0, 10
-DROP_Z = 5.0
+#: The force's drop: the mean of the last :data:`DROP_FRAMES` frames' ``Q`` under the mean of
+#: the :data:`RECENT` frames before by this many sigma.  A kinetic drop persists, one frame's
+#: noise does not; the threshold keeps the rate on a held contact's Gaussian estimates near
+#: 2e-8 a frame (one-sided), which the bench's stick-only frames need (docs/concepts/shear.md,
+#: "False onsets").
+DROP_Z, DROP_FRAMES = 5.5, 2
+#: A slide track counts once it spans this many frames: a slide from rest accelerates, its
+#: displacement over one frame is far below a frame's bound, and a track of one frame tests that
+#: frame's centre alone (one estimate's outlier, not a motion).
+SLIDE_FRAMES = 3
 #: The slide test needs a filtered tangential force this many of its sigma (its direction).
 MIN_Q_SIGMAS = 3.0
 RECENT = 3
@@ -77,7 +94,7 @@ PLATEAU_Z, CONFIRM_Z = 3.0, 3.0
 #: falls short of PLATEAU_Z (``tactiled bench --suite shear``: no onset on its stick-only
 #: scenes nor on contacts held at 0.95 mu P; with the slide alone over 2.5 sigma instead,
 #: held contacts whose stick zone the array does not resolve gave onsets).
-COMBINE_Z = ONSET_Z
+COMBINE_Z = 4.5
 #: The margin rule: the margin to slip ``1 - Q/(mu P)`` from the contact's history
 #: (:class:`Margin`) resolved to this many hundredths of ``mu P`` (its 1-sigma) before it may
 #: declare an onset; a contact held at 0.95 ``mu P`` then sits 5 of its sigma from the limit.
@@ -241,7 +258,7 @@ class SlipDetector:
         self.sliding = False
         self._calm = 0
         self._slide: deque[tuple[float, float, float, float]] = deque(maxlen=REST_FRAMES + 1)
-        self._q: deque[tuple[float, float]] = deque(maxlen=RECENT)
+        self._q: deque[tuple[float, float]] = deque(maxlen=RECENT + DROP_FRAMES - 1)
         #: the unclipped lam and its 1-sigma of the frames the slide test advanced on (newest last)
         self._lam: deque[tuple[float, float]] = deque(maxlen=WINDOW + 1)
         #: the last frame's slide statistic and force drop (sigma), for the record
@@ -251,6 +268,9 @@ class SlipDetector:
         #: last frame's margin and its 1-sigma
         self.history = Margin()
         self.margin = (math.nan, math.inf)
+        #: the rules that declared the last onset (``margin``, ``slide``, ``drop``, ``plateau``,
+        #: ``combined``)
+        self.rules: tuple[str, ...] = ()
 
     def _at_rest(self) -> bool:
         """The centre moved by less than :data:`REST_Z` sigma over the last frames."""
@@ -261,9 +281,14 @@ class SlipDetector:
         zy = (y1 - y0) / math.hypot(sy0, sy1) if sy0 or sy1 else 0.0
         return math.hypot(zx, zy) < REST_Z
 
-    def _gone_since(self, test: SlideTest) -> float:
-        """The largest combined statistic over the tracks whose frames since their start
-        show no stick zone: the mean of their unclipped ``lam`` within 2 sigma of 1 or above."""
+    def _gone_since(self, test: SlideTest) -> tuple[float, float]:
+        """Over the tracks of :data:`SLIDE_FRAMES` frames or more whose frames since their start
+        show no stick zone (the mean of their unclipped ``lam`` within 2 sigma of 1 or above),
+        with the slide over :data:`CONFIRM_Z`: the largest combined statistic, and the largest
+        slide statistic among those whose levelling-off exceeds :data:`PLATEAU_Z`.  A contact
+        held below the limit levels off at its ramp's end: the levelling-off alone is no
+        evidence of slip there, and a 3-sigma slide among the starts is a chance of a few per
+        cent a hold, so both rules need the stick zone gone since the start."""
         gate = np.zeros(WINDOW + 2, bool)
         num = den = 0.0
         for age, (v, s) in enumerate(reversed(self._lam), start=1):
@@ -273,8 +298,9 @@ class SlipDetector:
             den += 1.0 / (s * s)
             gate[age] = num / den + 2.0 / math.sqrt(den) >= 1.0
         ages = np.clip(test.ages, 0, WINDOW + 1)
-        ok = (test.ages > 0) & gate[ages] & (test.slides > CONFIRM_Z)
-        return float(test.tracks[ok].max(initial=0.0))
+        ok = (test.ages >= SLIDE_FRAMES) & gate[ages] & (test.slides > CONFIRM_Z)
+        plateau = ok & (test.levels > PLATEAU_Z)
+        return float(test.tracks[ok].max(initial=0.0)), float(test.slides[plateau].max(initial=0.0))
 
     def update(self, frame: int, params: np.ndarray, cov: np.ndarray, lam_free: float | None = None
                ) -> tuple[str | None, SlipEvent | None]:
@@ -299,9 +325,9 @@ class SlipDetector:
             self._lam.append((float(lam_free) if lam_free is not None else lam, s_lam))
             fx, fy, qf, s_qf = self.filter.tangential()
             if qf > MIN_Q_SIGMAS * s_qf:  # slip runs along a resolved Q
-                z = self.test.update(self.filter, fx / qf, fy / qf)
-                joint = self.test.joint
-                both = self._gone_since(self.test)
+                self.test.update(self.filter, fx / qf, fy / qf)
+                z = float(self.test.slides[self.test.ages >= SLIDE_FRAMES].max(initial=0.0))
+                both, joint = self._gone_since(self.test)
             else:  # the tracks advance; no direction to test along
                 self.test.update(self.filter, 1.0, 0.0)
             lam_f, s_lam_f = self.filter.value(7)
@@ -316,18 +342,23 @@ class SlipDetector:
             lam_f, s_lam_f = self.filter.value(7)
             gone = lam_f + 2.0 * s_lam_f >= 1.0
         drop = 0.0
-        if len(self._q) == RECENT and math.isfinite(s_q):
-            ref = sum(v for v, _ in self._q) / RECENT
-            s_ref = math.sqrt(sum(s * s for _, s in self._q)) / RECENT
-            drop = (ref - q) / math.sqrt(s_q * s_q + s_ref * s_ref)
+        if len(self._q) == self._q.maxlen and math.isfinite(s_q):
+            old, new = list(self._q)[:RECENT], [*list(self._q)[RECENT:], (q, s_q)]
+            ref = sum(v for v, _ in old) / RECENT
+            s_ref = math.sqrt(sum(s * s for _, s in old)) / RECENT
+            now = sum(v for v, _ in new) / DROP_FRAMES
+            s_now = math.sqrt(sum(s * s for _, s in new)) / DROP_FRAMES
+            drop = (ref - now) / math.sqrt(s_now * s_now + s_ref * s_ref)
         self._q.append((q, s_q))
         self.z, self.drop = z, drop
         m, s_m = self.margin
         at_limit = (not self.sliding and self.history.frames >= MARGIN_FRAMES and s_m <= MARGIN_SIGMA
                     and m <= s_m)
         if not self.sliding:
-            if gone and (at_limit or z > ONSET_Z or drop > DROP_Z
-                         or (mobilised and (joint > CONFIRM_Z or both > COMBINE_Z))):
+            rules = {"margin": at_limit, "slide": z > ONSET_Z, "drop": drop > DROP_Z,
+                     "plateau": mobilised and joint > CONFIRM_Z, "combined": mobilised and both > COMBINE_Z}
+            if gone and any(rules.values()):
+                self.rules = tuple(k for k, v in rules.items() if v)
                 self.sliding = True
                 self._calm = 0
                 event = SlipEvent("onset", frame)
