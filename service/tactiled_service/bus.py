@@ -15,12 +15,23 @@ Publishing never blocks the event loop (:class:`Sender`).  The reading side, for
 # queries on P/<sensor>/latest (the newest estimate) and P/health; liveliness token P.
 # Payloads: one shared json_messages.Encoder, UTF-8, encoding application/json.
 #
-# Why a sender thread: Publisher.put is synchronous and, with congestion control DROP, still
-# waits up to wait_before_drop (1 ms by default) for a full transmission queue, so the loop only
-# queues the text and Sender calls put.  Its queue is bounded; when full the oldest item is
-# dropped and counted (zenoh.dropped in the health document).  Estimates of a key no subscriber
-# matches are not even encoded.  A subscriber that stopped reading is Zenoh's business: its
-# link's queue fills and Zenoh drops for that link only (invisible from Python).
+# Congestion control (``zenoh.reliable``): by default everything is put with DROP: a subscriber
+# that stalls, a slow network or a full link costs the others nothing, but every Zenoh node on the
+# way (this daemon, each router) drops a message for a link whose queue (two 64 KB batches) stays
+# full for wait_before_drop (1 ms), silently; a CPU-starved machine does that to healthy links
+# (measured: runs of 1-100 estimates lost per 3 s, at the daemon and at the router, three CPU hogs
+# on 2 cores).  With ``reliable`` estimates and slip events are put with BLOCK (they wait for room;
+# the congestion control travels with each sample and routers honour it), frames and health stay
+# on DROP.  BLOCK makes put wait, so a subscriber that stopped reading holds up this daemon's other
+# links until Zenoh closes its link (blocked for wait_before_close, 5 s by default; a zenoh.config
+# file may shorten it, at the risk of closing a slow but healthy link: 1 s did, under load); the
+# sender's queue is then RELIABLE_QUEUE_SIZE, more than 5 s of three 1 kHz sensors, so the others
+# see a pause, not a gap.
+#
+# Why a sender thread: Publisher.put is synchronous (BLOCK: until there is room, at most
+# wait_before_close; DROP: at most wait_before_drop), so the loop only queues the text and Sender
+# calls put.  Its queue is bounded; when full the oldest item is dropped and counted (zenoh.dropped
+# in the health document).  Estimates of a key no subscriber matches are not even encoded.
 # Queries arrive on Zenoh's threads; the answer is built on the event loop (daemon and encoder
 # are not thread-safe) and sent from the query's thread.  Opening and closing the session run on
 # threads of their own, so a slow network never stalls acquisition; a client whose router cannot
@@ -55,6 +66,19 @@ HEALTH_TICK_S = 0.1  # s between status checks (a change is published within thi
 QUERY_TIMEOUT_S = 2.0  # s a query waits for the event loop before it is answered with an error
 CLOSE_TIMEOUT_S = 2.0  # s closing the session may take before it is abandoned
 RETRY_MIN_S, RETRY_MAX_S = 0.5, 4.0  # s between attempts to reach a client's router
+#: Items the bus's sender may fall behind with ``zenoh.reliable``: more than Zenoh's
+#: wait_before_close (5 s) of three 1 kHz sensors, the longest an estimate's put waits for a
+#: stalled link.
+RELIABLE_QUEUE_SIZE = 16384
+
+
+def congestion(kind: str, reliable: bool) -> Any:
+    """Zenoh's congestion control for a publication of ``kind`` (``estimate``, ``slip``,
+    ``frame``, ``health``): BLOCK for estimates and slip events with ``zenoh.reliable``, DROP
+    otherwise (module comment)."""
+    if reliable and kind in ("estimate", "slip"):
+        return zenoh.CongestionControl.BLOCK
+    return zenoh.CongestionControl.DROP
 
 
 # --------------------------------------------------------------------------------------------
@@ -173,13 +197,15 @@ class Bus:
     """
 
     def __init__(self, settings: ZenohSettings, daemon: Daemon, encoder: Encoder,
-                 health: Any, queue_size: int = QUEUE_SIZE) -> None:
+                 health: Any, queue_size: int | None = None) -> None:
         self.settings = settings
         self.daemon = daemon
         self.encoder = encoder
         self.health = health
         self.prefix = settings.prefix
         self.config = session_config(settings)
+        if queue_size is None:
+            queue_size = RELIABLE_QUEUE_SIZE if settings.reliable else QUEUE_SIZE
         self.sender = Sender(queue_size, kinds=("estimate", "frame", "slip", "health"))
         self.session: zenoh.Session | None = None
         self.state = "new"  # new, connecting (a client retrying its router), open, closed
@@ -258,7 +284,6 @@ class Bus:
             await _in_thread(session.close, "tactiled-zenoh-close", CLOSE_TIMEOUT_S)
             return
         self.session = session
-        drop = zenoh.CongestionControl.DROP
         for name in self.daemon.sensors:
             for kind, pubs in (("estimate", self._estimate_pubs), ("frame", self._frame_pubs),
                                ("slip", self._slip_pubs)):
@@ -267,7 +292,8 @@ class Bus:
                 if kind == "slip" and getattr(self.daemon.sensors[name], "shear", None) is None:
                     continue  # a 1-axis array has no slip events
                 key = f"{self.prefix}/{name}/{kind}"
-                pub = session.declare_publisher(key, encoding=JSON, congestion_control=drop)
+                pub = session.declare_publisher(
+                    key, encoding=JSON, congestion_control=congestion(kind, self.settings.reliable))
                 pubs[name] = pub
                 self._matching[key] = False
                 self._declared.append(pub.declare_matching_listener(
@@ -275,8 +301,8 @@ class Bus:
             self._declared.append(session.declare_queryable(
                 f"{self.prefix}/{name}/latest",
                 zenoh.handlers.Callback(self._latest_handler(name)), complete=True))
-        self._health_pub = session.declare_publisher(self.health_key, encoding=JSON,
-                                                     congestion_control=drop)
+        self._health_pub = session.declare_publisher(
+            self.health_key, encoding=JSON, congestion_control=congestion("health", False))
         self._declared.append(session.declare_queryable(
             self.health_key, zenoh.handlers.Callback(self._on_health_query), complete=True))
         self._declared.append(session.liveliness().declare_token(self.prefix))

@@ -19,7 +19,7 @@ command line).  Everything is validated once, here, and every problem is a
 #     [record]   path, format = "tact" ("mcap", "both")
 #     [zenoh]    enabled = false, mode = "peer", connect = [], listen = [],
 #                multicast_scouting = (on in peer mode), prefix = "tactiled/<hostname>",
-#                frame_rate_hz = 0, config = (none)
+#                frame_rate_hz = 0, config = (none), reliable = false
 #     [ros2]     enabled = false, domain_id = 0, namespace = "/tactiled", node_name = "tactiled",
 #                frame_id = "{sensor}", middleware = "auto" ("dds", "zenoh", "both"),
 #                distro = "jazzy" ("humble", "kilted", "rolling")

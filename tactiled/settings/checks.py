@@ -318,6 +318,7 @@ _ZENOH_FIELDS: dict[str, Callable[[Any, str], Any]] = {
     # Above the fastest sensor's frame rate the limit means nothing; 0 publishes no frame.
     "frame_rate_hz": _in_range(_as_float, 0.0, 10_000.0, "a rate in Hz"),
     "config": _optional(_as_str),
+    "reliable": _as_bool,
 }
 _ROS_SEGMENT = r"[A-Za-z_][A-Za-z0-9_]*"
 _ROS2_FIELDS: dict[str, Callable[[Any, str], Any]] = {

@@ -125,6 +125,10 @@ class ZenohSettings:
     prefix: str = field(default_factory=default_zenoh_prefix)  # every key starts with it
     frame_rate_hz: float = 0.0  # zeroed frames per second per sensor, at most; 0: none
     config: str | None = None  # a Zenoh configuration file (JSON5), applied first
+    #: Estimates and slip events put with congestion control BLOCK (no Zenoh node drops one
+    #: for a full queue; a stalled subscriber pauses the others up to wait_before_close) instead
+    #: of DROP (docs/howto/zenoh.md).
+    reliable: bool = False
 
     @property
     def scouting(self) -> bool:
