@@ -29,8 +29,6 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from tactiled.fit.params import (
     MAX_ANGLE_SIGMA,
     RADIUS_LIMITS,
@@ -41,7 +39,6 @@ from tactiled.fit.params import (
 from tactiled.fit.profile import FLAT_ACROSS
 from tactiled.physics import hertz
 
-_NO_JAC = np.zeros((0, 0))
 
 #: What the ellipse rule withholds: the values that say how large a contact is.
 SIZE_KEYS = ("force_n", "r1_mm", "r2_mm")
@@ -128,22 +125,16 @@ def ellipse_of(values: dict[str, Any], limits: ArrayLimits) -> dict[str, float] 
         angle = 0.0
     if math.isinf(r2) and math.isinf(limits.finger_radius):
         return None  # a cylinder on a flat array is a line, not an ellipse
-    # contact_ellipse_radii's arithmetic and its checks, without its records (a tracked
-    # estimate asks for one a frame): the same numbers, the same None where it raises
-    try:
-        kappa_a, kappa_b, psi = 1.0 / r1, 0.0 if math.isinf(r2) else 1.0 / r2, math.radians(angle)
-    except (ZeroDivisionError, OverflowError):
-        return None
-    if not (r2 > 0.0 and kappa_a >= 0.0 and kappa_b >= 0.0 and math.isfinite(f)
-            and math.isfinite(kappa_a) and math.isfinite(kappa_b) and math.isfinite(psi)):
+    if not r2 > 0.0:
         return None
     try:
-        a, b, theta, _ = hertz.ellipse_core(kappa_a, kappa_b, psi, f, limits.finger_radius,
-                                            limits.compliance, _NO_JAC)
+        a, b, theta, _ = hertz.ellipse_axes(1.0 / r1, 0.0 if math.isinf(r2) else 1.0 / r2,
+                                            math.radians(angle), f, limits.finger_radius,
+                                            limits.compliance)
     except (ValueError, ZeroDivisionError, OverflowError):
-        return None
+        return None  # (an infinite line among them)
     if not (math.isfinite(a) and math.isfinite(b) and a >= 0.0):
-        return None  # (a < 0: an infinite line, which contact_ellipse raises on)
+        return None
     return {"a_mm": a, "b_mm": b, "theta_deg": math.degrees(theta) % 180.0}
 
 

@@ -133,20 +133,30 @@ def contact_ellipse(
     model may cross over); curvatures must be >= 0, and an indentor whose flat direction lies
     exactly along the finger axis (an infinite line contact) is a ``ValueError``.
     """
+    out = np.empty((3, 4)) if jac else _NO_JAC
+    a, b, theta, m = ellipse_axes(kappa_a, kappa_b, psi, force, finger_radius, compliance, out)
+    return Ellipse(a, b, theta, m), (out if jac else None)
+
+
+def ellipse_axes(kappa_a: float, kappa_b: float, psi: float, force: float,
+                 finger_radius: float, compliance: float,
+                 out: np.ndarray = _NO_JAC) -> tuple[float, float, float, float]:
+    """:func:`contact_ellipse`'s numbers ``(a, b, theta, m)`` and its checks, without the
+    record (the verdict asks for one every published estimate); ``out``: its Jacobian, or
+    empty."""
     if not (kappa_a >= 0.0 and kappa_b >= 0.0 and force > 0.0 and math.isfinite(force)
             and math.isfinite(kappa_a) and math.isfinite(kappa_b) and math.isfinite(psi)):
         raise ValueError(
             f"need finite curvatures >= 0 and force > 0, got kappa_a={kappa_a!r}, "
             f"kappa_b={kappa_b!r}, psi={psi!r}, force={force!r}"
         )
-    out = np.empty((3, 4)) if jac else _NO_JAC
     a, b, theta, m = ellipse_core(kappa_a, kappa_b, psi, force, finger_radius, compliance, out)
     if a < 0.0:
         raise ValueError(
             "contact is an infinite line (indentor axis parallel to the finger axis): "
             f"kappa_a={kappa_a!r}, kappa_b={kappa_b!r}, psi={psi!r} rad"
         )
-    return Ellipse(a, b, theta, m), (out if jac else None)
+    return a, b, theta, m
 
 
 def contact_ellipse_radii(
