@@ -221,10 +221,14 @@ def make_estimate(*, sensor: str, sensor_id: int, seq: int, device_time_us: int,
                   fit: dict[str, Any], stamp: float | None = None) -> Estimate:
     """An :class:`Estimate` stamped as published now; ``stamp``: the frame's time (Unix s;
     None or NaN: now, for a frame no clock stamped)."""
-    if stamp is None or not math.isfinite(stamp):
-        stamp = time.time()
-    return Estimate(sensor, sensor_id, seq, device_time_us, host_time, time.monotonic(), stamp,
-                    gate, fitted_seq, worker_ms, fit)
+    return Estimate(sensor, sensor_id, seq, device_time_us, host_time, time.monotonic(),
+                    published_stamp(stamp), gate, fitted_seq, worker_ms, fit)
+
+
+def published_stamp(stamp: float | None) -> float:
+    """An estimate's stamp (Unix s): its frame's time, or now for a frame no clock stamped
+    (None or NaN)."""
+    return stamp if stamp is not None and math.isfinite(stamp) else time.time()
 
 
 def zeroed_frame(sensor: str, sensor_id: int, seq: int, device_time_us: int, host_time: float,

@@ -17,7 +17,6 @@ no contact published without the per-frame Python path (:meth:`SensorPipeline.on
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
@@ -26,7 +25,7 @@ import numpy as np
 
 from tactiled.frames import Frame
 from tactiled.pipeline import tracked_run
-from tactiled.pipeline.estimate import GATE_NO_CONTACT, Estimate
+from tactiled.pipeline.estimate import GATE_NO_CONTACT, Estimate, published_stamp
 
 if TYPE_CHECKING:
     from tactiled.pipeline.sensor import SensorPipeline
@@ -124,11 +123,9 @@ def _publish_quiet(pipe: SensorPipeline, run: Sequence[Frame], z: np.ndarray,
                                                   frame.time)
         hub.publish_frame(name, sensor_id, seq, device_us, host, False, statistic[j], strain,
                           stamp)
-        if stamp is None or not math.isfinite(stamp):  # (as make_estimate)
-            stamp = time.time()
         ordinal += 1
-        pipe._send(Estimate(name, sensor_id, seq, device_us, host, time.monotonic(), stamp,
-                            GATE_NO_CONTACT, None, 0.0, fit), ordinal)
+        pipe._send(Estimate(name, sensor_id, seq, device_us, host, time.monotonic(),
+                            published_stamp(stamp), GATE_NO_CONTACT, None, 0.0, fit), ordinal)
     pipe.frames += end - i
     pipe.skipped[GATE_NO_CONTACT] += end - i
     pipe._ordinal = pipe.quiet_at = ordinal

@@ -43,6 +43,7 @@ from tactiled.pipeline.estimate import (
     GATE_UNCHANGED,
     Estimate,
     plain,
+    published_stamp,
 )
 from tactiled.pipeline.gate import Gate
 from tactiled import native
@@ -524,8 +525,7 @@ class SensorPipeline:
             fit = self.shear.annotate(fit)
         rule = judge_fresh if fresh else judge  # the one rule on all (tactiled.fit.verdict)
         rule(fit, self._limits, withhold_relative_sigma=WITHHOLD_RELATIVE_SIGMA)
-        stamp = w.stamp  # (None or NaN: a frame no clock stamped: now, as make_estimate)
-        stamp = stamp if stamp is not None and math.isfinite(stamp) else time.time()
+        stamp = published_stamp(w.stamp)
         est = Estimate(self.name, w.sensor_id, w.seq, w.device_time_us, w.host_time,
                        time.monotonic(), stamp, gate, fitted_seq, worker_ms, fit)
         self._send(est, w.ordinal)
